@@ -1,0 +1,66 @@
+"""The layout of a Redline recording (format version 1).
+
+An MCAP file with profile ``redline``. Every zenoh sample becomes a message on a channel whose topic
+is the sample's key expression. Redline's own data travels on the run's isolated zenoh network
+under ``@redline/`` (which ``**`` does not match, so components subscribing to everything never see
+it) and lands on these channels, all JSON-encoded:
+
+``@redline/counters/<process>``
+    ``{"t_ns", "pid", "process", "values": {counter: number}}``, one message per monitor sample.
+``@redline/markers``
+    ``{"t_ns", "event": "begin" | "end", "case", "phase", "params": {...}, "warmup": bool}``:
+    the progress of the test; counter samples between a begin and its end belong to that segment.
+``@redline/driver/<case>/<phase>``
+    driver-side metrics (achieved rates, lateness, round trips), free-form JSON objects.
+
+Metadata records: ``redline.run`` (component, revision, sort key, commit, job id, suite hash,
+versions, start and end), ``redline.host`` (the host fingerprint), ``redline.recorder`` (counts of
+samples received, written and dropped). All values are strings, as MCAP requires.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from typing import Any
+
+PROFILE = "redline"
+FORMAT_VERSION = "1"
+
+REDLINE_PREFIX = "@redline/"
+COUNTERS_PREFIX = "@redline/counters/"
+MARKERS_KEY = "@redline/markers"
+DRIVER_PREFIX = "@redline/driver/"
+
+META_RUN = "redline.run"
+META_HOST = "redline.host"
+META_RECORDER = "redline.recorder"
+
+JSON_ENCODING = "json"
+
+
+def canonical_params(params: dict[str, Any]) -> str:
+    """The canonical text of a parameter set: JSON with sorted keys and no spaces."""
+    return json.dumps(params, sort_keys=True, separators=(",", ":"), default=str)
+
+
+def params_name(params: dict[str, Any]) -> str:
+    """The printable name of a parameter set, e.g. ``legs=4,rate=10``."""
+    if not params:
+        return "default"
+    return ",".join(f"{key}={params[key]}" for key in sorted(params))
+
+
+@dataclass(frozen=True, order=True)
+class SeriesKey:
+    """A series is named, never addressed by position: case, phase, parameter set, process, counter."""
+
+    case: str
+    phase: str
+    params: str  # canonical_params(...)
+    process: str
+    counter: str
+
+    def label(self) -> str:
+        params = params_name(json.loads(self.params))
+        return f"{self.case}/{self.phase}[{params}] {self.process}.{self.counter}"

@@ -1,0 +1,92 @@
+"""Writing a Redline recording."""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+from typing import Any, BinaryIO
+
+from mcap.writer import CompressionType, Writer
+
+from redline.recording.format import (
+    COUNTERS_PREFIX,
+    FORMAT_VERSION,
+    JSON_ENCODING,
+    MARKERS_KEY,
+    PROFILE,
+)
+
+
+def _strings(data: dict[str, Any]) -> dict[str, str]:
+    return {
+        str(key): value if isinstance(value, str) else json.dumps(value, default=str)
+        for key, value in data.items()
+    }
+
+
+class RecordingWriter:
+    """Appends messages to one MCAP file; one channel per topic, registered on first use.
+
+    Not thread-safe: the recorder feeds it from a single writer thread.
+    """
+
+    def __init__(self, path: str | Path, *, library: str = "redline") -> None:
+        self.path = Path(path)
+        self._stream: BinaryIO = open(self.path, "wb")  # noqa: SIM115 - closed in close()
+        self._writer = Writer(self._stream, compression=CompressionType.ZSTD)
+        self._writer.start(profile=PROFILE, library=f"{library} (format {FORMAT_VERSION})")
+        self._channels: dict[str, int] = {}
+        self._sequence = 0
+        self.messages = 0
+        self._closed = False
+
+    def _channel(self, topic: str, encoding: str) -> int:
+        channel = self._channels.get(topic)
+        if channel is None:
+            channel = self._writer.register_channel(topic, encoding or "", 0, {})
+            self._channels[topic] = channel
+        return channel
+
+    def write(self, topic: str, data: bytes, *, encoding: str = "", t_ns: int | None = None) -> None:
+        """Write one message; ``t_ns`` is its log time (now if not given)."""
+        stamp = time.time_ns() if t_ns is None else t_ns
+        self._sequence += 1
+        self._writer.add_message(
+            self._channel(topic, encoding), log_time=stamp, data=data,
+            publish_time=stamp, sequence=self._sequence,
+        )
+        self.messages += 1
+
+    def write_json(self, topic: str, obj: dict[str, Any]) -> None:
+        """Write a JSON message; its log time is ``obj["t_ns"]`` when present."""
+        self.write(topic, json.dumps(obj).encode(), encoding=JSON_ENCODING, t_ns=obj.get("t_ns"))
+
+    def counters(self, process: str, pid: int, values: dict[str, float], t_ns: int) -> None:
+        self.write_json(
+            COUNTERS_PREFIX + process,
+            {"t_ns": t_ns, "pid": pid, "process": process, "values": values},
+        )
+
+    def marker(self, event: str, case: str, phase: str, params: dict[str, Any], *,
+               warmup: bool = False, t_ns: int | None = None) -> None:
+        self.write_json(MARKERS_KEY, {
+            "t_ns": time.time_ns() if t_ns is None else t_ns, "event": event, "case": case,
+            "phase": phase, "params": params, "warmup": warmup,
+        })
+
+    def metadata(self, name: str, data: dict[str, Any]) -> None:
+        self._writer.add_metadata(name, _strings(data))
+
+    def close(self) -> None:
+        if self._closed:
+            return
+        self._closed = True
+        self._writer.finish()
+        self._stream.close()
+
+    def __enter__(self) -> RecordingWriter:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

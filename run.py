@@ -1,0 +1,81 @@
+#!/usr/bin/env python3
+"""Bootstrap and run Redline from a fresh checkout, needing only Python 3.11 and pip.
+
+    python3 run.py demo [ARGS]   install what is needed, then `redline demo ARGS`
+    python3 run.py test [ARGS]   install what is needed, then run the test suite (pytest ARGS)
+    python3 run.py redline ARGS  install what is needed, then any `redline` command
+
+It makes `.venv/` with `python -m venv`, puts `uv` into it with pip, and lets uv install the
+workspace (agent and server, editable) from `uv.lock`. Browser tests need Debian's Chromium;
+`test` installs it with apt-get when it is missing and we are root.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent
+VENV = ROOT / ".venv"
+BIN = VENV / "bin"
+CHROMIUM = Path("/usr/bin/chromium")
+
+
+def say(message: str) -> None:
+    print(f"[run.py] {message}", flush=True)
+
+
+def run(cmd: list[str], **kwargs: object) -> None:
+    subprocess.run(cmd, check=True, **kwargs)  # type: ignore[call-overload]
+
+
+def ensure_environment() -> None:
+    if sys.version_info[:2] != (3, 11):
+        sys.exit(f"[run.py] Redline needs Python 3.11; this is {sys.version.split()[0]}")
+    if not (BIN / "python").exists():
+        say(f"creating {VENV}")
+        run([sys.executable, "-m", "venv", str(VENV)])
+    if not (BIN / "uv").exists():
+        say("installing uv into the virtual environment")
+        run([str(BIN / "python"), "-m", "pip", "install", "--quiet", "uv>=0.4"])
+    say("syncing the workspace (uv sync)")
+    env = dict(os.environ, UV_PROJECT_ENVIRONMENT=str(VENV), VIRTUAL_ENV=str(VENV))
+    # --inexact keeps uv itself, which pip put into this environment.
+    run([str(BIN / "uv"), "sync", "--all-packages", "--inexact", "--quiet"], cwd=ROOT, env=env)
+
+
+def ensure_chromium() -> None:
+    if CHROMIUM.exists():
+        return
+    if shutil.which("apt-get") is None or os.geteuid() != 0:
+        say("Chromium is missing and cannot be installed here (needs root and apt-get); "
+            "browser tests will fail until /usr/bin/chromium exists")
+        return
+    say("installing Debian's chromium for the browser tests")
+    run(["apt-get", "update", "-qq"])
+    run(["apt-get", "install", "-y", "-qq", "chromium"], env=dict(os.environ, DEBIAN_FRONTEND="noninteractive"))
+
+
+def main(argv: list[str]) -> int:
+    if not argv or argv[0] not in {"demo", "test", "redline"}:
+        print(__doc__)
+        return 2
+    command, rest = argv[0], argv[1:]
+    ensure_environment()
+    if command == "test":
+        ensure_chromium()
+        args = [str(BIN / "python"), "-m", "pytest", *rest]
+    elif command == "demo":
+        args = [str(BIN / "redline"), "demo", *rest]
+    else:
+        args = [str(BIN / "redline"), *rest]
+    os.chdir(ROOT)
+    os.execv(args[0], args)
+    return 0  # not reached
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))

