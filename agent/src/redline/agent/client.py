@@ -1,0 +1,95 @@
+"""The agent's side of the job protocol (docs/contracts-agent-server.md), over HTTP."""
+
+from __future__ import annotations
+
+import hashlib
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import httpx
+
+UPLOAD_CHUNK = 1 << 20
+
+
+class LeaseLost(RuntimeError):
+    """The server gave this job's lease to someone else."""
+
+
+class UploadRejected(RuntimeError):
+    """The server refused the recording (4xx): retrying the same file cannot help."""
+
+
+def sha256_of(path: Path) -> str:
+    digest = hashlib.sha256()
+    with open(path, "rb") as stream:
+        for block in iter(lambda: stream.read(UPLOAD_CHUNK), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def _chunks(path: Path) -> Iterator[bytes]:
+    with open(path, "rb") as stream:
+        yield from iter(lambda: stream.read(UPLOAD_CHUNK), b"")
+
+
+class ServerClient:
+    def __init__(self, server: str, token: str, host: str, *, timeout: float = 30.0) -> None:
+        self.host = host
+        self._http = httpx.Client(
+            base_url=server.rstrip("/"), timeout=timeout,
+            headers={"Authorization": f"Bearer {token}"},
+        )
+
+    def close(self) -> None:
+        self._http.close()
+
+    def register(self, fingerprint: dict[str, Any], labels: list[str]) -> int:
+        answer = self._http.post("/api/v1/agent/register", json={
+            "name": self.host, "fingerprint": fingerprint, "labels": labels,
+        })
+        answer.raise_for_status()
+        return int(answer.json()["host_id"])
+
+    def lease(self) -> dict[str, Any] | None:
+        answer = self._http.post("/api/v1/agent/lease", json={"host": self.host})
+        if answer.status_code == 204:
+            return None
+        answer.raise_for_status()
+        return dict(answer.json())
+
+    def heartbeat(self, job_id: int) -> None:
+        answer = self._http.post(f"/api/v1/jobs/{job_id}/heartbeat", json={"host": self.host})
+        if answer.status_code == 409:
+            raise LeaseLost(f"job {job_id}: {answer.text}")
+        answer.raise_for_status()
+
+    def fail(self, job_id: int, reason: str) -> None:
+        self._http.post(f"/api/v1/jobs/{job_id}/fail", json={"reason": reason[-4000:]})
+
+    def upload(self, job_id: int, recording: Path, *, attempts: int = 5, backoff: float = 1.0) -> int:
+        """Stream the recording; retried with exponential backoff on network errors and 5xx.
+
+        The server keys uploads by sha256, so a retry after a lost answer never doubles a result.
+        """
+        digest = sha256_of(recording)
+        headers = {"X-Redline-Sha256": digest, "Content-Type": "application/octet-stream",
+                   "Content-Length": str(recording.stat().st_size)}
+        for attempt in range(1, attempts + 1):
+            try:
+                answer = self._http.put(f"/api/v1/jobs/{job_id}/recording",
+                                        content=_chunks(recording), headers=headers)
+            except httpx.TransportError:
+                if attempt == attempts:
+                    raise
+            else:
+                if answer.status_code < 500:
+                    if answer.status_code >= 400:
+                        raise UploadRejected(f"upload of {recording.name} refused "
+                                             f"({answer.status_code}): {answer.text}")
+                    return int(answer.json()["execution_id"])
+                if attempt == attempts:
+                    answer.raise_for_status()
+            time.sleep(backoff * 2 ** (attempt - 1))
+        raise AssertionError("unreachable")

@@ -1,0 +1,159 @@
+"""`redline agent`: the performance-host daemon.
+
+It registers, then loops: lease a job, check out the revision, build it, run its suite while
+heartbeating, upload the recording, and go back for the next job. Agents pull; the server never
+reaches into a performance host.
+"""
+
+from __future__ import annotations
+
+import logging
+import shlex
+import subprocess
+import threading
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from redline.agent.checkout import CloneCache
+from redline.agent.client import LeaseLost, ServerClient, UploadRejected
+from redline.agent.host import host_fingerprint
+from redline.agent.runner import run_suite
+from redline.agent.suite import load_suite
+
+log = logging.getLogger("redline.agent")
+
+BUILD_TIMEOUT_S = 1800
+
+
+class JobFailed(RuntimeError):
+    """A job could not be completed; the message is the reason the server records."""
+
+
+@dataclass
+class AgentDaemon:
+    client: ServerClient
+    workdir: Path
+    labels: list[str] = field(default_factory=list)
+    poll_interval: float = 2.0
+    heartbeat_interval: float = 10.0
+    stop: threading.Event = field(default_factory=threading.Event)
+
+    def __post_init__(self) -> None:
+        self.cache = CloneCache(self.workdir / "cache")
+        (self.workdir / "recordings").mkdir(parents=True, exist_ok=True)
+
+    def run_forever(self) -> None:
+        self.client.register(host_fingerprint(), self.labels)
+        log.info("agent %s registered; waiting for jobs", self.client.host)
+        while not self.stop.is_set():
+            try:
+                worked = self.run_once()
+            except Exception:  # the server may be down: keep polling, never die
+                log.exception("agent loop error; retrying in %.0fs", self.poll_interval)
+                worked = False
+            if not worked:
+                self.stop.wait(self.poll_interval)
+
+    def run_once(self) -> bool:
+        """Lease and process one job; False when none was queued."""
+        job = self.client.lease()
+        if job is None:
+            return False
+        log.info("job %s: %s %s (%s)", job["id"], job["component"],
+                 job["revision"]["title"], job["commit"][:12])
+        try:
+            execution = self._process(job)
+            log.info("job %s: uploaded as execution %s", job["id"], execution)
+        except (JobFailed, UploadRejected) as exc:
+            log.error("job %s failed: %s", job["id"], exc)
+            self.client.fail(job["id"], str(exc))
+        except LeaseLost as exc:
+            log.warning("job %s: lease lost, abandoning it (%s)", job["id"], exc)
+        return True
+
+    def _process(self, job: dict[str, Any]) -> int:
+        name = f"job-{job['id']}"
+        beats = _Heartbeat(self.client, job["id"], self.heartbeat_interval)
+        beats.start()
+        try:
+            tree = self.cache.checkout(job["repo"], job["commit"], name)
+            suite_path = tree / job["suite"]
+            if not suite_path.is_file():
+                raise JobFailed(f"suite file {job['suite']} not found at commit {job['commit']}")
+            suite = load_suite(suite_path)
+            _build(suite.build, suite_path.parent)
+            out = self.workdir / "recordings" / f"{name}.mcap"
+            run_suite(suite_path, out, run_metadata=_run_metadata(job))
+            beats.check()
+            execution = self.client.upload(job["id"], out)
+            out.unlink(missing_ok=True)
+            return execution
+        except (JobFailed, LeaseLost, UploadRejected):
+            raise
+        except Exception as exc:
+            raise JobFailed(f"{type(exc).__name__}: {exc}") from exc
+        finally:
+            beats.stop()
+            self.cache.discard(name)
+
+
+def _run_metadata(job: dict[str, Any]) -> dict[str, str]:
+    return {
+        "job_id": str(job["id"]),
+        "component": job["component"],
+        "revision_title": job["revision"]["title"],
+        "revision_sort_key": str(job["revision"]["sort_key"]),
+        "commit": job["commit"],
+        "execution_index": str(job["execution_index"]),
+    }
+
+
+def _build(command: str | None, cwd: Path) -> None:
+    if not command:
+        return
+    log.info("building: %s", command)
+    try:
+        done = subprocess.run(shlex.split(command), cwd=cwd, capture_output=True, text=True,
+                              timeout=BUILD_TIMEOUT_S)
+    except (OSError, subprocess.TimeoutExpired) as exc:
+        raise JobFailed(f"build command {command!r} could not run: {exc}") from exc
+    if done.returncode != 0:
+        tail = (done.stdout + done.stderr).strip()[-2000:]
+        raise JobFailed(f"build command {command!r} exited with {done.returncode}:\n{tail}")
+
+
+class _Heartbeat:
+    """Extends the job's lease in the background; remembers if the lease was lost."""
+
+    def __init__(self, client: ServerClient, job_id: int, interval: float) -> None:
+        self._client, self._job_id, self._interval = client, job_id, interval
+        self._stop = threading.Event()
+        self._lost: LeaseLost | None = None
+        self._thread = threading.Thread(target=self._loop, name=f"heartbeat-{job_id}", daemon=True)
+
+    def start(self) -> None:
+        self._beat()
+        self._thread.start()
+
+    def _beat(self) -> None:
+        try:
+            self._client.heartbeat(self._job_id)
+        except LeaseLost as exc:
+            self._lost = exc
+            self._stop.set()
+        except Exception:  # a missed beat is not fatal: the lease outlives several intervals
+            log.warning("heartbeat for job %s failed", self._job_id, exc_info=True)
+
+    def _loop(self) -> None:
+        while not self._stop.wait(self._interval):
+            self._beat()
+
+    def check(self) -> None:
+        if self._lost is not None:
+            raise self._lost
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread.is_alive():
+            self._thread.join(timeout=5)
