@@ -24,7 +24,8 @@ class Services:
     redis_url: str
 
 
-def _fresh_database(admin_url: str) -> tuple[str, str]:
+def fresh_database(admin_url: str) -> tuple[str, str]:
+    """A new, empty database on the server behind ``admin_url``; returns its URL and name."""
     import sqlalchemy as sa
 
     name = f"redline_test_{uuid.uuid4().hex[:10]}"
@@ -42,7 +43,7 @@ def services(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Services]:
     embedded = EmbeddedServices()
     configured_db = os.environ.get("REDLINE_TEST_DATABASE_URL")
     if configured_db:
-        database_url, _ = _fresh_database(configured_db)
+        database_url, _ = fresh_database(configured_db)
     else:
         database_url, embedded.postgres = start_postgres(
             Path(tmp_path_factory.mktemp("pg")), "redline_test")
