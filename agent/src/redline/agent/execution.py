@@ -1,0 +1,62 @@
+"""Running the test cases: every case, phase and parameter set in order, between markers."""
+
+from __future__ import annotations
+
+import json
+import threading
+import time
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import zenoh
+from redline.agent.processes import RunError
+from redline.recording.format import MARKERS_KEY
+from redline.testing import Context, Link, ParameterSet, Phase, TestCase
+
+
+class Markers:
+    """Publishes begin/end markers on ``@redline/markers`` (format in recording/format.py)."""
+
+    def __init__(self, session: zenoh.Session) -> None:
+        # Markers are rare and a lost one loses a whole segment, so this publisher may block.
+        self._publisher = session.declare_publisher(
+            MARKERS_KEY, congestion_control=zenoh.CongestionControl.BLOCK)
+
+    def publish(self, event: str, case: str, phase: Phase, params: dict[str, Any]) -> None:
+        self._publisher.put(json.dumps({
+            "t_ns": time.time_ns(), "event": event, "case": case, "phase": phase.name,
+            "params": params, "warmup": phase.warmup,
+        }, default=str))
+
+    def close(self) -> None:
+        self._publisher.undeclare()
+
+
+def _run_segment(case: TestCase, phase: Phase, params: ParameterSet, link: Link,
+                 markers: Markers, stop: threading.Event) -> None:
+    ctx = Context(params, case.name, phase.name, link, stop)
+    markers.publish("begin", case.name, phase, params)
+    try:
+        phase.action.run(ctx)
+    except Exception as exc:
+        raise RunError(f"test case {case.name!r}, phase {phase.name!r} [{params.name}]: "
+                       f"{type(exc).__name__}: {exc}") from exc
+    finally:
+        markers.publish("end", case.name, phase, params)
+
+
+def execute_cases(cases: Sequence[TestCase], link: Link, markers: Markers,
+                  stop: threading.Event, say: Callable[[str], None]) -> int:
+    """Run every case → phase → parameter set until done or ``stop``; returns segments run."""
+    done = 0
+    for case in cases:
+        sets = case.parameter_sets()
+        for phase in case.phases:
+            for params in sets:
+                if stop.is_set():
+                    return done
+                label = " (warm-up)" if phase.warmup else ""
+                say(f"{case.name}/{phase.name} [{params.name}]{label}")
+                _run_segment(case, phase, params, link, markers, stop)
+                done += 1
+    return done

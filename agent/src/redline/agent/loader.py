@@ -1,0 +1,52 @@
+"""Loading a suite's test modules from their file paths and collecting their test cases."""
+
+from __future__ import annotations
+
+import hashlib
+import importlib.util
+import sys
+import traceback
+from pathlib import Path
+from types import ModuleType
+
+from redline.agent.processes import RunError
+from redline.testing import TestCase
+
+
+def _where(exc: BaseException, path: Path) -> str:
+    """``path:line`` of the deepest frame of ``exc`` inside the test module (or just the path)."""
+    if isinstance(exc, SyntaxError) and exc.lineno:
+        return f"{path}:{exc.lineno}"
+    frames = [f for f in traceback.extract_tb(exc.__traceback__) if Path(f.filename) == path]
+    return f"{path}:{frames[-1].lineno}" if frames else str(path)
+
+
+def import_module(path: Path) -> ModuleType:
+    """Import a test module from its file; its directory is importable while it loads."""
+    name = "redline_tests_" + hashlib.sha1(str(path).encode()).hexdigest()[:12]
+    spec = importlib.util.spec_from_file_location(name, path)
+    if spec is None or spec.loader is None:
+        raise RunError(f"{path}: cannot be imported as a Python module")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module
+    sys.path.insert(0, str(path.parent))
+    try:
+        spec.loader.exec_module(module)
+    except Exception as exc:
+        sys.modules.pop(name, None)
+        detail = "".join(traceback.format_exception_only(exc)).strip()
+        raise RunError(f"{_where(exc, path)}: cannot import test module: {detail}") from exc
+    finally:
+        sys.path.remove(str(path.parent))
+    return module
+
+
+def load_test_cases(paths: tuple[Path, ...] | list[Path]) -> list[TestCase]:
+    """Every `TestCase` defined at the top level of the modules, in module and definition order."""
+    cases: list[TestCase] = []
+    for path in paths:
+        found = [v for v in vars(import_module(path)).values() if isinstance(v, TestCase)]
+        if not found:
+            raise RunError(f"{path}: defines no TestCase at its top level")
+        cases.extend(case for case in found if all(case is not c for c in cases))
+    return cases

@@ -1,0 +1,114 @@
+"""What an action sees while it runs: the parameter set, the zenoh link, the stop signal."""
+
+from __future__ import annotations
+
+import json
+import threading
+import time
+from collections.abc import Mapping
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import zenoh
+from redline.recording.format import DRIVER_PREFIX
+
+SPIN_NS = 1_000_000  # sleep to ~1 ms before a deadline, then spin: plain sleep drifts (FIELD-NOTES)
+
+
+class Link:
+    """The test driver's zenoh session with one declared publisher per key, shared by actions.
+
+    Thread-safe, so actions running in parallel can share it. Publishers never use
+    ``CongestionControl.BLOCK``: the load generator must not be throttled by a slow subscriber.
+    """
+
+    def __init__(self, session: zenoh.Session) -> None:
+        self.session = session
+        self._publishers: dict[tuple[str, str | None], zenoh.Publisher] = {}
+        self._lock = threading.Lock()
+
+    def publisher(self, key: str, encoding: str | None = None) -> zenoh.Publisher:
+        """The publisher for ``key`` (declared on first use, then cached)."""
+        ident = (key, encoding)
+        with self._lock:
+            found = self._publishers.get(ident)
+            if found is None:
+                found = self.session.declare_publisher(
+                    key, encoding=encoding, congestion_control=zenoh.CongestionControl.DROP,
+                )
+                self._publishers[ident] = found
+            return found
+
+    def put_json(self, key: str, obj: dict[str, Any]) -> None:
+        """Publish a JSON object (Redline's own messages: driver metrics)."""
+        self.publisher(key, "application/json").put(json.dumps(obj, default=str))
+
+    def close(self) -> None:
+        """Undeclare every publisher (the session itself belongs to the caller)."""
+        with self._lock:
+            for publisher in self._publishers.values():
+                publisher.undeclare()
+            self._publishers.clear()
+
+
+@dataclass
+class Context:
+    """The state an action runs in.
+
+    ``params`` is the current parameter set; ``link`` the zenoh link (``None`` when actions run
+    outside a test run, e.g. in a unit test); ``stop`` is set when the run must end early (Ctrl-C,
+    a component that died, or a parent action's time limit), and long-running actions watch it.
+    """
+
+    params: Mapping[str, Any]
+    case: str = ""
+    phase: str = ""
+    link: Link | None = None
+    stop: threading.Event = field(default_factory=threading.Event)
+    reports: list[dict[str, Any]] = field(default_factory=list)
+
+    def param(self, name: str) -> Any:
+        """The value of parameter ``name``; a clear KeyError when the set does not provide it."""
+        try:
+            return self.params[name]
+        except KeyError:
+            raise KeyError(f"test case {self.case!r}, phase {self.phase!r}: parameter {name!r} "
+                           f"is not in this parameter set ({sorted(self.params)})") from None
+
+    @property
+    def stopped(self) -> bool:
+        """True once the run (or the enclosing action) asked actions to finish early."""
+        return self.stop.is_set()
+
+    def require_link(self) -> Link:
+        """The zenoh link, or a clear error when the action runs outside a test run."""
+        if self.link is None:
+            raise RuntimeError("this action talks over zenoh and needs a Context with a link")
+        return self.link
+
+    def with_stop(self, stop: threading.Event) -> Context:
+        """A copy with its own stop signal, for actions that interrupt their children."""
+        return replace(self, stop=stop)
+
+    def sleep_until(self, deadline_ns: int) -> bool:
+        """Wait until ``time.perf_counter_ns()`` reaches ``deadline_ns``; False if stopped first.
+
+        Sleeps (interruptibly) to ~1 ms before the deadline, then spins for precision.
+        """
+        while True:
+            remaining = deadline_ns - time.perf_counter_ns()
+            if remaining <= SPIN_NS:
+                break
+            if self.stop.wait(min(remaining - SPIN_NS, 100_000_000) / 1e9):
+                return False
+        while time.perf_counter_ns() < deadline_ns:
+            pass
+        return not self.stop.is_set()
+
+    def report(self, metrics: dict[str, Any]) -> None:
+        """Record driver-side metrics; published on ``@redline/driver/<case>/<phase>`` in a run."""
+        message = {"t_ns": time.time_ns(), "case": self.case, "phase": self.phase,
+                   "params": dict(self.params), **metrics}
+        self.reports.append(message)
+        if self.link is not None:
+            self.link.put_json(f"{DRIVER_PREFIX}{self.case}/{self.phase}", message)
