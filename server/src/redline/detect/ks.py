@@ -1,0 +1,54 @@
+"""The two-sample Kolmogorov-Smirnov test on the D statistic (Wienke & Wrede's first method).
+
+A pure function over numpy arrays: no database, no I/O.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import stats
+
+#: p-value below which the two samples are taken to come from different distributions.
+DEFAULT_ALPHA = 0.01
+#: smallest relative change of the mean worth reporting (the design's effect-size floor).
+DEFAULT_MIN_EFFECT = 0.10
+
+
+@dataclass(frozen=True)
+class KsResult:
+    statistic: float  # D: the largest distance between the two empirical CDFs, 0..1
+    p_value: float
+    effect: float  # (mean(candidate) - mean(baseline)) / |mean(baseline)|
+    flagged: bool
+
+
+def relative_effect(baseline: np.ndarray, candidate: np.ndarray) -> float:
+    """Relative change of the mean; 0 when both means are 0, +-inf when only the baseline's is."""
+    before, after = float(np.mean(baseline)), float(np.mean(candidate))
+    if before == 0.0:
+        return 0.0 if after == 0.0 else math.copysign(math.inf, after)
+    return (after - before) / abs(before)
+
+
+def ks(baseline: np.ndarray, candidate: np.ndarray, *, alpha: float = DEFAULT_ALPHA,
+       min_effect: float = DEFAULT_MIN_EFFECT) -> KsResult:
+    """Compare a candidate revision's samples of one series with its baseline's.
+
+    ``flagged`` is true when the KS test rejects equality (``p_value < alpha``, default 0.01)
+    *and* the mean moved by at least ``min_effect`` relative to the baseline (default 0.10,
+    i.e. 10 %), so that statistically clear but tiny changes of long series stay quiet.
+    Raises ValueError when either sample is empty.
+    """
+    base = np.asarray(baseline, dtype=np.float64).ravel()
+    cand = np.asarray(candidate, dtype=np.float64).ravel()
+    if base.size == 0 or cand.size == 0:
+        raise ValueError("both samples need at least one value "
+                         f"(baseline has {base.size}, candidate {cand.size})")
+    result = stats.ks_2samp(base, cand)
+    statistic, p_value = float(result.statistic), float(result.pvalue)
+    effect = relative_effect(base, cand)
+    flagged = p_value < alpha and abs(effect) >= min_effect
+    return KsResult(statistic=statistic, p_value=p_value, effect=effect, flagged=flagged)

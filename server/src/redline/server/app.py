@@ -1,0 +1,31 @@
+"""The FastAPI application factory."""
+
+from __future__ import annotations
+
+from fastapi import FastAPI, Request
+from fastapi.responses import JSONResponse
+from redline.server.core.config import Settings, get_settings
+from redline.server.routes import agent, components, health, jobs, revisions, web
+from redline.server.services.errors import ServiceError
+from redline.worker.app import TaskSender
+
+
+async def _service_error(request: Request, exc: Exception) -> JSONResponse:
+    assert isinstance(exc, ServiceError)
+    return JSONResponse({"detail": exc.detail}, status_code=exc.status_code)
+
+
+def create_app(settings: Settings | None = None) -> FastAPI:
+    """The Redline server; ``settings`` default to the environment (``REDLINE_*``).
+
+    The database must already be migrated (``redline.server.db.migrate``).
+    """
+    settings = settings or get_settings()
+    app = FastAPI(title="Redline", version="1", summary="Performance regressions, per revision")
+    app.state.settings = settings
+    app.state.tasks = TaskSender(settings)
+    app.add_exception_handler(ServiceError, _service_error)
+    for module in (health, components, revisions, agent, jobs):
+        app.include_router(module.router)
+    web.mount(app, settings)
+    return app

@@ -1,0 +1,33 @@
+"""Settings from the environment (prefix ``REDLINE_``), e.g. ``REDLINE_DATABASE_URL``."""
+
+from __future__ import annotations
+
+from functools import lru_cache
+from pathlib import Path
+
+from pydantic_settings import BaseSettings, SettingsConfigDict
+
+# server/src/redline/server/core/config.py -> the repository root holds web/ and migrations/
+REPO_ROOT = Path(__file__).resolve().parents[5]
+
+
+class Settings(BaseSettings):
+    """Everything the server and the worker need to know; each field is ``REDLINE_<NAME>``."""
+
+    model_config = SettingsConfigDict(env_prefix="REDLINE_", extra="ignore")
+
+    database_url: str = "postgresql+psycopg://postgres@127.0.0.1:5432/redline"
+    redis_url: str = "redis://127.0.0.1:6379/0"
+    queue: str = "redline"  # the Celery queue; distinct names keep stacks sharing a Redis apart
+    storage_dir: Path = Path("redline-data/storage")
+    web_dir: Path = REPO_ROOT / "web"
+    migrations_dir: Path = REPO_ROOT / "migrations"
+    lease_seconds: int = 120
+    max_attempts: int = 3
+    max_upload_bytes: int = 2 * 1024**3
+
+
+@lru_cache
+def get_settings() -> Settings:
+    """The settings of this process, read once from the environment."""
+    return Settings()

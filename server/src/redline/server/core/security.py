@@ -1,0 +1,35 @@
+"""API tokens: random bearer secrets, stored only as their sha256."""
+
+from __future__ import annotations
+
+import hashlib
+import secrets
+
+SCOPES = frozenset({"ci", "agent", "read", "admin"})
+TOKEN_PREFIX = "rl_"
+
+
+def new_token() -> str:
+    """A fresh bearer token; shown once, never stored in clear."""
+    return TOKEN_PREFIX + secrets.token_urlsafe(32)
+
+
+def hash_token(token: str) -> str:
+    return hashlib.sha256(token.encode()).hexdigest()
+
+
+def parse_scopes(text: str | list[str]) -> list[str]:
+    """Validate a scope list (``"ci,agent"`` or a list); raises ValueError naming an unknown one."""
+    items = text.split(",") if isinstance(text, str) else list(text)
+    scopes = sorted({item.strip() for item in items if item.strip()})
+    unknown = [scope for scope in scopes if scope not in SCOPES]
+    if unknown:
+        raise ValueError(f"unknown scope {unknown[0]!r}; known: {', '.join(sorted(SCOPES))}")
+    if not scopes:
+        raise ValueError("a token needs at least one scope")
+    return scopes
+
+
+def grants(scopes: list[str], needed: str) -> bool:
+    """``admin`` implies every scope."""
+    return needed in scopes or "admin" in scopes

@@ -1,0 +1,46 @@
+"""Engines, sessions and schema migration."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from contextlib import contextmanager
+from functools import lru_cache
+from pathlib import Path
+
+from redline.server.core.config import REPO_ROOT
+from sqlalchemy import Engine, create_engine
+from sqlalchemy.orm import Session, sessionmaker
+
+
+@lru_cache
+def get_engine(database_url: str) -> Engine:
+    """One pooled engine per database URL in this process."""
+    return create_engine(database_url, pool_pre_ping=True)
+
+
+def session_factory(database_url: str) -> sessionmaker[Session]:
+    return sessionmaker(get_engine(database_url), expire_on_commit=False)
+
+
+@contextmanager
+def session_scope(database_url: str) -> Iterator[Session]:
+    """A session whose transaction commits on success and rolls back on error."""
+    with session_factory(database_url)() as session, session.begin():
+        yield session
+
+
+def alembic_config(database_url: str, migrations_dir: Path | None = None):  # noqa: ANN201
+    from alembic.config import Config
+
+    config = Config(str(REPO_ROOT / "alembic.ini"))
+    config.set_main_option("script_location", str(migrations_dir or REPO_ROOT / "migrations"))
+    # '%' is configparser's interpolation character; URLs may carry percent-escapes
+    config.set_main_option("sqlalchemy.url", database_url.replace("%", "%%"))
+    return config
+
+
+def migrate(database_url: str, migrations_dir: Path | None = None) -> None:
+    """Upgrade the database at ``database_url`` to the newest schema (Alembic ``head``)."""
+    from alembic import command
+
+    command.upgrade(alembic_config(database_url, migrations_dir), "head")

@@ -1,0 +1,172 @@
+"""The database tables (SQLAlchemy 2, typed). Schema changes go through Alembic (migrations/)."""
+
+from __future__ import annotations
+
+import enum
+from datetime import UTC, datetime
+from typing import Any
+
+from sqlalchemy import (
+    JSON,
+    BigInteger,
+    Boolean,
+    DateTime,
+    Enum,
+    Float,
+    ForeignKey,
+    Integer,
+    String,
+    Text,
+    UniqueConstraint,
+)
+from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column, relationship
+
+
+def utcnow() -> datetime:
+    return datetime.now(UTC)
+
+
+class Base(DeclarativeBase):
+    type_annotation_map = {datetime: DateTime(timezone=True), dict[str, Any]: JSON}
+
+
+class JobState(enum.StrEnum):
+    queued = "queued"
+    leased = "leased"
+    running = "running"
+    uploaded = "uploaded"
+    done = "done"
+    failed = "failed"
+    cancelled = "cancelled"
+
+
+class Component(Base):
+    __tablename__ = "component"
+    id: Mapped[int] = mapped_column(primary_key=True)
+    name: Mapped[str] = mapped_column(String(200), unique=True)
+    repo: Mapped[str] = mapped_column(Text, default="")
+    branch: Mapped[str] = mapped_column(String(200), default="main")
+    suite: Mapped[str] = mapped_column(Text, default="")
+    executions: Mapped[int] = mapped_column(Integer, default=1)
+    created: Mapped[datetime] = mapped_column(default=utcnow)
+
+
+class Revision(Base):
+    __tablename__ = "revision"
+    __table_args__ = (UniqueConstraint("component_id", "title"),)
+    id: Mapped[int] = mapped_column(primary_key=True)
+    component_id: Mapped[int] = mapped_column(ForeignKey("component.id"), index=True)
+    title: Mapped[str] = mapped_column(String(200))
+    sort_key: Mapped[str] = mapped_column(String(200))
+    # sort_key with digit runs made comparable as text ("9" < "10"); "C" collation: bytewise order
+    order_key: Mapped[str] = mapped_column(String(1000, collation="C"), index=True)
+    commit: Mapped[str] = mapped_column(String(200), default="")
+    repo: Mapped[str] = mapped_column(Text, default="")
+    created: Mapped[datetime] = mapped_column(default=utcnow)
+    component: Mapped[Component] = relationship()
+    jobs: Mapped[list[Job]] = relationship(
+        back_populates="revision", order_by="Job.execution_index"
+    )
+
+
+class Host(Base):
+    __tablename__ = "host"
+    id: Mapped[int] = mapped_column(primary_key=True)
+    name: Mapped[str] = mapped_column(String(200), unique=True)
+    fingerprint: Mapped[dict[str, Any]] = mapped_column(default=dict)
+    labels: Mapped[list[str]] = mapped_column(JSON, default=list)
+    last_seen: Mapped[datetime] = mapped_column(default=utcnow)
+
+
+class ApiToken(Base):
+    __tablename__ = "api_token"
+    id: Mapped[int] = mapped_column(primary_key=True)
+    name: Mapped[str] = mapped_column(String(200))
+    token_hash: Mapped[str] = mapped_column(String(64), unique=True)
+    scopes: Mapped[list[str]] = mapped_column(JSON)
+    created: Mapped[datetime] = mapped_column(default=utcnow)
+    last_used: Mapped[datetime | None] = mapped_column(default=None)
+    revoked: Mapped[bool] = mapped_column(Boolean, default=False)
+
+
+class Job(Base):
+    __tablename__ = "job"
+    __table_args__ = (UniqueConstraint("revision_id", "execution_index"),)
+    id: Mapped[int] = mapped_column(primary_key=True)
+    revision_id: Mapped[int] = mapped_column(ForeignKey("revision.id"), index=True)
+    execution_index: Mapped[int] = mapped_column(Integer)
+    state: Mapped[JobState] = mapped_column(
+        Enum(JobState, name="job_state", native_enum=False, length=20), default=JobState.queued,
+        index=True,
+    )
+    attempts: Mapped[int] = mapped_column(Integer, default=0)
+    lease_expires_at: Mapped[datetime | None] = mapped_column(default=None)
+    host_id: Mapped[int | None] = mapped_column(ForeignKey("host.id"), default=None)
+    reason: Mapped[str] = mapped_column(Text, default="")
+    created: Mapped[datetime] = mapped_column(default=utcnow)
+    updated: Mapped[datetime] = mapped_column(default=utcnow, onupdate=utcnow)
+    revision: Mapped[Revision] = relationship(back_populates="jobs")
+    host: Mapped[Host | None] = relationship()
+    execution: Mapped[Execution | None] = relationship(back_populates="job")
+
+
+class Execution(Base):
+    __tablename__ = "execution"
+    id: Mapped[int] = mapped_column(primary_key=True)
+    job_id: Mapped[int] = mapped_column(ForeignKey("job.id"), unique=True)
+    revision_id: Mapped[int] = mapped_column(ForeignKey("revision.id"), index=True)
+    recording_path: Mapped[str] = mapped_column(Text)
+    sha256: Mapped[str] = mapped_column(String(64), unique=True)
+    size: Mapped[int] = mapped_column(BigInteger, default=0)
+    meta: Mapped[dict[str, Any]] = mapped_column("metadata", JSON, default=dict)
+    created: Mapped[datetime] = mapped_column(default=utcnow)
+    job: Mapped[Job] = relationship(back_populates="execution")
+
+
+class Series(Base):
+    __tablename__ = "series"
+    __table_args__ = (
+        UniqueConstraint("component_id", "case", "phase", "params", "process", "counter"),
+    )
+    id: Mapped[int] = mapped_column(primary_key=True)
+    component_id: Mapped[int] = mapped_column(ForeignKey("component.id"), index=True)
+    case: Mapped[str] = mapped_column(String(200))
+    phase: Mapped[str] = mapped_column(String(200))
+    params: Mapped[str] = mapped_column(Text)  # redline.recording.canonical_params
+    process: Mapped[str] = mapped_column(String(200))
+    counter: Mapped[str] = mapped_column(String(200))
+
+
+class Summary(Base):
+    __tablename__ = "summary"
+    __table_args__ = (UniqueConstraint("execution_id", "series_id"),)
+    id: Mapped[int] = mapped_column(primary_key=True)
+    execution_id: Mapped[int] = mapped_column(ForeignKey("execution.id"), index=True)
+    series_id: Mapped[int] = mapped_column(ForeignKey("series.id"), index=True)
+    n: Mapped[int] = mapped_column(Integer)
+    mean: Mapped[float] = mapped_column(Float)
+    std: Mapped[float] = mapped_column(Float)
+    min: Mapped[float] = mapped_column(Float)
+    p5: Mapped[float] = mapped_column(Float)
+    p25: Mapped[float] = mapped_column(Float)
+    p50: Mapped[float] = mapped_column(Float)
+    p75: Mapped[float] = mapped_column(Float)
+    p95: Mapped[float] = mapped_column(Float)
+    max: Mapped[float] = mapped_column(Float)
+
+
+class Change(Base):
+    __tablename__ = "change"
+    __table_args__ = (UniqueConstraint("series_id", "revision_id", "method"),)
+    id: Mapped[int] = mapped_column(primary_key=True)
+    series_id: Mapped[int] = mapped_column(ForeignKey("series.id"), index=True)
+    revision_id: Mapped[int] = mapped_column(ForeignKey("revision.id"), index=True)
+    baseline_revision_id: Mapped[int] = mapped_column(ForeignKey("revision.id"))
+    method: Mapped[str] = mapped_column(String(50))
+    score: Mapped[float] = mapped_column(Float)
+    p_value: Mapped[float] = mapped_column(Float)
+    effect: Mapped[float] = mapped_column(Float)
+    flagged: Mapped[bool] = mapped_column(Boolean)
+    created: Mapped[datetime] = mapped_column(default=utcnow)
+    series: Mapped[Series] = relationship()
+    revision: Mapped[Revision] = relationship(foreign_keys=[revision_id])

@@ -1,0 +1,73 @@
+"""/api/v1/jobs/{id}: heartbeats, recording uploads and failures from the agent holding a job."""
+
+from __future__ import annotations
+
+import logging
+from typing import Annotated
+
+from fastapi import APIRouter, Depends, Header, Request, Response, status
+from redline.server.api.deps import SessionDep, SettingsDep, require
+from redline.server.core.config import Settings
+from redline.server.db import session_factory
+from redline.server.schemas import (
+    FailRequest,
+    HeartbeatResponse,
+    HostRequest,
+    JobStateOut,
+    Problem,
+    UploadResponse,
+)
+from redline.server.services import jobs
+from redline.server.services.errors import TooLarge
+from redline.server.services.uploads import Accepted, Staged, accept_recording, stage_upload
+from starlette.concurrency import run_in_threadpool
+
+log = logging.getLogger(__name__)
+router = APIRouter(prefix="/api/v1/jobs", tags=["jobs"], dependencies=[Depends(require("agent"))])
+PROBLEMS = {code: {"model": Problem} for code in (400, 404, 409, 413)}
+
+
+@router.post("/{job_id}/heartbeat", responses=PROBLEMS)
+def heartbeat(job_id: int, data: HostRequest, session: SessionDep,
+              settings: SettingsDep) -> HeartbeatResponse:
+    """Extend this host's lease; 409 when the job is no longer leased to it."""
+    job = jobs.heartbeat(session, job_id, data.host, settings.lease_seconds)
+    assert job.lease_expires_at is not None
+    return HeartbeatResponse(lease_expires_at=job.lease_expires_at)
+
+
+@router.post("/{job_id}/fail", responses=PROBLEMS)
+def fail(job_id: int, data: FailRequest, session: SessionDep) -> JobStateOut:
+    job = jobs.fail_job(session, job_id, data.reason)
+    return JobStateOut(id=job.id, state=job.state.value, reason=job.reason)
+
+
+def _accept(settings: Settings, job_id: int, staged: Staged, claimed: str) -> Accepted:
+    with session_factory(settings.database_url)() as session:
+        return accept_recording(session, settings.storage_dir, job_id, staged, claimed)
+
+
+@router.put("/{job_id}/recording", status_code=status.HTTP_201_CREATED,
+            responses={200: {"model": UploadResponse, "description": "already stored"},
+                       **PROBLEMS},
+            openapi_extra={"requestBody": {"required": True, "content": {
+                "application/octet-stream": {"schema": {"type": "string", "format": "binary"}}}}})
+async def upload_recording(
+    job_id: int, request: Request, response: Response, settings: SettingsDep,
+    x_redline_sha256: Annotated[str, Header(description="sha256 of the body, hex")],
+) -> UploadResponse:
+    """Store the job's MCAP recording (raw body) and queue its ingestion; idempotent by hash."""
+    declared = request.headers.get("content-length", "")
+    if declared.isdigit() and int(declared) > settings.max_upload_bytes:
+        raise TooLarge(f"recording of {declared} bytes is larger than the limit of "
+                       f"{settings.max_upload_bytes} bytes")
+    staged = await stage_upload(request.stream(), settings.storage_dir, settings.max_upload_bytes)
+    try:
+        accepted = await run_in_threadpool(_accept, settings, job_id, staged, x_redline_sha256)
+    finally:
+        staged.path.unlink(missing_ok=True)
+    if not accepted.created:
+        response.status_code = status.HTTP_200_OK
+    queued = accepted.needs_ingest and await run_in_threadpool(
+        request.app.state.tasks.ingest, accepted.execution_id)
+    return UploadResponse(execution_id=accepted.execution_id, ingest_queued=queued)

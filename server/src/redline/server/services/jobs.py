@@ -1,0 +1,121 @@
+"""The agent side of jobs: hosts register, lease a job, keep it alive, or give it up."""
+
+from __future__ import annotations
+
+from datetime import datetime, timedelta
+
+from redline.server.models import Host, Job, JobState, Revision, utcnow
+from redline.server.schemas import LeasedJob, LeasedRevision, RegisterRequest
+from redline.server.services.errors import Conflict, NotFound
+from sqlalchemy import and_, or_, select, update
+from sqlalchemy.orm import Session
+
+HELD = (JobState.leased, JobState.running)
+FINISHED = (JobState.done, JobState.failed, JobState.cancelled)
+
+
+def register_host(session: Session, data: RegisterRequest) -> Host:
+    """Create the host or refresh its fingerprint and labels (registering again is fine)."""
+    host = session.scalar(select(Host).where(Host.name == data.name).with_for_update())
+    if host is None:
+        host = Host(name=data.name)
+        session.add(host)
+    host.fingerprint = data.fingerprint
+    host.labels = data.labels
+    host.last_seen = utcnow()
+    session.commit()
+    return host
+
+
+def _host(session: Session, name: str) -> Host:
+    host = session.scalar(select(Host).where(Host.name == name))
+    if host is None:
+        raise NotFound(f"unknown host {name!r}; register it first")
+    return host
+
+
+def _fail_exhausted(session: Session, now: datetime, max_attempts: int) -> None:
+    """Jobs whose lease lapsed ``max_attempts`` times are failed instead of handed out again."""
+    session.execute(
+        update(Job)
+        .where(Job.state.in_(HELD), Job.lease_expires_at < now, Job.attempts >= max_attempts)
+        .values(state=JobState.failed, lease_expires_at=None, updated=now,
+                reason=f"lease expired {max_attempts} times without a recording")
+    )
+
+
+def lease_job(session: Session, host_name: str, lease_seconds: int,
+              max_attempts: int) -> Job | None:
+    """Hand the host the newest revision's next queued (or abandoned) job; None when none is.
+
+    ``FOR UPDATE SKIP LOCKED``: agents leasing at once never get the same job, nor wait.
+    """
+    host = _host(session, host_name)
+    now = utcnow()
+    _fail_exhausted(session, now, max_attempts)
+    available = or_(
+        Job.state == JobState.queued,
+        and_(Job.state.in_(HELD), Job.lease_expires_at < now),
+    )
+    job = session.scalar(
+        select(Job).join(Revision).where(available)
+        .order_by(Revision.order_key.desc(), Revision.id.desc(), Job.execution_index)
+        .limit(1).with_for_update(skip_locked=True, of=Job)
+    )
+    host.last_seen = now
+    if job is not None:
+        job.state = JobState.leased
+        job.host = host
+        job.attempts += 1
+        job.lease_expires_at = now + timedelta(seconds=lease_seconds)
+    session.commit()
+    return job
+
+
+def leased_job(job: Job) -> LeasedJob:
+    revision = job.revision
+    assert job.lease_expires_at is not None
+    return LeasedJob(
+        id=job.id, component=revision.component.name, repo=revision.repo, commit=revision.commit,
+        suite=revision.component.suite,
+        revision=LeasedRevision(title=revision.title, sort_key=revision.sort_key),
+        execution_index=job.execution_index, lease_expires_at=job.lease_expires_at,
+    )
+
+
+def _locked_job(session: Session, job_id: int) -> Job:
+    job = session.scalar(select(Job).where(Job.id == job_id).with_for_update())
+    if job is None:
+        raise NotFound(f"unknown job {job_id}")
+    return job
+
+
+def heartbeat(session: Session, job_id: int, host_name: str, lease_seconds: int) -> Job:
+    """Extend the lease of a job this host holds; the first heartbeat marks it running."""
+    job = _locked_job(session, job_id)
+    holder = job.host.name if job.host else None
+    if job.state not in HELD or holder != host_name:
+        raise Conflict(f"job {job_id} is not leased to host {host_name!r} "
+                       f"(state {job.state.value}, host {holder!r})")
+    now = utcnow()
+    job.state = JobState.running
+    job.lease_expires_at = now + timedelta(seconds=lease_seconds)
+    assert job.host is not None
+    job.host.last_seen = now
+    session.commit()
+    return job
+
+
+def fail_job(session: Session, job_id: int, reason: str) -> Job:
+    """Mark a job failed with the agent's reason; failing a failed job again changes nothing."""
+    job = _locked_job(session, job_id)
+    if job.state == JobState.failed:
+        session.commit()
+        return job
+    if job.state in FINISHED or job.state == JobState.uploaded:
+        raise Conflict(f"job {job_id} is already {job.state.value}")
+    job.state = JobState.failed
+    job.reason = reason
+    job.lease_expires_at = None
+    session.commit()
+    return job

@@ -1,0 +1,110 @@
+"""Revisions and their jobs: created by CI, ordered by an explicit sort key."""
+
+from __future__ import annotations
+
+import re
+from collections import Counter
+
+from redline.server.models import Job, JobState, Revision
+from redline.server.schemas import ExecutionOut, JobOut, RevisionCreate, RevisionDetail, RevisionOut
+from redline.server.services.components import get_component
+from redline.server.services.errors import Conflict, NotFound
+from sqlalchemy import select
+from sqlalchemy.exc import IntegrityError
+from sqlalchemy.orm import Session, selectinload
+
+_DIGITS = re.compile(r"\d+")
+_UNDER_WAY = (JobState.queued, JobState.leased, JobState.running, JobState.uploaded)
+
+
+def order_key(sort_key: str) -> str:
+    """``sort_key`` with every digit run prefixed by its length, so text order is numeric order.
+
+    "9" -> "019", "10" -> "0210": compared bytewise, "9" < "10" and "r2" < "r10". Titles are
+    never parsed; only the sort key the caller gave is normalized.
+    """
+
+    def run(match: re.Match[str]) -> str:
+        digits = match.group().lstrip("0") or "0"
+        return f"{len(digits):02d}{digits}"
+
+    return _DIGITS.sub(run, sort_key)
+
+
+def create_revision(session: Session, data: RevisionCreate) -> Revision:
+    """A revision and one queued job per execution the component asks for."""
+    component = get_component(session, data.component)
+    revision = Revision(
+        component=component, title=data.title, sort_key=data.sort_key,
+        order_key=order_key(data.sort_key), commit=data.commit,
+        repo=data.repo or component.repo,
+        jobs=[Job(execution_index=index) for index in range(component.executions)],
+    )
+    session.add(revision)
+    try:
+        session.commit()
+    except IntegrityError:
+        session.rollback()
+        raise Conflict(
+            f"component {data.component!r} already has a revision {data.title!r}"
+        ) from None
+    return revision
+
+
+def revision_state(states: list[JobState]) -> str:
+    """One word for a revision from its jobs' states.
+
+    ``queued`` while no job has started, ``running`` while any job is under way, then ``failed``
+    if any job failed, ``cancelled`` if all were, else ``done``.
+    """
+    counts = Counter(states)
+    if not states:
+        return "empty"
+    if counts[JobState.queued] == len(states):
+        return "queued"
+    if any(counts[state] for state in _UNDER_WAY):
+        return "running"
+    if counts[JobState.failed]:
+        return "failed"
+    return "cancelled" if counts[JobState.cancelled] == len(states) else "done"
+
+
+def _revision_out(revision: Revision) -> dict:
+    return dict(
+        id=revision.id, title=revision.title, sort_key=revision.sort_key, commit=revision.commit,
+        repo=revision.repo, created=revision.created,
+        state=revision_state([job.state for job in revision.jobs]),
+    )
+
+
+def list_revisions(session: Session, component_name: str) -> list[RevisionOut]:
+    component = get_component(session, component_name)
+    revisions = session.scalars(
+        select(Revision).where(Revision.component_id == component.id)
+        .order_by(Revision.order_key, Revision.id).options(selectinload(Revision.jobs))
+    )
+    return [RevisionOut(**_revision_out(revision)) for revision in revisions]
+
+
+def job_out(job: Job) -> JobOut:
+    execution = ExecutionOut.model_validate(job.execution) if job.execution else None
+    return JobOut(
+        id=job.id, execution_index=job.execution_index, state=job.state.value,
+        attempts=job.attempts, reason=job.reason, host=job.host.name if job.host else None,
+        lease_expires_at=job.lease_expires_at, execution=execution,
+    )
+
+
+def revision_detail(session: Session, component_name: str, title: str) -> RevisionDetail:
+    component = get_component(session, component_name)
+    revision = session.scalar(
+        select(Revision).where(Revision.component_id == component.id, Revision.title == title)
+        .options(selectinload(Revision.jobs).selectinload(Job.execution),
+                 selectinload(Revision.jobs).selectinload(Job.host))
+    )
+    if revision is None:
+        raise NotFound(f"component {component_name!r} has no revision {title!r}")
+    return RevisionDetail(
+        **_revision_out(revision), component=component.name,
+        jobs=[job_out(job) for job in revision.jobs],
+    )

@@ -1,0 +1,142 @@
+"""Recordings uploaded by agents: streamed to storage, checked, and stored only when valid.
+
+A file is staged under ``incoming/`` while it arrives; only a finished Redline recording whose
+``redline.run`` metadata matches its job is moved to ``recordings/<sha256>.mcap`` and becomes an
+execution, so a bad upload leaves nothing half-stored.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import uuid
+from collections.abc import AsyncIterator
+from dataclasses import dataclass
+from pathlib import Path
+
+from redline.recording import Recording, RecordingError, read_recording
+from redline.server.models import Execution, Job, JobState
+from redline.server.services.errors import BadRequest, Conflict, NotFound, TooLarge
+from redline.server.services.jobs import HELD
+from sqlalchemy import select
+from sqlalchemy.orm import Session
+
+
+@dataclass(frozen=True)
+class Staged:
+    path: Path
+    sha256: str
+    size: int
+
+
+@dataclass(frozen=True)
+class Accepted:
+    execution_id: int
+    created: bool
+    needs_ingest: bool
+
+
+async def stage_upload(chunks: AsyncIterator[bytes], storage_dir: Path, limit: int) -> Staged:
+    """Write the request body to ``incoming/``, hashing as it goes; TooLarge past ``limit``."""
+    incoming = storage_dir / "incoming"
+    incoming.mkdir(parents=True, exist_ok=True)
+    path = incoming / f"{uuid.uuid4().hex}.part"
+    digest = hashlib.sha256()
+    size = 0
+    try:
+        with open(path, "wb") as out:
+            async for chunk in chunks:
+                size += len(chunk)
+                if size > limit:
+                    raise TooLarge(f"recording is larger than the limit of {limit} bytes")
+                digest.update(chunk)
+                out.write(chunk)
+    except BaseException:
+        path.unlink(missing_ok=True)
+        raise
+    return Staged(path, digest.hexdigest(), size)
+
+
+def _mismatch(recording: Recording, job: Job) -> str:
+    """What in the recording's ``redline.run`` metadata contradicts the job, or ''."""
+    revision = job.revision
+    expected = {
+        "job_id": str(job.id), "component": revision.component.name,
+        "revision_title": revision.title, "revision_sort_key": revision.sort_key,
+        "execution_index": str(job.execution_index),
+    }
+    run = recording.run
+    for key, value in expected.items():
+        if key not in run:
+            return f"{recording.path.name}: redline.run metadata has no {key!r}"
+        if run[key] != value:
+            return (f"{recording.path.name}: redline.run {key} is {run[key]!r} "
+                    f"but job {job.id} expects {value!r}")
+    commit = run.get("commit", "")
+    # a revision may be reported by a short hash; the agent records what it checked out
+    if revision.commit and not (commit.startswith(revision.commit)
+                                or revision.commit.startswith(commit or "\0")):
+        return (f"{recording.path.name}: redline.run commit is {commit!r} "
+                f"but job {job.id} expects {revision.commit!r}")
+    return ""
+
+
+def _check(staged: Staged, job: Job) -> tuple[Recording | None, str]:
+    try:
+        recording = read_recording(staged.path, strict=True)
+    except RecordingError as exc:
+        return None, f"recording for job {job.id}: {exc}".replace(staged.path.name, "upload")
+    return recording, _mismatch(recording, job).replace(staged.path.name, "upload")
+
+
+def _existing(session: Session, job: Job, sha256: str) -> Accepted | None:
+    """The outcome of a repeated upload, or None when this is the job's first recording."""
+    same = session.scalar(select(Execution).where(Execution.sha256 == sha256))
+    if same is not None and same.job_id != job.id:
+        raise Conflict(f"this recording is already stored for job {same.job_id}")
+    if same is not None:
+        return Accepted(same.id, created=False, needs_ingest=job.state == JobState.uploaded)
+    if job.execution is not None:
+        raise Conflict(f"job {job.id} already has a different recording "
+                       f"(sha256 {job.execution.sha256})")
+    if job.state not in HELD:
+        raise Conflict(f"job {job.id} is {job.state.value}; only a leased or running job "
+                       "accepts a recording")
+    return None
+
+
+def accept_recording(session: Session, storage_dir: Path, job_id: int, staged: Staged,
+                     claimed_sha256: str) -> Accepted:
+    """Store a staged upload as the job's execution, or refuse it naming the problem.
+
+    Invalid recordings fail the job with the same reason they are refused with.
+    """
+    if claimed_sha256.strip().lower() != staged.sha256:
+        raise BadRequest(f"X-Redline-Sha256 {claimed_sha256!r} does not match the "
+                         f"{staged.size} bytes received (sha256 {staged.sha256}); send it again")
+    job = session.scalar(select(Job).where(Job.id == job_id).with_for_update())
+    if job is None:
+        raise NotFound(f"unknown job {job_id}")
+    repeated = _existing(session, job, staged.sha256)
+    if repeated is not None:
+        return repeated
+    recording, problem = _check(staged, job)
+    if problem or recording is None:
+        job.state, job.reason, job.lease_expires_at = JobState.failed, problem, None
+        session.commit()
+        raise BadRequest(problem)
+    final = storage_dir / "recordings" / f"{staged.sha256}.mcap"
+    final.parent.mkdir(parents=True, exist_ok=True)
+    os.replace(staged.path, final)
+    try:
+        execution = Execution(
+            job=job, revision_id=job.revision_id, recording_path=str(final),
+            sha256=staged.sha256, size=staged.size, meta=dict(recording.metadata),
+        )
+        session.add(execution)
+        job.state, job.lease_expires_at, job.reason = JobState.uploaded, None, ""
+        session.commit()
+    except BaseException:
+        final.unlink(missing_ok=True)
+        raise
+    return Accepted(execution.id, created=True, needs_ingest=True)

@@ -1,0 +1,104 @@
+"""Ingestion: one execution's MCAP recording -> series, summaries (Postgres) and samples (Parquet).
+
+Idempotent: running it again for the same execution replaces what the last run wrote.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+from redline.recording import SeriesKey, read_recording
+from redline.server.db import session_scope
+from redline.server.models import Execution, Job, JobState, Revision, Series, Summary
+from redline.worker.detection import samples_path, successor_with_data
+from sqlalchemy import delete, select
+from sqlalchemy.dialects.postgresql import insert
+from sqlalchemy.orm import Session
+
+log = logging.getLogger(__name__)
+
+QUANTILES = {"p5": 5, "p25": 25, "p50": 50, "p75": 75, "p95": 95}
+
+
+def summarize(values: np.ndarray) -> dict[str, float]:
+    """n, mean, std (population), min, max and the quantiles of one series' samples."""
+    stats: dict[str, float] = {
+        "n": int(values.size), "mean": float(values.mean()), "std": float(values.std()),
+        "min": float(values.min()), "max": float(values.max()),
+    }
+    for name, value in zip(QUANTILES, np.percentile(values, list(QUANTILES.values())),
+                           strict=True):
+        stats[name] = float(value)
+    return stats
+
+
+def _series_ids(session: Session, component_id: int, keys: list[SeriesKey]) -> dict[SeriesKey, int]:
+    """Create the series the recording names that do not exist yet; return every key's id."""
+    if keys:
+        rows = [dict(component_id=component_id, case=k.case, phase=k.phase, params=k.params,
+                     process=k.process, counter=k.counter) for k in keys]
+        session.execute(insert(Series).values(rows).on_conflict_do_nothing())
+    known = session.scalars(select(Series).where(Series.component_id == component_id))
+    by_key = {SeriesKey(s.case, s.phase, s.params, s.process, s.counter): s.id for s in known}
+    return {key: by_key[key] for key in keys}
+
+
+def _write_samples(path: Path, ids: dict[SeriesKey, int],
+                   samples: dict[SeriesKey, list[float]]) -> None:
+    series = np.concatenate([np.full(len(samples[k]), ids[k], dtype=np.int64) for k in ids]
+                            or [np.empty(0, dtype=np.int64)])
+    values = np.concatenate([np.asarray(samples[k], dtype=np.float64) for k in ids]
+                            or [np.empty(0, dtype=np.float64)])
+    partial = path.with_suffix(".part")
+    pq.write_table(pa.table({"series_id": series, "value": values}), partial)
+    os.replace(partial, path)
+
+
+def _ingest(session: Session, execution: Execution) -> None:
+    recording = read_recording(execution.recording_path, strict=True)
+    samples = {key: values for key, values in recording.series_samples().items() if values}
+    revision = session.get_one(Revision, execution.revision_id)
+    ids = _series_ids(session, revision.component_id, sorted(samples))
+    session.execute(delete(Summary).where(Summary.execution_id == execution.id))
+    session.add_all(
+        Summary(execution_id=execution.id, series_id=ids[key],
+                **summarize(np.asarray(samples[key], dtype=np.float64)))
+        for key in ids
+    )
+    _write_samples(samples_path(execution.recording_path), ids, samples)
+    job = session.get_one(Job, execution.job_id)
+    job.state, job.reason = JobState.done, ""
+
+
+def _fail(database_url: str, execution_id: int, reason: str) -> None:
+    with session_scope(database_url) as session:
+        execution = session.get(Execution, execution_id)
+        if execution is not None:
+            job = session.get_one(Job, execution.job_id)
+            job.state, job.reason = JobState.failed, reason
+
+
+def ingest_execution(database_url: str, execution_id: int) -> list[int]:
+    """Ingest one execution in one transaction and mark its job done.
+
+    Returns the revisions whose changes should be detected now: the execution's own, and the
+    next revision (by sort key) that already has data, whose baseline this one may have become.
+    A failure marks the job failed with the reason and is raised again.
+    """
+    try:
+        with session_scope(database_url) as session:
+            execution = session.get(Execution, execution_id)
+            if execution is None:
+                log.warning("execution %s no longer exists; nothing to ingest", execution_id)
+                return []
+            _ingest(session, execution)
+            later = successor_with_data(session, execution.revision_id)
+            return [execution.revision_id] + ([later] if later is not None else [])
+    except Exception as exc:
+        _fail(database_url, execution_id, f"ingest failed: {exc}")
+        raise

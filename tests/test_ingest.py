@@ -1,0 +1,195 @@
+"""Ingestion and detection on real Postgres, over real MCAP files written by RecordingWriter."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pyarrow.parquet as pq
+import pytest
+from sqlalchemy import func, select, text
+
+from redline.recording import RecordingWriter
+from redline.server.db import migrate, session_factory
+from redline.server.models import Change, Execution, Job, JobState, Revision, Series, Summary
+from redline.server.schemas import ComponentCreate, RevisionCreate
+from redline.server.services.components import create_component
+from redline.server.services.revisions import create_revision
+from redline.worker.detection import detect_revision, samples_path
+from redline.worker.ingest import ingest_execution
+from tests.conftest import Services
+
+CASE, PHASE, PARAMS, PROCESS = "throughput", "publish", {"rate": 10}, "component"
+TABLES = "change, summary, series, execution, job, revision, component, host, api_token"
+
+
+def write_recording(path: Path, run: dict[str, str], counters: dict[str, np.ndarray],
+                    *, warmup: dict[str, np.ndarray] | None = None) -> Path:
+    """A finished Redline recording: one segment per phase, one counter sample per 10 ms."""
+    with RecordingWriter(path) as writer:
+        writer.metadata("redline.run", run)
+        t_ns = 1_000_000_000
+        for phase, values, is_warmup in (("warmup", warmup, True), (PHASE, counters, False)):
+            if values is None:
+                continue
+            writer.marker("begin", CASE, phase, PARAMS, warmup=is_warmup, t_ns=t_ns)
+            for index in range(len(next(iter(values.values())))):
+                t_ns += 10_000_000
+                sample = {name: float(column[index]) for name, column in values.items()}
+                writer.counters(PROCESS, 4242, sample, t_ns)
+            t_ns += 10_000_000
+            writer.marker("end", CASE, phase, PARAMS, warmup=is_warmup, t_ns=t_ns)
+    return path
+
+
+def run_metadata(job: Job, component: str, title: str, sort_key: str,
+                 commit: str = "") -> dict[str, str]:
+    return {"job_id": str(job.id), "component": component, "revision_title": title,
+            "revision_sort_key": sort_key, "commit": commit,
+            "execution_index": str(job.execution_index)}
+
+
+@pytest.fixture(scope="module")
+def database_url(services: Services) -> str:
+    migrate(services.database_url)
+    return services.database_url
+
+
+@pytest.fixture
+def session(database_url: str):
+    """A session on an emptied database: every test starts from no data."""
+    with session_factory(database_url)() as session:
+        session.execute(text(f"TRUNCATE {TABLES} RESTART IDENTITY CASCADE"))
+        session.commit()
+        yield session
+
+
+def add_execution(session, tmp_path: Path, component: str, title: str, sort_key: str,
+                  counters: dict[str, np.ndarray], **extra) -> Execution:
+    """Report a revision and store a recording for its job, as an upload would."""
+    revision = create_revision(session, RevisionCreate(component=component, title=title,
+                                                       sort_key=sort_key))
+    job = revision.jobs[0]
+    path = write_recording(tmp_path / f"{component}-{title}.mcap",
+                           run_metadata(job, component, title, sort_key), counters, **extra)
+    execution = Execution(job_id=job.id, revision_id=revision.id, recording_path=str(path),
+                          sha256=f"{component}-{title}".ljust(64, "0"), size=path.stat().st_size)
+    job.state = JobState.uploaded
+    session.add(execution)
+    session.commit()
+    return execution
+
+
+def _history(session, tmp_path: Path, factors: list[float], seed: int = 1) -> list[Execution]:
+    """Revisions r1.. of 'builder' whose cpu scales by ``factors``; rss stays put throughout."""
+    create_component(session, ComponentCreate(name="builder"))
+    rng = np.random.default_rng(seed)
+    executions = []
+    for number, factor in enumerate(factors, start=1):
+        counters = {"cpu": factor * rng.normal(20.0, 2.0, 200),
+                    "rss": rng.normal(50e6, 1e5, 200)}
+        executions.append(add_execution(session, tmp_path, "builder", f"r{number}", str(number),
+                                        counters))
+    return executions
+
+
+def test_ingest_writes_summaries_parquet_and_marks_the_job_done(session, database_url, tmp_path):
+    (execution,) = _history(session, tmp_path, [1.0])
+    revisions = ingest_execution(database_url, execution.id)
+    session.expire_all()
+    assert revisions == [execution.revision_id]
+    assert session.get(Job, execution.job_id).state == JobState.done
+    series = {s.counter: s for s in session.scalars(select(Series))}
+    assert set(series) == {"cpu", "rss"}
+    assert series["cpu"].params == '{"rate":10}'
+    cpu = session.scalar(select(Summary).where(Summary.series_id == series["cpu"].id))
+    assert cpu.n == 200
+    assert 18.0 < cpu.mean < 22.0 and 1.0 < cpu.std < 3.0
+    assert cpu.min <= cpu.p5 <= cpu.p25 <= cpu.p50 <= cpu.p75 <= cpu.p95 <= cpu.max
+    table = pq.read_table(samples_path(execution.recording_path)).to_pandas()
+    values = table[table.series_id == series["cpu"].id].value.to_numpy()
+    assert values.size == 200 and values.mean() == pytest.approx(cpu.mean)
+
+
+def test_ingest_twice_replaces_rather_than_doubles(session, database_url, tmp_path):
+    (execution,) = _history(session, tmp_path, [1.0])
+    ingest_execution(database_url, execution.id)
+    ingest_execution(database_url, execution.id)
+    assert session.scalar(select(func.count()).select_from(Summary)) == 2
+    assert session.scalar(select(func.count()).select_from(Series)) == 2
+
+
+def test_warmup_phase_is_left_out_of_the_summaries(session, database_url, tmp_path):
+    create_component(session, ComponentCreate(name="builder"))
+    execution = add_execution(session, tmp_path, "builder", "r1", "1",
+                              {"cpu": np.full(30, 10.0)}, warmup={"cpu": np.full(30, 99.0)})
+    ingest_execution(database_url, execution.id)
+    summary = session.scalar(select(Summary))
+    assert (summary.n, summary.max) == (30, 10.0)
+
+
+def test_damaged_recording_fails_the_job_with_the_reason(session, database_url, tmp_path):
+    (execution,) = _history(session, tmp_path, [1.0])
+    data = Path(execution.recording_path).read_bytes()
+    Path(execution.recording_path).write_bytes(data[: len(data) // 2])
+    with pytest.raises(ValueError, match="truncated"):
+        ingest_execution(database_url, execution.id)
+    session.expire_all()
+    job = session.get(Job, execution.job_id)
+    assert job.state == JobState.failed
+    assert "truncated" in job.reason
+    assert session.scalar(select(func.count()).select_from(Summary)) == 0
+
+
+def _changes(session) -> dict[tuple[str, str], Change]:
+    rows = session.execute(select(Change, Series.counter, Revision.title)
+                           .join(Series, Series.id == Change.series_id)
+                           .join(Revision, Revision.id == Change.revision_id))
+    return {(counter, title): change for change, counter, title in rows}
+
+
+def test_tripled_counter_is_flagged_and_unchanged_one_is_not(session, database_url, tmp_path):
+    executions = _history(session, tmp_path, [1.0, 1.0, 3.0])
+    for execution in executions:
+        ingest_execution(database_url, execution.id)
+    for execution in executions:
+        detect_revision(database_url, execution.revision_id)
+    changes = _changes(session)
+    assert ("cpu", "r1") not in changes and ("rss", "r1") not in changes  # no predecessor
+    assert not changes[("cpu", "r2")].flagged and not changes[("rss", "r2")].flagged
+    tripled = changes[("cpu", "r3")]
+    assert tripled.flagged and tripled.method == "ks"
+    assert tripled.effect == pytest.approx(2.0, abs=0.15)
+    assert tripled.baseline_revision_id == executions[1].revision_id
+    assert not changes[("rss", "r3")].flagged
+
+
+def test_detect_again_replaces_its_changes(session, database_url, tmp_path):
+    executions = _history(session, tmp_path, [1.0, 3.0])
+    for execution in executions:
+        ingest_execution(database_url, execution.id)
+    detect_revision(database_url, executions[1].revision_id)
+    detect_revision(database_url, executions[1].revision_id)
+    assert session.scalar(select(func.count()).select_from(Change)) == 2
+
+
+def test_ingesting_an_earlier_revision_late_asks_to_redetect_its_successor(
+        session, database_url, tmp_path):
+    first, second = _history(session, tmp_path, [1.0, 3.0])
+    assert ingest_execution(database_url, second.id) == [second.revision_id]
+    assert detect_revision(database_url, second.revision_id) == []  # no baseline with data yet
+    assert ingest_execution(database_url, first.id) == [first.revision_id, second.revision_id]
+    detect_revision(database_url, second.revision_id)
+    assert _changes(session)[("cpu", "r2")].flagged
+
+
+def test_baseline_follows_sort_key_not_report_order(session, database_url, tmp_path):
+    create_component(session, ComponentCreate(name="builder"))
+    late = add_execution(session, tmp_path, "builder", "v10", "10", {"cpu": np.full(50, 30.0)})
+    early = add_execution(session, tmp_path, "builder", "v9", "9", {"cpu": np.full(50, 10.0)})
+    for execution in (late, early):
+        ingest_execution(database_url, execution.id)
+    (change,) = detect_revision(database_url, late.revision_id)
+    assert change.baseline_revision_id == early.revision_id
+    assert change.effect == pytest.approx(2.0)
+    assert detect_revision(database_url, early.revision_id) == []
