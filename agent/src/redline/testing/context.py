@@ -61,8 +61,8 @@ class Context:
     """
 
     params: Mapping[str, Any]
-    case: str = ""
-    phase: str = ""
+    case: str = "adhoc"  # actions run outside a test case (unit tests, a REPL) report under these
+    phase: str = "adhoc"
     link: Link | None = None
     stop: threading.Event = field(default_factory=threading.Event)
     reports: list[dict[str, Any]] = field(default_factory=list)
