@@ -7,8 +7,6 @@ from pathlib import Path
 import numpy as np
 import pyarrow.parquet as pq
 import pytest
-from sqlalchemy import func, select, text
-
 from redline.recording import RecordingWriter
 from redline.server.db import migrate, session_factory
 from redline.server.models import Change, Execution, Job, JobState, Revision, Series, Summary
@@ -17,6 +15,8 @@ from redline.server.services.components import create_component
 from redline.server.services.revisions import create_revision
 from redline.worker.detection import detect_revision, samples_path
 from redline.worker.ingest import ingest_execution
+from sqlalchemy import func, select, text
+
 from tests.conftest import Services
 
 CASE, PHASE, PARAMS, PROCESS = "throughput", "publish", {"rate": 10}, "component"
