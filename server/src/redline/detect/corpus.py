@@ -1,0 +1,169 @@
+"""Labelled corpora for evaluating detectors: the format, the SAP HANA loader, evaluation units.
+
+Format (see ``docs/detection.md``): a directory with ``measurements.parquet`` or
+``measurements.csv`` (columns ``series``, ``build``, ``value``; one row per sample, builds
+ordered by ``build``) and ``labels.json`` (``{"name", "source", "license", "series": {id:
+{"label": str, "change_build": int | null}}}``, ``change_build`` being the first build after
+the change). The SAP data set (CC-BY-4.0, SAP/performance-regression-data-set, hana/small_2021)
+is read in its own layout and turned into the same in-memory `Corpus`.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+SAP_ENV = "REDLINE_SAP_CORPUS"
+SAP_RELATIVE = Path("..") / "shared" / "data" / "sap-hana-small-2021"
+SAP_ATTRIBUTION = ("SAP HANA performance regression data set (small, 2021), SAP SE, "
+                   "github.com/SAP/performance-regression-data-set, CC-BY-4.0")
+POSITIVE_LABEL = "regression"
+COLUMNS = ["series", "build", "value"]
+
+
+class CorpusError(ValueError):
+    """A corpus that cannot be found or read; the message names the path or field at fault."""
+
+
+@dataclass(frozen=True)
+class SeriesLabel:
+    label: str
+    change_build: int | None = None  # the first build after the change (the positive unit)
+
+
+@dataclass(frozen=True)
+class Corpus:
+    name: str
+    measurements: pd.DataFrame  # columns series, build, value; sorted by series, build
+    labels: dict[str, SeriesLabel]
+    source: str = ""
+    license: str = ""
+
+
+@dataclass(frozen=True)
+class Unit:
+    """One evaluation case: a build of a series against the builds just before it."""
+
+    series: str
+    build: int
+    baseline: np.ndarray
+    candidate: np.ndarray
+    positive: bool
+
+
+def _repo_root() -> Path | None:
+    for start in (Path.cwd(), Path(__file__).resolve()):
+        for folder in (start, *start.parents):
+            if (folder / "server").is_dir() and (folder / "agent").is_dir():
+                return folder
+    return None
+
+
+def resolve_corpus(name_or_path: str) -> Path:
+    """A corpus directory: an existing path, or "sap" (env REDLINE_SAP_CORPUS, else the
+    repository root's ``../shared/data/sap-hana-small-2021``)."""
+    if name_or_path.lower() != "sap":
+        path = Path(name_or_path).expanduser()
+        if not path.is_dir():
+            raise CorpusError(f"corpus directory not found: {path}")
+        return path
+    candidates = [Path(os.environ[SAP_ENV])] if os.environ.get(SAP_ENV) else []
+    root = _repo_root()
+    if root is not None:
+        candidates.append((root / SAP_RELATIVE).resolve())
+    for path in candidates:
+        if (path / "metadata" / "dataset_details.csv").is_file():
+            return path
+    tried = ", ".join(str(p) for p in candidates) or "nothing (no repository root found)"
+    raise CorpusError(f"SAP corpus not found; tried {tried}; set {SAP_ENV}")
+
+
+def load_sap(path: Path) -> Corpus:
+    """The SAP HANA small-2021 set: series = file stem, build = GHC, value = Measurement."""
+    details = path / "metadata" / "dataset_details.csv"
+    meta = pd.read_csv(details, sep=";")
+    frames, labels = [], {}
+    for row in meta.itertuples(index=False):
+        label, file, change_index = str(row[0]).strip(), str(row[1]).strip(), int(row[2])
+        data = pd.read_csv(path / "data" / file)
+        series = Path(file).stem
+        change_build = None
+        if label == POSITIVE_LABEL:
+            after = data.loc[data["Index"] == change_index + 1, "GHC"]
+            if after.empty:
+                raise CorpusError(f"{details}: change point {change_index} of {file} has no "
+                                  "measurement after it")
+            change_build = int(after.iloc[0])
+        labels[series] = SeriesLabel(label, change_build)
+        frames.append(pd.DataFrame({"series": series, "build": data["GHC"].astype(np.int64),
+                                    "value": data["Measurement"].astype(np.float64)}))
+    return Corpus("sap-hana-small-2021", _sorted(pd.concat(frames)), labels,
+                  source=SAP_ATTRIBUTION, license="CC-BY-4.0")
+
+
+def _sorted(frame: pd.DataFrame) -> pd.DataFrame:
+    return frame.sort_values(["series", "build"], kind="stable").reset_index(drop=True)
+
+
+def load_generic(path: Path) -> Corpus:
+    """A corpus in Redline's own format (``measurements.{parquet,csv}`` + ``labels.json``)."""
+    parquet, csv = path / "measurements.parquet", path / "measurements.csv"
+    frame = pd.read_parquet(parquet) if parquet.is_file() else pd.read_csv(csv)
+    missing = set(COLUMNS) - set(frame.columns)
+    if missing:
+        raise CorpusError(f"{path}: measurements lack columns {sorted(missing)}")
+    meta = json.loads((path / "labels.json").read_text())
+    frame = frame[COLUMNS].astype({"series": str, "build": np.int64, "value": np.float64})
+    labels = {str(series): SeriesLabel(str(entry["label"]), entry.get("change_build"))
+              for series, entry in meta.get("series", {}).items()}
+    return Corpus(str(meta.get("name", path.name)), _sorted(frame), labels,
+                  source=str(meta.get("source", "")), license=str(meta.get("license", "")))
+
+
+def load_corpus(name_or_path: str) -> Corpus:
+    path = resolve_corpus(name_or_path)
+    if (path / "metadata" / "dataset_details.csv").is_file():
+        return load_sap(path)
+    if (path / "labels.json").is_file():
+        return load_generic(path)
+    raise CorpusError(f"{path}: neither labels.json nor metadata/dataset_details.csv")
+
+
+def write_corpus(corpus: Corpus, path: Path) -> None:
+    """Write a corpus in Redline's format (Parquet + labels.json), e.g. to convert SAP's."""
+    path.mkdir(parents=True, exist_ok=True)
+    corpus.measurements.to_parquet(path / "measurements.parquet", index=False)
+    series = {s: {"label": lab.label, "change_build": lab.change_build}
+              for s, lab in corpus.labels.items()}
+    meta = {"name": corpus.name, "source": corpus.source, "license": corpus.license,
+            "series": series}
+    (path / "labels.json").write_text(json.dumps(meta, indent=1) + "\n")
+
+
+def build_units(corpus: Corpus, baseline_samples: int = 12) -> list[Unit]:
+    """Every build of every series but the first, against the builds just before it.
+
+    The baseline pools whole previous builds, newest first, until it holds at least
+    ``baseline_samples`` values (12, Perfherder's ``min_back_window``) or the history runs
+    out; the candidate is the build's own values. A unit is positive iff its series is
+    labelled "regression" and the build is the first after the labelled change point.
+    """
+    units = []
+    for series, frame in corpus.measurements.groupby("series", sort=True):
+        label = corpus.labels.get(str(series), SeriesLabel("unlabelled"))
+        builds = [(int(b), g["value"].to_numpy()) for b, g in frame.groupby("build", sort=True)]
+        for k in range(1, len(builds)):
+            start, pooled = k, 0
+            while start > 0 and pooled < baseline_samples:
+                start -= 1
+                pooled += len(builds[start][1])
+            baseline = np.concatenate([values for _, values in builds[start:k]])
+            build, candidate = builds[k]
+            positive = label.label == POSITIVE_LABEL and build == label.change_build
+            units.append(Unit(str(series), build, baseline, candidate, positive))
+    return units

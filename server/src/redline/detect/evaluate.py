@@ -1,0 +1,146 @@
+"""Measure detectors on a labelled corpus: ROC-AUC, precision, recall and F1.
+
+ROC-AUC ranks units by score (an abstention, "not enough data", scores 0); precision,
+recall and F1 count a unit as flagged when the method's verdict, at its default threshold
+and effect-size floor, is "change". Pure computation over a loaded `Corpus`.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass
+
+import numpy as np
+from redline.detect.changepoint import EDivisive
+from redline.detect.corpus import Corpus, Unit, build_units
+from redline.detect.foo import FooRules
+from redline.detect.methods import Detector, KolmogorovSmirnov, MannWhitney, WelchT
+from redline.detect.shang import ShangRegression
+from scipy.stats import rankdata
+
+#: Chosen on the SAP corpus's measurements (docs/detection.md, "Choosing the default").
+DEFAULT_METHOD = "welch_t"
+
+DETECTORS: dict[str, Callable[[], Detector]] = {
+    "ks": KolmogorovSmirnov,
+    "mann_whitney": MannWhitney,
+    "welch_t": WelchT,
+    "foo": FooRules,
+    "foo.min": lambda: FooRules(aggregate="min"),
+    "foo.mean": lambda: FooRules(aggregate="mean"),
+    "shang": ShangRegression,
+    "shang.min": lambda: ShangRegression(aggregate="min"),
+    "shang.mean": lambda: ShangRegression(aggregate="mean"),
+}
+CHANGE_POINT_METHOD = "e_divisive"
+
+
+@dataclass(frozen=True)
+class Outcome:
+    positive: bool
+    score: float
+    flagged: bool
+    decided: bool
+
+
+@dataclass(frozen=True)
+class MethodScores:
+    roc_auc: float
+    precision: float
+    recall: float
+    f1: float
+    tp: int
+    fp: int
+    fn: int
+    units: int
+    decided: int
+
+    def as_dict(self) -> dict[str, float | int]:
+        return asdict(self)
+
+
+def roc_auc(positive: Sequence[bool], scores: Sequence[float]) -> float:
+    """Area under the ROC curve as P(score of a positive > score of a negative), ties 1/2.
+
+    NaN when the units hold no positive or no negative.
+    """
+    labels = np.asarray(positive, dtype=bool)
+    n_pos, n_neg = int(labels.sum()), int((~labels).sum())
+    if n_pos == 0 or n_neg == 0:
+        return math.nan
+    ranks = rankdata(np.asarray(scores, dtype=np.float64))
+    return float((ranks[labels].sum() - n_pos * (n_pos + 1) / 2) / (n_pos * n_neg))
+
+
+def precision_recall_f1(positive: Sequence[bool],
+                        flagged: Sequence[bool]) -> tuple[float, float, float, int, int, int]:
+    """(precision, recall, F1, tp, fp, fn); a ratio with a zero denominator is 0."""
+    labels, flags = np.asarray(positive, dtype=bool), np.asarray(flagged, dtype=bool)
+    tp = int((labels & flags).sum())
+    fp = int((~labels & flags).sum())
+    fn = int((labels & ~flags).sum())
+    precision = tp / (tp + fp) if tp + fp else 0.0
+    recall = tp / (tp + fn) if tp + fn else 0.0
+    f1 = 2 * precision * recall / (precision + recall) if precision + recall else 0.0
+    return precision, recall, f1, tp, fp, fn
+
+
+def summarize(outcomes: Sequence[Outcome]) -> MethodScores:
+    positive = [o.positive for o in outcomes]
+    precision, recall, f1, tp, fp, fn = precision_recall_f1(positive,
+                                                            [o.flagged for o in outcomes])
+    return MethodScores(roc_auc=roc_auc(positive, [o.score for o in outcomes]),
+                        precision=precision, recall=recall, f1=f1, tp=tp, fp=fp, fn=fn,
+                        units=len(outcomes), decided=sum(o.decided for o in outcomes))
+
+
+def run_detector(detector: Detector, units: Sequence[Unit]) -> list[Outcome]:
+    outcomes = []
+    for unit in units:
+        base, cand = unit.baseline, unit.candidate
+        if detector.ndim == 2:
+            base, cand = base[:, None], cand[:, None]
+        found = detector.compare(base, cand)
+        outcomes.append(Outcome(unit.positive, found.score, found.flagged, found.decided))
+    return outcomes
+
+
+def run_change_points(corpus: Corpus, units: Sequence[Unit],
+                      detector: EDivisive | None = None) -> list[Outcome]:
+    """E-divisive over each series' history of per-build medians, judged on the same units.
+
+    A build scores 1 - p when a significant change point starts at it (0 otherwise) and is
+    flagged when that change also passes the effect-size floor. Unlike the other methods this
+    looks at the whole history, later builds included: it is a retrospective analysis.
+    """
+    detector = detector or EDivisive()
+    found: dict[tuple[str, int], tuple[float, bool]] = {}
+    undecided: set[str] = set()
+    for series, frame in corpus.measurements.groupby("series", sort=True):
+        medians = frame.groupby("build", sort=True)["value"].median()
+        result = detector.detect(medians.to_numpy())
+        if not result.change_points and result.verdict == "not enough data":
+            undecided.add(str(series))
+        for point in result.change_points:
+            found[(str(series), int(medians.index[point.index]))] = (1 - point.p_value,
+                                                                     point.reported)
+    outcomes = []
+    for unit in units:
+        score, flagged = found.get((unit.series, unit.build), (0.0, False))
+        outcomes.append(Outcome(unit.positive, score, flagged, unit.series not in undecided))
+    return outcomes
+
+
+def evaluate_corpus(corpus: Corpus,
+                    methods: Sequence[str] | None = None) -> dict[str, MethodScores]:
+    """Scores of each named method (default: all) on the corpus's units."""
+    names = list(methods) if methods else [*DETECTORS, CHANGE_POINT_METHOD]
+    units = build_units(corpus)
+    results = {}
+    for name in names:
+        if name == CHANGE_POINT_METHOD:
+            results[name] = summarize(run_change_points(corpus, units))
+        else:
+            results[name] = summarize(run_detector(DETECTORS[name](), units))
+    return results

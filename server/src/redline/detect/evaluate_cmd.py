@@ -1,0 +1,59 @@
+"""`redline evaluate CORPUS`: each detector's accuracy on a labelled corpus."""
+
+from __future__ import annotations
+
+import json
+import math
+from typing import Annotated
+
+import typer
+from redline.detect.corpus import CorpusError, load_corpus
+from redline.detect.evaluate import DEFAULT_METHOD, MethodScores, evaluate_corpus
+
+METRICS = ("roc_auc", "precision", "recall", "f1")
+
+
+def _number(value: float) -> float | None:
+    return None if math.isnan(value) else round(value, 4)
+
+
+def as_json(results: dict[str, MethodScores]) -> str:
+    """``{"default": METHOD, "methods": {METHOD: {"roc_auc", "precision", "recall", "f1"}}}``."""
+    methods = {name: {metric: _number(getattr(scores, metric)) for metric in METRICS}
+               for name, scores in results.items()}
+    return json.dumps({"default": DEFAULT_METHOD, "methods": methods})
+
+
+def as_table(results: dict[str, MethodScores]) -> str:
+    header = f"{'method':<14}{'ROC-AUC':>8}{'prec.':>7}{'recall':>7}{'F1':>7}" \
+             f"{'TP':>5}{'FP':>5}{'FN':>5}{'decided':>14}"
+    lines = [header]
+    for name, s in results.items():
+        mark = " *" if name == DEFAULT_METHOD else ""
+        lines.append(f"{name:<14}{s.roc_auc:>8.3f}{s.precision:>7.3f}{s.recall:>7.3f}"
+                     f"{s.f1:>7.3f}{s.tp:>5}{s.fp:>5}{s.fn:>5}{s.decided:>7}/{s.units:<6}{mark}")
+    lines.append("* default method; 'decided' = units not answered 'not enough data'")
+    return "\n".join(lines)
+
+
+def evaluate_cmd(
+    corpus: Annotated[str, typer.Argument(help='corpus directory, or "sap" for the SAP HANA '
+                                          "set (env REDLINE_SAP_CORPUS)")],
+    json_output: Annotated[bool, typer.Option("--json", help="print JSON only")] = False,
+) -> None:
+    """ROC-AUC, precision, recall and F1 of every detection method on a labelled corpus."""
+    try:
+        loaded = load_corpus(corpus)
+    except (CorpusError, OSError, KeyError, ValueError) as exc:
+        typer.echo(f"evaluate: cannot read corpus {corpus!r}: {exc}", err=True)
+        raise typer.Exit(2) from exc
+    results = evaluate_corpus(loaded)
+    if json_output:
+        typer.echo(as_json(results))
+        return
+    typer.echo(f"{loaded.name}: {loaded.source}")
+    typer.echo(as_table(results))
+
+
+def register(app: typer.Typer) -> None:
+    app.command("evaluate")(evaluate_cmd)
