@@ -138,6 +138,27 @@ def test_component_never_ready_times_out_and_is_stopped(tmp_path: Path) -> None:
     assert not Path(f"/proc/{pid}").exists()
 
 
+def test_component_ready_by_zenoh_key_runs_through(tmp_path: Path) -> None:
+    component = """\
+        import signal, threading, zenoh
+        stop = threading.Event()
+        signal.signal(signal.SIGTERM, lambda *_: stop.set())
+        with zenoh.open(zenoh.Config.from_env()) as session:
+            while not stop.wait(0.1):
+                session.put("demo/alive", b"1")
+        """
+    test = """\
+        from redline.testing import FixedRate, Phase, Publish, TestCase
+        case = TestCase("short", [Phase("p", FixedRate(20, 0.3, Publish("x/y", b"1")))])
+        """
+    suite = _suite(tmp_path, component, '{ key = "demo/alive" }', test)
+    result = run_suite(suite, tmp_path / "out.mcap", keep_workspace=True)
+    recording = read_recording(result.recording)
+    assert result.segments == 1 and recording.run["status"] == "ok"
+    assert recording.traffic["demo/alive"] > 0 and recording.traffic["x/y"] == 6
+    assert result.workspace is not None and (result.workspace / "broken.log").exists()
+
+
 def _child(code: str) -> subprocess.Popen[bytes]:
     return subprocess.Popen([sys.executable, "-c", textwrap.dedent(code)])
 

@@ -179,8 +179,10 @@ class _Run:
 
     def _shut_down(self, session: zenoh.Session | None) -> None:
         self.stop.set()
+        if not self.started:
+            return  # the recorder itself could not start
         recorder, others = self.started[0], self.started[1:]
-        for process in reversed(others):
+        for process in others:
             if process.name == "redline-monitor":
                 process.stop()
         if session is not None:
