@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import subprocess
 import sys
+import tempfile
 import textwrap
 import time
 from pathlib import Path
@@ -79,6 +80,12 @@ def test_cpu_grows_with_the_number_of_legs(objectbuilder_run) -> None:
         few = means[f'{{"legs":2,"rate":{rate}}}']
         many = means[f'{{"legs":8,"rate":{rate}}}']
         assert many > 2 * few, means
+
+
+@pytest.fixture(autouse=True)
+def workspaces_in_tmp_path(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Workspaces kept after a failure land in the test's own folder, not in /tmp."""
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
 
 
 def _suite(tmp_path: Path, component: str, ready: str, test: str) -> Path:
@@ -157,6 +164,7 @@ def test_component_ready_by_zenoh_key_runs_through(tmp_path: Path) -> None:
     assert result.segments == 1 and recording.run["status"] == "ok"
     assert recording.traffic["demo/alive"] > 0 and recording.traffic["x/y"] == 6
     assert result.workspace is not None and (result.workspace / "broken.log").exists()
+    assert result.workspace.parent == tmp_path
 
 
 def _child(code: str) -> subprocess.Popen[bytes]:
