@@ -1,13 +1,17 @@
-"""The whole path on real Postgres, Redis, zenoh and a real Celery worker.
+"""The whole path on real Postgres, Redis, zenoh, a real Celery worker and real Chromium.
 
 CI report → job → agent (checkout, build, run with monitor and recorder) → MCAP upload →
 ingest → KS detection → API and trend page. The example's history has a baseline, a revision
-that does not touch the code's work, and one doing three times the work per leg pair.
+that leaves the code's work alone, and one doing three times the work per leg pair.
 """
 
 from __future__ import annotations
 
 import json
+import os
+import uuid
+from collections.abc import Iterator
+from dataclasses import dataclass
 from pathlib import Path
 
 import httpx
@@ -20,45 +24,87 @@ from tests.conftest import Services, fresh_database
 pytestmark = pytest.mark.integration
 
 CPU = "cpu_percent"
+CHROMIUM = "/usr/bin/chromium"
+CHROMIUM_FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking"]
 
 
-@pytest.fixture
-def stack(services: Services, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Stack:
+@dataclass
+class History:
+    stack: Stack
+    revisions: list[dict]
+    changes: list[dict]
+    base: demo.DemoRevision
+    unchanged: demo.DemoRevision
+    regressed: demo.DemoRevision
+
+
+@pytest.fixture(scope="module")
+def history(services: Services, tmp_path_factory: pytest.TempPathFactory) -> Iterator[History]:
     from redline.agent.network import free_port
 
+    root = tmp_path_factory.mktemp("e2e")
     database_url, _ = fresh_database(services.database_url)
-    monkeypatch.setenv("REDLINE_DATABASE_URL", database_url)
-    monkeypatch.setenv("REDLINE_REDIS_URL", services.redis_url)
-    monkeypatch.setenv("REDLINE_QUEUE", f"e2e-{tmp_path.name}")
-    running = Stack(tmp_path / "data", free_port())
+    saved = dict(os.environ)
+    os.environ.update(REDLINE_DATABASE_URL=database_url, REDLINE_REDIS_URL=services.redis_url,
+                      REDLINE_QUEUE=f"e2e-{uuid.uuid4().hex[:8]}")
+    stack = Stack(root / "data", free_port())
     try:
-        running.start()
-        yield running
+        stack.start()
+        repo = root / "objectbuilder-repo"
+        base, unchanged, regressed = demo.make_history(repo)
+        demo.submit(stack.url, stack.admin_token, stack.token("ci", "ci"), repo,
+                    [base, unchanged, regressed])
+        revisions = demo.wait_for_results(stack.url, print, timeout=600)
+        changes = httpx.get(f"{stack.url}/api/v1/components/objectbuilder/changes").json()
+        yield History(stack, revisions, changes, base, unchanged, regressed)
     finally:
-        running.stop()
+        stack.stop()
+        os.environ.clear()
+        os.environ.update(saved)
 
 
 def _cpu_changes(changes: list[dict], revision: str) -> list[dict]:
     return [c for c in changes if c["revision"] == revision and c["series"]["counter"] == CPU]
 
 
-def test_tripled_work_is_flagged_by_ks_and_unchanged_code_is_not(stack: Stack, tmp_path: Path):
-    repo = tmp_path / "objectbuilder-repo"
-    base, unchanged, regressed = demo.make_history(repo)
-    demo.submit(stack.url, stack.admin_token, stack.token("ci", "ci"), repo,
-                [base, unchanged, regressed])
+def test_every_revision_runs_to_done_in_sort_key_order(history: History):
+    titles = [r["title"] for r in history.revisions]
+    assert titles == [history.base.title, history.unchanged.title, history.regressed.title]
+    assert all(r["state"] == "done" for r in history.revisions), history.revisions
 
-    revisions = demo.wait_for_results(stack.url, print, timeout=600)
-    assert [r["title"] for r in revisions] == [base.title, unchanged.title, regressed.title]
-    assert all(r["state"] == "done" for r in revisions), revisions
 
-    changes = httpx.get(f"{stack.url}/api/v1/components/objectbuilder/changes").json()
-    flagged = [c for c in _cpu_changes(changes, regressed.title) if c["flagged"]]
-    assert flagged, json.dumps(_cpu_changes(changes, regressed.title), indent=1)
+def test_tripled_work_is_flagged_by_ks_and_unchanged_code_is_not(history: History):
+    regressed = _cpu_changes(history.changes, history.regressed.title)
+    flagged = [c for c in regressed if c["flagged"]]
+    assert flagged, json.dumps(regressed, indent=1)
     assert all(c["effect"] > 0.5 for c in flagged)  # three times the work: far more CPU
-    assert not [c for c in _cpu_changes(changes, unchanged.title) if c["flagged"]]
-    assert not _cpu_changes(changes, base.title)  # the first revision has no baseline
+    unchanged = _cpu_changes(history.changes, history.unchanged.title)
+    assert unchanged, "the unchanged revision was compared with its baseline"
+    assert not [c for c in unchanged if c["flagged"]], json.dumps(unchanged, indent=1)
+    assert not _cpu_changes(history.changes, history.base.title)  # no baseline to compare with
 
-    page = httpx.get(f"{stack.url}/components/objectbuilder")
-    assert page.status_code == 200 and "plotly" in page.text
-    assert httpx.get(f"{stack.url}/static/plotly.min.js").status_code == 200
+
+@pytest.mark.browser
+def test_trend_page_marks_the_regression_in_chromium(history: History, tmp_path: Path):
+    from playwright.sync_api import sync_playwright
+
+    if not Path(CHROMIUM).exists():
+        pytest.fail(f"{CHROMIUM} is missing: `python3 run.py test` installs Debian's chromium")
+    with sync_playwright() as pw:
+        browser = pw.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_FLAGS)
+        page = browser.new_page()
+        errors: list[str] = []
+        page.on("pageerror", lambda exc: errors.append(str(exc)))
+        page.goto(f"{history.stack.url}/components/objectbuilder")
+        page.wait_for_selector(".js-plotly-plot .scatterlayer .point", timeout=30_000)
+        page.screenshot(path=str(tmp_path / "objectbuilder.png"), full_page=True)
+        charts = page.locator(".js-plotly-plot").count()
+        marked = page.evaluate(
+            """() => [...document.querySelectorAll('.js-plotly-plot')].flatMap(
+                   el => el.data.filter(t => (t.name || '').toLowerCase().includes('change'))
+                                .flatMap(t => t.x))""")
+        browser.close()
+    assert not errors, errors
+    assert charts >= 2
+    assert history.regressed.title in marked
+    assert history.unchanged.title not in marked

@@ -8,7 +8,6 @@ reaches into a performance host.
 from __future__ import annotations
 
 import logging
-import shlex
 import subprocess
 import threading
 from dataclasses import dataclass, field
@@ -17,6 +16,7 @@ from typing import Any
 
 from redline.agent.checkout import CloneCache
 from redline.agent.client import LeaseLost, ServerClient, UploadRejected
+from redline.agent.governor import governor_files
 from redline.agent.host import host_fingerprint
 from redline.agent.runner import run_suite
 from redline.agent.suite import load_suite
@@ -44,7 +44,8 @@ class AgentDaemon:
         (self.workdir / "recordings").mkdir(parents=True, exist_ok=True)
 
     def run_forever(self) -> None:
-        self.client.register(host_fingerprint(), self.labels)
+        governor = "available" if governor_files() else "unavailable"
+        self.client.register(host_fingerprint(governor), self.labels)
         log.info("agent %s registered; waiting for jobs", self.client.host)
         while not self.stop.is_set():
             try:
@@ -82,7 +83,7 @@ class AgentDaemon:
             if not suite_path.is_file():
                 raise JobFailed(f"suite file {job['suite']} not found at commit {job['commit']}")
             suite = load_suite(suite_path)
-            _build(suite.build, suite_path.parent)
+            _build(suite.build, suite.directory)
             out = self.workdir / "recordings" / f"{name}.mcap"
             run_suite(suite_path, out, run_metadata=_run_metadata(job))
             beats.check()
@@ -109,18 +110,19 @@ def _run_metadata(job: dict[str, Any]) -> dict[str, str]:
     }
 
 
-def _build(command: str | None, cwd: Path) -> None:
+def _build(command: tuple[str, ...] | None, cwd: Path) -> None:
     if not command:
         return
-    log.info("building: %s", command)
+    shown = " ".join(command)
+    log.info("building: %s", shown)
     try:
-        done = subprocess.run(shlex.split(command), cwd=cwd, capture_output=True, text=True,
+        done = subprocess.run(command, cwd=cwd, capture_output=True, text=True,
                               timeout=BUILD_TIMEOUT_S)
     except (OSError, subprocess.TimeoutExpired) as exc:
-        raise JobFailed(f"build command {command!r} could not run: {exc}") from exc
+        raise JobFailed(f"build command {shown!r} could not run: {exc}") from exc
     if done.returncode != 0:
         tail = (done.stdout + done.stderr).strip()[-2000:]
-        raise JobFailed(f"build command {command!r} exited with {done.returncode}:\n{tail}")
+        raise JobFailed(f"build command {shown!r} exited with {done.returncode}:\n{tail}")
 
 
 class _Heartbeat:
