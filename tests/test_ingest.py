@@ -12,7 +12,7 @@ from redline.server.db import migrate, session_factory
 from redline.server.models import Change, Execution, Job, JobState, Revision, Series, Summary
 from redline.server.schemas import ComponentCreate, RevisionCreate
 from redline.server.services.components import create_component
-from redline.server.services.revisions import create_revision
+from redline.server.services.revisions import create_revision, list_revisions
 from redline.worker.detection import detect_revision, samples_path
 from redline.worker.ingest import ingest_execution
 from sqlalchemy import func, select, text
@@ -193,3 +193,13 @@ def test_baseline_follows_sort_key_not_report_order(session, database_url, tmp_p
     assert change.baseline_revision_id == early.revision_id
     assert change.effect == pytest.approx(2.0)
     assert detect_revision(database_url, early.revision_id) == []
+
+
+def test_revision_is_analyzing_until_detection_has_run(session, database_url, tmp_path):
+    (execution,) = _history(session, tmp_path, [1.0])
+    ingest_execution(database_url, execution.id)
+    session.expire_all()
+    assert [r.state for r in list_revisions(session, "builder")] == ["analyzing"]
+    detect_revision(database_url, execution.revision_id)
+    session.expire_all()
+    assert [r.state for r in list_revisions(session, "builder")] == ["done"]

@@ -63,6 +63,8 @@ class Revision(Base):
     commit: Mapped[str] = mapped_column(String(200), default="")
     repo: Mapped[str] = mapped_column(Text, default="")
     created: Mapped[datetime] = mapped_column(default=utcnow)
+    # set by detection, cleared by ingestion: the changes shown are those of all ingested data
+    analyzed_at: Mapped[datetime | None] = mapped_column(default=None)
     component: Mapped[Component] = relationship()
     jobs: Mapped[list[Job]] = relationship(
         back_populates="revision", order_by="Job.execution_index"

@@ -64,8 +64,9 @@ class RevisionOut(BaseModel):
     sort_key: str
     commit: str
     repo: str
-    state: str = Field(description="derived from the revision's jobs")
+    state: str = Field(description="derived from the revision's jobs and its analysis")
     created: datetime
+    analyzed_at: datetime | None = Field(description="when changes were last detected")
 
 
 class RevisionDetail(RevisionOut):

@@ -13,7 +13,7 @@ import numpy as np
 import pyarrow.parquet as pq
 from redline.detect.ks import ks
 from redline.server.db import session_scope
-from redline.server.models import Change, Execution, Revision, Summary
+from redline.server.models import Change, Execution, Revision, Summary, utcnow
 from sqlalchemy import delete, select, tuple_
 from sqlalchemy.orm import Session
 
@@ -99,4 +99,5 @@ def detect_revision(database_url: str, revision_id: int) -> list[Change]:
             delete(Change).where(Change.revision_id == revision_id, Change.method == METHOD_KS)
         )
         session.add_all(changes)
+        revision.analyzed_at = utcnow()
         return changes

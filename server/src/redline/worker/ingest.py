@@ -16,7 +16,7 @@ from redline.recording import SeriesKey, read_recording
 from redline.server.db import session_scope
 from redline.server.models import Execution, Job, JobState, Revision, Series, Summary
 from redline.worker.detection import samples_path, successor_with_data
-from sqlalchemy import delete, select
+from sqlalchemy import delete, select, update
 from sqlalchemy.dialects.postgresql import insert
 from sqlalchemy.orm import Session
 
@@ -98,7 +98,10 @@ def ingest_execution(database_url: str, execution_id: int) -> list[int]:
                 return []
             _ingest(session, execution)
             later = successor_with_data(session, execution.revision_id)
-            return [execution.revision_id] + ([later] if later is not None else [])
+            revisions = [execution.revision_id] + ([later] if later is not None else [])
+            session.execute(update(Revision).where(Revision.id.in_(revisions))
+                            .values(analyzed_at=None))
+            return revisions
     except Exception as exc:
         _fail(database_url, execution_id, f"ingest failed: {exc}")
         raise

@@ -51,11 +51,12 @@ def create_revision(session: Session, data: RevisionCreate) -> Revision:
     return revision
 
 
-def revision_state(states: list[JobState]) -> str:
+def revision_state(states: list[JobState], analyzed: bool = True) -> str:
     """One word for a revision from its jobs' states.
 
     ``queued`` while no job has started, ``running`` while any job is under way, then ``failed``
-    if any job failed, ``cancelled`` if all were, else ``done``.
+    if any job failed, ``cancelled`` if all were, ``analyzing`` until detection has seen the
+    ingested results, else ``done``.
     """
     counts = Counter(states)
     if not states:
@@ -66,14 +67,18 @@ def revision_state(states: list[JobState]) -> str:
         return "running"
     if counts[JobState.failed]:
         return "failed"
-    return "cancelled" if counts[JobState.cancelled] == len(states) else "done"
+    if counts[JobState.cancelled] == len(states):
+        return "cancelled"
+    return "done" if analyzed else "analyzing"
 
 
 def _revision_out(revision: Revision) -> dict:
     return dict(
         id=revision.id, title=revision.title, sort_key=revision.sort_key, commit=revision.commit,
         repo=revision.repo, created=revision.created,
-        state=revision_state([job.state for job in revision.jobs]),
+        analyzed_at=revision.analyzed_at,
+        state=revision_state([job.state for job in revision.jobs],
+                             analyzed=revision.analyzed_at is not None),
     )
 
 
