@@ -17,7 +17,8 @@ def migrate_cmd() -> None:
     """Upgrade the database (REDLINE_DATABASE_URL) to the newest schema."""
     from redline.server.db import migrate
 
-    migrate(get_settings().database_url)
+    settings = get_settings()
+    migrate(settings.database_url, settings.migrations_dir)
     typer.echo("database is up to date")
 
 
@@ -31,7 +32,7 @@ def server_cmd(
     from redline.server.db import migrate
 
     settings = get_settings()
-    migrate(settings.database_url)
+    migrate(settings.database_url, settings.migrations_dir)
     uvicorn.run(create_app(settings), host=host, port=port)
 
 
@@ -68,10 +69,3 @@ def register(app: typer.Typer) -> None:
     app.command("worker")(worker_cmd)
     app.command("migrate")(migrate_cmd)
     app.add_typer(token_app, name="token")
-    try:  # `redline up` / `redline demo` live in their own module, which registers itself
-        from redline.server import up_cmd
-    except ModuleNotFoundError as exc:
-        if exc.name != "redline.server.up_cmd":
-            raise
-    else:
-        up_cmd.register(app)
