@@ -197,6 +197,16 @@ def test_lease_hands_out_newest_revision_first_then_204(api: Api):
     assert unknown.status_code == 404 and "stranger" in unknown.json()["detail"]
 
 
+def test_lease_skips_a_job_another_transaction_has_locked(api: Api):
+    api.component()
+    first, second = api.revision("r1", "1"), api.revision("r2", "2")
+    with session_factory(api.settings.database_url)() as other:
+        other.scalar(select(Job).where(Job.id == second["job_ids"][0]).with_for_update())
+        assert api.lease()["id"] == first["job_ids"][0]  # not blocked, not the locked one
+        other.rollback()
+    assert api.lease()["id"] == second["job_ids"][0]
+
+
 def test_heartbeat_extends_the_lease_and_marks_the_job_running(api: Api):
     api.component()
     api.revision("r1", "1")

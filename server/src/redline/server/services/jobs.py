@@ -48,6 +48,7 @@ def lease_job(session: Session, host_name: str, lease_seconds: int,
               max_attempts: int) -> Job | None:
     """Hand the host the newest revision's next queued (or abandoned) job; None when none is.
 
+    Newest means most recently reported: sort keys of different components do not compare.
     ``FOR UPDATE SKIP LOCKED``: agents leasing at once never get the same job, nor wait.
     """
     host = _host(session, host_name)
@@ -59,7 +60,7 @@ def lease_job(session: Session, host_name: str, lease_seconds: int,
     )
     job = session.scalar(
         select(Job).join(Revision).where(available)
-        .order_by(Revision.order_key.desc(), Revision.id.desc(), Job.execution_index)
+        .order_by(Revision.id.desc(), Job.execution_index)
         .limit(1).with_for_update(skip_locked=True, of=Job)
     )
     host.last_seen = now
