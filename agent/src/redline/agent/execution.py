@@ -42,6 +42,7 @@ def _run_segment(case: TestCase, phase: Phase, params: ParameterSet, link: Link,
         raise RunError(f"test case {case.name!r}, phase {phase.name!r} [{params.name}]: "
                        f"{type(exc).__name__}: {exc}") from exc
     finally:
+        ctx.flush_metrics()  # query round trips, waits: one summary per action and key
         markers.publish("end", case.name, phase, params)
 
 

@@ -31,7 +31,7 @@ from redline.agent.network import RunNetwork, open_client
 from redline.agent.processes import ManagedProcess, RunError
 from redline.agent.recorder import STATUS_KEY
 from redline.agent.suite import ProcessSpec, ReadyCheck, Suite, load_suite
-from redline.testing import Link, TestCase, validate_cases
+from redline.testing import Link, Stop, TestCase, validate_cases
 
 Progress = Callable[[str], None]
 
@@ -76,7 +76,7 @@ class _Run:
         self.meta_path = workspace / "run-meta.json"
         self.meta: dict[str, dict[str, str]] = {"run": self._run_metadata(run_metadata), "host": {}}
         self.started: list[ManagedProcess] = []
-        self.stop = threading.Event()
+        self.stop = Stop()
         self.segments = 0
 
     def _run_metadata(self, given: dict[str, str]) -> dict[str, str]:

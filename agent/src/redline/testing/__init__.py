@@ -13,7 +13,7 @@ phase runs for, with the component kept running throughout::
     )
 
 Write your own action by subclassing `Action` and implementing ``run(ctx)``; use `resolve` on
-arguments that may be plain values or actions.
+arguments that may be plain values or actions. ``docs/writing-tests.md`` describes every action.
 """
 
 from redline.testing.actions import Action, Param, Sequence, Static, resolve
@@ -22,29 +22,52 @@ from redline.testing.cases import (
     ParameterProvider,
     ParameterSet,
     Phase,
+    Table,
     TestCase,
     ValidationError,
     validate_cases,
 )
 from redline.testing.context import Context, Link
-from redline.testing.middleware import Publish
-from redline.testing.timing import FixedRate
+from redline.testing.flow import Loop, Parallel, WithBackground
+from redline.testing.messages import Filler, Message, Payload, Repeated
+from redline.testing.metrics import Tally
+from redline.testing.middleware import Publish, Query
+from redline.testing.receive import Listen, WaitFor
+from redline.testing.replay import Replay
+from redline.testing.signals import Stop
+from redline.testing.timing import FixedRate, LimitedTime, Sleep
 
 __all__ = [
     "Action",
     "Cartesian",
     "Context",
+    "Filler",
     "FixedRate",
+    "LimitedTime",
     "Link",
+    "Listen",
+    "Loop",
+    "Message",
+    "Parallel",
     "Param",
     "ParameterProvider",
     "ParameterSet",
+    "Payload",
     "Phase",
     "Publish",
+    "Query",
+    "Repeated",
+    "Replay",
     "Sequence",
+    "Sleep",
     "Static",
+    "Stop",
+    "Table",
+    "Tally",
     "TestCase",
     "ValidationError",
+    "WaitFor",
+    "WithBackground",
     "resolve",
     "validate_cases",
 ]

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import itertools
 import re
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from typing import Any, Protocol
 
 from redline.recording.format import params_name
@@ -32,7 +32,7 @@ class ParameterSet(dict[str, Any]):
 
 
 class ParameterProvider(Protocol):
-    """Anything that yields parameter sets: `Cartesian`, later `Table`, or your own iterable."""
+    """Anything that yields parameter sets: `Cartesian`, `Table`, or your own iterable."""
 
     def __iter__(self) -> Iterator[dict[str, Any]]: ...
 
@@ -41,10 +41,16 @@ class Cartesian:
     """Every combination of the given parameter values, in the order the names are given.
 
     ``Cartesian(legs=[2, 8], rate=[10, 40])`` yields ``legs=2,rate=10``, ``legs=2,rate=40``,
-    ``legs=8,rate=10`` and ``legs=8,rate=40``.
+    ``legs=8,rate=10`` and ``legs=8,rate=40``. ``where`` keeps only the combinations it accepts
+    (the paper's constraints), e.g. ``where=lambda p: p["legs"] * p["rate"] <= 200``.
     """
 
-    def __init__(self, **values: Iterable[Any]) -> None:
+    def __init__(self, where: Callable[[ParameterSet], bool] | None = None,
+                 **values: Iterable[Any]) -> None:
+        if where is not None and not callable(where):
+            raise TypeError(f"Cartesian(where=...) takes a function of the parameter set, "
+                            f"got {where!r}")
+        self.where = where
         self.values: dict[str, list[Any]] = {}
         for name, options in values.items():
             if isinstance(options, (str, bytes)) or not isinstance(options, Iterable):
@@ -56,10 +62,46 @@ class Cartesian:
     def __iter__(self) -> Iterator[ParameterSet]:
         names = list(self.values)
         for combination in itertools.product(*self.values.values()):
-            yield ParameterSet(zip(names, combination, strict=True))
+            params = ParameterSet(zip(names, combination, strict=True))
+            if self.where is None or self.where(params):
+                yield params
 
     def __repr__(self) -> str:
-        return f"Cartesian({', '.join(f'{k}={v!r}' for k, v in self.values.items())})"
+        where = "" if self.where is None else ", where=..."
+        return f"Cartesian({', '.join(f'{k}={v!r}' for k, v in self.values.items())}{where})"
+
+
+class Table:
+    """Parameter sets written out row by row (the paper's table provider).
+
+    Either dicts, ``Table([{"legs": 2, "rate": 10}, {"legs": 8, "rate": 40}])``, or a header
+    and tuples, ``Table(["legs", "rate"], [(2, 10), (8, 40)])``.
+    """
+
+    def __init__(self, rows: Sequence[Any], values: Sequence[Sequence[Any]] | None = None) -> None:
+        if values is None:
+            self.rows = [self._row(row, index) for index, row in enumerate(rows)]
+            return
+        header = list(rows)
+        self.rows = []
+        for index, row in enumerate(values):
+            if len(row) != len(header):
+                raise ValueError(f"Table row {index + 1} has {len(row)} values for "
+                                 f"{len(header)} columns {header}")
+            self.rows.append(ParameterSet(zip(header, row, strict=True)))
+
+    @staticmethod
+    def _row(row: Any, index: int) -> ParameterSet:
+        if not isinstance(row, Mapping):
+            raise TypeError(f"Table row {index + 1} must be a dict of parameter values, "
+                            f"got {row!r}")
+        return ParameterSet(row)
+
+    def __iter__(self) -> Iterator[ParameterSet]:
+        return iter([ParameterSet(row) for row in self.rows])
+
+    def __repr__(self) -> str:
+        return f"Table({len(self.rows)} rows)"
 
 
 class Phase:

@@ -5,14 +5,19 @@ from __future__ import annotations
 import json
 import threading
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
 from typing import Any
 
 import zenoh
 from redline.recording.format import DRIVER_PREFIX
+from redline.testing.metrics import Tally
+from redline.testing.signals import Stop
 
 SPIN_NS = 1_000_000  # sleep to ~1 ms before a deadline, then spin: plain sleep drifts (FIELD-NOTES)
+
+
+Listener = Callable[[zenoh.Sample], None]
 
 
 class Link:
@@ -26,6 +31,9 @@ class Link:
         self.session = session
         self._publishers: dict[tuple[str, str | None], zenoh.Publisher] = {}
         self._lock = threading.Lock()
+        self._sequences: dict[str, int] = {}
+        self._subscribers: dict[str, zenoh.Subscriber[None]] = {}
+        self._listeners: dict[str, dict[int, Listener]] = {}
 
     def publisher(self, key: str, encoding: str | None = None) -> zenoh.Publisher:
         """The publisher for ``key`` (declared on first use, then cached)."""
@@ -39,6 +47,35 @@ class Link:
                 self._publishers[ident] = found
             return found
 
+    def next_sequence(self, key: str) -> int:
+        """The next sequence number of ``key`` (0, 1, 2, ... per key for the whole run)."""
+        with self._lock:
+            number = self._sequences.get(key, 0)
+            self._sequences[key] = number + 1
+            return number
+
+    def listen(self, key: str, listener: Listener) -> Callable[[], None]:
+        """Call ``listener`` with every sample on ``key`` until the returned function is called.
+
+        One subscriber per key expression is declared on first use and kept for the run, so
+        actions that wait for samples again and again do not declare a subscriber each time.
+        """
+        with self._lock:
+            listeners = self._listeners.setdefault(key, {})
+            listeners[id(listener)] = listener
+            if key not in self._subscribers:
+                self._subscribers[key] = self.session.declare_subscriber(
+                    key, lambda sample: self._dispatch(key, sample))
+
+        def forget() -> None:
+            with self._lock:
+                listeners.pop(id(listener), None)
+        return forget
+
+    def _dispatch(self, key: str, sample: zenoh.Sample) -> None:
+        for listener in list(self._listeners.get(key, {}).values()):
+            listener(sample)
+
     def put_json(self, key: str, obj: dict[str, Any]) -> None:
         """Publish a JSON object (Redline's own messages: driver metrics)."""
         self.publisher(key, "application/json").put(json.dumps(obj, default=str))
@@ -49,6 +86,10 @@ class Link:
             for publisher in self._publishers.values():
                 publisher.undeclare()
             self._publishers.clear()
+            for subscriber in self._subscribers.values():
+                subscriber.undeclare()
+            self._subscribers.clear()
+            self._listeners.clear()
 
 
 @dataclass
@@ -64,8 +105,9 @@ class Context:
     case: str = "adhoc"  # actions run outside a test case (unit tests, a REPL) report under these
     phase: str = "adhoc"
     link: Link | None = None
-    stop: threading.Event = field(default_factory=threading.Event)
+    stop: threading.Event = field(default_factory=Stop)
     reports: list[dict[str, Any]] = field(default_factory=list)
+    tallies: dict[tuple[str, str], Tally] = field(default_factory=dict)
 
     def param(self, name: str) -> Any:
         """The value of parameter ``name``; a clear KeyError when the set does not provide it."""
@@ -90,6 +132,11 @@ class Context:
         """A copy with its own stop signal, for actions that interrupt their children."""
         return replace(self, stop=stop)
 
+    def child(self, deadline_ns: int | None = None) -> Context:
+        """A copy whose stop signal is set by this one's, by its own ``set()``, or at a deadline
+        (``time.perf_counter_ns()``); for actions that interrupt a subtree (LimitedTime...)."""
+        return replace(self, stop=Stop(self.stop, deadline_ns))
+
     def sleep_until(self, deadline_ns: int) -> bool:
         """Wait until ``time.perf_counter_ns()`` reaches ``deadline_ns``; False if stopped first.
 
@@ -104,6 +151,19 @@ class Context:
         while time.perf_counter_ns() < deadline_ns:
             pass
         return not self.stop.is_set()
+
+    def tally(self, action: str, key: str, measure: str = "rtt") -> Tally:
+        """The `Tally` of ``action`` on ``key`` in this segment, created on first use."""
+        ident = (action, key)
+        found = self.tallies.get(ident)
+        if found is None:
+            found = self.tallies.setdefault(ident, Tally(action, key, measure))
+        return found
+
+    def flush_metrics(self) -> None:
+        """Report every tally of this segment (the runner calls this when the segment ends)."""
+        for ident in list(self.tallies):
+            self.report(self.tallies.pop(ident).summary())
 
     def report(self, metrics: dict[str, Any]) -> None:
         """Record driver-side metrics; published on ``@redline/driver/<case>/<phase>`` in a run."""

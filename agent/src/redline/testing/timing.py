@@ -1,28 +1,57 @@
-"""Timing actions: run a child action at a fixed rate for a given time."""
+"""Timing actions: Sleep, LimitedTime, and FixedRate (a child action at a fixed rate)."""
 
 from __future__ import annotations
 
-import math
 import time
 from typing import Any
 
 from redline.testing.actions import Action, resolve
 from redline.testing.context import Context
+from redline.testing.metrics import quantile
+
+__all__ = ["FixedRate", "LimitedTime", "Sleep", "quantile"]
 
 
-def quantile(sorted_values: list[int], q: float) -> int:
-    """Nearest-rank quantile of an ascending list (0 for an empty one)."""
-    if not sorted_values:
-        return 0
-    rank = max(1, math.ceil(q * len(sorted_values)))
-    return sorted_values[min(rank, len(sorted_values)) - 1]
-
-
-def _positive(name: str, value: Any) -> float:
+def _positive(name: str, value: Any, action: str = "FixedRate") -> float:
     number = float(value)
     if not number > 0:
-        raise ValueError(f"FixedRate {name} must be positive, got {value!r}")
+        raise ValueError(f"{action} {name} must be positive, got {value!r}")
     return number
+
+
+class Sleep(Action):
+    """Wait ``seconds`` (a number or an action such as ``Param("pause")``); ends early when stopped.
+
+    Returns True when the full time passed, False when the run or a parent action stopped it.
+    """
+
+    def __init__(self, seconds: float | Action) -> None:
+        self.seconds = seconds
+
+    def run(self, ctx: Context) -> bool:
+        seconds = float(resolve(self.seconds, ctx))
+        if seconds < 0:
+            raise ValueError(f"Sleep seconds must not be negative, got {seconds!r}")
+        return ctx.sleep_until(time.perf_counter_ns() + int(seconds * 1e9))
+
+
+class LimitedTime(Action):
+    """Run ``action`` for at most ``seconds``, then interrupt it (the paper's LimitedTime).
+
+    The child sees its stop signal set at the limit: `Loop`, `FixedRate`, `Sleep`, `WaitFor` and
+    `Replay` end then; a custom action must watch ``ctx.stopped`` to be interruptible. Returns the
+    child's result. ``LimitedTime(5, Loop(Publish(...)))`` publishes as fast as it can for 5 s.
+    """
+
+    def __init__(self, seconds: float | Action, action: Action) -> None:
+        if not isinstance(action, Action):
+            raise TypeError(f"LimitedTime runs an action, got {action!r}")
+        self.seconds = seconds
+        self.action = action
+
+    def run(self, ctx: Context) -> Any:
+        seconds = _positive("seconds", resolve(self.seconds, ctx), "LimitedTime")
+        return self.action.run(ctx.child(time.perf_counter_ns() + int(seconds * 1e9)))
 
 
 class FixedRate(Action):

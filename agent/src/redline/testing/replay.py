@@ -1,0 +1,125 @@
+"""Replay: publish what an MCAP recording holds, with its timing (the paper's BagAction)."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Iterator, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import zenoh
+from mcap.records import Channel, Message
+from mcap.stream_reader import StreamReader
+from redline.recording.format import REDLINE_PREFIX
+from redline.testing.actions import Action, resolve
+from redline.testing.context import Context
+from redline.testing.metrics import latency_summary
+
+
+@dataclass(frozen=True)
+class Recorded:
+    """One message to replay: its offset from the first, key, encoding and payload."""
+
+    offset_ns: int
+    key: str
+    encoding: str
+    data: bytes
+
+
+def _messages(path: Path) -> Iterator[tuple[Channel, Message]]:
+    channels: dict[int, Channel] = {}
+    with open(path, "rb") as stream:  # the stream reader also reads a file cut off mid-way
+        for record in StreamReader(stream, skip_magic=False).records:
+            if isinstance(record, Channel):
+                channels[record.id] = record
+            elif isinstance(record, Message) and record.channel_id in channels:
+                yield channels[record.channel_id], record
+
+
+def _remapped(key: str, remap: Mapping[str, str]) -> str:
+    for old, new in remap.items():
+        if key == old or key.startswith(old.rstrip("/") + "/"):
+            return new + key[len(old):]
+    return key
+
+
+def load_recorded(path: str | Path, keys: Sequence[str] | None = None,
+                  remap: Mapping[str, str] | None = None) -> list[Recorded]:
+    """The messages of a recording to replay, in log-time order, selected and remapped.
+
+    Redline's own channels (``@redline/...``) are never replayed.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"Replay: no recording at {path}")
+    selectors = [zenoh.KeyExpr(k) for k in keys] if keys else None
+    found: list[tuple[int, str, str, bytes]] = []
+    for channel, message in _messages(path):
+        topic = channel.topic
+        if topic.startswith(REDLINE_PREFIX):
+            continue
+        if selectors is not None and not any(s.intersects(zenoh.KeyExpr(topic)) for s in selectors):
+            continue
+        found.append((message.log_time, _remapped(topic, remap or {}),
+                      channel.message_encoding, message.data))
+    found.sort(key=lambda item: item[0])
+    first = found[0][0] if found else 0
+    return [Recorded(t - first, key, encoding, data) for t, key, encoding, data in found]
+
+
+class Replay(Action):
+    """Publish the samples of an MCAP recording on their keys, with their original spacing.
+
+    ``recording`` is a path (or ``Param``); ``speed`` divides the gaps (2.0 = twice as fast);
+    ``keys`` selects channels by key expression (``["robot/scan", "robot/odom/**"]``);
+    ``remap`` renames key prefixes (``{"robot": "sim/robot"}``); ``loop`` replays it again and
+    again until interrupted (True) or that many times (a number). Redline's own channels are
+    skipped. Reports messages sent and lateness percentiles; returns the number of messages sent.
+    """
+
+    def __init__(self, recording: str | Path | Action, *, speed: float | Action = 1.0,
+                 keys: Sequence[str] | None = None, remap: Mapping[str, str] | None = None,
+                 loop: bool | int = False) -> None:
+        self.recording = recording
+        self.speed = speed
+        self.keys = list(keys) if keys else None
+        self.remap = dict(remap or {})
+        self.loop = loop
+        self._loaded: dict[str, list[Recorded]] = {}
+
+    def _load(self, path: str) -> list[Recorded]:
+        if path not in self._loaded:
+            self._loaded[path] = load_recorded(path, self.keys, self.remap)
+        return self._loaded[path]
+
+    def _passes(self) -> int | None:
+        if self.loop is True:
+            return None
+        return max(1, int(self.loop))
+
+    def run(self, ctx: Context) -> int:
+        messages = self._load(str(resolve(self.recording, ctx)))
+        speed = float(resolve(self.speed, ctx))
+        if not speed > 0:
+            raise ValueError(f"Replay speed must be positive, got {speed!r}")
+        link = ctx.require_link()
+        passes, done, sent, lateness = self._passes(), 0, 0, []
+        while messages and (passes is None or done < passes) and not ctx.stopped:
+            start = time.perf_counter_ns()
+            for item in messages:
+                deadline = start + int(item.offset_ns / speed)
+                if not ctx.sleep_until(deadline):
+                    break
+                lateness.append(time.perf_counter_ns() - deadline)
+                link.publisher(item.key, item.encoding or None).put(item.data)
+                sent += 1
+            done += 1
+        ctx.report(self._summary(sent, done, lateness, ctx.stopped))
+        return sent
+
+    def _summary(self, sent: int, passes: int, lateness: list[int],
+                 interrupted: bool) -> dict[str, Any]:
+        return {"action": "Replay", "recording": str(self.recording), "messages": sent,
+                "passes": passes, "interrupted": interrupted,
+                **latency_summary(lateness, "lateness")}
