@@ -16,11 +16,12 @@ import sys
 import tempfile
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from importlib import metadata
 from pathlib import Path
+from typing import Any
 
 import zenoh
 from redline.agent.execution import Markers, execute_cases
@@ -30,6 +31,7 @@ from redline.agent.loader import load_test_cases
 from redline.agent.network import RunNetwork, open_client
 from redline.agent.processes import ManagedProcess, RunError
 from redline.agent.recorder import STATUS_KEY
+from redline.agent.selection import select_cases
 from redline.agent.suite import ProcessSpec, ReadyCheck, Suite, load_suite
 from redline.testing import Link, Stop, TestCase, validate_cases
 
@@ -200,16 +202,21 @@ class _Run:
 
 
 def run_suite(suite_path: Path, out: Path, *, run_metadata: dict[str, str] | None = None,
-              progress: Progress | None = None, keep_workspace: bool = False) -> RunResult:
-    """Run a suite once and write its recording to ``out``.
+              progress: Progress | None = None, keep_workspace: bool = False,
+              only: Sequence[str] = (), overrides: Mapping[str, Any] | None = None) -> RunResult:
+    """Run a suite once (one execution) and write its recording to ``out``.
 
-    Raises `SuiteError` for a bad suite file, `ValidationError` for tests that cannot run, and
-    `RunError` (e.g. `ProcessExited`, with exit code and log tail) when the run fails; the
-    workspace with every log is then kept and named in the progress output.
+    ``only`` restricts the run to the named test cases; ``overrides`` replaces parameter values
+    in every parameter set (``{"rate": 40}``). Raises `SuiteError` for a bad suite file,
+    `ValidationError` for tests that cannot run, and `RunError` (e.g. `ProcessExited`, with exit
+    code and log tail) when the run fails; the workspace with every log is then kept and named
+    in the progress output.
     """
     say = progress or (lambda _message: None)
     suite = load_suite(suite_path)
     cases = load_test_cases(suite.tests)
+    validate_cases(cases)
+    cases = select_cases(cases, only, overrides)
     validate_cases(cases)
     out = Path(out).resolve()
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -228,3 +235,33 @@ def run_suite(suite_path: Path, out: Path, *, run_metadata: dict[str, str] | Non
     say(f"recorded {segments} segment(s) to {out}")
     return RunResult(recording=out, workspace=workspace if kept else None, segments=segments,
                      run_metadata=run.meta["run"], host=run.meta["host"])
+
+
+def execution_paths(out: Path, executions: int) -> list[Path]:
+    """Where each execution's recording goes: ``out`` itself for one, else ``out-1.mcap``..."""
+    out = Path(out)
+    if executions == 1:
+        return [out]
+    return [out.with_name(f"{out.stem}-{index}{out.suffix}") for index in range(1, executions + 1)]
+
+
+def run_executions(suite_path: Path, out: Path, *, executions: int | None = None,
+                   run_metadata: dict[str, str] | None = None, progress: Progress | None = None,
+                   **options: Any) -> list[RunResult]:
+    """Run the suite ``executions`` times (default: the suite file's), one recording each.
+
+    The components are started afresh for every execution (and never between parameter sets
+    within one). ``options`` are those of `run_suite`.
+    """
+    say = progress or (lambda _message: None)
+    count = executions if executions is not None else load_suite(suite_path).executions
+    if count < 1:
+        raise RunError(f"executions must be at least 1, got {count}")
+    results = []
+    for index, path in enumerate(execution_paths(out, count), start=1):
+        if count > 1:
+            say(f"execution {index} of {count} → {path}")
+        meta = {**(run_metadata or {}), "execution": str(index), "executions": str(count)}
+        results.append(run_suite(suite_path, path, run_metadata=meta, progress=progress,
+                                 **options))
+    return results

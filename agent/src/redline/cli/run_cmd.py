@@ -41,10 +41,19 @@ def run(
     keep: Annotated[bool, typer.Option("--keep", help="keep the workspace and logs")] = False,
     meta: Annotated[list[str] | None, typer.Option(
         "--meta", help="KEY=VALUE added to the run metadata (repeatable)")] = None,
+    only: Annotated[list[str] | None, typer.Option(
+        "--only", help="run only this test case (repeatable)")] = None,
+    param: Annotated[list[str] | None, typer.Option(
+        "--param", help="NAME=VALUE replacing a parameter in every set (repeatable)")] = None,
+    executions: Annotated[int | None, typer.Option(
+        "--executions", "-n", min=1,
+        help="executions (default: the suite's); more than one writes OUT-1.mcap, OUT-2.mcap...")
+    ] = None,
 ) -> None:
-    """Run SUITE once (every case, phase and parameter set) and record it to --out."""
+    """Run SUITE (every case, phase and parameter set) and record each execution."""
     from redline.agent.processes import RunError
-    from redline.agent.runner import run_suite
+    from redline.agent.runner import run_executions
+    from redline.agent.selection import parse_overrides
     from redline.agent.suite import SuiteError
     from redline.testing import ValidationError
 
@@ -55,15 +64,19 @@ def run(
         console.print(f"[dim]{time.monotonic() - began:6.1f}s[/dim] {escape(message)}")
 
     try:
-        result = run_suite(suite, out, run_metadata=extra, progress=progress, keep_workspace=keep)
+        results = run_executions(suite, out, executions=executions, run_metadata=extra,
+                                 progress=progress, keep_workspace=keep, only=only or (),
+                                 overrides=parse_overrides(param or []))
     except (SuiteError, ValidationError, RunError) as exc:
         console.print(f"[bold red]error:[/bold red] {escape(str(exc))}")
         raise typer.Exit(1) from None
     except KeyboardInterrupt:
-        console.print("[bold red]interrupted[/bold red]: every process was stopped")
+        console.print("[bold red]interrupted[/bold red]: every process was stopped; what was "
+                      "recorded so far is in the recording")
         raise typer.Exit(130) from None
-    console.print(_summary(result.recording))
-    console.print(f"[green]recorded[/green] {result.segments} segments to {result.recording}")
+    console.print(_summary(results[-1].recording))
+    for result in results:
+        console.print(f"[green]recorded[/green] {result.segments} segments to {result.recording}")
 
 
 def register(app: typer.Typer) -> None:

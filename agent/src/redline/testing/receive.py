@@ -109,7 +109,7 @@ class Listen(Action):
     """Count the samples on ``key`` while ``during`` runs; returns the number received.
 
     Reports per concrete key (a wildcard ``key`` may match several): ``received`` and ``rate``
-    (samples/s), and, when the samples carry sequence numbers as their attachment (see
+    (samples/s while ``during`` ran), and, when the samples carry sequence numbers as their attachment (see
     ``Publish(..., sequence=True)``; a component can pass them on), ``lost`` (gaps between the
     lowest and highest number seen), ``loss_ratio`` and ``duplicates``. ``grace`` seconds after
     ``during`` ends let samples still in flight arrive::
@@ -131,10 +131,10 @@ class Listen(Action):
         began = time.perf_counter()
         try:
             self.during.run(ctx)
+            seconds = time.perf_counter() - began  # the rate is over ``during``, not the grace
             ctx.sleep_until(time.perf_counter_ns() + int(self.grace * 1e9))
         finally:
             forget()
-        seconds = time.perf_counter() - began
         for concrete in sorted(arrivals.received) or [key]:
             ctx.report(arrivals.summary(concrete, seconds))
         return sum(arrivals.received.values())
