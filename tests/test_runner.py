@@ -39,7 +39,13 @@ def test_recording_holds_counters_for_every_measured_segment(objectbuilder_run) 
                       and k.counter == counter and k.phase == segment.phase
                       and k.params == canonical_params(segment.params)]
             assert values and values[0], f"no {counter} in {segment}"
-    assert all(c["pid"] > 0 and c["process"] == "objectbuilder" for c in recording.counters)
+    processes = {c["process"] for c in recording.counters}
+    assert processes == {"objectbuilder", "host"}
+    assert all(c["pid"] > 0 for c in recording.counters if c["process"] == "objectbuilder")
+    counters = {k.counter for k in samples if k.process == "objectbuilder"}
+    assert {"cpu_user_percent", "cpu_system_percent", "vms_bytes", "uss_bytes", "pss_bytes",
+            "ctx_voluntary_per_s", "ctx_involuntary_per_s", "fds", "processes"} <= counters
+    assert {"cpu_steal_percent", "load_1m"} <= {k.counter for k in samples if k.process == "host"}
 
 
 def test_recording_holds_markers_traffic_and_driver_metrics(objectbuilder_run) -> None:

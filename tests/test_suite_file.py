@@ -43,7 +43,7 @@ def test_objectbuilder_suite_loads_with_paths_relative_to_the_file() -> None:
     assert component.command[0] == sys.executable  # "python" means the Python running Redline
     assert component.cwd == OBJECTBUILDER.parent
     assert component.ready is not None and component.ready.kind == "log"
-    assert len(suite.sha256) == 64 and suite.build is None
+    assert len(suite.sha256) == 64 and suite.build is not None and suite.build[:2] == ("sh", "-c")
 
 
 def test_defaults_and_build_line(tmp_path: Path) -> None:
@@ -100,3 +100,8 @@ def test_missing_test_module_is_named(tmp_path: Path) -> None:
 def test_missing_file_is_named(tmp_path: Path) -> None:
     with pytest.raises(SuiteError, match="cannot read the suite file"):
         load_suite(tmp_path / "nothing.toml")
+
+
+def test_a_component_named_host_is_refused(tmp_path: Path) -> None:
+    message = error_of(tmp_path, VALID.replace('name = "demo"\ncommand', 'name = "host"\ncommand'))
+    assert ":5:" in message and "'host' is reserved" in message

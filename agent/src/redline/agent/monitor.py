@@ -1,96 +1,38 @@
-"""The monitor process: samples each component process from /proc and publishes the counters.
+"""The monitor process: samples each component's process tree and the host, publishes counters.
 
     python -m redline.agent.monitor --rate 10 objectbuilder=1234 [name=pid ...]
 
 Client settings for zenoh come as JSON in ``REDLINE_ZENOH``. Each sample is published as
-``{"t_ns", "pid", "process", "values": {...}}`` on ``@redline/counters/<name>``. CPU comes from the
-nanosecond run time of every thread (``/proc/PID/task/*/schedstat``), summed with per-thread
-deltas so exiting threads never make it negative; utime ticks (10 ms) are too coarse at 10 Hz.
-Files are kept open and read with ``os.pread`` (~4 µs a read, FIELD-NOTES).
+``{"t_ns", "pid", "process", "values": {...}}`` on ``@redline/counters/<name>``, the host's on
+``@redline/counters/host`` (process ``host``, pid 0). Per component (its process and every
+descendant, summed; see `sampling.TreeSampler`): ``cpu_percent`` (nanosecond run time of every
+thread, from schedstat), ``cpu_user_percent`` and ``cpu_system_percent`` (ticks, over >= 0.5 s
+windows), ``rss_bytes``, ``vms_bytes``, ``uss_bytes`` and ``pss_bytes`` (about once a second),
+``threads``, ``processes``, ``ctx_voluntary_per_s`` and ``ctx_involuntary_per_s`` (summed over
+threads), ``io_read_bytes`` and ``io_write_bytes`` (cumulative), ``fds``. Host: ``cpu_percent``,
+``cpu_user_percent``, ``cpu_system_percent``, ``cpu_iowait_percent``, ``cpu_steal_percent`` (% of
+all CPUs) and ``load_1m``.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import os
 import signal
 import sys
 import threading
 import time
 
+import zenoh
 from redline.agent.network import client_settings_from_env, open_client
+from redline.agent.procstat import ProcessSampler
+from redline.agent.sampling import HostSampler, TreeSampler
 from redline.recording.format import COUNTERS_PREFIX
 
-PAGE = os.sysconf("SC_PAGE_SIZE")
+HOST = "host"  # the process name of the host's counters
+DETAIL_S = 1.0  # USS/PSS cost ~1 ms a read: once a second
 
-
-def _pread(fd: int) -> bytes:
-    return os.pread(fd, 4096, 0)
-
-
-class ProcessSampler:
-    """Counters of one process: cpu_percent, rss_bytes, threads, io_read_bytes, io_write_bytes."""
-
-    def __init__(self, name: str, pid: int) -> None:
-        self.name, self.pid = name, pid
-        self._root = f"/proc/{pid}"
-        self._statm = os.open(f"{self._root}/statm", os.O_RDONLY)
-        self._io = _open_optional(f"{self._root}/io")
-        self._threads: dict[str, tuple[int, int]] = {}  # tid -> (fd, last run time ns)
-        self._last_ns = time.monotonic_ns()
-        self._sample_threads()  # baseline, so the first sample covers one interval
-
-    def _sample_threads(self) -> int:
-        """Run time gained by all threads since the last call, in ns."""
-        gained = 0
-        tids = os.listdir(f"{self._root}/task")
-        for tid in tids:
-            known = self._threads.get(tid)
-            try:
-                fd = known[0] if known else os.open(
-                    f"{self._root}/task/{tid}/schedstat", os.O_RDONLY)
-                run_ns = int(_pread(fd).split(maxsplit=1)[0])
-            except (OSError, ValueError, IndexError):
-                continue  # the thread exited between listdir and read
-            gained += run_ns - (known[1] if known else 0)
-            self._threads[tid] = (fd, run_ns)
-        for tid in set(self._threads) - set(tids):
-            os.close(self._threads.pop(tid)[0])
-        return gained
-
-    def sample(self) -> dict[str, float]:
-        """One sample; raises OSError once the process is gone."""
-        gained = self._sample_threads()
-        now = time.monotonic_ns()
-        interval, self._last_ns = now - self._last_ns, now
-        values: dict[str, float] = {
-            "cpu_percent": round(100.0 * gained / interval, 3) if interval > 0 else 0.0,
-            "rss_bytes": int(_pread(self._statm).split()[1]) * PAGE,
-            "threads": len(self._threads),
-        }
-        if self._io is not None:
-            fields = dict(line.split(b": ") for line in _pread(self._io).splitlines())
-            values["io_read_bytes"] = int(fields[b"rchar"])
-            values["io_write_bytes"] = int(fields[b"wchar"])
-        return values
-
-    def close(self) -> None:
-        for fd, _ in self._threads.values():
-            os.close(fd)
-        self._threads.clear()
-        for fd in (self._statm, self._io):
-            if fd is not None:
-                os.close(fd)
-
-
-def _open_optional(path: str) -> int | None:
-    try:
-        fd = os.open(path, os.O_RDONLY)
-        _pread(fd)
-        return fd
-    except OSError:
-        return None
+__all__ = ["HOST", "ProcessSampler", "main", "run"]
 
 
 def _targets(specs: list[str]) -> list[tuple[str, int]]:
@@ -103,40 +45,62 @@ def _targets(specs: list[str]) -> list[tuple[str, int]]:
     return targets
 
 
-def run(targets: list[tuple[str, int]], rate: float, stop: threading.Event) -> None:
+class _Publishing:
+    """One publisher per process name; the message layout of format.py."""
+
+    def __init__(self, session: zenoh.Session, names: list[str]) -> None:
+        self._publishers = {name: session.declare_publisher(COUNTERS_PREFIX + name)
+                            for name in names}
+
+    def put(self, name: str, pid: int, values: dict[str, float]) -> None:
+        self._publishers[name].put(json.dumps({
+            "t_ns": time.time_ns(), "pid": pid, "process": name, "values": values}))
+
+
+def _sample_all(samplers: list[TreeSampler], host: HostSampler | None, out: _Publishing,
+                detail: bool) -> None:
+    for sampler in list(samplers):
+        try:
+            values = sampler.sample(memory_detail=detail)
+        except OSError:
+            print(f"redline-monitor: {sampler.name} (pid {sampler.pid}) is gone", flush=True)
+            samplers.remove(sampler)
+            sampler.close()
+            continue
+        out.put(sampler.name, sampler.pid, values)
+    if host is not None:
+        out.put(HOST, 0, host.sample())
+
+
+def run(targets: list[tuple[str, int]], rate: float, stop: threading.Event,
+        with_host: bool = True) -> None:
     """Sample every target at ``rate`` Hz on absolute deadlines until ``stop`` is set."""
-    samplers = [ProcessSampler(name, pid) for name, pid in targets]
+    samplers = [TreeSampler(name, pid) for name, pid in targets]
+    host = HostSampler() if with_host else None
     with open_client(client_settings_from_env()) as session:
-        publishers = {s.name: session.declare_publisher(COUNTERS_PREFIX + s.name) for s in samplers}
+        out = _Publishing(session, [s.name for s in samplers] + ([HOST] if host else []))
         print(f"redline-monitor ready: {', '.join(f'{n}={p}' for n, p in targets)}", flush=True)
         period, start, tick = 1e9 / rate, time.monotonic_ns(), 1
+        detail_every = max(1, round(rate * DETAIL_S))
         while not stop.wait(max(0.0, (start + tick * period - time.monotonic_ns()) / 1e9)):
+            _sample_all(samplers, host, out, detail=tick % detail_every == 1 % detail_every)
             tick += 1
-            for sampler in list(samplers):
-                try:
-                    values = sampler.sample()
-                except OSError:
-                    print(f"redline-monitor: {sampler.name} (pid {sampler.pid}) is gone",
-                          flush=True)
-                    samplers.remove(sampler)
-                    sampler.close()
-                    continue
-                publishers[sampler.name].put(json.dumps({
-                    "t_ns": time.time_ns(), "pid": sampler.pid, "process": sampler.name,
-                    "values": values}))
     for sampler in samplers:
         sampler.close()
+    if host is not None:
+        host.close()
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description="Redline's process monitor")
     parser.add_argument("--rate", type=float, default=10.0, help="samples per second")
+    parser.add_argument("--no-host", action="store_true", help="do not sample the host")
     parser.add_argument("targets", nargs="+", help="NAME=PID of each process to sample")
     args = parser.parse_args(argv)
     stop = threading.Event()
     for signum in (signal.SIGTERM, signal.SIGINT):
         signal.signal(signum, lambda *_: stop.set())
-    run(_targets(args.targets), args.rate, stop)
+    run(_targets(args.targets), args.rate, stop, with_host=not args.no_host)
     return 0
 
 

@@ -165,6 +165,9 @@ def _process(checker: _Checker, table: Any, section: str, index: int) -> Process
     if not isinstance(name, str) or not re.match(r"^[A-Za-z0-9_.-]+$", name):
         raise checker.fail(f"{what}: 'name' must be letters, digits, '_', '.' or '-', got {name!r}",
                            "name", section, index)
+    if name == "host":
+        raise checker.fail(f"{what}: 'host' is reserved for the host's counters", "name",
+                           section, index)
     command = _string_list(checker, table["command"], "command", what, section, index)
     if command[0] == "python":
         command = (sys.executable, *command[1:])
