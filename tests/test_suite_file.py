@@ -105,3 +105,16 @@ def test_missing_file_is_named(tmp_path: Path) -> None:
 def test_a_component_named_host_is_refused(tmp_path: Path) -> None:
     message = error_of(tmp_path, VALID.replace('name = "demo"\ncommand', 'name = "host"\ncommand'))
     assert ":5:" in message and "'host' is reserved" in message
+
+
+def test_objectbuilder_full_suite_has_the_three_sweeps_and_thread_configurations() -> None:
+    from redline.agent.loader import load_test_cases
+    from redline.testing import validate_cases
+
+    suite = load_suite(OBJECTBUILDER.parent / "full.toml")
+    assert [c.name for c in suite.components] == [
+        "objectbuilder-t1", "objectbuilder-t2", "objectbuilder-t4"]
+    cases = load_test_cases(suite.tests)
+    validate_cases(cases)
+    assert [c.name for c in cases] == ["leg_count", "leg_rate", "pose_rate", "threads"]
+    assert [s["threads"] for s in cases[-1].parameter_sets()] == [1, 2, 4]

@@ -86,6 +86,8 @@ def _guarded(work: Any, data: bytes) -> None:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--threads", type=int, default=2, help="worker threads for leg messages")
+    parser.add_argument("--prefix", default="objectbuilder",
+                        help="key prefix of its inputs and output (several can run side by side)")
     args = parser.parse_args(argv)
     stop = threading.Event()
     for signum in (signal.SIGTERM, signal.SIGINT):
@@ -93,11 +95,13 @@ def main(argv: list[str] | None = None) -> int:
     legs_pool = ThreadPoolExecutor(args.threads, thread_name_prefix="legs")
     pose_pool = ThreadPoolExecutor(1, thread_name_prefix="pose")
     with zenoh.open(zenoh.Config.from_env()) as session:
-        builder = ObjectBuilder(session.declare_publisher(PERSONS_KEY))
-        session.declare_subscriber(
-            LEGS_KEY, lambda s: legs_pool.submit(_guarded, builder.on_legs, s.payload.to_bytes()))
-        session.declare_subscriber(
-            POSE_KEY, lambda s: pose_pool.submit(_guarded, builder.on_pose, s.payload.to_bytes()))
+        keys = {key: key.replace("objectbuilder", args.prefix, 1)
+                for key in (LEGS_KEY, POSE_KEY, PERSONS_KEY)}
+        builder = ObjectBuilder(session.declare_publisher(keys[PERSONS_KEY]))
+        session.declare_subscriber(keys[LEGS_KEY], lambda s: legs_pool.submit(
+            _guarded, builder.on_legs, s.payload.to_bytes()))
+        session.declare_subscriber(keys[POSE_KEY], lambda s: pose_pool.submit(
+            _guarded, builder.on_pose, s.payload.to_bytes()))
         print(f"objectbuilder ready (threads={args.threads}, work per pair={WORK_PER_PAIR})",
               flush=True)
         while not stop.wait(0.2):  # a timed wait keeps signal handlers responsive
