@@ -168,3 +168,24 @@ def test_publish_puts_built_payloads_on_real_zenoh() -> None:
         link.close()
         subscriber.undeclare()
     assert received[:5] == [b"hihi"] * 5
+
+
+def test_validation_names_every_malformed_key_expression_before_the_run() -> None:
+    from redline.testing import Listen, Query, Replay, WaitFor
+
+    case = TestCase("keys", [
+        Phase("send", Sequence(Publish("a//b", b"x"), Publish(Param("key"), b"y"),
+                               Query("svc/*x"))),
+        Phase("receive", Listen("ok/**", WaitFor("bad#", 1.0))),
+        Phase("replay", Replay("r.mcap", keys=["robot/$x"], remap={"robot": "sim/"})),
+    ], Cartesian(key=["fine/key"]))
+    with pytest.raises(ValidationError) as caught:
+        validate_cases([case])
+    problems = caught.value.problems
+    assert len(problems) == 5, problems
+    assert problems[0].startswith("test case 'keys', phase 'send': Publish: 'a//b' is not a "
+                                  "valid key expression (empty chunks are forbidden")
+    assert "Query: 'svc/*x'" in problems[1] and "'*' may only" not in problems[1]
+    assert "phase 'receive': WaitFor: 'bad#'" in problems[2]
+    assert "Replay keys: 'robot/$x'" in problems[3] and "Replay remap: 'sim/'" in problems[4]
+    assert "/root/.cargo" not in str(caught.value)

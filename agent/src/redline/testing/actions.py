@@ -38,6 +38,17 @@ class Action:
         for value in vars(self).values():
             yield from _actions_in(value)
 
+    def problems(self) -> list[str]:
+        """What is wrong with this action itself, found before the run (e.g. a malformed key
+        expression); the runner names the case and phase. Children are checked on their own."""
+        return []
+
+    def walk(self) -> Iterator[Action]:
+        """This action and every action in its tree."""
+        yield self
+        for child in self.children():
+            yield from child.walk()
+
     def params_used(self) -> set[str]:
         """The names of every `Param` in this action's tree."""
         names: set[str] = set()

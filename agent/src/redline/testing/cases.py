@@ -165,6 +165,9 @@ def case_problems(case: TestCase) -> list[str]:
         if phase.name in seen:
             problems.append(f"test case {case.name!r}: phase {phase.name!r} is defined twice")
         seen.add(phase.name)
+        for action in phase.action.walk():
+            problems += [f"test case {case.name!r}, phase {phase.name!r}: {problem}"
+                         for problem in action.problems()]
         for param in sorted(phase.action.params_used()):
             lacking = [s.name for s in sets if param not in s]
             if lacking:

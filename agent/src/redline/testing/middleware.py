@@ -20,6 +20,20 @@ def as_payload(value: Any, key: str, action: str = "Publish") -> bytes:
     raise TypeError(f"{action}({key!r}): payload must be bytes or str, got {type(value).__name__}")
 
 
+def key_problems(action: str, *keys: object) -> list[str]:
+    """Why each literal key expression of an action is malformed (keys given as actions, such as
+    ``Param("key")``, are checked by zenoh when the action runs)."""
+    found = []
+    for key in keys:
+        if isinstance(key, str):
+            try:
+                zenoh.KeyExpr(key)
+            except zenoh.ZError as exc:
+                reason = str(exc).split(": ", 1)[-1].split(" at /", 1)[0]  # drop the Rust path
+                found.append(f"{action}: {key!r} is not a valid key expression ({reason})")
+    return found
+
+
 def encoding_of(data: Any, given: str | None) -> str | None:
     """The encoding given to the action, else the one a `Message` payload carries."""
     return given if given is not None else getattr(data, "encoding", None)
@@ -42,6 +56,9 @@ class Publish(Action):
         self.payload = payload
         self.encoding = encoding
         self.sequence = sequence
+
+    def problems(self) -> list[str]:
+        return key_problems("Publish", self.key)
 
     def run(self, ctx: Context) -> int:
         key = str(resolve(self.key, ctx))
@@ -76,6 +93,9 @@ class Query(Action):
         self.timeout = timeout
         self.wait = wait
         self.encoding = encoding
+
+    def problems(self) -> list[str]:
+        return key_problems("Query", self.key)
 
     def run(self, ctx: Context) -> bytes | None:
         key = str(resolve(self.key, ctx))

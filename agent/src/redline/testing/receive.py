@@ -10,6 +10,7 @@ from typing import Any
 import zenoh
 from redline.testing.actions import Action, resolve
 from redline.testing.context import Context
+from redline.testing.middleware import key_problems
 
 Predicate = Callable[[bytes], bool]
 
@@ -33,6 +34,9 @@ class WaitFor(Action):
         self.timeout = timeout
         self.where = where
         self.after = after
+
+    def problems(self) -> list[str]:
+        return key_problems("WaitFor", self.key)
 
     def run(self, ctx: Context) -> bytes | None:
         key = str(resolve(self.key, ctx))
@@ -109,10 +113,10 @@ class Listen(Action):
     """Count the samples on ``key`` while ``during`` runs; returns the number received.
 
     Reports per concrete key (a wildcard ``key`` may match several): ``received`` and ``rate``
-    (samples/s while ``during`` ran), and, when the samples carry sequence numbers as their attachment (see
-    ``Publish(..., sequence=True)``; a component can pass them on), ``lost`` (gaps between the
-    lowest and highest number seen), ``loss_ratio`` and ``duplicates``. ``grace`` seconds after
-    ``during`` ends let samples still in flight arrive::
+    (samples/s while ``during`` ran), and, when the samples carry sequence numbers as their
+    attachment (see ``Publish(..., sequence=True)``; a component can pass them on), ``lost``
+    (gaps between the lowest and highest number seen), ``loss_ratio`` and ``duplicates``.
+    ``grace`` seconds after ``during`` ends let samples still in flight arrive::
 
         Listen("echo/out", FixedRate(100, 5, Publish("echo/in", b"x", sequence=True)))
     """
@@ -123,6 +127,9 @@ class Listen(Action):
         self.key = key
         self.during = during
         self.grace = grace
+
+    def problems(self) -> list[str]:
+        return key_problems("Listen", self.key)
 
     def run(self, ctx: Context) -> int:
         key = str(resolve(self.key, ctx))

@@ -15,6 +15,7 @@ from redline.recording.format import REDLINE_PREFIX
 from redline.testing.actions import Action, resolve
 from redline.testing.context import Context
 from redline.testing.metrics import latency_summary
+from redline.testing.middleware import key_problems
 
 
 @dataclass(frozen=True)
@@ -87,6 +88,10 @@ class Replay(Action):
         self.remap = dict(remap or {})
         self.loop = loop
         self._loaded: dict[str, list[Recorded]] = {}
+
+    def problems(self) -> list[str]:
+        return key_problems("Replay keys", *(self.keys or [])) + key_problems(
+            "Replay remap", *self.remap.values())
 
     def _load(self, path: str) -> list[Recorded]:
         if path not in self._loaded:
