@@ -8,7 +8,8 @@ action that produces it (see `resolve`).
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+import functools
+from collections.abc import Callable, Iterator
 from typing import Any
 
 from redline.testing.context import Context
@@ -37,6 +38,18 @@ class Action:
         """The actions this action may run or resolve (found in its attributes by default)."""
         for value in vars(self).values():
             yield from _actions_in(value)
+
+    #: True when one run costs about a zenoh put, so loops may check their stop signal only
+    #: every few dozen runs instead of every run.
+    cheap = False
+
+    def compile(self, ctx: Context) -> Callable[[], Any]:
+        """A function doing one `run` for this parameter set, for loops that run it many times.
+
+        By default it simply calls ``run(ctx)``; an action may return something faster that
+        prepares once what stays the same within the parameter set (see `Publish`).
+        """
+        return functools.partial(self.run, ctx)
 
     def problems(self) -> list[str]:
         """What is wrong with this action itself, found before the run (e.g. a malformed key
