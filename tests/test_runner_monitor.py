@@ -98,7 +98,7 @@ def test_context_switches_are_summed_over_threads_and_files_counted(spawn) -> No
     assert process.stdout.readline().strip() == "ready"
     sampler = ProcessSampler("sleepy", process.pid)
     main_before = _main_thread_switches(process.pid)
-    samples = _samples(sampler, 6, memory_detail=True)
+    samples = _samples(sampler, 6, detail=True)
     main_gained = _main_thread_switches(process.pid) - main_before
     switches = sum(s["ctx_voluntary_per_s"] for s in samples) / 6
     assert switches > 20 * max(1, main_gained), (switches, main_gained)

@@ -79,12 +79,20 @@ class _Thread:
         except OSError:
             os.close(self.schedstat)
             raise
-        self.last = (0, 0, 0)  # run ns, voluntary, involuntary: a new thread counts from zero
+        self.run_ns = 0  # a new thread counts from zero: its whole run time is new
+        self.switches = (0, 0)
 
-    def read(self) -> tuple[int, int, int]:
+    def cpu_gained(self) -> int:
         run_ns = int(pread(self.schedstat).split(maxsplit=1)[0])
+        gained, self.run_ns = run_ns - self.run_ns, run_ns
+        return gained
+
+    def switches_gained(self) -> tuple[int, int]:
         status = pread(self.status, 8192)
-        return run_ns, _after(status, VOLUNTARY), _after(status, INVOLUNTARY)
+        now = (_after(status, VOLUNTARY), _after(status, INVOLUNTARY))
+        gained = (now[0] - self.switches[0], now[1] - self.switches[1])
+        self.switches = now
+        return gained
 
     def close(self) -> None:
         os.close(self.schedstat)
@@ -92,7 +100,13 @@ class _Thread:
 
 
 class ProcessSampler:
-    """Counters of one process (see `sample`); raises OSError once the process is gone."""
+    """Counters of one process (see `sample`); raises OSError once the process is gone.
+
+    Every sample reads the run time of the known threads (kept-open schedstat files); a
+    ``detail`` sample (ask for one about once a second) also re-lists the threads and reads
+    what costs more: context switches, open files, USS and PSS. A thread that starts between
+    two listings has its whole run time counted when it is found.
+    """
 
     def __init__(self, name: str, pid: int) -> None:
         self.name, self.pid = name, pid
@@ -104,31 +118,47 @@ class ProcessSampler:
         self._rollup = open_optional(f"{self._root}/smaps_rollup")
         self._threads: dict[str, _Thread] = {}
         self._times = WindowRate()
-        self._last_ns = time.monotonic_ns()
-        self._threads_gained()  # baseline, so the first sample covers one interval
+        self._last_ns = self._detail_ns = time.monotonic_ns()
+        self._list_threads()
+        self._cpu_gained()  # baseline, so the first sample covers one interval
+        self._switches_gained()
 
-    def _threads_gained(self) -> tuple[int, int, int]:
-        """Run ns and context switches gained by all threads since the last call."""
-        gained = [0, 0, 0]
+    def _list_threads(self) -> None:
         tids = os.listdir(f"{self._root}/task")
         for tid in tids:
-            thread = self._threads.get(tid)
-            try:
-                if thread is None:
-                    thread = self._threads[tid] = _Thread(self._root, tid)
-                now = thread.read()
-            except (OSError, ValueError, IndexError):
-                continue  # the thread exited between listdir and read
-            for index in range(3):
-                gained[index] += now[index] - thread.last[index]
-            thread.last = now
-        for tid in set(self._threads) - set(tids):  # exited threads never make a delta negative
+            if tid not in self._threads:
+                try:
+                    self._threads[tid] = _Thread(self._root, tid)
+                except OSError:
+                    continue  # the thread exited between listdir and open
+        for tid in set(self._threads) - set(tids):
             self._threads.pop(tid).close()
-        return gained[0], gained[1], gained[2]
 
-    def sample(self, *, memory_detail: bool = False) -> dict[str, float]:
-        """One sample; ``memory_detail`` adds USS and PSS (costly: ask at ~1 Hz)."""
-        run_ns, voluntary, involuntary = self._threads_gained()
+    def _cpu_gained(self) -> int:
+        """Run ns gained by all known threads since the last call; exited ones are dropped."""
+        gained = 0
+        for tid, thread in list(self._threads.items()):
+            try:
+                gained += thread.cpu_gained()
+            except (OSError, ValueError, IndexError):
+                self._threads.pop(tid).close()
+        return gained
+
+    def _switches_gained(self) -> tuple[int, int]:
+        voluntary = involuntary = 0
+        for thread in self._threads.values():
+            try:
+                more = thread.switches_gained()
+            except (OSError, ValueError):
+                continue
+            voluntary, involuntary = voluntary + more[0], involuntary + more[1]
+        return voluntary, involuntary
+
+    def sample(self, *, detail: bool = False) -> dict[str, float]:
+        """One sample; ``detail`` adds context switches, fds, USS and PSS (about 1 Hz)."""
+        if detail:
+            self._list_threads()
+        run_ns = self._cpu_gained()
         now = time.monotonic_ns()
         interval, self._last_ns = (now - self._last_ns) / 1e9, now
         statm = pread(self._statm).split()
@@ -137,9 +167,6 @@ class ProcessSampler:
             "rss_bytes": int(statm[1]) * PAGE,
             "vms_bytes": int(statm[0]) * PAGE,
             "threads": len(self._threads),
-            "ctx_voluntary_per_s": round(voluntary / interval, 3) if interval > 0 else 0.0,
-            "ctx_involuntary_per_s": round(involuntary / interval, 3) if interval > 0 else 0.0,
-            "fds": len(os.listdir(f"{self._root}/fd")),
         }
         fields = stat_fields(pread(self._stat))
         rates = self._times.update(now, (int(fields[11]) / TICKS, int(fields[12]) / TICKS))
@@ -150,7 +177,18 @@ class ProcessSampler:
             io = dict(line.split(b": ") for line in pread(self._io).splitlines())
             values["io_read_bytes"] = int(io[b"rchar"])
             values["io_write_bytes"] = int(io[b"wchar"])
-        if memory_detail and self._rollup is not None:
+        if detail:
+            values.update(self._detail(now))
+        return values
+
+    def _detail(self, now: int) -> dict[str, float]:
+        seconds, self._detail_ns = (now - self._detail_ns) / 1e9, now
+        voluntary, involuntary = self._switches_gained()
+        values: dict[str, float] = {"fds": len(os.listdir(f"{self._root}/fd"))}
+        if seconds > 0:
+            values["ctx_voluntary_per_s"] = round(voluntary / seconds, 3)
+            values["ctx_involuntary_per_s"] = round(involuntary / seconds, 3)
+        if self._rollup is not None:
             values.update(_uss_pss(pread(self._rollup, 16384)))
         return values
 

@@ -50,16 +50,16 @@ class TreeSampler:
         for pid in set(self.members) - seen:
             self.members.pop(pid).close()
 
-    def sample(self, *, memory_detail: bool = False) -> dict[str, float]:
+    def sample(self, *, detail: bool = False) -> dict[str, float]:
         """The summed counters of the tree, with ``processes``."""
         now = time.monotonic_ns()
         if now >= self._next_scan:
             self.rescan()
             self._next_scan = now + RESCAN_NS
-        values = self.root.sample(memory_detail=memory_detail)
+        values = self.root.sample(detail=detail)
         for pid, member in list(self.members.items()):
             try:
-                extra = member.sample(memory_detail=memory_detail)
+                extra = member.sample(detail=detail)
             except OSError:
                 self.members.pop(pid).close()
                 continue
