@@ -15,8 +15,8 @@ moment, so the runner can add the end time) and the ``redline.recorder`` counts,
 from __future__ import annotations
 
 import argparse
+import collections
 import json
-import queue
 import signal
 import sys
 import threading
@@ -40,32 +40,42 @@ Item = tuple[str, str, bytes, int]
 
 
 class Tap:
-    """The callback of one subscriber: queue the sample or count it as dropped, never block."""
+    """The callback of one subscriber: queue the sample or count it as dropped, never block.
 
-    def __init__(self, buffer: queue.Queue[Item], skip_redline: bool) -> None:
+    A deque (append is atomic under the GIL, ~0.3 us) rather than a `queue.Queue` (~1.3 us with
+    its locks): at 100,000 samples/s the callback's cost is most of the recorder's budget.
+    """
+
+    def __init__(self, buffer: collections.deque[Item], capacity: int,
+                 skip_redline: bool) -> None:
         self.buffer = buffer
+        self.capacity = capacity
         self.skip_redline = skip_redline
         self.received = 0
         self.dropped = 0
+        self._encodings: dict[str, str] = {}  # one channel per key: its first encoding
 
     def __call__(self, sample: zenoh.Sample) -> None:
         key = str(sample.key_expr)
         if self.skip_redline and key.startswith(REDLINE_PREFIX):
             return  # arrives through the @redline/** subscriber, should ** ever match it
         self.received += 1
-        try:
-            self.buffer.put_nowait((key, str(sample.encoding), sample.payload.to_bytes(),
-                                    time.time_ns()))
-        except queue.Full:
+        if len(self.buffer) >= self.capacity:
             self.dropped += 1
+            return
+        encoding = self._encodings.get(key)
+        if encoding is None:
+            encoding = self._encodings[key] = str(sample.encoding)
+        self.buffer.append((key, encoding, sample.payload.to_bytes(), time.time_ns()))
 
 
 class Recorder:
     """Owns the writer thread and the counts."""
 
     def __init__(self, out: Path, buffer_size: int) -> None:
-        self.buffer: queue.Queue[Item] = queue.Queue(maxsize=buffer_size)
-        self.taps = [Tap(self.buffer, skip_redline=True), Tap(self.buffer, skip_redline=False)]
+        self.buffer: collections.deque[Item] = collections.deque()
+        self.taps = [Tap(self.buffer, buffer_size, skip_redline=True),
+                     Tap(self.buffer, buffer_size, skip_redline=False)]
         self.writer = RecordingWriter(out, library="redline-recorder")
         self.written = 0
         self.closing = threading.Event()
@@ -76,14 +86,19 @@ class Recorder:
                 "dropped": sum(t.dropped for t in self.taps)}
 
     def _write_loop(self) -> None:
-        while not (self.closing.is_set() and self.buffer.empty()):
-            try:
-                key, encoding, data, t_ns = self.buffer.get(timeout=0.1)
-            except queue.Empty:
+        while not (self.closing.is_set() and not self.buffer):
+            if not self.buffer:
+                self.closing.wait(0.005)
                 continue
+            self._write_some()
+
+    def _write_some(self) -> None:
+        take, write = self.buffer.popleft, self.writer.write
+        for _ in range(min(len(self.buffer), 10_000)):
+            key, encoding, data, t_ns = take()
             if key.startswith(REDLINE_PREFIX):
                 encoding, t_ns = JSON_ENCODING, _json_time(data, t_ns)
-            self.writer.write(key, data, encoding=encoding, t_ns=t_ns)
+            write(key, data, encoding=encoding, t_ns=t_ns)
             self.written += 1
 
     def finish(self, meta_path: Path) -> None:

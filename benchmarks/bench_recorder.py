@@ -1,0 +1,83 @@
+"""The recorder's throughput at 1 KiB messages: does it keep up without dropping?
+
+Starts the recorder process on an isolated network and publishes 1 KiB messages paced at a
+requested rate (batches on absolute deadlines) for a few seconds, then asks the recorder for
+its counts. Figures, as ratios measured in this run: messages recorded / messages sent, the
+achieved publishing rate / the requested one, and the recorder's drops. Requested rates:
+100,000/s (the target) and as fast as the publisher can go.
+
+Run: .venv/bin/python benchmarks/bench_recorder.py   (prints figures; not a test)
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import zenoh
+from redline.agent.network import RunNetwork, open_client
+from redline.agent.runner import query_recorder
+from redline.recording import read_recording
+
+SECONDS, SIZE, BATCH = 3.0, 1024, 500
+
+
+def publish(session: zenoh.Session, key: str, rate: float | None) -> tuple[int, float]:
+    """Messages sent and seconds taken, paced at ``rate`` (None: as fast as possible)."""
+    publisher = session.declare_publisher(key)
+    payload, sent = b"r" * SIZE, 0
+    start = time.perf_counter()
+    while (elapsed := time.perf_counter() - start) < SECONDS:
+        if rate is not None and sent / rate > elapsed:
+            time.sleep(min(0.001, sent / rate - elapsed))
+            continue
+        for _ in range(BATCH):
+            publisher.put(payload)
+        sent += BATCH
+    publisher.undeclare()
+    return sent, time.perf_counter() - start
+
+
+def main() -> None:
+    folder = Path(tempfile.mkdtemp(prefix="bench-recorder-"))
+    (folder / "meta.json").write_text(json.dumps({"run": {"component": "bench"}, "host": {}}))
+    out = folder / "bench.mcap"
+    with RunNetwork() as network:
+        env = {**os.environ, "REDLINE_ZENOH": json.dumps(network.client_settings())}
+        recorder = subprocess.Popen([sys.executable, "-m", "redline.agent.recorder", "--out",
+                                     str(out), "--meta", str(folder / "meta.json")],
+                                    env=env, stdout=subprocess.PIPE, text=True)
+        assert recorder.stdout is not None
+        recorder.stdout.readline()
+        with open_client(network.client_settings()) as session:
+            while query_recorder(session, 0.5) is None:
+                time.sleep(0.1)
+            before = query_recorder(session, 5.0) or {}
+            for name, rate in (("paced", 100_000.0), ("flat-out", None)):
+                sent, seconds = publish(session, f"bench/{name}", rate)
+                time.sleep(1.0)  # let the queue drain before the barrier
+                after = query_recorder(session, 30.0) or {}
+                got = after["received"] - before["received"]
+                dropped = after["dropped"] - before["dropped"]
+                asked = f"{rate:,.0f}/s" if rate else "max"
+                print(f"{name:>8} (asked {asked}): sent {sent / seconds:,.0f}/s; recorded/sent "
+                      f"{(got - dropped) / sent:.4f}; dropped {dropped}; received/sent "
+                      f"{got / sent:.4f}")
+                before = after
+        recorder.terminate()
+        recorder.wait()
+    recording = read_recording(out)
+    print(f"file: {sum(recording.traffic.values()):,} messages; recorder counts "
+          f"{recording.metadata['redline.recorder']}")
+    for path in folder.iterdir():
+        path.unlink()
+    folder.rmdir()
+
+
+if __name__ == "__main__":
+    main()
