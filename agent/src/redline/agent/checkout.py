@@ -15,7 +15,8 @@ class CheckoutError(RuntimeError):
 def _git(*args: str, cwd: Path | None = None) -> str:
     done = subprocess.run(["git", *args], cwd=cwd, capture_output=True, text=True)
     if done.returncode != 0:
-        raise CheckoutError(f"git {' '.join(args)} failed: {done.stderr.strip() or done.stdout.strip()}")
+        detail = done.stderr.strip() or done.stdout.strip()
+        raise CheckoutError(f"git {' '.join(args)} failed: {detail}")
     return done.stdout
 
 

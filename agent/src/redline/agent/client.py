@@ -68,7 +68,8 @@ class ServerClient:
     def fail(self, job_id: int, reason: str) -> None:
         self._http.post(f"/api/v1/jobs/{job_id}/fail", json={"reason": reason[-4000:]})
 
-    def upload(self, job_id: int, recording: Path, *, attempts: int = 5, backoff: float = 1.0) -> int:
+    def upload(self, job_id: int, recording: Path, *, attempts: int = 5,
+               backoff: float = 1.0) -> int:
         """Stream the recording; retried with exponential backoff on network errors and 5xx.
 
         The server keys uploads by sha256, so a retry after a lost answer never doubles a result.

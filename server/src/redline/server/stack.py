@@ -18,10 +18,10 @@ from pathlib import Path
 from typing import IO
 
 import httpx
-
 from redline.server.embedded import EmbeddedServices, start_postgres, start_redis
 
 STOP_TIMEOUT_S = 20.0
+BACKGROUND_NICE = 10
 
 
 def redline_executable() -> str:
@@ -65,9 +65,12 @@ class Stack:
         self._redline("migrate")
         self.admin_token = self.token("admin", "admin")
         agent = self.token("agent", "agent")
-        self._spawn("server", "server", "--host", "127.0.0.1", "--port", str(self.port))
+        # On one machine, analysis must yield to measurement: the server and the worker run
+        # at a lower priority than the agent, whose runs they would otherwise disturb.
+        self._spawn("server", "server", "--host", "127.0.0.1", "--port", str(self.port),
+                    nice=BACKGROUND_NICE)
         self._wait_healthy()
-        self._spawn("worker", "worker", "--concurrency", "1")
+        self._spawn("worker", "worker", "--concurrency", "1", nice=BACKGROUND_NICE)
         self._spawn("agent", "agent", "--server", self.url, "--token", agent,
                     "--name", "local-agent", "--work", str(self.data / "agent"), "--poll", "1")
 
@@ -102,11 +105,12 @@ class Stack:
         path.write_text(token + "\n")
         return token
 
-    def _spawn(self, name: str, *args: str) -> None:
+    def _spawn(self, name: str, *args: str, nice: int = 0) -> None:
         log_path = self.data / "logs" / f"{name}.log"
         log = open(log_path, "ab")  # noqa: SIM115 - closed in stop()
         process = subprocess.Popen([redline_executable(), *args], env=self.env, stdout=log,
-                                   stderr=subprocess.STDOUT, start_new_session=True)
+                                   stderr=subprocess.STDOUT, start_new_session=True,
+                                   preexec_fn=(lambda: os.nice(nice)) if nice else None)
         self.children.append(Child(name, process, log_path, log))
 
     def _wait_healthy(self, timeout: float = 60.0) -> None:

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import signal
-import sys
 import threading
 from collections.abc import Callable
 from pathlib import Path
@@ -11,12 +10,12 @@ from types import FrameType
 
 import httpx
 import typer
+from redline.server.stack import Stack, StackError
 from rich.console import Console
 
-from redline.server.stack import Stack, StackError
-
 console = Console()
-DataOption = typer.Option(Path(".redline"), "--data", help="folder for the database, recordings, logs")
+DataOption = typer.Option(Path(".redline"), "--data",
+                          help="folder for the database, recordings, logs")
 PortOption = typer.Option(8080, "--port", help="port of the API server and web UI")
 
 
