@@ -182,7 +182,7 @@ def _samples(pid: int, count: int) -> list[dict[str, float]]:
     values = []
     for _ in range(count):
         time.sleep(0.1)
-        values.append(sampler.sample())
+        values.append(sampler.sample(detail=True))  # threads are re-listed on detail samples
     sampler.close()
     return values
 
