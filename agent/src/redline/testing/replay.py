@@ -31,7 +31,14 @@ class Recorded:
 def _messages(path: Path) -> Iterator[tuple[Channel, Message]]:
     channels: dict[int, Channel] = {}
     with open(path, "rb") as stream:  # the stream reader also reads a file cut off mid-way
-        for record in StreamReader(stream, skip_magic=False).records:
+        records = StreamReader(stream, skip_magic=False).records
+        while True:
+            try:
+                record = next(records)
+            except StopIteration:
+                return
+            except Exception:  # noqa: BLE001 - a cut-off file: replay what came before the cut
+                return
             if isinstance(record, Channel):
                 channels[record.id] = record
             elif isinstance(record, Message) and record.channel_id in channels:
