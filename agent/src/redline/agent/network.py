@@ -83,5 +83,5 @@ def open_client(settings: dict[str, Any]) -> zenoh.Session:
 
 
 def client_settings_from_env(variable: str = "REDLINE_ZENOH") -> dict[str, Any]:
-    """Redline's helper processes receive their client settings as JSON in an environment variable."""
+    """Redline's helper processes get their client settings as JSON in an environment variable."""
     return dict(json.loads(os.environ[variable]))

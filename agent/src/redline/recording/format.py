@@ -6,12 +6,15 @@ under ``@redline/`` (which ``**`` does not match, so components subscribing to e
 it) and lands on these channels, all JSON-encoded:
 
 ``@redline/counters/<process>``
-    ``{"t_ns", "pid", "process", "values": {counter: number}}``, one message per monitor sample.
+    ``{"t_ns", "pid", "process", "values": {counter: number}}``, one message per monitor sample;
+    a sample may lack counters that are read less often (USS/PSS, fds, context switches: ~1 Hz).
+    ``@redline/counters/host`` (process ``host``, pid 0) holds the host's CPU shares and load.
 ``@redline/markers``
     ``{"t_ns", "event": "begin" | "end", "case", "phase", "params": {...}, "warmup": bool}``:
     the progress of the test; counter samples between a begin and its end belong to that segment.
 ``@redline/driver/<case>/<phase>``
-    driver-side metrics (achieved rates, lateness, round trips), free-form JSON objects.
+    driver-side metrics, JSON objects with an ``action`` field: FixedRate (rates, lateness),
+    Query (round trips, timeouts), WaitFor, Listen (received, per-key loss), Replay.
 
 Metadata records: ``redline.run`` (component, revision, sort key, commit, job id, suite hash,
 versions, start and end), ``redline.host`` (the host fingerprint), ``redline.recorder`` (counts of
@@ -53,7 +56,7 @@ def params_name(params: dict[str, Any]) -> str:
 
 @dataclass(frozen=True, order=True)
 class SeriesKey:
-    """A series is named, never addressed by position: case, phase, parameter set, process, counter."""
+    """A series is named, never addressed by position: case, phase, parameters, process, counter."""
 
     case: str
     phase: str

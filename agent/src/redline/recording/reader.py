@@ -16,7 +16,6 @@ from typing import Any
 
 from mcap.records import Channel, Footer, Header, Message, Metadata
 from mcap.stream_reader import StreamReader
-
 from redline.recording.format import (
     COUNTERS_PREFIX,
     DRIVER_PREFIX,
@@ -105,7 +104,7 @@ def _records(path: Path) -> Iterator[Any]:
 
 
 def read_recording(path: str | Path, *, strict: bool = True) -> Recording:
-    """Read a recording. With ``strict``, raise RecordingError unless it is a finished Redline file."""
+    """Read a recording; with ``strict``, raise RecordingError unless it is a finished one."""
     path = Path(path)
     recording = Recording(path=path)
     channels: dict[int, str] = {}

@@ -8,7 +8,6 @@ from pathlib import Path
 from typing import Any, BinaryIO
 
 from mcap.writer import CompressionType, Writer
-
 from redline.recording.format import (
     COUNTERS_PREFIX,
     FORMAT_VERSION,
@@ -48,7 +47,8 @@ class RecordingWriter:
             self._channels[topic] = channel
         return channel
 
-    def write(self, topic: str, data: bytes, *, encoding: str = "", t_ns: int | None = None) -> None:
+    def write(self, topic: str, data: bytes, *, encoding: str = "",
+              t_ns: int | None = None) -> None:
         """Write one message; ``t_ns`` is its log time (now if not given)."""
         stamp = time.time_ns() if t_ns is None else t_ns
         self._sequence += 1
