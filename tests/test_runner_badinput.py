@@ -103,3 +103,31 @@ def test_ctrl_c_stops_every_process_and_leaves_a_readable_recording(tmp_path: Pa
     assert [m["event"] for m in recording.markers] == ["begin", "end"]
     assert recording.traffic["x/y"] > 0
     assert not Path(f"/proc/{int((tmp_path / 'pid').read_text())}").exists()
+
+
+LIVELY = """\
+    import signal, threading, zenoh
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    with zenoh.open(zenoh.Config.from_env()) as session:
+        token = session.liveliness().declare_token("lively/alive")
+        while not stop.wait(0.1):
+            pass
+    """
+
+
+def test_component_ready_by_liveliness_token_runs_and_a_missing_token_times_out(
+        tmp_path: Path) -> None:
+    test = """\
+        from redline.testing import Phase, Publish, TestCase
+        case = TestCase("c", [Phase("p", Publish("x/y", b"1"))])
+        """
+    suite = _suite(tmp_path, test)
+    (tmp_path / "component.py").write_text(textwrap.dedent(LIVELY))
+    text = suite.read_text().replace('{ log = "component ready" }',
+                                     '{ liveliness = "lively/*" }\nstart_timeout = 5')
+    suite.write_text(text)
+    assert read_recording(run_suite(suite, tmp_path / "ok.mcap").recording).run["status"] == "ok"
+    suite.write_text(text.replace("lively/*", "other/*"))
+    with pytest.raises(RunError, match="waiting for a zenoh liveliness token on 'other/\\*'"):
+        run_suite(suite, tmp_path / "never.mcap")

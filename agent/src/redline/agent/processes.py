@@ -140,6 +140,8 @@ def _describe(spec: ProcessSpec) -> str:
         return "no readiness check"
     if spec.ready.kind == "log":
         return f"waiting for log line matching {spec.ready.value!r}"
+    if spec.ready.kind == "liveliness":
+        return f"waiting for a zenoh liveliness token on {spec.ready.value!r}"
     if spec.ready.kind == "key":
         return f"waiting for a sample on zenoh key {spec.ready.value!r}"
     return f"waiting {spec.ready.value} s"

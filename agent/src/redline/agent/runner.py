@@ -161,9 +161,12 @@ class _Run:
         self.say(f"starting {spec.name}: {' '.join(spec.command)}")
         began = time.monotonic()
         process = self._start(spec, env)
-        if spec.ready is not None and spec.ready.kind == "key":
+        if spec.ready is not None and spec.ready.kind in ("key", "liveliness"):
             seen = threading.Event()
-            subscriber = session.declare_subscriber(str(spec.ready.value), lambda _s: seen.set())
+            subscriber = (
+                session.declare_subscriber(str(spec.ready.value), lambda _s: seen.set())
+                if spec.ready.kind == "key" else session.liveliness().declare_subscriber(
+                    str(spec.ready.value), lambda _s: seen.set(), history=True))
             try:
                 process.wait_ready(probe=seen.is_set)
             finally:

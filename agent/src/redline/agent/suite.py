@@ -11,7 +11,8 @@
     command = ["python", "../objectbuilder.py"]   # "python" = the Python running Redline
     env = { LOG_LEVEL = "info" }
     cwd = ".."                          # default: this file's directory
-    ready = { log = "ready" }           # or { delay = 1.5 } or { key = "some/zenoh/key" }
+    ready = { log = "ready" }           # or { delay = 1.5 }, { key = "some/zenoh/key" },
+                                        # or { liveliness = "some/token/key" }
     start_timeout = 30                  # seconds to become ready
     stop_timeout = 5                    # seconds between SIGTERM and SIGKILL
 
@@ -30,7 +31,7 @@ from typing import Any
 
 _TOP = {"name", "tests", "build", "executions", "sampling_hz", "component", "fixture"}
 _PROCESS = {"name", "command", "env", "cwd", "ready", "start_timeout", "stop_timeout"}
-_READY = {"log", "delay", "key"}
+_READY = {"log", "delay", "key", "liveliness"}
 
 
 class SuiteError(ValueError):
@@ -39,7 +40,8 @@ class SuiteError(ValueError):
 
 @dataclass(frozen=True)
 class ReadyCheck:
-    """Readiness: a ``log`` regex, a ``delay`` in seconds, or a sample on a zenoh ``key``."""
+    """Readiness: a ``log`` regex, a ``delay`` in seconds, a sample on a zenoh ``key``, or a
+    zenoh ``liveliness`` token matching a key expression."""
 
     kind: str
     value: str | float
@@ -134,7 +136,8 @@ def _string_list(checker: _Checker, value: Any, key: str, what: str,
 def _ready(checker: _Checker, value: Any, what: str, section: str, index: int) -> ReadyCheck:
     if not isinstance(value, dict) or len(value) != 1:
         raise checker.fail(f"{what}: 'ready' must be one of {{log = \"regex\"}}, "
-                           f"{{delay = seconds}} or {{key = \"zenoh/key\"}}, got {value!r}",
+                           f"{{delay = seconds}}, {{key = \"zenoh/key\"}} or "
+                           f"{{liveliness = \"zenoh/key\"}}, got {value!r}",
                            "ready", section, index)
     checker.unknown(value, _READY, f"{what} 'ready'", section, index)
     kind, setting = next(iter(value.items()))
