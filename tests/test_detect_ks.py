@@ -60,3 +60,22 @@ def test_relative_effect_of_a_zero_baseline():
 def test_empty_sample_is_refused_naming_which():
     with pytest.raises(ValueError, match="baseline has 0"):
         ks(np.array([]), np.ones(3))
+
+
+def test_absolute_floor_keeps_a_clear_but_tiny_change_quiet():
+    rng = np.random.default_rng(7)
+    base = rng.normal(4.0, 0.05, 100)
+    cand = base * 1.2  # +0.8 points: 20 % relative
+    assert ks(base, cand).flagged
+    assert not ks(base, cand, min_change=1.0).flagged
+    assert ks(base, cand * 2, min_change=1.0).flagged
+
+
+def test_floors_by_counter_name():
+    from redline.detect.floors import MIB, absolute_floor
+
+    assert absolute_floor("cpu_percent") == 1.0
+    assert absolute_floor("rss_bytes") == MIB
+    assert absolute_floor("threads") == 1.0
+    assert absolute_floor("ctx_voluntary_per_s") == 10.0
+    assert absolute_floor("latency_ms") == 0.0

@@ -24,7 +24,8 @@ TABLES = "change, summary, series, execution, job, revision, component, host, ap
 
 
 def write_recording(path: Path, run: dict[str, str], counters: dict[str, np.ndarray],
-                    *, warmup: dict[str, np.ndarray] | None = None) -> Path:
+                    *, warmup: dict[str, np.ndarray] | None = None,
+                    process: str = PROCESS) -> Path:
     """A finished Redline recording: one segment per phase, one counter sample per 10 ms."""
     with RecordingWriter(path) as writer:
         writer.metadata("redline.run", run)
@@ -36,7 +37,7 @@ def write_recording(path: Path, run: dict[str, str], counters: dict[str, np.ndar
             for index in range(len(next(iter(values.values())))):
                 t_ns += 10_000_000
                 sample = {name: float(column[index]) for name, column in values.items()}
-                writer.counters(PROCESS, 4242, sample, t_ns)
+                writer.counters(process, 4242, sample, t_ns)
             t_ns += 10_000_000
             writer.marker("end", CASE, phase, PARAMS, warmup=is_warmup, t_ns=t_ns)
     return path
@@ -162,6 +163,45 @@ def test_tripled_counter_is_flagged_and_unchanged_one_is_not(session, database_u
     assert tripled.effect == pytest.approx(2.0, abs=0.15)
     assert tripled.baseline_revision_id == executions[1].revision_id
     assert not changes[("rss", "r3")].flagged
+
+
+def _detect_all(database_url: str, executions: list[Execution]) -> None:
+    for execution in executions:
+        ingest_execution(database_url, execution.id)
+    for execution in executions:
+        detect_revision(database_url, execution.revision_id)
+
+
+def test_host_wide_counters_are_context_not_judged(session, database_url, tmp_path):
+    create_component(session, ComponentCreate(name="builder"))
+    rng = np.random.default_rng(3)
+    executions = [
+        add_execution(session, tmp_path, "builder", f"r{n}", str(n),
+                      {"cpu_percent": factor * rng.normal(20.0, 2.0, 200)}, process="host")
+        for n, factor in ((1, 1.0), (2, 3.0))
+    ]
+    _detect_all(database_url, executions)
+    assert session.scalar(select(func.count()).select_from(Summary)) == 2  # still charted
+    assert _changes(session) == {}
+
+
+def test_change_below_the_counters_absolute_floor_is_not_flagged(session, database_url, tmp_path):
+    create_component(session, ComponentCreate(name="builder"))
+    rng = np.random.default_rng(4)
+    # 4 % of a core → 4.6 %: 15 % relative and clear to KS, but under the 1-point CPU floor;
+    # the same 15 % of 40 % of a core clears it.
+    executions = [
+        add_execution(session, tmp_path, "builder", f"r{n}", str(n), {
+            "small_cpu_percent": factor * rng.normal(4.0, 0.05, 200),
+            "large_cpu_percent": factor * rng.normal(40.0, 0.5, 200)})
+        for n, factor in ((1, 1.0), (2, 1.15))
+    ]
+    _detect_all(database_url, executions)
+    changes = _changes(session)
+    small, large = changes[("small_cpu_percent", "r2")], changes[("large_cpu_percent", "r2")]
+    assert small.p_value < 1e-6 and small.effect == pytest.approx(0.15, abs=0.02)
+    assert not small.flagged
+    assert large.flagged
 
 
 def test_detect_again_replaces_its_changes(session, database_url, tmp_path):

@@ -28,8 +28,8 @@ from redline.agent.network import client_settings_from_env, open_client
 from redline.agent.procstat import ProcessSampler
 from redline.agent.sampling import HostSampler, TreeSampler
 from redline.recording.format import COUNTERS_PREFIX
+from redline.recording.format import HOST_PROCESS as HOST
 
-HOST = "host"  # the process name of the host's counters
 DETAIL_S = 1.0  # USS/PSS (~1 ms a read), thread lists, context switches, fds: once a second
 
 __all__ = ["HOST", "ProcessSampler", "main", "run"]

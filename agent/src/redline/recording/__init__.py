@@ -7,6 +7,7 @@ read one back (strictly for validation, or leniently to recover what a cut-off f
 from redline.recording.format import (
     COUNTERS_PREFIX,
     DRIVER_PREFIX,
+    HOST_PROCESS,
     MARKERS_KEY,
     REDLINE_PREFIX,
     SeriesKey,
@@ -19,6 +20,7 @@ from redline.recording.writer import RecordingWriter
 __all__ = [
     "COUNTERS_PREFIX",
     "DRIVER_PREFIX",
+    "HOST_PROCESS",
     "MARKERS_KEY",
     "REDLINE_PREFIX",
     "Recording",

@@ -35,6 +35,10 @@ COUNTERS_PREFIX = "@redline/counters/"
 MARKERS_KEY = "@redline/markers"
 DRIVER_PREFIX = "@redline/driver/"
 
+#: The process name under which the monitor publishes host-wide counters (CPU, steal, load):
+#: the context of a run, not behaviour of the component, so detectors leave them out.
+HOST_PROCESS = "host"
+
 META_RUN = "redline.run"
 META_HOST = "redline.host"
 META_RECORDER = "redline.recorder"

@@ -34,12 +34,13 @@ def relative_effect(baseline: np.ndarray, candidate: np.ndarray) -> float:
 
 
 def ks(baseline: np.ndarray, candidate: np.ndarray, *, alpha: float = DEFAULT_ALPHA,
-       min_effect: float = DEFAULT_MIN_EFFECT) -> KsResult:
+       min_effect: float = DEFAULT_MIN_EFFECT, min_change: float = 0.0) -> KsResult:
     """Compare a candidate revision's samples of one series with its baseline's.
 
     ``flagged`` is true when the KS test rejects equality (``p_value < alpha``, default 0.01)
     *and* the mean moved by at least ``min_effect`` relative to the baseline (default 0.10,
-    i.e. 10 %), so that statistically clear but tiny changes of long series stay quiet.
+    i.e. 10 %) *and* by at least ``min_change`` in the counter's own unit (default 0; see
+    `redline.detect.floors`), so that statistically clear but tiny changes stay quiet.
     Raises ValueError when either sample is empty.
     """
     base = np.asarray(baseline, dtype=np.float64).ravel()
@@ -50,5 +51,6 @@ def ks(baseline: np.ndarray, candidate: np.ndarray, *, alpha: float = DEFAULT_AL
     result = stats.ks_2samp(base, cand)
     statistic, p_value = float(result.statistic), float(result.pvalue)
     effect = relative_effect(base, cand)
-    flagged = p_value < alpha and abs(effect) >= min_effect
+    change = abs(float(np.mean(cand)) - float(np.mean(base)))
+    flagged = p_value < alpha and abs(effect) >= min_effect and change >= min_change
     return KsResult(statistic=statistic, p_value=p_value, effect=effect, flagged=flagged)

@@ -11,9 +11,11 @@ from pathlib import Path
 
 import numpy as np
 import pyarrow.parquet as pq
+from redline.detect.floors import absolute_floor
 from redline.detect.ks import ks
+from redline.recording.format import HOST_PROCESS
 from redline.server.db import session_scope
-from redline.server.models import Change, Execution, Revision, Summary, utcnow
+from redline.server.models import Change, Execution, Revision, Series, Summary, utcnow
 from sqlalchemy import delete, select, tuple_
 from sqlalchemy.orm import Session
 
@@ -66,17 +68,31 @@ def successor_with_data(session: Session, revision_id: int) -> int | None:
     )
 
 
+def _component_counters(session: Session, series_ids: list[int]) -> dict[int, str]:
+    """Series id → counter name, for the component's own processes (host-wide series left out:
+    they describe the machine during the run, not the component)."""
+    rows = session.execute(
+        select(Series.id, Series.counter)
+        .where(Series.id.in_(series_ids), Series.process != HOST_PROCESS)
+    )
+    return {series_id: counter for series_id, counter in rows}
+
+
 def _compare(session: Session, revision: Revision) -> list[Change]:
     candidate = revision_samples(session, revision.id)
+    counters = _component_counters(session, list(candidate))
     baselines: dict[int, dict[int, np.ndarray]] = {}
     changes = []
     for series_id, values in sorted(candidate.items()):
+        if series_id not in counters:
+            continue
         base_id = baseline_revision(session, revision, series_id)
         if base_id is None:
             continue
         if base_id not in baselines:
             baselines[base_id] = revision_samples(session, base_id)
-        result = ks(baselines[base_id][series_id], values)
+        result = ks(baselines[base_id][series_id], values,
+                    min_change=absolute_floor(counters[series_id]))
         changes.append(Change(
             series_id=series_id, revision_id=revision.id, baseline_revision_id=base_id,
             method=METHOD_KS, score=result.statistic, p_value=result.p_value,

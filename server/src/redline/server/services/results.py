@@ -8,6 +8,7 @@ from collections import defaultdict
 from dataclasses import dataclass
 
 from redline.recording import SeriesKey
+from redline.recording.format import HOST_PROCESS
 from redline.server.models import Change, Execution, Revision, Series, Summary
 from redline.server.schemas import ChangeOut, SeriesOut, SeriesPoint, SeriesRef
 from redline.server.services.components import get_component
@@ -52,7 +53,8 @@ def component_series(session: Session, component_name: str) -> list[SeriesOut]:
         .join(Execution, Execution.id == Summary.execution_id)
         .join(Revision, Revision.id == Execution.revision_id)
         .where(Series.component_id == component.id)
-        .order_by(Series.case, Series.phase, Series.params, Series.process, Series.counter,
+        .order_by(Series.process == HOST_PROCESS,  # the component's series first, then context
+                  Series.case, Series.phase, Series.params, Series.process, Series.counter,
                   Revision.order_key, Revision.id)
     )
     pools: dict[Series, dict[Revision, _Pool]] = defaultdict(dict)
