@@ -49,6 +49,11 @@ class Component(Base):
     suite: Mapped[str] = mapped_column(Text, default="")
     executions: Mapped[int] = mapped_column(Integer, default=1)
     created: Mapped[datetime] = mapped_column(default=utcnow)
+    # redline.server.services.repos.repo_key(repo): https/ssh/.git spellings of one repository
+    repo_key: Mapped[str] = mapped_column(Text, default="", index=True)
+    host_labels: Mapped[list[str]] = mapped_column(JSON, default=list)  # a host must have all
+    webhook_secret: Mapped[str | None] = mapped_column(Text, default=None)  # else the setting
+    description: Mapped[str] = mapped_column(Text, default="")
 
 
 class Revision(Base):
@@ -62,6 +67,9 @@ class Revision(Base):
     order_key: Mapped[str] = mapped_column(String(1000, collation="C"), index=True)
     commit: Mapped[str] = mapped_column(String(200), default="")
     repo: Mapped[str] = mapped_column(Text, default="")
+    branch: Mapped[str] = mapped_column(String(200), default="")
+    message: Mapped[str] = mapped_column(Text, default="")
+    committed_at: Mapped[datetime | None] = mapped_column(default=None)
     created: Mapped[datetime] = mapped_column(default=utcnow)
     # set by detection, cleared by ingestion: the changes shown are those of all ingested data
     analyzed_at: Mapped[datetime | None] = mapped_column(default=None)
@@ -89,6 +97,7 @@ class ApiToken(Base):
     created: Mapped[datetime] = mapped_column(default=utcnow)
     last_used: Mapped[datetime | None] = mapped_column(default=None)
     revoked: Mapped[bool] = mapped_column(Boolean, default=False)
+    host: Mapped[str | None] = mapped_column(String(200), default=None)  # an agent token's host
 
 
 class Job(Base):
@@ -105,6 +114,7 @@ class Job(Base):
     lease_expires_at: Mapped[datetime | None] = mapped_column(default=None)
     host_id: Mapped[int | None] = mapped_column(ForeignKey("host.id"), default=None)
     reason: Mapped[str] = mapped_column(Text, default="")
+    labels: Mapped[list[str]] = mapped_column(JSON, default=list)  # the host pool: all required
     created: Mapped[datetime] = mapped_column(default=utcnow)
     updated: Mapped[datetime] = mapped_column(default=utcnow, onupdate=utcnow)
     revision: Mapped[Revision] = relationship(back_populates="jobs")
@@ -122,6 +132,7 @@ class Execution(Base):
     size: Mapped[int] = mapped_column(BigInteger, default=0)
     meta: Mapped[dict[str, Any]] = mapped_column("metadata", JSON, default=dict)
     created: Mapped[datetime] = mapped_column(default=utcnow)
+    pruned_at: Mapped[datetime | None] = mapped_column(default=None)  # raw files deleted
     job: Mapped[Job] = relationship(back_populates="execution")
 
 
@@ -155,6 +166,8 @@ class Summary(Base):
     p75: Mapped[float] = mapped_column(Float)
     p95: Mapped[float] = mapped_column(Float)
     max: Mapped[float] = mapped_column(Float)
+    # quantiles at SKETCH_LEVELS (redline.worker.ingest): the distribution in 32 numbers
+    sketch: Mapped[list[float] | None] = mapped_column(JSON, default=None)
 
 
 class Change(Base):
