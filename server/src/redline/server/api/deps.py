@@ -32,6 +32,27 @@ def get_session(settings: SettingsDep) -> Iterator[Session]:
 SessionDep = Annotated[Session, Depends(get_session)]
 
 
+def _checked(session: Session, secret: str | None, scope: str) -> ApiToken:
+    unauthorized = {"WWW-Authenticate": "Bearer"}
+    if not secret:
+        raise HTTPException(status.HTTP_401_UNAUTHORIZED, "missing bearer token",
+                            headers=unauthorized)
+    token = authenticate(session, secret)
+    if token is None:
+        raise HTTPException(status.HTTP_401_UNAUTHORIZED, "invalid or revoked token",
+                            headers=unauthorized)
+    if not grants(token.scopes, scope):
+        raise HTTPException(status.HTTP_403_FORBIDDEN,
+                            f"token {token.name!r} lacks the {scope!r} scope")
+    return token
+
+
+def _bearer_secret(credentials: HTTPAuthorizationCredentials | None) -> str | None:
+    if credentials is None or credentials.scheme.lower() != "bearer":
+        return None
+    return credentials.credentials
+
+
 def require(scope: str) -> Callable[..., ApiToken]:
     """A dependency admitting only a live token granting ``scope`` (``admin`` grants all)."""
 
@@ -39,17 +60,25 @@ def require(scope: str) -> Callable[..., ApiToken]:
         session: SessionDep,
         credentials: Annotated[HTTPAuthorizationCredentials | None, Depends(_bearer)],
     ) -> ApiToken:
-        unauthorized = {"WWW-Authenticate": "Bearer"}
-        if credentials is None or credentials.scheme.lower() != "bearer":
-            raise HTTPException(status.HTTP_401_UNAUTHORIZED, "missing bearer token",
-                                headers=unauthorized)
-        token = authenticate(session, credentials.credentials)
-        if token is None:
-            raise HTTPException(status.HTTP_401_UNAUTHORIZED, "invalid or revoked token",
-                                headers=unauthorized)
-        if not grants(token.scopes, scope):
-            raise HTTPException(status.HTTP_403_FORBIDDEN,
-                                f"token {token.name!r} lacks the {scope!r} scope")
-        return token
+        return _checked(session, _bearer_secret(credentials), scope)
 
     return check
+
+
+READ_COOKIE = "redline_token"
+
+
+def require_read(
+    request: Request, session: SessionDep, settings: SettingsDep,
+    credentials: Annotated[HTTPAuthorizationCredentials | None, Depends(_bearer)],
+) -> None:
+    """Reading is open unless ``REDLINE_READ_ACCESS=token``; then a ``read`` token is needed,
+    as a bearer header, the ``redline_token`` cookie or ``?token=`` (for the browser UI)."""
+    if settings.read_access != "token":
+        return
+    secret = (_bearer_secret(credentials) or request.cookies.get(READ_COOKIE)
+              or request.query_params.get("token"))
+    _checked(session, secret, "read")
+
+
+READ = [Depends(require_read)]

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from functools import lru_cache
 from pathlib import Path
+from typing import Literal
 
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
@@ -25,6 +26,10 @@ class Settings(BaseSettings):
     lease_seconds: int = 120
     max_attempts: int = 3
     max_upload_bytes: int = 2 * 1024**3
+    webhook_secret: str = ""  # GitHub/GitLab push secret; a component's own one overrides it
+    read_access: Literal["open", "token"] = "open"  # token: reading needs a `read` token
+    retention_days: int = 90  # raw recordings (MCAP, Parquet) older than this are deleted
+    log_json: bool = False  # log JSON lines instead of text
 
 
 @lru_cache
