@@ -104,7 +104,7 @@ def recording_for(job: dict, path: Path, cpu: float = 20.0, seed: int = 0, **run
 
 
 def test_healthz_answers_without_a_token(api: Api):
-    assert api.client.get("/healthz").json() == {"status": "ok"}
+    assert api.client.get("/healthz").json() == {"status": "ok", "database": "ok"}
 
 
 def test_missing_invalid_or_revoked_token_is_401(api: Api):

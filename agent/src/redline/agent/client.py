@@ -21,6 +21,10 @@ class UploadRejected(RuntimeError):
     """The server refused the recording (4xx): retrying the same file cannot help."""
 
 
+class ServerUnavailable(RuntimeError):
+    """The server could not be reached or answered 5xx after every attempt: try again later."""
+
+
 def sha256_of(path: Path) -> str:
     digest = hashlib.sha256()
     with open(path, "rb") as stream:
@@ -52,8 +56,12 @@ class ServerClient:
         answer.raise_for_status()
         return int(answer.json()["host_id"])
 
-    def lease(self) -> dict[str, Any] | None:
-        answer = self._http.post("/api/v1/agent/lease", json={"host": self.host})
+    def lease(self, wait: int = 0) -> dict[str, Any] | None:
+        """The next job, or None; with ``wait`` the server holds the call up to that long."""
+        answer = self._http.post("/api/v1/agent/lease", json={"host": self.host},
+                                 params={"wait": wait} if wait else None,
+                                 timeout=(self._http.timeout.read or 0) + wait if wait
+                                 else httpx.USE_CLIENT_DEFAULT)
         if answer.status_code == 204:
             return None
         answer.raise_for_status()
@@ -68,29 +76,38 @@ class ServerClient:
     def fail(self, job_id: int, reason: str) -> None:
         self._http.post(f"/api/v1/jobs/{job_id}/fail", json={"reason": reason[-4000:]})
 
+    def release(self, job_id: int) -> None:
+        """Give the job back to the queue without counting an attempt."""
+        answer = self._http.post(f"/api/v1/jobs/{job_id}/release", json={"host": self.host})
+        if answer.status_code != 409:  # 409: no longer ours, nothing to give back
+            answer.raise_for_status()
+
     def upload(self, job_id: int, recording: Path, *, attempts: int = 5,
                backoff: float = 1.0) -> int:
         """Stream the recording; retried with exponential backoff on network errors and 5xx.
 
         The server keys uploads by sha256, so a retry after a lost answer never doubles a result.
+        Raises UploadRejected on a 4xx, ServerUnavailable when every attempt failed.
         """
         digest = sha256_of(recording)
         headers = {"X-Redline-Sha256": digest, "Content-Type": "application/octet-stream",
                    "Content-Length": str(recording.stat().st_size)}
+        problem = ""
         for attempt in range(1, attempts + 1):
+            if attempt > 1:
+                time.sleep(backoff * 2 ** (attempt - 2))
             try:
                 answer = self._http.put(f"/api/v1/jobs/{job_id}/recording",
                                         content=_chunks(recording), headers=headers)
-            except httpx.TransportError:
-                if attempt == attempts:
-                    raise
-            else:
-                if answer.status_code < 500:
-                    if answer.status_code >= 400:
-                        raise UploadRejected(f"upload of {recording.name} refused "
-                                             f"({answer.status_code}): {answer.text}")
-                    return int(answer.json()["execution_id"])
-                if attempt == attempts:
-                    answer.raise_for_status()
-            time.sleep(backoff * 2 ** (attempt - 1))
-        raise AssertionError("unreachable")
+            except httpx.TransportError as exc:
+                problem = f"{type(exc).__name__}: {exc}"
+                continue
+            if answer.status_code >= 500:
+                problem = f"{answer.status_code}: {answer.text[:500]}"
+                continue
+            if answer.status_code >= 400:
+                raise UploadRejected(f"upload of {recording.name} refused "
+                                     f"({answer.status_code}): {answer.text}")
+            return int(answer.json()["execution_id"])
+        raise ServerUnavailable(f"upload of {recording.name} for job {job_id} failed "
+                                f"{attempts} times; last: {problem}")

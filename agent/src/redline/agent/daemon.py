@@ -1,8 +1,10 @@
 """`redline agent`: the performance-host daemon.
 
-It registers, then loops: lease a job, check out the revision, build it, run its suite while
-heartbeating, upload the recording, and go back for the next job. Agents pull; the server never
-reaches into a performance host.
+It registers, then loops: lease a job (a long poll), check out the revision, build it, run its
+suite while heartbeating, upload the recording, and go back for the next job. Agents pull; the
+server never reaches into a performance host. A recording the server cannot take now waits in the
+spool (redline.agent.spool) and is sent in the background. On SIGTERM the agent finishes its job
+and stops; a second signal (or the end of the grace period) releases the job instead.
 """
 
 from __future__ import annotations
@@ -14,20 +16,31 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import httpx
 from redline.agent.checkout import CloneCache
-from redline.agent.client import LeaseLost, ServerClient, UploadRejected
+from redline.agent.client import LeaseLost, ServerClient, ServerUnavailable, UploadRejected
 from redline.agent.governor import governor_files
 from redline.agent.host import host_fingerprint
 from redline.agent.runner import run_suite
+from redline.agent.spool import Spool, SpoolSender
 from redline.agent.suite import load_suite
 
 log = logging.getLogger("redline.agent")
 
 BUILD_TIMEOUT_S = 1800
+MAX_RETRY_S = 30.0
 
 
 class JobFailed(RuntimeError):
     """A job could not be completed; the message is the reason the server records."""
+
+
+class AgentStopping(BaseException):
+    """Raised in the main thread by a second SIGTERM (or when the grace period ends).
+
+    A BaseException, so that nothing catching ``Exception`` turns it into a failed job: the job
+    in progress is released instead, back to the queue without counting an attempt.
+    """
 
 
 @dataclass
@@ -36,67 +49,119 @@ class AgentDaemon:
     workdir: Path
     labels: list[str] = field(default_factory=list)
     poll_interval: float = 2.0
+    long_poll: int = 20
     heartbeat_interval: float = 10.0
     stop: threading.Event = field(default_factory=threading.Event)
+    #: the job being checked out, built or run: what a second signal releases
+    current_job: int | None = None
+    #: in the lease call: a stop signal may interrupt it at once
+    waiting: bool = False
 
     def __post_init__(self) -> None:
         self.cache = CloneCache(self.workdir / "cache")
         (self.workdir / "recordings").mkdir(parents=True, exist_ok=True)
+        self.spool = Spool(self.workdir / "spool")
+        self.sender = SpoolSender(self.spool, self.client, self.stop)
 
     def run_forever(self) -> None:
-        governor = "available" if governor_files() else "unavailable"
-        self.client.register(host_fingerprint(governor), self.labels)
+        self._register()
+        self.sender.start()
         log.info("agent %s registered; waiting for jobs", self.client.host)
+        delay = self.poll_interval
         while not self.stop.is_set():
             try:
                 worked = self.run_once()
+                delay = self.poll_interval
             except Exception:  # the server may be down: keep polling, never die
-                log.exception("agent loop error; retrying in %.0fs", self.poll_interval)
-                worked = False
-            if not worked:
+                log.exception("agent loop error; retrying in %.0fs", delay)
+                self.stop.wait(delay)
+                delay = min(delay * 2, MAX_RETRY_S)
+                continue
+            if not worked and not self.long_poll:
                 self.stop.wait(self.poll_interval)
+
+    def _register(self) -> None:
+        governor = "available" if governor_files() else "unavailable"
+        delay = self.poll_interval
+        while True:
+            try:
+                self.client.register(host_fingerprint(governor), self.labels)
+                return
+            except httpx.HTTPError as exc:  # the server may be starting or its database away
+                log.warning("cannot register yet (%s); retrying in %.0fs", exc, delay)
+            if self.stop.wait(delay):
+                raise AgentStopping("stopped before registering")
+            delay = min(delay * 2, MAX_RETRY_S)
 
     def run_once(self) -> bool:
         """Lease and process one job; False when none was queued."""
-        job = self.client.lease()
+        self.waiting = True
+        try:
+            job = self.client.lease(wait=self.long_poll)
+        finally:
+            self.waiting = False
         if job is None:
+            return False
+        if self.stop.is_set():  # asked to stop while the lease was on its way
+            self.client.release(job["id"])
             return False
         log.info("job %s: %s %s (%s)", job["id"], job["component"],
                  job["revision"]["title"], job["commit"][:12])
         try:
             execution = self._process(job)
-            log.info("job %s: uploaded as execution %s", job["id"], execution)
+            if execution is not None:
+                log.info("job %s: uploaded as execution %s", job["id"], execution)
         except (JobFailed, UploadRejected) as exc:
             log.error("job %s failed: %s", job["id"], exc)
             self.client.fail(job["id"], str(exc))
         except LeaseLost as exc:
             log.warning("job %s: lease lost, abandoning it (%s)", job["id"], exc)
+        except AgentStopping:
+            log.warning("job %s: stopping before it finished; releasing it", job["id"])
+            self.client.release(job["id"])
+            raise
         return True
 
-    def _process(self, job: dict[str, Any]) -> int:
+    def _process(self, job: dict[str, Any]) -> int | None:
         name = f"job-{job['id']}"
         beats = _Heartbeat(self.client, job["id"], self.heartbeat_interval)
         beats.start()
+        self.current_job = job["id"]
         try:
-            tree = self.cache.checkout(job["repo"], job["commit"], name)
-            suite_path = tree / job["suite"]
-            if not suite_path.is_file():
-                raise JobFailed(f"suite file {job['suite']} not found at commit {job['commit']}")
-            suite = load_suite(suite_path)
-            _build(suite.build, suite.directory)
-            out = self.workdir / "recordings" / f"{name}.mcap"
-            run_suite(suite_path, out, run_metadata=_run_metadata(job))
+            out = self._run(job, name)
+            self.current_job = None  # from here on the recording is kept, never released
             beats.check()
-            execution = self.client.upload(job["id"], out)
-            out.unlink(missing_ok=True)
-            return execution
-        except (JobFailed, LeaseLost, UploadRejected):
+            return self._deliver(job["id"], out)
+        except (JobFailed, LeaseLost, UploadRejected, AgentStopping):
             raise
         except Exception as exc:
             raise JobFailed(f"{type(exc).__name__}: {exc}") from exc
         finally:
+            self.current_job = None
             beats.stop()
             self.cache.discard(name)
+
+    def _run(self, job: dict[str, Any], name: str) -> Path:
+        """Check out, build and run the job's suite; the finished recording."""
+        tree = self.cache.checkout(job["repo"], job["commit"], name)
+        suite_path = tree / job["suite"]
+        if not suite_path.is_file():
+            raise JobFailed(f"suite file {job['suite']} not found at commit {job['commit']}")
+        suite = load_suite(suite_path)
+        _build(suite.build, suite.directory)
+        out = self.workdir / "recordings" / f"{name}.mcap"
+        run_suite(suite_path, out, run_metadata=_run_metadata(job))
+        return out
+
+    def _deliver(self, job_id: int, recording: Path) -> int | None:
+        """Spool the recording, then upload it; left to the background sender if that fails."""
+        entry = self.spool.put(job_id, recording)
+        try:
+            return self.spool.send(self.client, entry, attempts=3)
+        except ServerUnavailable as exc:
+            log.warning("job %s: server unavailable, recording spooled (%s)", job_id, exc)
+            self.sender.wake.set()
+            return None
 
 
 def _run_metadata(job: dict[str, Any]) -> dict[str, str]:

@@ -3,13 +3,20 @@
 from __future__ import annotations
 
 import logging
+import os
 import signal
 import socket
+import threading
 from pathlib import Path
 from types import FrameType
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
+
+if TYPE_CHECKING:
+    from redline.agent.daemon import AgentDaemon
+
+log = logging.getLogger("redline.agent")
 
 
 def agent(
@@ -18,27 +25,58 @@ def agent(
     token: Annotated[str, typer.Option(help="API token with scope 'agent'",
                                        envvar="REDLINE_TOKEN")],
     name: Annotated[str, typer.Option(help="this host's name")] = socket.gethostname(),
-    work: Annotated[Path, typer.Option(help="folder for clones and recordings")] = Path(
+    work: Annotated[Path, typer.Option(help="folder for clones, recordings and the spool")] = Path(
         ".redline-agent"),
     label: Annotated[list[str] | None, typer.Option(help="host labels (repeatable)")] = None,
-    poll: Annotated[float, typer.Option(help="seconds between polls with no job")] = 2.0,
+    poll: Annotated[float, typer.Option(help="seconds between retries after an error")] = 2.0,
+    wait: Annotated[int, typer.Option(help="long poll: seconds the server may hold a lease "
+                                           "call when no job is queued (0: plain polling)")] = 20,
+    grace: Annotated[float, typer.Option(help="after SIGTERM, seconds to finish the current job "
+                                              "before releasing it")] = 600.0,
 ) -> None:
-    """Pull jobs from the server, run them, upload the recordings. Stops on SIGINT/SIGTERM."""
+    """Pull jobs from the server, run them, upload the recordings.
+
+    SIGTERM or SIGINT: finish the current job, then stop; a second signal, or the end of the grace
+    period, releases the job back to the queue instead. Spooled recordings wait for the next start.
+    """
     from redline.agent.client import ServerClient
-    from redline.agent.daemon import AgentDaemon
+    from redline.agent.daemon import AgentDaemon, AgentStopping
 
     logging.basicConfig(level=logging.INFO, format="%(asctime)s agent %(levelname)s %(message)s")
     daemon = AgentDaemon(ServerClient(server, token, name), work.resolve(), labels=label or [],
-                         poll_interval=poll)
+                         poll_interval=poll, long_poll=wait)
+    _Signals(daemon, grace, AgentStopping).install()
+    try:
+        daemon.run_forever()
+    except AgentStopping:
+        log.info("agent stopped")
 
-    def stop(signum: int, _frame: FrameType | None) -> None:
-        logging.getLogger("redline.agent").info(
-            "signal %d: finishing the current job, then stopping", signum)
-        daemon.stop.set()
 
-    signal.signal(signal.SIGTERM, stop)
-    signal.signal(signal.SIGINT, stop)
-    daemon.run_forever()
+class _Signals:
+    """First signal: finish, then stop. Second signal or grace period over: release and stop."""
+
+    def __init__(self, daemon: AgentDaemon, grace: float, stopping: type[BaseException]) -> None:
+        self.daemon, self.grace, self.stopping = daemon, grace, stopping
+        self.count = 0
+
+    def install(self) -> None:
+        signal.signal(signal.SIGTERM, self.handle)
+        signal.signal(signal.SIGINT, self.handle)
+
+    def handle(self, signum: int, _frame: FrameType | None) -> None:
+        self.count += 1
+        self.daemon.stop.set()
+        if self.daemon.waiting:  # no job: leave the long poll now
+            raise self.stopping(f"signal {signum}")
+        if self.daemon.current_job is None:
+            return  # between jobs or delivering a recording: that ends by itself
+        if self.count > 1:
+            raise self.stopping(f"signal {signum}")
+        log.info("signal %d: finishing job %s (at most %.0fs), then stopping",
+                 signum, self.daemon.current_job, self.grace)
+        timer = threading.Timer(self.grace, os.kill, (os.getpid(), signal.SIGTERM))
+        timer.daemon = True
+        timer.start()
 
 
 def register(app: typer.Typer) -> None:

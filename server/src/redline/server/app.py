@@ -25,6 +25,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.settings = settings
     app.state.tasks = TaskSender(settings)
     app.add_exception_handler(ServiceError, _service_error)
+    for down in health.DATABASE_DOWN:  # 503 with a message, never a 500, while Postgres is away
+        app.add_exception_handler(down, health.database_unavailable)
     for module in (health, components, revisions, agent, jobs):
         app.include_router(module.router)
     web.mount(app, settings)

@@ -2,8 +2,14 @@
 
 from __future__ import annotations
 
-from fastapi import APIRouter, Depends, Response, status
+import asyncio
+import time
+from typing import Annotated
+
+from fastapi import APIRouter, Depends, Query, Request, Response, status
 from redline.server.api.deps import SessionDep, SettingsDep, require
+from redline.server.core.config import Settings
+from redline.server.db import session_factory
 from redline.server.schemas import (
     HostRequest,
     LeasedJob,
@@ -12,9 +18,14 @@ from redline.server.schemas import (
     RegisterResponse,
 )
 from redline.server.services import jobs
+from starlette.concurrency import run_in_threadpool
 
 router = APIRouter(prefix="/api/v1/agent", tags=["agent"],
                    dependencies=[Depends(require("agent"))])
+
+MAX_WAIT_S = 60
+#: How often a waiting lease looks at the queue again: one cheap query per waiting agent.
+RECHECK_S = 0.5
 
 
 @router.post("/register")
@@ -22,11 +33,29 @@ def register(data: RegisterRequest, session: SessionDep) -> RegisterResponse:
     return RegisterResponse(host_id=jobs.register_host(session, data).id)
 
 
+def _lease_once(settings: Settings, host: str) -> LeasedJob | None:
+    with session_factory(settings.database_url)() as session:
+        job = jobs.lease_job(session, host, settings.lease_seconds, settings.max_attempts)
+        return None if job is None else jobs.leased_job(job)
+
+
 @router.post("/lease", response_model=LeasedJob | None,
              responses={204: {"description": "no job is queued"}, 404: {"model": Problem}})
-def lease(data: HostRequest, session: SessionDep, settings: SettingsDep) -> LeasedJob | Response:
-    """The next job for this host (newest revision first), leased for ``lease_seconds``."""
-    job = jobs.lease_job(session, data.host, settings.lease_seconds, settings.max_attempts)
-    if job is None:
-        return Response(status_code=status.HTTP_204_NO_CONTENT)
-    return jobs.leased_job(job)
+async def lease(
+    data: HostRequest, request: Request, settings: SettingsDep,
+    wait: Annotated[int, Query(ge=0, le=MAX_WAIT_S,
+                               description="seconds to wait for a job before answering 204")] = 0,
+) -> LeasedJob | Response:
+    """The next job for this host (newest revision first), leased for ``lease_seconds``.
+
+    With ``wait``, a long poll: the answer comes as soon as a job is queued, or 204 after
+    ``wait`` seconds; no database connection is held while waiting.
+    """
+    deadline = time.monotonic() + wait
+    while True:
+        job = await run_in_threadpool(_lease_once, settings, data.host)
+        if job is not None:
+            return job
+        if time.monotonic() + RECHECK_S > deadline or await request.is_disconnected():
+            return Response(status_code=status.HTTP_204_NO_CONTENT)
+        await asyncio.sleep(RECHECK_S)

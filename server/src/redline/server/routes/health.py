@@ -1,15 +1,56 @@
+"""/healthz, and the answer every route gives while the database cannot be reached: 503, not 500."""
+
 from __future__ import annotations
 
-from fastapi import APIRouter
+from fastapi import APIRouter, Request
+from fastapi.responses import JSONResponse, Response
 from pydantic import BaseModel
+from redline.server.api.deps import SettingsDep
+from redline.server.db import get_engine
+from sqlalchemy import exc, text
+from starlette.concurrency import run_in_threadpool
 
 router = APIRouter(tags=["health"])
+
+#: Errors meaning "no database to talk to" (refused, shut down, pool exhausted), not a bad query.
+DATABASE_DOWN: tuple[type[Exception], ...] = (exc.OperationalError, exc.InterfaceError,
+                                              exc.TimeoutError)
+RETRY_AFTER_S = "5"
 
 
 class Health(BaseModel):
     status: str
+    database: str
 
 
-@router.get("/healthz")
-def healthz() -> Health:
-    return Health(status="ok")
+def _reason(error: BaseException) -> str:
+    orig = getattr(error, "orig", None) or error
+    lines = str(orig).strip().splitlines()
+    return lines[0] if lines else type(orig).__name__
+
+
+async def database_unavailable(request: Request, error: Exception) -> JSONResponse:
+    """The app's handler for DATABASE_DOWN: agents keep their recordings and try again."""
+    return JSONResponse(
+        {"detail": f"the database is unavailable ({_reason(error)}); try again later"},
+        status_code=503, headers={"Retry-After": RETRY_AFTER_S})
+
+
+def _ping(database_url: str) -> str:
+    try:
+        with get_engine(database_url).connect() as connection:
+            connection.execute(text("SELECT 1"))
+    except DATABASE_DOWN as error:
+        return f"unavailable: {_reason(error)}"
+    return "ok"
+
+
+@router.get("/healthz", response_model=Health,
+            responses={503: {"model": Health, "description": "no database"}})
+async def healthz(settings: SettingsDep) -> Health | Response:
+    """Liveness and the database's state; 503 while the database cannot be reached."""
+    database = await run_in_threadpool(_ping, settings.database_url)
+    if database != "ok":
+        return JSONResponse(Health(status="unavailable", database=database).model_dump(),
+                            status_code=503, headers={"Retry-After": RETRY_AFTER_S})
+    return Health(status="ok", database=database)

@@ -1,4 +1,4 @@
-"""/api/v1/jobs/{id}: heartbeats, recording uploads and failures from the agent holding a job."""
+"""/api/v1/jobs/{id}: heartbeats, uploads, releases and failures from the agent holding a job."""
 
 from __future__ import annotations
 
@@ -34,6 +34,13 @@ def heartbeat(job_id: int, data: HostRequest, session: SessionDep,
     job = jobs.heartbeat(session, job_id, data.host, settings.lease_seconds)
     assert job.lease_expires_at is not None
     return HeartbeatResponse(lease_expires_at=job.lease_expires_at)
+
+
+@router.post("/{job_id}/release", responses=PROBLEMS)
+def release(job_id: int, data: HostRequest, session: SessionDep) -> JobStateOut:
+    """Give the job back to the queue without counting an attempt (the agent is stopping)."""
+    job = jobs.release_job(session, job_id, data.host)
+    return JobStateOut(id=job.id, state=job.state.value, reason=job.reason)
 
 
 @router.post("/{job_id}/fail", responses=PROBLEMS)

@@ -107,6 +107,19 @@ def heartbeat(session: Session, job_id: int, host_name: str, lease_seconds: int)
     return job
 
 
+def release_job(session: Session, job_id: int, host_name: str) -> Job:
+    """Give a held job back to the queue without counting the attempt (an agent stopping)."""
+    job = _locked_job(session, job_id)
+    holder = job.host.name if job.host else None
+    if job.state not in HELD or holder != host_name:
+        raise Conflict(f"job {job_id} is not leased to host {host_name!r} "
+                       f"(state {job.state.value}, host {holder!r})")
+    job.state, job.host, job.lease_expires_at = JobState.queued, None, None
+    job.attempts = max(0, job.attempts - 1)
+    session.commit()
+    return job
+
+
 def fail_job(session: Session, job_id: int, reason: str) -> Job:
     """Mark a job failed with the agent's reason; failing a failed job again changes nothing."""
     job = _locked_job(session, job_id)
