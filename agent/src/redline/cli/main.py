@@ -15,7 +15,8 @@ app = typer.Typer(
 
 # Modules that add commands to `app` through a `register(app)` function; the server's are optional.
 _AGENT_COMMANDS = ("redline.cli.run_cmd", "redline.cli.agent_cmd")
-_SERVER_COMMANDS = ("redline.server.cli", "redline.server.up_cmd", "redline.detect.evaluate_cmd")
+_SERVER_COMMANDS = ("redline.server.cli", "redline.server.up_cmd", "redline.detect.evaluate_cmd",
+                    "redline.detect.compare_cmd")
 
 
 def _register_all() -> None:

@@ -77,9 +77,15 @@ class Recording:
 
     def series_samples(self, *, include_warmup: bool = False) -> dict[SeriesKey, list[float]]:
         """Counter samples grouped by series, in time order; warm-up phases are left out."""
+        timeline = self.series_timeline(include_warmup=include_warmup)
+        return {key: [value for _, value in points] for key, points in timeline.items()}
+
+    def series_timeline(self, *, include_warmup: bool = False
+                        ) -> dict[SeriesKey, list[tuple[int, float]]]:
+        """Like `series_samples`, with each sample's time: ``(t_ns, value)`` pairs."""
         segments = [s for s in self.segments() if include_warmup or not s.warmup]
         segments.sort(key=lambda s: s.begin_ns)
-        samples: dict[SeriesKey, list[float]] = {}
+        points: dict[SeriesKey, list[tuple[int, float]]] = {}
         counters = sorted(self.counters, key=lambda c: c["t_ns"])
         index = 0
         for segment in segments:
@@ -93,9 +99,9 @@ class Recording:
                     if value is None:
                         continue
                     key = SeriesKey(segment.case, segment.phase, params, sample["process"], counter)
-                    samples.setdefault(key, []).append(float(value))
+                    points.setdefault(key, []).append((sample["t_ns"], float(value)))
                 cursor += 1
-        return samples
+        return points
 
 
 def _records(path: Path) -> Iterator[Any]:

@@ -11,9 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pyarrow.parquet as pq
-from redline.detect.floors import absolute_floor
-from redline.detect.ks import ks
-from redline.recording.format import HOST_PROCESS
+from redline.detect.judge import is_judged, judge
 from redline.server.db import session_scope
 from redline.server.models import Change, Execution, Revision, Series, Summary, utcnow
 from sqlalchemy import delete, select, tuple_
@@ -72,10 +70,9 @@ def _component_counters(session: Session, series_ids: list[int]) -> dict[int, st
     """Series id → counter name, for the component's own processes (host-wide series left out:
     they describe the machine during the run, not the component)."""
     rows = session.execute(
-        select(Series.id, Series.counter)
-        .where(Series.id.in_(series_ids), Series.process != HOST_PROCESS)
+        select(Series.id, Series.process, Series.counter).where(Series.id.in_(series_ids))
     )
-    return {series_id: counter for series_id, counter in rows}
+    return {series_id: counter for series_id, process, counter in rows if is_judged(process)}
 
 
 def _compare(session: Session, revision: Revision) -> list[Change]:
@@ -91,8 +88,7 @@ def _compare(session: Session, revision: Revision) -> list[Change]:
             continue
         if base_id not in baselines:
             baselines[base_id] = revision_samples(session, base_id)
-        result = ks(baselines[base_id][series_id], values,
-                    min_change=absolute_floor(counters[series_id]))
+        result = judge(counters[series_id], baselines[base_id][series_id], values)
         changes.append(Change(
             series_id=series_id, revision_id=revision.id, baseline_revision_id=base_id,
             method=METHOD_KS, score=result.statistic, p_value=result.p_value,

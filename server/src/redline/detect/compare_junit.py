@@ -1,0 +1,61 @@
+"""JUnit XML for `redline compare`: what Jenkins, GitLab and GitHub read as test results.
+
+One testcase per test case × phase × parameter set (classname: the test case; name:
+``case/phase[params]`` with the printable parameter-set name). A failure lists the counters that
+changed with their effect size, KS D and p; a segment only one side recorded is skipped; every
+compared counter is listed in the testcase's system-out.
+"""
+
+from __future__ import annotations
+
+import xml.etree.ElementTree as ET
+
+from redline.detect.compare import Comparison, SegmentVerdict, SeriesVerdict
+
+SUITE_NAME = "redline compare"
+
+
+def series_line(verdict: SeriesVerdict) -> str:
+    """``process.counter: effect +200.0%, D 0.950, p 1.2e-30; mean 20 -> 60 (n 200 -> 200)``."""
+    result, key = verdict.result, verdict.key
+    return (f"{key.process}.{key.counter}: effect {result.effect:+.1%}, D {result.statistic:.3f}, "
+            f"p {result.p_value:.3g}; mean {verdict.baseline_mean:.6g} -> "
+            f"{verdict.candidate_mean:.6g} (n {verdict.baseline_n} -> {verdict.candidate_n})")
+
+
+def _testcase(parent: ET.Element, segment: SegmentVerdict) -> None:
+    case = ET.SubElement(parent, "testcase", classname=segment.case, name=segment.name,
+                         time="0")
+    if segment.note:
+        ET.SubElement(case, "skipped", message=segment.note)
+        return
+    changed = segment.changed
+    if changed:
+        names = ", ".join(f"{v.key.process}.{v.key.counter} {v.result.effect:+.1%}"
+                          for v in changed)
+        failure = ET.SubElement(case, "failure", type="PerformanceChange",
+                                message=f"{len(changed)} counter(s) changed: {names}")
+        failure.text = "\n".join(series_line(v) for v in changed)
+    out = ET.SubElement(case, "system-out")
+    out.text = "\n".join(series_line(v) for v in segment.series)
+
+
+def junit_xml(comparison: Comparison) -> str:
+    """The whole report as an XML document (UTF-8 text with its declaration)."""
+    segments = comparison.segments
+    suite = ET.Element(
+        "testsuite", name=SUITE_NAME, tests=str(len(segments)),
+        failures=str(sum(1 for s in segments if s.changed)), errors="0",
+        skipped=str(sum(1 for s in segments if s.note)), time="0",
+    )
+    properties = ET.SubElement(suite, "properties")
+    for side, recorded in (("baseline", comparison.baseline), ("candidate", comparison.candidate)):
+        for item in recorded:
+            ET.SubElement(properties, "property", name=side, value=str(item.path))
+    for segment in segments:
+        _testcase(suite, segment)
+    suites = ET.Element("testsuites", name=SUITE_NAME, tests=suite.get("tests", "0"),
+                        failures=suite.get("failures", "0"), errors="0")
+    suites.append(suite)
+    ET.indent(suites)
+    return ET.tostring(suites, encoding="unicode", xml_declaration=True) + "\n"
