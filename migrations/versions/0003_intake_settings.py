@@ -26,6 +26,7 @@ def upgrade() -> None:
     op.add_column("component", sa.Column("description", sa.Text(), nullable=False,
                                          server_default=""))
     op.create_index("ix_component_repo_key", "component", ["repo_key"])
+    _backfill_repo_keys()
     op.add_column("revision", sa.Column("branch", sa.String(200), nullable=False,
                                         server_default=""))
     op.add_column("revision", sa.Column("message", sa.Text(), nullable=False, server_default=""))
@@ -35,6 +36,16 @@ def upgrade() -> None:
     op.add_column("api_token", sa.Column("host", sa.String(200), nullable=True))
     op.add_column("execution", sa.Column("pruned_at", sa.DateTime(timezone=True), nullable=True))
     op.add_column("summary", sa.Column("sketch", sa.JSON(), nullable=True))
+
+
+def _backfill_repo_keys() -> None:
+    from redline.server.services.repos import repo_key
+
+    connection = op.get_bind()
+    rows = connection.execute(sa.text("SELECT id, repo FROM component")).all()
+    for ident, repo in rows:
+        connection.execute(sa.text("UPDATE component SET repo_key = :key WHERE id = :id"),
+                           {"key": repo_key(repo), "id": ident})
 
 
 def downgrade() -> None:

@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
-from fastapi import APIRouter, Depends, status
-from redline.server.api.deps import SessionDep, require
+from typing import Annotated
+
+from fastapi import APIRouter, Depends, Query, Response, status
+from redline.server.api.deps import READ, SessionDep, require
 from redline.server.schemas import (
     ChangeOut,
     ComponentCreate,
     ComponentOut,
+    ComponentSettings,
     Problem,
     RevisionDetail,
     RevisionOut,
@@ -22,31 +25,54 @@ NOT_FOUND = {404: {"model": Problem, "description": "unknown component or revisi
 @router.post("", status_code=status.HTTP_201_CREATED, dependencies=[Depends(require("admin"))],
              responses={409: {"model": Problem}})
 def create_component(data: ComponentCreate, session: SessionDep) -> ComponentOut:
-    return ComponentOut.model_validate(components.create_component(session, data))
+    """A component and all its settings; its webhook secret is stored, never shown again."""
+    return components.component_out(components.create_component(session, data))
 
 
-@router.get("")
+@router.get("", dependencies=READ)
 def list_components(session: SessionDep) -> list[ComponentOut]:
-    return [ComponentOut.model_validate(c) for c in components.list_components(session)]
+    return [components.component_out(c) for c in components.list_components(session)]
 
 
-@router.get("/{name}/revisions", responses=NOT_FOUND)
-def list_revisions(name: str, session: SessionDep) -> list[RevisionOut]:
-    """The component's revisions in sort-key order, each with a state derived from its jobs."""
-    return revisions.list_revisions(session, name)
+@router.get("/{name}", responses=NOT_FOUND, dependencies=READ)
+def get_component(name: str, session: SessionDep) -> ComponentOut:
+    return components.component_out(components.get_component(session, name))
 
 
-@router.get("/{name}/revisions/{title}", responses=NOT_FOUND)
+@router.patch("/{name}", responses=NOT_FOUND, dependencies=[Depends(require("admin"))])
+def update_component(name: str, data: ComponentSettings, session: SessionDep) -> ComponentOut:
+    """Change the settings given; ``"webhook_secret": ""`` returns to REDLINE_WEBHOOK_SECRET."""
+    return components.component_out(components.update_component(session, name, data))
+
+
+@router.get("/{name}/revisions", responses=NOT_FOUND, dependencies=READ)
+def list_revisions(
+    name: str, session: SessionDep, response: Response,
+    limit: Annotated[int | None, Query(ge=1, le=1000, description="page size")] = None,
+    cursor: Annotated[str | None, Query(description="X-Next-Cursor of the previous page")] = None,
+) -> list[RevisionOut]:
+    """The component's revisions in sort-key order, each with a state derived from its jobs.
+
+    Paged with ``limit``: a full page carries the header ``X-Next-Cursor``; pass it back as
+    ``cursor`` for the revisions after it. Without ``limit``, all revisions.
+    """
+    page = revisions.page_revisions(session, name, limit, cursor)
+    if limit is not None and len(page) == limit:
+        response.headers["X-Next-Cursor"] = revisions.encode_cursor(page[-1])
+    return [revisions.revision_out(revision) for revision in page]
+
+
+@router.get("/{name}/revisions/{title}", responses=NOT_FOUND, dependencies=READ)
 def revision_detail(name: str, title: str, session: SessionDep) -> RevisionDetail:
     return revisions.revision_detail(session, name, title)
 
 
-@router.get("/{name}/series", responses=NOT_FOUND)
+@router.get("/{name}/series", responses=NOT_FOUND, dependencies=READ)
 def list_series(name: str, session: SessionDep) -> list[SeriesOut]:
     return results.component_series(session, name)
 
 
-@router.get("/{name}/changes", responses=NOT_FOUND)
+@router.get("/{name}/changes", responses=NOT_FOUND, dependencies=READ)
 def list_changes(name: str, session: SessionDep, flagged: bool = False) -> list[ChangeOut]:
     """Detected changes; ``?flagged=true`` keeps only those the detector flagged."""
     return results.component_changes(session, name, flagged_only=flagged)

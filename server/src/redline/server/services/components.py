@@ -1,23 +1,49 @@
-"""Components: the things whose revisions are measured."""
+"""Components: the things whose revisions are measured, and their settings."""
 
 from __future__ import annotations
 
 from redline.server.models import Component
-from redline.server.schemas import ComponentCreate
+from redline.server.schemas import ComponentCreate, ComponentOut, ComponentSettings
 from redline.server.services.errors import Conflict, NotFound
+from redline.server.services.repos import repo_key
 from sqlalchemy import select
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
 
+def component_out(component: Component) -> ComponentOut:
+    """The component as the API shows it: its webhook secret only as whether there is one."""
+    return ComponentOut(
+        name=component.name, repo=component.repo, branch=component.branch,
+        suite=component.suite, executions=component.executions,
+        host_labels=list(component.host_labels or []), description=component.description,
+        has_webhook_secret=bool(component.webhook_secret), created=component.created,
+    )
+
+
 def create_component(session: Session, data: ComponentCreate) -> Component:
     component = Component(**data.model_dump())
+    component.webhook_secret = data.webhook_secret or None
+    component.repo_key = repo_key(data.repo)
     session.add(component)
     try:
         session.commit()
     except IntegrityError:
         session.rollback()
         raise Conflict(f"component {data.name!r} already exists") from None
+    return component
+
+
+def update_component(session: Session, name: str, data: ComponentSettings) -> Component:
+    """Change the settings given (fields left out stay as they are)."""
+    component = get_component(session, name)
+    for field, value in data.model_dump(exclude_unset=True).items():
+        if value is None and field != "webhook_secret":
+            continue  # null means "unchanged" for every setting but the secret
+        setattr(component, field, value)
+    component.webhook_secret = component.webhook_secret or None
+    component.repo_key = repo_key(component.repo)
+    session.commit()
     return component
 
 
@@ -31,3 +57,14 @@ def get_component(session: Session, name: str) -> Component:
     if component is None:
         raise NotFound(f"unknown component {name!r}")
     return component
+
+
+def matching_components(session: Session, repo: str, branch: str) -> list[Component]:
+    """Components whose repository (any URL spelling) and default branch are these."""
+    key = repo_key(repo)
+    if not key:
+        return []
+    return list(session.scalars(
+        select(Component).where(Component.repo_key == key, Component.branch == branch)
+        .order_by(Component.name)
+    ))

@@ -2,14 +2,15 @@
 
 from __future__ import annotations
 
+import base64
 import re
 from collections import Counter
 
-from redline.server.models import Job, JobState, Revision
+from redline.server.models import Component, Job, JobState, Revision
 from redline.server.schemas import ExecutionOut, JobOut, RevisionCreate, RevisionDetail, RevisionOut
 from redline.server.services.components import get_component
-from redline.server.services.errors import Conflict, NotFound
-from sqlalchemy import select
+from redline.server.services.errors import BadRequest, Conflict, NotFound
+from sqlalchemy import literal, select, tuple_
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session, selectinload
 
@@ -31,15 +32,22 @@ def order_key(sort_key: str) -> str:
     return _DIGITS.sub(run, sort_key)
 
 
+def new_revision(component: Component, data: RevisionCreate) -> Revision:
+    """An unsaved revision with one queued job per execution, for the component's host pool."""
+    return Revision(
+        component=component, title=data.title, sort_key=data.sort_key,
+        order_key=order_key(data.sort_key), commit=data.commit,
+        repo=data.repo or component.repo, branch=data.branch or component.branch,
+        message=data.message, committed_at=data.committed_at,
+        jobs=[Job(execution_index=index, labels=list(component.host_labels or []))
+              for index in range(component.executions)],
+    )
+
+
 def create_revision(session: Session, data: RevisionCreate) -> Revision:
     """A revision and one queued job per execution the component asks for."""
     component = get_component(session, data.component)
-    revision = Revision(
-        component=component, title=data.title, sort_key=data.sort_key,
-        order_key=order_key(data.sort_key), commit=data.commit,
-        repo=data.repo or component.repo,
-        jobs=[Job(execution_index=index) for index in range(component.executions)],
-    )
+    revision = new_revision(component, data)
     session.add(revision)
     try:
         session.commit()
@@ -75,20 +83,51 @@ def revision_state(states: list[JobState], analyzed: bool = True) -> str:
 def _revision_out(revision: Revision) -> dict:
     return dict(
         id=revision.id, title=revision.title, sort_key=revision.sort_key, commit=revision.commit,
-        repo=revision.repo, created=revision.created,
+        repo=revision.repo, branch=revision.branch, committed_at=revision.committed_at,
+        created=revision.created,
         analyzed_at=revision.analyzed_at,
         state=revision_state([job.state for job in revision.jobs],
                              analyzed=revision.analyzed_at is not None),
     )
 
 
-def list_revisions(session: Session, component_name: str) -> list[RevisionOut]:
+def encode_cursor(revision: Revision) -> str:
+    """An opaque position after ``revision`` in sort-key order."""
+    raw = f"{revision.order_key}\x00{revision.id}".encode()
+    return base64.urlsafe_b64encode(raw).decode().rstrip("=")
+
+
+def _decode_cursor(cursor: str) -> tuple[str, int]:
+    try:
+        raw = base64.urlsafe_b64decode(cursor + "=" * (-len(cursor) % 4)).decode()
+        key, _, ident = raw.rpartition("\x00")
+        return key, int(ident)
+    except (ValueError, UnicodeDecodeError):
+        raise BadRequest(f"malformed cursor {cursor!r}; pass back a next_cursor") from None
+
+
+def list_revisions(session: Session, component_name: str, limit: int | None = None,
+                   cursor: str | None = None) -> list[RevisionOut]:
+    """Revisions in sort-key order; ``limit`` of them after ``cursor`` when given."""
+    return [revision_out(r) for r in page_revisions(session, component_name, limit, cursor)]
+
+
+def revision_out(revision: Revision) -> RevisionOut:
+    return RevisionOut(**_revision_out(revision))
+
+
+def page_revisions(session: Session, component_name: str, limit: int | None,
+                   cursor: str | None) -> list[Revision]:
     component = get_component(session, component_name)
-    revisions = session.scalars(
-        select(Revision).where(Revision.component_id == component.id)
-        .order_by(Revision.order_key, Revision.id).options(selectinload(Revision.jobs))
-    )
-    return [RevisionOut(**_revision_out(revision)) for revision in revisions]
+    query = (select(Revision).where(Revision.component_id == component.id)
+             .order_by(Revision.order_key, Revision.id).options(selectinload(Revision.jobs)))
+    if cursor:
+        key, ident = _decode_cursor(cursor)
+        query = query.where(tuple_(Revision.order_key, Revision.id) > tuple_(
+            literal(key, Revision.order_key.type), literal(ident)))
+    if limit is not None:
+        query = query.limit(limit)
+    return list(session.scalars(query))
 
 
 def job_out(job: Job) -> JobOut:

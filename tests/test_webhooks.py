@@ -1,0 +1,145 @@
+"""Push webhooks (GitHub, GitLab) through the real app on real Postgres."""
+
+from __future__ import annotations
+
+import hashlib
+import hmac
+import json
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+from redline.server.db import session_factory
+from redline.server.models import Job, Revision
+from redline.server.services.repos import repo_key
+from sqlalchemy import func, select
+
+from tests.conftest import Services
+from tests.intake import api_with
+from tests.test_api import Api
+
+SECRET = "s3cret"
+COMMITS = [
+    {"id": "a" * 40, "message": "first", "timestamp": "2026-11-20T10:00:00+01:00"},
+    {"id": "b" * 40, "message": "second", "timestamp": "2026-11-20T10:00:00+01:00"},
+]
+
+
+@pytest.fixture
+def api(services: Services, tmp_path: Path) -> Iterator[Api]:
+    with api_with(services, tmp_path, webhook_secret=SECRET) as api:
+        api.post("/api/v1/components", "admin", {
+            "name": "builder", "repo": "https://github.com/Org/Builder.git", "branch": "main",
+            "suite": "perf/redline.toml", "executions": 2, "host_labels": ["quiet"],
+        }).raise_for_status()
+        yield api
+
+
+def github_push(repo: str = "https://github.com/org/builder", ref: str = "refs/heads/main",
+                commits: list[dict] = COMMITS) -> bytes:
+    return json.dumps({"ref": ref, "commits": commits, "repository": {
+        "clone_url": repo + ".git", "html_url": repo}}).encode()
+
+
+def send_github(api: Api, body: bytes, secret: str = SECRET, event: str = "push") -> object:
+    signature = "sha256=" + hmac.new(secret.encode(), body, hashlib.sha256).hexdigest()
+    return api.client.post("/api/v1/webhooks/github", content=body, headers={
+        "X-Hub-Signature-256": signature, "X-GitHub-Event": event,
+        "Content-Type": "application/json"})
+
+
+def counts(api: Api) -> tuple[int, int]:
+    with session_factory(api.settings.database_url)() as session:
+        return (session.scalar(select(func.count()).select_from(Revision)) or 0,
+                session.scalar(select(func.count()).select_from(Job)) or 0)
+
+
+def test_repository_urls_normalize_across_https_ssh_and_dot_git():
+    keys = {repo_key(url) for url in (
+        "https://github.com/Org/Repo.git", "git@github.com:org/repo",
+        "ssh://git@github.com:22/org/repo.git", "http://github.com/org/repo/")}
+    assert keys == {"github.com/org/repo"}
+    assert repo_key("https://github.com/org/other") != "github.com/org/repo"
+    assert repo_key("") == ""
+
+
+def test_github_push_creates_a_revision_per_commit_with_jobs_per_execution(api: Api):
+    answer = send_github(api, github_push())
+    assert answer.status_code == 200, answer.text
+    created = answer.json()["created"]
+    assert [r["title"] for r in created] == ["a" * 12, "b" * 12]
+    assert all(len(r["job_ids"]) == 2 for r in created)
+    # same commit time: the order in the push decides
+    assert created[0]["sort_key"] == "20261120T090000Z.0000" < created[1]["sort_key"]
+    listed = api.client.get("/api/v1/components/builder/revisions").json()
+    assert [(r["commit"], r["branch"]) for r in listed] == [("a" * 40, "main"), ("b" * 40, "main")]
+    with session_factory(api.settings.database_url)() as session:
+        assert {tuple(job.labels) for job in session.scalars(select(Job))} == {("quiet",)}
+
+
+def test_repeated_delivery_creates_nothing_twice(api: Api):
+    assert send_github(api, github_push()).status_code == 200
+    again = send_github(api, github_push())
+    assert again.status_code == 200 and again.json()["created"] == []
+    assert again.json()["existing"] == 2
+    assert counts(api) == (2, 4)
+
+
+def test_forged_signature_is_401_and_creates_nothing(api: Api):
+    answer = send_github(api, github_push(), secret="guessed")
+    assert answer.status_code == 401 and "signature" in answer.json()["detail"]
+    unsigned = api.client.post("/api/v1/webhooks/github", content=github_push())
+    assert unsigned.status_code == 401
+    assert counts(api) == (0, 0)
+
+
+def test_unknown_repository_or_other_branch_is_202_and_creates_nothing(api: Api):
+    answer = send_github(api, github_push(repo="https://github.com/org/ghost"))
+    assert answer.status_code == 202
+    assert answer.json()["detail"].startswith("no component matches")
+    other = send_github(api, github_push(ref="refs/heads/feature"))
+    assert other.status_code == 202 and "feature" in other.json()["detail"]
+    tag = send_github(api, github_push(ref="refs/tags/v1"))
+    assert tag.status_code == 202
+    assert counts(api) == (0, 0)
+
+
+def test_ping_is_acknowledged_and_ignored(api: Api):
+    answer = send_github(api, github_push(), event="ping")
+    assert answer.status_code == 202 and counts(api) == (0, 0)
+
+
+def test_component_secret_overrides_the_setting(api: Api):
+    api.client.patch("/api/v1/components/builder", json={"webhook_secret": "own"},
+                     headers=api.tokens["admin"]).raise_for_status()
+    assert send_github(api, github_push()).status_code == 401
+    assert send_github(api, github_push(), secret="own").status_code == 200
+    shown = api.client.get("/api/v1/components/builder").json()
+    assert shown["has_webhook_secret"] is True and "webhook_secret" not in shown
+
+
+def test_gitlab_push_with_its_token_creates_revisions(api: Api):
+    body = json.dumps({"object_kind": "push", "ref": "refs/heads/main", "commits": COMMITS[:1],
+                       "project": {"git_ssh_url": "git@github.com:org/builder.git"}})
+    headers = {"X-Gitlab-Event": "Push Hook", "Content-Type": "application/json"}
+    wrong = api.client.post("/api/v1/webhooks/gitlab", content=body,
+                            headers={**headers, "X-Gitlab-Token": "nope"})
+    assert wrong.status_code == 401 and counts(api) == (0, 0)
+    answer = api.client.post("/api/v1/webhooks/gitlab", content=body,
+                             headers={**headers, "X-Gitlab-Token": SECRET})
+    assert answer.status_code == 200 and len(answer.json()["created"]) == 1
+    assert counts(api) == (1, 2)
+
+
+def test_component_settings_are_created_patched_and_shown(api: Api):
+    shown = api.client.get("/api/v1/components/builder").json()
+    assert (shown["host_labels"], shown["executions"], shown["has_webhook_secret"]) == (
+        ["quiet"], 2, False)
+    patched = api.client.patch("/api/v1/components/builder", headers=api.tokens["admin"],
+                               json={"branch": "develop", "executions": 3})
+    assert patched.status_code == 200
+    assert (patched.json()["branch"], patched.json()["suite"]) == ("develop", "perf/redline.toml")
+    denied = api.client.patch("/api/v1/components/builder", headers=api.tokens["ci"],
+                              json={"branch": "x"})
+    assert denied.status_code == 403
+    assert send_github(api, github_push()).status_code == 202  # main no longer matches
