@@ -4,8 +4,22 @@ from __future__ import annotations
 
 from fastapi import FastAPI, Request
 from fastapi.responses import JSONResponse
+from redline.server.core import metrics
 from redline.server.core.config import Settings, get_settings
-from redline.server.routes import agent, components, health, jobs, revisions, web, webhooks
+from redline.server.routes import (
+    agent,
+    components,
+    executions,
+    health,
+    imports,
+    jobs,
+    regressions,
+    revisions,
+    series,
+    tokens,
+    web,
+    webhooks,
+)
 from redline.server.services.errors import ServiceError
 from redline.worker.app import TaskSender
 
@@ -27,7 +41,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.add_exception_handler(ServiceError, _service_error)
     for down in health.DATABASE_DOWN:  # 503 with a message, never a 500, while Postgres is away
         app.add_exception_handler(down, health.database_unavailable)
-    for module in (health, components, revisions, agent, jobs, webhooks):
+    metrics.install(app, settings)
+    for module in (health, components, revisions, agent, jobs, webhooks, tokens, series,
+                   executions, imports, regressions):
         app.include_router(module.router)
     web.mount(app, settings)
     return app

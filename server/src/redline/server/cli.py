@@ -11,6 +11,7 @@ import typer
 from redline.server.core.config import get_settings
 
 token_app = typer.Typer(help="Manage API tokens.", no_args_is_help=True)
+retention_app = typer.Typer(help="Raw recordings' retention.", no_args_is_help=True)
 
 
 def migrate_cmd() -> None:
@@ -29,21 +30,38 @@ def server_cmd(
     """Migrate the database, then serve the API and the UI."""
     import uvicorn
     from redline.server.app import create_app
+    from redline.server.core.logs import configure
     from redline.server.db import migrate
 
     settings = get_settings()
+    configure(settings.log_json)
     migrate(settings.database_url, settings.migrations_dir)
-    uvicorn.run(create_app(settings), host=host, port=port)
+    uvicorn.run(create_app(settings), host=host, port=port, log_config=None)
 
 
 def worker_cmd(
     concurrency: Annotated[int, typer.Option(help="worker processes")] = 1,
     loglevel: Annotated[str, typer.Option(help="Celery log level")] = "INFO",
+    beat: Annotated[bool, typer.Option(help="also run the periodic tasks (retention)")] = True,
 ) -> None:
     """Run a Celery worker that ingests recordings and detects changes."""
     from redline.worker.app import celery_app
 
-    celery_app.worker_main(["worker", f"--concurrency={concurrency}", f"--loglevel={loglevel}"])
+    celery_app.worker_main(["worker", f"--concurrency={concurrency}", f"--loglevel={loglevel}",
+                            *(["--beat"] if beat else [])])
+
+
+def retention_run(
+    days: Annotated[int | None, typer.Option(help="age in days (default REDLINE_RETENTION_DAYS)")]
+    = None,
+) -> None:
+    """Delete raw recordings (MCAP, Parquet) older than the retention age, once; summaries stay."""
+    from redline.worker.retention import prune_recordings
+
+    settings = get_settings()
+    age = settings.retention_days if days is None else days
+    count = prune_recordings(settings.database_url, age)
+    typer.echo(f"pruned the raw recordings of {count} executions older than {age} days")
 
 
 @token_app.command("create")
@@ -64,8 +82,45 @@ def token_create(
         typer.echo(create_token(session, name, scopes))
 
 
+@token_app.command("list")
+def token_list() -> None:
+    """List tokens: id, name, scopes, host, created, last used, revoked."""
+    from redline.server.db import session_factory
+    from redline.server.services.tokens import list_tokens
+
+    with session_factory(get_settings().database_url)() as session:
+        for token in list_tokens(session):
+            used = token.last_used.isoformat(timespec="seconds") if token.last_used else "never"
+            state = "revoked" if token.revoked else "live"
+            typer.echo(f"{token.id}\t{token.name}\t{','.join(token.scopes)}\t"
+                       f"{token.host or '-'}\t{token.created:%Y-%m-%d}\t{used}\t{state}")
+
+
+@token_app.command("revoke")
+def token_revoke(
+    name_or_id: Annotated[str, typer.Argument(help="the token's id, or its name")],
+) -> None:
+    """Revoke a token at once; requests carrying it are refused from now on."""
+    from redline.server.db import session_factory
+    from redline.server.services.errors import NotFound
+    from redline.server.services.tokens import revoke_token
+
+    with session_factory(get_settings().database_url)() as session:
+        try:
+            revoked = revoke_token(session, name_or_id)
+        except NotFound as exc:
+            typer.echo(exc.detail, err=True)
+            raise typer.Exit(1) from None
+        for token in revoked:
+            typer.echo(f"revoked {token.id} {token.name}")
+
+
+retention_app.command("run")(retention_run)
+
+
 def register(app: typer.Typer) -> None:
     app.command("server")(server_cmd)
     app.command("worker")(worker_cmd)
     app.command("migrate")(migrate_cmd)
     app.add_typer(token_app, name="token")
+    app.add_typer(retention_app, name="retention")

@@ -14,6 +14,7 @@ log = logging.getLogger(__name__)
 
 INGEST_TASK = "redline.ingest_execution"
 DETECT_TASK = "redline.detect_revision"
+RETENTION_TASK = "redline.prune_old_recordings"
 
 
 def broker_url(redis_url: str) -> str:
@@ -25,7 +26,7 @@ def broker_url(redis_url: str) -> str:
 
 def make_celery(settings: Settings) -> Celery:
     app = Celery("redline", broker=broker_url(settings.redis_url),
-                 include=["redline.worker.tasks"])
+                 include=["redline.worker.tasks", "redline.worker.retention"])
     app.conf.update(
         task_acks_late=True,  # a task lost with its worker is redelivered; tasks are idempotent
         task_reject_on_worker_lost=True,
@@ -36,6 +37,7 @@ def make_celery(settings: Settings) -> Celery:
         task_publish_retry_policy={"max_retries": 3, "interval_start": 0.2,
                                    "interval_step": 0.5, "interval_max": 1.0},
     )
+    app.conf.beat_schedule = {"retention": {"task": RETENTION_TASK, "schedule": 24 * 3600.0}}
     app.conf.redline_settings = settings
     return app
 

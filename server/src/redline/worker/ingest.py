@@ -8,6 +8,7 @@ from __future__ import annotations
 import logging
 import os
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pyarrow as pa
@@ -23,17 +24,21 @@ from sqlalchemy.orm import Session
 log = logging.getLogger(__name__)
 
 QUANTILES = {"p5": 5, "p25": 25, "p50": 50, "p75": 75, "p95": 95}
+#: the quantile sketch: 32 evenly spaced levels, mid-bucket (1/64, 3/64, ... 63/64); enough to
+#: redraw the distribution and to compare it once the raw samples are pruned
+SKETCH_LEVELS = (np.arange(32) + 0.5) / 32
 
 
-def summarize(values: np.ndarray) -> dict[str, float]:
-    """n, mean, std (population), min, max and the quantiles of one series' samples."""
-    stats: dict[str, float] = {
+def summarize(values: np.ndarray) -> dict[str, Any]:
+    """n, mean, std (population), min, max, the quantiles and the sketch of one series."""
+    stats: dict[str, Any] = {
         "n": int(values.size), "mean": float(values.mean()), "std": float(values.std()),
         "min": float(values.min()), "max": float(values.max()),
     }
     for name, value in zip(QUANTILES, np.percentile(values, list(QUANTILES.values())),
                            strict=True):
         stats[name] = float(value)
+    stats["sketch"] = [float(v) for v in np.quantile(values, SKETCH_LEVELS)]
     return stats
 
 

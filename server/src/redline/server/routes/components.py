@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Annotated
 
-from fastapi import APIRouter, Depends, Query, Response, status
+from fastapi import APIRouter, Depends, Query, Request, Response, status
 from redline.server.api.deps import READ, SessionDep, require
 from redline.server.schemas import (
     ChangeOut,
@@ -16,7 +16,8 @@ from redline.server.schemas import (
     RevisionOut,
     SeriesOut,
 )
-from redline.server.services import components, results, revisions
+from redline.server.schemas_read import Comparison
+from redline.server.services import compare, components, read, results, revisions
 
 router = APIRouter(prefix="/api/v1/components", tags=["components"])
 NOT_FOUND = {404: {"model": Problem, "description": "unknown component or revision"}}
@@ -68,8 +69,23 @@ def revision_detail(name: str, title: str, session: SessionDep) -> RevisionDetai
 
 
 @router.get("/{name}/series", responses=NOT_FOUND, dependencies=READ)
-def list_series(name: str, session: SessionDep) -> list[SeriesOut]:
-    return results.component_series(session, name)
+def list_series(
+    name: str, session: SessionDep, request: Request,
+    case: str | None = None, phase: str | None = None, process: str | None = None,
+    counter: str | None = None,
+) -> list[SeriesOut]:
+    """The component's series with one point per revision; filtered by ``case``, ``phase``,
+    ``process``, ``counter`` and parameters as ``param.NAME=VALUE`` (e.g. ``param.legs=8``)."""
+    params = {key.removeprefix("param."): value for key, value in request.query_params.items()
+              if key.startswith("param.")}
+    fields = {"case": case, "phase": phase, "process": process, "counter": counter}
+    return read.filter_series(results.component_series(session, name), fields, params)
+
+
+@router.get("/{name}/compare", responses=NOT_FOUND, dependencies=READ)
+def compare_revisions(name: str, base: str, candidate: str, session: SessionDep) -> Comparison:
+    """Series by series: baseline and candidate statistics, relative change, KS test."""
+    return compare.compare(session, name, base, candidate)
 
 
 @router.get("/{name}/changes", responses=NOT_FOUND, dependencies=READ)

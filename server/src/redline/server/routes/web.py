@@ -9,7 +9,7 @@ from fastapi import APIRouter, FastAPI, Request
 from fastapi.responses import FileResponse, HTMLResponse
 from fastapi.staticfiles import StaticFiles
 from fastapi.templating import Jinja2Templates
-from redline.server.api.deps import SessionDep
+from redline.server.api.deps import READ, SessionDep
 from redline.server.core.config import Settings
 from redline.server.services import components, results, revisions
 from redline.server.services.errors import NotFound
@@ -17,7 +17,8 @@ from redline.worker.render import trend_figure
 
 PLOTLY_JS = Path(plotly.__file__).parent / "package_data" / "plotly.min.js"
 
-router = APIRouter(include_in_schema=False)
+# REDLINE_READ_ACCESS=token: the pages need a read token (cookie redline_token or ?token=)
+router = APIRouter(include_in_schema=False, dependencies=READ)
 
 
 def _templates(request: Request) -> Jinja2Templates:

@@ -1,9 +1,10 @@
-"""API tokens: issue, authenticate."""
+"""API tokens: issue, authenticate, list, revoke."""
 
 from __future__ import annotations
 
 from redline.server.core.security import hash_token, new_token, parse_scopes
 from redline.server.models import ApiToken, utcnow
+from redline.server.services.errors import BadRequest, Conflict, NotFound
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
@@ -25,3 +26,38 @@ def authenticate(session: Session, secret: str) -> ApiToken | None:
         token.last_used = utcnow()
         session.commit()
     return token
+
+
+def issue_token(session: Session, name: str, scopes: list[str],
+                host: str | None = None) -> tuple[ApiToken, str]:
+    """A new token and its secret; an agent token is bound to ``host``, one live one per name."""
+    try:
+        parsed = parse_scopes(scopes)
+    except ValueError as exc:
+        raise BadRequest(str(exc)) from None
+    live = session.scalar(select(ApiToken).where(ApiToken.name == name, ~ApiToken.revoked))
+    if live is not None:
+        raise Conflict(f"a live token named {name!r} exists; revoke it first")
+    secret = new_token()
+    token = ApiToken(name=name, token_hash=hash_token(secret), scopes=parsed, host=host)
+    session.add(token)
+    session.commit()
+    return token, secret
+
+
+def list_tokens(session: Session) -> list[ApiToken]:
+    return list(session.scalars(select(ApiToken).order_by(ApiToken.id)))
+
+
+def revoke_token(session: Session, name_or_id: str) -> list[ApiToken]:
+    """Revoke the token with this id, or every live token with this name; NotFound otherwise."""
+    query = select(ApiToken).where(ApiToken.name == name_or_id, ~ApiToken.revoked)
+    if name_or_id.isdigit():
+        query = select(ApiToken).where(ApiToken.id == int(name_or_id))
+    tokens = list(session.scalars(query))
+    if not tokens:
+        raise NotFound(f"no live token named or numbered {name_or_id!r}")
+    for token in tokens:
+        token.revoked = True
+    session.commit()
+    return tokens

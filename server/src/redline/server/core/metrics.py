@@ -1,0 +1,84 @@
+"""Prometheus metrics: request counts and latency per route, jobs by state, queue depth.
+
+Each app gets its own registry, so several apps in one process (tests) do not collide.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Awaitable, Callable
+
+from fastapi import FastAPI, Request, Response
+from prometheus_client import CONTENT_TYPE_LATEST, CollectorRegistry, Counter, Histogram
+from prometheus_client.core import GaugeMetricFamily
+from prometheus_client.exposition import generate_latest
+from redline.server.core.config import Settings
+from redline.server.db import session_factory
+from redline.server.models import Job, JobState
+from sqlalchemy import func, select
+
+log = logging.getLogger(__name__)
+
+
+class JobCollector:
+    """Jobs by state from Postgres and the Celery queue's length from Redis, at scrape time."""
+
+    def __init__(self, settings: Settings) -> None:
+        self.settings = settings
+
+    def collect(self):  # noqa: ANN201 - the prometheus_client collector protocol
+        jobs = GaugeMetricFamily("redline_jobs", "jobs by state", labels=["state"])
+        try:
+            with session_factory(self.settings.database_url)() as session:
+                counts = dict(session.execute(
+                    select(Job.state, func.count()).group_by(Job.state)).all())
+            for state in JobState:
+                jobs.add_metric([state.value], counts.get(state, 0))
+        except Exception:  # a scrape during an outage reports what it can
+            log.warning("metrics: could not count jobs", exc_info=True)
+        yield jobs
+        depth = self._queue_depth()
+        if depth is not None:
+            yield GaugeMetricFamily("redline_task_queue_depth",
+                                    "tasks waiting in the Celery queue", value=depth)
+
+    def _queue_depth(self) -> int | None:
+        """Best effort: the Redis list named after the queue; None when Redis is away."""
+        try:
+            import redis
+            from redline.worker.app import broker_url
+
+            url = broker_url(self.settings.redis_url)
+            if url.startswith("redis+socket://"):
+                client = redis.Redis(unix_socket_path=url[len("redis+socket://"):])
+            else:
+                client = redis.Redis.from_url(url)
+            with client:
+                return int(client.llen(self.settings.queue))
+        except Exception:
+            return None
+
+
+def install(app: FastAPI, settings: Settings) -> None:
+    """Count and time every request (by route template) and serve ``GET /metrics``."""
+    registry = CollectorRegistry()
+    requests = Counter("redline_http_requests", "HTTP requests", ["method", "route", "status"],
+                       registry=registry)
+    latency = Histogram("redline_http_request_seconds", "HTTP request latency",
+                        ["method", "route"], registry=registry)
+    registry.register(JobCollector(settings))
+
+    @app.middleware("http")
+    async def measure(request: Request,
+                      call_next: Callable[[Request], Awaitable[Response]]) -> Response:
+        start = time.perf_counter()
+        response = await call_next(request)
+        route = getattr(request.scope.get("route"), "path", "unmatched")
+        latency.labels(request.method, route).observe(time.perf_counter() - start)
+        requests.labels(request.method, route, str(response.status_code)).inc()
+        return response
+
+    @app.get("/metrics", include_in_schema=False)
+    def metrics() -> Response:
+        return Response(generate_latest(registry), media_type=CONTENT_TYPE_LATEST)

@@ -1,0 +1,86 @@
+"""Compare two revisions of a component, series by series (two-sample KS, relative change).
+
+Samples come from the Parquet tables beside the recordings; where retention pruned them, the
+summaries' quantile sketches stand in (and the comparison says it is not exact).
+"""
+
+from __future__ import annotations
+
+import math
+from collections import defaultdict
+from pathlib import Path
+
+import numpy as np
+import pyarrow.parquet as pq
+from redline.detect.ks import ks
+from redline.server.models import Execution, Revision, Series, Summary
+from redline.server.schemas_read import Comparison, SeriesComparison, Statistics
+from redline.server.services.components import get_component
+from redline.server.services.errors import NotFound
+from redline.server.services.results import series_ref
+from sqlalchemy import select
+from sqlalchemy.orm import Session
+
+
+def samples_path(recording_path: str) -> Path:
+    """Where ingestion and imports keep an execution's samples (series_id, value)."""
+    return Path(recording_path).with_suffix(".samples.parquet")
+
+
+def revision_samples(session: Session, revision_id: int) -> tuple[dict[int, np.ndarray], bool]:
+    """Pooled samples per series id of the revision, and whether all were raw (not sketches)."""
+    parts: dict[int, list[np.ndarray]] = defaultdict(list)
+    exact = True
+    executions = session.scalars(
+        select(Execution).where(Execution.revision_id == revision_id).order_by(Execution.id))
+    for execution in executions:
+        path = samples_path(execution.recording_path)
+        if execution.pruned_at is None and path.exists():
+            table = pq.read_table(path).to_pandas()
+            for series_id, values in table.groupby("series_id")["value"]:
+                parts[int(series_id)].append(values.to_numpy())
+            continue
+        for summary in session.scalars(select(Summary)
+                                       .where(Summary.execution_id == execution.id)):
+            exact = False
+            stand_in = summary.sketch or [summary.p5, summary.p25, summary.p50, summary.p75,
+                                          summary.p95]
+            parts[summary.series_id].append(np.asarray(stand_in, dtype=np.float64))
+    return {sid: np.concatenate(chunks) for sid, chunks in parts.items()}, exact
+
+
+def statistics(values: np.ndarray) -> Statistics:
+    return Statistics(n=int(values.size), mean=float(values.mean()), std=float(values.std()),
+                      min=float(values.min()), max=float(values.max()),
+                      p50=float(np.median(values)))
+
+
+def _revision(session: Session, component_id: int, component: str, title: str) -> Revision:
+    revision = session.scalar(select(Revision).where(Revision.component_id == component_id,
+                                                     Revision.title == title))
+    if revision is None:
+        raise NotFound(f"component {component!r} has no revision {title!r}")
+    return revision
+
+
+def compare(session: Session, component_name: str, base: str, candidate: str) -> Comparison:
+    """Every series both revisions measured: their statistics, relative change and KS test."""
+    component = get_component(session, component_name)
+    before = _revision(session, component.id, component_name, base)
+    after = _revision(session, component.id, component_name, candidate)
+    base_samples, base_exact = revision_samples(session, before.id)
+    cand_samples, cand_exact = revision_samples(session, after.id)
+    common = sorted(set(base_samples) & set(cand_samples))
+    series = {s.id: s for s in session.scalars(select(Series).where(Series.id.in_(common)))}
+    rows = []
+    for series_id in common:
+        old, new = base_samples[series_id], cand_samples[series_id]
+        result = ks(old, new)
+        rows.append(SeriesComparison(
+            series=series_ref(series[series_id]), baseline=statistics(old),
+            candidate=statistics(new),
+            change=result.effect if math.isfinite(result.effect) else None,
+            ks_statistic=result.statistic, p_value=result.p_value,
+            exact=base_exact and cand_exact,
+        ))
+    return Comparison(component=component.name, base=base, candidate=candidate, series=rows)

@@ -1,0 +1,78 @@
+"""LNT's JSON report format, version 2 (``lnt importreport``, ``lnt.testing.Report``)::
+
+    {"format_version": "2",
+     "machine": {"name": "m1", ...},
+     "run": {"start_time": "...", "end_time": "...", "llvm_project_revision": "1234", ...},
+     "tests": [{"name": "suite/bench", "execution_time": [0.1, 0.11], "compile_time": 2.0}]}
+
+Each test's metric becomes a series (case = test name, counter = metric); the run's order field
+(``llvm_project_revision`` unless told otherwise) is the revision's title and sort key.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from typing import Any
+
+from redline.recording import SeriesKey, canonical_params
+from redline.server.services.errors import BadRequest
+from redline.server.services.imports import IMPORT_PROCESS, ImportedRun
+
+PHASE = "lnt"
+ORDER_FIELD = "llvm_project_revision"
+
+
+def _object(report: dict[str, Any], field: str) -> dict[str, Any]:
+    value = report.get(field)
+    if not isinstance(value, dict):
+        raise BadRequest(f"LNT report: {field!r} must be an object")
+    return value
+
+
+def _values(test: str, metric: str, value: Any) -> list[float]:
+    """A metric's samples; non-numeric metrics (hashes, statuses as text) give none."""
+    items = value if isinstance(value, list) else [value]
+    numbers = [float(item) for item in items
+               if isinstance(item, int | float) and not isinstance(item, bool)]
+    if any(not math.isfinite(number) for number in numbers):
+        raise BadRequest(f"LNT report: test {test!r} metric {metric!r} is not finite")
+    return numbers
+
+
+def _samples(tests: Any) -> dict[SeriesKey, list[float]]:
+    if not isinstance(tests, list) or not tests:
+        raise BadRequest("LNT report: 'tests' must be a non-empty list")
+    params = canonical_params({})
+    samples: dict[SeriesKey, list[float]] = {}
+    for index, test in enumerate(tests):
+        name = test.get("name") if isinstance(test, dict) else None
+        if not isinstance(name, str) or not name:
+            raise BadRequest(f"LNT report: tests[{index}] has no 'name'")
+        for metric, value in test.items():
+            numbers = _values(name, metric, value) if metric != "name" else []
+            if numbers:
+                key = SeriesKey(name[:200], PHASE, params, IMPORT_PROCESS, metric[:200])
+                samples.setdefault(key, []).extend(numbers)
+    if not samples:
+        raise BadRequest("LNT report: no test has a numeric metric")
+    return samples
+
+
+def parse_lnt(body: bytes, component: str, order_field: str = ORDER_FIELD) -> ImportedRun:
+    """The run an LNT v2 report describes; BadRequest naming the field at fault otherwise."""
+    try:
+        report = json.loads(body)
+    except ValueError as exc:
+        raise BadRequest(f"LNT report is not JSON: {exc}") from None
+    if not isinstance(report, dict) or str(report.get("format_version")) != "2":
+        raise BadRequest("LNT report: 'format_version' must be \"2\" (version 1 is not read)")
+    machine, run = _object(report, "machine"), _object(report, "run")
+    order = run.get(order_field)
+    if not isinstance(order, str | int) or isinstance(order, bool) or str(order) == "":
+        raise BadRequest(f"LNT report: run has no order field {order_field!r}")
+    title = str(order)[:200]
+    return ImportedRun(component=component, revision=title, sort_key=title,
+                       commit=str(run.get("git_sha", run.get("commit", "")))[:200],
+                       host=str(machine.get("name", ""))[:200], samples=_samples(
+                           report.get("tests")))

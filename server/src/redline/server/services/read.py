@@ -1,0 +1,78 @@
+"""The read API: filtered series, a series' per-execution summaries, one execution's details."""
+
+from __future__ import annotations
+
+import json
+
+from redline.server.models import Component, Execution, Job, Revision, Series, Summary
+from redline.server.schemas import SeriesOut, SeriesRef
+from redline.server.schemas_read import ExecutionDetail, SeriesDetail, SummaryOut
+from redline.server.services.errors import NotFound
+from redline.server.services.results import series_ref
+from sqlalchemy import func, select
+from sqlalchemy.orm import Session, selectinload
+
+FIELDS = ("case", "phase", "process", "counter")
+
+
+def matches(series: SeriesRef, fields: dict[str, str | None], params: dict[str, str]) -> bool:
+    """Whether the series has these field values and parameter values (compared as text)."""
+    if any(value is not None and getattr(series, name) != value
+           for name, value in fields.items()):
+        return False
+    return all(name in series.params and _text(series.params[name]) == value
+               for name, value in params.items())
+
+
+def _text(value: object) -> str:
+    return value if isinstance(value, str) else json.dumps(value)
+
+
+def filter_series(items: list[SeriesOut], fields: dict[str, str | None],
+                  params: dict[str, str]) -> list[SeriesOut]:
+    return [item for item in items if matches(item, fields, params)]
+
+
+def _summary_out(summary: Summary, revision: Revision) -> SummaryOut:
+    return SummaryOut(
+        revision=revision.title, sort_key=revision.sort_key, execution_id=summary.execution_id,
+        n=summary.n, mean=summary.mean, std=summary.std, min=summary.min, p5=summary.p5,
+        p25=summary.p25, p50=summary.p50, p75=summary.p75, p95=summary.p95, max=summary.max,
+        sketch=summary.sketch,
+    )
+
+
+def series_detail(session: Session, series_id: int) -> SeriesDetail:
+    """The series and every execution's summary of it, in sort-key order."""
+    series = session.get(Series, series_id)
+    if series is None:
+        raise NotFound(f"unknown series {series_id}")
+    rows = session.execute(
+        select(Summary, Revision).join(Execution, Execution.id == Summary.execution_id)
+        .join(Revision, Revision.id == Execution.revision_id)
+        .where(Summary.series_id == series_id)
+        .order_by(Revision.order_key, Revision.id, Execution.id)
+    )
+    name = session.scalar(select(Component.name).where(Component.id == series.component_id))
+    return SeriesDetail(**series_ref(series).model_dump(), component=name or "",
+                        summaries=[_summary_out(summary, rev) for summary, rev in rows])
+
+
+def execution_detail(session: Session, execution_id: int) -> ExecutionDetail:
+    execution = session.scalar(
+        select(Execution).where(Execution.id == execution_id)
+        .options(selectinload(Execution.job).selectinload(Job.host),
+                 selectinload(Execution.job).selectinload(Job.revision)
+                 .selectinload(Revision.component)))
+    if execution is None:
+        raise NotFound(f"unknown execution {execution_id}")
+    job, revision = execution.job, execution.job.revision
+    count = session.scalar(select(func.count()).select_from(Summary)
+                           .where(Summary.execution_id == execution_id))
+    return ExecutionDetail(
+        id=execution.id, component=revision.component.name, revision=revision.title,
+        sort_key=revision.sort_key, job_id=job.id, execution_index=job.execution_index,
+        host=job.host.name if job.host else None, sha256=execution.sha256, size=execution.size,
+        created=execution.created, metadata=execution.meta,
+        recording_pruned_at=execution.pruned_at, series=count or 0,
+    )
