@@ -11,6 +11,8 @@ from redline.server.core.config import Settings
 from redline.worker.app import DETECT_TASK, INGEST_TASK, celery_app
 from redline.worker.detection import detect_revision as run_detection
 from redline.worker.ingest import ingest_execution as run_ingest
+from redline.worker.reanalysis import REANALYZE_TASK
+from redline.worker.reanalysis import reanalyze_component as run_reanalysis
 
 log = logging.getLogger(__name__)
 
@@ -43,3 +45,9 @@ def detect_revision(revision_id: int) -> None:
     changes = run_detection(_settings().database_url, revision_id)
     log.info("revision %s: %d series compared, %d flagged", revision_id, len(changes),
              sum(change.flagged for change in changes))
+
+
+@celery_app.task(name=REANALYZE_TASK, acks_late=True)
+def reanalyze_component(component_id: int) -> None:
+    """Detect every revision of the component again (after a configuration change)."""
+    run_reanalysis(_settings().database_url, component_id)

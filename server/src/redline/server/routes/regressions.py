@@ -1,0 +1,101 @@
+"""/api/v1/components/{name}/: regressions and their triage, accuracy, detections, detection
+configuration and re-analysis."""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+from fastapi import APIRouter, Depends, Query, Request, status
+from redline.server.api.deps import READ, SessionDep, require
+from redline.server.models import ApiToken
+from redline.server.schemas import Problem
+from redline.server.schemas_regressions import (
+    AccuracyOut,
+    DetectionConfigIn,
+    DetectionConfigOut,
+    DetectionOut,
+    ReanalysisOut,
+    RegressionDetail,
+    RegressionEventOut,
+    RegressionOut,
+    State,
+    TriageRequest,
+)
+from redline.server.services import detection_config, regressions
+from redline.server.services.components import get_component
+from redline.worker.reanalysis import REANALYZE_TASK
+
+router = APIRouter(prefix="/api/v1/components", tags=["regressions"])
+NOT_FOUND = {404: {"model": Problem, "description": "unknown component or regression"}}
+BAD = {400: {"model": Problem}, **NOT_FOUND}
+
+
+@router.get("/{name}/regressions", responses=NOT_FOUND, dependencies=READ)
+def list_regressions(name: str, session: SessionDep,
+                     state: State | None = None) -> list[RegressionOut]:
+    """Flagged detections grouped by overlapping revision ranges; ``?state=`` filters."""
+    return regressions.list_regressions(session, name, state)
+
+
+@router.get("/{name}/regressions/{regression_id}", responses=NOT_FOUND, dependencies=READ)
+def get_regression(name: str, regression_id: int, session: SessionDep) -> RegressionDetail:
+    return regressions.regression_detail(session, name, regression_id)
+
+
+@router.patch("/{name}/regressions/{regression_id}", responses=BAD)
+def triage_regression(name: str, regression_id: int, change: TriageRequest, session: SessionDep,
+                      token: Annotated[ApiToken, Depends(require("ci"))]) -> RegressionDetail:
+    """Set the triage state (``ci`` or ``admin`` scope); recorded in the history."""
+    return regressions.triage(session, name, regression_id, change, token)
+
+
+@router.get("/{name}/regressions/{regression_id}/history", responses=NOT_FOUND,
+            dependencies=READ)
+def regression_history(name: str, regression_id: int,
+                       session: SessionDep) -> list[RegressionEventOut]:
+    return regressions.regression_detail(session, name, regression_id).history
+
+
+@router.get("/{name}/accuracy", responses=NOT_FOUND, dependencies=READ)
+def method_accuracy(name: str, session: SessionDep) -> AccuracyOut:
+    """Each method's precision so far, with triage labels as ground truth."""
+    return regressions.accuracy(session, name)
+
+
+@router.get("/{name}/detections", responses=NOT_FOUND, dependencies=READ)
+def list_detections(name: str, session: SessionDep, revision: str | None = None,
+                    method: str | None = None,
+                    limit: Annotated[int, Query(ge=1, le=10_000)] = 1000) -> list[DetectionOut]:
+    """Every method's verdict per series, "not enough data" with its reason included."""
+    return regressions.list_detections(session, name, revision, method, limit)
+
+
+@router.get("/{name}/detection-config", responses=NOT_FOUND, dependencies=READ)
+def get_detection_config(name: str, session: SessionDep) -> DetectionConfigOut:
+    return detection_config.get_config(session, name)
+
+
+@router.put("/{name}/detection-config", responses=BAD, dependencies=[Depends(require("admin"))])
+def put_detection_config(name: str, data: DetectionConfigIn, request: Request,
+                         session: SessionDep) -> DetectionConfigOut:
+    """Store the configuration; with ``reanalyze`` (default) the history is analysed again."""
+    component = detection_config.set_config(session, name, data)
+    if data.reanalyze:
+        detection_config.request_reanalysis(session, component)
+        request.app.state.tasks.send(REANALYZE_TASK, component.id)
+    return detection_config.get_config(session, name)
+
+
+@router.post("/{name}/reanalysis", status_code=status.HTTP_202_ACCEPTED, responses=NOT_FOUND,
+             dependencies=[Depends(require("admin"))])
+def start_reanalysis(name: str, request: Request, session: SessionDep) -> ReanalysisOut:
+    """Queue a background re-analysis of every revision; progress at GET."""
+    component = get_component(session, name)
+    detection_config.request_reanalysis(session, component)
+    request.app.state.tasks.send(REANALYZE_TASK, component.id)
+    return detection_config.reanalysis_status(session, name)
+
+
+@router.get("/{name}/reanalysis", responses=NOT_FOUND, dependencies=READ)
+def reanalysis_progress(name: str, session: SessionDep) -> ReanalysisOut:
+    return detection_config.reanalysis_status(session, name)

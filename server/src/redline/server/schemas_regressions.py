@@ -1,0 +1,100 @@
+"""Request and response bodies of detections, regressions, triage, accuracy and re-analysis."""
+
+from __future__ import annotations
+
+from datetime import datetime
+from typing import Literal
+
+from pydantic import BaseModel, Field
+from redline.server.schemas import SeriesRef
+
+State = Literal["new", "acknowledged", "confirmed", "fixed", "ignored", "false_positive"]
+
+
+class DetectionOut(BaseModel):
+    series: SeriesRef
+    revision: str
+    baseline: str | None = Field(description="the newest baseline revision; null when missing")
+    baseline_revisions: int = Field(description="how many revisions the baseline pools")
+    method: str
+    verdict: Literal["change", "no change", "not enough data"]
+    reason: str = Field(description="what is missing, or why a significant result is no change")
+    score: float
+    p_value: float | None
+    effect: float | None = Field(description="relative change of the mean; null when undefined")
+    direction: str
+    flagged: bool
+    regression_id: int | None
+
+
+class RegressionEventOut(BaseModel):
+    at: datetime
+    who: str
+    from_state: str
+    to_state: str
+    comment: str
+
+
+class RegressionOut(BaseModel):
+    id: int
+    component: str
+    good_revision: str = Field(description="the newest revision before the change")
+    bad_revision: str = Field(description="the last revision in the range showing it")
+    state: State
+    methods: list[str] = Field(description="methods with a flagged detection in it")
+    detections: int
+    created: datetime
+    updated: datetime
+
+
+class RegressionDetail(RegressionOut):
+    flagged: list[DetectionOut]
+    history: list[RegressionEventOut]
+
+
+class TriageRequest(BaseModel):
+    state: State
+    comment: str = Field(default="", max_length=10_000)
+
+
+class MethodAccuracy(BaseModel):
+    method: str
+    true_positives: int = Field(description="confirmed or fixed regressions it flagged")
+    false_positives: int = Field(description="regressions labelled false_positive it flagged")
+    precision: float | None = Field(description="TP / (TP + FP); null before any label")
+    unlabelled: int = Field(description="its regressions still new, acknowledged or ignored")
+
+
+class AccuracyOut(BaseModel):
+    component: str
+    labelled_regressions: int
+    methods: list[MethodAccuracy]
+
+
+class DetectionConfigIn(BaseModel):
+    methods: list[str] | None = Field(default=None, description="default: the evaluated "
+                                      "default and ks")
+    baseline: Literal["previous", "window", "pinned"] = "previous"
+    window: int = Field(default=5, ge=1, le=50)
+    pinned: str | None = Field(default=None, description="revision title when pinned")
+    thresholds: dict[str, dict[str, float | str]] = Field(default_factory=dict)
+    reanalyze: bool = Field(default=True, description="re-analyse the whole history after")
+
+
+class DetectionConfigOut(BaseModel):
+    methods: list[str]
+    baseline: str
+    window: int
+    pinned: str | None
+    thresholds: dict[str, dict[str, float | str]]
+
+
+class ReanalysisOut(BaseModel):
+    component: str
+    state: Literal["none", "queued", "running", "done", "failed"]
+    total: int
+    done: int
+    error: str
+    requested: datetime | None
+    started: datetime | None
+    finished: datetime | None

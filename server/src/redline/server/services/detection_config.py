@@ -1,0 +1,60 @@
+"""A component's detection configuration, and the re-analysis of its history after a change."""
+
+from __future__ import annotations
+
+from redline.detect.config import ConfigError, DetectionConfig
+from redline.server.models import Component, utcnow
+from redline.server.models_regressions import DetectionConfigRow, Reanalysis
+from redline.server.schemas_regressions import DetectionConfigIn, DetectionConfigOut, ReanalysisOut
+from redline.server.services.components import get_component
+from redline.server.services.errors import BadRequest
+from sqlalchemy.orm import Session
+
+
+def get_config(session: Session, component_name: str) -> DetectionConfigOut:
+    component = get_component(session, component_name)
+    row = session.get(DetectionConfigRow, component.id)
+    try:
+        config = DetectionConfig.parse(row.config if row else None)
+    except ConfigError:
+        config = DetectionConfig()  # the worker falls back the same way
+    return DetectionConfigOut(**config.as_dict())
+
+
+def set_config(session: Session, component_name: str, data: DetectionConfigIn) -> Component:
+    """Validate and store the configuration; BadRequest names the field at fault."""
+    component = get_component(session, component_name)
+    fields = data.model_dump(exclude={"reanalyze"})
+    try:
+        config = DetectionConfig.parse(fields)
+    except ConfigError as exc:
+        raise BadRequest(f"detection configuration: {exc}") from None
+    row = session.get(DetectionConfigRow, component.id)
+    if row is None:
+        session.add(DetectionConfigRow(component_id=component.id, config=config.as_dict()))
+    else:
+        row.config = config.as_dict()
+    session.commit()
+    return component
+
+
+def request_reanalysis(session: Session, component: Component) -> None:
+    """Mark a re-analysis queued (replacing the last one's progress); the caller sends the task."""
+    row = session.get(Reanalysis, component.id)
+    if row is None:
+        row = Reanalysis(component_id=component.id)
+        session.add(row)
+    row.state, row.total, row.done, row.error = "queued", 0, 0, ""
+    row.requested, row.started, row.finished = utcnow(), None, None
+    session.commit()
+
+
+def reanalysis_status(session: Session, component_name: str) -> ReanalysisOut:
+    component = get_component(session, component_name)
+    row = session.get(Reanalysis, component.id)
+    if row is None:
+        return ReanalysisOut(component=component.name, state="none", total=0, done=0, error="",
+                             requested=None, started=None, finished=None)
+    return ReanalysisOut(component=component.name, state=row.state, total=row.total,
+                         done=row.done, error=row.error, requested=row.requested,
+                         started=row.started, finished=row.finished)

@@ -1,0 +1,80 @@
+"""Grouping flagged detections into regressions: same component, overlapping revision ranges.
+
+A flagged detection spans (newest baseline revision, its revision]; it joins the oldest
+regression of the component whose range overlaps that span (widening the range), else it opens
+a new one. A regression left without detections after a re-analysis is deleted while it is
+untriaged ("new", no history); a triaged one stays, because its label is ground truth.
+"""
+
+from __future__ import annotations
+
+from redline.server.models import Component, Revision
+from redline.server.models_regressions import (
+    Detection,
+    Regression,
+    RegressionEvent,
+    RegressionState,
+)
+from sqlalchemy import delete, exists, select
+from sqlalchemy.orm import Session
+
+
+def _span(session: Session, detection: Detection,
+          revision: Revision) -> tuple[Revision, Revision] | None:
+    if detection.baseline_revision_id is None:
+        return None
+    return session.get_one(Revision, detection.baseline_revision_id), revision
+
+
+def _overlapping(session: Session, component_id: int, good: Revision,
+                 bad: Revision) -> Regression | None:
+    """The oldest regression whose (good, bad] range overlaps this one."""
+    return session.scalar(
+        select(Regression).where(Regression.component_id == component_id,
+                                 Regression.good_key < bad.order_key,
+                                 Regression.bad_key > good.order_key)
+        .order_by(Regression.id).limit(1))
+
+
+def _widen(regression: Regression, good: Revision, bad: Revision) -> None:
+    if good.order_key < regression.good_key:
+        regression.good_revision_id, regression.good_key = good.id, good.order_key
+    if bad.order_key > regression.bad_key:
+        regression.bad_revision_id, regression.bad_key = bad.id, bad.order_key
+
+
+def _drop_untriaged_empty(session: Session, component_id: int) -> None:
+    has_detection = exists().where(Detection.regression_id == Regression.id)
+    has_event = exists().where(RegressionEvent.regression_id == Regression.id)
+    session.execute(delete(Regression).where(
+        Regression.component_id == component_id, Regression.state == RegressionState.new,
+        ~has_detection, ~has_event).execution_options(synchronize_session=False))
+
+
+def group_revision(session: Session, revision: Revision) -> None:
+    """Attach the revision's flagged detections to regressions; drop emptied untriaged ones.
+
+    The component's row is locked first, so two workers never open overlapping regressions.
+    """
+    session.execute(select(Component.id).where(Component.id == revision.component_id)
+                    .with_for_update())
+    flagged = session.scalars(select(Detection).where(Detection.revision_id == revision.id,
+                                                      Detection.flagged)
+                              .order_by(Detection.id))
+    for detection in flagged:
+        span = _span(session, detection, revision)
+        if span is None:
+            continue
+        good, bad = span
+        regression = _overlapping(session, revision.component_id, good, bad)
+        if regression is None:
+            regression = Regression(component_id=revision.component_id, good_revision_id=good.id,
+                                    bad_revision_id=bad.id, good_key=good.order_key,
+                                    bad_key=bad.order_key, state=RegressionState.new)
+            session.add(regression)
+            session.flush()
+        else:
+            _widen(regression, good, bad)
+        detection.regression_id = regression.id
+    session.flush()
+    _drop_untriaged_empty(session, revision.component_id)

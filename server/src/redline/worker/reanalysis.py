@@ -1,0 +1,60 @@
+"""Re-analysis of a component's whole history (after its detection configuration changed).
+
+Idempotent: every revision with ingested results is detected again in sort-key order, each in
+its own transaction (so a crash loses at most one revision's work, and running it again gives
+the same result); progress (done / total) is stored in ``reanalysis`` for the API.
+"""
+
+from __future__ import annotations
+
+import logging
+
+from redline.server.db import session_scope
+from redline.server.models import Execution, Revision, Summary, utcnow
+from redline.server.models_regressions import Reanalysis
+from redline.worker.detection import detect_revision
+from sqlalchemy import select
+from sqlalchemy.orm import Session
+
+log = logging.getLogger(__name__)
+REANALYZE_TASK = "redline.reanalyze_component"
+
+
+def _progress(session: Session, component_id: int) -> Reanalysis:
+    row = session.get(Reanalysis, component_id)
+    if row is None:
+        row = Reanalysis(component_id=component_id)
+        session.add(row)
+    return row
+
+
+def revisions_with_data(session: Session, component_id: int) -> list[int]:
+    return list(session.scalars(
+        select(Revision.id).where(Revision.component_id == component_id)
+        .where(select(Execution.id).join(Summary, Summary.execution_id == Execution.id)
+               .where(Execution.revision_id == Revision.id).exists())
+        .order_by(Revision.order_key, Revision.id)))
+
+
+def reanalyze_component(database_url: str, component_id: int) -> int:
+    """Detect every revision of the component again; returns how many were analysed."""
+    with session_scope(database_url) as session:
+        revisions = revisions_with_data(session, component_id)
+        row = _progress(session, component_id)
+        row.state, row.total, row.done, row.error = "running", len(revisions), 0, ""
+        row.started, row.finished = utcnow(), None
+    try:
+        for done, revision_id in enumerate(revisions, start=1):
+            detect_revision(database_url, revision_id)
+            with session_scope(database_url) as session:
+                _progress(session, component_id).done = done
+    except Exception as exc:
+        with session_scope(database_url) as session:
+            row = _progress(session, component_id)
+            row.state, row.error, row.finished = "failed", f"{type(exc).__name__}: {exc}", utcnow()
+        raise
+    with session_scope(database_url) as session:
+        row = _progress(session, component_id)
+        row.state, row.finished = "done", utcnow()
+    log.info("component %s: %d revisions re-analysed", component_id, len(revisions))
+    return len(revisions)

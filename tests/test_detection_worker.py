@@ -1,0 +1,216 @@
+"""The worker's detection on real Postgres: every configured method per series, baselines,
+bad input as stored "not enough data", regressions grouped, re-analysis."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+import pytest
+from redline.detect.config import ConfigError, DetectionConfig
+from redline.detect.methods import KolmogorovSmirnov
+from redline.detect.verdict import judge_series
+from redline.server.models import Component, Execution, Revision, Series
+from redline.server.models_regressions import (
+    Detection,
+    DetectionConfigRow,
+    Reanalysis,
+    Regression,
+)
+from redline.server.schemas import ComponentCreate
+from redline.server.services.components import create_component
+from redline.worker.detection import detect_revision, samples_path
+from redline.worker.ingest import ingest_execution
+from redline.worker.reanalysis import reanalyze_component
+from sqlalchemy import func, select
+
+from tests import test_ingest
+from tests.test_ingest import add_execution
+
+database_url, session = test_ingest.database_url, test_ingest.session  # the fixtures, shared
+
+NAME = "builder"
+
+
+def _history(session, tmp_path: Path, cpus: list[np.ndarray | float], seed: int = 7,
+             config: dict | None = None) -> list[Execution]:
+    """Revisions r1.. of one component with a 'cpu' series; floats are means of 60 samples."""
+    component = create_component(session, ComponentCreate(name=NAME))
+    if config is not None:
+        session.add(DetectionConfigRow(component_id=component.id, config=config))
+        session.commit()
+    rng = np.random.default_rng(seed)
+    executions = []
+    for number, cpu in enumerate(cpus, start=1):
+        values = rng.normal(cpu, cpu / 20, 60) if isinstance(cpu, float) else cpu
+        executions.append(add_execution(session, tmp_path, NAME, f"r{number}", str(number),
+                                        {"cpu": values}))
+    return executions
+
+
+def _run(database_url: str, executions: list[Execution]) -> None:
+    for execution in executions:
+        ingest_execution(database_url, execution.id)
+    for execution in executions:
+        detect_revision(database_url, execution.revision_id)
+
+
+def _verdicts(session) -> dict[tuple[str, str], Detection]:
+    session.expire_all()
+    rows = session.execute(select(Detection, Revision.title)
+                           .join(Revision, Revision.id == Detection.revision_id))
+    return {(title, d.method): d for d, title in rows}
+
+
+def test_default_methods_judge_every_series_and_flag_the_tripled_one(
+        session, database_url, tmp_path):
+    _run(database_url, _history(session, tmp_path, [20.0, 20.0, 60.0]))
+    found = _verdicts(session)
+    assert {method for _, method in found} == set(DetectionConfig().methods)
+    assert "ks" in DetectionConfig().methods
+    for method in DetectionConfig().methods:
+        assert found[("r3", method)].flagged and found[("r3", method)].direction == "increase"
+        assert found[("r3", method)].verdict == "change"
+        assert not found[("r2", method)].flagged
+        assert found[("r2", method)].verdict == "no change"
+    assert found[("r3", "ks")].p_value < 1e-6 and found[("r3", "ks")].effect > 1.5
+    (regression,) = session.scalars(select(Regression))
+    assert regression.state == "new"
+    assert {d.regression_id for d in found.values() if d.flagged} == {regression.id}
+
+
+def test_first_revision_says_missing_baseline_for_every_method(session, database_url, tmp_path):
+    _run(database_url, _history(session, tmp_path, [20.0]))
+    found = _verdicts(session)
+    assert found and all(d.verdict == "not enough data" and "missing baseline" in d.reason
+                         and not d.flagged and d.baseline_revision_id is None
+                         for d in found.values())
+
+
+@pytest.mark.parametrize(("candidate", "reason"), [
+    (np.array([25.0]), "too few samples: candidate has 1"),
+    (np.full(60, 20.0), "constant series"),
+])
+def test_bad_candidate_is_stored_as_not_enough_data_with_what_is_missing(
+        session, database_url, tmp_path, candidate, reason):
+    baseline = np.full(60, 20.0) if reason == "constant series" else None
+    first = baseline if baseline is not None else 20.0
+    _run(database_url, _history(session, tmp_path, [first, candidate]))
+    found = _verdicts(session)
+    for method in DetectionConfig().methods:
+        verdict = found[("r2", method)]
+        assert verdict.verdict == "not enough data", (method, verdict.reason)
+        assert reason in verdict.reason and not verdict.flagged
+
+
+def test_baseline_samples_gone_is_missing_baseline_not_an_exception(
+        session, database_url, tmp_path):
+    executions = _history(session, tmp_path, [20.0, 60.0])
+    for execution in executions:
+        ingest_execution(database_url, execution.id)
+    samples_path(executions[0].recording_path).unlink()  # pruned
+    detect_revision(database_url, executions[1].revision_id)
+    verdict = _verdicts(session)[("r2", "ks")]
+    assert verdict.verdict == "not enough data" and "missing baseline" in verdict.reason
+
+
+def test_window_baseline_pools_the_previous_revisions(session, database_url, tmp_path):
+    config = {"methods": ["ks"], "baseline": "window", "window": 3}
+    _run(database_url, _history(session, tmp_path, [20.0] * 4 + [60.0], config=config))
+    found = _verdicts(session)
+    assert [found[(f"r{n}", "ks")].baseline_revisions for n in range(2, 6)] == [1, 2, 3, 3]
+    assert found[("r5", "ks")].flagged
+    assert found[("r5", "ks")].baseline_revision_id == found[("r4", "ks")].revision_id
+
+
+def test_pinned_baseline_compares_with_that_revision_or_says_it_is_missing(
+        session, database_url, tmp_path):
+    config = {"methods": ["welch_t"], "baseline": "pinned", "pinned": "r2"}
+    executions = _history(session, tmp_path, [20.0, 20.0, 20.0, 60.0], config=config)
+    _run(database_url, executions)
+    found = _verdicts(session)
+    assert "pinned revision 'r2'" in found[("r1", "welch_t")].reason
+    assert "pinned revision 'r2'" in found[("r2", "welch_t")].reason
+    assert found[("r4", "welch_t")].baseline_revision_id == executions[1].revision_id
+    assert found[("r4", "welch_t")].flagged and not found[("r3", "welch_t")].flagged
+
+
+def test_thresholds_in_the_configuration_change_the_verdict(session, database_url, tmp_path):
+    config = {"methods": ["ks"], "thresholds": {"ks": {"min_effect": 5.0}}}
+    _run(database_url, _history(session, tmp_path, [20.0, 60.0], config=config))
+    verdict = _verdicts(session)[("r2", "ks")]
+    assert verdict.verdict == "no change" and "below the floor" in verdict.reason
+    assert session.scalar(select(func.count()).select_from(Regression)) == 0
+
+
+def test_reanalysis_after_a_configuration_change_is_idempotent_with_progress(
+        session, database_url, tmp_path):
+    executions = _history(session, tmp_path, [20.0, 20.0, 60.0])
+    _run(database_url, executions)
+    component = session.scalar(select(Component))
+    session.add(DetectionConfigRow(component_id=component.id,
+                                   config={"methods": ["mann_whitney", "ks"]}))
+    session.commit()
+    assert reanalyze_component(database_url, component.id) == 3
+    first = {key: (d.verdict, d.score) for key, d in _verdicts(session).items()}
+    assert {method for _, method in first} == {"mann_whitney", "ks"}
+    assert reanalyze_component(database_url, component.id) == 3
+    assert {key: (d.verdict, d.score) for key, d in _verdicts(session).items()} == first
+    session.expire_all()
+    progress = session.get(Reanalysis, component.id)
+    assert (progress.state, progress.done, progress.total) == ("done", 3, 3)
+    assert session.scalar(select(func.count()).select_from(Regression)) == 1
+
+
+def test_host_series_get_no_verdict(session, database_url, tmp_path):
+    create_component(session, ComponentCreate(name=NAME))
+    executions = [add_execution(session, tmp_path, NAME, f"r{n}", str(n),
+                                {"cpu_percent": np.full(60, 10.0 * n) + np.arange(60) % 3},
+                                process="host") for n in (1, 2)]
+    _run(database_url, executions)
+    assert session.scalar(select(func.count()).select_from(Series)) == 1
+    assert _verdicts(session) == {}
+
+
+class _Broken(KolmogorovSmirnov):
+    def _detect(self, base: np.ndarray, cand: np.ndarray):  # noqa: ANN202
+        raise RuntimeError("boom")
+
+
+def test_a_failing_method_is_a_verdict_naming_the_error_not_an_exception():
+    verdict = judge_series(_Broken(), "cpu", np.arange(10.0), np.arange(10.0) + 5)
+    assert verdict.verdict == "not enough data" and "RuntimeError: boom" in verdict.reason
+
+
+def test_the_absolute_floor_keeps_a_tiny_significant_change_quiet():
+    rng = np.random.default_rng(1)
+    base, cand = rng.normal(4.0, 0.05, 200), rng.normal(4.6, 0.05, 200)
+    assert judge_series(KolmogorovSmirnov(), "x", base, cand).flagged
+    quiet = judge_series(KolmogorovSmirnov(), "small_cpu_percent", base, cand)
+    assert quiet.verdict == "no change" and "absolute floor" in quiet.reason
+
+
+@pytest.mark.parametrize(("config", "field"), [
+    ({"methods": ["e_divisive"]}, "methods"), ({"baseline": "last"}, "baseline"),
+    ({"baseline": "pinned"}, "pinned"), ({"thresholds": {"ks": {"beta": 1}}}, "thresholds.ks"),
+    ({"window": 0}, "window"),
+])
+def test_bad_configuration_names_the_field(config, field):
+    with pytest.raises(ConfigError, match=field):
+        DetectionConfig.parse(config)
+
+
+def test_samples_written_with_nan_by_hand_do_not_break_the_worker(session, database_url,
+                                                                  tmp_path):
+    executions = _history(session, tmp_path, [20.0, 20.0])
+    for execution in executions:
+        ingest_execution(database_url, execution.id)
+    path = samples_path(executions[0].recording_path)
+    table = pq.read_table(path).to_pandas()
+    table.loc[::2, "value"] = np.nan  # through a recording, ingestion itself rejects NaN
+    pq.write_table(pa.Table.from_pandas(table, preserve_index=False), path)
+    detect_revision(database_url, executions[1].revision_id)
+    verdict = _verdicts(session)[("r2", "ks")]
+    assert verdict.verdict == "not enough data" and "baseline contains NaN/inf" in verdict.reason
