@@ -15,8 +15,8 @@ from redline.server.db import migrate, session_factory
 from redline.server.services.tokens import create_token
 from sqlalchemy import text
 
-from tests.test_api import SCOPES, Api
 from tests.conftest import Services
+from tests.test_api import SCOPES, Api
 from tests.test_ingest import TABLES
 
 _MIGRATED: set[str] = set()
