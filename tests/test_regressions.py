@@ -161,3 +161,10 @@ def test_configuration_is_validated_stored_and_queues_a_reanalysis(api, database
     assert (progress["state"], progress["done"], progress["total"]) == ("done", 2, 2)
     methods = {d["method"] for d in api.get("/detections").json()}
     assert methods == {"ks", "mann_whitney"}
+
+
+def test_component_page_lists_regressions_with_their_state(api, database_url, tmp_path):
+    history(database_url, tmp_path, [20.0, 60.0])
+    page = api.client.get("/components/builder").text
+    table = page.split('id="regressions"', 1)[1].split("</table>", 1)[0]
+    assert "<td>r1</td><td>r2</td>" in table and "state-new" in table

@@ -11,7 +11,7 @@ from fastapi.staticfiles import StaticFiles
 from fastapi.templating import Jinja2Templates
 from redline.server.api.deps import READ, SessionDep
 from redline.server.core.config import Settings
-from redline.server.services import components, results, revisions
+from redline.server.services import components, regressions, results, revisions
 from redline.server.services.errors import NotFound
 from redline.worker.render import trend_figure
 
@@ -45,6 +45,7 @@ def component_page(name: str, request: Request, session: SessionDep) -> HTMLResp
         "component": component, "figures": figures,
         "revisions": revisions.list_revisions(session, name),
         "flagged": [change for change in changes if change.flagged],
+        "regressions": regressions.list_regressions(session, name),
     })
 
 
