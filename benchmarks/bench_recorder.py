@@ -43,6 +43,17 @@ def publish(session: zenoh.Session, key: str, rate: float | None) -> tuple[int, 
     return sent, time.perf_counter() - start
 
 
+def settled(session: zenoh.Session) -> dict[str, int]:
+    """The recorder's counts once they stop growing (its queue has been written out)."""
+    last: dict[str, int] = {}
+    while True:
+        time.sleep(0.5)
+        now = query_recorder(session, 30.0) or {}
+        if now == last:
+            return now
+        last = now
+
+
 def main() -> None:
     folder = Path(tempfile.mkdtemp(prefix="bench-recorder-"))
     (folder / "meta.json").write_text(json.dumps({"run": {"component": "bench"}, "host": {}}))
@@ -60,8 +71,7 @@ def main() -> None:
             before = query_recorder(session, 5.0) or {}
             for name, rate in (("paced", 100_000.0), ("flat-out", None)):
                 sent, seconds = publish(session, f"bench/{name}", rate)
-                time.sleep(1.0)  # let the queue drain before the barrier
-                after = query_recorder(session, 30.0) or {}
+                after = settled(session)
                 got = after["received"] - before["received"]
                 dropped = after["dropped"] - before["dropped"]
                 asked = f"{rate:,.0f}/s" if rate else "max"
@@ -72,7 +82,7 @@ def main() -> None:
         recorder.terminate()
         recorder.wait()
     recording = read_recording(out)
-    print(f"file: {sum(recording.traffic.values()):,} messages; recorder counts "
+    print(f"file: {sum(recording.traffic.values()):,} messages; recorder metadata "
           f"{recording.metadata['redline.recorder']}")
     for path in folder.iterdir():
         path.unlink()

@@ -13,6 +13,7 @@ import logging
 import subprocess
 import threading
 from dataclasses import dataclass, field
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
@@ -28,7 +29,7 @@ from redline.agent.suite import load_suite
 log = logging.getLogger("redline.agent")
 
 BUILD_TIMEOUT_S = 1800
-MAX_RETRY_S = 30.0
+MAX_RETRY_S = 10.0
 
 
 class JobFailed(RuntimeError):
@@ -100,11 +101,18 @@ class AgentDaemon:
             job = self.client.lease(wait=self.long_poll)
         finally:
             self.waiting = False
+        if self.spool.pending():  # the server answers again: no need to wait for the backoff
+            self.sender.wake.set()
         if job is None:
             return False
         if self.stop.is_set():  # asked to stop while the lease was on its way
             self.client.release(job["id"])
             return False
+        if self.spool.holds(job["id"]):  # run before, its lease lapsed while the server was away
+            log.info("job %s: its recording is spooled; sending it instead of running again",
+                     job["id"])
+            self.sender.send_all()
+            return True
         log.info("job %s: %s %s (%s)", job["id"], job["component"],
                  job["revision"]["title"], job["commit"][:12])
         try:
@@ -124,10 +132,10 @@ class AgentDaemon:
 
     def _process(self, job: dict[str, Any]) -> int | None:
         name = f"job-{job['id']}"
-        beats = _Heartbeat(self.client, job["id"], self.heartbeat_interval)
-        beats.start()
         self.current_job = job["id"]
+        beats = _Heartbeat(self.client, job["id"], _beat_interval(job, self.heartbeat_interval))
         try:
+            beats.start()
             out = self._run(job, name)
             self.current_job = None  # from here on the recording is kept, never released
             beats.check()
@@ -162,6 +170,16 @@ class AgentDaemon:
             log.warning("job %s: server unavailable, recording spooled (%s)", job_id, exc)
             self.sender.wake.set()
             return None
+
+
+def _beat_interval(job: dict[str, Any], most: float) -> float:
+    """A third of the lease the server granted (so two beats may fail), at most ``most``."""
+    try:
+        expires = datetime.fromisoformat(job["lease_expires_at"])
+        lease = (expires - datetime.now(UTC)).total_seconds()
+    except (KeyError, TypeError, ValueError):
+        return most
+    return max(0.5, min(most, lease / 3))
 
 
 def _run_metadata(job: dict[str, Any]) -> dict[str, str]:

@@ -1,22 +1,37 @@
 """The isolated zenoh network of one test run.
 
-Each run opens its own zenoh router on a free loopback port. Components get a peer configuration
-through ``ZENOH_CONFIG`` (a file path, read by ``zenoh.Config.from_env()``); Redline's own processes
-(driver, recorder, monitor) connect as clients. Multicast scouting is off and every endpoint is on
-127.0.0.1, so nothing leaves the host and two runs never hear each other. Gossip scouting stays on:
-it travels only over the run's own links and is how peers learn each other's loopback endpoints
-(without it, two peers connected to one router cannot reach each other, measured with zenoh 1.6).
+Each run opens its own zenoh router, on a free loopback TCP port (``transport="tcp"``, the
+default) or on a unix socket in a private folder (``transport="unix"``, endpoint
+``unixsock-stream/PATH``: no port at all). Components get a peer configuration through
+``ZENOH_CONFIG`` (a file path, read by ``zenoh.Config.from_env()``); Redline's own processes
+(driver, recorder, monitor) connect as clients. Multicast scouting is off and every endpoint is
+on 127.0.0.1 or a unix socket, so nothing leaves the host and two runs never hear each other.
+Gossip scouting stays on: it travels only over the run's own links and is how peers learn each
+other's loopback endpoints (without it, two peers connected to one router cannot reach each
+other, measured with zenoh 1.6). With unix sockets peers do not listen (a shared configuration
+cannot give each its own socket path), so their traffic goes through the router.
+
+Shared memory (zenoh's default, for payloads of ~3 KiB and more between local processes) changes
+large-message throughput ~10x, so it is an explicit setting of the run, the same for every
+process, and the recorder writes it into the recording.
 """
 
 from __future__ import annotations
 
 import json
 import os
+import shutil
 import socket
+import tempfile
 from pathlib import Path
 from typing import Any
 
 import zenoh
+
+TRANSPORTS = ("tcp", "unix")
+#: Batches queued per link for data (zenoh's default: 2, ~128 KiB, which a receiver paused for a
+#: millisecond overflows at 100,000 msg/s of 1 KiB, and DROP publishers then lose samples).
+DATA_QUEUE_BATCHES = 16
 
 
 def free_port() -> int:
@@ -25,12 +40,15 @@ def free_port() -> int:
         return int(sock.getsockname()[1])
 
 
-def _isolated(mode: str, listen: list[str], connect: list[str]) -> dict[str, Any]:
+def _isolated(mode: str, listen: list[str], connect: list[str],
+              shared_memory: bool) -> dict[str, Any]:
     return {
         "mode": mode,
         "listen": {"endpoints": listen},
         "connect": {"endpoints": connect},
         "scouting": {"multicast": {"enabled": False}, "gossip": {"enabled": True}},
+        "transport": {"shared_memory": {"enabled": shared_memory},
+                      "link": {"tx": {"queue": {"size": {"data": DATA_QUEUE_BATCHES}}}}},
     }
 
 
@@ -38,24 +56,49 @@ def config_from_dict(settings: dict[str, Any]) -> zenoh.Config:
     config = zenoh.Config()
     for key in ("mode", "listen", "connect", "scouting"):
         config.insert_json5(key, json.dumps(settings[key]))
+    if "transport" in settings:  # merged with zenoh's defaults for what it leaves out
+        config.insert_json5("transport", json.dumps(settings["transport"]))
     return config
+
+
+def shared_memory_enabled(settings: dict[str, Any]) -> bool:
+    """Whether zenoh shared memory is on for these settings (zenoh's default when not given)."""
+    given = settings.get("transport", {}).get("shared_memory", {}).get("enabled")
+    if given is not None:
+        return bool(given)
+    return bool(json.loads(zenoh.Config().get_json("transport/shared_memory/enabled")))
 
 
 class RunNetwork:
     """Owns the run's router session; hands out configurations for everything else."""
 
-    def __init__(self, port: int | None = None) -> None:
-        self.endpoint = f"tcp/127.0.0.1:{port or free_port()}"
+    def __init__(self, port: int | None = None, *, transport: str = "tcp",
+                 shared_memory: bool = True) -> None:
+        if transport not in TRANSPORTS:
+            raise ValueError(f"transport must be one of {TRANSPORTS}, got {transport!r}")
+        self.transport = transport
+        self.shared_memory = shared_memory
+        self._folder: Path | None = None
+        if transport == "unix":
+            # a short private path: unix socket paths are limited to ~107 bytes
+            self._folder = Path(tempfile.mkdtemp(prefix="redline-zenoh-"))
+            self.endpoint = f"unixsock-stream/{self._folder / 'router.sock'}"
+        else:
+            self.endpoint = f"tcp/127.0.0.1:{port or free_port()}"
         self._router: zenoh.Session | None = None
 
     def open(self) -> RunNetwork:
-        self._router = zenoh.open(config_from_dict(_isolated("router", [self.endpoint], [])))
+        settings = _isolated("router", [self.endpoint], [], self.shared_memory)
+        self._router = zenoh.open(config_from_dict(settings))
         return self
 
     def close(self) -> None:
         if self._router is not None:
             self._router.close()
             self._router = None
+        if self._folder is not None:
+            shutil.rmtree(self._folder, ignore_errors=True)
+            self._folder = None
 
     def __enter__(self) -> RunNetwork:
         return self.open()
@@ -64,11 +107,13 @@ class RunNetwork:
         self.close()
 
     def peer_settings(self) -> dict[str, Any]:
-        """What a component gets: a peer that listens on an ephemeral loopback port."""
-        return _isolated("peer", ["tcp/127.0.0.1:0"], [self.endpoint])
+        """What a component gets: a peer that listens on an ephemeral loopback port (TCP), or
+        does not listen (unix sockets), connected to the router."""
+        listen = ["tcp/127.0.0.1:0"] if self.transport == "tcp" else []
+        return _isolated("peer", listen, [self.endpoint], self.shared_memory)
 
     def client_settings(self) -> dict[str, Any]:
-        return _isolated("client", [], [self.endpoint])
+        return _isolated("client", [], [self.endpoint], self.shared_memory)
 
     def write_component_config(self, path: Path) -> Path:
         path.write_text(json.dumps(self.peer_settings(), indent=2))

@@ -3,13 +3,15 @@
     python -m redline.agent.recorder --out run.mcap --meta meta.json [--buffer 200000]
 
 Client settings for zenoh come as JSON in ``REDLINE_ZENOH``. Subscribes to ``**`` and, because
-``**`` does not match chunks starting with ``@``, to ``@redline/**`` as well. Zenoh callbacks only
-append to a bounded queue and count what does not fit (the recorder never back-pressures a
-component); one writer thread writes the file. Prints ``redline-recorder ready`` once subscribed,
-and answers queries on ``@redline/recorder/status`` with its counts (the runner uses that as a
-barrier: a reply means the samples published before it have arrived). On SIGTERM or SIGINT it
-drains the queue, writes the run and host metadata found in the ``--meta`` JSON file (read at that
-moment, so the runner can add the end time) and the ``redline.recorder`` counts, and finishes.
+``**`` does not match chunks starting with ``@``, to ``@redline/**`` as well. The traffic lands
+in a bounded zenoh FIFO channel (filled without the GIL), Redline's own samples in a bounded
+queue from a callback; one writer thread drains both into the file (see `Recorder` for why, and
+for how what zenoh drops before the recorder is counted per key). Prints ``redline-recorder ready``
+once subscribed, and answers queries on ``@redline/recorder/status`` with its counts (the runner
+uses that as a barrier: a reply means the samples published before it have arrived). On SIGTERM
+or SIGINT it drains the queues, writes the run and host metadata found in the ``--meta`` JSON
+file (read at that moment, so the runner can add the end time) and ``redline.recorder``: counts,
+per-key losses, whether zenoh shared memory was on; and finishes.
 """
 
 from __future__ import annotations
@@ -25,98 +27,162 @@ from pathlib import Path
 from typing import Any
 
 import zenoh
-from redline.agent.network import client_settings_from_env, open_client
+from redline.agent.network import client_settings_from_env, open_client, shared_memory_enabled
 from redline.recording.format import (
     JSON_ENCODING,
     META_HOST,
     META_RECORDER,
     META_RUN,
+    RECORDER_SENT_KEY,
     REDLINE_PREFIX,
 )
 from redline.recording.writer import RecordingWriter
 
 STATUS_KEY = "@redline/recorder/status"
 Item = tuple[str, str, bytes, int]
+IDLE_S = 0.001  # the writer's nap when nothing is queued
 
 
 class Tap:
-    """The callback of one subscriber: queue the sample or count it as dropped, never block.
+    """The callback of the ``@redline/**`` subscriber (counters, markers, driver metrics: a few
+    hundred samples/s): queue the sample or count it as dropped, never block."""
 
-    A deque (append is atomic under the GIL, ~0.3 us) rather than a `queue.Queue` (~1.3 us with
-    its locks): at 100,000 samples/s the callback's cost is most of the recorder's budget.
-    """
-
-    def __init__(self, buffer: collections.deque[Item], capacity: int,
-                 skip_redline: bool) -> None:
+    def __init__(self, buffer: collections.deque[Item], capacity: int) -> None:
         self.buffer = buffer
         self.capacity = capacity
-        self.skip_redline = skip_redline
         self.received = 0
         self.dropped = 0
-        self._encodings: dict[str, str] = {}  # one channel per key: its first encoding
 
     def __call__(self, sample: zenoh.Sample) -> None:
-        key = str(sample.key_expr)
-        if self.skip_redline and key.startswith(REDLINE_PREFIX):
-            return  # arrives through the @redline/** subscriber, should ** ever match it
         self.received += 1
         if len(self.buffer) >= self.capacity:
             self.dropped += 1
             return
-        encoding = self._encodings.get(key)
-        if encoding is None:
-            encoding = self._encodings[key] = str(sample.encoding)
-        self.buffer.append((key, encoding, sample.payload.to_bytes(), time.time_ns()))
+        self.buffer.append((str(sample.key_expr), JSON_ENCODING, sample.payload.to_bytes(),
+                            time.time_ns()))
 
 
 class Recorder:
-    """Owns the writer thread and the counts."""
+    """Owns the writer thread, the counts, and the per-key loss accounting.
+
+    The component's traffic (``**``) is not taken in a Python callback: zenoh's receive thread
+    would then need the GIL for every sample and stall behind the writer for up to the 5 ms
+    switch interval, long enough for the router's DROP queue towards the recorder to overflow
+    (the loss measured at 100,000 samples/s happened there, before any callback ran). Instead a
+    zenoh FIFO channel of ``buffer_size`` samples fills without the GIL and the writer thread
+    drains it. What zenoh drops before the recorder sees it cannot be counted here; it is found
+    by comparing, per key, what the driver reports it put (a query on ``RECORDER_SENT_KEY`` at
+    the end of the run) with what was recorded.
+    """
 
     def __init__(self, out: Path, buffer_size: int) -> None:
-        self.buffer: collections.deque[Item] = collections.deque()
-        self.taps = [Tap(self.buffer, buffer_size, skip_redline=True),
-                     Tap(self.buffer, buffer_size, skip_redline=False)]
+        self.buffer_size = buffer_size
+        self.own: collections.deque[Item] = collections.deque()
+        self.tap = Tap(self.own, buffer_size)
         self.writer = RecordingWriter(out, library="redline-recorder")
         self.written = 0
+        self.traffic: dict[str, int] = {}  # samples recorded per (non-@redline) key
+        self.sent: dict[str, int] = {}  # samples the driver says it put, per key
+        self.lock = threading.Lock()
+        self._encodings: dict[str, str] = {}  # one channel per key: its first encoding
         self.closing = threading.Event()
         self.thread = threading.Thread(target=self._write_loop, name="writer", daemon=True)
+        self.source: zenoh.Subscriber[zenoh.Handler[zenoh.Sample]] | None = None
 
     def counts(self) -> dict[str, int]:
-        return {"received": sum(t.received for t in self.taps), "written": self.written,
-                "dropped": sum(t.dropped for t in self.taps)}
+        received = sum(self.traffic.values()) + self.tap.received
+        return {"received": received, "written": self.written, "dropped": self.tap.dropped}
+
+    def losses(self) -> dict[str, tuple[int, int]]:
+        """Per key the driver published on: (sent, recorded), where fewer were recorded."""
+        found = {key: (sent, self.traffic.get(key, 0)) for key, sent in self.sent.items()}
+        return {key: pair for key, pair in sorted(found.items()) if pair[1] < pair[0]}
 
     def _write_loop(self) -> None:
-        while not (self.closing.is_set() and not self.buffer):
-            if not self.buffer:
-                self.closing.wait(0.005)
-                continue
-            self._write_some()
+        while True:
+            drained = self._drain_traffic(10_000) + self._drain_own()
+            if drained == 0:
+                if self.closing.is_set():
+                    return
+                time.sleep(IDLE_S)
 
-    def _write_some(self) -> None:
-        take, write = self.buffer.popleft, self.writer.write
-        for _ in range(min(len(self.buffer), 10_000)):
-            key, encoding, data, t_ns = take()
-            if key.startswith(REDLINE_PREFIX):
-                encoding, t_ns = JSON_ENCODING, _json_time(data, t_ns)
-            write(key, data, encoding=encoding, t_ns=t_ns)
-            self.written += 1
+    def _drain_traffic(self, most: int) -> int:
+        if self.source is None:
+            return 0
+        take, write, traffic = self.source.try_recv, self.writer.write, self.traffic
+        count = 0
+        while count < most:
+            try:
+                sample = take()
+            except zenoh.ZError:  # the session closed under us (an error path): nothing more
+                self.source = None
+                break
+            if sample is None:
+                break
+            key = str(sample.key_expr)
+            encoding = self._encodings.get(key)
+            if encoding is None:
+                encoding = self._encodings[key] = str(sample.encoding)
+            write(key, sample.payload.to_bytes(), encoding=encoding)
+            traffic[key] = traffic.get(key, 0) + 1
+            count += 1
+        self.written += count
+        return count
 
-    def finish(self, meta_path: Path) -> None:
+    def _drain_own(self) -> int:
+        count = 0
+        while self.own:
+            key, encoding, data, t_ns = self.own.popleft()
+            stamp = _json(data).get("t_ns")
+            self.writer.write(key, data, encoding=encoding,
+                              t_ns=stamp if isinstance(stamp, int) else t_ns)
+            count += 1
+        self.written += count
+        return count
+
+    def take_sent(self, query: zenoh.Query) -> None:
+        """The driver's put counts per key (``{"key": n}``), added up over its reports."""
+        with query:
+            try:
+                sent = json.loads(query.payload.to_bytes() if query.payload else b"{}")
+                counts = {str(key): int(n) for key, n in dict(sent).items()}
+            except (TypeError, ValueError) as exc:
+                query.reply_err(f"expected {{key: count}}: {exc}")
+                return
+            with self.lock:
+                for key, n in counts.items():
+                    self.sent[key] = self.sent.get(key, 0) + n
+            query.reply(RECORDER_SENT_KEY, "ok")
+
+    def stop_writing(self) -> None:
+        """Write what is queued, then end the writer thread."""
         self.closing.set()
-        self.thread.join()
+        if self.thread.is_alive():
+            self.thread.join()
+
+    def finish(self, meta_path: Path, settings: dict[str, Any]) -> None:
+        self.stop_writing()
         meta = _read_meta(meta_path)
+        losses = self.losses()
         self.writer.metadata(META_RUN, meta.get("run", {}))
         self.writer.metadata(META_HOST, meta.get("host", {}))
-        self.writer.metadata(META_RECORDER, self.counts())
+        self.writer.metadata(META_RECORDER, {
+            **self.counts(), "lost": sum(sent - got for sent, got in losses.values()),
+            "lost_by_key": {key: {"sent": sent, "recorded": got}
+                            for key, (sent, got) in losses.items()},
+            "checked_keys": len(self.sent),
+            "zenoh_shared_memory": "on" if shared_memory_enabled(settings) else "off",
+            "zenoh_endpoint": ",".join(settings.get("connect", {}).get("endpoints", [])),
+        })
         self.writer.close()
 
 
-def _json_time(data: bytes, default: int) -> int:
+def _json(data: bytes) -> dict[str, Any]:
     try:
-        stamp = json.loads(data).get("t_ns")
-    except (ValueError, AttributeError):
-        return default
-    return stamp if isinstance(stamp, int) else default
+        found = json.loads(data)
+    except ValueError:
+        return {}
+    return found if isinstance(found, dict) else {}
 
 
 def _read_meta(path: Path) -> dict[str, Any]:
@@ -130,22 +196,26 @@ def _read_meta(path: Path) -> dict[str, Any]:
 def record(out: Path, meta: Path, buffer_size: int, stop: threading.Event) -> dict[str, int]:
     """Record until ``stop`` is set; returns the counts."""
     recorder = Recorder(out, buffer_size)
+    settings = client_settings_from_env()
     recorder.thread.start()
     try:
-        with open_client(client_settings_from_env()) as session:
-            session.declare_subscriber("**", recorder.taps[0])
-            session.declare_subscriber(REDLINE_PREFIX + "**", recorder.taps[1])
+        with open_client(settings) as session:
+            recorder.source = session.declare_subscriber(
+                "**", zenoh.handlers.FifoChannel(buffer_size))
+            session.declare_subscriber(REDLINE_PREFIX + "**", recorder.tap)
 
             def status(query: zenoh.Query) -> None:
                 with query:
                     query.reply(STATUS_KEY, json.dumps(recorder.counts()))
 
             session.declare_queryable(STATUS_KEY, status)
+            session.declare_queryable(RECORDER_SENT_KEY, recorder.take_sent)
             print("redline-recorder ready", flush=True)
             while not stop.wait(0.2):
                 pass
+            recorder.stop_writing()  # drain the FIFO while its subscriber is still declared
     finally:
-        recorder.finish(meta)
+        recorder.finish(meta, settings)
     return recorder.counts()
 
 

@@ -42,6 +42,9 @@ class Spool:
         os.replace(recording, path)
         return Spooled(job_id, path)
 
+    def holds(self, job_id: int) -> bool:
+        return (self.root / f"job-{job_id}.mcap").exists()
+
     def pending(self) -> list[Spooled]:
         """What still waits for the server, oldest job first."""
         found = [(int(m.group(1)), p) for p in self.root.iterdir()

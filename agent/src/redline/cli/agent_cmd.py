@@ -68,8 +68,9 @@ class _Signals:
         self.daemon.stop.set()
         if self.daemon.waiting:  # no job: leave the long poll now
             raise self.stopping(f"signal {signum}")
-        if self.daemon.current_job is None:
-            return  # between jobs or delivering a recording: that ends by itself
+        if self.daemon.current_job is None:  # between jobs or delivering: that ends by itself
+            log.info("signal %d: stopping after the recording in hand is delivered", signum)
+            return
         if self.count > 1:
             raise self.stopping(f"signal {signum}")
         log.info("signal %d: finishing job %s (at most %.0fs), then stopping",

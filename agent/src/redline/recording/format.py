@@ -18,7 +18,10 @@ it) and lands on these channels, all JSON-encoded:
 
 Metadata records: ``redline.run`` (component, revision, sort key, commit, job id, suite hash,
 versions, start and end), ``redline.host`` (the host fingerprint), ``redline.recorder`` (counts of
-samples received, written and dropped). All values are strings, as MCAP requires.
+samples received, written and dropped by the recorder; ``lost`` and ``lost_by_key`` (JSON
+``{key: {"sent", "recorded"}}``) for samples the driver put that never reached it, with
+``checked_keys`` the number of keys the driver reported; ``zenoh_shared_memory`` ``on``/``off``
+and ``zenoh_endpoint``, the run's router). All values are strings, as MCAP requires.
 """
 
 from __future__ import annotations
@@ -34,6 +37,11 @@ REDLINE_PREFIX = "@redline/"
 COUNTERS_PREFIX = "@redline/counters/"
 MARKERS_KEY = "@redline/markers"
 DRIVER_PREFIX = "@redline/driver/"
+
+#: Not a channel: the recorder's queryable where the driver reports, at the end of a run, how many
+#: samples it put per key (``{"key": count}``); the difference from what was recorded is written
+#: into ``redline.recorder`` as ``lost`` and ``lost_by_key``.
+RECORDER_SENT_KEY = "@redline/recorder/sent"
 
 #: The process name under which the monitor publishes host-wide counters (CPU, steal, load):
 #: the context of a run, not behaviour of the component, so detectors leave them out.

@@ -47,7 +47,8 @@ class Action:
         """A function doing one `run` for this parameter set, for loops that run it many times.
 
         By default it simply calls ``run(ctx)``; an action may return something faster that
-        prepares once what stays the same within the parameter set (see `Publish`).
+        prepares once what stays the same within the parameter set (see `Publish`). A loop calls
+        `ran` with the number of runs once it is done, for steps that count in bulk.
         """
         return functools.partial(self.run, ctx)
 
@@ -83,6 +84,13 @@ def _actions_in(value: Any) -> Iterator[Action]:
     elif isinstance(value, dict):
         for item in value.values():
             yield from _actions_in(item)
+
+
+def ran(step: Callable[[], Any], runs: int) -> None:
+    """Tell a compiled step how many times it ran, when it counts in bulk (see `Publish`)."""
+    counted = getattr(step, "ran", None)
+    if counted is not None and runs:
+        counted(runs)
 
 
 def resolve(value: Any, ctx: Context) -> Any:

@@ -10,7 +10,7 @@ from dataclasses import dataclass, field, replace
 from typing import Any
 
 import zenoh
-from redline.recording.format import DRIVER_PREFIX
+from redline.recording.format import DRIVER_PREFIX, RECORDER_SENT_KEY
 from redline.testing.metrics import Tally
 from redline.testing.signals import Stop
 
@@ -34,6 +34,7 @@ class Link:
         self._sequences: dict[str, int] = {}
         self._subscribers: dict[str, zenoh.Subscriber[None]] = {}
         self._listeners: dict[str, dict[int, Listener]] = {}
+        self._sent: dict[str, int] = {}
 
     def publisher(self, key: str, encoding: str | None = None) -> zenoh.Publisher:
         """The publisher for ``key`` (declared on first use, then cached)."""
@@ -80,8 +81,35 @@ class Link:
         """Publish a JSON object (Redline's own messages: driver metrics)."""
         self.publisher(key, "application/json").put(json.dumps(obj, default=str))
 
+    def count_sent(self, key: str, samples: int = 1) -> None:
+        """Count samples `Publish` put on ``key`` (loops count in bulk when they finish)."""
+        with self._lock:
+            self._sent[key] = self._sent.get(key, 0) + samples
+
+    def sent(self) -> dict[str, int]:
+        """Samples put per key through `Publish` on this link so far."""
+        with self._lock:
+            return dict(self._sent)
+
+    def _report_sent(self) -> None:
+        """Tell the run's recorder how many samples were put per key, so that it can count what
+        zenoh dropped on the way (DROP congestion control) in the recording. Without a recorder
+        (a unit test, a REPL) the query finds no queryable and returns at once."""
+        sent = self.sent()
+        if not sent:
+            return
+        try:
+            for _ in self.session.get(RECORDER_SENT_KEY, payload=json.dumps(sent), timeout=5.0):
+                pass
+        except zenoh.ZError:
+            pass  # the session is already closed: nothing to tell
+        with self._lock:
+            self._sent.clear()
+
     def close(self) -> None:
-        """Undeclare every publisher (the session itself belongs to the caller)."""
+        """Report the put counts to the recorder; undeclare every publisher and subscriber (the
+        session itself belongs to the caller)."""
+        self._report_sent()
         with self._lock:
             for publisher in self._publishers.values():
                 publisher.undeclare()

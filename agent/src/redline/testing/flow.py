@@ -5,7 +5,7 @@ from __future__ import annotations
 import threading
 from typing import Any
 
-from redline.testing.actions import Action, resolve
+from redline.testing.actions import Action, ran, resolve
 from redline.testing.context import Context
 
 CHEAP_BATCH = 64  # cheap children (a put, ~1.5 us): check the stop signal every 64 runs
@@ -36,11 +36,14 @@ class Loop(Action):
         step = self.action.compile(ctx)
         batch = CHEAP_BATCH if self.action.cheap else 1
         done = 0
-        while (limit is None or done < limit) and not ctx.stopped:
-            runs = batch if limit is None else min(batch, limit - done)
-            for _ in range(runs):
-                step()
-            done += runs
+        try:
+            while (limit is None or done < limit) and not ctx.stopped:
+                runs = batch if limit is None else min(batch, limit - done)
+                for _ in range(runs):
+                    step()
+                done += runs
+        finally:
+            ran(step, done)
         return done
 
 

@@ -49,7 +49,9 @@ class Publish(Action):
     action, e.g. ``Param("key")``. Uses a declared publisher cached per key, with congestion
     control DROP: the driver never blocks on a slow component. With ``sequence=True`` every sample
     carries its sequence number on that key (0, 1, 2, ... as ASCII digits) as its zenoh
-    attachment, so `Listen` can count what was lost on the way.
+    attachment, so `Listen` can count what was lost on the way. The link counts the samples put
+    per key and tells the recorder at the end of the run, which writes what never reached it
+    into the recording (``lost_by_key`` in ``redline.recorder``).
     """
 
     def __init__(self, key: str | Action, payload: bytes | str | Action,
@@ -73,8 +75,11 @@ class Publish(Action):
             return super().compile(ctx)
         key = str(self.key)
         payload = as_payload(self.payload, key)
-        publisher = ctx.require_link().publisher(key, encoding_of(self.payload, self.encoding))
-        return functools.partial(publisher.put, payload)  # no per-run Python in between
+        link = ctx.require_link()
+        publisher = link.publisher(key, encoding_of(self.payload, self.encoding))
+        step = functools.partial(publisher.put, payload)  # no per-run Python in between
+        step.ran = functools.partial(link.count_sent, key)  # type: ignore[attr-defined]
+        return step
 
     def run(self, ctx: Context) -> int:
         key = str(resolve(self.key, ctx))
@@ -86,6 +91,7 @@ class Publish(Action):
             publisher.put(payload, attachment=str(link.next_sequence(key)).encode())
         else:
             publisher.put(payload)
+        link.count_sent(key)
         return len(payload)
 
 

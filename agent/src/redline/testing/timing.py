@@ -5,7 +5,7 @@ from __future__ import annotations
 import time
 from typing import Any
 
-from redline.testing.actions import Action, resolve
+from redline.testing.actions import Action, ran, resolve
 from redline.testing.context import Context
 from redline.testing.metrics import quantile
 
@@ -84,6 +84,7 @@ class FixedRate(Action):
             lateness.append(time.perf_counter_ns() - deadline)
             step()
             deadline = start + int(len(lateness) * period_ns)
+        ran(step, len(lateness))
         ctx.sleep_until(end)
         elapsed = (time.perf_counter_ns() - start) / 1e9
         lateness.sort()
