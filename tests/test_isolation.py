@@ -13,7 +13,9 @@ import threading
 from pathlib import Path
 
 import pytest
+from redline.agent.network import RunNetwork
 from redline.agent.runner import RunResult, run_suite
+from redline.agent.suite import SuiteError, load_suite
 from redline.recording import read_recording
 
 pytestmark = pytest.mark.integration
@@ -36,7 +38,7 @@ TEST = """\
     """
 
 
-def _suite(folder: Path) -> Path:
+def _suite(folder: Path, transport: str = "tcp") -> Path:
     folder.mkdir()
     (folder / "component.py").write_text(textwrap.dedent(COMPONENT))
     (folder / "test_iso.py").write_text(textwrap.dedent(TEST))
@@ -44,23 +46,25 @@ def _suite(folder: Path) -> Path:
     path.write_text(textwrap.dedent("""\
         name = "iso"
         tests = ["test_iso.py"]
+        transport = "{transport}"
         [[component]]
         name = "chatty"
         command = ["python", "component.py"]
         ready = { log = "component ready" }
-        """))
+        """).replace("{transport}", transport))
     return path
 
 
+@pytest.mark.parametrize("transport", ["tcp", "unix"])
 def test_two_simultaneous_runs_record_only_their_own_traffic(
-        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, transport: str) -> None:
     monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
     results: dict[str, RunResult] = {}
     errors: list[BaseException] = []
 
     def run(name: str) -> None:
         try:
-            results[name] = run_suite(_suite(tmp_path / name), tmp_path / f"{name}.mcap",
+            results[name] = run_suite(_suite(tmp_path / name, transport), tmp_path / f"{name}.mcap",
                                       overrides={"key": f"iso/driver/{name}"})
         except BaseException as exc:  # reported by the main thread
             errors.append(exc)
@@ -79,3 +83,27 @@ def test_two_simultaneous_runs_record_only_their_own_traffic(
         assert recording.traffic[f"iso/driver/{own}"] == 50
         assert [m["params"]["key"] for m in recording.markers] == [f"iso/driver/{own}"] * 2
         assert not [k for k in keys if other in k]
+        counts = recording.metadata["redline.recorder"]  # the driver's 50 puts were all recorded
+        assert counts["checked_keys"] == "1" and counts["lost"] == "0", counts
+        assert counts["zenoh_shared_memory"] == "on"
+        assert counts["zenoh_endpoint"].startswith({"tcp": "tcp/127.0.0.1:",
+                                                    "unix": "unixsock-stream/"}[transport])
+
+
+def test_suite_transport_is_checked_and_names_its_line(tmp_path: Path) -> None:
+    assert load_suite(_suite(tmp_path / "unix", "unix")).transport == "unix"
+    bad = _suite(tmp_path / "bad", "udp")
+    with pytest.raises(SuiteError, match=r"redline.toml:3: 'transport' must be one of 'tcp', "
+                                         r"'unix', got 'udp'"):
+        load_suite(bad)
+
+
+def test_unix_transport_uses_a_socket_and_no_port(tmp_path: Path) -> None:
+    with RunNetwork(transport="unix") as network:
+        assert network.endpoint.startswith("unixsock-stream/")
+        socket_path = Path(network.endpoint.split("/", 1)[1])
+        assert socket_path.is_socket()
+        peer = network.peer_settings()
+        assert peer["listen"]["endpoints"] == [] and peer["connect"]["endpoints"] == [
+            network.endpoint]
+    assert not socket_path.parent.exists()  # the private folder goes with the network

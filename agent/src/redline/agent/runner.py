@@ -108,7 +108,7 @@ class _Run:
         return process
 
     def execute(self) -> int:
-        with pinned_governor() as governor, RunNetwork() as network:
+        with pinned_governor() as governor, RunNetwork(transport=self.suite.transport) as network:
             self.meta["host"] = host_fingerprint(governor)
             self.say(f"governor: {governor}; zenoh router on {network.endpoint}")
             self._write_meta()

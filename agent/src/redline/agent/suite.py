@@ -5,6 +5,8 @@
     build = "make"                      # optional: a shell line or an argv list (run in this dir)
     executions = 1                      # recordings per revision
     sampling_hz = 10                    # monitor samples per second
+    transport = "tcp"                   # the run's zenoh network: "tcp" (a free loopback port)
+                                        # or "unix" (a unix socket, unixsock-stream/PATH)
 
     [[component]]                       # one or more; [[fixture]] entries have the same fields
     name = "objectbuilder"
@@ -29,7 +31,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-_TOP = {"name", "tests", "build", "executions", "sampling_hz", "component", "fixture"}
+from redline.agent.network import TRANSPORTS
+
+_TOP = {"name", "tests", "build", "executions", "sampling_hz", "transport", "component",
+        "fixture"}
 _PROCESS = {"name", "command", "env", "cwd", "ready", "start_timeout", "stop_timeout"}
 _READY = {"log", "delay", "key", "liveliness"}
 
@@ -72,6 +77,7 @@ class Suite:
     build: tuple[str, ...] | None = None
     executions: int = 1
     sampling_hz: float = 10.0
+    transport: str = "tcp"
     sha256: str = ""
 
     @property
@@ -192,6 +198,13 @@ def _process(checker: _Checker, table: Any, section: str, index: int) -> Process
     )
 
 
+def _transport(checker: _Checker, value: Any) -> str:
+    if value not in TRANSPORTS:
+        raise checker.fail(f"'transport' must be one of {', '.join(map(repr, TRANSPORTS))}, "
+                           f"got {value!r}", "transport")
+    return str(value)
+
+
 def _parse(path: Path) -> tuple[bytes, str, dict[str, Any]]:
     try:
         raw = path.read_bytes()
@@ -245,5 +258,6 @@ def load_suite(path: str | Path) -> Suite:
                                       integer=True)),
         sampling_hz=float(checker.number(data.get("sampling_hz", 10.0), "sampling_hz",
                                          "the suite")),
+        transport=_transport(checker, data.get("transport", "tcp")),
         sha256=hashlib.sha256(raw).hexdigest(),
     )
