@@ -23,13 +23,15 @@ import zenoh
 from redline.agent.network import RunNetwork, open_client
 from redline.agent.runner import query_recorder
 from redline.recording import read_recording
+from redline.testing import Link
 
 SECONDS, SIZE, BATCH = 3.0, 1024, 500
 
 
-def publish(session: zenoh.Session, key: str, rate: float | None) -> tuple[int, float]:
-    """Messages sent and seconds taken, paced at ``rate`` (None: as fast as possible)."""
-    publisher = session.declare_publisher(key)
+def publish(link: Link, key: str, rate: float | None) -> tuple[int, float]:
+    """Messages sent and seconds taken, paced at ``rate`` (None: as fast as possible); the
+    link counts them as `Publish` would, so the recording says what was lost."""
+    publisher = link.publisher(key)
     payload, sent = b"r" * SIZE, 0
     start = time.perf_counter()
     while (elapsed := time.perf_counter() - start) < SECONDS:
@@ -39,7 +41,7 @@ def publish(session: zenoh.Session, key: str, rate: float | None) -> tuple[int, 
         for _ in range(BATCH):
             publisher.put(payload)
         sent += BATCH
-    publisher.undeclare()
+    link.count_sent(key, sent)
     return sent, time.perf_counter() - start
 
 
@@ -69,8 +71,9 @@ def main() -> None:
             while query_recorder(session, 0.5) is None:
                 time.sleep(0.1)
             before = query_recorder(session, 5.0) or {}
+            link = Link(session)
             for name, rate in (("paced", 100_000.0), ("flat-out", None)):
-                sent, seconds = publish(session, f"bench/{name}", rate)
+                sent, seconds = publish(link, f"bench/{name}", rate)
                 after = settled(session)
                 got = after["received"] - before["received"]
                 dropped = after["dropped"] - before["dropped"]
@@ -79,11 +82,14 @@ def main() -> None:
                       f"{(got - dropped) / sent:.4f}; dropped {dropped}; received/sent "
                       f"{got / sent:.4f}")
                 before = after
+            link.close()  # reports the put counts to the recorder
         recorder.terminate()
         recorder.wait()
     recording = read_recording(out)
-    print(f"file: {sum(recording.traffic.values()):,} messages; recorder metadata "
-          f"{recording.metadata['redline.recorder']}")
+    meta = recording.metadata["redline.recorder"]
+    print(f"file: {sum(recording.traffic.values()):,} messages; recorder metadata: lost "
+          f"{meta.get('lost')} {meta.get('lost_by_key')}; dropped {meta['dropped']}; shared "
+          f"memory {meta.get('zenoh_shared_memory')}")
     for path in folder.iterdir():
         path.unlink()
     folder.rmdir()

@@ -123,7 +123,7 @@ class Recorder:
             encoding = self._encodings.get(key)
             if encoding is None:
                 encoding = self._encodings[key] = str(sample.encoding)
-            write(key, sample.payload.to_bytes(), encoding=encoding)
+            write(key, sample.payload.to_bytes(), encoding=encoding, t_ns=_arrival(sample))
             traffic[key] = traffic.get(key, 0) + 1
             count += 1
         self.written += count
@@ -175,6 +175,13 @@ class Recorder:
             "zenoh_endpoint": ",".join(settings.get("connect", {}).get("endpoints", [])),
         })
         self.writer.close()
+
+
+def _arrival(sample: zenoh.Sample) -> int:
+    """When the sample reached the run's router (which stamps every sample it routes), not when
+    the writer got to it: the FIFO may hold a backlog. Now, for a sample without a stamp."""
+    stamp = sample.timestamp
+    return stamp.get_time_as_ntp64().as_nanos() if stamp is not None else time.time_ns()
 
 
 def _json(data: bytes) -> dict[str, Any]:

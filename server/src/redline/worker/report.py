@@ -81,7 +81,8 @@ def _segment_html(segment: SegmentVerdict, files: list[tuple[str, RecordedSeries
               else f'<span class="ok">{html.escape(segment.note or "no change")}</span>')
     parts = [f"<h2>{html.escape(segment.name)} — {status}</h2>"]
     if segment.series:
-        lines = "\n".join(series_line(v) for v in segment.series)
+        lines = "\n".join(("CHANGED " if v.result.flagged else "        ") + series_line(v)
+                          for v in segment.series)
         parts.append(f"<pre>{html.escape(lines)}</pre>")
     for verdict in changed:
         figures[f"fig{len(figures)}"] = timeseries_figure(verdict.key, files)
