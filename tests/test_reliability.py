@@ -9,6 +9,9 @@ work folder is named ``slow-*``, which is how a test holds an agent in the middl
 
 from __future__ import annotations
 
+import hashlib
+import hmac
+import json
 import os
 import signal
 import subprocess
@@ -27,7 +30,7 @@ import pytest
 from redline.agent.client import ServerClient
 from redline.agent.network import free_port
 from redline.server.db import session_factory
-from redline.server.models import Execution, Job, JobState
+from redline.server.models import Execution, Job, JobState, Revision
 from redline.server.stack import Child, Stack
 from sqlalchemy import func, select, update
 
@@ -170,7 +173,8 @@ def _service(database_url: str, redis_url: str, root: Path, lease_s: int) -> Ser
     (stack.data / "logs").mkdir(parents=True, exist_ok=True)
     stack.env = dict(os.environ, REDLINE_DATABASE_URL=database_url, REDLINE_REDIS_URL=redis_url,
                      REDLINE_STORAGE_DIR=str(root / "storage"), REDLINE_LEASE_SECONDS=str(lease_s),
-                     REDLINE_QUEUE=f"rel-{uuid.uuid4().hex[:8]}", PYTHONUNBUFFERED="1")
+                     REDLINE_QUEUE=f"rel-{uuid.uuid4().hex[:8]}", PYTHONUNBUFFERED="1",
+                     REDLINE_WEBHOOK_SECRET="the-real-secret")
     stack._redline("migrate")
     service = Service(stack, root, repo, commit)
     service.tokens = {scope: stack.token(scope, scope) for scope in ("admin", "ci", "agent")}
@@ -272,6 +276,23 @@ def test_twenty_agents_leasing_two_hundred_jobs_over_http_lease_each_exactly_onc
     counts = Counter(job_id for mine in leased for job_id in mine)
     assert set(counts) == set(ids) and set(counts.values()) == {1}, counts.most_common(3)
     assert sum(1 for mine in leased if mine) > 1  # the race had more than one winner
+
+
+def test_forged_webhook_signature_to_the_server_process_is_401_and_creates_nothing(
+        service: Service):
+    service.job("hooked")
+    push = json.dumps({"ref": "refs/heads/main", "repository": {"clone_url": str(service.repo)},
+                       "commits": [{"id": "f" * 40, "message": "forged", "timestamp":
+                                    "2026-11-22T03:00:00+00:00"}]}).encode()
+    forged = "sha256=" + hmac.new(b"guessed", push, hashlib.sha256).hexdigest()
+    with session_factory(service.database_url)() as session:
+        before = session.scalar(select(func.count()).select_from(Revision))
+    answer = httpx.post(f"{service.stack.url}/api/v1/webhooks/github", content=push, headers={
+        "X-Hub-Signature-256": forged, "X-GitHub-Event": "push",
+        "Content-Type": "application/json"})
+    assert answer.status_code == 401, answer.text
+    with session_factory(service.database_url)() as session:
+        assert session.scalar(select(func.count()).select_from(Revision)) == before
 
 
 def _two_hundred_jobs(service: Service) -> list[int]:

@@ -22,6 +22,15 @@ from redline.server.routes import (
 )
 from redline.server.services.errors import ServiceError
 from redline.worker.app import TaskSender
+from sqlalchemy.exc import DataError
+
+
+async def _unstorable(request: Request, exc: Exception) -> JSONResponse:
+    """A value Postgres cannot hold (an id past 2**31, a NUL in a text): the caller's fault."""
+    orig = getattr(exc, "orig", None) or exc
+    reason = (str(orig).strip().splitlines() or [type(orig).__name__])[0]
+    return JSONResponse({"detail": f"a value in the request cannot be stored: {reason}"},
+                        status_code=422)
 
 
 async def _service_error(request: Request, exc: Exception) -> JSONResponse:
@@ -39,6 +48,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.settings = settings
     app.state.tasks = TaskSender(settings)
     app.add_exception_handler(ServiceError, _service_error)
+    app.add_exception_handler(DataError, _unstorable)
     for down in health.DATABASE_DOWN:  # 503 with a message, never a 500, while Postgres is away
         app.add_exception_handler(down, health.database_unavailable)
     metrics.install(app, settings)
