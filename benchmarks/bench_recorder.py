@@ -80,7 +80,7 @@ def main() -> None:
                 asked = f"{rate:,.0f}/s" if rate else "max"
                 print(f"{name:>8} (asked {asked}): sent {sent / seconds:,.0f}/s; recorded/sent "
                       f"{(got - dropped) / sent:.4f}; dropped {dropped}; received/sent "
-                      f"{got / sent:.4f}")
+                      f"{got / sent:.4f}; writer lag at worst {after.get('lag_max_ms')} ms")
                 before = after
             link.close()  # reports the put counts to the recorder
         recorder.terminate()

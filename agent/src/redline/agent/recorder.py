@@ -81,6 +81,7 @@ class Recorder:
         self.tap = Tap(self.own, buffer_size)
         self.writer = RecordingWriter(out, library="redline-recorder")
         self.written = 0
+        self.lag_max_ns = 0
         self.traffic: dict[str, int] = {}  # samples recorded per (non-@redline) key
         self.sent: dict[str, int] = {}  # samples the driver says it put, per key
         self.lock = threading.Lock()
@@ -90,8 +91,11 @@ class Recorder:
         self.source: zenoh.Subscriber[zenoh.Handler[zenoh.Sample]] | None = None
 
     def counts(self) -> dict[str, int]:
+        """Samples received, written and dropped by the recorder, and ``lag_max_ms``: how far the
+        writer fell behind the router's stamps at worst (a backlog, not a loss)."""
         received = sum(self.traffic.values()) + self.tap.received
-        return {"received": received, "written": self.written, "dropped": self.tap.dropped}
+        return {"received": received, "written": self.written, "dropped": self.tap.dropped,
+                "lag_max_ms": self.lag_max_ns // 1_000_000}
 
     def losses(self) -> dict[str, tuple[int, int]]:
         """Per key the driver published on: (sent, recorded), where fewer were recorded."""
@@ -123,7 +127,10 @@ class Recorder:
             encoding = self._encodings.get(key)
             if encoding is None:
                 encoding = self._encodings[key] = str(sample.encoding)
-            write(key, sample.payload.to_bytes(), encoding=encoding, t_ns=_arrival(sample))
+            arrived = _arrival(sample)
+            if count == 0:  # how far behind the writer is, once per batch
+                self.lag_max_ns = max(self.lag_max_ns, time.time_ns() - arrived)
+            write(key, sample.payload.to_bytes(), encoding=encoding, t_ns=arrived)
             traffic[key] = traffic.get(key, 0) + 1
             count += 1
         self.written += count
