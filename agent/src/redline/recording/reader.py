@@ -8,14 +8,20 @@ upload, and refuses anything that is not a finished Redline recording.
 from __future__ import annotations
 
 import json
+import struct
+from bisect import bisect_left, bisect_right
 from collections import Counter
 from collections.abc import Iterator
 from dataclasses import dataclass, field
+from io import BytesIO
+from operator import itemgetter
 from pathlib import Path
 from typing import Any
 
-from mcap.records import Channel, Footer, Header, Message, Metadata
-from mcap.stream_reader import StreamReader
+from mcap.data_stream import ReadDataStream
+from mcap.opcode import Opcode
+from mcap.records import Channel, Chunk, Footer, Header, Message, Metadata
+from mcap.stream_reader import StreamReader, breakup_chunk
 from redline.recording.format import (
     COUNTERS_PREFIX,
     DRIVER_PREFIX,
@@ -77,71 +83,168 @@ class Recording:
 
     def series_samples(self, *, include_warmup: bool = False) -> dict[SeriesKey, list[float]]:
         """Counter samples grouped by series, in time order; warm-up phases are left out."""
-        timeline = self.series_timeline(include_warmup=include_warmup)
-        return {key: [value for _, value in points] for key, points in timeline.items()}
+        return self._grouped(include_warmup, timed=False)  # type: ignore[return-value]
 
     def series_timeline(self, *, include_warmup: bool = False
                         ) -> dict[SeriesKey, list[tuple[int, float]]]:
         """Like `series_samples`, with each sample's time: ``(t_ns, value)`` pairs."""
+        return self._grouped(include_warmup, timed=True)  # type: ignore[return-value]
+
+    def _grouped(self, include_warmup: bool, timed: bool) -> dict[SeriesKey, list[Any]]:
         segments = [s for s in self.segments() if include_warmup or not s.warmup]
         segments.sort(key=lambda s: s.begin_ns)
-        points: dict[SeriesKey, list[tuple[int, float]]] = {}
-        counters = sorted(self.counters, key=lambda c: c["t_ns"])
-        index = 0
+        grouped: dict[SeriesKey, list[Any]] = {}
+        counters = sorted(self.counters, key=itemgetter("t_ns"))
+        times = [sample["t_ns"] for sample in counters]
         for segment in segments:
             params = canonical_params(segment.params)
-            while index < len(counters) and counters[index]["t_ns"] < segment.begin_ns:
-                index += 1
-            cursor = index
-            while cursor < len(counters) and counters[cursor]["t_ns"] <= segment.end_ns:
-                sample = counters[cursor]
-                for counter, value in sample["values"].items():
-                    if value is None:
-                        continue
-                    key = SeriesKey(segment.case, segment.phase, params, sample["process"], counter)
-                    points.setdefault(key, []).append((sample["t_ns"], float(value)))
-                cursor += 1
-        return points
+            inside = counters[bisect_left(times, segment.begin_ns):
+                              bisect_right(times, segment.end_ns)]
+            # keyed by a plain tuple while grouping: SeriesKey's hash is Python code, per sample
+            for (process, counter), values in _by_counter(inside, timed).items():
+                key = SeriesKey(segment.case, segment.phase, params, process, counter)
+                grouped.setdefault(key, []).extend(values)
+        return grouped
+
+
+def _by_counter(samples: list[dict[str, Any]], timed: bool) -> dict[tuple[str, str], list[Any]]:
+    """One segment's samples grouped by (process, counter), in order; None values left out."""
+    grouped: dict[tuple[str, str], list[Any]] = {}
+    for sample in samples:
+        process, t_ns = sample["process"], sample["t_ns"]
+        for counter, value in sample["values"].items():
+            if value is None:
+                continue
+            bucket = grouped.get((process, counter))
+            if bucket is None:
+                bucket = grouped[(process, counter)] = []
+            bucket.append((t_ns, float(value)) if timed else float(value))
+    return grouped
 
 
 def _records(path: Path) -> Iterator[Any]:
     with open(path, "rb") as stream:
-        yield from StreamReader(stream, skip_magic=False).records
+        yield from StreamReader(stream, skip_magic=False, emit_chunks=True).records
+
+
+_RECORD = struct.Struct("<BQ")  # opcode, length
+_CHANNEL_ID = struct.Struct("<H")
+_MESSAGE_HEAD = 22  # channel id u16, sequence u32, log time u64, publish time u64
+
+
+def _chunk_data(chunk: Chunk) -> bytes | None:
+    """A chunk's records, decompressed; None for a compression only mcap itself knows."""
+    if chunk.compression == "zstd":
+        import zstandard
+
+        return zstandard.decompress(chunk.data, chunk.uncompressed_size)
+    return chunk.data if chunk.compression == "" else None
+
+
+def _take_chunk(recording: Recording, chunk: Chunk, channels: dict[int, tuple[int, str]],
+                counters: list[bytes]) -> None:
+    """The messages and channels of one chunk, parsed in place (mcap's reader goes byte by byte,
+    which made reading the file most of an ingest)."""
+    data = _chunk_data(chunk)
+    if data is None:
+        for record in breakup_chunk(chunk):
+            _take_record(recording, record, channels, counters)
+        return
+    position, end = 0, len(data)
+    while position < end:
+        opcode, length = _RECORD.unpack_from(data, position)
+        position += _RECORD.size
+        if opcode == Opcode.MESSAGE:
+            kind, topic = channels.get(_CHANNEL_ID.unpack_from(data, position)[0], (_TRAFFIC, ""))
+            if kind == _COUNTERS:
+                counters.append(data[position + _MESSAGE_HEAD:position + length])
+            elif kind == _TRAFFIC:
+                recording.traffic[topic] += 1
+            else:
+                _take_message(recording, kind, topic,
+                              data[position + _MESSAGE_HEAD:position + length])
+        elif opcode == Opcode.CHANNEL:
+            channel = Channel.read(ReadDataStream(BytesIO(data[position:position + length])))
+            channels[channel.id] = (_kind(channel.topic), channel.topic)
+        position += length
+
+
+def _take_record(recording: Recording, record: Any, channels: dict[int, tuple[int, str]],
+                 counters: list[bytes]) -> None:
+    if isinstance(record, Chunk):
+        _take_chunk(recording, record, channels, counters)
+    elif isinstance(record, Message):
+        kind, topic = channels.get(record.channel_id, (_TRAFFIC, ""))
+        if kind == _COUNTERS:
+            counters.append(record.data)
+        else:
+            _take_message(recording, kind, topic, record.data)
+    elif isinstance(record, Channel):
+        channels[record.id] = (_kind(record.topic), record.topic)
+    elif isinstance(record, Header):
+        recording.profile = record.profile
+    elif isinstance(record, Metadata):
+        recording.metadata[record.name] = dict(record.metadata)
+    elif isinstance(record, Footer):
+        recording.complete = True
 
 
 def read_recording(path: str | Path, *, strict: bool = True) -> Recording:
     """Read a recording; with ``strict``, raise RecordingError unless it is a finished one."""
     path = Path(path)
     recording = Recording(path=path)
-    channels: dict[int, str] = {}
+    channels: dict[int, tuple[int, str]] = {}
+    counters: list[bytes] = []  # decoded at the end in one call: JSON per message dominated
     try:
         for record in _records(path):
-            if isinstance(record, Header):
-                recording.profile = record.profile
-            elif isinstance(record, Channel):
-                channels[record.id] = record.topic
-            elif isinstance(record, Message):
-                _take_message(recording, channels.get(record.channel_id, ""), record.data)
-            elif isinstance(record, Metadata):
-                recording.metadata[record.name] = dict(record.metadata)
-            elif isinstance(record, Footer):
-                recording.complete = True
+            _take_record(recording, record, channels, counters)
     except Exception as exc:  # the mcap library raises several types for a damaged file
-        recording.problem = f"{type(exc).__name__}: {exc}" if str(exc) else type(exc).__name__
+        recording.problem = _problem(exc)
+    _decode_counters(recording, counters)
     if strict:
         _check_strict(recording)
     return recording
 
 
-def _take_message(recording: Recording, topic: str, data: bytes) -> None:
+_TRAFFIC, _COUNTERS, _MARKERS, _DRIVER = range(4)
+
+
+def _kind(topic: str) -> int:
     if topic.startswith(COUNTERS_PREFIX):
-        recording.counters.append(json.loads(data))
-    elif topic == MARKERS_KEY:
+        return _COUNTERS
+    if topic == MARKERS_KEY:
+        return _MARKERS
+    return _DRIVER if topic.startswith(DRIVER_PREFIX) else _TRAFFIC
+
+
+def _problem(exc: Exception) -> str:
+    return f"{type(exc).__name__}: {exc}" if str(exc) else type(exc).__name__
+
+
+def _take_message(recording: Recording, kind: int, topic: str, data: bytes) -> None:
+    if kind == _MARKERS:
         recording.markers.append(json.loads(data))
-    elif topic.startswith(DRIVER_PREFIX):
+    elif kind == _DRIVER:
         recording.driver.append(json.loads(data))
     else:
         recording.traffic[topic] += 1
+
+
+def _decode_counters(recording: Recording, raw: list[bytes]) -> None:
+    """All counter messages as one JSON array; message by message only to name a bad one."""
+    try:
+        recording.counters = json.loads(b"[" + b",".join(raw) + b"]") if raw else []
+        if len(recording.counters) == len(raw):
+            return
+    except ValueError:
+        pass
+    recording.counters = []
+    for data in raw:
+        try:
+            recording.counters.append(json.loads(data))
+        except ValueError as exc:
+            recording.problem = recording.problem or _problem(exc)
+            return
 
 
 def _check_strict(recording: Recording) -> None:

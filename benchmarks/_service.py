@@ -1,0 +1,56 @@
+"""A migrated, empty Postgres database for the server benchmarks (not a benchmark itself).
+
+``REDLINE_DATABASE_URL`` when set (a fresh database is created on that server), else an embedded
+pgserver in a temporary folder, removed afterwards.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import tempfile
+import uuid
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+import sqlalchemy as sa
+from redline.server.db import migrate
+
+
+def _on(url: str, name: str) -> str:
+    base, _, query = url.partition("?")
+    return base.rsplit("/", 1)[0] + f"/{name}" + (f"?{query}" if query else "")
+
+
+@contextmanager
+def database() -> Iterator[str]:
+    """The URL of a new, migrated database; dropped (or its server removed) at the end."""
+    from redline.server.embedded import start_postgres
+
+    configured = os.environ.get("REDLINE_DATABASE_URL")
+    folder, handle = None, None
+    if configured:
+        server_url = configured
+    else:
+        folder = Path(tempfile.mkdtemp(prefix="redline-bench-pg-"))
+        server_url, handle = start_postgres(folder / "data", "bench")
+    name = f"redline_bench_{uuid.uuid4().hex[:8]}"
+    admin = sa.create_engine(_on(server_url, "postgres"), isolation_level="AUTOCOMMIT")
+    with admin.connect() as conn:
+        conn.execute(sa.text(f'CREATE DATABASE "{name}"'))
+    url = _on(server_url, name)
+    try:
+        migrate(url)
+        yield url
+    finally:
+        from redline.server.db import get_engine
+
+        get_engine(url).dispose()
+        with admin.connect() as conn:
+            conn.execute(sa.text(f'DROP DATABASE IF EXISTS "{name}" WITH (FORCE)'))
+        admin.dispose()
+        if handle is not None:
+            handle.cleanup()
+        if folder is not None:
+            shutil.rmtree(folder, ignore_errors=True)
