@@ -2,8 +2,10 @@
 
 Baseline and candidate are each one or more recordings; the samples of every series are pooled
 per side (the paper: "the individual measurements ... of potentially multiple executions form an
-observation") and judged as the service judges them (`redline.detect.judge`). Results are grouped
-into one verdict per test case × phase × parameter set. Reading the files is the only I/O here.
+observation") and judged exactly as the service's KS judges them: `redline.detect.verdict`'s
+`judge_series` with `KolmogorovSmirnov` (the KS test, then the counter's absolute floor), host-wide
+series left out. Results are grouped into one verdict per test case × phase × parameter set.
+Reading the files is the only I/O here.
 """
 
 from __future__ import annotations
@@ -14,9 +16,17 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from redline.detect.judge import is_judged, judge
-from redline.detect.ks import KsResult
-from redline.recording import Recording, RecordingError, SeriesKey, params_name, read_recording
+from redline.detect.methods import KolmogorovSmirnov
+from redline.detect.result import Detection
+from redline.detect.verdict import judge_series
+from redline.recording import (
+    HOST_PROCESS,
+    Recording,
+    RecordingError,
+    SeriesKey,
+    params_name,
+    read_recording,
+)
 
 Timeline = dict[SeriesKey, list[tuple[int, float]]]
 Segment = tuple[str, str, str]  # case, phase, canonical parameters
@@ -38,7 +48,7 @@ class RecordedSeries:
 @dataclass(frozen=True)
 class SeriesVerdict:
     key: SeriesKey
-    result: KsResult
+    result: Detection  # score: KS's D; verdict "not enough data" names why (too few, constant)
     baseline_mean: float
     candidate_mean: float
     baseline_n: int
@@ -101,7 +111,7 @@ def load_side(paths: Sequence[str | Path], side: str) -> tuple[RecordedSeries, .
         except OSError as exc:
             raise CompareError(f"{side} recording {path}: {exc.strerror or exc}") from None
         timeline = {key: points for key, points in recording.series_timeline().items()
-                    if is_judged(key.process)}
+                    if key.process != HOST_PROCESS}  # the machine's context, not judged
         loaded.append(RecordedSeries(path=path, label=_label(recording), timeline=timeline))
     return tuple(loaded)
 
@@ -120,7 +130,7 @@ def _segment(key: SeriesKey) -> Segment:
 
 
 def _verdict(key: SeriesKey, base: np.ndarray, cand: np.ndarray) -> SeriesVerdict:
-    return SeriesVerdict(key=key, result=judge(key.counter, base, cand),
+    return SeriesVerdict(key=key, result=judge_series(KolmogorovSmirnov(), key.counter, base, cand),
                          baseline_mean=float(np.mean(base)), candidate_mean=float(np.mean(cand)),
                          baseline_n=int(base.size), candidate_n=int(cand.size))
 

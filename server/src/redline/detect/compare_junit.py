@@ -16,11 +16,14 @@ SUITE_NAME = "redline compare"
 
 
 def series_line(verdict: SeriesVerdict) -> str:
-    """``process.counter: effect +200.0%, D 0.950, p 1.2e-30; mean 20 -> 60 (n 200 -> 200)``."""
+    """``process.counter: effect +200.0%, D 0.950, p 1.2e-30; mean 20 -> 60 (n 200 -> 200)``,
+    and the reason when KS did not decide (too few samples, constant) or the floor held it."""
     result, key = verdict.result, verdict.key
-    return (f"{key.process}.{key.counter}: effect {result.effect:+.1%}, D {result.statistic:.3f}, "
-            f"p {result.p_value:.3g}; mean {verdict.baseline_mean:.6g} -> "
-            f"{verdict.candidate_mean:.6g} (n {verdict.baseline_n} -> {verdict.candidate_n})")
+    p_value = "n/a" if result.p_value is None else f"{result.p_value:.3g}"
+    reason = f" [{result.verdict}: {result.reason}]" if result.reason else ""
+    return (f"{key.process}.{key.counter}: effect {result.effect:+.1%}, D {result.score:.3f}, "
+            f"p {p_value}; mean {verdict.baseline_mean:.6g} -> {verdict.candidate_mean:.6g} "
+            f"(n {verdict.baseline_n} -> {verdict.candidate_n}){reason}")
 
 
 def _testcase(parent: ET.Element, segment: SegmentVerdict) -> None:

@@ -45,7 +45,7 @@ def evolution_figure(key: SeriesKey, files: list[tuple[str, RecordedSeries]],
                      "y": means, "error_y": {"type": "data", "array": stds, "visible": True},
                      "marker": {"color": color}})
     flag = "changed: " if verdict.result.flagged else ""
-    title = f"{flag}{key.process}.{key.counter} (D {verdict.result.statistic:.3f}, " \
+    title = f"{flag}{key.process}.{key.counter} (D {verdict.result.score:.3f}, " \
             f"effect {verdict.result.effect:+.1%})"
     layout = {"title": {"text": title, "font": {"size": 13}}, "height": 300,
               "margin": {"l": 60, "r": 20, "t": 40, "b": 80},
