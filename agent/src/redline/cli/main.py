@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import importlib
+from importlib import metadata
 
 import typer
 
@@ -19,17 +20,24 @@ _SERVER_COMMANDS = ("redline.server.cli", "redline.server.up_cmd", "redline.dete
                     "redline.detect.compare_cmd")
 
 
+def server_installed() -> bool:
+    """Whether the `redline-server` distribution is installed beside this one."""
+    try:
+        metadata.distribution("redline-server")
+    except metadata.PackageNotFoundError:
+        return False
+    return True
+
+
+def command_modules() -> tuple[str, ...]:
+    """The modules whose commands `redline` offers here: the server's only where it is installed
+    (an import error in one of them is then a real fault, and is not hidden)."""
+    return _AGENT_COMMANDS + (_SERVER_COMMANDS if server_installed() else ())
+
+
 def _register_all() -> None:
-    for module in _AGENT_COMMANDS:
+    for module in command_modules():
         importlib.import_module(module).register(app)
-    for module in _SERVER_COMMANDS:
-        try:
-            loaded = importlib.import_module(module)
-        except ModuleNotFoundError as exc:
-            if exc.name and exc.name.startswith("redline.server"):
-                continue  # redline-server is not installed: agent commands only
-            raise
-        loaded.register(app)
 
 
 def main() -> None:
