@@ -168,6 +168,17 @@ def run_revision(repo: Path, commit: str, out: Path, executions: int) -> list[pd
     return frames
 
 
+def disturbed(frames: list[pd.DataFrame], expected: int = 20) -> bool:
+    """An execution the shared host disturbed: its steady phase's CPU series has a sample count
+    off by more than 10 % (the phase or the sampler was stretched) or a sample of zero CPU (the
+    component got no message to work on: the load generator was starved)."""
+    for frame in frames:
+        cpu = frame.loc[frame["counter"] == "cpu_percent", "value"]
+        if abs(len(cpu) - expected) > expected // 10 or bool((cpu <= 0).any()):
+            return True
+    return False
+
+
 def build_corpus(samples: dict[int, list[pd.DataFrame]], starts: dict[int, Event],
                  total: int) -> tuple[pd.DataFrame, dict[str, dict[str, object]]]:
     """Cut the history into one window per event (and the stable start) and label it."""
@@ -203,6 +214,8 @@ def main() -> int:
                         default=ROOT / "benchmarks" / "corpus" / "objectbuilder")
     parser.add_argument("--stretch", type=int, default=9, help="revisions between events")
     parser.add_argument("--executions", type=int, default=3)
+    parser.add_argument("--remeasure", type=int, default=0,
+                        help="measure a disturbed build again, up to this many times")
     parser.add_argument("--cache", type=Path, default=Path(tempfile.gettempdir()) /
                         "redline-corpus-cache", help="finished builds, kept for a rerun")
     args = parser.parse_args()
@@ -218,8 +231,14 @@ def main() -> int:
             if cached.is_file():
                 table = pd.read_parquet(cached)
                 samples[build] = [part for _, part in table.groupby("execution")]
-                continue
+                if not (args.remeasure and disturbed(samples[build])):
+                    continue
             samples[build] = run_revision(work / "repo", commit, work, args.executions)
+            for _ in range(args.remeasure if disturbed(samples[build]) else 0):
+                print(f"build {build}: disturbed, measured again", flush=True)
+                samples[build] = run_revision(work / "repo", commit, work, args.executions)
+                if not disturbed(samples[build]):
+                    break
             pd.concat(samples[build]).to_parquet(cached, index=False)
             print(f"build {build + 1}/{len(commits)} done, {time.monotonic() - started:.0f} s",
                   flush=True)

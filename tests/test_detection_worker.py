@@ -214,3 +214,18 @@ def test_samples_written_with_nan_by_hand_do_not_break_the_worker(session, datab
     detect_revision(database_url, executions[1].revision_id)
     verdict = _verdicts(session)[("r2", "ks")]
     assert verdict.verdict == "not enough data" and "baseline contains NaN/inf" in verdict.reason
+
+
+def test_median_shift_ignores_a_few_huge_outliers_that_move_the_mean():
+    from redline.detect.methods import WelchT
+    from redline.detect.robust import MedianShift
+
+    rng = np.random.default_rng(2)
+    base = rng.normal(15.0, 0.5, 60)
+    cand = rng.normal(15.0, 0.5, 60)
+    cand[:2] = 375.0  # a descheduled sampler's spike, as seen in corpus 2
+    assert MedianShift().compare(base, cand).verdict == "no change"
+    assert WelchT().compare(np.r_[base, base], cand).effect > 0.5  # the mean moved 80 %
+    shifted = MedianShift().compare(base, base * 1.2)
+    assert shifted.flagged and shifted.effect == pytest.approx(0.2, abs=0.01)
+    assert MedianShift().compare(base, cand[:3]).verdict == "not enough data"

@@ -14,6 +14,7 @@ from typing import Any
 from redline.detect.evaluate import DEFAULT_METHOD
 from redline.detect.foo import FooRules
 from redline.detect.methods import Detector, KolmogorovSmirnov, MannWhitney, WelchT
+from redline.detect.robust import MedianShift
 from redline.detect.shang import ShangRegression
 
 #: Methods the worker can run per series on every ingest. Foo and Shang run in their
@@ -22,6 +23,7 @@ WORKER_DETECTORS: dict[str, Callable[..., Detector]] = {
     "ks": KolmogorovSmirnov,
     "mann_whitney": MannWhitney,
     "welch_t": WelchT,
+    "median_shift": MedianShift,
     "foo": FooRules,
     "shang": ShangRegression,
 }

@@ -16,6 +16,7 @@ from redline.detect.changepoint import EDivisive
 from redline.detect.corpus import Corpus, Unit, build_units
 from redline.detect.foo import FooRules
 from redline.detect.methods import Detector, KolmogorovSmirnov, MannWhitney, WelchT
+from redline.detect.robust import MedianShift
 from redline.detect.shang import ShangRegression
 from scipy.stats import rankdata
 
@@ -26,6 +27,7 @@ DETECTORS: dict[str, Callable[[], Detector]] = {
     "ks": KolmogorovSmirnov,
     "mann_whitney": MannWhitney,
     "welch_t": WelchT,
+    "median_shift": MedianShift,
     "foo": FooRules,
     "foo.min": lambda: FooRules(aggregate="min"),
     "foo.mean": lambda: FooRules(aggregate="mean"),
