@@ -54,3 +54,24 @@ def database() -> Iterator[str]:
             handle.cleanup()
         if folder is not None:
             shutil.rmtree(folder, ignore_errors=True)
+
+
+@contextmanager
+def api_server(database_url: str) -> Iterator[tuple[str, dict[str, str]]]:
+    """`redline server` on ``database_url`` as a child process: its URL and a token per scope."""
+    from redline.agent.network import free_port
+    from redline.server.stack import Stack
+
+    with tempfile.TemporaryDirectory() as tmp:
+        stack = Stack(Path(tmp), free_port())
+        (stack.data / "logs").mkdir(parents=True)
+        stack.env = dict(os.environ, REDLINE_DATABASE_URL=database_url,
+                         REDLINE_STORAGE_DIR=str(stack.data / "storage"),
+                         REDLINE_LEASE_SECONDS="600")
+        tokens = {scope: stack.token(scope, scope) for scope in ("admin", "ci", "agent", "read")}
+        stack._spawn("server", "server", "--host", "127.0.0.1", "--port", str(stack.port))
+        try:
+            stack._wait_healthy()
+            yield stack.url, tokens
+        finally:
+            stack.stop()

@@ -33,29 +33,26 @@ def filter_series(items: list[SeriesOut], fields: dict[str, str | None],
     return [item for item in items if matches(item, fields, params)]
 
 
-def _summary_out(summary: Summary, revision: Revision) -> SummaryOut:
-    return SummaryOut(
-        revision=revision.title, sort_key=revision.sort_key, execution_id=summary.execution_id,
-        n=summary.n, mean=summary.mean, std=summary.std, min=summary.min, p5=summary.p5,
-        p25=summary.p25, p50=summary.p50, p75=summary.p75, p95=summary.p95, max=summary.max,
-        sketch=summary.sketch,
-    )
-
-
 def series_detail(session: Session, series_id: int) -> SeriesDetail:
     """The series and every execution's summary of it, in sort-key order."""
     series = session.get(Series, series_id)
     if series is None:
         raise NotFound(f"unknown series {series_id}")
+    # plain columns validated in one call: 2,000 ORM objects were most of a 1,000-point series
     rows = session.execute(
-        select(Summary, Revision).join(Execution, Execution.id == Summary.execution_id)
+        select(Revision.title.label("revision"), Revision.sort_key, *_SUMMARY_COLUMNS)
+        .join(Execution, Execution.id == Summary.execution_id)
         .join(Revision, Revision.id == Execution.revision_id)
         .where(Summary.series_id == series_id)
         .order_by(Revision.order_key, Revision.id, Execution.id)
-    )
+    ).mappings()
     name = session.scalar(select(Component.name).where(Component.id == series.component_id))
-    return SeriesDetail(**series_ref(series).model_dump(), component=name or "",
-                        summaries=[_summary_out(summary, rev) for summary, rev in rows])
+    return SeriesDetail.model_validate({**series_ref(series).model_dump(), "component": name or "",
+                                        "summaries": [dict(row) for row in rows]})
+
+
+_SUMMARY_COLUMNS = [getattr(Summary, field) for field in SummaryOut.model_fields
+                    if field not in ("revision", "sort_key")]
 
 
 def execution_detail(session: Session, execution_id: int) -> ExecutionDetail:
