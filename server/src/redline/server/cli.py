@@ -47,8 +47,10 @@ def worker_cmd(
     """Run a Celery worker that ingests recordings and detects changes."""
     from redline.worker.app import celery_app
 
+    schedule = celery_app.conf.redline_settings.storage_dir / "celerybeat-schedule"
+    schedule.parent.mkdir(parents=True, exist_ok=True)  # beat keeps its state beside the data
     celery_app.worker_main(["worker", f"--concurrency={concurrency}", f"--loglevel={loglevel}",
-                            *(["--beat"] if beat else [])])
+                            *(["--beat", f"--schedule={schedule}"] if beat else [])])
 
 
 def retention_run(
