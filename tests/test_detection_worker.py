@@ -6,13 +6,11 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-import pyarrow as pa
-import pyarrow.parquet as pq
 import pytest
 from redline.detect.config import ConfigError, DetectionConfig
 from redline.detect.methods import KolmogorovSmirnov
 from redline.detect.verdict import judge_series
-from redline.server.models import Component, Execution, Revision, Series
+from redline.server.models import Component, Execution, Revision, Series, Summary
 from redline.server.models_regressions import (
     Detection,
     DetectionConfigRow,
@@ -202,18 +200,27 @@ def test_bad_configuration_names_the_field(config, field):
         DetectionConfig.parse(config)
 
 
-def test_samples_written_with_nan_by_hand_do_not_break_the_worker(session, database_url,
-                                                                  tmp_path):
-    executions = _history(session, tmp_path, [20.0, 20.0])
-    for execution in executions:
-        ingest_execution(database_url, execution.id)
-    path = samples_path(executions[0].recording_path)
-    table = pq.read_table(path).to_pandas()
-    table.loc[::2, "value"] = np.nan  # through a recording, ingestion itself rejects NaN
-    pq.write_table(pa.Table.from_pandas(table, preserve_index=False), path)
-    detect_revision(database_url, executions[1].revision_id)
+def test_recorded_nan_and_inf_are_ingested_and_judged_not_enough_data(
+        session, database_url, tmp_path):
+    rng = np.random.default_rng(5)
+    damaged = rng.normal(20.0, 1.0, 60)
+    damaged[::3], damaged[1] = np.nan, np.inf
+    executions = _history(session, tmp_path, [20.0, damaged])
+    _run(database_url, executions)
+    summary = session.scalar(select(Summary).where(Summary.execution_id == executions[1].id))
+    assert summary.n == 60 - 20 - 1  # the finite samples only
+    assert np.isfinite([summary.mean, summary.std, summary.p50, *summary.sketch]).all()
     verdict = _verdicts(session)[("r2", "ks")]
-    assert verdict.verdict == "not enough data" and "baseline contains NaN/inf" in verdict.reason
+    assert verdict.verdict == "not enough data" and "NaN/inf" in verdict.reason
+
+
+def test_a_series_with_no_finite_sample_gets_no_summary_but_a_verdict(
+        session, database_url, tmp_path):
+    executions = _history(session, tmp_path, [20.0, np.full(60, np.nan)])
+    _run(database_url, executions)
+    assert session.scalar(select(Summary).where(Summary.execution_id == executions[1].id)) is None
+    verdict = _verdicts(session)[("r2", "ks")]
+    assert verdict.verdict == "not enough data" and "NaN/inf" in verdict.reason
 
 
 def test_median_shift_ignores_a_few_huge_outliers_that_move_the_mean():

@@ -27,10 +27,19 @@ from redline.detect.result import Detection as Verdict
 from redline.detect.verdict import judge_series
 from redline.recording.format import HOST_PROCESS
 from redline.server.db import session_scope
-from redline.server.models import Change, Execution, Revision, Series, Summary, utcnow
+from redline.server.models import (
+    Change,
+    Execution,
+    Job,
+    JobState,
+    Revision,
+    Series,
+    Summary,
+    utcnow,
+)
 from redline.server.models_regressions import Detection, DetectionConfigRow
 from redline.worker.grouping import group_revision
-from sqlalchemy import delete, func, insert, select, tuple_
+from sqlalchemy import Select, delete, func, insert, select, tuple_
 from sqlalchemy.orm import Session
 
 log = logging.getLogger(__name__)
@@ -42,6 +51,13 @@ def samples_path(recording_path: str | Path) -> Path:
     return Path(recording_path).with_suffix(".samples.parquet")
 
 
+def ingested_executions() -> Select[tuple[int]]:
+    """Executions whose ingestion finished (their job is done), whatever series they hold: a
+    recording whose every sample was NaN has no summary rows but must still be judged."""
+    return (select(Execution.id).join(Job, Job.id == Execution.job_id)
+            .where(Job.state == JobState.done))
+
+
 def revision_samples(session: Session, revision_id: int) -> dict[int, np.ndarray]:
     """Every ingested sample of the revision, all executions pooled, by series id.
 
@@ -49,7 +65,7 @@ def revision_samples(session: Session, revision_id: int) -> dict[int, np.ndarray
     """
     paths = session.scalars(
         select(Execution.recording_path).where(Execution.revision_id == revision_id)
-        .where(Execution.id.in_(select(Summary.execution_id))).order_by(Execution.id)
+        .where(Execution.id.in_(ingested_executions())).order_by(Execution.id)
     )
     parts: dict[int, list[np.ndarray]] = defaultdict(list)
     for path in paths:
@@ -74,7 +90,7 @@ def successor_with_data(session: Session, revision_id: int) -> int | None:
         select(Revision.id).join(Execution, Execution.revision_id == Revision.id)
         .where(Revision.component_id == revision.component_id,
                tuple_(Revision.order_key, Revision.id) > (revision.order_key, revision.id),
-               Execution.id.in_(select(Summary.execution_id)))
+               Execution.id.in_(ingested_executions()))
         .order_by(Revision.order_key, Revision.id).limit(1)
     )
 

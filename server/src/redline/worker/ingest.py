@@ -29,8 +29,15 @@ QUANTILES = {"p5": 5, "p25": 25, "p50": 50, "p75": 75, "p95": 95}
 SKETCH_LEVELS = (np.arange(32) + 0.5) / 32
 
 
-def summarize(values: np.ndarray) -> dict[str, Any]:
-    """n, mean, std (population), min, max, the quantiles and the sketch of one series."""
+def summarize(values: np.ndarray) -> dict[str, Any] | None:
+    """n, mean, std (population), min, max, the quantiles and the sketch of one series.
+
+    Only finite samples count (``n`` is how many there were); None when there is none. The raw
+    samples, NaN and infinities included, stay in the Parquet table for detection to judge.
+    """
+    values = values[np.isfinite(values)]
+    if values.size == 0:
+        return None
     stats: dict[str, Any] = {
         "n": int(values.size), "mean": float(values.mean()), "std": float(values.std()),
         "min": float(values.min()), "max": float(values.max()),
@@ -70,10 +77,10 @@ def _ingest(session: Session, execution: Execution) -> None:
     revision = session.get_one(Revision, execution.revision_id)
     ids = _series_ids(session, revision.component_id, sorted(samples))
     session.execute(delete(Summary).where(Summary.execution_id == execution.id))
+    summaries = {key: summarize(np.asarray(samples[key], dtype=np.float64)) for key in ids}
     session.add_all(
-        Summary(execution_id=execution.id, series_id=ids[key],
-                **summarize(np.asarray(samples[key], dtype=np.float64)))
-        for key in ids
+        Summary(execution_id=execution.id, series_id=ids[key], **stats)
+        for key, stats in summaries.items() if stats is not None
     )
     _write_samples(samples_path(execution.recording_path), ids, samples)
     job = session.get_one(Job, execution.job_id)

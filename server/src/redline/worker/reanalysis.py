@@ -10,9 +10,9 @@ from __future__ import annotations
 import logging
 
 from redline.server.db import session_scope
-from redline.server.models import Execution, Revision, Summary, utcnow
+from redline.server.models import Execution, Revision, utcnow
 from redline.server.models_regressions import Reanalysis
-from redline.worker.detection import detect_revision
+from redline.worker.detection import detect_revision, ingested_executions
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
@@ -31,8 +31,8 @@ def _progress(session: Session, component_id: int) -> Reanalysis:
 def revisions_with_data(session: Session, component_id: int) -> list[int]:
     return list(session.scalars(
         select(Revision.id).where(Revision.component_id == component_id)
-        .where(select(Execution.id).join(Summary, Summary.execution_id == Execution.id)
-               .where(Execution.revision_id == Revision.id).exists())
+        .where(select(Execution.id).where(Execution.id.in_(ingested_executions()),
+                                          Execution.revision_id == Revision.id).exists())
         .order_by(Revision.order_key, Revision.id)))
 
 
