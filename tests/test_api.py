@@ -41,10 +41,11 @@ class Api:
     def post(self, path: str, scope: str, body: dict) -> object:
         return self.client.post(path, json=body, headers=self.tokens[scope])
 
-    def component(self, name: str = "builder", executions: int = 1) -> None:
+    def component(self, name: str = "builder", executions: int = 1,
+                  host_labels: list[str] | None = None) -> None:
         answer = self.post("/api/v1/components", "admin", {
-            "name": name, "repo": "/src/builder.git", "suite": "perf/redline.toml",
-            "executions": executions})
+            "name": name, "repo": f"/src/{name}.git", "suite": "perf/redline.toml",
+            "executions": executions, "host_labels": host_labels or []})
         assert answer.status_code == 201, answer.text
 
     def revision(self, title: str, sort_key: str, component: str = "builder") -> dict:
@@ -195,6 +196,36 @@ def test_lease_hands_out_newest_revision_first_then_204(api: Api):
     assert api.lease() is None
     unknown = api.post("/api/v1/agent/lease", "agent", {"host": "stranger"})
     assert unknown.status_code == 404 and "stranger" in unknown.json()["detail"]
+
+
+def test_lease_hands_a_host_only_jobs_of_pools_it_belongs_to(api: Api):
+    api.component("plain")
+    api.component("needs_gpu", host_labels=["gpu"])
+    gpu_job = api.revision("g1", "1", component="needs_gpu")["job_ids"][0]
+    plain_job = api.revision("p1", "1", component="plain")["job_ids"][0]
+    assert api.lease()["id"] == plain_job  # perf1 has only the label "quiet"
+    assert api.lease() is None
+    api.post("/api/v1/agent/register", "agent",
+             {"name": "perf2", "labels": ["gpu", "quiet"]}).raise_for_status()
+    assert api.lease("perf2")["id"] == gpu_job
+
+
+def test_an_agent_token_naming_its_host_acts_for_that_host_only(api: Api):
+    made = api.post("/api/v1/tokens", "admin", {"name": "perf1-token", "scopes": ["agent"],
+                                                "host": "perf1"})
+    assert made.status_code == 201, made.text
+    own = {"Authorization": f"Bearer {made.json()['token']}"}
+    api.client.post("/api/v1/agent/register", json={"name": "perf9", "labels": []},
+                    headers=api.tokens["agent"]).raise_for_status()
+    for path, body in (("/api/v1/agent/register", {"name": "perf9", "labels": []}),
+                       ("/api/v1/agent/lease", {"host": "perf9"}),
+                       ("/api/v1/jobs/1/heartbeat", {"host": "perf9"}),
+                       ("/api/v1/jobs/1/release", {"host": "perf9"})):
+        answer = api.client.post(path, json=body, headers=own)
+        assert answer.status_code == 403, (path, answer.text)
+        assert "perf1" in answer.json()["detail"] and "perf9" in answer.json()["detail"]
+    assert api.client.post("/api/v1/agent/lease", json={"host": "perf1"},
+                           headers=own).status_code == 204
 
 
 def test_lease_skips_a_job_another_transaction_has_locked(api: Api):

@@ -30,7 +30,7 @@ class EmbeddedServices:
 
 
 def start_postgres(folder: Path, database: str = DATABASE_NAME) -> tuple[str, Any]:
-    """Start (or reuse) a Postgres cluster in ``folder``; returns a SQLAlchemy URL and the handle."""
+    """Start (or reuse) a Postgres cluster in ``folder``; return a SQLAlchemy URL and a handle."""
     import pgserver
 
     folder.mkdir(parents=True, exist_ok=True)

@@ -65,6 +65,18 @@ def require(scope: str) -> Callable[..., ApiToken]:
     return check
 
 
+#: One instance, so that a router's dependency and a handler's parameter share a single check.
+require_agent = require("agent")
+AgentToken = Annotated[ApiToken, Depends(require_agent)]
+
+
+def ensure_own_host(token: ApiToken, host: str) -> None:
+    """An agent token that names its host acts for that host only (403 otherwise)."""
+    if token.host and token.host != host:
+        raise HTTPException(status.HTTP_403_FORBIDDEN,
+                            f"token {token.name!r} belongs to host {token.host!r}, not {host!r}")
+
+
 READ_COOKIE = "redline_token"
 
 

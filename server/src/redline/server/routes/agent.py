@@ -7,7 +7,13 @@ import time
 from typing import Annotated
 
 from fastapi import APIRouter, Depends, Query, Request, Response, status
-from redline.server.api.deps import SessionDep, SettingsDep, require
+from redline.server.api.deps import (
+    AgentToken,
+    SessionDep,
+    SettingsDep,
+    ensure_own_host,
+    require_agent,
+)
 from redline.server.core.config import Settings
 from redline.server.db import session_factory
 from redline.server.schemas import (
@@ -21,7 +27,7 @@ from redline.server.services import jobs
 from starlette.concurrency import run_in_threadpool
 
 router = APIRouter(prefix="/api/v1/agent", tags=["agent"],
-                   dependencies=[Depends(require("agent"))])
+                   dependencies=[Depends(require_agent)])
 
 MAX_WAIT_S = 60
 #: How often a waiting lease looks at the queue again: one cheap query per waiting agent.
@@ -29,7 +35,8 @@ RECHECK_S = 0.5
 
 
 @router.post("/register")
-def register(data: RegisterRequest, session: SessionDep) -> RegisterResponse:
+def register(data: RegisterRequest, session: SessionDep, token: AgentToken) -> RegisterResponse:
+    ensure_own_host(token, data.name)
     return RegisterResponse(host_id=jobs.register_host(session, data).id)
 
 
@@ -42,7 +49,7 @@ def _lease_once(settings: Settings, host: str) -> LeasedJob | None:
 @router.post("/lease", response_model=LeasedJob | None,
              responses={204: {"description": "no job is queued"}, 404: {"model": Problem}})
 async def lease(
-    data: HostRequest, request: Request, settings: SettingsDep,
+    data: HostRequest, request: Request, settings: SettingsDep, token: AgentToken,
     wait: Annotated[int, Query(ge=0, le=MAX_WAIT_S,
                                description="seconds to wait for a job before answering 204")] = 0,
 ) -> LeasedJob | Response:
@@ -51,6 +58,7 @@ async def lease(
     With ``wait``, a long poll: the answer comes as soon as a job is queued, or 204 after
     ``wait`` seconds; no database connection is held while waiting.
     """
+    ensure_own_host(token, data.host)
     deadline = time.monotonic() + wait
     while True:
         job = await run_in_threadpool(_lease_once, settings, data.host)

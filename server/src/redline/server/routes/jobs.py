@@ -6,7 +6,13 @@ import logging
 from typing import Annotated
 
 from fastapi import APIRouter, Depends, Header, Request, Response, status
-from redline.server.api.deps import SessionDep, SettingsDep, require
+from redline.server.api.deps import (
+    AgentToken,
+    SessionDep,
+    SettingsDep,
+    ensure_own_host,
+    require_agent,
+)
 from redline.server.core.config import Settings
 from redline.server.db import session_factory
 from redline.server.schemas import (
@@ -23,22 +29,25 @@ from redline.server.services.uploads import Accepted, Staged, accept_recording, 
 from starlette.concurrency import run_in_threadpool
 
 log = logging.getLogger(__name__)
-router = APIRouter(prefix="/api/v1/jobs", tags=["jobs"], dependencies=[Depends(require("agent"))])
+router = APIRouter(prefix="/api/v1/jobs", tags=["jobs"], dependencies=[Depends(require_agent)])
 PROBLEMS = {code: {"model": Problem} for code in (400, 404, 409, 413)}
 
 
 @router.post("/{job_id}/heartbeat", responses=PROBLEMS)
 def heartbeat(job_id: int, data: HostRequest, session: SessionDep,
-              settings: SettingsDep) -> HeartbeatResponse:
+              settings: SettingsDep, token: AgentToken) -> HeartbeatResponse:
     """Extend this host's lease; 409 when the job is no longer leased to it."""
+    ensure_own_host(token, data.host)
     job = jobs.heartbeat(session, job_id, data.host, settings.lease_seconds)
     assert job.lease_expires_at is not None
     return HeartbeatResponse(lease_expires_at=job.lease_expires_at)
 
 
 @router.post("/{job_id}/release", responses=PROBLEMS)
-def release(job_id: int, data: HostRequest, session: SessionDep) -> JobStateOut:
+def release(job_id: int, data: HostRequest, session: SessionDep,
+            token: AgentToken) -> JobStateOut:
     """Give the job back to the queue without counting an attempt (the agent is stopping)."""
+    ensure_own_host(token, data.host)
     job = jobs.release_job(session, job_id, data.host)
     return JobStateOut(id=job.id, state=job.state.value, reason=job.reason)
 

@@ -7,7 +7,8 @@ from datetime import datetime, timedelta
 from redline.server.models import Host, Job, JobState, Revision, utcnow
 from redline.server.schemas import LeasedJob, LeasedRevision, RegisterRequest
 from redline.server.services.errors import Conflict, NotFound
-from sqlalchemy import and_, or_, select, update
+from sqlalchemy import and_, cast, or_, select, update
+from sqlalchemy.dialects.postgresql import JSONB
 from sqlalchemy.orm import Session
 
 HELD = (JobState.leased, JobState.running)
@@ -46,7 +47,8 @@ def _fail_exhausted(session: Session, now: datetime, max_attempts: int) -> None:
 
 def lease_job(session: Session, host_name: str, lease_seconds: int,
               max_attempts: int) -> Job | None:
-    """Hand the host the newest revision's next queued (or abandoned) job; None when none is.
+    """Hand the host the newest revision's next queued (or abandoned) job whose pool it is in
+    (it has every label the job asks for); None when there is none.
 
     Newest means most recently reported: sort keys of different components do not compare.
     ``FOR UPDATE SKIP LOCKED``: agents leasing at once never get the same job, nor wait.
@@ -58,8 +60,9 @@ def lease_job(session: Session, host_name: str, lease_seconds: int,
         Job.state == JobState.queued,
         and_(Job.state.in_(HELD), Job.lease_expires_at < now),
     )
+    in_pool = cast(Job.labels, JSONB).contained_by(list(host.labels or []))  # has every label
     job = session.scalar(
-        select(Job).join(Revision).where(available)
+        select(Job).join(Revision).where(available, in_pool)
         .order_by(Revision.id.desc(), Job.execution_index)
         .limit(1).with_for_update(skip_locked=True, of=Job)
     )
