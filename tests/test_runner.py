@@ -61,6 +61,14 @@ def test_recording_holds_markers_traffic_and_driver_metrics(objectbuilder_run) -
     assert {d["iterations"] for d in steady} == {20, 80}  # 2 s at 10 and 40 Hz
 
 
+def test_each_parameter_set_is_warmed_up_right_before_it_is_measured(objectbuilder_run) -> None:
+    _, recording = objectbuilder_run
+    ordered = sorted(recording.segments(), key=lambda s: s.begin_ns)
+    assert [s.phase for s in ordered] == ["warmup", "steady"] * 4
+    pairs = zip(ordered[::2], ordered[1::2], strict=True)
+    assert all(warm.params == steady.params for warm, steady in pairs)
+
+
 def test_recording_metadata_names_run_host_and_recorder(objectbuilder_run) -> None:
     result, recording = objectbuilder_run
     run = recording.run

@@ -48,12 +48,16 @@ def _run_segment(case: TestCase, phase: Phase, params: ParameterSet, link: Link,
 
 def execute_cases(cases: Sequence[TestCase], link: Link, markers: Markers,
                   stop: threading.Event, say: Callable[[str], None]) -> int:
-    """Run every case → phase → parameter set until done or ``stop``; returns segments run."""
+    """Run every case → parameter set → phase until done or ``stop``; returns segments run.
+
+    For each parameter set the case's phases run in order, so a warm-up phase warms up the load
+    that its steady phase then measures, and phases can form a protocol (the paper's
+    "transactions"); the component keeps running throughout.
+    """
     done = 0
     for case in cases:
-        sets = case.parameter_sets()
-        for phase in case.phases:
-            for params in sets:
+        for params in case.parameter_sets():
+            for phase in case.phases:
                 if stop.is_set():
                     return done
                 label = " (warm-up)" if phase.warmup else ""
