@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 import zenoh
 from redline.agent.network import RunNetwork, open_client
-from redline.recording import RecordingWriter
+from redline.recording import RecordingError, RecordingWriter, read_recording
 from redline.testing import (
     Context,
     FixedRate,
@@ -226,8 +226,34 @@ def test_fixed_rate_of_messages_publishes_their_encoding(peers: Peers) -> None:
 def test_replay_of_a_cut_off_recording_replays_what_it_holds(tmp_path: Path) -> None:
     from redline.testing.replay import load_recorded
 
-    full = _recording(tmp_path / "full.mcap").read_bytes()
+    full_path = tmp_path / "full.mcap"
+    with RecordingWriter(full_path, chunk_size=512) as writer:  # many small chunks
+        for index in range(300):
+            writer.write("robot/scan", f"scan {index:04d}".encode() * 8, t_ns=1_000 + index)
+        writer.metadata("redline.run", {"component": "x"})
+    full = load_recorded(full_path)
     cut = tmp_path / "cut.mcap"
-    cut.write_bytes(full[: len(full) // 2])
-    assert len(load_recorded(_recording(tmp_path / "again.mcap"))) == 20
-    assert len(load_recorded(cut)) <= 20  # never an error; chunks before the cut survive
+    cut.write_bytes(full_path.read_bytes()[: full_path.stat().st_size // 2])
+    kept = load_recorded(cut)  # never an error: the chunks before the cut survive
+    assert len(full) == 300
+    assert 0 < len(kept) < len(full)
+    assert kept == full[: len(kept)]
+
+
+def test_strict_reading_refuses_a_cut_off_file_and_lenient_reading_keeps_its_prefix(
+        tmp_path: Path) -> None:
+    full_path = tmp_path / "full.mcap"
+    with RecordingWriter(full_path, chunk_size=512) as writer:
+        for index in range(300):
+            writer.counters("component", 1, {"cpu_percent": float(index)}, 1_000 + index)
+        writer.metadata("redline.run", {"component": "x"})
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(full_path.read_bytes()[: full_path.stat().st_size // 2])
+    with pytest.raises(RecordingError, match="truncated"):
+        read_recording(cut)
+    kept = read_recording(cut, strict=False)
+    values = [sample["values"]["cpu_percent"] for sample in kept.counters]
+    assert not kept.complete and 0 < len(values) < 300
+    assert values == [float(index) for index in range(len(values))]
+
+

@@ -65,10 +65,12 @@ class RecordingWriter:
     Not thread-safe: the recorder feeds it from a single writer thread.
     """
 
-    def __init__(self, path: str | Path, *, library: str = "redline") -> None:
+    def __init__(self, path: str | Path, *, library: str = "redline",
+                 chunk_size: int = 1 << 20) -> None:
         self.path = Path(path)
         self._stream: BinaryIO = open(self.path, "wb")  # noqa: SIM115 - closed in close()
-        self._writer = Writer(self._stream, compression=CompressionType.ZSTD)
+        self._writer = Writer(self._stream, compression=CompressionType.ZSTD,
+                              chunk_size=chunk_size)
         _use_lean_chunks(self._writer)
         self._writer.start(profile=PROFILE, library=f"{library} (format {FORMAT_VERSION})")
         self._channels: dict[str, int] = {}
