@@ -59,8 +59,9 @@ class Api:
         assert answer.status_code in (200, 204), answer.text
         return answer.json() if answer.status_code == 200 else None
 
-    def upload(self, job_id: int, data: bytes, sha256: str | None = None) -> object:
-        headers = {**self.tokens["agent"],
+    def upload(self, job_id: int, data: bytes, sha256: str | None = None, host: str = "perf1",
+               scope: str = "agent") -> object:
+        headers = {**self.tokens[scope], "X-Redline-Host": host,
                    "X-Redline-Sha256": sha256 or hashlib.sha256(data).hexdigest()}
         return self.client.put(f"/api/v1/jobs/{job_id}/recording", content=data, headers=headers)
 
@@ -277,7 +278,8 @@ def test_fail_marks_the_job_and_revision_failed_with_the_reason(api: Api):
     api.component()
     api.revision("r1", "1")
     job = api.lease()
-    answer = api.post(f"/api/v1/jobs/{job['id']}/fail", "agent", {"reason": "build broke"})
+    answer = api.post(f"/api/v1/jobs/{job['id']}/fail", "agent",
+                      {"host": "perf1", "reason": "build broke"})
     assert answer.json() == {"id": job["id"], "state": "failed", "reason": "build broke"}
     listed = api.client.get("/api/v1/components/builder/revisions").json()
     assert listed[0]["state"] == "failed"

@@ -74,7 +74,9 @@ class ServerClient:
         answer.raise_for_status()
 
     def fail(self, job_id: int, reason: str) -> None:
-        self._http.post(f"/api/v1/jobs/{job_id}/fail", json={"reason": reason[-4000:]})
+        """Fail the job this host holds; a 409 (no longer ours) is ignored."""
+        self._http.post(f"/api/v1/jobs/{job_id}/fail",
+                        json={"host": self.host, "reason": reason[-4000:]})
 
     def release(self, job_id: int) -> None:
         """Give the job back to the queue without counting an attempt."""
@@ -90,7 +92,8 @@ class ServerClient:
         Raises UploadRejected on a 4xx, ServerUnavailable when every attempt failed.
         """
         digest = sha256_of(recording)
-        headers = {"X-Redline-Sha256": digest, "Content-Type": "application/octet-stream",
+        headers = {"X-Redline-Sha256": digest, "X-Redline-Host": self.host,
+                   "Content-Type": "application/octet-stream",
                    "Content-Length": str(recording.stat().st_size)}
         problem = ""
         for attempt in range(1, attempts + 1):

@@ -140,9 +140,13 @@ class AgentDaemon:
             self.current_job = None  # from here on the recording is kept, never released
             beats.check()
             return self._deliver(job["id"], out)
-        except (JobFailed, LeaseLost, UploadRejected, AgentStopping):
+        except (LeaseLost, AgentStopping):
+            raise
+        except (JobFailed, UploadRejected):
+            beats.check()  # a lost lease is not this host's to fail: another may run the job
             raise
         except Exception as exc:
+            beats.check()
             raise JobFailed(f"{type(exc).__name__}: {exc}") from exc
         finally:
             self.current_job = None

@@ -182,6 +182,7 @@ class UploadResponse(BaseModel):
 
 
 class FailRequest(BaseModel):
+    host: str = Field(min_length=1, max_length=200, description="the host holding the job")
     reason: str = Field(min_length=1, max_length=10_000)
 
 

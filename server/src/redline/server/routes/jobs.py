@@ -53,14 +53,17 @@ def release(job_id: int, data: HostRequest, session: SessionDep,
 
 
 @router.post("/{job_id}/fail", responses=PROBLEMS)
-def fail(job_id: int, data: FailRequest, session: SessionDep) -> JobStateOut:
-    job = jobs.fail_job(session, job_id, data.reason)
+def fail(job_id: int, data: FailRequest, session: SessionDep, token: AgentToken) -> JobStateOut:
+    """Fail the job with the agent's reason; 409 when this host does not hold it."""
+    ensure_own_host(token, data.host)
+    job = jobs.fail_job(session, job_id, data.host, data.reason)
     return JobStateOut(id=job.id, state=job.state.value, reason=job.reason)
 
 
-def _accept(settings: Settings, job_id: int, staged: Staged, claimed: str) -> Accepted:
+def _accept(settings: Settings, job_id: int, staged: Staged, claimed: str,
+            host: str) -> Accepted:
     with session_factory(settings.database_url)() as session:
-        return accept_recording(session, settings.storage_dir, job_id, staged, claimed)
+        return accept_recording(session, settings.storage_dir, job_id, staged, claimed, host)
 
 
 @router.put("/{job_id}/recording", status_code=status.HTTP_201_CREATED,
@@ -69,17 +72,24 @@ def _accept(settings: Settings, job_id: int, staged: Staged, claimed: str) -> Ac
             openapi_extra={"requestBody": {"required": True, "content": {
                 "application/octet-stream": {"schema": {"type": "string", "format": "binary"}}}}})
 async def upload_recording(
-    job_id: int, request: Request, response: Response, settings: SettingsDep,
+    job_id: int, request: Request, response: Response, settings: SettingsDep, token: AgentToken,
     x_redline_sha256: Annotated[str, Header(description="sha256 of the body, hex")],
+    x_redline_host: Annotated[str, Header(min_length=1, max_length=200,
+                                          description="the host holding the job")],
 ) -> UploadResponse:
-    """Store the job's MCAP recording (raw body) and queue its ingestion; idempotent by hash."""
+    """Store the job's MCAP recording (raw body) and queue its ingestion; idempotent by hash.
+
+    Only the host holding the job may upload it (409), or resend what it uploaded.
+    """
+    ensure_own_host(token, x_redline_host)
     declared = request.headers.get("content-length", "")
     if declared.isdigit() and int(declared) > settings.max_upload_bytes:
         raise TooLarge(f"recording of {declared} bytes is larger than the limit of "
                        f"{settings.max_upload_bytes} bytes")
     staged = await stage_upload(request.stream(), settings.storage_dir, settings.max_upload_bytes)
     try:
-        accepted = await run_in_threadpool(_accept, settings, job_id, staged, x_redline_sha256)
+        accepted = await run_in_threadpool(_accept, settings, job_id, staged, x_redline_sha256,
+                                           x_redline_host)
     finally:
         staged.path.unlink(missing_ok=True)
     if not accepted.created:

@@ -12,7 +12,6 @@ from sqlalchemy.dialects.postgresql import JSONB
 from sqlalchemy.orm import Session
 
 HELD = (JobState.leased, JobState.running)
-FINISHED = (JobState.done, JobState.failed, JobState.cancelled)
 
 
 def register_host(session: Session, data: RegisterRequest) -> Host:
@@ -94,13 +93,22 @@ def _locked_job(session: Session, job_id: int) -> Job:
     return job
 
 
+def holder(job: Job) -> str | None:
+    """The name of the host the job was last leased to."""
+    return job.host.name if job.host else None
+
+
+def ensure_held(job: Job, host_name: str) -> None:
+    """Conflict unless ``host_name`` holds the job now (a lapsed host's job may be re-leased)."""
+    if job.state not in HELD or holder(job) != host_name:
+        raise Conflict(f"job {job.id} is not leased to host {host_name!r} "
+                       f"(state {job.state.value}, host {holder(job)!r})")
+
+
 def heartbeat(session: Session, job_id: int, host_name: str, lease_seconds: int) -> Job:
     """Extend the lease of a job this host holds; the first heartbeat marks it running."""
     job = _locked_job(session, job_id)
-    holder = job.host.name if job.host else None
-    if job.state not in HELD or holder != host_name:
-        raise Conflict(f"job {job_id} is not leased to host {host_name!r} "
-                       f"(state {job.state.value}, host {holder!r})")
+    ensure_held(job, host_name)
     now = utcnow()
     job.state = JobState.running
     job.lease_expires_at = now + timedelta(seconds=lease_seconds)
@@ -113,24 +121,21 @@ def heartbeat(session: Session, job_id: int, host_name: str, lease_seconds: int)
 def release_job(session: Session, job_id: int, host_name: str) -> Job:
     """Give a held job back to the queue without counting the attempt (an agent stopping)."""
     job = _locked_job(session, job_id)
-    holder = job.host.name if job.host else None
-    if job.state not in HELD or holder != host_name:
-        raise Conflict(f"job {job_id} is not leased to host {host_name!r} "
-                       f"(state {job.state.value}, host {holder!r})")
+    ensure_held(job, host_name)
     job.state, job.host, job.lease_expires_at = JobState.queued, None, None
     job.attempts = max(0, job.attempts - 1)
     session.commit()
     return job
 
 
-def fail_job(session: Session, job_id: int, reason: str) -> Job:
-    """Mark a job failed with the agent's reason; failing a failed job again changes nothing."""
+def fail_job(session: Session, job_id: int, host_name: str, reason: str) -> Job:
+    """Mark a job this host holds failed with its reason; the same host failing it again
+    changes nothing. Another host (one whose lease lapsed, say) gets a Conflict."""
     job = _locked_job(session, job_id)
-    if job.state == JobState.failed:
+    if job.state == JobState.failed and holder(job) == host_name:
         session.commit()
         return job
-    if job.state in FINISHED or job.state == JobState.uploaded:
-        raise Conflict(f"job {job_id} is already {job.state.value}")
+    ensure_held(job, host_name)
     job.state = JobState.failed
     job.reason = reason
     job.lease_expires_at = None

@@ -17,7 +17,7 @@ from pathlib import Path
 from redline.recording import Recording, RecordingError, read_recording
 from redline.server.models import Execution, Job, JobState
 from redline.server.services.errors import BadRequest, Conflict, NotFound, TooLarge
-from redline.server.services.jobs import HELD
+from redline.server.services.jobs import ensure_held, holder
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
@@ -89,25 +89,30 @@ def _check(staged: Staged, job: Job) -> tuple[Recording | None, str]:
     return recording, _mismatch(recording, job).replace(staged.path.name, "upload")
 
 
-def _existing(session: Session, job: Job, sha256: str) -> Accepted | None:
-    """The outcome of a repeated upload, or None when this is the job's first recording."""
+def _existing(session: Session, job: Job, sha256: str, host_name: str) -> Accepted | None:
+    """The outcome of a repeated upload, or None when this is the job's first recording.
+
+    Only the host holding the job may upload; only the host that uploaded it may resend.
+    """
     same = session.scalar(select(Execution).where(Execution.sha256 == sha256))
     if same is not None and same.job_id != job.id:
         raise Conflict(f"this recording is already stored for job {same.job_id}")
     if same is not None:
+        if holder(job) != host_name:
+            raise Conflict(f"job {job.id}'s recording was uploaded by host {holder(job)!r}, "
+                           f"not {host_name!r}")
         return Accepted(same.id, created=False, needs_ingest=job.state == JobState.uploaded)
     if job.execution is not None:
         raise Conflict(f"job {job.id} already has a different recording "
                        f"(sha256 {job.execution.sha256})")
-    if job.state not in HELD:
-        raise Conflict(f"job {job.id} is {job.state.value}; only a leased or running job "
-                       "accepts a recording")
+    ensure_held(job, host_name)
     return None
 
 
 def accept_recording(session: Session, storage_dir: Path, job_id: int, staged: Staged,
-                     claimed_sha256: str) -> Accepted:
-    """Store a staged upload as the job's execution, or refuse it naming the problem.
+                     claimed_sha256: str, host_name: str) -> Accepted:
+    """Store a staged upload from ``host_name`` as the job's execution, or refuse it naming
+    the problem.
 
     Invalid recordings fail the job with the same reason they are refused with.
     """
@@ -117,7 +122,7 @@ def accept_recording(session: Session, storage_dir: Path, job_id: int, staged: S
     job = session.scalar(select(Job).where(Job.id == job_id).with_for_update())
     if job is None:
         raise NotFound(f"unknown job {job_id}")
-    repeated = _existing(session, job, staged.sha256)
+    repeated = _existing(session, job, staged.sha256, host_name)
     if repeated is not None:
         return repeated
     recording, problem = _check(staged, job)

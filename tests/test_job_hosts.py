@@ -1,0 +1,112 @@
+"""Only the host holding a job may fail it or upload its recording; a host-bound token acts for
+its own host only (real Postgres and Redis, through the app)."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+from redline.agent.client import LeaseLost
+from redline.agent.daemon import AgentDaemon, JobFailed
+
+from tests.conftest import Services
+from tests.intake import api_with
+from tests.test_api import Api, _expire, recording_for
+
+
+@pytest.fixture
+def api(services: Services, tmp_path: Path) -> Iterator[Api]:
+    with api_with(services, tmp_path, lease_seconds=60, max_attempts=3) as api:
+        for name in ("perf1", "perf2"):
+            api.post("/api/v1/agent/register", "agent", {"name": name}).raise_for_status()
+        api.component()
+        api.revision("r1", "1")
+        yield api
+
+
+def _fail(api: Api, job_id: int, host: str, scope: str = "agent") -> object:
+    return api.post(f"/api/v1/jobs/{job_id}/fail", scope, {"host": host, "reason": "broke"})
+
+
+def test_a_host_not_holding_the_job_can_neither_fail_nor_upload_it(api: Api, tmp_path: Path):
+    job = api.lease("perf1")
+    data = recording_for(job, tmp_path / "r1.mcap")
+    failed = _fail(api, job["id"], "perf2")
+    assert failed.status_code == 409 and "perf2" in failed.json()["detail"]
+    uploaded = api.upload(job["id"], data, host="perf2")
+    assert uploaded.status_code == 409 and "perf2" in uploaded.json()["detail"]
+    assert api.job(job["id"])["state"] == "leased"
+    assert api.upload(job["id"], data).status_code == 201  # perf1 holds it
+    assert api.upload(job["id"], data).status_code == 200  # its resend is idempotent
+    assert api.upload(job["id"], data, host="perf2").status_code == 409
+    assert _fail(api, job["id"], "perf1").status_code == 409  # uploaded: no longer held
+
+
+def test_a_lapsed_host_cannot_fail_or_upload_a_job_re_leased_to_another(
+        api: Api, tmp_path: Path):
+    job = api.lease("perf1")
+    data = recording_for(job, tmp_path / "r1.mcap")
+    _expire(api, job["id"])
+    assert api.lease("perf2")["id"] == job["id"]
+    assert _fail(api, job["id"], "perf1").status_code == 409
+    assert api.upload(job["id"], data, host="perf1").status_code == 409
+    assert api.job(job["id"])["state"] == "leased"
+    assert _fail(api, job["id"], "perf2").json()["state"] == "failed"
+    assert _fail(api, job["id"], "perf2").status_code == 200  # failing again changes nothing
+
+
+def test_a_token_bound_to_one_host_cannot_fail_or_upload_for_another(api: Api, tmp_path: Path):
+    made = api.post("/api/v1/tokens", "admin", {"name": "perf1-token", "scopes": ["agent"],
+                                                "host": "perf1"})
+    assert made.status_code == 201, made.text
+    api.tokens["perf1-token"] = {"Authorization": f"Bearer {made.json()['token']}"}
+    job = api.lease("perf2")
+    data = recording_for(job, tmp_path / "r1.mcap")
+    for answer in (_fail(api, job["id"], "perf2", scope="perf1-token"),
+                   api.upload(job["id"], data, host="perf2", scope="perf1-token")):
+        assert answer.status_code == 403, answer.text
+        assert "perf1" in answer.json()["detail"] and "perf2" in answer.json()["detail"]
+    assert api.job(job["id"])["state"] == "leased"
+
+
+def test_an_upload_must_name_its_host(api: Api, tmp_path: Path):
+    job = api.lease("perf1")
+    data = recording_for(job, tmp_path / "r1.mcap")
+    answer = api.client.put(f"/api/v1/jobs/{job['id']}/recording", content=data,
+                            headers={**api.tokens["agent"], "X-Redline-Sha256": "0" * 64})
+    assert answer.status_code == 422 and "x-redline-host" in answer.text.lower()
+
+
+class _LostLeaseClient:
+    """A server that took the job away at the first heartbeat."""
+
+    host = "perf1"
+
+    def __init__(self) -> None:
+        self.failed: list[int] = []
+
+    def lease(self, wait: int = 0) -> dict:
+        return {"id": 7, "component": "builder", "commit": "abc123", "repo": "/src/x.git",
+                "suite": "perf/redline.toml", "execution_index": 0,
+                "revision": {"title": "r1", "sort_key": "1"}}
+
+    def heartbeat(self, job_id: int) -> None:
+        raise LeaseLost(f"job {job_id} is not leased to host 'perf1'")
+
+    def fail(self, job_id: int, reason: str) -> None:
+        self.failed.append(job_id)
+
+
+@pytest.mark.parametrize("error", [JobFailed("build broke"), OSError("disk full")])
+def test_the_agent_does_not_fail_a_job_whose_lease_it_lost(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, error: Exception):
+    client = _LostLeaseClient()
+    daemon = AgentDaemon(client=client, workdir=tmp_path)  # type: ignore[arg-type]
+
+    def run(job: dict, name: str) -> Path:
+        raise error
+
+    monkeypatch.setattr(daemon, "_run", run)
+    assert daemon.run_once() is True
+    assert client.failed == []
