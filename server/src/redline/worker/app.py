@@ -15,6 +15,7 @@ log = logging.getLogger(__name__)
 INGEST_TASK = "redline.ingest_execution"
 DETECT_TASK = "redline.detect_revision"
 RETENTION_TASK = "redline.prune_old_recordings"
+REQUEUE_TASK = "redline.requeue_stale_uploads"
 
 
 def broker_url(redis_url: str) -> str:
@@ -37,7 +38,11 @@ def make_celery(settings: Settings) -> Celery:
         task_publish_retry_policy={"max_retries": 3, "interval_start": 0.2,
                                    "interval_step": 0.5, "interval_max": 1.0},
     )
-    app.conf.beat_schedule = {"retention": {"task": RETENTION_TASK, "schedule": 24 * 3600.0}}
+    app.conf.beat_schedule = {
+        "retention": {"task": RETENTION_TASK, "schedule": 24 * 3600.0},
+        # an upload whose ingestion was never queued (broker down) or got lost is not forgotten
+        "requeue-uploads": {"task": REQUEUE_TASK, "schedule": 5 * 60.0},
+    }
     app.conf.redline_settings = settings
     return app
 
@@ -51,7 +56,7 @@ class TaskSender:
     def send(self, name: str, *args: int) -> bool:
         try:
             self.celery.send_task(name, args=list(args))
-        except Exception:  # the upload is stored; a repeated upload queues its ingestion again
+        except Exception:  # the upload is stored; the periodic re-queue (or a repeat) queues it
             log.exception("could not queue %s%r", name, args)
             return False
         return True

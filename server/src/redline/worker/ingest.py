@@ -1,12 +1,15 @@
 """Ingestion: one execution's MCAP recording -> series, summaries (Postgres) and samples (Parquet).
 
-Idempotent: running it again for the same execution replaces what the last run wrote.
+Idempotent: running it again for the same execution replaces what the last run wrote (two runs
+for one execution take turns on its job row), so a lost or doubled queue message is harmless:
+`stale_uploads` finds the executions whose ingestion never happened, for the periodic re-queue.
 """
 
 from __future__ import annotations
 
 import logging
 import os
+from datetime import timedelta
 from pathlib import Path
 from typing import Any
 
@@ -15,7 +18,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 from redline.recording import SeriesKey, read_recording
 from redline.server.db import session_scope
-from redline.server.models import Execution, Job, JobState, Revision, Series, Summary
+from redline.server.models import Execution, Job, JobState, Revision, Series, Summary, utcnow
 from redline.worker.detection import samples_path, successor_with_data
 from sqlalchemy import delete, select, update
 from sqlalchemy.dialects.postgresql import insert
@@ -27,6 +30,8 @@ QUANTILES = {"p5": 5, "p25": 25, "p50": 50, "p75": 75, "p95": 95}
 #: the quantile sketch: 32 evenly spaced levels, mid-bucket (1/64, 3/64, ... 63/64); enough to
 #: redraw the distribution and to compare it once the raw samples are pruned
 SKETCH_LEVELS = (np.arange(32) + 0.5) / 32
+#: how long a job may stay `uploaded` (stored, not ingested) before its ingestion is queued again
+STALE_UPLOAD = timedelta(minutes=10)
 
 
 def summarize(values: np.ndarray) -> dict[str, Any] | None:
@@ -72,6 +77,7 @@ def _write_samples(path: Path, ids: dict[SeriesKey, int],
 
 
 def _ingest(session: Session, execution: Execution) -> None:
+    job = session.get_one(Job, execution.job_id, with_for_update=True)  # one run at a time
     recording = read_recording(execution.recording_path, strict=True)
     samples = {key: values for key, values in recording.series_samples().items() if values}
     revision = session.get_one(Revision, execution.revision_id)
@@ -83,7 +89,6 @@ def _ingest(session: Session, execution: Execution) -> None:
         for key, stats in summaries.items() if stats is not None
     )
     _write_samples(samples_path(execution.recording_path), ids, samples)
-    job = session.get_one(Job, execution.job_id)
     job.state, job.reason = JobState.done, ""
 
 
@@ -100,7 +105,10 @@ def ingest_execution(database_url: str, execution_id: int) -> list[int]:
 
     Returns the revisions whose changes should be detected now: the execution's own, and the
     next revision (by sort key) that already has data, whose baseline this one may have become.
-    A failure marks the job failed with the reason and is raised again.
+    A bad recording (`RecordingError`, or another ValueError from its data) marks the job
+    failed with the reason and is raised again. Any other error (a database or broker outage,
+    storage) is raised leaving the job `uploaded`, for the task's retries or the periodic
+    re-queue to ingest it later: a passing outage must not fail a good recording.
     """
     try:
         with session_scope(database_url) as session:
@@ -114,6 +122,20 @@ def ingest_execution(database_url: str, execution_id: int) -> list[int]:
             session.execute(update(Revision).where(Revision.id.in_(revisions))
                             .values(analyzed_at=None))
             return revisions
-    except Exception as exc:
+    except ValueError as exc:  # RecordingError is one
         _fail(database_url, execution_id, f"ingest failed: {exc}")
         raise
+
+
+def stale_uploads(session: Session, older_than: timedelta = STALE_UPLOAD,
+                  limit: int = 500) -> list[int]:
+    """Executions whose job has been `uploaded` for longer than ``older_than``, oldest first.
+
+    Their ingestion was never queued (broker down at upload) or was lost; ingestion is
+    idempotent, so queueing one again that is merely slow costs a repeat, nothing more.
+    """
+    return list(session.scalars(
+        select(Execution.id).join(Job, Job.id == Execution.job_id)
+        .where(Job.state == JobState.uploaded, Job.updated < utcnow() - older_than,
+               Execution.pruned_at.is_(None))
+        .order_by(Job.updated, Execution.id).limit(limit)))

@@ -8,13 +8,18 @@ from typing import Any
 
 from celery.signals import worker_init
 from redline.server.core.config import Settings
-from redline.worker.app import DETECT_TASK, INGEST_TASK, celery_app
+from redline.server.db import session_scope
+from redline.worker.app import DETECT_TASK, INGEST_TASK, REQUEUE_TASK, celery_app
 from redline.worker.detection import detect_revision as run_detection
 from redline.worker.ingest import ingest_execution as run_ingest
+from redline.worker.ingest import stale_uploads
 from redline.worker.reanalysis import REANALYZE_TASK
 from redline.worker.reanalysis import reanalyze_component as run_reanalysis
+from sqlalchemy.exc import InterfaceError, OperationalError
 
 log = logging.getLogger(__name__)
+#: a passing database outage is retried (with backoff), never a failed job or a lost revision
+RETRY = dict(autoretry_for=(OperationalError, InterfaceError), retry_backoff=True, max_retries=5)
 
 
 @worker_init.connect
@@ -31,7 +36,7 @@ def _settings() -> Settings:
     return celery_app.conf.redline_settings
 
 
-@celery_app.task(name=INGEST_TASK, acks_late=True)
+@celery_app.task(name=INGEST_TASK, acks_late=True, **RETRY)
 def ingest_execution(execution_id: int) -> None:
     """Summarize one uploaded execution, then detect changes for its revision (and the next)."""
     revisions = run_ingest(_settings().database_url, execution_id)
@@ -39,12 +44,25 @@ def ingest_execution(execution_id: int) -> None:
         detect_revision.delay(revision_id)
 
 
-@celery_app.task(name=DETECT_TASK, acks_late=True)
+@celery_app.task(name=DETECT_TASK, acks_late=True, **RETRY)
 def detect_revision(revision_id: int) -> None:
     """Compare a revision with its baseline, series by series (KS), replacing earlier results."""
     changes = run_detection(_settings().database_url, revision_id)
     log.info("revision %s: %d series compared, %d flagged", revision_id, len(changes),
              sum(change.flagged for change in changes))
+
+
+@celery_app.task(name=REQUEUE_TASK, acks_late=True)
+def requeue_stale_uploads() -> int:
+    """Queue again the ingestion of executions left `uploaded` (beat schedule: every 5 min)."""
+    with session_scope(_settings().database_url) as session:
+        executions = stale_uploads(session)
+    for execution_id in executions:
+        ingest_execution.delay(execution_id)
+    if executions:
+        log.warning("ingestion queued again for %d executions left uploaded: %s",
+                    len(executions), executions)
+    return len(executions)
 
 
 @celery_app.task(name=REANALYZE_TASK, acks_late=True)

@@ -1,0 +1,62 @@
+"""The worker under trouble, on real Postgres: passing database outages are retried rather than
+failing the job, and lost ingestions are queued again."""
+
+from __future__ import annotations
+
+from datetime import timedelta
+
+import pytest
+from redline.server.models import Job, JobState, utcnow
+from redline.worker import ingest as ingest_module
+from redline.worker import tasks
+from redline.worker.app import REQUEUE_TASK, celery_app
+from redline.worker.ingest import ingest_execution, stale_uploads
+from sqlalchemy import update
+from sqlalchemy.exc import InterfaceError, OperationalError
+
+from tests import test_ingest
+from tests.test_detection_worker import _history
+
+database_url, session = test_ingest.database_url, test_ingest.session  # the fixtures, shared
+
+
+def _job(session, execution) -> Job:
+    session.expire_all()
+    return session.get(Job, execution.job_id)
+
+
+def test_a_passing_database_outage_leaves_the_job_uploaded_for_a_retry(
+        session, database_url, tmp_path, monkeypatch):
+    (execution,) = _history(session, tmp_path, [20.0])
+
+    def outage(*_args):
+        raise OperationalError("SELECT 1", {}, Exception("server closed the connection"))
+
+    monkeypatch.setattr(ingest_module, "successor_with_data", outage)
+    with pytest.raises(OperationalError):
+        ingest_execution(database_url, execution.id)
+    job = _job(session, execution)
+    assert (job.state, job.reason) == (JobState.uploaded, "")
+    monkeypatch.undo()
+    assert ingest_execution(database_url, execution.id) == [execution.revision_id]
+    assert _job(session, execution).state == JobState.done
+
+
+@pytest.mark.parametrize("task", [tasks.ingest_execution, tasks.detect_revision])
+def test_ingest_and_detect_tasks_retry_database_outages_with_backoff(task):
+    assert set(task.autoretry_for) == {OperationalError, InterfaceError}
+    assert task.retry_backoff and task.max_retries == 5
+
+
+def test_stale_uploads_are_requeued_periodically(session, database_url, tmp_path):
+    stuck, fresh, done = _history(session, tmp_path, [20.0, 20.0, 20.0])
+    ingest_execution(database_url, done.id)
+    old = utcnow() - timedelta(hours=1)
+    session.execute(update(Job).where(Job.id.in_([stuck.job_id, done.job_id]))
+                    .values(updated=old))
+    session.commit()
+    assert stale_uploads(session) == [stuck.id]
+    assert stale_uploads(session, older_than=timedelta(0)) == [stuck.id, fresh.id]
+    schedule = {entry["task"]: entry["schedule"] for entry in
+                celery_app.conf.beat_schedule.values()}
+    assert schedule[REQUEUE_TASK] <= 600 and REQUEUE_TASK in celery_app.tasks
