@@ -1,21 +1,25 @@
 """The worker under trouble, on real Postgres: passing database outages are retried rather than
-failing the job, and lost ingestions are queued again."""
+failing the job, lost ingestions are queued again, concurrent detections of one revision take
+turns."""
 
 from __future__ import annotations
 
+import threading
 from datetime import timedelta
 
 import pytest
-from redline.server.models import Job, JobState, utcnow
+from redline.server.models import Change, Job, JobState, utcnow
+from redline.server.models_regressions import Detection, Regression
 from redline.worker import ingest as ingest_module
 from redline.worker import tasks
 from redline.worker.app import REQUEUE_TASK, celery_app
+from redline.worker.detection import detect_revision
 from redline.worker.ingest import ingest_execution, stale_uploads
-from sqlalchemy import update
+from sqlalchemy import func, select, update
 from sqlalchemy.exc import InterfaceError, OperationalError
 
 from tests import test_ingest
-from tests.test_detection_worker import _history
+from tests.test_detection_worker import _history, _run
 
 database_url, session = test_ingest.database_url, test_ingest.session  # the fixtures, shared
 
@@ -60,3 +64,43 @@ def test_stale_uploads_are_requeued_periodically(session, database_url, tmp_path
     schedule = {entry["task"]: entry["schedule"] for entry in
                 celery_app.conf.beat_schedule.values()}
     assert schedule[REQUEUE_TASK] <= 600 and REQUEUE_TASK in celery_app.tasks
+
+
+def _detections(session) -> list[tuple]:
+    session.expire_all()
+    return sorted(session.execute(
+        select(Detection.series_id, Detection.revision_id, Detection.method, Detection.verdict,
+               Detection.score, Detection.flagged, Detection.baseline_revision_id)).all())
+
+
+def _counts(session) -> tuple[int, int]:
+    return (session.scalar(select(func.count()).select_from(Change)),
+            session.scalar(select(func.count()).select_from(Regression)))
+
+
+def _detect_at_once(database_url: str, revision_id: int, barrier: threading.Barrier,
+                    errors: list[Exception]) -> None:
+    barrier.wait()
+    try:
+        detect_revision(database_url, revision_id)
+    except Exception as exc:  # noqa: BLE001 - reported by the test's assertion
+        errors.append(exc)
+
+
+def test_concurrent_detections_of_one_revision_both_succeed_as_one_would(
+        session, database_url, tmp_path):
+    executions = _history(session, tmp_path, [20.0, 60.0])
+    _run(database_url, executions)
+    single, counts = _detections(session), _counts(session)
+    revision_id = executions[1].revision_id
+    for _ in range(3):
+        barrier, errors = threading.Barrier(2), []
+        threads = [threading.Thread(target=_detect_at_once,
+                                    args=(database_url, revision_id, barrier, errors))
+                   for _ in range(2)]
+        for thread in threads:
+            thread.start()
+        for thread in threads:
+            thread.join()
+        assert errors == []
+        assert _detections(session) == single and _counts(session) == counts

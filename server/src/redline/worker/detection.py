@@ -44,6 +44,8 @@ from sqlalchemy.orm import Session
 
 log = logging.getLogger(__name__)
 METHOD_KS = "ks"
+#: the first key of the transaction-scoped advisory lock one revision's detection holds
+DETECT_LOCK = 0x5244  # "RD"
 
 
 def samples_path(recording_path: str | Path) -> Path:
@@ -244,9 +246,11 @@ def detect_revision(database_url: str, revision_id: int) -> list[Change]:
     """Run the component's methods on every series of the revision, replacing earlier results.
 
     Returns KS's changes (a series without a baseline has none; its detections say "not
-    enough data: missing baseline").
+    enough data: missing baseline"). Detections of one revision take turns (an advisory lock
+    for the transaction): `store` replaces rows under a unique key.
     """
     with session_scope(database_url) as session:
+        session.execute(select(func.pg_advisory_xact_lock(DETECT_LOCK, revision_id)))
         revision = session.get(Revision, revision_id)
         if revision is None:
             return []
