@@ -1,6 +1,6 @@
 """The worker under trouble, on real Postgres: passing database outages are retried rather than
 failing the job, lost ingestions are queued again, concurrent detections of one revision take
-turns."""
+turns, and a revision whose samples were pruned keeps its stored results."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ from redline.server.models_regressions import Detection, Regression
 from redline.worker import ingest as ingest_module
 from redline.worker import tasks
 from redline.worker.app import REQUEUE_TASK, celery_app
-from redline.worker.detection import detect_revision
+from redline.worker.detection import detect_revision, samples_path
 from redline.worker.ingest import ingest_execution, stale_uploads
 from sqlalchemy import func, select, update
 from sqlalchemy.exc import InterfaceError, OperationalError
@@ -104,3 +104,14 @@ def test_concurrent_detections_of_one_revision_both_succeed_as_one_would(
             thread.join()
         assert errors == []
         assert _detections(session) == single and _counts(session) == counts
+
+
+def test_revision_whose_samples_are_pruned_keeps_its_results(session, database_url, tmp_path):
+    executions = _history(session, tmp_path, [20.0, 60.0])
+    _run(database_url, executions)
+    before, counts = _detections(session), _counts(session)
+    assert any(row[5] for row in before) and counts[1] == 1  # r2 flagged, one regression
+    for execution in executions:
+        samples_path(execution.recording_path).unlink()  # retention
+    detect_revision(database_url, executions[1].revision_id)
+    assert _detections(session) == before and _counts(session) == counts

@@ -60,25 +60,34 @@ def ingested_executions() -> Select[tuple[int]]:
             .where(Job.state == JobState.done))
 
 
-def revision_samples(session: Session, revision_id: int) -> dict[int, np.ndarray]:
-    """Every ingested sample of the revision, all executions pooled, by series id.
+def read_samples(session: Session, revision_id: int) -> tuple[dict[int, np.ndarray], int, int]:
+    """Every ingested sample of the revision, all executions pooled, by series id; with how many
+    of its ingested executions' side tables were read, and how many there are.
 
     A side table that is gone (pruned) is left out with a warning: its series then lack data.
     """
-    paths = session.scalars(
+    paths = list(session.scalars(
         select(Execution.recording_path).where(Execution.revision_id == revision_id)
         .where(Execution.id.in_(ingested_executions())).order_by(Execution.id)
-    )
+    ))
     parts: dict[int, list[np.ndarray]] = defaultdict(list)
+    read = 0
     for path in paths:
         try:
             table = pq.read_table(samples_path(path)).to_pandas()
         except OSError as exc:
             log.warning("revision %s: samples of %s unreadable: %s", revision_id, path, exc)
             continue
+        read += 1
         for series_id, values in table.groupby("series_id")["value"]:
             parts[int(series_id)].append(values.to_numpy())
-    return {series_id: np.concatenate(chunks) for series_id, chunks in parts.items()}
+    samples = {series_id: np.concatenate(chunks) for series_id, chunks in parts.items()}
+    return samples, read, len(paths)
+
+
+def revision_samples(session: Session, revision_id: int) -> dict[int, np.ndarray]:
+    """Every ingested and still readable sample of the revision, by series id."""
+    return read_samples(session, revision_id)[0]
 
 
 def _before(revision: Revision):  # noqa: ANN202 - an SQL expression
@@ -202,10 +211,15 @@ def _ks_change(row: dict[str, Any], verdict: Verdict) -> Change | None:
                   flagged=verdict.flagged, created=row["created"])
 
 
-def analyze(session: Session, revision: Revision,
-            config: DetectionConfig) -> tuple[list[dict[str, Any]], list[Change]]:
-    """Every configured method on every judged series of the revision (nothing stored)."""
-    candidate = revision_samples(session, revision.id)
+def analyze(session: Session, revision: Revision, config: DetectionConfig,
+            candidate: dict[int, np.ndarray] | None = None,
+            ) -> tuple[list[dict[str, Any]], list[Change]]:
+    """Every configured method on every judged series of the revision (nothing stored).
+
+    ``candidate``: the revision's samples, when already read.
+    """
+    if candidate is None:
+        candidate = revision_samples(session, revision.id)
     counters = _judged_counters(session, list(candidate))
     baselines = Baselines(session, revision, config, sorted(counters))
     detectors = config.detectors()
@@ -247,14 +261,20 @@ def detect_revision(database_url: str, revision_id: int) -> list[Change]:
 
     Returns KS's changes (a series without a baseline has none; its detections say "not
     enough data: missing baseline"). Detections of one revision take turns (an advisory lock
-    for the transaction): `store` replaces rows under a unique key.
+    for the transaction). A revision with ingested executions none of whose samples can be read
+    any more (pruned) keeps its stored results: nothing is not a new verdict.
     """
     with session_scope(database_url) as session:
         session.execute(select(func.pg_advisory_xact_lock(DETECT_LOCK, revision_id)))
         revision = session.get(Revision, revision_id)
         if revision is None:
             return []
-        rows, changes = analyze(session, revision, component_config(session,
-                                                                    revision.component_id))
+        candidate, read, ingested = read_samples(session, revision.id)
+        if ingested and not read:
+            log.warning("revision %s: the samples of its %d executions are gone (pruned?); "
+                        "its stored results are kept", revision_id, ingested)
+            return []
+        config = component_config(session, revision.component_id)
+        rows, changes = analyze(session, revision, config, candidate)
         store(session, revision, rows, changes)
         return changes
