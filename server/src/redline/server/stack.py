@@ -21,6 +21,7 @@ import httpx
 from redline.server.embedded import EmbeddedServices, start_postgres, start_redis
 
 STOP_TIMEOUT_S = 20.0
+AGENT_FINISH_S = 5.0
 BACKGROUND_NICE = 10
 
 
@@ -133,18 +134,34 @@ class Stack:
                                  f"{child.log_path}:\n{child.tail()}")
 
     def stop(self) -> None:
-        for child in reversed(self.children):  # agent first, so it can finish or release its job
-            if child.process.poll() is None:
-                child.process.send_signal(signal.SIGTERM)
-        deadline = time.monotonic() + STOP_TIMEOUT_S
-        for child in reversed(self.children):
-            try:
-                child.process.wait(timeout=max(0.1, deadline - time.monotonic()))
-            except subprocess.TimeoutExpired:
-                child.process.kill()
-                child.process.wait()
-            child.log.close()
+        """Stop the agent alone first, then the worker and the server, then Postgres and Redis.
+
+        The agent gets AGENT_FINISH_S to finish its job; a second SIGTERM then makes it stop the
+        run (whose component, recorder and monitor it takes down) and release the job. Only
+        then go the worker and the server, which the agent still talks to until it is gone.
+        """
+        agents = [c for c in self.children if c.name == "agent"]
+        for child in agents:
+            _terminate(child, first_wait=AGENT_FINISH_S)
+        for child in reversed([c for c in self.children if c.name != "agent"]):
+            _terminate(child, first_wait=STOP_TIMEOUT_S)
         self.children.clear()
         if self.embedded is not None:
             self.embedded.stop()
             self.embedded = None
+
+
+def _terminate(child: Child, first_wait: float) -> None:
+    """SIGTERM, wait; SIGTERM again (an agent then releases its job), wait; then SIGKILL."""
+    for wait in (first_wait, STOP_TIMEOUT_S):
+        if child.process.poll() is not None:
+            break
+        child.process.send_signal(signal.SIGTERM)
+        try:
+            child.process.wait(timeout=wait)
+        except subprocess.TimeoutExpired:
+            continue
+    if child.process.poll() is None:
+        child.process.kill()
+        child.process.wait()
+    child.log.close()
