@@ -118,3 +118,22 @@ def test_objectbuilder_full_suite_has_the_three_sweeps_and_thread_configurations
     validate_cases(cases)
     assert [c.name for c in cases] == ["leg_count", "leg_rate", "pose_rate", "threads"]
     assert [s["threads"] for s in cases[-1].parameter_sets()] == [1, 2, 4]
+
+
+def test_sibling_modules_come_from_each_revisions_own_folder(tmp_path: Path) -> None:
+    from redline.agent.loader import load_test_cases
+
+    def revision(name: str, rate: int) -> Path:
+        folder = tmp_path / name
+        folder.mkdir()
+        (folder / "shared_rates.py").write_text(f"RATE = {rate}\n")
+        (folder / "test_case.py").write_text(
+            "from redline.testing import Cartesian, Phase, Sleep, TestCase\n"
+            "from shared_rates import RATE\n"
+            "case = TestCase('load', [Phase('p', Sleep(0))], Cartesian(rate=[RATE]))\n")
+        return folder / "test_case.py"
+
+    first = load_test_cases([revision("r1", 10)])
+    second = load_test_cases([revision("r2", 20)])
+    assert [s["rate"] for s in first[0].parameter_sets()] == [10]
+    assert [s["rate"] for s in second[0].parameter_sets()] == [20]

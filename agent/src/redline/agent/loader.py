@@ -22,23 +22,38 @@ def _where(exc: BaseException, path: Path) -> str:
 
 
 def import_module(path: Path) -> ModuleType:
-    """Import a test module from its file; its directory is importable while it loads."""
+    """Import a test module from its file; its directory is importable while it loads.
+
+    Nothing it brings in from its own folder stays cached in ``sys.modules`` afterwards: a
+    long-lived agent loads one revision's suite after another, and a sibling module imported by
+    name (``from helpers import ...``) must come from the revision being run, not a former one.
+    """
     name = "redline_tests_" + hashlib.sha1(str(path).encode()).hexdigest()[:12]
     spec = importlib.util.spec_from_file_location(name, path)
     if spec is None or spec.loader is None:
         raise RunError(f"{path}: cannot be imported as a Python module")
     module = importlib.util.module_from_spec(spec)
+    before = set(sys.modules)
     sys.modules[name] = module
     sys.path.insert(0, str(path.parent))
     try:
         spec.loader.exec_module(module)
     except Exception as exc:
-        sys.modules.pop(name, None)
         detail = "".join(traceback.format_exception_only(exc)).strip()
         raise RunError(f"{_where(exc, path)}: cannot import test module: {detail}") from exc
     finally:
         sys.path.remove(str(path.parent))
+        _forget_modules_from(path.parent, set(sys.modules) - before)
+        sys.modules.pop(name, None)
     return module
+
+
+def _forget_modules_from(folder: Path, names: set[str]) -> None:
+    """Drop the newly imported modules whose file lies in ``folder`` from the module cache."""
+    for loaded in names:
+        origin = getattr(sys.modules.get(loaded), "__file__", None)
+        if origin and Path(origin).resolve().is_relative_to(folder.resolve()):
+            del sys.modules[loaded]
 
 
 def load_test_cases(paths: tuple[Path, ...] | list[Path]) -> list[TestCase]:
