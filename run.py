@@ -44,7 +44,8 @@ def ensure_environment() -> None:
     say("syncing the workspace (uv sync)")
     env = dict(os.environ, UV_PROJECT_ENVIRONMENT=str(VENV), VIRTUAL_ENV=str(VENV))
     # --inexact keeps uv itself, which pip put into this environment.
-    run([str(BIN / "uv"), "sync", "--all-packages", "--inexact", "--quiet"], cwd=ROOT, env=env)
+    run([str(BIN / "uv"), "sync", "--locked", "--all-packages", "--inexact", "--quiet"], cwd=ROOT,
+        env=env)
 
 
 def ensure_chromium() -> None:

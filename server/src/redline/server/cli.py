@@ -25,7 +25,7 @@ def migrate_cmd() -> None:
 
 def server_cmd(
     host: Annotated[str, typer.Option(help="interface to listen on")] = "127.0.0.1",
-    port: Annotated[int, typer.Option(help="TCP port")] = 8000,
+    port: Annotated[int, typer.Option(help="TCP port")] = 8080,
 ) -> None:
     """Migrate the database, then serve the API and the UI."""
     import uvicorn
@@ -70,18 +70,21 @@ def retention_run(
 def token_create(
     name: Annotated[str, typer.Argument(help="who or what the token is for")],
     scopes: Annotated[str, typer.Option(help="comma-separated: ci, agent, read, admin")],
+    host: Annotated[str | None, typer.Option(
+        help="for an agent token: the one host it may act as")] = None,
 ) -> None:
     """Create a token and print it; it is stored only as a hash and cannot be shown again."""
-    from redline.server.core.security import parse_scopes
     from redline.server.db import session_factory
-    from redline.server.services.tokens import create_token
+    from redline.server.services.errors import ServiceError
+    from redline.server.services.tokens import issue_token
 
-    try:
-        parse_scopes(scopes)
-    except ValueError as exc:
-        raise typer.BadParameter(str(exc), param_hint="--scopes") from None
     with session_factory(get_settings().database_url)() as session:
-        typer.echo(create_token(session, name, scopes))
+        try:
+            _, secret = issue_token(session, name, scopes, host)
+        except ServiceError as exc:  # an unknown scope, or a live token of that name
+            typer.echo(exc.detail, err=True)
+            raise typer.Exit(1) from None
+    typer.echo(secret)
 
 
 @token_app.command("list")
