@@ -12,7 +12,7 @@ from fastapi.testclient import TestClient
 from redline.server.app import create_app
 from redline.server.core.config import Settings
 from redline.server.db import migrate, session_factory
-from redline.server.services.tokens import create_token
+from redline.server.services.tokens import issue_token
 from sqlalchemy import text
 
 from tests.conftest import Services
@@ -34,7 +34,7 @@ def api_with(services: Services, tmp_path: Path, **settings: Any) -> Iterator[Ap
     with session_factory(config.database_url)() as session:
         session.execute(text(f"TRUNCATE {TABLES} RESTART IDENTITY CASCADE"))
         session.commit()
-        tokens = {scope: {"Authorization": f"Bearer {create_token(session, scope, scope)}"}
+        tokens = {scope: {"Authorization": f"Bearer {issue_token(session, scope, scope)[1]}"}
                   for scope in SCOPES}
     with TestClient(create_app(config)) as client:
         yield Api(client, config, tokens)

@@ -20,7 +20,7 @@ from redline.server.core.config import Settings
 from redline.server.db import migrate, session_factory
 from redline.server.models import ApiToken, Execution, Job, utcnow
 from redline.server.services.revisions import order_key
-from redline.server.services.tokens import create_token
+from redline.server.services.tokens import issue_token
 from redline.worker.app import broker_url
 from redline.worker.detection import detect_revision
 from redline.worker.ingest import ingest_execution
@@ -86,7 +86,7 @@ def api(services: Services, database_url: str, tmp_path: Path) -> Iterator[Api]:
     with session_factory(database_url)() as session:
         session.execute(text(f"TRUNCATE {TABLES} RESTART IDENTITY CASCADE"))
         session.commit()
-        tokens = {scope: {"Authorization": f"Bearer {create_token(session, scope, scope)}"}
+        tokens = {scope: {"Authorization": f"Bearer {issue_token(session, scope, scope)[1]}"}
                   for scope in SCOPES}
     with TestClient(create_app(settings)) as client:
         client.post("/api/v1/agent/register", json={"name": "perf1", "labels": ["quiet"]},

@@ -16,7 +16,7 @@ from hypothesis import HealthCheck, Phase, given, settings
 from redline.server.app import create_app
 from redline.server.core.config import Settings
 from redline.server.db import migrate, session_factory
-from redline.server.services.tokens import create_token
+from redline.server.services.tokens import issue_token
 from schemathesis.checks import not_a_server_error
 
 from tests.conftest import Services, fresh_database
@@ -38,7 +38,7 @@ def fuzz_app(services: Services, tmp_path_factory: pytest.TempPathFactory) -> Fa
                             max_upload_bytes=1_000_000)
     app = create_app(app_settings)
     with session_factory(database_url)() as session:
-        app.state.fuzz_token = create_token(session, "fuzz-admin", "admin")
+        app.state.fuzz_token = issue_token(session, "fuzz-admin", "admin")[1]
     return app
 
 

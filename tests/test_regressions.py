@@ -15,7 +15,7 @@ from redline.server.core.config import Settings
 from redline.server.db import session_factory
 from redline.server.schemas import ComponentCreate
 from redline.server.services.components import create_component
-from redline.server.services.tokens import create_token
+from redline.server.services.tokens import issue_token
 from redline.worker.detection import detect_revision
 from redline.worker.ingest import ingest_execution
 from redline.worker.reanalysis import reanalyze_component
@@ -50,7 +50,7 @@ def api(services: Services, database_url: str, tmp_path: Path) -> Iterator[Clien
     with session_factory(database_url)() as session:
         session.execute(text(f"TRUNCATE {TABLES} RESTART IDENTITY CASCADE"))
         session.commit()
-        tokens = {scope: {"Authorization": f"Bearer {create_token(session, scope, scope)}"}
+        tokens = {scope: {"Authorization": f"Bearer {issue_token(session, scope, scope)[1]}"}
                   for scope in ("admin", "ci", "read", "agent")}
     with TestClient(create_app(settings)) as client:
         yield Client(client, tokens)

@@ -95,3 +95,24 @@ def test_cli_lists_and_revokes_tokens(api: Api):
     missing = subprocess.run([*command, "revoke", "nobody"], env=env, capture_output=True,
                              text=True, cwd=ROOT)
     assert missing.returncode == 1 and "nobody" in missing.stderr
+
+
+def test_cli_creates_a_host_bound_token_one_live_per_name(api: Api):
+    env = {**os.environ, "REDLINE_DATABASE_URL": api.settings.database_url}
+    command = [str(Path(sys.executable).parent / "redline"), "token", "create", "perf-1"]
+    made = subprocess.run([*command, "--scopes", "agent", "--host", "perf-1"], env=env,
+                          capture_output=True, text=True, cwd=ROOT)
+    assert made.returncode == 0, made.stderr
+    secret = made.stdout.strip()
+    with session_factory(api.settings.database_url)() as session:
+        stored = session.scalar(select(ApiToken).where(ApiToken.name == "perf-1"))
+        assert stored is not None and stored.host == "perf-1" and stored.scopes == ["agent"]
+    own = {"Authorization": f"Bearer {secret}"}
+    answer = api.client.post("/api/v1/agent/lease", json={"host": "perf-9"}, headers=own)
+    assert answer.status_code == 403 and "perf-1" in answer.json()["detail"]
+    again = subprocess.run([*command, "--scopes", "agent"], env=env, capture_output=True,
+                           text=True, cwd=ROOT)
+    assert again.returncode == 1 and "'perf-1'" in again.stderr and not again.stdout
+    bad = subprocess.run([*command[:-1], "other", "--scopes", "root"], env=env,
+                         capture_output=True, text=True, cwd=ROOT)
+    assert bad.returncode == 1 and "'root'" in bad.stderr

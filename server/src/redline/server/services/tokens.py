@@ -9,14 +9,6 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 
-def create_token(session: Session, name: str, scopes: str | list[str]) -> str:
-    """Store a new token (its hash only) and return the secret, which is shown once."""
-    secret = new_token()
-    session.add(ApiToken(name=name, token_hash=hash_token(secret), scopes=parse_scopes(scopes)))
-    session.commit()
-    return secret
-
-
 def authenticate(session: Session, secret: str) -> ApiToken | None:
     """The live token with this secret, its last use stamped; None when unknown or revoked."""
     token = session.scalar(
@@ -28,9 +20,10 @@ def authenticate(session: Session, secret: str) -> ApiToken | None:
     return token
 
 
-def issue_token(session: Session, name: str, scopes: list[str],
+def issue_token(session: Session, name: str, scopes: str | list[str],
                 host: str | None = None) -> tuple[ApiToken, str]:
-    """A new token and its secret; an agent token is bound to ``host``, one live one per name."""
+    """A new token and its secret (shown once: only its hash is stored); an agent token is
+    bound to ``host``; one live token per name. The one way tokens are made (API and CLI)."""
     try:
         parsed = parse_scopes(scopes)
     except ValueError as exc:
