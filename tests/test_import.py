@@ -7,6 +7,11 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+import redis
+from redline.recording import SeriesKey, canonical_params
+from redline.server.db import session_factory
+from redline.server.services.imports import ImportedRun, store_import
+from redline.worker.app import DETECT_TASK
 
 from tests.conftest import Services
 from tests.intake import api_with
@@ -100,3 +105,45 @@ def test_generic_results_import_and_compare_two_revisions(api: Api):
     empty = api.post("/api/v1/import/results", "ci", {**results("r3", "3", [1.0]),
                                                       "results": []})
     assert empty.status_code == 422
+
+
+@pytest.mark.parametrize("value", ["NaN", "Infinity", "-Infinity", "1e400"])
+def test_non_finite_generic_values_are_422_naming_the_field(api: Api, value: str):
+    body = ('{"component": "clang", "revision": "r1", "sort_key": "1", "results": '
+            f'[{{"case": "parse", "counter": "cpu", "values": [1.0, {value}]}}]}}')
+    answer = api.client.post("/api/v1/import/results", content=body.encode(),
+                             headers={**api.tokens["ci"], "Content-Type": "application/json"})
+    assert answer.status_code == 422, answer.text
+    assert [e["loc"] for e in answer.json()["detail"]] == [
+        ["body", "results", 0, "values", 1]]
+    assert api.client.get("/api/v1/components/clang/revisions").json() == []
+
+
+def test_a_series_without_a_finite_value_gets_no_summary(api: Api):
+    params = canonical_params({})
+    run = ImportedRun("clang", "r1", "1", "", "", {
+        SeriesKey("parse", "main", params, "benchmark", "cpu"): [float("nan"), float("inf")],
+        SeriesKey("parse", "main", params, "benchmark", "rss"): [1.0, 2.0]})
+    with session_factory(api.settings.database_url)() as session:
+        result = store_import(session, api.settings.storage_dir, run, b"one finite series")
+    assert result.created and result.series == 1
+
+
+def _queued_tasks(api: Api) -> list[tuple[str, str]]:
+    broker = redis.Redis.from_url(api.settings.redis_url)
+    messages = [json.loads(raw) for raw in broker.lrange(api.settings.queue, 0, -1)]
+    return [(m["headers"]["task"], m["headers"]["argsrepr"]) for m in messages]
+
+
+def test_an_import_queues_detection_of_its_revision_once(api: Api):
+    first = send_lnt(api, lnt_report())
+    assert first.status_code == 201
+    queued = [(DETECT_TASK, f"[{first.json()['revision_id']}]")]
+    assert _queued_tasks(api) == queued  # the task waits in the real broker
+    assert send_lnt(api, lnt_report()).status_code == 200  # imported before: nothing new
+    results = {"component": "clang", "revision": "r2", "sort_key": "2",
+               "results": [{"case": "parse", "counter": "cpu", "values": [1.0, 2.0]}]}
+    second = api.post("/api/v1/import/results", "ci", results)
+    assert second.status_code == 201
+    queued.append((DETECT_TASK, f"[{second.json()['revision_id']}]"))
+    assert sorted(_queued_tasks(api)) == sorted(queued)

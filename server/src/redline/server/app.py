@@ -2,7 +2,11 @@
 
 from __future__ import annotations
 
+import math
+
 from fastapi import FastAPI, Request
+from fastapi.encoders import jsonable_encoder
+from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from redline.server.core import metrics
 from redline.server.core.config import Settings, get_settings
@@ -33,6 +37,14 @@ async def _unstorable(request: Request, exc: Exception) -> JSONResponse:
                         status_code=422)
 
 
+async def _invalid(request: Request, exc: Exception) -> JSONResponse:
+    """FastAPI's 422, with a non-finite input (NaN, inf) quoted: JSON has no such numbers."""
+    assert isinstance(exc, RequestValidationError)
+    finite = {float: lambda value: value if math.isfinite(value) else str(value)}
+    return JSONResponse({"detail": jsonable_encoder(exc.errors(), custom_encoder=finite)},
+                        status_code=422)
+
+
 async def _service_error(request: Request, exc: Exception) -> JSONResponse:
     assert isinstance(exc, ServiceError)
     return JSONResponse({"detail": exc.detail}, status_code=exc.status_code)
@@ -49,6 +61,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.tasks = TaskSender(settings)
     app.add_exception_handler(ServiceError, _service_error)
     app.add_exception_handler(DataError, _unstorable)
+    app.add_exception_handler(RequestValidationError, _invalid)
     for down in health.DATABASE_DOWN:  # 503 with a message, never a 500, while Postgres is away
         app.add_exception_handler(down, health.database_unavailable)
     metrics.install(app, settings)

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from datetime import datetime
-from typing import Any
+from typing import Annotated, Any
 
 from pydantic import BaseModel, ConfigDict, Field
 
@@ -98,7 +98,8 @@ class ResultValue(BaseModel):
     params: dict[str, Any] = Field(default_factory=dict)
     process: str = Field(default="benchmark", min_length=1, max_length=200)
     counter: str = Field(min_length=1, max_length=200)
-    values: list[float] = Field(min_length=1)
+    values: list[Annotated[float, Field(allow_inf_nan=False)]] = Field(
+        min_length=1, description="finite samples (NaN and infinities are refused)")
 
 
 class ResultsImport(BaseModel):

@@ -23,8 +23,11 @@ LNT_BODY = {"requestBody": {"required": True, "content": {"application/json": {"
     "required": ["format_version", "machine", "run", "tests"]}}}}}
 
 
-def _status(result: ImportResult, response: Response) -> ImportResult:
+def _finish(result: ImportResult, request: Request, response: Response) -> ImportResult:
+    """201 and detection queued for the revision when created; 200 when imported before."""
     response.status_code = status.HTTP_201_CREATED if result.created else status.HTTP_200_OK
+    if result.created:
+        request.app.state.tasks.detect(result.revision_id)
     return result
 
 
@@ -40,13 +43,13 @@ async def import_lnt(
     body = await request.body()
     run = parse_lnt(body, component, order_field)
     result = await run_in_threadpool(store_import, session, settings.storage_dir, run, body)
-    return _status(result, response)
+    return await run_in_threadpool(_finish, result, request, response)
 
 
 @router.post("/results", status_code=status.HTTP_201_CREATED, responses=RESPONSES)
-def import_results(data: ResultsImport, response: Response, session: SessionDep,
-                   settings: SettingsDep) -> ImportResult:
+def import_results(data: ResultsImport, request: Request, response: Response,
+                   session: SessionDep, settings: SettingsDep) -> ImportResult:
     """A benchmark's samples per named series, for one revision (docs/api.md)."""
     body = data.model_dump_json().encode()
-    return _status(store_import(session, settings.storage_dir, from_results(data), body),
-                   response)
+    return _finish(store_import(session, settings.storage_dir, from_results(data), body),
+                   request, response)

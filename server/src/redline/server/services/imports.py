@@ -110,11 +110,13 @@ def store_import(session: Session, storage_dir: Path, run: ImportedRun, body: by
     session.add(execution)
     session.flush()
     ids = _series_ids(session, revision.component_id, sorted(run.samples))
-    session.add_all(Summary(execution_id=execution.id, series_id=ids[key],
-                            **summarize(np.asarray(values, dtype=np.float64)))
-                    for key, values in run.samples.items())
+    summaries = {key: summarize(np.asarray(values, dtype=np.float64))
+                 for key, values in run.samples.items()}
+    session.add_all(Summary(execution_id=execution.id, series_id=ids[key], **stats)
+                    for key, stats in summaries.items() if stats is not None)  # None: no finite
     _write_samples(path.with_suffix(".samples.parquet"), ids, run.samples)
     session.commit()
     return ImportResult(component=run.component, revision=revision.title,
                         revision_id=revision.id, execution_id=execution.id,
-                        series=len(run.samples), created=True)
+                        series=sum(stats is not None for stats in summaries.values()),
+                        created=True)
