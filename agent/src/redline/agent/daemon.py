@@ -22,6 +22,7 @@ from redline.agent.checkout import CloneCache
 from redline.agent.client import LeaseLost, ServerClient, ServerUnavailable, UploadRejected
 from redline.agent.governor import governor_files
 from redline.agent.host import host_fingerprint
+from redline.agent.quiet import measuring
 from redline.agent.runner import run_suite
 from redline.agent.spool import Spool, SpoolSender
 from redline.agent.suite import load_suite
@@ -162,7 +163,8 @@ class AgentDaemon:
         suite = load_suite(suite_path)
         _build(suite.build, suite.directory)
         out = self.workdir / "recordings" / f"{name}.mcap"
-        run_suite(suite_path, out, run_metadata=_run_metadata(job))
+        with measuring():  # on a shared machine, the worker's analysis waits meanwhile
+            run_suite(suite_path, out, run_metadata=_run_metadata(job))
         return out
 
     def _deliver(self, job_id: int, recording: Path) -> int | None:

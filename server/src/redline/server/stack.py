@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import IO
 
 import httpx
+from redline.agent.quiet import LOCK_VARIABLE
 from redline.server.embedded import EmbeddedServices, start_postgres, start_redis
 
 STOP_TIMEOUT_S = 20.0
@@ -86,6 +87,8 @@ class Stack:
             redis, self.embedded.redis = start_redis(self.data / "redis")
         env.update(REDLINE_DATABASE_URL=database, REDLINE_REDIS_URL=redis)
         env.setdefault("REDLINE_STORAGE_DIR", str(self.data / "storage"))
+        # agent and worker share this machine: analysis waits while a run measures (quiet.py)
+        env.setdefault(LOCK_VARIABLE, str(self.data / "measurement.lock"))
         return env
 
     def _redline(self, *args: str) -> str:

@@ -7,6 +7,7 @@ import logging
 from typing import Any
 
 from celery.signals import worker_init
+from redline.agent.quiet import analysing
 from redline.server.core.config import Settings
 from redline.server.db import session_scope
 from redline.worker.app import DETECT_TASK, INGEST_TASK, REQUEUE_TASK, celery_app
@@ -39,7 +40,8 @@ def _settings() -> Settings:
 @celery_app.task(name=INGEST_TASK, acks_late=True, **RETRY)
 def ingest_execution(execution_id: int) -> None:
     """Summarize one uploaded execution, then detect changes for its revision (and the next)."""
-    revisions = run_ingest(_settings().database_url, execution_id)
+    with analysing():
+        revisions = run_ingest(_settings().database_url, execution_id)
     for revision_id in revisions:
         detect_revision.delay(revision_id)
 
@@ -47,7 +49,8 @@ def ingest_execution(execution_id: int) -> None:
 @celery_app.task(name=DETECT_TASK, acks_late=True, **RETRY)
 def detect_revision(revision_id: int) -> None:
     """Compare a revision with its baseline, series by series (KS), replacing earlier results."""
-    changes = run_detection(_settings().database_url, revision_id)
+    with analysing():
+        changes = run_detection(_settings().database_url, revision_id)
     log.info("revision %s: %d series compared, %d flagged", revision_id, len(changes),
              sum(change.flagged for change in changes))
 
@@ -68,4 +71,5 @@ def requeue_stale_uploads() -> int:
 @celery_app.task(name=REANALYZE_TASK, acks_late=True)
 def reanalyze_component(component_id: int) -> None:
     """Detect every revision of the component again (after a configuration change)."""
-    run_reanalysis(_settings().database_url, component_id)
+    with analysing():
+        run_reanalysis(_settings().database_url, component_id)
