@@ -110,3 +110,22 @@ def test_the_agent_does_not_fail_a_job_whose_lease_it_lost(
     monkeypatch.setattr(daemon, "_run", run)
     assert daemon.run_once() is True
     assert client.failed == []
+
+
+def test_cancelling_a_revision_stops_its_jobs_and_its_agent_learns_at_the_next_heartbeat(
+        api: Api):
+    api.component("cancellable", executions=2)
+    created = api.revision("c1", "1", component="cancellable")
+    running = api.lease()  # newest revision first: one of c1's two jobs
+    assert running["id"] in created["job_ids"]
+    cancel = "/api/v1/components/cancellable/revisions/c1/cancel"
+    assert api.post(cancel, "agent", {}).status_code == 403  # an agent token may not cancel
+    answer = api.post(cancel, "ci", {})
+    assert answer.status_code == 200, answer.text
+    assert {job["state"] for job in answer.json()["jobs"]} == {"cancelled"}
+    assert answer.json()["state"] == "cancelled"
+    assert api.lease()["id"] not in created["job_ids"]  # c1's queued job is not handed out
+    beat = api.post(f"/api/v1/jobs/{running['id']}/heartbeat", "agent", {"host": "perf1"})
+    assert beat.status_code == 409
+    missing = api.post("/api/v1/components/cancellable/revisions/nope/cancel", "ci", {})
+    assert missing.status_code == 404 and "nope" in missing.json()["detail"]

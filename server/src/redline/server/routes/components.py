@@ -68,6 +68,13 @@ def revision_detail(name: str, title: str, session: SessionDep) -> RevisionDetai
     return revisions.revision_detail(session, name, title)
 
 
+@router.post("/{name}/revisions/{title}/cancel", responses=NOT_FOUND,
+             dependencies=[Depends(require("ci"))])
+def cancel_revision(name: str, title: str, session: SessionDep) -> RevisionDetail:
+    """Cancel the revision's jobs that have not finished; results already stored stay."""
+    return revisions.cancel_revision(session, name, title)
+
+
 @router.get("/{name}/series", responses=NOT_FOUND, dependencies=READ)
 def list_series(
     name: str, session: SessionDep, request: Request,

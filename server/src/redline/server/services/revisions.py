@@ -139,6 +139,26 @@ def job_out(job: Job) -> JobOut:
     )
 
 
+UNFINISHED = (JobState.queued, JobState.leased, JobState.running)
+
+
+def cancel_revision(session: Session, component_name: str, title: str) -> RevisionDetail:
+    """Cancel the revision's unfinished jobs (a superseded commit, say): none is leased again,
+    and an agent running one learns it at its next heartbeat (409) and abandons it. Jobs
+    already uploaded or finished keep their results."""
+    component = get_component(session, component_name)
+    revision = session.scalar(select(Revision).where(Revision.component_id == component.id,
+                                                     Revision.title == title))
+    if revision is None:
+        raise NotFound(f"component {component_name!r} has no revision {title!r}")
+    jobs = session.scalars(select(Job).where(Job.revision_id == revision.id,
+                                             Job.state.in_(UNFINISHED)).with_for_update())
+    for job in jobs:
+        job.state, job.reason = JobState.cancelled, "cancelled"
+    session.commit()
+    return revision_detail(session, component_name, title)
+
+
 def revision_detail(session: Session, component_name: str, title: str) -> RevisionDetail:
     component = get_component(session, component_name)
     revision = session.scalar(
