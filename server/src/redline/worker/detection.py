@@ -16,7 +16,6 @@ from __future__ import annotations
 import logging
 from collections import defaultdict
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -38,6 +37,7 @@ from redline.server.models import (
     utcnow,
 )
 from redline.server.models_regressions import Detection, DetectionConfigRow
+from redline.server.storage import samples_path
 from redline.worker.grouping import group_revision
 from sqlalchemy import Select, delete, func, insert, select, tuple_
 from sqlalchemy.orm import Session
@@ -46,11 +46,6 @@ log = logging.getLogger(__name__)
 METHOD_KS = "ks"
 #: the first key of the transaction-scoped advisory lock one revision's detection holds
 DETECT_LOCK = 0x5244  # "RD"
-
-
-def samples_path(recording_path: str | Path) -> Path:
-    """The Parquet side table (series_id, value) kept beside a recording."""
-    return Path(recording_path).with_suffix(".samples.parquet")
 
 
 def ingested_executions() -> Select[tuple[int]]:

@@ -12,6 +12,7 @@ from pathlib import Path
 
 from redline.server.db import session_scope
 from redline.server.models import Execution, utcnow
+from redline.server.storage import samples_path
 from sqlalchemy import select
 
 log = logging.getLogger(__name__)
@@ -19,8 +20,7 @@ log = logging.getLogger(__name__)
 
 def raw_files(recording_path: str) -> list[Path]:
     """The recording and its samples table (``x.mcap`` → ``x.samples.parquet``)."""
-    path = Path(recording_path)
-    return [path, path.with_suffix(".samples.parquet")]
+    return [Path(recording_path), samples_path(recording_path)]
 
 
 def prune_recordings(database_url: str, days: int, batch: int = 500) -> int:

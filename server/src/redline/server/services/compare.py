@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import math
 from collections import defaultdict
-from pathlib import Path
 
 import numpy as np
 import pyarrow.parquet as pq
@@ -18,13 +17,9 @@ from redline.server.schemas_read import Comparison, SeriesComparison, Statistics
 from redline.server.services.components import get_component
 from redline.server.services.errors import NotFound
 from redline.server.services.results import series_ref
+from redline.server.storage import samples_path
 from sqlalchemy import select
 from sqlalchemy.orm import Session
-
-
-def samples_path(recording_path: str) -> Path:
-    """Where ingestion and imports keep an execution's samples (series_id, value)."""
-    return Path(recording_path).with_suffix(".samples.parquet")
 
 
 def revision_samples(session: Session, revision_id: int) -> tuple[dict[int, np.ndarray], bool]:

@@ -59,12 +59,3 @@ def get_component(session: Session, name: str) -> Component:
     return component
 
 
-def matching_components(session: Session, repo: str, branch: str) -> list[Component]:
-    """Components whose repository (any URL spelling) and default branch are these."""
-    key = repo_key(repo)
-    if not key:
-        return []
-    return list(session.scalars(
-        select(Component).where(Component.repo_key == key, Component.branch == branch)
-        .order_by(Component.name)
-    ))

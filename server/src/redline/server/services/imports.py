@@ -19,6 +19,7 @@ from redline.server.models import Execution, Host, Job, JobState, Revision, Summ
 from redline.server.schemas_intake import ImportResult, ResultsImport
 from redline.server.services.components import get_component
 from redline.server.services.revisions import order_key
+from redline.server.storage import samples_path
 from redline.worker.ingest import _series_ids, _write_samples, summarize
 from sqlalchemy import func, select
 from sqlalchemy.orm import Session
@@ -114,7 +115,7 @@ def store_import(session: Session, storage_dir: Path, run: ImportedRun, body: by
                  for key, values in run.samples.items()}
     session.add_all(Summary(execution_id=execution.id, series_id=ids[key], **stats)
                     for key, stats in summaries.items() if stats is not None)  # None: no finite
-    _write_samples(path.with_suffix(".samples.parquet"), ids, run.samples)
+    _write_samples(samples_path(path), ids, run.samples)
     session.commit()
     return ImportResult(component=run.component, revision=revision.title,
                         revision_id=revision.id, execution_id=execution.id,
