@@ -57,7 +57,8 @@ def ensure_chromium() -> None:
         return
     say("installing Debian's chromium for the browser tests")
     run(["apt-get", "update", "-qq"])
-    run(["apt-get", "install", "-y", "-qq", "chromium"], env=dict(os.environ, DEBIAN_FRONTEND="noninteractive"))
+    run(["apt-get", "install", "-y", "-qq", "chromium"],
+        env=dict(os.environ, DEBIAN_FRONTEND="noninteractive"))
 
 
 def main(argv: list[str]) -> int:

@@ -102,8 +102,8 @@ def main() -> None:
         read, ingest = statistics.median(reads), statistics.median(ingests)
         ratios = [i / r for i, r in zip(ingests, reads, strict=True)]
         print(f"read MCAP: median {read * 1e3:.0f} ms; ingest: median {ingest * 1e3:.0f} ms")
-        print(f"ingest / read: {ingest / read:.2f}x (per-pair median {statistics.median(ratios):.2f}x;"
-              f" target <= 3x)")
+        print(f"ingest / read: {ingest / read:.2f}x (per-pair median "
+              f"{statistics.median(ratios):.2f}x; target <= 3x)")
 
 
 if __name__ == "__main__":

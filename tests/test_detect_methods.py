@@ -11,8 +11,8 @@ import pandas as pd
 import pytest
 from redline.detect.aggregate import aggregate, compare_test
 from redline.detect.changepoint import EDivisive
-from redline.detect.corpus import Corpus, SeriesLabel, build_units, load_corpus, write_corpus
-from redline.detect.evaluate import precision_recall_f1, roc_auc, run_detector, summarize
+from redline.detect.corpus import Corpus, SeriesLabel, load_corpus, write_corpus
+from redline.detect.evaluate import precision_recall_f1, roc_auc, run_detector, summarize, walk
 from redline.detect.evaluate_cmd import as_json
 from redline.detect.foo import FooRules
 from redline.detect.methods import KolmogorovSmirnov, MannWhitney, WelchT
@@ -143,10 +143,11 @@ def _tiny_corpus() -> Corpus:
 
 
 def test_units_and_metrics_on_a_tiny_hand_made_corpus() -> None:
-    units = build_units(_tiny_corpus(), baseline_samples=3)
+    units = [unit for unit, _ in walk(WelchT(min_baseline=3), _tiny_corpus())]
+    # the baseline pools every earlier build (welch_t wants 12 values; there are at most 6)
     assert [(u.series, u.build, u.positive, len(u.baseline)) for u in units] == [
-        ("s1", 2, False, 3), ("s1", 3, True, 3), ("s2", 2, False, 3)]
-    scores = summarize(run_detector(WelchT(min_baseline=3), units))
+        ("s1", 2, False, 3), ("s1", 3, True, 6), ("s2", 2, False, 3)]
+    scores = summarize(run_detector(WelchT(min_baseline=3), _tiny_corpus()))
     # only s1 build 3 moves (by 30 %): flagged, the two stable builds are not
     assert (scores.tp, scores.fp, scores.fn) == (1, 0, 0)
     assert (scores.roc_auc, scores.precision, scores.recall, scores.f1) == (1.0, 1.0, 1.0, 1.0)
@@ -156,11 +157,13 @@ def test_corpus_round_trips_through_the_documented_format(tmp_path: Path) -> Non
     write_corpus(_tiny_corpus(), tmp_path)
     loaded = load_corpus(str(tmp_path))
     assert loaded.labels == _tiny_corpus().labels
-    assert loaded.measurements.equals(_tiny_corpus().measurements)
+    # every sample of a corpus without executions is taken for its own execution
+    expected = _tiny_corpus().measurements.assign(execution=[0, 1, 2] * 5)
+    assert loaded.measurements.equals(expected)
 
 
 def test_json_output_has_exactly_the_documented_keys() -> None:
-    scores = summarize(run_detector(WelchT(min_baseline=3), build_units(_tiny_corpus(), 3)))
+    scores = summarize(run_detector(WelchT(min_baseline=3), _tiny_corpus()))
     out = json.loads(as_json({"welch_t": scores}))
     assert set(out) == {"default", "methods"}
     assert set(out["methods"]["welch_t"]) == {"roc_auc", "precision", "recall", "f1"}

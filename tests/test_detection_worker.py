@@ -25,7 +25,7 @@ from redline.worker.reanalysis import reanalyze_component
 from sqlalchemy import func, select
 
 from tests import test_ingest
-from tests.test_ingest import add_execution
+from tests.test_ingest import add_execution, add_executions
 
 database_url, session = test_ingest.database_url, test_ingest.session  # the fixtures, shared
 
@@ -64,19 +64,72 @@ def _verdicts(session) -> dict[tuple[str, str], Detection]:
 
 def test_default_methods_judge_every_series_and_flag_the_tripled_one(
         session, database_url, tmp_path):
-    _run(database_url, _history(session, tmp_path, [20.0, 20.0, 60.0]))
+    # one execution per revision: execution_shift needs 6 earlier ones, r7 has them
+    _run(database_url, _history(session, tmp_path, [20.0] * 7 + [60.0]))
     found = _verdicts(session)
     assert {method for _, method in found} == set(DetectionConfig().methods)
-    assert "ks" in DetectionConfig().methods
+    assert DetectionConfig().methods == ("execution_shift", "ks")
     for method in DetectionConfig().methods:
-        assert found[("r3", method)].flagged and found[("r3", method)].direction == "increase"
-        assert found[("r3", method)].verdict == "change"
-        assert not found[("r2", method)].flagged
-        assert found[("r2", method)].verdict == "no change"
-    assert found[("r3", "ks")].p_value < 1e-6 and found[("r3", "ks")].effect > 1.5
+        assert found[("r8", method)].flagged and found[("r8", method)].direction == "increase"
+        assert found[("r8", method)].verdict == "change"
+        assert not found[("r7", method)].flagged
+        assert found[("r7", method)].verdict == "no change"
+    assert found[("r8", "ks")].p_value < 1e-6 and found[("r8", "ks")].effect > 1.5
+    assert found[("r8", "execution_shift")].baseline_revisions == 7
+    assert found[("r6", "execution_shift")].verdict == "not enough data"
+    assert "baseline has 5, needs at least 6" in found[("r6", "execution_shift")].reason
     (regression,) = session.scalars(select(Regression))
     assert regression.state == "new"
     assert {d.regression_id for d in found.values() if d.flagged} == {regression.id}
+
+
+def _runs_history(session, tmp_path: Path, levels: list[float], runs: int = 3,
+                  config: dict | None = None) -> list[Execution]:
+    """Revisions of ``runs`` executions each; every execution's 'cpu' has its own level (3 %
+    run-to-run noise around the revision's) and 40 samples."""
+    component = create_component(session, ComponentCreate(name=NAME, executions=runs))
+    if config is not None:
+        session.add(DetectionConfigRow(component_id=component.id, config=config))
+        session.commit()
+    rng = np.random.default_rng(4)
+    executions = []
+    for number, level in enumerate(levels, start=1):
+        counters = [{"cpu": rng.normal(level * (1 + rng.normal(0, 0.03)), level * 0.1, 40)}
+                    for _ in range(runs)]
+        executions += add_executions(session, tmp_path, NAME, f"r{number}", str(number),
+                                     counters)
+    return executions
+
+
+def test_execution_shift_judges_executions_and_restarts_its_baseline_after_a_change(
+        session, database_url, tmp_path):
+    executions = _runs_history(session, tmp_path, [15.0] * 6 + [19.5] * 4,
+                               config={"methods": ["execution_shift"]})
+    _run(database_url, executions)
+    found = {title: d for (title, _), d in _verdicts(session).items()}
+    assert "too few samples: baseline has 3, needs at least 6" in found["r2"].reason
+    assert [t for t, d in sorted(found.items(), key=lambda i: int(i[0][1:])) if d.flagged] \
+        == ["r7"]
+    assert found["r6"].baseline_revisions == 5  # 15 execution values: r1..r5
+    r7 = found["r7"].revision_id
+    # after the change the baseline restarts at r7: r8 is judged against the new level only
+    assert (found["r8"].baseline_revisions, found["r8"].baseline_revision_id) == (1, r7)
+    assert found["r8"].verdict == "not enough data"  # r7's 3 values are fewer than 6
+    assert found["r9"].baseline_revisions == 2 and found["r9"].verdict == "no change"
+    assert 0.2 < found["r7"].effect < 0.4
+
+
+def test_reanalysis_reproduces_the_verdicts_of_detection_revision_by_revision(
+        session, database_url, tmp_path):
+    executions = _runs_history(session, tmp_path, [15.0] * 5 + [19.5] * 3 + [15.0] * 3)
+    _run(database_url, executions)
+    keyed = lambda: {key: (d.verdict, d.score, d.baseline_revisions, d.baseline_revision_id)  # noqa: E731
+                     for key, d in _verdicts(session).items()}
+    incremental = keyed()
+    assert any(d[0] == "change" for d in incremental.values())
+    component = session.scalar(select(Component))
+    assert reanalyze_component(database_url, component.id) == 11
+    assert keyed() == incremental
 
 
 def test_first_revision_says_missing_baseline_for_every_method(session, database_url, tmp_path):
@@ -99,8 +152,11 @@ def test_bad_candidate_is_stored_as_not_enough_data_with_what_is_missing(
     found = _verdicts(session)
     for method in DetectionConfig().methods:
         verdict = found[("r2", method)]
+        expected = reason
+        if method == "execution_shift":  # one value per execution: r1 gives 1 of the 6 needed
+            expected = "too few samples: baseline has 1"
         assert verdict.verdict == "not enough data", (method, verdict.reason)
-        assert reason in verdict.reason and not verdict.flagged
+        assert expected in verdict.reason and not verdict.flagged
 
 
 def test_baseline_samples_gone_is_missing_baseline_not_an_exception(

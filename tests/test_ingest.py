@@ -68,17 +68,28 @@ def session(database_url: str):
 def add_execution(session, tmp_path: Path, component: str, title: str, sort_key: str,
                   counters: dict[str, np.ndarray], **extra) -> Execution:
     """Report a revision and store a recording for its job, as an upload would."""
+    return add_executions(session, tmp_path, component, title, sort_key, [counters], **extra)[0]
+
+
+def add_executions(session, tmp_path: Path, component: str, title: str, sort_key: str,
+                   runs: list[dict[str, np.ndarray]], **extra) -> list[Execution]:
+    """Report a revision and store one recording per job (the component's ``executions``)."""
     revision = create_revision(session, RevisionCreate(component=component, title=title,
                                                        sort_key=sort_key))
-    job = revision.jobs[0]
-    path = write_recording(tmp_path / f"{component}-{title}.mcap",
-                           run_metadata(job, component, title, sort_key), counters, **extra)
-    execution = Execution(job_id=job.id, revision_id=revision.id, recording_path=str(path),
-                          sha256=f"{component}-{title}".ljust(64, "0"), size=path.stat().st_size)
-    job.state = JobState.uploaded
-    session.add(execution)
+    assert len(revision.jobs) == len(runs), "the component's executions per revision"
+    executions = []
+    for job, counters in zip(sorted(revision.jobs, key=lambda j: j.execution_index), runs,
+                             strict=True):
+        name = f"{component}-{title}-{job.execution_index}"
+        path = write_recording(tmp_path / f"{name}.mcap",
+                               run_metadata(job, component, title, sort_key), counters, **extra)
+        execution = Execution(job_id=job.id, revision_id=revision.id, recording_path=str(path),
+                              sha256=name.ljust(64, "0"), size=path.stat().st_size)
+        job.state = JobState.uploaded
+        session.add(execution)
+        executions.append(execution)
     session.commit()
-    return execution
+    return executions
 
 
 def _history(session, tmp_path: Path, factors: list[float], seed: int = 1) -> list[Execution]:

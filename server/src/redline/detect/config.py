@@ -11,7 +11,9 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
+from redline.detect.baseline import DEFAULT_WINDOW
 from redline.detect.evaluate import DEFAULT_METHOD
+from redline.detect.executions import ExecutionShift
 from redline.detect.foo import FooRules
 from redline.detect.methods import Detector, KolmogorovSmirnov, MannWhitney, WelchT
 from redline.detect.robust import MedianShift
@@ -20,6 +22,7 @@ from redline.detect.shang import ShangRegression
 #: Methods the worker can run per series on every ingest. Foo and Shang run in their
 #: one-counter form (a series is one counter); E-divisive needs a whole history, not one build.
 WORKER_DETECTORS: dict[str, Callable[..., Detector]] = {
+    "execution_shift": ExecutionShift,
     "ks": KolmogorovSmirnov,
     "mann_whitney": MannWhitney,
     "welch_t": WelchT,
@@ -29,7 +32,7 @@ WORKER_DETECTORS: dict[str, Callable[..., Detector]] = {
 }
 #: The evaluated default (docs/detection.md) and KS, which the trend charts draw.
 DEFAULT_METHODS: tuple[str, ...] = tuple(dict.fromkeys((DEFAULT_METHOD, "ks")))
-BASELINES = ("previous", "window", "pinned")
+BASELINES = ("recent", "previous", "window", "pinned")
 MAX_WINDOW = 50
 
 
@@ -39,14 +42,16 @@ class ConfigError(ValueError):
 
 @dataclass(frozen=True)
 class DetectionConfig:
-    """``baseline``: ``previous`` (the last revision with the series), ``window`` (the last
-    ``window`` such revisions, pooled) or ``pinned`` (the revision titled ``pinned``).
+    """``baseline``: ``recent`` (the newest revisions with the series, pooled until the method
+    has enough values, at most ``window``, restarting at its newest flagged change;
+    `redline.detect.baseline`), ``previous`` (the last revision with the series), ``window``
+    (the last ``window`` such revisions, pooled) or ``pinned`` (the revision titled ``pinned``).
     ``thresholds``: per method, keyword arguments of its detector (``{"ks": {"alpha": 0.001}}``).
     """
 
     methods: tuple[str, ...] = DEFAULT_METHODS
-    baseline: str = "previous"
-    window: int = 5
+    baseline: str = "recent"
+    window: int = DEFAULT_WINDOW
     pinned: str | None = None
     thresholds: Mapping[str, Mapping[str, float]] = field(default_factory=dict)
 
@@ -59,8 +64,8 @@ class DetectionConfig:
             raise ConfigError(f"unknown field(s) {sorted(unknown)}")
         thresholds = data.get("thresholds") or {}
         config = cls(methods=tuple(data.get("methods") or DEFAULT_METHODS),
-                     baseline=str(data.get("baseline", "previous")),
-                     window=int(data.get("window", 5)), pinned=data.get("pinned"),
+                     baseline=str(data.get("baseline", "recent")),
+                     window=int(data.get("window", DEFAULT_WINDOW)), pinned=data.get("pinned"),
                      thresholds={str(k): dict(v) for k, v in thresholds.items()})
         config.validate()
         return config

@@ -1,18 +1,19 @@
 """Labelled corpora for evaluating detectors: the format, the SAP HANA loader, evaluation units.
 
 Format (see ``docs/detection.md``): a directory with ``measurements.parquet`` or
-``measurements.csv`` (columns ``series``, ``build``, ``value``; one row per sample, builds
-ordered by ``build``) and ``labels.json`` (``{"name", "source", "license", "series": {id:
-{"label": str, "change_build": int | null}}}``, ``change_build`` being the first build after
-the change). The SAP data set (CC-BY-4.0, SAP/performance-regression-data-set, hana/small_2021)
-is read in its own layout and turned into the same in-memory `Corpus`.
+``measurements.csv`` (columns ``series``, ``build``, ``value`` and optionally ``execution``; one
+row per sample, builds ordered by ``build``) and ``labels.json`` (``{"name", "source",
+"license", "series": {id: {"label": str, "change_build": int | null}}}``, ``change_build`` being
+the first build after the change). The SAP data set (CC-BY-4.0, SAP/performance-regression-data-
+set, hana/small_2021) is read in its own layout and turned into the same in-memory `Corpus`.
 """
 
 from __future__ import annotations
 
 import json
 import os
-from dataclasses import dataclass
+from collections.abc import Iterator
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -24,6 +25,7 @@ SAP_ATTRIBUTION = ("SAP HANA performance regression data set (small, 2021), SAP 
                    "github.com/SAP/performance-regression-data-set, CC-BY-4.0")
 POSITIVE_LABEL = "regression"
 COLUMNS = ["series", "build", "value"]
+EXECUTION = "execution"
 
 
 class CorpusError(ValueError):
@@ -39,7 +41,7 @@ class SeriesLabel:
 @dataclass(frozen=True)
 class Corpus:
     name: str
-    measurements: pd.DataFrame  # columns series, build, value; sorted by series, build
+    measurements: pd.DataFrame  # series, build, execution, value; sorted by series, build
     labels: dict[str, SeriesLabel]
     source: str = ""
     license: str = ""
@@ -107,7 +109,12 @@ def load_sap(path: Path) -> Corpus:
 
 
 def _sorted(frame: pd.DataFrame) -> pd.DataFrame:
-    return frame.sort_values(["series", "build"], kind="stable").reset_index(drop=True)
+    """Sorted by series and build, with an ``execution`` column: where the corpus has none,
+    every sample is taken for its own execution (a repeated run of the benchmark, as SAP's)."""
+    frame = frame.sort_values(["series", "build"], kind="stable").reset_index(drop=True)
+    if EXECUTION not in frame.columns:
+        frame[EXECUTION] = frame.groupby(["series", "build"]).cumcount()
+    return frame[[*COLUMNS, EXECUTION]].astype({EXECUTION: np.int64})
 
 
 def load_generic(path: Path) -> Corpus:
@@ -118,7 +125,8 @@ def load_generic(path: Path) -> Corpus:
     if missing:
         raise CorpusError(f"{path}: measurements lack columns {sorted(missing)}")
     meta = json.loads((path / "labels.json").read_text())
-    frame = frame[COLUMNS].astype({"series": str, "build": np.int64, "value": np.float64})
+    kept = [*COLUMNS, EXECUTION] if EXECUTION in frame.columns else COLUMNS
+    frame = frame[kept].astype({"series": str, "build": np.int64, "value": np.float64})
     labels = {str(series): SeriesLabel(str(entry["label"]), entry.get("change_build"))
               for series, entry in meta.get("series", {}).items()}
     return Corpus(str(meta.get("name", path.name)), _sorted(frame), labels,
@@ -145,25 +153,24 @@ def write_corpus(corpus: Corpus, path: Path) -> None:
     (path / "labels.json").write_text(json.dumps(meta, indent=1) + "\n")
 
 
-def build_units(corpus: Corpus, baseline_samples: int = 12) -> list[Unit]:
-    """Every build of every series but the first, against the builds just before it.
-
-    The baseline pools whole previous builds, newest first, until it holds at least
-    ``baseline_samples`` values (12, Perfherder's ``min_back_window``) or the history runs
-    out; the candidate is the build's own values. A unit is positive iff its series is
-    labelled "regression" and the build is the first after the labelled change point.
-    """
-    units = []
+def series_builds(corpus: Corpus) -> Iterator[tuple[str, SeriesLabel,
+                                                   list[tuple[int, list[np.ndarray]]]]]:
+    """Each series with its label and its builds in order, a build as its executions' samples
+    (without an ``execution`` column, every sample is its own execution, as the loader says)."""
     for series, frame in corpus.measurements.groupby("series", sort=True):
         label = corpus.labels.get(str(series), SeriesLabel("unlabelled"))
-        builds = [(int(b), g["value"].to_numpy()) for b, g in frame.groupby("build", sort=True)]
-        for k in range(1, len(builds)):
-            start, pooled = k, 0
-            while start > 0 and pooled < baseline_samples:
-                start -= 1
-                pooled += len(builds[start][1])
-            baseline = np.concatenate([values for _, values in builds[start:k]])
-            build, candidate = builds[k]
-            positive = label.label == POSITIVE_LABEL and build == label.change_build
-            units.append(Unit(str(series), build, baseline, candidate, positive))
-    return units
+        builds = []
+        for build, part in frame.groupby("build", sort=True):
+            if EXECUTION in part.columns:
+                executions = [g["value"].to_numpy() for _, g in part.groupby(EXECUTION)]
+            else:
+                executions = [np.array([value]) for value in part["value"].to_numpy()]
+            builds.append((int(build), executions))
+        yield str(series), label, builds
+
+
+def first_executions(corpus: Corpus, count: int) -> Corpus:
+    """The corpus as if every build had run only its first ``count`` executions."""
+    frame = corpus.measurements
+    ranks = frame.groupby(["series", "build"])["execution"].rank(method="dense")
+    return replace(corpus, measurements=frame[ranks <= count].reset_index(drop=True))

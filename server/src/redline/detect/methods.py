@@ -33,6 +33,11 @@ class Detector:
 
     name: ClassVar[str] = ""
     ndim: ClassVar[int] = 1  # 1: one series; 2: samples x counters
+    #: "sample": judges samples pooled; "execution": one value per execution (its median)
+    level: ClassVar[str] = "sample"
+    #: how many values a ``recent`` baseline pools (redline.detect.baseline); 12 is
+    #: Perfherder's ``min_back_window``
+    baseline_values: int = 12
     min_baseline: int
     min_candidate: int
 

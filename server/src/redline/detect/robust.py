@@ -15,11 +15,36 @@ they give 10 false alarms per 100 (docs/detection.md, "Corpus 2"). ``rel_scale``
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 from redline.detect.methods import Detector
 from redline.detect.result import CHANGE, NO_CHANGE, Detection, direction_of
 from scipy import stats
+
+#: 1.4826 * MAD estimates the standard deviation of normal data (Rousseeuw & Croux 1993).
+MAD_TO_SD = 1.4826
+
+
+@dataclass(frozen=True)
+class Shift:
+    """How far the candidate's median moved from the baseline's, and the baseline's spread."""
+
+    before: float  # median of the baseline
+    after: float  # median of the candidate
+    spread: float  # 1.4826 MAD of the baseline, at least rel_scale of its median (and > 0)
+    effect: float  # (after - before) / |before|; +-inf when only the baseline's median is 0
+
+
+def median_shift(base: np.ndarray, cand: np.ndarray, rel_scale: float) -> Shift:
+    before, after = float(np.median(base)), float(np.median(cand))
+    mad = MAD_TO_SD * float(np.median(np.abs(base - before)))
+    spread = max(mad, rel_scale * abs(before), 1e-12)
+    if before == 0:
+        effect = 0.0 if after == 0 else math.copysign(math.inf, after)
+    else:
+        effect = (after - before) / abs(before)
+    return Shift(before, after, spread, effect)
 
 
 class MedianShift(Detector):
@@ -36,14 +61,8 @@ class MedianShift(Detector):
         self.min_candidate = min_candidate
 
     def _detect(self, base: np.ndarray, cand: np.ndarray) -> Detection:
-        before, after = float(np.median(base)), float(np.median(cand))
-        mad = 1.4826 * float(np.median(np.abs(base - before)))
-        scale = max(mad, self.rel_scale * abs(before), 1e-12)
-        score = abs(after - before) / scale
-        if before == 0:
-            effect = 0.0 if after == 0 else math.copysign(math.inf, after)
-        else:
-            effect = (after - before) / abs(before)
+        shift = median_shift(base, cand, self.rel_scale)
+        score, effect = abs(shift.after - shift.before) / shift.spread, shift.effect
         p_value = float(stats.mannwhitneyu(cand, base, alternative="two-sided").pvalue)
         significant = p_value < self.alpha
         above = abs(effect) >= self.min_effect

@@ -6,6 +6,8 @@ from datetime import datetime
 from typing import Literal
 
 from pydantic import BaseModel, Field
+from redline.detect.baseline import DEFAULT_WINDOW
+from redline.detect.config import MAX_WINDOW
 from redline.server.schemas import SeriesRef
 
 State = Literal["new", "acknowledged", "confirmed", "fixed", "ignored", "false_positive"]
@@ -74,8 +76,10 @@ class AccuracyOut(BaseModel):
 class DetectionConfigIn(BaseModel):
     methods: list[str] | None = Field(default=None, description="default: the evaluated "
                                       "default and ks")
-    baseline: Literal["previous", "window", "pinned"] = "previous"
-    window: int = Field(default=5, ge=1, le=50)
+    baseline: Literal["recent", "previous", "window", "pinned"] = Field(
+        default="recent", description="recent: the newest revisions, pooled until the method "
+        "has enough values (at most `window`), restarting at its newest flagged change")
+    window: int = Field(default=DEFAULT_WINDOW, ge=1, le=MAX_WINDOW)
     pinned: str | None = Field(default=None, description="revision title when pinned")
     thresholds: dict[str, dict[str, float | str]] = Field(default_factory=dict)
     reanalyze: bool = Field(default=True, description="re-analyse the whole history after")

@@ -1,14 +1,16 @@
 """Detection over stored results: each series of a revision against its baseline, every method.
 
-The component's configuration (`redline.detect.config.DetectionConfig`, table
-``detection_config``; defaults when absent) names the methods and the baseline: the previous
-revision (by sort key) with samples of the series, a window of the previous n such revisions
-pooled, or a pinned revision. Every method's verdict on every series is stored as a `Detection`
-— "not enough data" with the reason included (no baseline, too few samples, constant, NaN/inf) —
-and KS's decided comparisons also as `Change` rows, which the trend charts and
+The component's configuration (`redline.detect.config.DetectionConfig`, table ``detection_config``;
+defaults when absent) names the methods and the baseline: ``recent`` (the newest earlier revisions
+with samples of the series, pooled until the method has enough values, restarting at the method's
+newest flagged change; `redline.detect.baseline`), the previous revision (by sort key), a window of
+the previous n such revisions pooled, or a pinned revision. Execution-level methods get one value
+per execution (its median), the others all samples. Every method's verdict on every series is stored
+as a `Detection` — "not enough data" with the reason included (no baseline, too few samples,
+constant, NaN/inf) — and KS's decided comparisons also as `Change` rows, which the trend charts and
 ``/api/v1/components/{name}/changes`` show. Flagged detections are then grouped into regressions
-(`redline.worker.grouping`). Samples come from the Parquet side tables written at ingestion.
-Host-wide series are context, never judged.
+(`redline.worker.grouping`). Samples come from the Parquet side tables written at ingestion. Host-
+wide series are context, never judged.
 """
 
 from __future__ import annotations
@@ -20,7 +22,10 @@ from typing import Any
 
 import numpy as np
 import pyarrow.parquet as pq
-from redline.detect.config import ConfigError, DetectionConfig
+from redline.detect.baseline import recent_depth
+from redline.detect.config import MAX_WINDOW, ConfigError, DetectionConfig
+from redline.detect.executions import values_for
+from redline.detect.methods import Detector
 from redline.detect.result import NOT_ENOUGH_DATA
 from redline.detect.result import Detection as Verdict
 from redline.detect.verdict import judge_series
@@ -55,9 +60,13 @@ def ingested_executions() -> Select[tuple[int]]:
             .where(Job.state == JobState.done))
 
 
-def read_samples(session: Session, revision_id: int) -> tuple[dict[int, np.ndarray], int, int]:
-    """Every ingested sample of the revision, all executions pooled, by series id; with how many
-    of its ingested executions' side tables were read, and how many there are.
+#: Per series id, one array of samples per execution (in execution order).
+Samples = dict[int, list[np.ndarray]]
+
+
+def read_samples(session: Session, revision_id: int) -> tuple[Samples, int, int]:
+    """Every ingested sample of the revision, per series id and execution; with how many of
+    its ingested executions' side tables were read, and how many there are.
 
     A side table that is gone (pruned) is left out with a warning: its series then lack data.
     """
@@ -65,24 +74,47 @@ def read_samples(session: Session, revision_id: int) -> tuple[dict[int, np.ndarr
         select(Execution.recording_path).where(Execution.revision_id == revision_id)
         .where(Execution.id.in_(ingested_executions())).order_by(Execution.id)
     ))
-    parts: dict[int, list[np.ndarray]] = defaultdict(list)
+    samples: Samples = defaultdict(list)
     read = 0
     for path in paths:
         try:
-            table = pq.read_table(samples_path(path)).to_pandas()
+            table = pq.read_table(samples_path(path), columns=["series_id", "value"])
         except OSError as exc:
             log.warning("revision %s: samples of %s unreadable: %s", revision_id, path, exc)
             continue
         read += 1
-        for series_id, values in table.groupby("series_id")["value"]:
-            parts[int(series_id)].append(values.to_numpy())
-    samples = {series_id: np.concatenate(chunks) for series_id, chunks in parts.items()}
-    return samples, read, len(paths)
+        series = table.column("series_id").to_numpy()
+        values = table.column("value").to_numpy()
+        order = np.argsort(series, kind="stable")
+        ids, starts = np.unique(series[order], return_index=True)
+        for series_id, chunk in zip(ids.tolist(), np.split(values[order], starts[1:]),
+                                    strict=True):
+            samples[series_id].append(chunk)
+    return dict(samples), read, len(paths)
 
 
-def revision_samples(session: Session, revision_id: int) -> dict[int, np.ndarray]:
-    """Every ingested and still readable sample of the revision, by series id."""
+def revision_samples(session: Session, revision_id: int) -> Samples:
+    """Every ingested and still readable sample of the revision, per series and execution."""
     return read_samples(session, revision_id)[0]
+
+
+class SampleCache:
+    """Revisions' samples, read once: a re-analysis walks the history in order, so the newest
+    few revisions are all a baseline ever needs (bounded, oldest dropped first)."""
+
+    def __init__(self, size: int = 2 * MAX_WINDOW) -> None:
+        self.size = size
+        self.entries: dict[int, Samples] = {}
+
+    def get(self, session: Session, revision_id: int) -> Samples:
+        if revision_id not in self.entries:
+            if len(self.entries) >= self.size:
+                del self.entries[next(iter(self.entries))]
+            self.entries[revision_id] = revision_samples(session, revision_id)
+        return self.entries[revision_id]
+
+    def put(self, revision_id: int, samples: Samples) -> None:
+        self.entries[revision_id] = samples
 
 
 def _before(revision: Revision):  # noqa: ANN202 - an SQL expression
@@ -148,42 +180,68 @@ class Baseline:
     missing: str = ""
 
 
+def _flagged_revisions(session: Session, series_ids: list[int],
+                       revision_ids: set[int]) -> set[tuple[int, str, int]]:
+    """(series, method, revision) of the flagged verdicts among those revisions."""
+    if not revision_ids:
+        return set()
+    rows = session.execute(select(Detection.series_id, Detection.method, Detection.revision_id)
+                           .where(Detection.flagged, Detection.revision_id.in_(revision_ids),
+                                  Detection.series_id.in_(series_ids)))
+    return {(series_id, method, revision_id) for series_id, method, revision_id in rows}
+
+
 class Baselines:
-    """Each series' baseline under the configuration; revisions' samples are read once."""
+    """Each series' baseline for each method under the configuration."""
 
     def __init__(self, session: Session, revision: Revision, config: DetectionConfig,
-                 series_ids: list[int]) -> None:
+                 series_ids: list[int], cache: SampleCache | None = None) -> None:
         self.session, self.config = session, config
-        self.cache: dict[int, dict[int, np.ndarray]] = {}
+        self.cache = cache or SampleCache()
         self.pinned: int | None = None
+        self.flagged: set[tuple[int, str, int]] = set()
         if config.baseline == "pinned":
             self.pinned = session.scalar(select(Revision.id).where(
                 Revision.component_id == revision.component_id, Revision.title == config.pinned,
                 _before(revision)))
             self.previous: dict[int, list[int]] = {}
-        else:
-            depth = config.window if config.baseline == "window" else 1
-            self.previous = _previous_revisions(session, revision, series_ids, depth)
+            return
+        depth = 1 if config.baseline == "previous" else config.window
+        self.previous = _previous_revisions(session, revision, series_ids, depth)
+        if config.baseline == "recent":
+            earlier = {r for ids in self.previous.values() for r in ids}
+            self.flagged = _flagged_revisions(session, series_ids, earlier)
 
-    def samples(self, revision_id: int) -> dict[int, np.ndarray]:
-        if revision_id not in self.cache:
-            self.cache[revision_id] = revision_samples(self.session, revision_id)
-        return self.cache[revision_id]
+    def samples(self, revision_id: int) -> Samples:
+        return self.cache.get(self.session, revision_id)
 
-    def of(self, series_id: int) -> Baseline:
+    def _revisions(self, series_id: int, detector: Detector) -> list[tuple[int, np.ndarray]]:
+        """The baseline's revisions, newest first, with the detector's values of the series."""
         if self.config.baseline == "pinned":
-            if self.pinned is None:
-                return Baseline(None, missing=f"missing baseline: pinned revision "
-                                f"{self.config.pinned!r} is not an earlier revision")
-            ids = [self.pinned]
+            ids = [self.pinned] if self.pinned is not None else []
         else:
             ids = self.previous.get(series_id, [])
-        chunks = [self.samples(i)[series_id] for i in ids if series_id in self.samples(i)]
-        if not chunks:
-            return Baseline(None, missing="missing baseline: no earlier revision has samples "
-                            "of this series" if not ids else "missing baseline: the baseline "
-                            "revision's samples of this series are unreadable or absent")
-        return Baseline(np.concatenate(chunks), ids[0], len(chunks))
+        found = [(i, values_for(detector, self.samples(i)[series_id])) for i in ids
+                 if series_id in self.samples(i)]
+        if self.config.baseline != "recent":
+            return found
+        flagged_at = next((k for k, (i, _) in enumerate(found)
+                           if (series_id, detector.name, i) in self.flagged), None)
+        depth = recent_depth([len(values) for _, values in found], detector.baseline_values,
+                             self.config.window, flagged_at)
+        return found[:depth]
+
+    def of(self, series_id: int, detector: Detector) -> Baseline:
+        if self.config.baseline == "pinned" and self.pinned is None:
+            return Baseline(None, missing=f"missing baseline: pinned revision "
+                            f"{self.config.pinned!r} is not an earlier revision")
+        found = self._revisions(series_id, detector)
+        if not found:
+            known = self.pinned is not None or self.previous.get(series_id)
+            return Baseline(None, missing="missing baseline: the baseline revision's samples "
+                            "of this series are unreadable or absent" if known else
+                            "missing baseline: no earlier revision has samples of this series")
+        return Baseline(np.concatenate([values for _, values in found]), found[0][0], len(found))
 
 
 def _row(series_id: int, revision_id: int, base: Baseline, verdict: Verdict) -> dict[str, Any]:
@@ -207,23 +265,25 @@ def _ks_change(row: dict[str, Any], verdict: Verdict) -> Change | None:
 
 
 def analyze(session: Session, revision: Revision, config: DetectionConfig,
-            candidate: dict[int, np.ndarray] | None = None,
+            candidate: Samples | None = None, cache: SampleCache | None = None,
             ) -> tuple[list[dict[str, Any]], list[Change]]:
     """Every configured method on every judged series of the revision (nothing stored).
 
-    ``candidate``: the revision's samples, when already read.
+    ``candidate``: the revision's samples, when already read; ``cache``: earlier revisions'
+    samples, shared by the revisions of one re-analysis.
     """
     if candidate is None:
         candidate = revision_samples(session, revision.id)
     counters = _judged_counters(session, list(candidate))
-    baselines = Baselines(session, revision, config, sorted(counters))
+    baselines = Baselines(session, revision, config, sorted(counters), cache)
     detectors = config.detectors()
     rows, changes = [], []
     for series_id in sorted(counters):
-        base = baselines.of(series_id)
         for detector in detectors:
+            base = baselines.of(series_id, detector)
             verdict = judge_series(detector, counters[series_id], base.values,
-                                   candidate[series_id], missing=base.missing)
+                                   values_for(detector, candidate[series_id]),
+                                   missing=base.missing)
             rows.append(_row(series_id, revision.id, base, verdict))
             change = _ks_change(rows[-1], verdict)
             if change is not None:
@@ -251,13 +311,15 @@ def store(session: Session, revision: Revision, rows: list[dict[str, Any]],
     revision.analyzed_at = utcnow()
 
 
-def detect_revision(database_url: str, revision_id: int) -> list[Change]:
+def detect_revision(database_url: str, revision_id: int,
+                    cache: SampleCache | None = None) -> list[Change]:
     """Run the component's methods on every series of the revision, replacing earlier results.
 
     Returns KS's changes (a series without a baseline has none; its detections say "not
     enough data: missing baseline"). Detections of one revision take turns (an advisory lock
     for the transaction). A revision with ingested executions none of whose samples can be read
-    any more (pruned) keeps its stored results: nothing is not a new verdict.
+    any more (pruned) keeps its stored results: nothing is not a new verdict. ``cache``: samples
+    of earlier revisions, kept across the revisions of a re-analysis.
     """
     with session_scope(database_url) as session:
         session.execute(select(func.pg_advisory_xact_lock(DETECT_LOCK, revision_id)))
@@ -269,7 +331,9 @@ def detect_revision(database_url: str, revision_id: int) -> list[Change]:
             log.warning("revision %s: the samples of its %d executions are gone (pruned?); "
                         "its stored results are kept", revision_id, ingested)
             return []
+        if cache is not None:
+            cache.put(revision.id, candidate)
         config = component_config(session, revision.component_id)
-        rows, changes = analyze(session, revision, config, candidate)
+        rows, changes = analyze(session, revision, config, candidate, cache)
         store(session, revision, rows, changes)
         return changes

@@ -12,7 +12,7 @@ import logging
 from redline.server.db import session_scope
 from redline.server.models import Execution, Revision, utcnow
 from redline.server.models_regressions import Reanalysis
-from redline.worker.detection import detect_revision, ingested_executions
+from redline.worker.detection import SampleCache, detect_revision, ingested_executions
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
@@ -43,9 +43,10 @@ def reanalyze_component(database_url: str, component_id: int) -> int:
         row = _progress(session, component_id)
         row.state, row.total, row.done, row.error = "running", len(revisions), 0, ""
         row.started, row.finished = utcnow(), None
+    cache = SampleCache()  # the history is walked in order: earlier revisions are read once
     try:
         for done, revision_id in enumerate(revisions, start=1):
-            detect_revision(database_url, revision_id)
+            detect_revision(database_url, revision_id, cache)
             with session_scope(database_url) as session:
                 _progress(session, component_id).done = done
     except Exception as exc:
