@@ -1,13 +1,17 @@
 """Corpus 2: the objectbuilder example run across a git history with injected changes.
 
-    nice -n 10 .venv/bin/python benchmarks/make_corpus.py [--out benchmarks/corpus/objectbuilder]
+    .venv/bin/python benchmarks/make_corpus.py [--out benchmarks/corpus/objectbuilder]
+
+Run it on a quiet host (nothing else on the cores: on 2 cores another process moves the
+component's CPU by 20-25 %); the defaults made the corpus in benchmarks/corpus/objectbuilder
+(88 revisions x 5 executions, about 26 min).
 
 Makes a git repository of ``examples/objectbuilder`` whose history has stretches of unchanged
 revisions (only a comment in ``tuning.py`` differs) and, between them, one injected change of
 known kind and size each: CPU +5 %, +10 %, +30 % (more work per leg pair), a memory leak, an extra
 thread, extra write I/O. ``tuning.py`` carries the injection (the component imports it), so
 ``objectbuilder.py`` is never touched. Every revision is checked out and run ``--executions``
-times (default 3) with `redline.agent.runner.run_suite` (case ``legs_and_rate``, legs 8, rate
+times (default 5) with `redline.agent.runner.run_suite` (case ``legs_and_rate``, legs 8, rate
 20: 0.5 s warm-up, 2 s steady at 10 Hz). The result is written in the documented corpus format
 (docs/detection.md): ``measurements.parquet`` (series, build, value, plus ``execution``) and
 ``labels.json``.
@@ -212,9 +216,9 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path,
                         default=ROOT / "benchmarks" / "corpus" / "objectbuilder")
-    parser.add_argument("--stretch", type=int, default=9, help="revisions between events")
-    parser.add_argument("--executions", type=int, default=3)
-    parser.add_argument("--remeasure", type=int, default=0,
+    parser.add_argument("--stretch", type=int, default=11, help="revisions between events")
+    parser.add_argument("--executions", type=int, default=5)
+    parser.add_argument("--remeasure", type=int, default=2,
                         help="measure a disturbed build again, up to this many times")
     parser.add_argument("--cache", type=Path, default=Path(tempfile.gettempdir()) /
                         "redline-corpus-cache", help="finished builds, kept for a rerun")

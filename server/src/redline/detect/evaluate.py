@@ -46,12 +46,17 @@ DETECTORS: dict[str, Callable[[], Detector]] = {
 CHANGE_POINT_METHOD = "e_divisive"
 
 
+#: "Changes of 10 % or more" (the issue's recall goal), by the size `change_sizes` measures.
+LARGE_CHANGE = 0.10
+
+
 @dataclass(frozen=True)
 class Outcome:
     positive: bool
     score: float
     flagged: bool
     decided: bool
+    size: float = math.nan  # a positive's change size (`change_sizes`); NaN for a negative
 
 
 @dataclass(frozen=True)
@@ -65,6 +70,9 @@ class MethodScores:
     fn: int
     units: int
     decided: int
+    false_alarms_per_100: float = math.nan  # FP per 100 negative units (unchanged builds)
+    recall_large: float = math.nan  # recall of the positives whose change is >= LARGE_CHANGE
+    large: int = 0  # how many such positives there are
 
     def as_dict(self) -> dict[str, float | int]:
         return asdict(self)
@@ -100,9 +108,32 @@ def summarize(outcomes: Sequence[Outcome]) -> MethodScores:
     positive = [o.positive for o in outcomes]
     precision, recall, f1, tp, fp, fn = precision_recall_f1(positive,
                                                             [o.flagged for o in outcomes])
+    negatives = len(outcomes) - sum(positive)
+    large = [o for o in outcomes if o.positive and o.size >= LARGE_CHANGE]
     return MethodScores(roc_auc=roc_auc(positive, [o.score for o in outcomes]),
                         precision=precision, recall=recall, f1=f1, tp=tp, fp=fp, fn=fn,
-                        units=len(outcomes), decided=sum(o.decided for o in outcomes))
+                        units=len(outcomes), decided=sum(o.decided for o in outcomes),
+                        false_alarms_per_100=100 * fp / negatives if negatives else math.nan,
+                        recall_large=(sum(o.flagged for o in large) / len(large)
+                                      if large else math.nan), large=len(large))
+
+
+def change_sizes(corpus: Corpus) -> dict[str, float]:
+    """Each regression series' change size as its data show it over the whole series: the
+    relative move of the median of its build medians from before the change to after it (all
+    the builds of the series a side, so one noisy build does not decide it)."""
+    sizes = {}
+    for series, label, builds in series_builds(corpus):
+        if label.label != POSITIVE_LABEL or label.change_build is None:
+            continue
+        medians = [(build, float(np.median(np.concatenate(runs)))) for build, runs in builds]
+        before = [m for b, m in medians if b < label.change_build]
+        after = [m for b, m in medians if b >= label.change_build]
+        if not before or not after:
+            continue
+        level, moved = float(np.median(before)), float(np.median(after))
+        sizes[series] = abs(moved - level) / abs(level) if level else math.inf
+    return sizes
 
 
 def walk(detector: Detector, corpus: Corpus,
@@ -130,7 +161,9 @@ def walk(detector: Detector, corpus: Corpus,
 
 
 def run_detector(detector: Detector, corpus: Corpus) -> list[Outcome]:
-    return [Outcome(unit.positive, found.score, found.flagged, found.decided)
+    sizes = change_sizes(corpus)
+    return [Outcome(unit.positive, found.score, found.flagged, found.decided,
+                    sizes.get(unit.series, math.nan) if unit.positive else math.nan)
             for unit, found in walk(detector, corpus)]
 
 
@@ -159,10 +192,12 @@ def run_change_points(corpus: Corpus, units: Sequence[Unit],
         for point in result.change_points:
             found[(str(series), int(medians.index[point.index]))] = (1 - point.p_value,
                                                                      point.reported)
+    sizes = change_sizes(corpus)
     outcomes = []
     for unit in units:
         score, flagged = found.get((unit.series, unit.build), (0.0, False))
-        outcomes.append(Outcome(unit.positive, score, flagged, unit.series not in undecided))
+        outcomes.append(Outcome(unit.positive, score, flagged, unit.series not in undecided,
+                                sizes.get(unit.series, math.nan) if unit.positive else math.nan))
     return outcomes
 
 
