@@ -5,10 +5,11 @@
 Split by series, fixed before the data were seen (as in the first corpus): the tuning half holds
 the stable stretch and the first four injected events (CPU +5 %, leak, CPU +10 %, extra thread);
 the held-out half the last three (CPU +30 %, extra I/O, CPU +10 % again). On the tuning half,
-`ExecutionShift` is run over a small grid; the chosen setting is the one with at most 1 false
-alarm per 100 unchanged revisions and the highest recall (then ROC-AUC, then the stricter
-setting). Both halves are then reported for every method with the goals' figures, each half
-walked as the service walks a history (`redline.detect.evaluate.walk`).
+`ExecutionShift` (one value per execution) and `BuildShift` (one value per revision) are run
+over a small grid; the chosen setting is the one with at most 1 false alarm per 100 unchanged
+revisions and the highest recall (then ROC-AUC, then the stricter setting). Both halves are then
+reported for every method with the goals' figures, each half walked as the service walks a
+history (`redline.detect.evaluate.walk`).
 """
 
 from __future__ import annotations
@@ -21,12 +22,15 @@ from pathlib import Path
 
 from redline.detect.corpus import Corpus, first_executions, load_corpus
 from redline.detect.evaluate import DETECTORS, MethodScores, run_detector, summarize
-from redline.detect.executions import ExecutionShift
+from redline.detect.executions import BuildShift, ExecutionShift
 from redline.detect.methods import Detector
 
 HOLDOUT_EVENTS = ("cpu_plus_30", "extra_io", "cpu_plus_10b")
 GRID = {"threshold": (3.0, 4.0, 5.0, 6.0, 8.0), "min_effect": (0.03, 0.05, 0.08, 0.10)}
-METHODS = ("execution_shift", "ks", "mann_whitney", "welch_t", "median_shift", "foo", "shang")
+VARIANTS: dict[str, type[ExecutionShift]] = {"execution_shift": ExecutionShift,
+                                              "build_shift": BuildShift}
+METHODS = ("execution_shift", "build_shift", "ks", "mann_whitney", "welch_t", "median_shift",
+           "foo", "shang")
 
 
 def split(corpus: Corpus) -> tuple[Corpus, Corpus]:
@@ -45,14 +49,18 @@ def line(s: MethodScores) -> str:
             f"{s.recall:.2f} (of {s.tp + s.fn})")
 
 
-def tune(corpus: Corpus) -> dict[str, float]:
+Setting = tuple[str, dict[str, float]]
+
+
+def tune(corpus: Corpus) -> Setting:
     """The setting with <= 1 false alarm per 100 and the best recall, else the fewest alarms."""
-    best: tuple[tuple[float, float, float, float], dict[str, float]] | None = None
-    quietest: tuple[float, dict[str, float]] | None = None
-    for threshold, min_effect in itertools.product(GRID["threshold"], GRID["min_effect"]):
-        setting = {"threshold": threshold, "min_effect": min_effect}
-        result = summarize(run_detector(ExecutionShift(**setting), corpus))
-        print(f"  tune threshold={threshold} min_effect={min_effect}: " + line(result))
+    best: tuple[tuple[float, float, float, float], Setting] | None = None
+    quietest: tuple[float, Setting] | None = None
+    for name, threshold, min_effect in itertools.product(VARIANTS, GRID["threshold"],
+                                                         GRID["min_effect"]):
+        setting = (name, {"threshold": threshold, "min_effect": min_effect})
+        result = summarize(run_detector(VARIANTS[name](**setting[1]), corpus))
+        print(f"  tune {name} threshold={threshold} min_effect={min_effect}: " + line(result))
         if quietest is None or result.false_alarms_per_100 < quietest[0]:
             quietest = (result.false_alarms_per_100, setting)
         if result.false_alarms_per_100 <= 1.0:
@@ -61,7 +69,8 @@ def tune(corpus: Corpus) -> dict[str, float]:
                 best = (key, setting)
     if best is None:
         print("  no setting meets <= 1 false alarm per 100 unchanged revisions; the quietest:")
-        return quietest[1] if quietest else {}
+        assert quietest is not None
+        return quietest[1]
     return best[1]
 
 
@@ -87,7 +96,8 @@ def main() -> int:
     halves = {"tuning": tuning, "held-out": held}
     for name in METHODS:
         report(name, DETECTORS[name](), halves)
-    report("execution_shift*", ExecutionShift(**chosen), halves)
+    name, params = chosen
+    report(f"{name}*", VARIANTS[name](**params), halves)
     return 0
 
 

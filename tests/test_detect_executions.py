@@ -11,7 +11,7 @@ import pytest
 from redline.detect.baseline import recent_depth
 from redline.detect.corpus import Corpus, SeriesLabel, first_executions
 from redline.detect.evaluate import DEFAULT_METHOD, DETECTORS, walk
-from redline.detect.executions import ExecutionShift, execution_values, values_for
+from redline.detect.executions import BuildShift, ExecutionShift, execution_values, values_for
 from redline.detect.methods import WelchT
 from redline.detect.result import CHANGE, NO_CHANGE, NOT_ENOUGH_DATA
 
@@ -85,9 +85,26 @@ def test_bad_input_is_not_enough_data_naming_what_is_missing(baseline, candidate
 
 
 def test_values_for_pools_samples_or_reduces_executions_by_the_detector_level() -> None:
-    runs = [np.array([1.0, 2.0, 9.0]), np.array([4.0, 5.0])]
-    assert values_for(WelchT(), runs).tolist() == [1.0, 2.0, 9.0, 4.0, 5.0]
-    assert values_for(ExecutionShift(), runs).tolist() == [2.0, 4.5]
+    runs = [np.array([1.0, 2.0, 9.0]), np.array([4.0, 5.0]), np.array([7.0])]
+    assert values_for(WelchT(), runs).tolist() == [1.0, 2.0, 9.0, 4.0, 5.0, 7.0]
+    assert values_for(ExecutionShift(), runs).tolist() == [2.0, 4.5, 7.0]
+    assert values_for(BuildShift(), runs).tolist() == [4.5]
+
+
+def test_build_shift_judges_revisions_so_noise_shared_by_a_revision_is_not_a_change() -> None:
+    """Executions of one revision share the host's state: this candidate's five agree with each
+    other but sit 8 % above; revisions before it moved as much. Judged per execution the
+    agreement looks significant; judged per revision it is one more ordinary revision."""
+    rng = np.random.default_rng(8)
+    levels = [15.0, 16.1, 14.6, 15.5, 14.3, 15.9, 14.8, 16.0, 15.2, 14.7]
+    history = [[rng.normal(level, 0.1, 20) for _ in range(5)] for level in levels]
+    candidate = [rng.normal(16.4, 0.1, 20) for _ in range(5)]
+    for detector, verdict in ((ExecutionShift(threshold=3), CHANGE),
+                              (BuildShift(threshold=3), NO_CHANGE)):
+        baseline = np.concatenate([values_for(detector, runs) for runs in history[-5:]]
+                                  if detector.level == "execution" else
+                                  [values_for(detector, runs) for runs in history])
+        assert detector.compare(baseline, values_for(detector, candidate)).verdict == verdict
 
 
 @pytest.mark.parametrize(("sizes", "need", "window", "flagged_at", "depth"), [

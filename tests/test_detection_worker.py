@@ -19,7 +19,7 @@ from redline.server.models_regressions import (
 )
 from redline.server.schemas import ComponentCreate
 from redline.server.services.components import create_component
-from redline.worker.detection import detect_revision, samples_path
+from redline.worker.detection import SampleCache, detect_revision, samples_path
 from redline.worker.ingest import ingest_execution
 from redline.worker.reanalysis import reanalyze_component
 from sqlalchemy import func, select
@@ -292,3 +292,13 @@ def test_median_shift_ignores_a_few_huge_outliers_that_move_the_mean():
     shifted = MedianShift().compare(base, base * 1.2)
     assert shifted.flagged and shifted.effect == pytest.approx(0.2, abs=0.01)
     assert MedianShift().compare(base, cand[:3]).verdict == "not enough data"
+
+
+def test_sample_cache_keeps_only_the_newest_revisions_it_is_sized_for():
+    cache = SampleCache(3)
+    for revision_id in range(1, 7):
+        cache.put(revision_id, {1: [np.full(2, float(revision_id))]})
+    assert list(cache.entries) == [4, 5, 6]
+    assert cache.get(None, 5)[1][0].tolist() == [5.0, 5.0]  # a hit reads nothing
+    cache.put(5, {1: [np.zeros(1)]})  # replacing keeps the bound
+    assert len(cache.entries) == 3 and cache.get(None, 5)[1][0].tolist() == [0.0]

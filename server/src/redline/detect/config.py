@@ -13,7 +13,7 @@ from typing import Any
 
 from redline.detect.baseline import DEFAULT_WINDOW
 from redline.detect.evaluate import DEFAULT_METHOD
-from redline.detect.executions import ExecutionShift
+from redline.detect.executions import BuildShift, ExecutionShift
 from redline.detect.foo import FooRules
 from redline.detect.methods import Detector, KolmogorovSmirnov, MannWhitney, WelchT
 from redline.detect.robust import MedianShift
@@ -23,6 +23,7 @@ from redline.detect.shang import ShangRegression
 #: one-counter form (a series is one counter); E-divisive needs a whole history, not one build.
 WORKER_DETECTORS: dict[str, Callable[..., Detector]] = {
     "execution_shift": ExecutionShift,
+    "build_shift": BuildShift,
     "ks": KolmogorovSmirnov,
     "mann_whitney": MannWhitney,
     "welch_t": WelchT,

@@ -18,7 +18,7 @@ import numpy as np
 from redline.detect.baseline import DEFAULT_WINDOW, recent_depth
 from redline.detect.changepoint import EDivisive
 from redline.detect.corpus import POSITIVE_LABEL, Corpus, Unit, series_builds
-from redline.detect.executions import ExecutionShift, values_for
+from redline.detect.executions import BuildShift, ExecutionShift, values_for
 from redline.detect.foo import FooRules
 from redline.detect.methods import Detector, KolmogorovSmirnov, MannWhitney, WelchT
 from redline.detect.result import Detection
@@ -32,6 +32,7 @@ DEFAULT_METHOD = "execution_shift"
 
 DETECTORS: dict[str, Callable[[], Detector]] = {
     "execution_shift": ExecutionShift,
+    "build_shift": BuildShift,
     "ks": KolmogorovSmirnov,
     "mann_whitney": MannWhitney,
     "welch_t": WelchT,

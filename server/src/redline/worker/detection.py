@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 import pyarrow.parquet as pq
 from redline.detect.baseline import recent_depth
-from redline.detect.config import MAX_WINDOW, ConfigError, DetectionConfig
+from redline.detect.config import ConfigError, DetectionConfig
 from redline.detect.executions import values_for
 from redline.detect.methods import Detector
 from redline.detect.result import NOT_ENOUGH_DATA
@@ -100,20 +100,22 @@ def revision_samples(session: Session, revision_id: int) -> Samples:
 
 class SampleCache:
     """Revisions' samples, read once: a re-analysis walks the history in order, so the newest
-    few revisions are all a baseline ever needs (bounded, oldest dropped first)."""
+    ``size`` revisions (the baseline window and the candidate) are all it needs; the oldest
+    is dropped first, which bounds memory whatever the history's length."""
 
-    def __init__(self, size: int = 2 * MAX_WINDOW) -> None:
+    def __init__(self, size: int) -> None:
         self.size = size
         self.entries: dict[int, Samples] = {}
 
     def get(self, session: Session, revision_id: int) -> Samples:
         if revision_id not in self.entries:
-            if len(self.entries) >= self.size:
-                del self.entries[next(iter(self.entries))]
-            self.entries[revision_id] = revision_samples(session, revision_id)
+            self.put(revision_id, revision_samples(session, revision_id))
         return self.entries[revision_id]
 
     def put(self, revision_id: int, samples: Samples) -> None:
+        self.entries.pop(revision_id, None)
+        while len(self.entries) >= self.size:
+            del self.entries[next(iter(self.entries))]
         self.entries[revision_id] = samples
 
 
@@ -197,7 +199,7 @@ class Baselines:
     def __init__(self, session: Session, revision: Revision, config: DetectionConfig,
                  series_ids: list[int], cache: SampleCache | None = None) -> None:
         self.session, self.config = session, config
-        self.cache = cache or SampleCache()
+        self.cache = cache or SampleCache(config.window + 1)
         self.pinned: int | None = None
         self.flagged: set[tuple[int, str, int]] = set()
         if config.baseline == "pinned":

@@ -12,7 +12,12 @@ import logging
 from redline.server.db import session_scope
 from redline.server.models import Execution, Revision, utcnow
 from redline.server.models_regressions import Reanalysis
-from redline.worker.detection import SampleCache, detect_revision, ingested_executions
+from redline.worker.detection import (
+    SampleCache,
+    component_config,
+    detect_revision,
+    ingested_executions,
+)
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
@@ -40,10 +45,12 @@ def reanalyze_component(database_url: str, component_id: int) -> int:
     """Detect every revision of the component again; returns how many were analysed."""
     with session_scope(database_url) as session:
         revisions = revisions_with_data(session, component_id)
+        # the history is walked in order: each revision is read once, while in a baseline
+        window = component_config(session, component_id).window
         row = _progress(session, component_id)
         row.state, row.total, row.done, row.error = "running", len(revisions), 0, ""
         row.started, row.finished = utcnow(), None
-    cache = SampleCache()  # the history is walked in order: earlier revisions are read once
+    cache = SampleCache(window + 1)
     try:
         for done, revision_id in enumerate(revisions, start=1):
             detect_revision(database_url, revision_id, cache)
