@@ -66,8 +66,9 @@ class ExecutionShift(Detector):
     docs/detection.md). The threshold is high because executions of one revision share noise
     (the host's state), so their agreement overstates significance; ``rel_scale = 0.01``.
     ``baseline_values = 15``: the baseline pools earlier revisions until it holds 15 execution
-    values (3 revisions of 5 executions), enough for the MAD to see between-revision noise; ``min_baseline = 6`` values. ``min_candidate =
-    1``: one execution can be judged, with the uncertainty ``sqrt(1/len(c))`` accounts for.
+    values (3 revisions of 5 executions), enough for the MAD to see between-revision noise;
+    ``min_baseline = 6`` values. ``min_candidate = 1``: one execution can be judged, with the
+    uncertainty ``sqrt(1/len(c))`` accounts for.
     There is no p-value: the spread is estimated robustly, not from a distribution.
     """
 
