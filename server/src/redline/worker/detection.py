@@ -99,13 +99,15 @@ def revision_samples(session: Session, revision_id: int) -> Samples:
 
 
 class SampleCache:
-    """Revisions' samples, read once: a re-analysis walks the history in order, so the newest
-    ``size`` revisions (the baseline window and the candidate) are all it needs; the oldest
-    is dropped first, which bounds memory whatever the history's length."""
+    """Revisions' samples, read once, and the values each detector level makes of them, made
+    once: a re-analysis walks the history in order, so the newest ``size`` revisions (the
+    baseline window and the candidate) are all it needs; the oldest is dropped first, which
+    bounds memory whatever the history's length."""
 
     def __init__(self, size: int) -> None:
         self.size = size
         self.entries: dict[int, Samples] = {}
+        self.reduced: dict[int, dict[tuple[int, str], np.ndarray]] = {}
 
     def get(self, session: Session, revision_id: int) -> Samples:
         if revision_id not in self.entries:
@@ -114,9 +116,24 @@ class SampleCache:
 
     def put(self, revision_id: int, samples: Samples) -> None:
         self.entries.pop(revision_id, None)
+        self.reduced.pop(revision_id, None)
         while len(self.entries) >= self.size:
-            del self.entries[next(iter(self.entries))]
+            oldest = next(iter(self.entries))
+            del self.entries[oldest]
+            self.reduced.pop(oldest, None)
         self.entries[revision_id] = samples
+
+    def values(self, session: Session, revision_id: int, series_id: int,
+               detector: Detector) -> np.ndarray | None:
+        """The revision's values of the series as ``detector`` judges them; None if absent."""
+        samples = self.get(session, revision_id)
+        if series_id not in samples:
+            return None
+        memo = self.reduced.setdefault(revision_id, {})
+        key = (series_id, detector.level)
+        if key not in memo:
+            memo[key] = values_for(detector, samples[series_id])
+        return memo[key]
 
 
 def _before(revision: Revision):  # noqa: ANN202 - an SQL expression
@@ -153,9 +170,10 @@ def _judged_counters(session: Session, series_ids: list[int]) -> dict[int, str]:
     return {series_id: counter for series_id, counter in rows}
 
 
-def _previous_revisions(session: Session, revision: Revision, series_ids: list[int],
-                        depth: int) -> dict[int, list[int]]:
-    """Per series, the ids of the ``depth`` newest earlier revisions with samples of it."""
+def _ranked_previous(session: Session, revision: Revision, series_ids: list[int],
+                     depth: int) -> dict[int, list[int]]:
+    """Per series, the ids of the ``depth`` newest earlier revisions with samples of it, by
+    ranking every earlier revision's summaries of those series (the general case)."""
     rank = func.dense_rank().over(partition_by=Summary.series_id,
                                   order_by=(Revision.order_key.desc(), Revision.id.desc()))
     ranked = (select(Summary.series_id, Revision.id.label("revision_id"), rank.label("rank"))
@@ -172,6 +190,37 @@ def _previous_revisions(session: Session, revision: Revision, series_ids: list[i
         if revision_id not in found[series_id]:
             found[series_id].append(revision_id)
     return found
+
+
+def _previous_revisions(session: Session, revision: Revision, series_ids: list[int],
+                        depth: int) -> dict[int, list[int]]:
+    """Per series, the ids of the ``depth`` newest earlier revisions with samples of it.
+
+    The newest ``depth`` earlier revisions with results nearly always hold every series: they
+    are looked up first (an index walk, whatever the history's length); only the series some
+    of them lack are ranked over the whole history. Ranking every series each time made a
+    re-analysis quadratic in the history's length.
+    """
+    has_samples = (select(Summary.id).join(Execution, Execution.id == Summary.execution_id)
+                   .where(Execution.revision_id == Revision.id).exists())
+    newest = list(session.scalars(
+        select(Revision.id).where(Revision.component_id == revision.component_id,
+                                  _before(revision), has_samples)
+        .order_by(Revision.order_key.desc(), Revision.id.desc()).limit(depth)))
+    holds: dict[int, set[int]] = defaultdict(set)
+    if newest:
+        rows = session.execute(select(Summary.series_id, Execution.revision_id).distinct()
+                               .join(Execution, Execution.id == Summary.execution_id)
+                               .where(Execution.revision_id.in_(newest),
+                                      Summary.series_id.in_(series_ids)))
+        for series_id, revision_id in rows:
+            holds[series_id].add(revision_id)
+    found = {series_id: [r for r in newest if r in holds[series_id]] for series_id in series_ids}
+    # fewer than `depth` revisions with results: there is nothing older to look through
+    lacking = [s for s in series_ids if len(found[s]) < depth] if len(newest) == depth else []
+    if lacking:
+        found.update(_ranked_previous(session, revision, lacking, depth))
+    return {series_id: ids for series_id, ids in found.items() if ids}
 
 
 @dataclass(frozen=True)
@@ -214,8 +263,8 @@ class Baselines:
             earlier = {r for ids in self.previous.values() for r in ids}
             self.flagged = _flagged_revisions(session, series_ids, earlier)
 
-    def samples(self, revision_id: int) -> Samples:
-        return self.cache.get(self.session, revision_id)
+    def values(self, revision_id: int, series_id: int, detector: Detector) -> np.ndarray | None:
+        return self.cache.values(self.session, revision_id, series_id, detector)
 
     def _revisions(self, series_id: int, detector: Detector) -> list[tuple[int, np.ndarray]]:
         """The baseline's revisions, newest first, with the detector's values of the series."""
@@ -223,8 +272,8 @@ class Baselines:
             ids = [self.pinned] if self.pinned is not None else []
         else:
             ids = self.previous.get(series_id, [])
-        found = [(i, values_for(detector, self.samples(i)[series_id])) for i in ids
-                 if series_id in self.samples(i)]
+        found = [(i, values) for i in ids
+                 if (values := self.values(i, series_id, detector)) is not None]
         if self.config.baseline != "recent":
             return found
         flagged_at = next((k for k, (i, _) in enumerate(found)
@@ -278,13 +327,14 @@ def analyze(session: Session, revision: Revision, config: DetectionConfig,
         candidate = revision_samples(session, revision.id)
     counters = _judged_counters(session, list(candidate))
     baselines = Baselines(session, revision, config, sorted(counters), cache)
+    baselines.cache.put(revision.id, candidate)
     detectors = config.detectors()
     rows, changes = [], []
     for series_id in sorted(counters):
         for detector in detectors:
             base = baselines.of(series_id, detector)
-            verdict = judge_series(detector, counters[series_id], base.values,
-                                   values_for(detector, candidate[series_id]),
+            values = baselines.values(revision.id, series_id, detector)
+            verdict = judge_series(detector, counters[series_id], base.values, values,
                                    missing=base.missing)
             rows.append(_row(series_id, revision.id, base, verdict))
             change = _ks_change(rows[-1], verdict)
@@ -303,8 +353,8 @@ def store(session: Session, revision: Revision, rows: list[dict[str, Any]],
     session.execute(delete(Detection).where(Detection.revision_id == revision.id))
     session.execute(delete(Change).where(Change.revision_id == revision.id,
                                          Change.method == METHOD_KS))
-    if rows:
-        session.execute(insert(Detection), rows)
+    if rows:  # the Core table: one batched executemany, where the ORM sent a row at a time
+        session.execute(insert(Detection.__table__), rows)
     if changes:
         columns = ("series_id", "revision_id", "baseline_revision_id", "method", "score",
                    "p_value", "effect", "flagged", "created")
@@ -333,8 +383,6 @@ def detect_revision(database_url: str, revision_id: int,
             log.warning("revision %s: the samples of its %d executions are gone (pruned?); "
                         "its stored results are kept", revision_id, ingested)
             return []
-        if cache is not None:
-            cache.put(revision.id, candidate)
         config = component_config(session, revision.component_id)
         rows, changes = analyze(session, revision, config, candidate, cache)
         store(session, revision, rows, changes)
