@@ -156,3 +156,20 @@ def test_first_executions_keeps_that_many_per_build() -> None:
     cut = first_executions(_step_corpus(), 3)
     assert set(cut.measurements.groupby("build")["execution"].nunique()) == {3}
     assert set(cut.measurements["execution"]) == {0, 1, 2}
+
+
+@pytest.mark.parametrize("bad", [math.nan, math.inf, -math.inf])
+def test_an_execution_with_a_non_finite_sample_is_named_not_hidden_by_its_median(bad) -> None:
+    runs = [np.array([15.0, 15.2, bad, 14.9, 15.1])]
+    assert math.isnan(execution_values(runs)[0])
+    found = ExecutionShift().compare(np.linspace(14, 16, 15), execution_values(runs))
+    assert found.verdict == NOT_ENOUGH_DATA and "candidate contains NaN/inf" in found.reason
+
+
+def test_the_fast_median_equals_numpys() -> None:
+    from redline.detect.robust import median
+
+    rng = np.random.default_rng(0)
+    for size in (1, 2, 3, 10, 11, 60):
+        values = rng.normal(0, 1, size)
+        assert median(values) == pytest.approx(float(np.median(values)), abs=0)

@@ -12,25 +12,37 @@ restart their windows at a detected change point).
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
+from typing import TypeVar
 
 #: How many earlier revisions ``recent`` may pool at most, by default (configurable: ``window``).
 DEFAULT_WINDOW = 10
+T = TypeVar("T")
+
+
+def take_recent(newest_first: Iterable[tuple[T, int, bool]], need: int,
+                window: int = DEFAULT_WINDOW) -> list[T]:
+    """The earlier revisions that form the baseline, taken from ``(revision, number of values,
+    flagged by the method)`` newest first, and read no further than needed (the iterable may
+    compute each revision's values lazily)."""
+    taken: list[T] = []
+    pooled = 0
+    for item, size, flagged in newest_first:
+        if len(taken) >= window or pooled >= need:
+            break
+        taken.append(item)
+        pooled += size
+        if flagged:  # the newest change the method flagged: the baseline starts there
+            break
+    return taken
 
 
 def recent_depth(sizes_newest_first: Sequence[int], need: int, window: int = DEFAULT_WINDOW,
                  flagged_at: int | None = None) -> int:
-    """How many of the newest earlier revisions form the baseline.
+    """How many of the newest earlier revisions form the baseline (`take_recent` on sizes).
 
-    ``sizes_newest_first``: each earlier revision's number of values, the newest first.
-    ``flagged_at``: the position in that list of the newest revision the method flagged, or
-    None; the baseline stops there, that revision included.
+    ``flagged_at``: the position in ``sizes_newest_first`` of the newest revision the method
+    flagged, or None; the baseline stops there, that revision included.
     """
-    limit = min(len(sizes_newest_first), window)
-    if flagged_at is not None:
-        limit = min(limit, flagged_at + 1)
-    pooled, depth = 0, 0
-    while depth < limit and pooled < need:
-        pooled += sizes_newest_first[depth]
-        depth += 1
-    return depth
+    return len(take_recent(((k, size, k == flagged_at) for k, size in
+                            enumerate(sizes_newest_first)), need, window))

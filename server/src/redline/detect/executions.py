@@ -20,14 +20,13 @@ from typing import ClassVar
 import numpy as np
 from redline.detect.methods import Detector
 from redline.detect.result import CHANGE, NO_CHANGE, Detection, direction_of
-from redline.detect.robust import median_shift
+from redline.detect.robust import median, median_shift
 
 
 def execution_values(executions: Sequence[np.ndarray]) -> np.ndarray:
     """One value per execution: the median of its samples (NaN for an execution with none,
     so the detector's input check names it rather than the execution silently vanishing)."""
-    return np.array([float(np.median(e)) if len(e) else math.nan for e in executions],
-                    dtype=np.float64)
+    return np.array([median(e) if len(e) else math.nan for e in executions], dtype=np.float64)
 
 
 def values_for(detector: Detector, executions: Sequence[np.ndarray]) -> np.ndarray:
@@ -37,7 +36,7 @@ def values_for(detector: Detector, executions: Sequence[np.ndarray]) -> np.ndarr
     if detector.level == "execution":
         return execution_values(executions)
     if detector.level == "build":
-        return np.array([float(np.median(execution_values(executions)))])
+        return np.array([median(execution_values(executions))])
     return np.concatenate(list(executions))
 
 

@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 import pyarrow.parquet as pq
-from redline.detect.baseline import recent_depth
+from redline.detect.baseline import take_recent
 from redline.detect.config import ConfigError, DetectionConfig
 from redline.detect.executions import values_for
 from redline.detect.methods import Detector
@@ -272,15 +272,13 @@ class Baselines:
             ids = [self.pinned] if self.pinned is not None else []
         else:
             ids = self.previous.get(series_id, [])
-        found = [(i, values) for i in ids
-                 if (values := self.values(i, series_id, detector)) is not None]
+        present = ((i, values) for i in ids
+                   if (values := self.values(i, series_id, detector)) is not None)
         if self.config.baseline != "recent":
-            return found
-        flagged_at = next((k for k, (i, _) in enumerate(found)
-                           if (series_id, detector.name, i) in self.flagged), None)
-        depth = recent_depth([len(values) for _, values in found], detector.baseline_values,
-                             self.config.window, flagged_at)
-        return found[:depth]
+            return list(present)
+        return take_recent((((i, values), len(values), (series_id, detector.name, i)
+                             in self.flagged) for i, values in present),
+                           detector.baseline_values, self.config.window)
 
     def of(self, series_id: int, detector: Detector) -> Baseline:
         if self.config.baseline == "pinned" and self.pinned is None:

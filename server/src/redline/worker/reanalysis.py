@@ -8,6 +8,7 @@ the same result); progress (done / total) is stored in ``reanalysis`` for the AP
 from __future__ import annotations
 
 import logging
+import time
 
 from redline.server.db import session_scope
 from redline.server.models import Execution, Revision, utcnow
@@ -23,6 +24,8 @@ from sqlalchemy.orm import Session
 
 log = logging.getLogger(__name__)
 REANALYZE_TASK = "redline.reanalyze_component"
+#: how often the stored progress (done / total) is brought up to date, at most
+PROGRESS_EVERY_S = 0.5
 
 
 def _progress(session: Session, component_id: int) -> Reanalysis:
@@ -51,11 +54,14 @@ def reanalyze_component(database_url: str, component_id: int) -> int:
         row.state, row.total, row.done, row.error = "running", len(revisions), 0, ""
         row.started, row.finished = utcnow(), None
     cache = SampleCache(window + 1)
+    reported = time.monotonic()
     try:
         for done, revision_id in enumerate(revisions, start=1):
             detect_revision(database_url, revision_id, cache)
-            with session_scope(database_url) as session:
-                _progress(session, component_id).done = done
+            if time.monotonic() - reported >= PROGRESS_EVERY_S or done == len(revisions):
+                with session_scope(database_url) as session:
+                    _progress(session, component_id).done = done
+                reported = time.monotonic()
     except Exception as exc:
         with session_scope(database_url) as session:
             row = _progress(session, component_id)
