@@ -17,7 +17,8 @@ from __future__ import annotations
 
 import logging
 from collections import defaultdict
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
+from datetime import datetime
 from typing import Any
 
 import numpy as np
@@ -30,7 +31,7 @@ from redline.detect.result import NOT_ENOUGH_DATA
 from redline.detect.result import Detection as Verdict
 from redline.detect.verdict import judge_series
 from redline.recording.format import HOST_PROCESS
-from redline.server.db import session_scope
+from redline.server.db import bulk_insert, session_scope
 from redline.server.models import (
     Change,
     Execution,
@@ -44,7 +45,7 @@ from redline.server.models import (
 from redline.server.models_regressions import Detection, DetectionConfigRow
 from redline.server.storage import samples_path
 from redline.worker.grouping import group_revision
-from sqlalchemy import Select, delete, func, insert, select, tuple_
+from sqlalchemy import Select, delete, func, select, text, tuple_
 from sqlalchemy.orm import Session
 
 log = logging.getLogger(__name__)
@@ -303,19 +304,34 @@ def _row(series_id: int, revision_id: int, base: Baseline, verdict: Verdict) -> 
                 direction=verdict.direction, flagged=verdict.flagged, created=utcnow())
 
 
-def _ks_change(row: dict[str, Any], verdict: Verdict) -> Change | None:
-    """KS's decided comparison as the `Change` the trend charts draw."""
+@dataclass(frozen=True)
+class KsChange:
+    """KS's decided comparison of a series, as the `Change` row the trend charts draw (plain
+    data: 100 series a revision made ORM objects a re-analysis's largest Python cost)."""
+
+    series_id: int
+    revision_id: int
+    baseline_revision_id: int | None
+    method: str
+    score: float
+    p_value: float
+    effect: float
+    flagged: bool
+    created: datetime
+
+
+def _ks_change(row: dict[str, Any], verdict: Verdict) -> KsChange | None:
     if row["method"] != METHOD_KS or verdict.verdict == NOT_ENOUGH_DATA or verdict.p_value is None:
         return None
-    return Change(series_id=row["series_id"], revision_id=row["revision_id"],
-                  baseline_revision_id=row["baseline_revision_id"], method=METHOD_KS,
-                  score=verdict.score, p_value=verdict.p_value, effect=verdict.effect,
-                  flagged=verdict.flagged, created=row["created"])
+    return KsChange(series_id=row["series_id"], revision_id=row["revision_id"],
+                    baseline_revision_id=row["baseline_revision_id"], method=METHOD_KS,
+                    score=verdict.score, p_value=verdict.p_value, effect=verdict.effect,
+                    flagged=verdict.flagged, created=row["created"])
 
 
 def analyze(session: Session, revision: Revision, config: DetectionConfig,
             candidate: Samples | None = None, cache: SampleCache | None = None,
-            ) -> tuple[list[dict[str, Any]], list[Change]]:
+            ) -> tuple[list[dict[str, Any]], list[KsChange]]:
     """Every configured method on every judged series of the revision (nothing stored).
 
     ``candidate``: the revision's samples, when already read; ``cache``: earlier revisions'
@@ -342,36 +358,36 @@ def analyze(session: Session, revision: Revision, config: DetectionConfig,
 
 
 def store(session: Session, revision: Revision, rows: list[dict[str, Any]],
-          changes: list[Change]) -> None:
+          changes: list[KsChange]) -> None:
     """Replace the revision's detections and KS changes, then regroup its regressions.
 
-    Bulk inserts (no unit of work): 500 series x 2 methods would otherwise spend more time in
-    the ORM than in the detectors.
+    One statement per table (`bulk_insert`): 500 series x 2 methods would otherwise spend more
+    time in the ORM and in round trips than in the detectors.
     """
     session.execute(delete(Detection).where(Detection.revision_id == revision.id))
     session.execute(delete(Change).where(Change.revision_id == revision.id,
                                          Change.method == METHOD_KS))
-    if rows:  # the Core table: one batched executemany, where the ORM sent a row at a time
-        session.execute(insert(Detection.__table__), rows)
-    if changes:
-        columns = ("series_id", "revision_id", "baseline_revision_id", "method", "score",
-                   "p_value", "effect", "flagged", "created")
-        session.execute(insert(Change), [{c: getattr(ch, c) for c in columns} for ch in changes])
+    bulk_insert(session, Detection.__table__, rows)
+    bulk_insert(session, Change.__table__, [asdict(change) for change in changes])
     group_revision(session, revision)
     revision.analyzed_at = utcnow()
 
 
 def detect_revision(database_url: str, revision_id: int,
-                    cache: SampleCache | None = None) -> list[Change]:
+                    cache: SampleCache | None = None, durable: bool = True) -> list[KsChange]:
     """Run the component's methods on every series of the revision, replacing earlier results.
 
     Returns KS's changes (a series without a baseline has none; its detections say "not
     enough data: missing baseline"). Detections of one revision take turns (an advisory lock
     for the transaction). A revision with ingested executions none of whose samples can be read
     any more (pruned) keeps its stored results: nothing is not a new verdict. ``cache``: samples
-    of earlier revisions, kept across the revisions of a re-analysis.
+    of earlier revisions, kept across the revisions of a re-analysis, which also passes
+    ``durable=False``: its commits do not wait for the WAL flush (a crash can lose the last few
+    revisions' verdicts, never half of one, and the retried task recomputes them all).
     """
     with session_scope(database_url) as session:
+        if not durable:
+            session.execute(text("SET LOCAL synchronous_commit TO OFF"))
         session.execute(select(func.pg_advisory_xact_lock(DETECT_LOCK, revision_id)))
         revision = session.get(Revision, revision_id)
         if revision is None:

@@ -57,7 +57,7 @@ def reanalyze_component(database_url: str, component_id: int) -> int:
     reported = time.monotonic()
     try:
         for done, revision_id in enumerate(revisions, start=1):
-            detect_revision(database_url, revision_id, cache)
+            detect_revision(database_url, revision_id, cache, durable=False)
             if time.monotonic() - reported >= PROGRESS_EVERY_S or done == len(revisions):
                 with session_scope(database_url) as session:
                     _progress(session, component_id).done = done
