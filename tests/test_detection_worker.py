@@ -329,3 +329,66 @@ def test_a_series_missing_from_recent_revisions_reaches_back_to_where_it_was(
     assert (rare.baseline_revisions, rare.baseline_revision_id) == (2, executions[1].revision_id)
     assert rare.flagged
     assert found[("cpu", "r6")].baseline_revisions == 3
+
+
+def test_reanalysis_with_a_pruned_revision_keeps_its_verdicts_and_matches_detection(
+        session, database_url, tmp_path):
+    """The walk keeps flagged verdicts in memory; a revision whose samples are gone keeps its
+    stored ones, which must count for the baselines after it exactly as detection reads them."""
+    executions = _runs_history(session, tmp_path, [15.0] * 6 + [19.5] * 5)
+    _run(database_url, executions)
+    pruned = [e for e in executions if e.revision_id == executions[18].revision_id]  # r7
+    for execution in pruned:
+        samples_path(execution.recording_path).unlink()
+    keyed = lambda: {key: (d.verdict, d.score, d.baseline_revisions, d.baseline_revision_id)  # noqa: E731
+                     for key, d in _verdicts(session).items()}
+    before = keyed()
+    for revision_id in dict.fromkeys(e.revision_id for e in executions):
+        detect_revision(database_url, revision_id)  # one by one, flags read from the database
+    by_detection = keyed()
+    assert {k: v for k, v in by_detection.items() if k[0] == "r7"} == \
+        {k: v for k, v in before.items() if k[0] == "r7"}  # the pruned revision's verdicts stand
+    component = session.scalar(select(Component))
+    assert reanalyze_component(database_url, component.id) == 11
+    assert keyed() == by_detection
+
+
+def test_a_failure_while_storing_fails_the_reanalysis_with_the_error(
+        session, database_url, tmp_path, monkeypatch):
+    from redline.worker import reanalysis
+
+    executions = _runs_history(session, tmp_path, [15.0] * 8)
+    _run(database_url, executions)
+    stored, store = [], reanalysis.store_judged
+
+    def failing_store(url, judged, durable=True):  # the fourth write fails
+        if len(stored) == 3:
+            raise RuntimeError("disk full")
+        stored.append(judged.revision_id)
+        store(url, judged, durable)
+
+    monkeypatch.setattr(reanalysis, "store_judged", failing_store)
+    component = session.scalar(select(Component))
+    with pytest.raises(RuntimeError, match="disk full"):
+        reanalyze_component(database_url, component.id)
+    session.expire_all()
+    progress = session.get(Reanalysis, component.id)
+    assert progress.state == "failed" and "RuntimeError: disk full" in progress.error
+    assert len(stored) == 3
+
+
+def test_reanalysis_skips_an_all_nan_revision_in_baselines_as_detection_does(
+        session, database_url, tmp_path):
+    """A revision whose samples are all NaN has no summaries: it is no earlier revision "with
+    samples" of the series, for the walk's memory as for the database's answer."""
+    cpus = [20.0, 20.0, 20.0, np.full(60, np.nan), 20.0, 20.0, 20.0, 20.0, 60.0]
+    executions = _history(session, tmp_path, cpus)
+    _run(database_url, executions)
+    keyed = lambda: {key: (d.verdict, d.reason, d.score, d.baseline_revisions,  # noqa: E731
+                           d.baseline_revision_id) for key, d in _verdicts(session).items()}
+    by_detection = keyed()
+    assert "NaN" in by_detection[("r4", "ks")][1]
+    assert by_detection[("r5", "ks")][4] == executions[2].revision_id  # r3, past r4
+    component = session.scalar(select(Component))
+    assert reanalyze_component(database_url, component.id) == 9
+    assert keyed() == by_detection

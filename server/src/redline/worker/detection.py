@@ -16,8 +16,9 @@ wide series are context, never judged.
 from __future__ import annotations
 
 import logging
-from collections import defaultdict
-from dataclasses import asdict, dataclass
+from collections import defaultdict, deque
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass, field
 from datetime import datetime
 from typing import Any
 
@@ -137,6 +138,43 @@ class SampleCache:
         return memo[key]
 
 
+@dataclass
+class Walk:
+    """What a re-analysis carries from one revision to the next, so that a revision's baselines
+    need nothing read back: earlier revisions' samples, every flagged (series, method,
+    revision) so far, and the newest revisions with summaries, each with the series it has
+    summaries of (a series with at least one finite sample), newest last."""
+
+    cache: SampleCache
+    flagged: set[tuple[int, str, int]] = field(default_factory=set)
+    recent: deque[tuple[int, frozenset[int]]] = field(default_factory=deque)
+
+    @classmethod
+    def over(cls, window: int) -> Walk:
+        return cls(SampleCache(window + 1), recent=deque(maxlen=window))
+
+    def newest_first(self) -> list[tuple[int, frozenset[int]]]:
+        return list(reversed(self.recent))
+
+    def judged(self, revision_id: int, samples: Samples, rows: list[dict[str, Any]]) -> None:
+        self.flagged.update((row["series_id"], row["method"], revision_id)
+                            for row in rows if row["flagged"])
+        self._add(revision_id, frozenset(series_id for series_id, runs in samples.items()
+                                         if any(np.isfinite(run).any() for run in runs)))
+
+    def kept(self, session: Session, revision_id: int) -> None:
+        """A revision whose samples are gone: its stored verdicts and summaries still count."""
+        self.flagged |= flagged_verdicts(session, {revision_id})
+        self._add(revision_id, frozenset(session.scalars(
+            select(Summary.series_id).distinct().join(Execution, Execution.id ==
+                                                      Summary.execution_id)
+            .where(Execution.revision_id == revision_id))))
+
+    def _add(self, revision_id: int, series: frozenset[int]) -> None:
+        if series:  # a revision without summaries is no earlier revision "with samples"
+            self.recent.append((revision_id, series))
+
+
 def _before(revision: Revision):  # noqa: ANN202 - an SQL expression
     return tuple_(Revision.order_key, Revision.id) < (revision.order_key, revision.id)
 
@@ -171,6 +209,15 @@ def _judged_counters(session: Session, series_ids: list[int]) -> dict[int, str]:
     return {series_id: counter for series_id, counter in rows}
 
 
+def _newest_with_summaries(session: Session, revision: Revision, depth: int) -> list[int]:
+    has_samples = (select(Summary.id).join(Execution, Execution.id == Summary.execution_id)
+                   .where(Execution.revision_id == Revision.id).exists())
+    return list(session.scalars(
+        select(Revision.id).where(Revision.component_id == revision.component_id,
+                                  _before(revision), has_samples)
+        .order_by(Revision.order_key.desc(), Revision.id.desc()).limit(depth)))
+
+
 def _ranked_previous(session: Session, revision: Revision, series_ids: list[int],
                      depth: int) -> dict[int, list[int]]:
     """Per series, the ids of the ``depth`` newest earlier revisions with samples of it, by
@@ -194,22 +241,25 @@ def _ranked_previous(session: Session, revision: Revision, series_ids: list[int]
 
 
 def _previous_revisions(session: Session, revision: Revision, series_ids: list[int],
-                        depth: int) -> dict[int, list[int]]:
+                        depth: int, known: Sequence[tuple[int, frozenset[int]]] | None = None,
+                        ) -> dict[int, list[int]]:
     """Per series, the ids of the ``depth`` newest earlier revisions with samples of it.
 
     The newest ``depth`` earlier revisions with results nearly always hold every series: they
-    are looked up first (an index walk, whatever the history's length); only the series some
-    of them lack are ranked over the whole history. Ranking every series each time made a
-    re-analysis quadratic in the history's length.
+    are looked up first (an index walk, whatever the history's length), or taken from ``known``
+    (newest first, each with the series it has summaries of: a re-analysis's `Walk`); only the
+    series some of them lack are ranked over the whole history. Ranking every series each time
+    made a re-analysis quadratic in the history's length.
     """
-    has_samples = (select(Summary.id).join(Execution, Execution.id == Summary.execution_id)
-                   .where(Execution.revision_id == Revision.id).exists())
-    newest = list(session.scalars(
-        select(Revision.id).where(Revision.component_id == revision.component_id,
-                                  _before(revision), has_samples)
-        .order_by(Revision.order_key.desc(), Revision.id.desc()).limit(depth)))
     holds: dict[int, set[int]] = defaultdict(set)
-    if newest:
+    if known is not None:
+        newest = [revision_id for revision_id, _ in known[:depth]]
+        for revision_id, series in known[:depth]:
+            for series_id in series:
+                holds[series_id].add(revision_id)
+    else:
+        newest = _newest_with_summaries(session, revision, depth)
+    if newest and known is None:
         rows = session.execute(select(Summary.series_id, Execution.revision_id).distinct()
                                .join(Execution, Execution.id == Summary.execution_id)
                                .where(Execution.revision_id.in_(newest),
@@ -232,14 +282,17 @@ class Baseline:
     missing: str = ""
 
 
-def _flagged_revisions(session: Session, series_ids: list[int],
-                       revision_ids: set[int]) -> set[tuple[int, str, int]]:
-    """(series, method, revision) of the flagged verdicts among those revisions."""
+def flagged_verdicts(session: Session, revision_ids: set[int],
+                     series_ids: list[int] | None = None) -> set[tuple[int, str, int]]:
+    """(series, method, revision) of the stored flagged verdicts of those revisions (and of
+    those series, when given)."""
     if not revision_ids:
         return set()
-    rows = session.execute(select(Detection.series_id, Detection.method, Detection.revision_id)
-                           .where(Detection.flagged, Detection.revision_id.in_(revision_ids),
-                                  Detection.series_id.in_(series_ids)))
+    query = (select(Detection.series_id, Detection.method, Detection.revision_id)
+             .where(Detection.flagged, Detection.revision_id.in_(revision_ids)))
+    if series_ids is not None:
+        query = query.where(Detection.series_id.in_(series_ids))
+    rows = session.execute(query)
     return {(series_id, method, revision_id) for series_id, method, revision_id in rows}
 
 
@@ -247,11 +300,12 @@ class Baselines:
     """Each series' baseline for each method under the configuration."""
 
     def __init__(self, session: Session, revision: Revision, config: DetectionConfig,
-                 series_ids: list[int], cache: SampleCache | None = None) -> None:
+                 series_ids: list[int], walk: Walk | None = None) -> None:
+        """``walk``: what a re-analysis knows of the earlier revisions; else it is read."""
         self.session, self.config = session, config
-        self.cache = cache or SampleCache(config.window + 1)
+        self.cache = walk.cache if walk else SampleCache(config.window + 1)
         self.pinned: int | None = None
-        self.flagged: set[tuple[int, str, int]] = set()
+        self.flagged: set[tuple[int, str, int]] = walk.flagged if walk else set()
         if config.baseline == "pinned":
             self.pinned = session.scalar(select(Revision.id).where(
                 Revision.component_id == revision.component_id, Revision.title == config.pinned,
@@ -259,10 +313,11 @@ class Baselines:
             self.previous: dict[int, list[int]] = {}
             return
         depth = 1 if config.baseline == "previous" else config.window
-        self.previous = _previous_revisions(session, revision, series_ids, depth)
-        if config.baseline == "recent":
+        self.previous = _previous_revisions(session, revision, series_ids, depth,
+                                            walk.newest_first() if walk else None)
+        if config.baseline == "recent" and walk is None:
             earlier = {r for ids in self.previous.values() for r in ids}
-            self.flagged = _flagged_revisions(session, series_ids, earlier)
+            self.flagged = flagged_verdicts(session, earlier, series_ids)
 
     def values(self, revision_id: int, series_id: int, detector: Detector) -> np.ndarray | None:
         return self.cache.values(self.session, revision_id, series_id, detector)
@@ -330,17 +385,17 @@ def _ks_change(row: dict[str, Any], verdict: Verdict) -> KsChange | None:
 
 
 def analyze(session: Session, revision: Revision, config: DetectionConfig,
-            candidate: Samples | None = None, cache: SampleCache | None = None,
+            candidate: Samples | None = None, walk: Walk | None = None,
             ) -> tuple[list[dict[str, Any]], list[KsChange]]:
     """Every configured method on every judged series of the revision (nothing stored).
 
-    ``candidate``: the revision's samples, when already read; ``cache``: earlier revisions'
-    samples, shared by the revisions of one re-analysis.
+    ``candidate``: the revision's samples, when already read; ``walk``: what a re-analysis
+    carries from the earlier revisions (`Walk`).
     """
     if candidate is None:
         candidate = revision_samples(session, revision.id)
     counters = _judged_counters(session, list(candidate))
-    baselines = Baselines(session, revision, config, sorted(counters), cache)
+    baselines = Baselines(session, revision, config, sorted(counters), walk)
     baselines.cache.put(revision.id, candidate)
     detectors = config.detectors()
     rows, changes = [], []
@@ -373,31 +428,72 @@ def store(session: Session, revision: Revision, rows: list[dict[str, Any]],
     revision.analyzed_at = utcnow()
 
 
-def detect_revision(database_url: str, revision_id: int,
-                    cache: SampleCache | None = None, durable: bool = True) -> list[KsChange]:
-    """Run the component's methods on every series of the revision, replacing earlier results.
+@dataclass(frozen=True)
+class Judged:
+    """One revision's verdicts and KS changes, computed and not yet stored."""
 
-    Returns KS's changes (a series without a baseline has none; its detections say "not
-    enough data: missing baseline"). Detections of one revision take turns (an advisory lock
-    for the transaction). A revision with ingested executions none of whose samples can be read
-    any more (pruned) keeps its stored results: nothing is not a new verdict. ``cache``: samples
-    of earlier revisions, kept across the revisions of a re-analysis, which also passes
-    ``durable=False``: its commits do not wait for the WAL flush (a crash can lose the last few
-    revisions' verdicts, never half of one, and the retried task recomputes them all).
+    revision_id: int
+    rows: list[dict[str, Any]]
+    changes: list[KsChange]
+
+
+def judge_revision(session: Session, revision_id: int,
+                   walk: Walk | None = None) -> Judged | None:
+    """The reading half of `detect_revision`: every verdict computed, nothing stored.
+
+    None when there is nothing to store: no such revision, or ingested executions none of whose
+    samples can be read any more (pruned), whose stored results are kept (nothing is not a new
+    verdict). ``walk``: a re-analysis's memory of the earlier revisions, brought up to date.
+    """
+    revision = session.get(Revision, revision_id)
+    if revision is None:
+        return None
+    candidate, read, ingested = read_samples(session, revision.id)
+    if ingested and not read:
+        log.warning("revision %s: the samples of its %d executions are gone (pruned?); "
+                    "its stored results are kept", revision_id, ingested)
+        if walk is not None:
+            walk.kept(session, revision_id)
+        return None
+    config = component_config(session, revision.component_id)
+    rows, changes = analyze(session, revision, config, candidate, walk)
+    if walk is not None:
+        walk.judged(revision.id, candidate, rows)
+    return Judged(revision.id, rows, changes)
+
+
+def _lock(session: Session, revision_id: int) -> None:
+    """Detections of one revision take turns: a lock for the transaction."""
+    session.execute(select(func.pg_advisory_xact_lock(DETECT_LOCK, revision_id)))
+
+
+def store_judged(database_url: str, judged: Judged, durable: bool = True) -> None:
+    """The writing half: replace the revision's results with ``judged``, in one transaction.
+
+    A re-analysis passes ``durable=False``: its commits do not wait for the WAL flush (a crash
+    can lose the last few revisions' verdicts, never half of one, and the retried task
+    recomputes them all).
     """
     with session_scope(database_url) as session:
         if not durable:
             session.execute(text("SET LOCAL synchronous_commit TO OFF"))
-        session.execute(select(func.pg_advisory_xact_lock(DETECT_LOCK, revision_id)))
-        revision = session.get(Revision, revision_id)
-        if revision is None:
+        _lock(session, judged.revision_id)
+        revision = session.get(Revision, judged.revision_id)
+        if revision is not None:
+            store(session, revision, judged.rows, judged.changes)
+
+
+def detect_revision(database_url: str, revision_id: int) -> list[KsChange]:
+    """Run the component's methods on every series of the revision, replacing earlier results.
+
+    Returns KS's changes (a series without a baseline has none; its detections say "not
+    enough data: missing baseline"). Reading and storing happen under the revision's lock, in
+    one transaction; a revision whose samples were all pruned keeps its stored results.
+    """
+    with session_scope(database_url) as session:
+        _lock(session, revision_id)
+        judged = judge_revision(session, revision_id)
+        if judged is None:
             return []
-        candidate, read, ingested = read_samples(session, revision.id)
-        if ingested and not read:
-            log.warning("revision %s: the samples of its %d executions are gone (pruned?); "
-                        "its stored results are kept", revision_id, ingested)
-            return []
-        config = component_config(session, revision.component_id)
-        rows, changes = analyze(session, revision, config, candidate, cache)
-        store(session, revision, rows, changes)
-        return changes
+        store(session, session.get_one(Revision, revision_id), judged.rows, judged.changes)
+        return judged.changes
