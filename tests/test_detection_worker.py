@@ -392,3 +392,85 @@ def test_reanalysis_skips_an_all_nan_revision_in_baselines_as_detection_does(
     component = session.scalar(select(Component))
     assert reanalyze_component(database_url, component.id) == 9
     assert keyed() == by_detection
+
+
+def _second_run_later(session, tmp_path: Path, database_url: str):
+    """r1..r6 with one run each at 20 % CPU, then r7 whose first run (20 %) is ingested now and
+    whose second run (60 %) only later; returns r7's revision id and a function ingesting it."""
+    from redline.server.schemas import RevisionCreate
+    from redline.server.services.revisions import create_revision
+
+    from tests.test_ingest import run_metadata, write_recording
+
+    create_component(session, ComponentCreate(name=NAME, executions=2))
+    rng = np.random.default_rng(6)
+    revisions = []
+    for number in range(1, 8):
+        revision = create_revision(session, RevisionCreate(component=NAME, title=f"r{number}",
+                                                           sort_key=str(number)))
+        revisions.append(revision)
+    session.commit()
+
+    def ingest(revision, job, level: float) -> None:
+        name = f"{revision.title}-{job.execution_index}"
+        path = write_recording(tmp_path / f"{name}.mcap",
+                               run_metadata(job, NAME, revision.title, revision.sort_key),
+                               {"cpu": rng.normal(level, 1, 60)})
+        execution = Execution(job_id=job.id, revision_id=revision.id, recording_path=str(path),
+                              sha256=name.ljust(64, "0"), size=path.stat().st_size)
+        job.state = "uploaded"
+        session.add(execution)
+        session.commit()
+        ingest_execution(database_url, execution.id)
+
+    for revision in revisions:
+        ingest(revision, revision.jobs[0], 20.0)
+    last = revisions[-1]
+    return last.id, lambda: ingest(last, last.jobs[1], 60.0)
+
+
+def test_verdicts_judged_before_an_execution_was_ingested_are_judged_again_when_stored(
+        session, database_url, tmp_path):
+    from redline.server.db import session_factory
+    from redline.worker.detection import judge_revision, store_judged
+
+    revision_id, ingest_second_run = _second_run_later(session, tmp_path, database_url)
+    with session_factory(database_url)() as reading:
+        stale = judge_revision(reading, revision_id)  # only the first run (20 %) is in
+    assert not any(row["flagged"] for row in stale.rows)
+    ingest_second_run()  # 60 %: with it, r7 has moved
+    store_judged(database_url, stale)
+    stored = _verdicts(session)[("r7", "ks")]
+    assert stored.flagged and stored.direction == "increase"  # the fresh judgement, not stale
+
+
+def test_the_walk_stops_using_its_memory_once_an_execution_is_ingested_under_it(
+        session, database_url, tmp_path):
+    from redline.server.db import session_factory
+    from redline.worker.detection import Walk, ingested_fingerprint
+
+    revision_id, ingest_second_run = _second_run_later(session, tmp_path, database_url)
+    component_id = session.scalar(select(Component.id))
+    drained = []
+    with session_factory(database_url)() as reading:
+        walk = Walk.over(10, ingested_fingerprint(reading, component_id))
+        walk.on_disable = lambda: drained.append(True)
+        walk.check(reading, component_id)
+        assert walk.usable and not drained
+        ingest_second_run()
+        walk.check(reading, component_id)
+    assert not walk.usable and drained == [True]
+
+
+def test_bulk_insert_refuses_an_over_long_string_rather_than_cutting_it(
+        session, database_url, tmp_path):
+    from redline.server.db import bulk_insert
+    from sqlalchemy.exc import DataError
+
+    _run(database_url, _history(session, tmp_path, [20.0, 20.0]))
+    row = session.scalars(select(Detection)).first()
+    values = {c.name: getattr(row, c.name) for c in Detection.__table__.columns if c.name != "id"}
+    values["method"] = "m" * 60  # the column holds 50
+    with pytest.raises(DataError, match="too long"):
+        bulk_insert(session, Detection.__table__, [values])
+    session.rollback()

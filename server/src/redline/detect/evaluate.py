@@ -24,6 +24,7 @@ from redline.detect.methods import Detector, KolmogorovSmirnov, MannWhitney, Wel
 from redline.detect.result import Detection
 from redline.detect.robust import MedianShift
 from redline.detect.shang import ShangRegression
+from redline.detect.verdict import judge_series
 from scipy.stats import rankdata
 
 #: Chosen on corpus 2's tuning half and checked on its held-out half and on SAP's set
@@ -137,6 +138,11 @@ def change_sizes(corpus: Corpus) -> dict[str, float]:
     return sizes
 
 
+def counter_of(series: str) -> str:
+    """The counter a series id names: its last ``/``-separated part (the whole id if none)."""
+    return series.rsplit("/", 1)[-1]
+
+
 def walk(detector: Detector, corpus: Corpus,
          window: int = DEFAULT_WINDOW) -> Iterator[tuple[Unit, Detection]]:
     """Each unit of the corpus with ``detector``'s verdict on it, series by series in build
@@ -153,9 +159,10 @@ def walk(detector: Detector, corpus: Corpus,
             unit = Unit(series, build, baseline, candidate,
                         label.label == POSITIVE_LABEL and build == label.change_build)
             if detector.ndim == 2:
-                found = detector.compare(baseline[:, None], candidate[:, None])
-            else:
-                found = detector.compare(baseline, candidate)
+                baseline, candidate = baseline[:, None], candidate[:, None]
+            # as the worker judges: the detector, then the counter's absolute floor (a series
+            # id ending in a known counter name, e.g. "leak/rss_bytes", gets that floor)
+            found = judge_series(detector, counter_of(series), baseline, candidate)
             if found.flagged:
                 last_flagged = k
             yield unit, found

@@ -9,7 +9,7 @@ from pathlib import Path
 from typing import Any
 
 from redline.server.core.config import REPO_ROOT
-from sqlalchemy import Engine, Table, create_engine, text
+from sqlalchemy import Engine, String, Table, create_engine, text
 from sqlalchemy.orm import Session, sessionmaker
 
 
@@ -38,8 +38,14 @@ def bulk_insert(session: Session, table: Table, rows: Sequence[Mapping[str, Any]
         return
     columns = list(rows[0])
     dialect = session.get_bind().dialect
-    arrays = ", ".join(f"CAST(:{name} AS {table.c[name].type.compile(dialect=dialect)}[])"
-                       for name in columns)
+
+    def array_type(name: str) -> str:
+        # strings as TEXT: a cast to VARCHAR(n) would cut an over-long value silently, where
+        # the insert into the column itself refuses it
+        kind = table.c[name].type
+        return "TEXT" if isinstance(kind, String) else kind.compile(dialect=dialect)
+
+    arrays = ", ".join(f"CAST(:{name} AS {array_type(name)}[])" for name in columns)
     session.execute(text(f"INSERT INTO {table.name} ({', '.join(columns)}) "
                          f"SELECT * FROM unnest({arrays})"),
                     {name: [row[name] for row in rows] for name in columns})

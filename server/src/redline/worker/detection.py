@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import logging
 from collections import defaultdict, deque
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
 from datetime import datetime
 from typing import Any
@@ -138,41 +138,85 @@ class SampleCache:
         return memo[key]
 
 
+def ingested_fingerprint(session: Session, component_id: int) -> tuple[int, int]:
+    """How many executions of the component are ingested, and the newest one's id: it changes
+    whenever an execution is ingested (or removed), so a re-analysis can tell its memory of the
+    history went stale."""
+    count, newest = session.execute(
+        select(func.count(Execution.id), func.coalesce(func.max(Execution.id), 0))
+        .join(Revision, Revision.id == Execution.revision_id)
+        .where(Revision.component_id == component_id,
+               Execution.id.in_(ingested_executions()))).one()
+    return int(count), int(newest)
+
+
 @dataclass
 class Walk:
     """What a re-analysis carries from one revision to the next, so that a revision's baselines
     need nothing read back: earlier revisions' samples, every flagged (series, method,
     revision) so far, and the newest revisions with summaries, each with the series it has
-    summaries of (a series with at least one finite sample), newest last."""
+    summaries of (a series with at least one finite sample), newest last.
+
+    Valid only while the history stays as it was when the walk began (``fingerprint``) and the
+    configuration's window is the walk's: otherwise ``usable`` turns False for good, and the
+    revisions left are judged from the database as `detect_revision` judges them.
+    """
 
     cache: SampleCache
+    window: int
+    fingerprint: tuple[int, int]
     flagged: set[tuple[int, str, int]] = field(default_factory=set)
     recent: deque[tuple[int, frozenset[int]]] = field(default_factory=deque)
+    usable: bool = True
+    #: called once when the walk turns unusable, before anything is read from the database
+    #: (a re-analysis waits there until every revision judged so far is stored)
+    on_disable: Callable[[], None] | None = None
 
     @classmethod
-    def over(cls, window: int) -> Walk:
-        return cls(SampleCache(window + 1), recent=deque(maxlen=window))
+    def over(cls, window: int, fingerprint: tuple[int, int]) -> Walk:
+        return cls(SampleCache(window + 1), window, fingerprint, recent=deque(maxlen=window))
+
+    def check(self, session: Session, component_id: int) -> None:
+        """Stop using the memory if executions were ingested since the walk began."""
+        if self.usable and ingested_fingerprint(session, component_id) != self.fingerprint:
+            self.disable(f"component {component_id}: executions ingested during the re-analysis")
+
+    def disable(self, why: str) -> None:
+        log.info("%s; the rest of the re-analysis reads its baselines from the database", why)
+        self.usable = False
+        if self.on_disable is not None:
+            self.on_disable()
 
     def newest_first(self) -> list[tuple[int, frozenset[int]]]:
         return list(reversed(self.recent))
 
-    def judged(self, revision_id: int, samples: Samples, rows: list[dict[str, Any]]) -> None:
+    def judged(self, session: Session, revision_id: int, samples: Samples,
+               rows: list[dict[str, Any]], complete: bool) -> None:
+        """``complete``: every ingested execution's samples were read; else the revision's
+        series are those its summaries name, as the database sees them."""
         self.flagged.update((row["series_id"], row["method"], revision_id)
                             for row in rows if row["flagged"])
-        self._add(revision_id, frozenset(series_id for series_id, runs in samples.items()
-                                         if any(np.isfinite(run).any() for run in runs)))
+        if complete:
+            self._add(revision_id, frozenset(series_id for series_id, runs in samples.items()
+                                             if any(np.isfinite(run).any() for run in runs)))
+        else:
+            self._add(revision_id, _summarized_series(session, revision_id))
 
     def kept(self, session: Session, revision_id: int) -> None:
         """A revision whose samples are gone: its stored verdicts and summaries still count."""
         self.flagged |= flagged_verdicts(session, {revision_id})
-        self._add(revision_id, frozenset(session.scalars(
-            select(Summary.series_id).distinct().join(Execution, Execution.id ==
-                                                      Summary.execution_id)
-            .where(Execution.revision_id == revision_id))))
+        self._add(revision_id, _summarized_series(session, revision_id))
 
     def _add(self, revision_id: int, series: frozenset[int]) -> None:
         if series:  # a revision without summaries is no earlier revision "with samples"
             self.recent.append((revision_id, series))
+
+
+def _summarized_series(session: Session, revision_id: int) -> frozenset[int]:
+    return frozenset(session.scalars(
+        select(Summary.series_id).distinct()
+        .join(Execution, Execution.id == Summary.execution_id)
+        .where(Execution.revision_id == revision_id)))
 
 
 def _before(revision: Revision):  # noqa: ANN202 - an SQL expression
@@ -355,8 +399,10 @@ def _row(series_id: int, revision_id: int, base: Baseline, verdict: Verdict) -> 
     return dict(series_id=series_id, revision_id=revision_id,
                 baseline_revision_id=base.newest, baseline_revisions=base.revisions,
                 method=verdict.method, verdict=verdict.verdict, reason=verdict.reason,
-                score=float(verdict.score), p_value=verdict.p_value, effect=effect,
-                direction=verdict.direction, flagged=verdict.flagged, created=utcnow())
+                score=float(verdict.score),
+                p_value=None if verdict.p_value is None else float(verdict.p_value),
+                effect=None if effect is None else float(effect), direction=verdict.direction,
+                flagged=bool(verdict.flagged), created=utcnow())
 
 
 @dataclass(frozen=True)
@@ -380,8 +426,9 @@ def _ks_change(row: dict[str, Any], verdict: Verdict) -> KsChange | None:
         return None
     return KsChange(series_id=row["series_id"], revision_id=row["revision_id"],
                     baseline_revision_id=row["baseline_revision_id"], method=METHOD_KS,
-                    score=verdict.score, p_value=verdict.p_value, effect=verdict.effect,
-                    flagged=verdict.flagged, created=row["created"])
+                    score=float(verdict.score), p_value=float(verdict.p_value),
+                    effect=float(verdict.effect), flagged=bool(verdict.flagged),
+                    created=row["created"])
 
 
 def analyze(session: Session, revision: Revision, config: DetectionConfig,
@@ -430,11 +477,20 @@ def store(session: Session, revision: Revision, rows: list[dict[str, Any]],
 
 @dataclass(frozen=True)
 class Judged:
-    """One revision's verdicts and KS changes, computed and not yet stored."""
+    """One revision's verdicts and KS changes, computed and not yet stored, and the ingested
+    executions they were computed from."""
 
     revision_id: int
     rows: list[dict[str, Any]]
     changes: list[KsChange]
+    executions: tuple[int, ...]
+
+
+def _ingested_of(session: Session, revision_id: int) -> tuple[int, ...]:
+    return tuple(session.scalars(
+        select(Execution.id).where(Execution.revision_id == revision_id,
+                                   Execution.id.in_(ingested_executions()))
+        .order_by(Execution.id)))
 
 
 def judge_revision(session: Session, revision_id: int,
@@ -448,6 +504,9 @@ def judge_revision(session: Session, revision_id: int,
     revision = session.get(Revision, revision_id)
     if revision is None:
         return None
+    if walk is not None:
+        walk.check(session, revision.component_id)
+    executions = _ingested_of(session, revision.id)
     candidate, read, ingested = read_samples(session, revision.id)
     if ingested and not read:
         log.warning("revision %s: the samples of its %d executions are gone (pruned?); "
@@ -456,10 +515,13 @@ def judge_revision(session: Session, revision_id: int,
             walk.kept(session, revision_id)
         return None
     config = component_config(session, revision.component_id)
-    rows, changes = analyze(session, revision, config, candidate, walk)
+    if walk is not None and walk.usable and config.window != walk.window:
+        walk.disable(f"component {revision.component_id}: its window changed")
+    memory = walk if walk is not None and walk.usable else None
+    rows, changes = analyze(session, revision, config, candidate, memory)
     if walk is not None:
-        walk.judged(revision.id, candidate, rows)
-    return Judged(revision.id, rows, changes)
+        walk.judged(session, revision.id, candidate, rows, complete=read == ingested)
+    return Judged(revision.id, rows, changes, executions)
 
 
 def _lock(session: Session, revision_id: int) -> None:
@@ -468,7 +530,9 @@ def _lock(session: Session, revision_id: int) -> None:
 
 
 def store_judged(database_url: str, judged: Judged, durable: bool = True) -> None:
-    """The writing half: replace the revision's results with ``judged``, in one transaction.
+    """The writing half: replace the revision's results with ``judged``, in one transaction,
+    unless the revision's ingested executions changed since it was judged: then it is judged
+    again under the lock and that is stored.
 
     A re-analysis passes ``durable=False``: its commits do not wait for the WAL flush (a crash
     can lose the last few revisions' verdicts, never half of one, and the retried task
@@ -479,8 +543,16 @@ def store_judged(database_url: str, judged: Judged, durable: bool = True) -> Non
             session.execute(text("SET LOCAL synchronous_commit TO OFF"))
         _lock(session, judged.revision_id)
         revision = session.get(Revision, judged.revision_id)
-        if revision is not None:
-            store(session, revision, judged.rows, judged.changes)
+        if revision is None:
+            return
+        if _ingested_of(session, revision.id) != judged.executions:
+            # an execution was ingested since: judged again from what is stored now, so a
+            # detection of the newer data is never overwritten by verdicts on the older
+            fresh = judge_revision(session, revision.id)
+            if fresh is None:
+                return
+            judged = fresh
+        store(session, revision, judged.rows, judged.changes)
 
 
 def detect_revision(database_url: str, revision_id: int) -> list[KsChange]:

@@ -21,6 +21,7 @@ from redline.worker.detection import (
     Walk,
     component_config,
     ingested_executions,
+    ingested_fingerprint,
     judge_revision,
     store_judged,
 )
@@ -67,10 +68,13 @@ class _Writer(threading.Thread):
 
     def run(self) -> None:
         reported = time.monotonic()
-        while (judged := self.queue.get()) is not None:
-            if self.error is not None:
-                continue  # drain: the walk stops at its next put
+        while True:
+            judged = self.queue.get()
             try:
+                if judged is None:
+                    return
+                if self.error is not None:
+                    continue  # emptying the queue: the walk stops at its next put
                 if judged is not KEPT:
                     assert isinstance(judged, Judged)
                     store_judged(self.database_url, judged, durable=False)
@@ -80,6 +84,8 @@ class _Writer(threading.Thread):
                     reported = time.monotonic()
             except BaseException as exc:  # handed to the walk, which raises it
                 self.error = exc
+            finally:
+                self.queue.task_done()
 
     def _report(self) -> None:
         with session_scope(self.database_url) as session:
@@ -90,19 +96,25 @@ class _Writer(threading.Thread):
             raise self.error
         self.queue.put(judged)
 
+    def drain(self) -> None:
+        """Wait until every revision handed over so far is stored."""
+        self.queue.join()
+        if self.error is not None:
+            raise self.error
+
     def finish(self) -> None:
         """Wait for every judged revision to be stored; raise the writer's error, if any."""
         self.queue.put(None)
         self.join()
+        self._report()
         if self.error is not None:
             raise self.error
-        self._report()
 
 
-def _walk(database_url: str, revisions: list[int], window: int, writer: _Writer) -> None:
+def _walk(database_url: str, revisions: list[int], walk: Walk, writer: _Writer) -> None:
     """Judge the revisions in order, handing each to the writer; what a revision's baselines
-    need of the earlier ones is carried along in memory (`Walk`)."""
-    walk = Walk.over(window)
+    need of the earlier ones is carried along in memory (`Walk`) while it stays valid."""
+    walk.on_disable = writer.drain  # the database must hold every earlier verdict first
     for revision_id in revisions:
         with session_scope(database_url) as session:
             judged = judge_revision(session, revision_id, walk)
@@ -113,7 +125,8 @@ def reanalyze_component(database_url: str, component_id: int) -> int:
     """Detect every revision of the component again; returns how many were analysed."""
     with session_scope(database_url) as session:
         revisions = revisions_with_data(session, component_id)
-        window = component_config(session, component_id).window
+        walk = Walk.over(component_config(session, component_id).window,
+                         ingested_fingerprint(session, component_id))
         row = _progress(session, component_id)
         row.state, row.total, row.done, row.error = "running", len(revisions), 0, ""
         row.started, row.finished = utcnow(), None
@@ -121,10 +134,10 @@ def reanalyze_component(database_url: str, component_id: int) -> int:
     writer.start()
     try:
         try:
-            _walk(database_url, revisions, window, writer)
+            _walk(database_url, revisions, walk, writer)
         finally:
             writer.finish()  # stores what was judged; raises the writer's own error
-    except Exception as exc:
+    except BaseException as exc:  # the row must not stay "running", whatever stopped it
         with session_scope(database_url) as session:
             row = _progress(session, component_id)
             row.state, row.error, row.finished = "failed", f"{type(exc).__name__}: {exc}", utcnow()
