@@ -66,19 +66,25 @@ def ingested_executions() -> Select[tuple[int]]:
 Samples = dict[int, list[np.ndarray]]
 
 
-def read_samples(session: Session, revision_id: int) -> tuple[Samples, int, int]:
+def _ingested(session: Session, revision_id: int) -> list[tuple[int, str]]:
+    """(id, recording path) of the revision's ingested executions, in execution order."""
+    return [(execution_id, path) for execution_id, path in session.execute(
+        select(Execution.id, Execution.recording_path)
+        .where(Execution.revision_id == revision_id,
+               Execution.id.in_(ingested_executions())).order_by(Execution.id))]
+
+
+def read_samples(session: Session,
+                 revision_id: int) -> tuple[Samples, int, tuple[int, ...]]:
     """Every ingested sample of the revision, per series id and execution; with how many of
-    its ingested executions' side tables were read, and how many there are.
+    its ingested executions' side tables were read, and the ids of those executions.
 
     A side table that is gone (pruned) is left out with a warning: its series then lack data.
     """
-    paths = list(session.scalars(
-        select(Execution.recording_path).where(Execution.revision_id == revision_id)
-        .where(Execution.id.in_(ingested_executions())).order_by(Execution.id)
-    ))
+    executions = _ingested(session, revision_id)
     samples: Samples = defaultdict(list)
     read = 0
-    for path in paths:
+    for _, path in executions:
         try:
             table = pq.read_table(samples_path(path), columns=["series_id", "value"])
         except OSError as exc:
@@ -92,7 +98,7 @@ def read_samples(session: Session, revision_id: int) -> tuple[Samples, int, int]
         for series_id, chunk in zip(ids.tolist(), np.split(values[order], starts[1:]),
                                     strict=True):
             samples[series_id].append(chunk)
-    return dict(samples), read, len(paths)
+    return dict(samples), read, tuple(execution_id for execution_id, _ in executions)
 
 
 def revision_samples(session: Session, revision_id: int) -> Samples:
@@ -486,11 +492,6 @@ class Judged:
     executions: tuple[int, ...]
 
 
-def _ingested_of(session: Session, revision_id: int) -> tuple[int, ...]:
-    return tuple(session.scalars(
-        select(Execution.id).where(Execution.revision_id == revision_id,
-                                   Execution.id.in_(ingested_executions()))
-        .order_by(Execution.id)))
 
 
 def judge_revision(session: Session, revision_id: int,
@@ -506,11 +507,10 @@ def judge_revision(session: Session, revision_id: int,
         return None
     if walk is not None:
         walk.check(session, revision.component_id)
-    executions = _ingested_of(session, revision.id)
-    candidate, read, ingested = read_samples(session, revision.id)
-    if ingested and not read:
+    candidate, read, executions = read_samples(session, revision.id)
+    if executions and not read:
         log.warning("revision %s: the samples of its %d executions are gone (pruned?); "
-                    "its stored results are kept", revision_id, ingested)
+                    "its stored results are kept", revision_id, len(executions))
         if walk is not None:
             walk.kept(session, revision_id)
         return None
@@ -520,7 +520,7 @@ def judge_revision(session: Session, revision_id: int,
     memory = walk if walk is not None and walk.usable else None
     rows, changes = analyze(session, revision, config, candidate, memory)
     if walk is not None:
-        walk.judged(session, revision.id, candidate, rows, complete=read == ingested)
+        walk.judged(session, revision.id, candidate, rows, complete=read == len(executions))
     return Judged(revision.id, rows, changes, executions)
 
 
@@ -545,7 +545,7 @@ def store_judged(database_url: str, judged: Judged, durable: bool = True) -> Non
         revision = session.get(Revision, judged.revision_id)
         if revision is None:
             return
-        if _ingested_of(session, revision.id) != judged.executions:
+        if tuple(i for i, _ in _ingested(session, revision.id)) != judged.executions:
             # an execution was ingested since: judged again from what is stored now, so a
             # detection of the newer data is never overwritten by verdicts on the older
             fresh = judge_revision(session, revision.id)
