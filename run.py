@@ -44,21 +44,28 @@ def ensure_environment() -> None:
     say("syncing the workspace (uv sync)")
     env = dict(os.environ, UV_PROJECT_ENVIRONMENT=str(VENV), VIRTUAL_ENV=str(VENV))
     # --inexact keeps uv itself, which pip put into this environment.
-    run([str(BIN / "uv"), "sync", "--locked", "--all-packages", "--inexact", "--quiet"], cwd=ROOT,
-        env=env)
+    run(
+        [str(BIN / "uv"), "sync", "--locked", "--all-packages", "--inexact", "--quiet"],
+        cwd=ROOT,
+        env=env,
+    )
 
 
 def ensure_chromium() -> None:
     if CHROMIUM.exists():
         return
     if shutil.which("apt-get") is None or os.geteuid() != 0:
-        say("Chromium is missing and cannot be installed here (needs root and apt-get); "
-            "browser tests will fail until /usr/bin/chromium exists")
+        say(
+            "Chromium is missing and cannot be installed here (needs root and apt-get); "
+            "browser tests will fail until /usr/bin/chromium exists"
+        )
         return
     say("installing Debian's chromium for the browser tests")
     run(["apt-get", "update", "-qq"])
-    run(["apt-get", "install", "-y", "-qq", "chromium"],
-        env=dict(os.environ, DEBIAN_FRONTEND="noninteractive"))
+    run(
+        ["apt-get", "install", "-y", "-qq", "chromium"],
+        env=dict(os.environ, DEBIAN_FRONTEND="noninteractive"),
+    )
 
 
 def main(argv: list[str]) -> int:

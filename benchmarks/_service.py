@@ -65,9 +65,12 @@ def api_server(database_url: str) -> Iterator[tuple[str, dict[str, str]]]:
     with tempfile.TemporaryDirectory() as tmp:
         stack = Stack(Path(tmp), free_port())
         (stack.data / "logs").mkdir(parents=True)
-        stack.env = dict(os.environ, REDLINE_DATABASE_URL=database_url,
-                         REDLINE_STORAGE_DIR=str(stack.data / "storage"),
-                         REDLINE_LEASE_SECONDS="600")
+        stack.env = dict(
+            os.environ,
+            REDLINE_DATABASE_URL=database_url,
+            REDLINE_STORAGE_DIR=str(stack.data / "storage"),
+            REDLINE_LEASE_SECONDS="600",
+        )
         tokens = {scope: stack.token(scope, scope) for scope in ("admin", "ci", "agent", "read")}
         stack._spawn("server", "server", "--host", "127.0.0.1", "--port", str(stack.port))
         try:

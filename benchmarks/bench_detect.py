@@ -41,8 +41,13 @@ def mean_std_pass(series: dict[str, np.ndarray]) -> None:
 
 
 def one_execution(rng: np.random.Generator, n_series: int = 500) -> None:
-    base = [[[rng.normal(100, 5, SAMPLES) for _ in range(EXECUTIONS)]
-             for _ in range(BASELINE_REVISIONS)] for _ in range(n_series)]
+    base = [
+        [
+            [rng.normal(100, 5, SAMPLES) for _ in range(EXECUTIONS)]
+            for _ in range(BASELINE_REVISIONS)
+        ]
+        for _ in range(n_series)
+    ]
     cand = [[rng.normal(100 if i % 50 else 130, 5, SAMPLES)] for i in range(n_series)]
     detector = DETECTORS[DEFAULT_METHOD]()
 
@@ -58,16 +63,20 @@ def one_execution(rng: np.random.Generator, n_series: int = 500) -> None:
                     float(np.mean(run)), float(np.std(run))
 
     took, ref = best_of(5, detect), best_of(5, reference)
-    print(f"1. one execution, {n_series} series ({SAMPLES} samples; baseline "
-          f"{BASELINE_REVISIONS} revisions x {EXECUTIONS} executions), method {DEFAULT_METHOD}:")
-    print(f"   detect {took * 1e3:.1f} ms; numpy mean/std pass {ref * 1e3:.1f} ms; "
-          f"ratio {took / ref:.1f}x")
+    print(
+        f"1. one execution, {n_series} series ({SAMPLES} samples; baseline "
+        f"{BASELINE_REVISIONS} revisions x {EXECUTIONS} executions), method {DEFAULT_METHOD}:"
+    )
+    print(
+        f"   detect {took * 1e3:.1f} ms; numpy mean/std pass {ref * 1e3:.1f} ms; "
+        f"ratio {took / ref:.1f}x"
+    )
 
 
 def reanalysis(rng: np.random.Generator) -> None:
     history = rng.normal(100, 5, (HISTORY_SERIES, REVISIONS, EXECUTIONS, SAMPLES // 2))
     history *= rng.normal(1, 0.03, (HISTORY_SERIES, REVISIONS, EXECUTIONS, 1))  # run-to-run
-    history[:, REVISIONS // 2:] *= 1.3
+    history[:, REVISIONS // 2 :] *= 1.3
     detector = DETECTORS[DEFAULT_METHOD]()
 
     def detect_all() -> int:
@@ -77,9 +86,13 @@ def reanalysis(rng: np.random.Generator) -> None:
             last = None
             for r in range(1, REVISIONS):
                 sizes = [len(values[j]) for j in range(r - 1, max(-1, r - 1 - DEFAULT_WINDOW), -1)]
-                depth = recent_depth(sizes, detector.baseline_values, DEFAULT_WINDOW,
-                                     None if last is None else r - 1 - last)
-                if detector.compare(np.concatenate(values[r - depth:r]), values[r]).flagged:
+                depth = recent_depth(
+                    sizes,
+                    detector.baseline_values,
+                    DEFAULT_WINDOW,
+                    None if last is None else r - 1 - last,
+                )
+                if detector.compare(np.concatenate(values[r - depth : r]), values[r]).flagged:
                     last, flags = r, flags + 1
         return flags
 
@@ -93,19 +106,26 @@ def reanalysis(rng: np.random.Generator) -> None:
     detect = time.perf_counter() - start
     ref = best_of(1, reference)
     comparisons = HISTORY_SERIES * (REVISIONS - 1)
-    print(f"2. re-analysis, {REVISIONS} revisions x {HISTORY_SERIES} series "
-          f"({comparisons} comparisons, recent baseline), method {DEFAULT_METHOD}:")
-    print(f"   detect {detect:.2f} s ({detect / comparisons * 1e6:.0f} us per comparison; "
-          f"{flags} flags, {HISTORY_SERIES} planted); numpy mean/std pass {ref:.3f} s; "
-          f"ratio {detect / ref:.1f}x")
+    print(
+        f"2. re-analysis, {REVISIONS} revisions x {HISTORY_SERIES} series "
+        f"({comparisons} comparisons, recent baseline), method {DEFAULT_METHOD}:"
+    )
+    print(
+        f"   detect {detect:.2f} s ({detect / comparisons * 1e6:.0f} us per comparison; "
+        f"{flags} flags, {HISTORY_SERIES} planted); numpy mean/std pass {ref:.3f} s; "
+        f"ratio {detect / ref:.1f}x"
+    )
     medians = np.median(history.reshape(HISTORY_SERIES, REVISIONS, -1), axis=2)
     count = 3
     edivisive = best_of(1, lambda: [EDivisive().detect(medians[s]) for s in range(count)])
-    ref_median = best_of(3, lambda: np.median(history[:count].reshape(count, REVISIONS, -1),
-                                              axis=2))
-    print(f"   E-divisive over {REVISIONS} revision medians: {edivisive / count:.2f} s per series "
-          f"(199 permutations; x{HISTORY_SERIES} series = {edivisive / count * 100:.0f} s); "
-          f"ratio to the median pass {edivisive / ref_median:.0f}x")
+    ref_median = best_of(
+        3, lambda: np.median(history[:count].reshape(count, REVISIONS, -1), axis=2)
+    )
+    print(
+        f"   E-divisive over {REVISIONS} revision medians: {edivisive / count:.2f} s per series "
+        f"(199 permutations; x{HISTORY_SERIES} series = {edivisive / count * 100:.0f} s); "
+        f"ratio to the median pass {edivisive / ref_median:.0f}x"
+    )
 
 
 def main() -> None:

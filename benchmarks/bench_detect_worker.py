@@ -34,12 +34,27 @@ from redline.worker.ingest import ingest_execution
 from redline.worker.reanalysis import reanalyze_component, revisions_with_data
 
 
-def _recording(path: Path, job_id: int, component: str, title: str, series: int,
-               rng: np.random.Generator, samples: int = 30) -> None:
+def _recording(
+    path: Path,
+    job_id: int,
+    component: str,
+    title: str,
+    series: int,
+    rng: np.random.Generator,
+    samples: int = 30,
+) -> None:
     with RecordingWriter(path) as writer:
-        writer.metadata("redline.run", {"job_id": str(job_id), "component": component,
-                                        "revision_title": title, "revision_sort_key": title,
-                                        "commit": "", "execution_index": "0"})
+        writer.metadata(
+            "redline.run",
+            {
+                "job_id": str(job_id),
+                "component": component,
+                "revision_title": title,
+                "revision_sort_key": title,
+                "commit": "",
+                "execution_index": "0",
+            },
+        )
         writer.marker("begin", "case", "steady", {}, warmup=False, t_ns=1)
         for index in range(samples):
             values = {f"c{k}": float(v) for k, v in enumerate(rng.normal(20, 2, series))}
@@ -47,22 +62,27 @@ def _recording(path: Path, job_id: int, component: str, title: str, series: int,
         writer.marker("end", "case", "steady", {}, warmup=False, t_ns=10**9)
 
 
-def _history(url: str, folder: Path, name: str, series: int,
-             revisions: int) -> tuple[int, list[int]]:
+def _history(
+    url: str, folder: Path, name: str, series: int, revisions: int
+) -> tuple[int, list[int]]:
     rng = np.random.default_rng(0)
     execution_ids = []
     with session_factory(url)() as session:
         component = create_component(session, ComponentCreate(name=name))
         for number in range(1, revisions + 1):
             title = f"{number:04d}"
-            revision = create_revision(session, RevisionCreate(component=name, title=title,
-                                                               sort_key=title))
+            revision = create_revision(
+                session, RevisionCreate(component=name, title=title, sort_key=title)
+            )
             job = revision.jobs[0]
             path = folder / f"{name}-{title}.mcap"
             _recording(path, job.id, name, title, series, rng)
-            execution = Execution(job_id=job.id, revision_id=revision.id,
-                                  recording_path=str(path),
-                                  sha256=f"{name}{title}".ljust(64, "0"))
+            execution = Execution(
+                job_id=job.id,
+                revision_id=revision.id,
+                recording_path=str(path),
+                sha256=f"{name}{title}".ljust(64, "0"),
+            )
             job.state = JobState.uploaded
             session.add(execution)
             session.commit()
@@ -101,16 +121,20 @@ def one_execution(url: str, folder: Path, series: int, revisions: int) -> None:
     one = time.perf_counter() - start
     pure = _pure(series)
     methods = ", ".join(DetectionConfig().methods)
-    print(f"one execution, {series} series x ({methods}): {one * 1000:.0f} ms "
-          f"({one / pure:.1f}x the pure detectors' {pure * 1000:.0f} ms; goal <= 1 s)")
+    print(
+        f"one execution, {series} series x ({methods}): {one * 1000:.0f} ms "
+        f"({one / pure:.1f}x the pure detectors' {pure * 1000:.0f} ms; goal <= 1 s)"
+    )
 
 
 def reanalysis(url: str, folder: Path, series: int, revisions: int) -> None:
     start = time.perf_counter()
     component_id, executions = _history(url, folder, "bench-history", series, revisions)
     _ingest(url, executions)
-    print(f"history of {revisions} revisions x {series} series recorded and ingested in "
-          f"{time.perf_counter() - start:.0f} s")
+    print(
+        f"history of {revisions} revisions x {series} series recorded and ingested in "
+        f"{time.perf_counter() - start:.0f} s"
+    )
     with session_factory(url)() as session:
         ids = revisions_with_data(session, component_id)
         start = time.perf_counter()
@@ -120,9 +144,11 @@ def reanalysis(url: str, folder: Path, series: int, revisions: int) -> None:
     start = time.perf_counter()
     reanalyze_component(url, component_id)
     again = time.perf_counter() - start
-    print(f"re-analysis of {revisions} revisions x {series} series: {again:.1f} s "
-          f"({again / revisions * 1000:.0f} ms per revision; {again / read:.1f}x reading every "
-          f"revision's samples once, {read:.1f} s; goal <= 60 s)")
+    print(
+        f"re-analysis of {revisions} revisions x {series} series: {again:.1f} s "
+        f"({again / revisions * 1000:.0f} ms per revision; {again / read:.1f}x reading every "
+        f"revision's samples once, {read:.1f} s; goal <= 60 s)"
+    )
 
 
 def main() -> int:

@@ -51,9 +51,12 @@ def synthesize(path: Path, run: dict[str, str]) -> int:
             if offset == 0:
                 writer.marker("begin", "load", "steady", params, t_ns=t_ns - 1)
             for process in range(PROCESSES):
-                writer.counters(f"proc{process}", 100 + process,
-                                dict(zip(COUNTER_NAMES, values[tick, process].tolist(),
-                                         strict=True)), t_ns)
+                writer.counters(
+                    f"proc{process}",
+                    100 + process,
+                    dict(zip(COUNTER_NAMES, values[tick, process].tolist(), strict=True)),
+                    t_ns,
+                )
             for n in range(per_tick[tick]):
                 writer.write(f"bench/topic{n % 4}", payload, t_ns=t_ns + n + 1)
             if offset == ticks // SEGMENTS - 1:
@@ -69,15 +72,28 @@ def read_only(path: Path) -> int:
 def _execution(url: str, folder: Path) -> tuple[int, int]:
     with session_factory(url)() as session:
         create_component(session, ComponentCreate(name="bench"))
-        revision = create_revision(session, RevisionCreate(component="bench", title="r1",
-                                                           sort_key="1"))
+        revision = create_revision(
+            session, RevisionCreate(component="bench", title="r1", sort_key="1")
+        )
         job = revision.jobs[0]
         path = folder / "r1.mcap"
-        count = synthesize(path, {"job_id": str(job.id), "component": "bench",
-                                  "revision_title": "r1", "revision_sort_key": "1",
-                                  "execution_index": "0"})
-        execution = Execution(job_id=job.id, revision_id=revision.id, recording_path=str(path),
-                              sha256="bench".ljust(64, "0"), size=path.stat().st_size)
+        count = synthesize(
+            path,
+            {
+                "job_id": str(job.id),
+                "component": "bench",
+                "revision_title": "r1",
+                "revision_sort_key": "1",
+                "execution_index": "0",
+            },
+        )
+        execution = Execution(
+            job_id=job.id,
+            revision_id=revision.id,
+            recording_path=str(path),
+            sha256="bench".ljust(64, "0"),
+            size=path.stat().st_size,
+        )
         job.state = JobState.uploaded
         session.add(execution)
         session.commit()
@@ -102,8 +118,10 @@ def main() -> None:
         read, ingest = statistics.median(reads), statistics.median(ingests)
         ratios = [i / r for i, r in zip(ingests, reads, strict=True)]
         print(f"read MCAP: median {read * 1e3:.0f} ms; ingest: median {ingest * 1e3:.0f} ms")
-        print(f"ingest / read: {ingest / read:.2f}x (per-pair median "
-              f"{statistics.median(ratios):.2f}x; target <= 3x)")
+        print(
+            f"ingest / read: {ingest / read:.2f}x (per-pair median "
+            f"{statistics.median(ratios):.2f}x; target <= 3x)"
+        )
 
 
 if __name__ == "__main__":

@@ -31,8 +31,9 @@ def _queue(url: str) -> None:
     with session_factory(url)() as session:
         create_component(session, ComponentCreate(name="bench", executions=EXECUTIONS))
         for n in range(REVISIONS):
-            create_revision(session, RevisionCreate(component="bench", title=f"r{n}",
-                                                    sort_key=str(n)))
+            create_revision(
+                session, RevisionCreate(component="bench", title=f"r{n}", sort_key=str(n))
+            )
 
 
 def _agent(server: str, token: str, host: str, limit: int) -> tuple[list[int], list[float]]:
@@ -61,17 +62,22 @@ def main() -> None:
         solo = len(alone) / (time.perf_counter() - start)
         start = time.perf_counter()
         with ThreadPoolExecutor(AGENTS) as pool:
-            results = list(pool.map(lambda n: _agent(server, token, f"agent-{n}", JOBS),
-                                    range(AGENTS)))
+            results = list(
+                pool.map(lambda n: _agent(server, token, f"agent-{n}", JOBS), range(AGENTS))
+            )
         crowd = sum(len(ids) for ids, _ in results) / (time.perf_counter() - start)
         counts = Counter(alone + [job for ids, _ in results for job in ids])
         assert len(counts) == JOBS and set(counts.values()) == {1}, "a job was leased twice"
         latency = [s for _, lat in results for s in lat]
         print(f"{JOBS} jobs, each leased once")
-        print(f"1 agent: {solo:.0f} leases/s (median {statistics.median(alone_latency) * 1e3:.1f}"
-              f" ms per lease)")
-        print(f"{AGENTS} agents: {crowd:.0f} leases/s (median "
-              f"{statistics.median(latency) * 1e3:.1f} ms per lease)")
+        print(
+            f"1 agent: {solo:.0f} leases/s (median {statistics.median(alone_latency) * 1e3:.1f}"
+            f" ms per lease)"
+        )
+        print(
+            f"{AGENTS} agents: {crowd:.0f} leases/s (median "
+            f"{statistics.median(latency) * 1e3:.1f} ms per lease)"
+        )
         print(f"throughput {AGENTS} agents / 1 agent: {crowd / solo:.2f}x")
 
 

@@ -63,18 +63,27 @@ def measure(argv: list[str], env: dict[str, str]) -> float:
 def main() -> None:
     with RunNetwork() as network:
         config = network.write_component_config(
-            Path(tempfile.gettempdir()) / f"bench-monitor-{os.getpid()}.json")
-        env = {**os.environ, "ZENOH_CONFIG": str(config),
-               "REDLINE_ZENOH": json.dumps(network.client_settings())}
-        targets = [subprocess.Popen([sys.executable, "-c", COMPONENT], env=env,
-                                    stdout=subprocess.PIPE, text=True) for _ in range(TARGETS)]
+            Path(tempfile.gettempdir()) / f"bench-monitor-{os.getpid()}.json"
+        )
+        env = {
+            **os.environ,
+            "ZENOH_CONFIG": str(config),
+            "REDLINE_ZENOH": json.dumps(network.client_settings()),
+        }
+        targets = [
+            subprocess.Popen(
+                [sys.executable, "-c", COMPONENT], env=env, stdout=subprocess.PIPE, text=True
+            )
+            for _ in range(TARGETS)
+        ]
         for target in targets:
             assert target.stdout is not None
             target.stdout.readline()
         try:
             names = [f"c{i}={t.pid}" for i, t in enumerate(targets)]
-            monitor = measure([sys.executable, "-m", "redline.agent.monitor", "--rate",
-                               str(RATE), *names], env)
+            monitor = measure(
+                [sys.executable, "-m", "redline.agent.monitor", "--rate", str(RATE), *names], env
+            )
             idle = measure([sys.executable, "-c", IDLE_CLIENT], env)
         finally:
             for target in targets:
@@ -82,11 +91,15 @@ def main() -> None:
                 target.wait()
             config.unlink()
     per_target = 100 * (monitor - idle) / SECONDS / TARGETS
-    print(f"monitor at {RATE} Hz over {TARGETS} targets (+ host), {SECONDS:.0f} s: "
-          f"{100 * monitor / SECONDS:.2f} % of a core; idle zenoh client "
-          f"{100 * idle / SECONDS:.2f} %; ratio {monitor / max(idle, 1e-9):.2f}")
-    print(f"monitor cost per monitored process: {per_target:.3f} % of one core "
-          f"(target <= 0.5 %; ticks are 10 ms, so +-{100 / TICKS / SECONDS / TARGETS:.3f} %)")
+    print(
+        f"monitor at {RATE} Hz over {TARGETS} targets (+ host), {SECONDS:.0f} s: "
+        f"{100 * monitor / SECONDS:.2f} % of a core; idle zenoh client "
+        f"{100 * idle / SECONDS:.2f} %; ratio {monitor / max(idle, 1e-9):.2f}"
+    )
+    print(
+        f"monitor cost per monitored process: {per_target:.3f} % of one core "
+        f"(target <= 0.5 %; ticks are 10 ms, so +-{100 / TICKS / SECONDS / TARGETS:.3f} %)"
+    )
 
 
 if __name__ == "__main__":

@@ -62,9 +62,20 @@ def main() -> None:
     out = folder / "bench.mcap"
     with RunNetwork() as network:
         env = {**os.environ, "REDLINE_ZENOH": json.dumps(network.client_settings())}
-        recorder = subprocess.Popen([sys.executable, "-m", "redline.agent.recorder", "--out",
-                                     str(out), "--meta", str(folder / "meta.json")],
-                                    env=env, stdout=subprocess.PIPE, text=True)
+        recorder = subprocess.Popen(
+            [
+                sys.executable,
+                "-m",
+                "redline.agent.recorder",
+                "--out",
+                str(out),
+                "--meta",
+                str(folder / "meta.json"),
+            ],
+            env=env,
+            stdout=subprocess.PIPE,
+            text=True,
+        )
         assert recorder.stdout is not None
         recorder.stdout.readline()
         with open_client(network.client_settings()) as session:
@@ -78,18 +89,22 @@ def main() -> None:
                 got = after["received"] - before["received"]
                 dropped = after["dropped"] - before["dropped"]
                 asked = f"{rate:,.0f}/s" if rate else "max"
-                print(f"{name:>8} (asked {asked}): sent {sent / seconds:,.0f}/s; recorded/sent "
-                      f"{(got - dropped) / sent:.4f}; dropped {dropped}; received/sent "
-                      f"{got / sent:.4f}; writer lag at worst {after.get('lag_max_ms')} ms")
+                print(
+                    f"{name:>8} (asked {asked}): sent {sent / seconds:,.0f}/s; recorded/sent "
+                    f"{(got - dropped) / sent:.4f}; dropped {dropped}; received/sent "
+                    f"{got / sent:.4f}; writer lag at worst {after.get('lag_max_ms')} ms"
+                )
                 before = after
             link.close()  # reports the put counts to the recorder
         recorder.terminate()
         recorder.wait()
     recording = read_recording(out)
     meta = recording.metadata["redline.recorder"]
-    print(f"file: {sum(recording.traffic.values()):,} messages; recorder metadata: lost "
-          f"{meta.get('lost')} {meta.get('lost_by_key')}; dropped {meta['dropped']}; shared "
-          f"memory {meta.get('zenoh_shared_memory')}")
+    print(
+        f"file: {sum(recording.traffic.values()):,} messages; recorder metadata: lost "
+        f"{meta.get('lost')} {meta.get('lost_by_key')}; dropped {meta['dropped']}; shared "
+        f"memory {meta.get('zenoh_shared_memory')}"
+    )
     for path in folder.iterdir():
         path.unlink()
     folder.rmdir()

@@ -54,10 +54,12 @@ def fixed_rate(rate: float) -> None:
     FixedRate(rate, SECONDS, Static(None)).run(ctx)
     report = ctx.reports[-1]
     ref_rate, ref_p99 = sleep_loop(rate, SECONDS)
-    print(f"FixedRate {rate:>6.0f} Hz: achieved/requested {report['rate_achieved'] / rate:.4f} "
-          f"(sleep loop {ref_rate / rate:.4f}); p99 lateness {report['lateness_p99_us']:.1f} us "
-          f"= {report['lateness_p99_us'] * 1e3 / max(ref_p99, 1):.3f} x the sleep loop's "
-          f"{ref_p99 / 1e3:.1f} us")
+    print(
+        f"FixedRate {rate:>6.0f} Hz: achieved/requested {report['rate_achieved'] / rate:.4f} "
+        f"(sleep loop {ref_rate / rate:.4f}); p99 lateness {report['lateness_p99_us']:.1f} us "
+        f"= {report['lateness_p99_us'] * 1e3 / max(ref_p99, 1):.3f} x the sleep loop's "
+        f"{ref_p99 / 1e3:.1f} us"
+    )
 
 
 Rates = tuple[float, float]  # samples per wall-clock second, per CPU second of this thread
@@ -97,17 +99,21 @@ def publish(network: RunNetwork, size: int, pairs: int = PAIRS) -> None:
         sdk_rate(ctx, payload, 0.5)
         wall, cpu, sdk_rates = [], [], []
         for index in range(pairs):
-            runs = {"bare": lambda: bare_rate(link.publisher("bench/bare"), payload, PAIR_SECONDS),
-                    "sdk": lambda: sdk_rate(ctx, payload, PAIR_SECONDS)}
+            runs = {
+                "bare": lambda: bare_rate(link.publisher("bench/bare"), payload, PAIR_SECONDS),
+                "sdk": lambda: sdk_rate(ctx, payload, PAIR_SECONDS),
+            }
             order = ("bare", "sdk") if index % 2 == 0 else ("sdk", "bare")
             rates = {name: runs[name]() for name in order}
             wall.append(rates["sdk"][0] / rates["bare"][0])
             cpu.append(rates["sdk"][1] / rates["bare"][1])
             sdk_rates.append(rates["sdk"][0])
         link.close()
-    print(f"Publish {size:>5} B: SDK/bare median ratio, wall clock {_spread(wall)}; per CPU "
-          f"second {_spread(cpu)}; {pairs} interleaved pairs of {PAIR_SECONDS:g} s; SDK median "
-          f"{statistics.median(sdk_rates):,.0f}/s")
+    print(
+        f"Publish {size:>5} B: SDK/bare median ratio, wall clock {_spread(wall)}; per CPU "
+        f"second {_spread(cpu)}; {pairs} interleaved pairs of {PAIR_SECONDS:g} s; SDK median "
+        f"{statistics.median(sdk_rates):,.0f}/s"
+    )
 
 
 def main() -> None:
@@ -116,7 +122,10 @@ def main() -> None:
     with RunNetwork() as network:
         listener = subprocess.Popen(
             [sys.executable, "-c", SUBSCRIBER, json.dumps(network.client_settings())],
-            stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            text=True,
+        )
         assert listener.stdout is not None and listener.stdin is not None
         listener.stdout.readline()
         for size in (8, 1024):

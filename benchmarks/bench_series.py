@@ -21,8 +21,9 @@ from redline.server.services.revisions import order_key
 from sqlalchemy import insert, select
 
 REVISIONS, SERIES, REQUESTS, TARGET_MS = 1000, 50, 200, 50.0
-STATS = dict(n=100, mean=1.0, std=0.1, min=0.8, p5=0.85, p25=0.95, p50=1.0, p75=1.05, p95=1.15,
-             max=1.3)
+STATS = dict(
+    n=100, mean=1.0, std=0.1, min=0.8, p5=0.85, p25=0.95, p50=1.0, p75=1.05, p95=1.15, max=1.3
+)
 
 
 def _history(url: str) -> list[int]:
@@ -31,22 +32,48 @@ def _history(url: str) -> list[int]:
         component = Component(name="bench", repo="/bench.git", suite="s.toml")
         session.add(component)
         session.flush()
-        series = [Series(component_id=component.id, case="c", phase="p", params="{}",
-                         process="proc", counter=f"counter{n}") for n in range(SERIES)]
+        series = [
+            Series(
+                component_id=component.id,
+                case="c",
+                phase="p",
+                params="{}",
+                process="proc",
+                counter=f"counter{n}",
+            )
+            for n in range(SERIES)
+        ]
         session.add_all(series)
-        session.execute(insert(Revision), [
-            dict(component_id=component.id, title=f"r{n}", sort_key=str(n),
-                 order_key=order_key(str(n))) for n in range(REVISIONS)])
+        session.execute(
+            insert(Revision),
+            [
+                dict(
+                    component_id=component.id,
+                    title=f"r{n}",
+                    sort_key=str(n),
+                    order_key=order_key(str(n)),
+                )
+                for n in range(REVISIONS)
+            ],
+        )
         revisions = list(session.scalars(select(Revision.id).order_by(Revision.id)))
-        session.execute(insert(Job), [dict(revision_id=r, execution_index=0, state=JobState.done)
-                                      for r in revisions])
+        session.execute(
+            insert(Job),
+            [dict(revision_id=r, execution_index=0, state=JobState.done) for r in revisions],
+        )
         jobs = list(session.scalars(select(Job.id).order_by(Job.id)))
-        session.execute(insert(Execution), [
-            dict(job_id=j, revision_id=r, recording_path="", sha256=f"{j:064d}")
-            for j, r in zip(jobs, revisions, strict=True)])
+        session.execute(
+            insert(Execution),
+            [
+                dict(job_id=j, revision_id=r, recording_path="", sha256=f"{j:064d}")
+                for j, r in zip(jobs, revisions, strict=True)
+            ],
+        )
         executions = list(session.scalars(select(Execution.id).order_by(Execution.id)))
-        session.execute(insert(Summary), [dict(execution_id=e, series_id=s.id, **STATS)
-                                          for e in executions for s in series])
+        session.execute(
+            insert(Summary),
+            [dict(execution_id=e, series_id=s.id, **STATS) for e in executions for s in series],
+        )
         session.commit()
         return [s.id for s in series]
 
@@ -70,10 +97,14 @@ def main() -> None:
                 client.get("/healthz").raise_for_status()
                 floor.append((time.perf_counter() - start) * 1e3)
         p95 = _p95(series)
-        print(f"series of {points} revisions: median {statistics.median(series):.1f} ms, "
-              f"p95 {p95:.1f} ms; /healthz p95 {_p95(floor):.1f} ms")
-        print(f"p95 / target ({TARGET_MS:.0f} ms): {p95 / TARGET_MS:.2f}x; "
-              f"p95 / healthz p95: {p95 / _p95(floor):.1f}x")
+        print(
+            f"series of {points} revisions: median {statistics.median(series):.1f} ms, "
+            f"p95 {p95:.1f} ms; /healthz p95 {_p95(floor):.1f} ms"
+        )
+        print(
+            f"p95 / target ({TARGET_MS:.0f} ms): {p95 / TARGET_MS:.2f}x; "
+            f"p95 / healthz p95: {p95 / _p95(floor):.1f}x"
+        )
 
 
 if __name__ == "__main__":

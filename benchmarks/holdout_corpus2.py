@@ -27,26 +27,41 @@ from redline.detect.methods import Detector
 
 HOLDOUT_EVENTS = ("cpu_plus_30", "extra_io", "cpu_plus_10b")
 GRID = {"threshold": (3.0, 4.0, 5.0, 6.0, 8.0), "min_effect": (0.03, 0.05, 0.08, 0.10)}
-VARIANTS: dict[str, type[ExecutionShift]] = {"execution_shift": ExecutionShift,
-                                              "build_shift": BuildShift}
-METHODS = ("execution_shift", "build_shift", "ks", "mann_whitney", "welch_t", "median_shift",
-           "foo", "shang")
+VARIANTS: dict[str, type[ExecutionShift]] = {
+    "execution_shift": ExecutionShift,
+    "build_shift": BuildShift,
+}
+METHODS = (
+    "execution_shift",
+    "build_shift",
+    "ks",
+    "mann_whitney",
+    "welch_t",
+    "median_shift",
+    "foo",
+    "shang",
+)
 
 
 def split(corpus: Corpus) -> tuple[Corpus, Corpus]:
     def part(held: bool) -> Corpus:
         names = {s for s in corpus.labels if (s.split("/")[0] in HOLDOUT_EVENTS) == held}
         frame = corpus.measurements
-        return replace(corpus, measurements=frame[frame["series"].isin(names)]
-                       .reset_index(drop=True),
-                       labels={s: lab for s, lab in corpus.labels.items() if s in names})
+        return replace(
+            corpus,
+            measurements=frame[frame["series"].isin(names)].reset_index(drop=True),
+            labels={s: lab for s, lab in corpus.labels.items() if s in names},
+        )
+
     return part(False), part(True)
 
 
 def line(s: MethodScores) -> str:
-    return (f"ROC-AUC {s.roc_auc:.3f}, false alarms {s.false_alarms_per_100:.1f}/100 unchanged "
-            f"({s.fp}), recall >=10 % {s.recall_large:.2f} (of {s.large}), recall "
-            f"{s.recall:.2f} (of {s.tp + s.fn})")
+    return (
+        f"ROC-AUC {s.roc_auc:.3f}, false alarms {s.false_alarms_per_100:.1f}/100 unchanged "
+        f"({s.fp}), recall >=10 % {s.recall_large:.2f} (of {s.large}), recall "
+        f"{s.recall:.2f} (of {s.tp + s.fn})"
+    )
 
 
 Setting = tuple[str, dict[str, float]]
@@ -56,8 +71,9 @@ def tune(corpus: Corpus) -> Setting:
     """The setting with <= 1 false alarm per 100 and the best recall, else the fewest alarms."""
     best: tuple[tuple[float, float, float, float], Setting] | None = None
     quietest: tuple[float, Setting] | None = None
-    for name, threshold, min_effect in itertools.product(VARIANTS, GRID["threshold"],
-                                                         GRID["min_effect"]):
+    for name, threshold, min_effect in itertools.product(
+        VARIANTS, GRID["threshold"], GRID["min_effect"]
+    ):
         setting = (name, {"threshold": threshold, "min_effect": min_effect})
         result = summarize(run_detector(VARIANTS[name](**setting[1]), corpus))
         print(f"  tune {name} threshold={threshold} min_effect={min_effect}: " + line(result))
@@ -81,10 +97,14 @@ def report(name: str, detector: Detector, halves: dict[str, Corpus]) -> None:
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("corpus", nargs="?",
-                        default=str(Path(__file__).resolve().parent / "corpus" / "objectbuilder"))
-    parser.add_argument("--executions", type=int, default=None,
-                        help="use only each build's first N executions")
+    parser.add_argument(
+        "corpus",
+        nargs="?",
+        default=str(Path(__file__).resolve().parent / "corpus" / "objectbuilder"),
+    )
+    parser.add_argument(
+        "--executions", type=int, default=None, help="use only each build's first N executions"
+    )
     args = parser.parse_args()
     corpus = load_corpus(args.corpus)
     if args.executions:

@@ -72,8 +72,7 @@ EVENTS = [
     Event("extra_thread", "thread", 0.0, ("threads",), {"extra_threads": 1}),
     Event("cpu_plus_30", "cpu", 0.30, CPU, {"work": round(BASE_WORK * 1.05 * 1.10 * 1.30)}),
     Event("extra_io", "io", 0.0, ("io_write_bytes",), {"io_kib_per_tick": 512}),
-    Event("cpu_plus_10b", "cpu", 0.10, CPU,
-          {"work": round(BASE_WORK * 1.05 * 1.10 * 1.30 * 1.10)}),
+    Event("cpu_plus_10b", "cpu", 0.10, CPU, {"work": round(BASE_WORK * 1.05 * 1.10 * 1.30 * 1.10)}),
 ]
 
 TUNING = '''"""How much CPU work the objectbuilder spends per pair of legs, and injected changes.
@@ -110,10 +109,16 @@ for _ in range(EXTRA_THREADS):
 
 
 def git(repo: Path, *args: str) -> str:
-    env = dict(os.environ, GIT_AUTHOR_NAME="Redline Corpus", GIT_AUTHOR_EMAIL="c@redline.invalid",
-               GIT_COMMITTER_NAME="Redline Corpus", GIT_COMMITTER_EMAIL="c@redline.invalid")
-    return subprocess.run(["git", *args], cwd=repo, env=env, check=True, capture_output=True,
-                          text=True).stdout.strip()
+    env = dict(
+        os.environ,
+        GIT_AUTHOR_NAME="Redline Corpus",
+        GIT_AUTHOR_EMAIL="c@redline.invalid",
+        GIT_COMMITTER_NAME="Redline Corpus",
+        GIT_COMMITTER_EMAIL="c@redline.invalid",
+    )
+    return subprocess.run(
+        ["git", *args], cwd=repo, env=env, check=True, capture_output=True, text=True
+    ).stdout.strip()
 
 
 def plan(stretch: int) -> tuple[list[Knobs], dict[int, Event]]:
@@ -136,9 +141,16 @@ def make_repo(repo: Path, knobs: list[Knobs], starts: dict[int, Event]) -> list[
     for index, knob in enumerate(knobs):
         event = starts.get(index)
         note = f"injects {event.name}" if event else "unchanged (comment only)"
-        (repo / "objectbuilder" / "tuning.py").write_text(TUNING.format(
-            index=index, note=note, work=knob.work, leak=knob.leak_kib_per_tick,
-            threads=knob.extra_threads, io=knob.io_kib_per_tick))
+        (repo / "objectbuilder" / "tuning.py").write_text(
+            TUNING.format(
+                index=index,
+                note=note,
+                work=knob.work,
+                leak=knob.leak_kib_per_tick,
+                threads=knob.extra_threads,
+                io=knob.io_kib_per_tick,
+            )
+        )
         git(repo, "add", "-A")
         git(repo, "commit", "--quiet", "-m", f"revision {index}: {note}")
         commits.append(git(repo, "rev-parse", "HEAD"))
@@ -155,16 +167,23 @@ def run_revision(repo: Path, commit: str, out: Path, executions: int) -> list[pd
         path = out / f"{commit[:10]}-{execution}.mcap"
         for attempt in (1, 2):  # a shared host can make a start time out; one retry
             try:
-                run_suite(repo / "objectbuilder" / "perf" / "redline.toml", path, only=[CASE],
-                          overrides=OVERRIDES)
+                run_suite(
+                    repo / "objectbuilder" / "perf" / "redline.toml",
+                    path,
+                    only=[CASE],
+                    overrides=OVERRIDES,
+                )
                 break
             except RunError as exc:
                 print(f"{commit[:10]} execution {execution} attempt {attempt}: {exc}", flush=True)
                 if attempt == 2:
                     raise
-        rows = [(key.counter, value)
-                for key, values in read_recording(path).series_samples().items()
-                if key.process == "objectbuilder" and key.phase == PHASE for value in values]
+        rows = [
+            (key.counter, value)
+            for key, values in read_recording(path).series_samples().items()
+            if key.process == "objectbuilder" and key.phase == PHASE
+            for value in values
+        ]
         frame = pd.DataFrame(rows, columns=["counter", "value"])
         frame["execution"] = execution
         frames.append(frame)
@@ -183,8 +202,9 @@ def disturbed(frames: list[pd.DataFrame], expected: int = 20) -> bool:
     return False
 
 
-def build_corpus(samples: dict[int, list[pd.DataFrame]], starts: dict[int, Event],
-                 total: int) -> tuple[pd.DataFrame, dict[str, dict[str, object]]]:
+def build_corpus(
+    samples: dict[int, list[pd.DataFrame]], starts: dict[int, Event], total: int
+) -> tuple[pd.DataFrame, dict[str, dict[str, object]]]:
     """Cut the history into one window per event (and the stable start) and label it."""
     bounds = sorted(starts)
     rows, labels = [], {}
@@ -193,9 +213,16 @@ def build_corpus(samples: dict[int, list[pd.DataFrame]], starts: dict[int, Event
         for build in range(first, stop):
             for frame in samples.get(build, []):
                 part = frame[frame["counter"] == counter]
-                rows.append(pd.DataFrame({"series": series, "build": build,
-                                          "value": part["value"].astype(np.float64),
-                                          "execution": part["execution"]}))
+                rows.append(
+                    pd.DataFrame(
+                        {
+                            "series": series,
+                            "build": build,
+                            "value": part["value"].astype(np.float64),
+                            "execution": part["execution"],
+                        }
+                    )
+                )
 
     for counter in STABLE_COUNTERS:
         add(f"stable/{counter}", counter, 0, bounds[0])
@@ -207,21 +234,34 @@ def build_corpus(samples: dict[int, list[pd.DataFrame]], starts: dict[int, Event
         for counter in event.targets:
             series = f"{event.name}/{counter}"
             add(series, counter, first, stop)
-            labels[series] = {"label": "regression", "change_build": start, "kind": event.kind,
-                              "size": event.size}
+            labels[series] = {
+                "label": "regression",
+                "change_build": start,
+                "kind": event.kind,
+                "size": event.size,
+            }
     return pd.concat(rows, ignore_index=True), labels
 
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--out", type=Path,
-                        default=ROOT / "benchmarks" / "corpus" / "objectbuilder")
+    parser.add_argument(
+        "--out", type=Path, default=ROOT / "benchmarks" / "corpus" / "objectbuilder"
+    )
     parser.add_argument("--stretch", type=int, default=11, help="revisions between events")
     parser.add_argument("--executions", type=int, default=5)
-    parser.add_argument("--remeasure", type=int, default=2,
-                        help="measure a disturbed build again, up to this many times")
-    parser.add_argument("--cache", type=Path, default=Path(tempfile.gettempdir()) /
-                        "redline-corpus-cache", help="finished builds, kept for a rerun")
+    parser.add_argument(
+        "--remeasure",
+        type=int,
+        default=2,
+        help="measure a disturbed build again, up to this many times",
+    )
+    parser.add_argument(
+        "--cache",
+        type=Path,
+        default=Path(tempfile.gettempdir()) / "redline-corpus-cache",
+        help="finished builds, kept for a rerun",
+    )
     args = parser.parse_args()
     knobs, starts = plan(args.stretch)
     work = Path(tempfile.mkdtemp(prefix="redline-corpus-"))
@@ -244,18 +284,23 @@ def main() -> int:
                 if not disturbed(samples[build]):
                     break
             pd.concat(samples[build]).to_parquet(cached, index=False)
-            print(f"build {build + 1}/{len(commits)} done, {time.monotonic() - started:.0f} s",
-                  flush=True)
+            print(
+                f"build {build + 1}/{len(commits)} done, {time.monotonic() - started:.0f} s",
+                flush=True,
+            )
     finally:
         shutil.rmtree(work, ignore_errors=True)
     frame, labels = build_corpus(samples, starts, len(commits))
     args.out.mkdir(parents=True, exist_ok=True)
     frame.to_parquet(args.out / "measurements.parquet", index=False, compression="zstd")
-    meta = {"name": "redline-objectbuilder-injected",
-            "source": "benchmarks/make_corpus.py: examples/objectbuilder, legs_and_rate legs=8 "
-                      f"rate=20, {args.executions} executions per revision, {len(commits)} "
-                      "revisions, changes injected through tuning.py",
-            "license": "same as Redline", "series": labels}
+    meta = {
+        "name": "redline-objectbuilder-injected",
+        "source": "benchmarks/make_corpus.py: examples/objectbuilder, legs_and_rate legs=8 "
+        f"rate=20, {args.executions} executions per revision, {len(commits)} "
+        "revisions, changes injected through tuning.py",
+        "license": "same as Redline",
+        "series": labels,
+    }
     (args.out / "labels.json").write_text(json.dumps(meta, indent=1) + "\n")
     print(f"{len(frame)} samples, {len(labels)} series, {time.monotonic() - started:.0f} s")
     return 0

@@ -28,13 +28,19 @@ def api_with(services: Services, tmp_path: Path, **settings: Any) -> Iterator[Ap
     if services.database_url not in _MIGRATED:
         migrate(services.database_url)
         _MIGRATED.add(services.database_url)
-    config = Settings(database_url=services.database_url, redis_url=services.redis_url,
-                      storage_dir=tmp_path / "storage", queue=f"test-{uuid.uuid4().hex[:8]}",
-                      **settings)
+    config = Settings(
+        database_url=services.database_url,
+        redis_url=services.redis_url,
+        storage_dir=tmp_path / "storage",
+        queue=f"test-{uuid.uuid4().hex[:8]}",
+        **settings,
+    )
     with session_factory(config.database_url)() as session:
         session.execute(text(f"TRUNCATE {TABLES} RESTART IDENTITY CASCADE"))
         session.commit()
-        tokens = {scope: {"Authorization": f"Bearer {issue_token(session, scope, scope)[1]}"}
-                  for scope in SCOPES}
+        tokens = {
+            scope: {"Authorization": f"Bearer {issue_token(session, scope, scope)[1]}"}
+            for scope in SCOPES
+        }
     with TestClient(create_app(config)) as client:
         yield Api(client, config, tokens)

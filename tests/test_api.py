@@ -41,16 +41,28 @@ class Api:
     def post(self, path: str, scope: str, body: dict) -> object:
         return self.client.post(path, json=body, headers=self.tokens[scope])
 
-    def component(self, name: str = "builder", executions: int = 1,
-                  host_labels: list[str] | None = None) -> None:
-        answer = self.post("/api/v1/components", "admin", {
-            "name": name, "repo": f"/src/{name}.git", "suite": "perf/redline.toml",
-            "executions": executions, "host_labels": host_labels or []})
+    def component(
+        self, name: str = "builder", executions: int = 1, host_labels: list[str] | None = None
+    ) -> None:
+        answer = self.post(
+            "/api/v1/components",
+            "admin",
+            {
+                "name": name,
+                "repo": f"/src/{name}.git",
+                "suite": "perf/redline.toml",
+                "executions": executions,
+                "host_labels": host_labels or [],
+            },
+        )
         assert answer.status_code == 201, answer.text
 
     def revision(self, title: str, sort_key: str, component: str = "builder") -> dict:
-        answer = self.post("/api/v1/revisions", "ci", {
-            "component": component, "title": title, "sort_key": sort_key, "commit": "abc123"})
+        answer = self.post(
+            "/api/v1/revisions",
+            "ci",
+            {"component": component, "title": title, "sort_key": sort_key, "commit": "abc123"},
+        )
         assert answer.status_code == 201, answer.text
         return answer.json()
 
@@ -59,10 +71,19 @@ class Api:
         assert answer.status_code in (200, 204), answer.text
         return answer.json() if answer.status_code == 200 else None
 
-    def upload(self, job_id: int, data: bytes, sha256: str | None = None, host: str = "perf1",
-               scope: str = "agent") -> object:
-        headers = {**self.tokens[scope], "X-Redline-Host": host,
-                   "X-Redline-Sha256": sha256 or hashlib.sha256(data).hexdigest()}
+    def upload(
+        self,
+        job_id: int,
+        data: bytes,
+        sha256: str | None = None,
+        host: str = "perf1",
+        scope: str = "agent",
+    ) -> object:
+        headers = {
+            **self.tokens[scope],
+            "X-Redline-Host": host,
+            "X-Redline-Sha256": sha256 or hashlib.sha256(data).hexdigest(),
+        }
         return self.client.put(f"/api/v1/jobs/{job_id}/recording", content=data, headers=headers)
 
     def job(self, job_id: int) -> dict:
@@ -80,27 +101,43 @@ def database_url(services: Services) -> str:
 
 @pytest.fixture
 def api(services: Services, database_url: str, tmp_path: Path) -> Iterator[Api]:
-    settings = Settings(database_url=database_url, redis_url=services.redis_url,
-                        storage_dir=tmp_path / "storage", queue=f"test-{uuid.uuid4().hex[:8]}",
-                        max_upload_bytes=2_000_000, lease_seconds=60, max_attempts=2)
+    settings = Settings(
+        database_url=database_url,
+        redis_url=services.redis_url,
+        storage_dir=tmp_path / "storage",
+        queue=f"test-{uuid.uuid4().hex[:8]}",
+        max_upload_bytes=2_000_000,
+        lease_seconds=60,
+        max_attempts=2,
+    )
     with session_factory(database_url)() as session:
         session.execute(text(f"TRUNCATE {TABLES} RESTART IDENTITY CASCADE"))
         session.commit()
-        tokens = {scope: {"Authorization": f"Bearer {issue_token(session, scope, scope)[1]}"}
-                  for scope in SCOPES}
+        tokens = {
+            scope: {"Authorization": f"Bearer {issue_token(session, scope, scope)[1]}"}
+            for scope in SCOPES
+        }
     with TestClient(create_app(settings)) as client:
-        client.post("/api/v1/agent/register", json={"name": "perf1", "labels": ["quiet"]},
-                    headers=tokens["agent"]).raise_for_status()
+        client.post(
+            "/api/v1/agent/register",
+            json={"name": "perf1", "labels": ["quiet"]},
+            headers=tokens["agent"],
+        ).raise_for_status()
         yield Api(client, settings, tokens)
 
 
 def recording_for(job: dict, path: Path, cpu: float = 20.0, seed: int = 0, **run: str) -> bytes:
     """A finished recording made for the leased ``job``; ``run`` overrides metadata fields."""
     rng = np.random.default_rng(seed)
-    metadata = {"job_id": str(job["id"]), "component": job["component"],
-                "revision_title": job["revision"]["title"],
-                "revision_sort_key": job["revision"]["sort_key"], "commit": job["commit"],
-                "execution_index": str(job["execution_index"]), **run}
+    metadata = {
+        "job_id": str(job["id"]),
+        "component": job["component"],
+        "revision_title": job["revision"]["title"],
+        "revision_sort_key": job["revision"]["sort_key"],
+        "commit": job["commit"],
+        "execution_index": str(job["execution_index"]),
+        **run,
+    }
     counters = {"cpu": rng.normal(cpu, cpu / 10, 150), "rss": rng.normal(5e7, 1e5, 150)}
     return write_recording(path, metadata, counters).read_bytes()
 
@@ -132,8 +169,9 @@ def test_wrong_scope_is_403_and_admin_implies_every_scope(api: Api):
 
 
 def test_unknown_component_is_404_naming_it(api: Api):
-    answer = api.post("/api/v1/revisions", "ci",
-                      {"component": "ghost", "title": "r1", "sort_key": "1"})
+    answer = api.post(
+        "/api/v1/revisions", "ci", {"component": "ghost", "title": "r1", "sort_key": "1"}
+    )
     assert answer.status_code == 404 and "'ghost'" in answer.json()["detail"]
     for tail in ("revisions", "series", "changes", "revisions/r1"):
         answer = api.client.get(f"/api/v1/components/ghost/{tail}")
@@ -149,8 +187,11 @@ def test_malformed_json_and_fields_are_422_naming_the_field(api: Api):
     answer = api.post("/api/v1/revisions", "ci", {"component": "builder", "title": "r1"})
     assert answer.status_code == 422
     assert [e["loc"][-1] for e in answer.json()["detail"]] == ["sort_key"]
-    broken = api.client.post("/api/v1/components", content=b"{not json",
-                             headers={**api.tokens["admin"], "Content-Type": "application/json"})
+    broken = api.client.post(
+        "/api/v1/components",
+        content=b"{not json",
+        headers={**api.tokens["admin"], "Content-Type": "application/json"},
+    )
     assert broken.status_code == 422
 
 
@@ -158,8 +199,9 @@ def test_duplicate_component_or_revision_title_is_409(api: Api):
     api.component()
     assert api.post("/api/v1/components", "admin", {"name": "builder"}).status_code == 409
     api.revision("r1", "1")
-    answer = api.post("/api/v1/revisions", "ci",
-                      {"component": "builder", "title": "r1", "sort_key": "5"})
+    answer = api.post(
+        "/api/v1/revisions", "ci", {"component": "builder", "title": "r1", "sort_key": "5"}
+    )
     assert answer.status_code == 409 and "'r1'" in answer.json()["detail"]
 
 
@@ -182,7 +224,9 @@ def test_revisions_are_listed_in_sort_key_order_with_their_state(api: Api):
     assert {r["state"] for r in listed} == {"queued"}
     detail = api.client.get("/api/v1/components/builder/revisions/nine").json()
     assert [(j["execution_index"], j["state"]) for j in detail["jobs"]] == [
-        (0, "queued"), (1, "queued")]
+        (0, "queued"),
+        (1, "queued"),
+    ]
 
 
 def test_lease_hands_out_newest_revision_first_then_204(api: Api):
@@ -192,7 +236,10 @@ def test_lease_hands_out_newest_revision_first_then_204(api: Api):
     assert job["id"] == second["job_ids"][0]
     assert job["revision"] == {"title": "r10", "sort_key": "10"}
     assert (job["component"], job["commit"], job["suite"]) == (
-        "builder", "abc123", "perf/redline.toml")
+        "builder",
+        "abc123",
+        "perf/redline.toml",
+    )
     assert api.lease()["id"] == first["job_ids"][0]
     assert api.lease() is None
     unknown = api.post("/api/v1/agent/lease", "agent", {"host": "stranger"})
@@ -206,27 +253,34 @@ def test_lease_hands_a_host_only_jobs_of_pools_it_belongs_to(api: Api):
     plain_job = api.revision("p1", "1", component="plain")["job_ids"][0]
     assert api.lease()["id"] == plain_job  # perf1 has only the label "quiet"
     assert api.lease() is None
-    api.post("/api/v1/agent/register", "agent",
-             {"name": "perf2", "labels": ["gpu", "quiet"]}).raise_for_status()
+    api.post(
+        "/api/v1/agent/register", "agent", {"name": "perf2", "labels": ["gpu", "quiet"]}
+    ).raise_for_status()
     assert api.lease("perf2")["id"] == gpu_job
 
 
 def test_an_agent_token_naming_its_host_acts_for_that_host_only(api: Api):
-    made = api.post("/api/v1/tokens", "admin", {"name": "perf1-token", "scopes": ["agent"],
-                                                "host": "perf1"})
+    made = api.post(
+        "/api/v1/tokens", "admin", {"name": "perf1-token", "scopes": ["agent"], "host": "perf1"}
+    )
     assert made.status_code == 201, made.text
     own = {"Authorization": f"Bearer {made.json()['token']}"}
-    api.client.post("/api/v1/agent/register", json={"name": "perf9", "labels": []},
-                    headers=api.tokens["agent"]).raise_for_status()
-    for path, body in (("/api/v1/agent/register", {"name": "perf9", "labels": []}),
-                       ("/api/v1/agent/lease", {"host": "perf9"}),
-                       ("/api/v1/jobs/1/heartbeat", {"host": "perf9"}),
-                       ("/api/v1/jobs/1/release", {"host": "perf9"})):
+    api.client.post(
+        "/api/v1/agent/register", json={"name": "perf9", "labels": []}, headers=api.tokens["agent"]
+    ).raise_for_status()
+    for path, body in (
+        ("/api/v1/agent/register", {"name": "perf9", "labels": []}),
+        ("/api/v1/agent/lease", {"host": "perf9"}),
+        ("/api/v1/jobs/1/heartbeat", {"host": "perf9"}),
+        ("/api/v1/jobs/1/release", {"host": "perf9"}),
+    ):
         answer = api.client.post(path, json=body, headers=own)
         assert answer.status_code == 403, (path, answer.text)
         assert "perf1" in answer.json()["detail"] and "perf9" in answer.json()["detail"]
-    assert api.client.post("/api/v1/agent/lease", json={"host": "perf1"},
-                           headers=own).status_code == 204
+    assert (
+        api.client.post("/api/v1/agent/lease", json={"host": "perf1"}, headers=own).status_code
+        == 204
+    )
 
 
 def test_lease_skips_a_job_another_transaction_has_locked(api: Api):
@@ -253,8 +307,11 @@ def test_heartbeat_extends_the_lease_and_marks_the_job_running(api: Api):
 
 def _expire(api: Api, job_id: int) -> None:
     with session_factory(api.settings.database_url)() as session:
-        session.execute(update(Job).where(Job.id == job_id)
-                        .values(lease_expires_at=utcnow() - timedelta(seconds=1)))
+        session.execute(
+            update(Job)
+            .where(Job.id == job_id)
+            .values(lease_expires_at=utcnow() - timedelta(seconds=1))
+        )
         session.commit()
 
 
@@ -278,8 +335,9 @@ def test_fail_marks_the_job_and_revision_failed_with_the_reason(api: Api):
     api.component()
     api.revision("r1", "1")
     job = api.lease()
-    answer = api.post(f"/api/v1/jobs/{job['id']}/fail", "agent",
-                      {"host": "perf1", "reason": "build broke"})
+    answer = api.post(
+        f"/api/v1/jobs/{job['id']}/fail", "agent", {"host": "perf1", "reason": "build broke"}
+    )
     assert answer.json() == {"id": job["id"], "state": "failed", "reason": "build broke"}
     listed = api.client.get("/api/v1/components/builder/revisions").json()
     assert listed[0]["state"] == "failed"
@@ -296,8 +354,9 @@ def test_valid_upload_stores_the_execution_and_queues_ingestion(api: Api, tmp_pa
     stored = api.job(job["id"])
     assert stored["state"] == "uploaded"
     assert stored["execution"]["sha256"] == hashlib.sha256(data).hexdigest()
-    assert (api.settings.storage_dir / "recordings" / f"{stored['execution']['sha256']}.mcap"
-            ).read_bytes() == data
+    assert (
+        api.settings.storage_dir / "recordings" / f"{stored['execution']['sha256']}.mcap"
+    ).read_bytes() == data
     broker = redis.Redis.from_url(api.settings.redis_url)
     assert broker.llen(api.settings.queue) == 1  # the ingest task waits in the real broker
     assert broker_url("unix:///tmp/r.sock") == "redis+socket:///tmp/r.sock"
@@ -344,8 +403,9 @@ def test_non_mcap_upload_is_refused_and_fails_the_job(api: Api):
     api.component()
     api.revision("r1", "1")
     job = api.lease()
-    _assert_refused(api, job["id"], b"PK\x03\x04 this is a zip, not a recording" * 20,
-                    "not an MCAP file")
+    _assert_refused(
+        api, job["id"], b"PK\x03\x04 this is a zip, not a recording" * 20, "not an MCAP file"
+    )
 
 
 def test_recording_made_for_another_job_is_refused(api: Api, tmp_path: Path):
@@ -397,10 +457,12 @@ def test_series_and_changes_report_the_tripled_counter(api: Api, tmp_path: Path)
     assert cpu["params"] == {"rate": 10} and cpu["points"][0]["n"] == 150
     changes = api.client.get("/api/v1/components/builder/changes?flagged=true").json()
     assert [(c["revision"], c["series"]["counter"], c["method"]) for c in changes] == [
-        ("r3", "cpu", "ks")]
+        ("r3", "cpu", "ks")
+    ]
     assert changes[0]["baseline"] == "r2" and changes[0]["effect"] > 1.5
-    assert [r["state"] for r in api.client.get(
-        "/api/v1/components/builder/revisions").json()] == ["done"] * 3
+    assert [r["state"] for r in api.client.get("/api/v1/components/builder/revisions").json()] == [
+        "done"
+    ] * 3
 
 
 def test_trend_page_draws_the_flagged_revision_with_local_plotly(api: Api, tmp_path: Path):
@@ -410,8 +472,12 @@ def test_trend_page_draws_the_flagged_revision_with_local_plotly(api: Api, tmp_p
     assert '<script src="/static/plotly.min.js">' in page.text and "cdn" not in page.text.lower()
     assert page.text.count('class="chart"') == 2
     figures = json.loads(re.search(r"const figures = (.*);", page.text).group(1))
-    marked = {figure["layout"]["yaxis"]["title"]["text"]: trace["x"]
-              for figure in figures for trace in figure["data"] if "change" in trace["name"]}
+    marked = {
+        figure["layout"]["yaxis"]["title"]["text"]: trace["x"]
+        for figure in figures
+        for trace in figure["data"]
+        if "change" in trace["name"]
+    }
     assert marked == {"cpu": ["r3"], "rss": []}
     script = api.client.get("/static/plotly.min.js")
     assert script.status_code == 200 and len(script.content) > 1_000_000

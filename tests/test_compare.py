@@ -19,8 +19,14 @@ from typer.testing import CliRunner
 RATES = (10, 20)
 
 
-def record(path: Path, *, cpu_factor: dict[int, float] | None = None, host_factor: float = 1.0,
-           case: str = "load", seed: int = 0) -> Path:
+def record(
+    path: Path,
+    *,
+    cpu_factor: dict[int, float] | None = None,
+    host_factor: float = 1.0,
+    case: str = "load",
+    seed: int = 0,
+) -> Path:
     """A finished recording: a warm-up and a 'steady' phase per rate, 150 samples each, of
     component counters (cpu_percent, rss_bytes) and a host-wide cpu_percent."""
     factors = cpu_factor or {}
@@ -35,10 +41,15 @@ def record(path: Path, *, cpu_factor: dict[int, float] | None = None, host_facto
                 for _ in range(150):
                     t_ns += 10_000_000
                     cpu = factors.get(rate, 1.0) * rng.normal(rate, 1.0)
-                    writer.counters("builder", 4242, {"cpu_percent": cpu,
-                                                      "rss_bytes": rng.normal(50e6, 1e5)}, t_ns)
-                    writer.counters("host", 0, {"cpu_percent": host_factor * rng.normal(30, 1)},
-                                    t_ns)
+                    writer.counters(
+                        "builder",
+                        4242,
+                        {"cpu_percent": cpu, "rss_bytes": rng.normal(50e6, 1e5)},
+                        t_ns,
+                    )
+                    writer.counters(
+                        "host", 0, {"cpu_percent": host_factor * rng.normal(30, 1)}, t_ns
+                    )
                 t_ns += 10_000_000
                 writer.marker("end", case, phase, params, warmup=warmup, t_ns=t_ns)
     return path
@@ -64,7 +75,8 @@ def _cases(junit: Path) -> dict[str, ET.Element]:
 
 
 def test_tripled_cpu_fails_only_its_parameter_set_with_effect_d_and_p(
-        tmp_path: Path, baseline: list[Path]) -> None:
+    tmp_path: Path, baseline: list[Path]
+) -> None:
     candidate = record(tmp_path / "r3.mcap", cpu_factor={10: 3.0}, seed=3)
     junit = tmp_path / "out.xml"
     code, output = invoke("--baseline", *baseline, "--candidate", candidate, "--junit", junit)
@@ -95,18 +107,28 @@ def test_unchanged_candidate_passes_with_exit_zero(tmp_path: Path, baseline: lis
 
 def test_host_wide_counters_are_not_judged(tmp_path: Path, baseline: list[Path]) -> None:
     candidate = record(tmp_path / "busy-host.mcap", host_factor=3.0, seed=4)
-    code, output = invoke("--baseline", *baseline, "--candidate", candidate,
-                          "--junit", tmp_path / "out.xml")
+    code, output = invoke(
+        "--baseline", *baseline, "--candidate", candidate, "--junit", tmp_path / "out.xml"
+    )
     assert code == 0, output
     assert "host.cpu_percent" not in (tmp_path / "out.xml").read_text()
 
 
 def test_html_report_is_self_contained_and_plots_the_changed_counter(
-        tmp_path: Path, baseline: list[Path]) -> None:
+    tmp_path: Path, baseline: list[Path]
+) -> None:
     candidate = record(tmp_path / "r3.mcap", cpu_factor={10: 3.0}, seed=3)
     report = tmp_path / "report.html"
-    code, _ = invoke("--baseline", *baseline, "--candidate", candidate,
-                     "--junit", tmp_path / "out.xml", "--html", report)
+    code, _ = invoke(
+        "--baseline",
+        *baseline,
+        "--candidate",
+        candidate,
+        "--junit",
+        tmp_path / "out.xml",
+        "--html",
+        report,
+    )
     assert code == 1
     text = report.read_text()
     assert not re.search(r"<(script|link)[^>]*\s(src|href)\s*=\s*[\"']?(https?:)?//", text)
@@ -119,8 +141,9 @@ def test_truncated_recording_is_bad_input_named(tmp_path: Path, baseline: list[P
     whole = record(tmp_path / "cut.mcap", seed=5).read_bytes()
     cut = tmp_path / "cut.mcap"
     cut.write_bytes(whole[: len(whole) // 2])
-    code, output = invoke("--baseline", *baseline, "--candidate", cut, "--junit",
-                          tmp_path / "out.xml")
+    code, output = invoke(
+        "--baseline", *baseline, "--candidate", cut, "--junit", tmp_path / "out.xml"
+    )
     assert code == 2
     assert "candidate recording" in output and "cut.mcap" in output and "truncated" in output
     assert not (tmp_path / "out.xml").exists()
@@ -130,26 +153,44 @@ def test_unreadable_and_missing_files_are_bad_input(tmp_path: Path, baseline: li
     text = tmp_path / "notes.mcap"
     text.write_text("not a recording")
     for bad in (text, tmp_path / "absent.mcap"):
-        code, output = invoke("--baseline", bad, "--candidate", *baseline, "--junit",
-                              tmp_path / "out.xml")
+        code, output = invoke(
+            "--baseline", bad, "--candidate", *baseline, "--junit", tmp_path / "out.xml"
+        )
         assert code == 2 and f"baseline recording {bad}" in output
 
 
 def test_no_common_series_is_bad_input(tmp_path: Path, baseline: list[Path]) -> None:
     other = record(tmp_path / "other.mcap", case="another-case")
-    code, output = invoke("--baseline", *baseline, "--candidate", other, "--junit",
-                          tmp_path / "out.xml")
+    code, output = invoke(
+        "--baseline", *baseline, "--candidate", other, "--junit", tmp_path / "out.xml"
+    )
     assert code == 2 and "no series in common" in output
 
 
 def test_arguments_take_several_files_per_side_and_repeat() -> None:
-    args = parse_args(["--baseline", "a.mcap", "b.mcap", "--candidate", "c.mcap",
-                       "--baseline=d.mcap", "--junit", "o.xml", "--html", "o.html"])
+    args = parse_args(
+        [
+            "--baseline",
+            "a.mcap",
+            "b.mcap",
+            "--candidate",
+            "c.mcap",
+            "--baseline=d.mcap",
+            "--junit",
+            "o.xml",
+            "--html",
+            "o.html",
+        ]
+    )
     assert args.baseline == [Path("a.mcap"), Path("b.mcap"), Path("d.mcap")]
     assert args.candidate == [Path("c.mcap")]
     assert (args.junit, args.html) == (Path("o.xml"), Path("o.html"))
-    for bad in (["--baseline", "a", "--candidate", "b"], ["x.mcap", "--junit", "o.xml"],
-                ["--junit"], ["--baseline", "a", "--frobnicate", "--junit", "o"]):
+    for bad in (
+        ["--baseline", "a", "--candidate", "b"],
+        ["x.mcap", "--junit", "o.xml"],
+        ["--junit"],
+        ["--baseline", "a", "--frobnicate", "--junit", "o"],
+    ):
         with pytest.raises(CompareError):
             parse_args(bad)
 
@@ -157,8 +198,21 @@ def test_arguments_take_several_files_per_side_and_repeat() -> None:
 def test_the_redline_cli_has_the_compare_command(tmp_path: Path, baseline: list[Path]) -> None:
     junit = tmp_path / "out.xml"
     result = subprocess.run(
-        [sys.executable, "-c", "from redline.cli.main import main; main()", "compare",
-         "--baseline", str(baseline[0]), "--candidate", str(baseline[1]), "--junit", str(junit)],
-        capture_output=True, text=True, timeout=120)
+        [
+            sys.executable,
+            "-c",
+            "from redline.cli.main import main; main()",
+            "compare",
+            "--baseline",
+            str(baseline[0]),
+            "--candidate",
+            str(baseline[1]),
+            "--junit",
+            str(junit),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert result.returncode == 0, result.stderr
     assert len(_cases(junit)) == 2

@@ -16,11 +16,14 @@ from redline.detect.methods import WelchT
 from redline.detect.result import CHANGE, NO_CHANGE, NOT_ENOUGH_DATA
 
 
-def _executions(rng: np.random.Generator, level: float, count: int, between: float = 0.05,
-                samples: int = 20) -> list[np.ndarray]:
+def _executions(
+    rng: np.random.Generator, level: float, count: int, between: float = 0.05, samples: int = 20
+) -> list[np.ndarray]:
     """``count`` executions: each has its own level (5 % run-to-run noise) and noisy samples."""
-    return [rng.normal(level * (1 + rng.normal(0, between)), level * 0.15, samples)
-            for _ in range(count)]
+    return [
+        rng.normal(level * (1 + rng.normal(0, between)), level * 0.15, samples)
+        for _ in range(count)
+    ]
 
 
 def test_default_method_is_execution_shift() -> None:
@@ -71,13 +74,16 @@ def test_a_constant_count_that_moves_by_one_is_a_change() -> None:
     assert found.verdict == CHANGE and found.effect == pytest.approx(1 / 12)
 
 
-@pytest.mark.parametrize(("baseline", "candidate", "reason"), [
-    (None, [1.0], "missing baseline"),
-    ([15.0, 15.2, 14.9], [20.0], "too few samples: baseline has 3, needs at least 6"),
-    ([15.0] * 8, [15.0], "constant series"),
-    ([15.0, 15.2, 14.9, 15.1, 15.3, math.inf], [20.0], "baseline contains NaN/inf"),
-    ([15.0, 15.2, 14.9, 15.1, 15.3, 15.0], [math.nan], "candidate contains NaN/inf"),
-])
+@pytest.mark.parametrize(
+    ("baseline", "candidate", "reason"),
+    [
+        (None, [1.0], "missing baseline"),
+        ([15.0, 15.2, 14.9], [20.0], "too few samples: baseline has 3, needs at least 6"),
+        ([15.0] * 8, [15.0], "constant series"),
+        ([15.0, 15.2, 14.9, 15.1, 15.3, math.inf], [20.0], "baseline contains NaN/inf"),
+        ([15.0, 15.2, 14.9, 15.1, 15.3, 15.0], [math.nan], "candidate contains NaN/inf"),
+    ],
+)
 def test_bad_input_is_not_enough_data_naming_what_is_missing(baseline, candidate, reason):
     found = ExecutionShift().compare(baseline, candidate)
     assert found.verdict == NOT_ENOUGH_DATA and reason in found.reason
@@ -99,22 +105,29 @@ def test_build_shift_judges_revisions_so_noise_shared_by_a_revision_is_not_a_cha
     levels = [15.0, 16.1, 14.6, 15.5, 14.3, 15.9, 14.8, 16.0, 15.2, 14.7]
     history = [[rng.normal(level, 0.1, 20) for _ in range(5)] for level in levels]
     candidate = [rng.normal(16.4, 0.1, 20) for _ in range(5)]
-    for detector, verdict in ((ExecutionShift(threshold=3), CHANGE),
-                              (BuildShift(threshold=3), NO_CHANGE)):
-        baseline = np.concatenate([values_for(detector, runs) for runs in history[-5:]]
-                                  if detector.level == "execution" else
-                                  [values_for(detector, runs) for runs in history])
+    for detector, verdict in (
+        (ExecutionShift(threshold=3), CHANGE),
+        (BuildShift(threshold=3), NO_CHANGE),
+    ):
+        baseline = np.concatenate(
+            [values_for(detector, runs) for runs in history[-5:]]
+            if detector.level == "execution"
+            else [values_for(detector, runs) for runs in history]
+        )
         assert detector.compare(baseline, values_for(detector, candidate)).verdict == verdict
 
 
-@pytest.mark.parametrize(("sizes", "need", "window", "flagged_at", "depth"), [
-    ([3, 3, 3, 3, 3, 3], 15, 10, None, 5),  # pooled until 15 values
-    ([3, 3, 3, 3, 3, 3], 15, 4, None, 4),  # at most `window` revisions
-    ([3, 3, 3, 3, 3, 3], 15, 10, 1, 2),  # restarts at the flagged revision, which it keeps
-    ([3, 3], 15, 10, None, 2),  # the history runs out
-    ([60, 60], 12, 10, None, 1),  # one revision of samples is enough for a sample method
-    ([], 12, 10, None, 0),
-])
+@pytest.mark.parametrize(
+    ("sizes", "need", "window", "flagged_at", "depth"),
+    [
+        ([3, 3, 3, 3, 3, 3], 15, 10, None, 5),  # pooled until 15 values
+        ([3, 3, 3, 3, 3, 3], 15, 4, None, 4),  # at most `window` revisions
+        ([3, 3, 3, 3, 3, 3], 15, 10, 1, 2),  # restarts at the flagged revision, which it keeps
+        ([3, 3], 15, 10, None, 2),  # the history runs out
+        ([60, 60], 12, 10, None, 1),  # one revision of samples is enough for a sample method
+        ([], 12, 10, None, 0),
+    ],
+)
 def test_recent_baseline_depth(sizes, need, window, flagged_at, depth) -> None:
     assert recent_depth(sizes, need, window, flagged_at) == depth
 
@@ -147,8 +160,12 @@ def test_without_a_restart_the_build_after_a_change_would_be_flagged_again() -> 
     corpus = _step_corpus()
     judged = {unit.build: unit for unit, _ in walk(ExecutionShift(), corpus)}
     old_level = judged[8].baseline  # builds 5..7, before the change
-    nine = execution_values([g["value"].to_numpy() for _, g in corpus.measurements
-                             .query("build == 9").groupby("execution")])
+    nine = execution_values(
+        [
+            g["value"].to_numpy()
+            for _, g in corpus.measurements.query("build == 9").groupby("execution")
+        ]
+    )
     assert ExecutionShift().compare(old_level, nine).flagged
 
 

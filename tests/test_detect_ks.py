@@ -81,10 +81,16 @@ def test_floors_by_counter_name():
     assert absolute_floor("latency_ms") == 0.0
 
 
-@pytest.mark.parametrize(("n_base", "n_cand", "shift", "decimals"), [
-    (30, 20, 0.3, None), (12, 3, 1.0, None), (60, 60, 0.0, None), (200, 20, 0.1, None),
-    (15, 5, 0.5, 0),  # ties: values rounded to whole numbers
-])
+@pytest.mark.parametrize(
+    ("n_base", "n_cand", "shift", "decimals"),
+    [
+        (30, 20, 0.3, None),
+        (12, 3, 1.0, None),
+        (60, 60, 0.0, None),
+        (200, 20, 0.1, None),
+        (15, 5, 0.5, 0),  # ties: values rounded to whole numbers
+    ],
+)
 def test_ks_gives_exactly_what_scipys_public_ks_2samp_gives(n_base, n_cand, shift, decimals):
     from scipy import stats
 

@@ -86,8 +86,9 @@ def test_effect_floor_keeps_a_significant_but_tiny_change_quiet() -> None:
 def test_per_counter_floor_ignores_a_counter_with_a_high_floor() -> None:
     rng = np.random.default_rng(11)
     baseline, shifted = _counters(rng, 60), _counters(rng, 20, scale=1.3)
-    assert ShangRegression(min_effect=[1.0, 1.0, 0.1]).compare(baseline, shifted).verdict \
-        == NO_CHANGE
+    assert (
+        ShangRegression(min_effect=[1.0, 1.0, 0.1]).compare(baseline, shifted).verdict == NO_CHANGE
+    )
 
 
 def test_aggregation_min_max_mean_and_missing_series() -> None:
@@ -124,19 +125,23 @@ def test_roc_auc_precision_recall_f1_equal_hand_computed_values() -> None:
     scores = [0.9, 0.8, 0.3, 0.3, 0.1]
     # positive pairs: (0.9 beats all 3 negatives) + (0.3 beats 0.1, ties 0.3, loses to 0.8)
     assert roc_auc(positive, scores) == pytest.approx((3 + 1.5) / 6)
-    precision, recall, f1, tp, fp, fn = precision_recall_f1(positive,
-                                                            [True, True, False, False, False])
+    precision, recall, f1, tp, fp, fn = precision_recall_f1(
+        positive, [True, True, False, False, False]
+    )
     assert (tp, fp, fn) == (1, 1, 1)
     assert (precision, recall, f1) == (0.5, 0.5, 0.5)
     assert math.isnan(roc_auc([False, False], [0.1, 0.2]))
 
 
 def _tiny_corpus() -> Corpus:
-    rows = [("s1", b, v) for b, values in
-            ((1, [10.0, 10.2, 9.9]), (2, [10.1, 9.8, 10.0]), (3, [13.0, 13.2, 12.9]))
-            for v in values]
-    rows += [("s2", b, v) for b, values in ((1, [5.0, 5.1, 4.9]), (2, [5.05, 4.95, 5.0]))
-             for v in values]
+    rows = [
+        ("s1", b, v)
+        for b, values in ((1, [10.0, 10.2, 9.9]), (2, [10.1, 9.8, 10.0]), (3, [13.0, 13.2, 12.9]))
+        for v in values
+    ]
+    rows += [
+        ("s2", b, v) for b, values in ((1, [5.0, 5.1, 4.9]), (2, [5.05, 4.95, 5.0])) for v in values
+    ]
     frame = pd.DataFrame(rows, columns=["series", "build", "value"])
     labels = {"s1": SeriesLabel("regression", 3), "s2": SeriesLabel("Stable")}
     return Corpus("tiny", frame, labels)
@@ -146,7 +151,10 @@ def test_units_and_metrics_on_a_tiny_hand_made_corpus() -> None:
     units = [unit for unit, _ in walk(WelchT(min_baseline=3), _tiny_corpus())]
     # the baseline pools every earlier build (welch_t wants 12 values; there are at most 6)
     assert [(u.series, u.build, u.positive, len(u.baseline)) for u in units] == [
-        ("s1", 2, False, 3), ("s1", 3, True, 6), ("s2", 2, False, 3)]
+        ("s1", 2, False, 3),
+        ("s1", 3, True, 6),
+        ("s2", 2, False, 3),
+    ]
     scores = summarize(run_detector(WelchT(min_baseline=3), _tiny_corpus()))
     # only s1 build 3 moves (by 30 %): flagged, the two stable builds are not
     assert (scores.tp, scores.fp, scores.fn) == (1, 0, 0)

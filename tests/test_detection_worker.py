@@ -32,8 +32,13 @@ database_url, session = test_ingest.database_url, test_ingest.session  # the fix
 NAME = "builder"
 
 
-def _history(session, tmp_path: Path, cpus: list[np.ndarray | float], seed: int = 7,
-             config: dict | None = None) -> list[Execution]:
+def _history(
+    session,
+    tmp_path: Path,
+    cpus: list[np.ndarray | float],
+    seed: int = 7,
+    config: dict | None = None,
+) -> list[Execution]:
     """Revisions r1.. of one component with a 'cpu' series; floats are means of 60 samples."""
     component = create_component(session, ComponentCreate(name=NAME))
     if config is not None:
@@ -43,8 +48,9 @@ def _history(session, tmp_path: Path, cpus: list[np.ndarray | float], seed: int 
     executions = []
     for number, cpu in enumerate(cpus, start=1):
         values = rng.normal(cpu, cpu / 20, 60) if isinstance(cpu, float) else cpu
-        executions.append(add_execution(session, tmp_path, NAME, f"r{number}", str(number),
-                                        {"cpu": values}))
+        executions.append(
+            add_execution(session, tmp_path, NAME, f"r{number}", str(number), {"cpu": values})
+        )
     return executions
 
 
@@ -57,13 +63,15 @@ def _run(database_url: str, executions: list[Execution]) -> None:
 
 def _verdicts(session) -> dict[tuple[str, str], Detection]:
     session.expire_all()
-    rows = session.execute(select(Detection, Revision.title)
-                           .join(Revision, Revision.id == Detection.revision_id))
+    rows = session.execute(
+        select(Detection, Revision.title).join(Revision, Revision.id == Detection.revision_id)
+    )
     return {(title, d.method): d for d, title in rows}
 
 
 def test_default_methods_judge_every_series_and_flag_the_tripled_one(
-        session, database_url, tmp_path):
+    session, database_url, tmp_path
+):
     # one execution per revision: execution_shift needs 6 earlier ones, r7 has them
     _run(database_url, _history(session, tmp_path, [20.0] * 7 + [60.0]))
     found = _verdicts(session)
@@ -83,8 +91,9 @@ def test_default_methods_judge_every_series_and_flag_the_tripled_one(
     assert {d.regression_id for d in found.values() if d.flagged} == {regression.id}
 
 
-def _runs_history(session, tmp_path: Path, levels: list[float], runs: int = 3,
-                  config: dict | None = None) -> list[Execution]:
+def _runs_history(
+    session, tmp_path: Path, levels: list[float], runs: int = 3, config: dict | None = None
+) -> list[Execution]:
     """Revisions of ``runs`` executions each; every execution's 'cpu' has its own level (3 %
     run-to-run noise around the revision's) and 40 samples."""
     component = create_component(session, ComponentCreate(name=NAME, executions=runs))
@@ -94,22 +103,24 @@ def _runs_history(session, tmp_path: Path, levels: list[float], runs: int = 3,
     rng = np.random.default_rng(4)
     executions = []
     for number, level in enumerate(levels, start=1):
-        counters = [{"cpu": rng.normal(level * (1 + rng.normal(0, 0.03)), level * 0.1, 40)}
-                    for _ in range(runs)]
-        executions += add_executions(session, tmp_path, NAME, f"r{number}", str(number),
-                                     counters)
+        counters = [
+            {"cpu": rng.normal(level * (1 + rng.normal(0, 0.03)), level * 0.1, 40)}
+            for _ in range(runs)
+        ]
+        executions += add_executions(session, tmp_path, NAME, f"r{number}", str(number), counters)
     return executions
 
 
 def test_execution_shift_judges_executions_and_restarts_its_baseline_after_a_change(
-        session, database_url, tmp_path):
-    executions = _runs_history(session, tmp_path, [15.0] * 6 + [19.5] * 4,
-                               config={"methods": ["execution_shift"]})
+    session, database_url, tmp_path
+):
+    executions = _runs_history(
+        session, tmp_path, [15.0] * 6 + [19.5] * 4, config={"methods": ["execution_shift"]}
+    )
     _run(database_url, executions)
     found = {title: d for (title, _), d in _verdicts(session).items()}
     assert "too few samples: baseline has 3, needs at least 6" in found["r2"].reason
-    assert [t for t, d in sorted(found.items(), key=lambda i: int(i[0][1:])) if d.flagged] \
-        == ["r7"]
+    assert [t for t, d in sorted(found.items(), key=lambda i: int(i[0][1:])) if d.flagged] == ["r7"]
     assert found["r6"].baseline_revisions == 5  # 15 execution values: r1..r5
     r7 = found["r7"].revision_id
     # after the change the baseline restarts at r7: r8 is judged against the new level only
@@ -120,11 +131,14 @@ def test_execution_shift_judges_executions_and_restarts_its_baseline_after_a_cha
 
 
 def test_reanalysis_reproduces_the_verdicts_of_detection_revision_by_revision(
-        session, database_url, tmp_path):
+    session, database_url, tmp_path
+):
     executions = _runs_history(session, tmp_path, [15.0] * 5 + [19.5] * 3 + [15.0] * 3)
     _run(database_url, executions)
-    keyed = lambda: {key: (d.verdict, d.score, d.baseline_revisions, d.baseline_revision_id)  # noqa: E731
-                     for key, d in _verdicts(session).items()}
+    keyed = lambda: {
+        key: (d.verdict, d.score, d.baseline_revisions, d.baseline_revision_id)  # noqa: E731
+        for key, d in _verdicts(session).items()
+    }
     incremental = keyed()
     assert any(d[0] == "change" for d in incremental.values())
     component = session.scalar(select(Component))
@@ -135,17 +149,25 @@ def test_reanalysis_reproduces_the_verdicts_of_detection_revision_by_revision(
 def test_first_revision_says_missing_baseline_for_every_method(session, database_url, tmp_path):
     _run(database_url, _history(session, tmp_path, [20.0]))
     found = _verdicts(session)
-    assert found and all(d.verdict == "not enough data" and "missing baseline" in d.reason
-                         and not d.flagged and d.baseline_revision_id is None
-                         for d in found.values())
+    assert found and all(
+        d.verdict == "not enough data"
+        and "missing baseline" in d.reason
+        and not d.flagged
+        and d.baseline_revision_id is None
+        for d in found.values()
+    )
 
 
-@pytest.mark.parametrize(("candidate", "reason"), [
-    (np.array([25.0]), "too few samples: candidate has 1"),
-    (np.full(60, 20.0), "constant series"),
-])
+@pytest.mark.parametrize(
+    ("candidate", "reason"),
+    [
+        (np.array([25.0]), "too few samples: candidate has 1"),
+        (np.full(60, 20.0), "constant series"),
+    ],
+)
 def test_bad_candidate_is_stored_as_not_enough_data_with_what_is_missing(
-        session, database_url, tmp_path, candidate, reason):
+    session, database_url, tmp_path, candidate, reason
+):
     baseline = np.full(60, 20.0) if reason == "constant series" else None
     first = baseline if baseline is not None else 20.0
     _run(database_url, _history(session, tmp_path, [first, candidate]))
@@ -160,7 +182,8 @@ def test_bad_candidate_is_stored_as_not_enough_data_with_what_is_missing(
 
 
 def test_baseline_samples_gone_is_missing_baseline_not_an_exception(
-        session, database_url, tmp_path):
+    session, database_url, tmp_path
+):
     executions = _history(session, tmp_path, [20.0, 60.0])
     for execution in executions:
         ingest_execution(database_url, execution.id)
@@ -180,7 +203,8 @@ def test_window_baseline_pools_the_previous_revisions(session, database_url, tmp
 
 
 def test_pinned_baseline_compares_with_that_revision_or_says_it_is_missing(
-        session, database_url, tmp_path):
+    session, database_url, tmp_path
+):
     config = {"methods": ["welch_t"], "baseline": "pinned", "pinned": "r2"}
     executions = _history(session, tmp_path, [20.0, 20.0, 20.0, 60.0], config=config)
     _run(database_url, executions)
@@ -200,12 +224,14 @@ def test_thresholds_in_the_configuration_change_the_verdict(session, database_ur
 
 
 def test_reanalysis_after_a_configuration_change_is_idempotent_with_progress(
-        session, database_url, tmp_path):
+    session, database_url, tmp_path
+):
     executions = _history(session, tmp_path, [20.0, 20.0, 60.0])
     _run(database_url, executions)
     component = session.scalar(select(Component))
-    session.add(DetectionConfigRow(component_id=component.id,
-                                   config={"methods": ["mann_whitney", "ks"]}))
+    session.add(
+        DetectionConfigRow(component_id=component.id, config={"methods": ["mann_whitney", "ks"]})
+    )
     session.commit()
     assert reanalyze_component(database_url, component.id) == 3
     first = {key: (d.verdict, d.score) for key, d in _verdicts(session).items()}
@@ -220,9 +246,18 @@ def test_reanalysis_after_a_configuration_change_is_idempotent_with_progress(
 
 def test_host_series_get_no_verdict(session, database_url, tmp_path):
     create_component(session, ComponentCreate(name=NAME))
-    executions = [add_execution(session, tmp_path, NAME, f"r{n}", str(n),
-                                {"cpu_percent": np.full(60, 10.0 * n) + np.arange(60) % 3},
-                                process="host") for n in (1, 2)]
+    executions = [
+        add_execution(
+            session,
+            tmp_path,
+            NAME,
+            f"r{n}",
+            str(n),
+            {"cpu_percent": np.full(60, 10.0 * n) + np.arange(60) % 3},
+            process="host",
+        )
+        for n in (1, 2)
+    ]
     _run(database_url, executions)
     assert session.scalar(select(func.count()).select_from(Series)) == 1
     assert _verdicts(session) == {}
@@ -246,18 +281,24 @@ def test_the_absolute_floor_keeps_a_tiny_significant_change_quiet():
     assert quiet.verdict == "no change" and "absolute floor" in quiet.reason
 
 
-@pytest.mark.parametrize(("config", "field"), [
-    ({"methods": ["e_divisive"]}, "methods"), ({"baseline": "last"}, "baseline"),
-    ({"baseline": "pinned"}, "pinned"), ({"thresholds": {"ks": {"beta": 1}}}, "thresholds.ks"),
-    ({"window": 0}, "window"),
-])
+@pytest.mark.parametrize(
+    ("config", "field"),
+    [
+        ({"methods": ["e_divisive"]}, "methods"),
+        ({"baseline": "last"}, "baseline"),
+        ({"baseline": "pinned"}, "pinned"),
+        ({"thresholds": {"ks": {"beta": 1}}}, "thresholds.ks"),
+        ({"window": 0}, "window"),
+    ],
+)
 def test_bad_configuration_names_the_field(config, field):
     with pytest.raises(ConfigError, match=field):
         DetectionConfig.parse(config)
 
 
 def test_recorded_nan_and_inf_are_ingested_and_judged_not_enough_data(
-        session, database_url, tmp_path):
+    session, database_url, tmp_path
+):
     rng = np.random.default_rng(5)
     damaged = rng.normal(20.0, 1.0, 60)
     damaged[::3], damaged[1] = np.nan, np.inf
@@ -271,7 +312,8 @@ def test_recorded_nan_and_inf_are_ingested_and_judged_not_enough_data(
 
 
 def test_a_series_with_no_finite_sample_gets_no_summary_but_a_verdict(
-        session, database_url, tmp_path):
+    session, database_url, tmp_path
+):
     executions = _history(session, tmp_path, [20.0, np.full(60, np.nan)])
     _run(database_url, executions)
     assert session.scalar(select(Summary).where(Summary.execution_id == executions[1].id)) is None
@@ -305,11 +347,15 @@ def test_sample_cache_keeps_only_the_newest_revisions_it_is_sized_for():
 
 
 def test_a_series_missing_from_recent_revisions_reaches_back_to_where_it_was(
-        session, database_url, tmp_path):
+    session, database_url, tmp_path
+):
     create_component(session, ComponentCreate(name=NAME))
-    session.add(DetectionConfigRow(component_id=session.scalar(select(Component.id)),
-                                   config={"methods": ["ks"], "baseline": "window",
-                                           "window": 3}))
+    session.add(
+        DetectionConfigRow(
+            component_id=session.scalar(select(Component.id)),
+            config={"methods": ["ks"], "baseline": "window", "window": 3},
+        )
+    )
     session.commit()
     rng = np.random.default_rng(3)
     executions = []
@@ -317,13 +363,16 @@ def test_a_series_missing_from_recent_revisions_reaches_back_to_where_it_was(
         counters = {"cpu": rng.normal(20, 1, 60)}
         if number in (1, 2, 6):  # 'rare' is recorded by r1, r2 and r6 only
             counters["rare"] = rng.normal(60 if number == 6 else 20, 1, 60)
-        executions.append(add_execution(session, tmp_path, NAME, f"r{number}", str(number),
-                                        counters))
+        executions.append(
+            add_execution(session, tmp_path, NAME, f"r{number}", str(number), counters)
+        )
     _run(database_url, executions)
     session.expire_all()
-    rows = session.execute(select(Detection, Series.counter, Revision.title)
-                           .join(Series, Series.id == Detection.series_id)
-                           .join(Revision, Revision.id == Detection.revision_id))
+    rows = session.execute(
+        select(Detection, Series.counter, Revision.title)
+        .join(Series, Series.id == Detection.series_id)
+        .join(Revision, Revision.id == Detection.revision_id)
+    )
     found = {(counter, title): d for d, counter, title in rows}
     rare = found[("rare", "r6")]
     assert (rare.baseline_revisions, rare.baseline_revision_id) == (2, executions[1].revision_id)
@@ -332,7 +381,8 @@ def test_a_series_missing_from_recent_revisions_reaches_back_to_where_it_was(
 
 
 def test_reanalysis_with_a_pruned_revision_keeps_its_verdicts_and_matches_detection(
-        session, database_url, tmp_path):
+    session, database_url, tmp_path
+):
     """The walk keeps flagged verdicts in memory; a revision whose samples are gone keeps its
     stored ones, which must count for the baselines after it exactly as detection reads them."""
     executions = _runs_history(session, tmp_path, [15.0] * 6 + [19.5] * 5)
@@ -340,21 +390,25 @@ def test_reanalysis_with_a_pruned_revision_keeps_its_verdicts_and_matches_detect
     pruned = [e for e in executions if e.revision_id == executions[18].revision_id]  # r7
     for execution in pruned:
         samples_path(execution.recording_path).unlink()
-    keyed = lambda: {key: (d.verdict, d.score, d.baseline_revisions, d.baseline_revision_id)  # noqa: E731
-                     for key, d in _verdicts(session).items()}
+    keyed = lambda: {
+        key: (d.verdict, d.score, d.baseline_revisions, d.baseline_revision_id)  # noqa: E731
+        for key, d in _verdicts(session).items()
+    }
     before = keyed()
     for revision_id in dict.fromkeys(e.revision_id for e in executions):
         detect_revision(database_url, revision_id)  # one by one, flags read from the database
     by_detection = keyed()
-    assert {k: v for k, v in by_detection.items() if k[0] == "r7"} == \
-        {k: v for k, v in before.items() if k[0] == "r7"}  # the pruned revision's verdicts stand
+    assert {k: v for k, v in by_detection.items() if k[0] == "r7"} == {
+        k: v for k, v in before.items() if k[0] == "r7"
+    }  # the pruned revision's verdicts stand
     component = session.scalar(select(Component))
     assert reanalyze_component(database_url, component.id) == 11
     assert keyed() == by_detection
 
 
 def test_a_failure_while_storing_fails_the_reanalysis_with_the_error(
-        session, database_url, tmp_path, monkeypatch):
+    session, database_url, tmp_path, monkeypatch
+):
     from redline.worker import reanalysis
 
     executions = _runs_history(session, tmp_path, [15.0] * 8)
@@ -378,14 +432,23 @@ def test_a_failure_while_storing_fails_the_reanalysis_with_the_error(
 
 
 def test_reanalysis_skips_an_all_nan_revision_in_baselines_as_detection_does(
-        session, database_url, tmp_path):
+    session, database_url, tmp_path
+):
     """A revision whose samples are all NaN has no summaries: it is no earlier revision "with
     samples" of the series, for the walk's memory as for the database's answer."""
     cpus = [20.0, 20.0, 20.0, np.full(60, np.nan), 20.0, 20.0, 20.0, 20.0, 60.0]
     executions = _history(session, tmp_path, cpus)
     _run(database_url, executions)
-    keyed = lambda: {key: (d.verdict, d.reason, d.score, d.baseline_revisions,  # noqa: E731
-                           d.baseline_revision_id) for key, d in _verdicts(session).items()}
+    keyed = lambda: {
+        key: (
+            d.verdict,
+            d.reason,
+            d.score,
+            d.baseline_revisions,  # noqa: E731
+            d.baseline_revision_id,
+        )
+        for key, d in _verdicts(session).items()
+    }
     by_detection = keyed()
     assert "NaN" in by_detection[("r4", "ks")][1]
     assert by_detection[("r5", "ks")][4] == executions[2].revision_id  # r3, past r4
@@ -406,18 +469,26 @@ def _second_run_later(session, tmp_path: Path, database_url: str):
     rng = np.random.default_rng(6)
     revisions = []
     for number in range(1, 8):
-        revision = create_revision(session, RevisionCreate(component=NAME, title=f"r{number}",
-                                                           sort_key=str(number)))
+        revision = create_revision(
+            session, RevisionCreate(component=NAME, title=f"r{number}", sort_key=str(number))
+        )
         revisions.append(revision)
     session.commit()
 
     def ingest(revision, job, level: float) -> None:
         name = f"{revision.title}-{job.execution_index}"
-        path = write_recording(tmp_path / f"{name}.mcap",
-                               run_metadata(job, NAME, revision.title, revision.sort_key),
-                               {"cpu": rng.normal(level, 1, 60)})
-        execution = Execution(job_id=job.id, revision_id=revision.id, recording_path=str(path),
-                              sha256=name.ljust(64, "0"), size=path.stat().st_size)
+        path = write_recording(
+            tmp_path / f"{name}.mcap",
+            run_metadata(job, NAME, revision.title, revision.sort_key),
+            {"cpu": rng.normal(level, 1, 60)},
+        )
+        execution = Execution(
+            job_id=job.id,
+            revision_id=revision.id,
+            recording_path=str(path),
+            sha256=name.ljust(64, "0"),
+            size=path.stat().st_size,
+        )
         job.state = "uploaded"
         session.add(execution)
         session.commit()
@@ -430,7 +501,8 @@ def _second_run_later(session, tmp_path: Path, database_url: str):
 
 
 def test_verdicts_judged_before_an_execution_was_ingested_are_judged_again_when_stored(
-        session, database_url, tmp_path):
+    session, database_url, tmp_path
+):
     from redline.server.db import session_factory
     from redline.worker.detection import judge_revision, store_judged
 
@@ -445,7 +517,8 @@ def test_verdicts_judged_before_an_execution_was_ingested_are_judged_again_when_
 
 
 def test_the_walk_stops_using_its_memory_once_an_execution_is_ingested_under_it(
-        session, database_url, tmp_path):
+    session, database_url, tmp_path
+):
     from redline.server.db import session_factory
     from redline.worker.detection import Walk, ingested_fingerprint
 
@@ -463,7 +536,8 @@ def test_the_walk_stops_using_its_memory_once_an_execution_is_ingested_under_it(
 
 
 def test_bulk_insert_refuses_an_over_long_string_rather_than_cutting_it(
-        session, database_url, tmp_path):
+    session, database_url, tmp_path
+):
     from redline.server.db import bulk_insert
     from sqlalchemy.exc import DataError
 

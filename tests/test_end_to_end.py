@@ -48,15 +48,23 @@ def history(services: Services, tmp_path_factory: pytest.TempPathFactory) -> Ite
     root = tmp_path_factory.mktemp("e2e")
     database_url, _ = fresh_database(services.database_url)
     saved = dict(os.environ)
-    os.environ.update(REDLINE_DATABASE_URL=database_url, REDLINE_REDIS_URL=services.redis_url,
-                      REDLINE_QUEUE=f"e2e-{uuid.uuid4().hex[:8]}")
+    os.environ.update(
+        REDLINE_DATABASE_URL=database_url,
+        REDLINE_REDIS_URL=services.redis_url,
+        REDLINE_QUEUE=f"e2e-{uuid.uuid4().hex[:8]}",
+    )
     stack = Stack(root / "data", free_port())
     try:
         stack.start()
         repo = root / "objectbuilder-repo"
         base, unchanged, regressed = demo.make_history(repo)
-        demo.submit(stack.url, stack.admin_token, stack.token("ci", "ci"), repo,
-                    [base, unchanged, regressed])
+        demo.submit(
+            stack.url,
+            stack.admin_token,
+            stack.token("ci", "ci"),
+            repo,
+            [base, unchanged, regressed],
+        )
         revisions = demo.wait_for_results(stack.url, print, timeout=600)
         changes = httpx.get(f"{stack.url}/api/v1/components/objectbuilder/changes").json()
         yield History(stack, revisions, changes, base, unchanged, regressed)
@@ -68,8 +76,13 @@ def history(services: Services, tmp_path_factory: pytest.TempPathFactory) -> Ite
 
 def _cpu_changes(changes: list[dict], revision: str) -> list[dict]:
     """KS results on the component's own CPU (not host-wide counters, which other load moves)."""
-    return [c for c in changes if c["revision"] == revision and c["series"]["counter"] == CPU
-            and c["series"]["process"] == "objectbuilder"]
+    return [
+        c
+        for c in changes
+        if c["revision"] == revision
+        and c["series"]["counter"] == CPU
+        and c["series"]["process"] == "objectbuilder"
+    ]
 
 
 def test_every_revision_runs_to_done_in_sort_key_order(history: History):
@@ -111,10 +124,14 @@ def test_trend_page_marks_the_regression_in_chromium(history: History, tmp_path:
         marked = page.evaluate(
             """() => Object.fromEntries([...document.querySelectorAll('.js-plotly-plot')].map(
                    el => [el.layout.title.text,
-                          el.data.filter(t => t.name.startsWith('change')).flatMap(t => t.x)]))""")
+                          el.data.filter(t => t.name.startsWith('change')).flatMap(t => t.x)]))"""
+        )
         browser.close()
     assert not errors, errors
-    heavy = {title: x for title, x in marked.items()
-             if "[legs=8," in title and title.endswith("objectbuilder.cpu_percent")}
+    heavy = {
+        title: x
+        for title, x in marked.items()
+        if "[legs=8," in title and title.endswith("objectbuilder.cpu_percent")
+    }
     assert charts == len(marked) and len(heavy) == 2, sorted(marked)
     assert all(x == [history.regressed.title] for x in heavy.values()), heavy

@@ -32,8 +32,9 @@ def _corpus(tmp_path: Path) -> Path:
             level = 10.0 * (step if build >= 8 else 1.0)
             for execution in range(4):
                 run_level = level * (1 + rng.normal(0, 0.02))
-                rows += [(series, build, float(v), execution)
-                         for v in rng.normal(run_level, 0.5, 10)]
+                rows += [
+                    (series, build, float(v), execution) for v in rng.normal(run_level, 0.5, 10)
+                ]
     frame = pd.DataFrame(rows, columns=["series", "build", "value", "execution"])
     labels = {"cpu": SeriesLabel("regression", 8), "rss": SeriesLabel("Stable")}
     write_corpus(Corpus("steps", frame, labels), tmp_path)
@@ -41,19 +42,26 @@ def _corpus(tmp_path: Path) -> Path:
 
 
 def test_json_names_the_default_and_scores_each_chosen_method(tmp_path: Path) -> None:
-    result = runner.invoke(app, ["evaluate", str(_corpus(tmp_path)), "--json",
-                                 "--methods", "execution_shift,ks"])
+    result = runner.invoke(
+        app, ["evaluate", str(_corpus(tmp_path)), "--json", "--methods", "execution_shift,ks"]
+    )
     assert result.exit_code == 0, result.output
     out = json.loads(result.output)
     assert out["default"] == "execution_shift"
     assert set(out["methods"]) == {"execution_shift", "ks"}
-    assert out["methods"]["execution_shift"] == {"roc_auc": 1.0, "precision": 1.0,
-                                                 "recall": 1.0, "f1": 1.0}
+    assert out["methods"]["execution_shift"] == {
+        "roc_auc": 1.0,
+        "precision": 1.0,
+        "recall": 1.0,
+        "f1": 1.0,
+    }
 
 
 def test_table_reports_false_alarms_per_100_and_recall_of_large_changes(tmp_path: Path):
-    result = runner.invoke(app, ["evaluate", str(_corpus(tmp_path)),
-                                 "--methods", "execution_shift", "--executions", "3"])
+    result = runner.invoke(
+        app,
+        ["evaluate", str(_corpus(tmp_path)), "--methods", "execution_shift", "--executions", "3"],
+    )
     assert result.exit_code == 0, result.output
     header, row = result.output.splitlines()[1:3]
     assert "FA/100" in header and "rec>=10%" in header
@@ -64,8 +72,9 @@ def test_table_reports_false_alarms_per_100_and_recall_of_large_changes(tmp_path
 
 def test_executions_option_uses_only_the_first_executions(tmp_path: Path) -> None:
     corpus = str(_corpus(tmp_path))
-    one = runner.invoke(app, ["evaluate", corpus, "--methods", "execution_shift",
-                              "--executions", "1"])
+    one = runner.invoke(
+        app, ["evaluate", corpus, "--methods", "execution_shift", "--executions", "1"]
+    )
     # one execution a build: a baseline needs 6 builds, so builds 1-5 abstain in both series,
     # and cpu's builds 9-13 too (its baseline restarts at the change it flagged at build 8)
     decided = next(word for word in one.output.splitlines()[2].split() if "/" in word)

@@ -33,9 +33,13 @@ def fuzz_app(services: Services, tmp_path_factory: pytest.TempPathFactory) -> Fa
     database_url, _ = fresh_database(services.database_url)
     migrate(database_url)
     storage = tmp_path_factory.mktemp("fuzz") / "storage"
-    app_settings = Settings(database_url=database_url, redis_url=services.redis_url,
-                            storage_dir=Path(storage), queue=f"fuzz-{uuid.uuid4().hex[:8]}",
-                            max_upload_bytes=1_000_000)
+    app_settings = Settings(
+        database_url=database_url,
+        redis_url=services.redis_url,
+        storage_dir=Path(storage),
+        queue=f"fuzz-{uuid.uuid4().hex[:8]}",
+        max_upload_bytes=1_000_000,
+    )
     app = create_app(app_settings)
     with session_factory(database_url)() as session:
         app.state.fuzz_token = issue_token(session, "fuzz-admin", "admin")[1]
@@ -44,13 +48,20 @@ def fuzz_app(services: Services, tmp_path_factory: pytest.TempPathFactory) -> Fa
 
 def _fuzz(operation: schemathesis.APIOperation, token: str) -> None:
     @given(operation.as_strategy())
-    @settings(max_examples=MAX_EXAMPLES, derandomize=True, deadline=None, database=None,
-              suppress_health_check=list(HealthCheck), phases=[Phase.explicit, Phase.generate])
+    @settings(
+        max_examples=MAX_EXAMPLES,
+        derandomize=True,
+        deadline=None,
+        database=None,
+        suppress_health_check=list(HealthCheck),
+        phases=[Phase.explicit, Phase.generate],
+    )
     def examples(case: schemathesis.Case) -> None:
         if case.query and isinstance(case.query.get("wait"), int):
             case.query["wait"] = min(case.query["wait"], MAX_WAIT_S)
-        case.call_and_validate(headers={"Authorization": f"Bearer {token}"},
-                               checks=[not_a_server_error])
+        case.call_and_validate(
+            headers={"Authorization": f"Bearer {token}"}, checks=[not_a_server_error]
+        )
 
     examples()
 

@@ -29,21 +29,29 @@ def lnt_report(order: str = "1234", scale: float = 1.0) -> dict:
     return {
         "format_version": "2",
         "machine": {"name": "bench-box", "os": "linux"},
-        "run": {"start_time": "2026-11-20T10:00:00", "end_time": "2026-11-20T10:05:00",
-                "llvm_project_revision": order},
+        "run": {
+            "start_time": "2026-11-20T10:00:00",
+            "end_time": "2026-11-20T10:05:00",
+            "llvm_project_revision": order,
+        },
         "tests": [
-            {"name": "nts.SingleSource/fib", "execution_time": [scale * v for v in
-                                                                 (1.0, 1.1, 0.9, 1.05)],
-             "compile_time": 2.5 * scale, "hash": "abc"},
+            {
+                "name": "nts.SingleSource/fib",
+                "execution_time": [scale * v for v in (1.0, 1.1, 0.9, 1.05)],
+                "compile_time": 2.5 * scale,
+                "hash": "abc",
+            },
             {"name": "nts.SingleSource/sort", "execution_time": 3.0 * scale},
         ],
     }
 
 
 def send_lnt(api: Api, report: dict, scope: str = "ci", component: str = "clang") -> object:
-    return api.client.post(f"/api/v1/import/lnt?component={component}",
-                           content=json.dumps(report).encode(),
-                           headers={**api.tokens[scope], "Content-Type": "application/json"})
+    return api.client.post(
+        f"/api/v1/import/lnt?component={component}",
+        content=json.dumps(report).encode(),
+        headers={**api.tokens[scope], "Content-Type": "application/json"},
+    )
 
 
 def test_lnt_report_becomes_a_revision_with_a_series_per_test_and_metric(api: Api):
@@ -52,9 +60,11 @@ def test_lnt_report_becomes_a_revision_with_a_series_per_test_and_metric(api: Ap
     assert (answer.json()["revision"], answer.json()["series"]) == ("1234", 3)
     series = api.client.get("/api/v1/components/clang/series").json()
     named = {(s["case"], s["counter"]): s for s in series}
-    assert set(named) == {("nts.SingleSource/fib", "execution_time"),
-                          ("nts.SingleSource/fib", "compile_time"),
-                          ("nts.SingleSource/sort", "execution_time")}
+    assert set(named) == {
+        ("nts.SingleSource/fib", "execution_time"),
+        ("nts.SingleSource/fib", "compile_time"),
+        ("nts.SingleSource/sort", "execution_time"),
+    }
     fib = named[("nts.SingleSource/fib", "execution_time")]
     assert fib["points"][0]["n"] == 4 and fib["points"][0]["mean"] == pytest.approx(1.0125)
     execution = api.client.get(f"/api/v1/executions/{answer.json()['execution_id']}").json()
@@ -85,16 +95,24 @@ def test_malformed_lnt_reports_are_400_naming_the_fault(api: Api):
 
 def test_generic_results_import_and_compare_two_revisions(api: Api):
     def results(revision: str, key: str, cpu: list[float]) -> dict:
-        return {"component": "clang", "revision": revision, "sort_key": key, "host": "perf1",
-                "results": [{"case": "parse", "params": {"legs": 8}, "counter": "cpu",
-                             "values": cpu},
-                            {"case": "parse", "params": {"legs": 4}, "counter": "cpu",
-                             "values": [1.0, 1.0]}]}
-    base = api.post("/api/v1/import/results", "ci", results("r1", "1", [10.0 + i % 3
-                                                                          for i in range(30)]))
+        return {
+            "component": "clang",
+            "revision": revision,
+            "sort_key": key,
+            "host": "perf1",
+            "results": [
+                {"case": "parse", "params": {"legs": 8}, "counter": "cpu", "values": cpu},
+                {"case": "parse", "params": {"legs": 4}, "counter": "cpu", "values": [1.0, 1.0]},
+            ],
+        }
+
+    base = api.post(
+        "/api/v1/import/results", "ci", results("r1", "1", [10.0 + i % 3 for i in range(30)])
+    )
     assert base.status_code == 201, base.text
-    cand = api.post("/api/v1/import/results", "ci", results("r2", "2", [20.0 + i % 3
-                                                                          for i in range(30)]))
+    cand = api.post(
+        "/api/v1/import/results", "ci", results("r2", "2", [20.0 + i % 3 for i in range(30)])
+    )
     assert cand.status_code == 201
     compared = api.client.get("/api/v1/components/clang/compare?base=r1&candidate=r2").json()
     legs8 = next(row for row in compared["series"] if row["series"]["params"] == {"legs": 8})
@@ -102,28 +120,39 @@ def test_generic_results_import_and_compare_two_revisions(api: Api):
     assert legs8["exact"] is True and legs8["baseline"]["n"] == 30
     missing = api.client.get("/api/v1/components/clang/compare?base=r1&candidate=r9")
     assert missing.status_code == 404 and "'r9'" in missing.json()["detail"]
-    empty = api.post("/api/v1/import/results", "ci", {**results("r3", "3", [1.0]),
-                                                      "results": []})
+    empty = api.post("/api/v1/import/results", "ci", {**results("r3", "3", [1.0]), "results": []})
     assert empty.status_code == 422
 
 
 @pytest.mark.parametrize("value", ["NaN", "Infinity", "-Infinity", "1e400"])
 def test_non_finite_generic_values_are_422_naming_the_field(api: Api, value: str):
-    body = ('{"component": "clang", "revision": "r1", "sort_key": "1", "results": '
-            f'[{{"case": "parse", "counter": "cpu", "values": [1.0, {value}]}}]}}')
-    answer = api.client.post("/api/v1/import/results", content=body.encode(),
-                             headers={**api.tokens["ci"], "Content-Type": "application/json"})
+    body = (
+        '{"component": "clang", "revision": "r1", "sort_key": "1", "results": '
+        f'[{{"case": "parse", "counter": "cpu", "values": [1.0, {value}]}}]}}'
+    )
+    answer = api.client.post(
+        "/api/v1/import/results",
+        content=body.encode(),
+        headers={**api.tokens["ci"], "Content-Type": "application/json"},
+    )
     assert answer.status_code == 422, answer.text
-    assert [e["loc"] for e in answer.json()["detail"]] == [
-        ["body", "results", 0, "values", 1]]
+    assert [e["loc"] for e in answer.json()["detail"]] == [["body", "results", 0, "values", 1]]
     assert api.client.get("/api/v1/components/clang/revisions").json() == []
 
 
 def test_a_series_without_a_finite_value_gets_no_summary(api: Api):
     params = canonical_params({})
-    run = ImportedRun("clang", "r1", "1", "", "", {
-        SeriesKey("parse", "main", params, "benchmark", "cpu"): [float("nan"), float("inf")],
-        SeriesKey("parse", "main", params, "benchmark", "rss"): [1.0, 2.0]})
+    run = ImportedRun(
+        "clang",
+        "r1",
+        "1",
+        "",
+        "",
+        {
+            SeriesKey("parse", "main", params, "benchmark", "cpu"): [float("nan"), float("inf")],
+            SeriesKey("parse", "main", params, "benchmark", "rss"): [1.0, 2.0],
+        },
+    )
     with session_factory(api.settings.database_url)() as session:
         result = store_import(session, api.settings.storage_dir, run, b"one finite series")
     assert result.created and result.series == 1
@@ -141,8 +170,12 @@ def test_an_import_queues_detection_of_its_revision_once(api: Api):
     queued = [(DETECT_TASK, f"[{first.json()['revision_id']}]")]
     assert _queued_tasks(api) == queued  # the task waits in the real broker
     assert send_lnt(api, lnt_report()).status_code == 200  # imported before: nothing new
-    results = {"component": "clang", "revision": "r2", "sort_key": "2",
-               "results": [{"case": "parse", "counter": "cpu", "values": [1.0, 2.0]}]}
+    results = {
+        "component": "clang",
+        "revision": "r2",
+        "sort_key": "2",
+        "results": [{"case": "parse", "counter": "cpu", "values": [1.0, 2.0]}],
+    }
     second = api.post("/api/v1/import/results", "ci", results)
     assert second.status_code == 201
     queued.append((DETECT_TASK, f"[{second.json()['revision_id']}]"))

@@ -23,9 +23,14 @@ CASE, PHASE, PARAMS, PROCESS = "throughput", "publish", {"rate": 10}, "component
 TABLES = "change, summary, series, execution, job, revision, component, host, api_token"
 
 
-def write_recording(path: Path, run: dict[str, str], counters: dict[str, np.ndarray],
-                    *, warmup: dict[str, np.ndarray] | None = None,
-                    process: str = PROCESS) -> Path:
+def write_recording(
+    path: Path,
+    run: dict[str, str],
+    counters: dict[str, np.ndarray],
+    *,
+    warmup: dict[str, np.ndarray] | None = None,
+    process: str = PROCESS,
+) -> Path:
     """A finished Redline recording: one segment per phase, one counter sample per 10 ms."""
     with RecordingWriter(path) as writer:
         writer.metadata("redline.run", run)
@@ -43,11 +48,17 @@ def write_recording(path: Path, run: dict[str, str], counters: dict[str, np.ndar
     return path
 
 
-def run_metadata(job: Job, component: str, title: str, sort_key: str,
-                 commit: str = "") -> dict[str, str]:
-    return {"job_id": str(job.id), "component": component, "revision_title": title,
-            "revision_sort_key": sort_key, "commit": commit,
-            "execution_index": str(job.execution_index)}
+def run_metadata(
+    job: Job, component: str, title: str, sort_key: str, commit: str = ""
+) -> dict[str, str]:
+    return {
+        "job_id": str(job.id),
+        "component": component,
+        "revision_title": title,
+        "revision_sort_key": sort_key,
+        "commit": commit,
+        "execution_index": str(job.execution_index),
+    }
 
 
 @pytest.fixture(scope="module")
@@ -65,26 +76,51 @@ def session(database_url: str):
         yield session
 
 
-def add_execution(session, tmp_path: Path, component: str, title: str, sort_key: str,
-                  counters: dict[str, np.ndarray], **extra) -> Execution:
+def add_execution(
+    session,
+    tmp_path: Path,
+    component: str,
+    title: str,
+    sort_key: str,
+    counters: dict[str, np.ndarray],
+    **extra,
+) -> Execution:
     """Report a revision and store a recording for its job, as an upload would."""
     return add_executions(session, tmp_path, component, title, sort_key, [counters], **extra)[0]
 
 
-def add_executions(session, tmp_path: Path, component: str, title: str, sort_key: str,
-                   runs: list[dict[str, np.ndarray]], **extra) -> list[Execution]:
+def add_executions(
+    session,
+    tmp_path: Path,
+    component: str,
+    title: str,
+    sort_key: str,
+    runs: list[dict[str, np.ndarray]],
+    **extra,
+) -> list[Execution]:
     """Report a revision and store one recording per job (the component's ``executions``)."""
-    revision = create_revision(session, RevisionCreate(component=component, title=title,
-                                                       sort_key=sort_key))
+    revision = create_revision(
+        session, RevisionCreate(component=component, title=title, sort_key=sort_key)
+    )
     assert len(revision.jobs) == len(runs), "the component's executions per revision"
     executions = []
-    for job, counters in zip(sorted(revision.jobs, key=lambda j: j.execution_index), runs,
-                             strict=True):
+    for job, counters in zip(
+        sorted(revision.jobs, key=lambda j: j.execution_index), runs, strict=True
+    ):
         name = f"{component}-{title}-{job.execution_index}"
-        path = write_recording(tmp_path / f"{name}.mcap",
-                               run_metadata(job, component, title, sort_key), counters, **extra)
-        execution = Execution(job_id=job.id, revision_id=revision.id, recording_path=str(path),
-                              sha256=name.ljust(64, "0"), size=path.stat().st_size)
+        path = write_recording(
+            tmp_path / f"{name}.mcap",
+            run_metadata(job, component, title, sort_key),
+            counters,
+            **extra,
+        )
+        execution = Execution(
+            job_id=job.id,
+            revision_id=revision.id,
+            recording_path=str(path),
+            sha256=name.ljust(64, "0"),
+            size=path.stat().st_size,
+        )
         job.state = JobState.uploaded
         session.add(execution)
         executions.append(execution)
@@ -98,10 +134,10 @@ def _history(session, tmp_path: Path, factors: list[float], seed: int = 1) -> li
     rng = np.random.default_rng(seed)
     executions = []
     for number, factor in enumerate(factors, start=1):
-        counters = {"cpu": factor * rng.normal(20.0, 2.0, 200),
-                    "rss": rng.normal(50e6, 1e5, 200)}
-        executions.append(add_execution(session, tmp_path, "builder", f"r{number}", str(number),
-                                        counters))
+        counters = {"cpu": factor * rng.normal(20.0, 2.0, 200), "rss": rng.normal(50e6, 1e5, 200)}
+        executions.append(
+            add_execution(session, tmp_path, "builder", f"r{number}", str(number), counters)
+        )
     return executions
 
 
@@ -133,8 +169,15 @@ def test_ingest_twice_replaces_rather_than_doubles(session, database_url, tmp_pa
 
 def test_warmup_phase_is_left_out_of_the_summaries(session, database_url, tmp_path):
     create_component(session, ComponentCreate(name="builder"))
-    execution = add_execution(session, tmp_path, "builder", "r1", "1",
-                              {"cpu": np.full(30, 10.0)}, warmup={"cpu": np.full(30, 99.0)})
+    execution = add_execution(
+        session,
+        tmp_path,
+        "builder",
+        "r1",
+        "1",
+        {"cpu": np.full(30, 10.0)},
+        warmup={"cpu": np.full(30, 99.0)},
+    )
     ingest_execution(database_url, execution.id)
     summary = session.scalar(select(Summary))
     assert (summary.n, summary.max) == (30, 10.0)
@@ -154,9 +197,11 @@ def test_damaged_recording_fails_the_job_with_the_reason(session, database_url, 
 
 
 def _changes(session) -> dict[tuple[str, str], Change]:
-    rows = session.execute(select(Change, Series.counter, Revision.title)
-                           .join(Series, Series.id == Change.series_id)
-                           .join(Revision, Revision.id == Change.revision_id))
+    rows = session.execute(
+        select(Change, Series.counter, Revision.title)
+        .join(Series, Series.id == Change.series_id)
+        .join(Revision, Revision.id == Change.revision_id)
+    )
     return {(counter, title): change for change, counter, title in rows}
 
 
@@ -187,8 +232,15 @@ def test_host_wide_counters_are_context_not_judged(session, database_url, tmp_pa
     create_component(session, ComponentCreate(name="builder"))
     rng = np.random.default_rng(3)
     executions = [
-        add_execution(session, tmp_path, "builder", f"r{n}", str(n),
-                      {"cpu_percent": factor * rng.normal(20.0, 2.0, 200)}, process="host")
+        add_execution(
+            session,
+            tmp_path,
+            "builder",
+            f"r{n}",
+            str(n),
+            {"cpu_percent": factor * rng.normal(20.0, 2.0, 200)},
+            process="host",
+        )
         for n, factor in ((1, 1.0), (2, 3.0))
     ]
     _detect_all(database_url, executions)
@@ -202,9 +254,17 @@ def test_change_below_the_counters_absolute_floor_is_not_flagged(session, databa
     # 4 % of a core → 4.6 %: 15 % relative and clear to KS, but under the 1-point CPU floor;
     # the same 15 % of 40 % of a core clears it.
     executions = [
-        add_execution(session, tmp_path, "builder", f"r{n}", str(n), {
-            "small_cpu_percent": factor * rng.normal(4.0, 0.05, 200),
-            "large_cpu_percent": factor * rng.normal(40.0, 0.5, 200)})
+        add_execution(
+            session,
+            tmp_path,
+            "builder",
+            f"r{n}",
+            str(n),
+            {
+                "small_cpu_percent": factor * rng.normal(4.0, 0.05, 200),
+                "large_cpu_percent": factor * rng.normal(40.0, 0.5, 200),
+            },
+        )
         for n, factor in ((1, 1.0), (2, 1.15))
     ]
     _detect_all(database_url, executions)
@@ -225,7 +285,8 @@ def test_detect_again_replaces_its_changes(session, database_url, tmp_path):
 
 
 def test_ingesting_an_earlier_revision_late_asks_to_redetect_its_successor(
-        session, database_url, tmp_path):
+    session, database_url, tmp_path
+):
     first, second = _history(session, tmp_path, [1.0, 3.0])
     assert ingest_execution(database_url, second.id) == [second.revision_id]
     assert detect_revision(database_url, second.revision_id) == []  # no baseline with data yet

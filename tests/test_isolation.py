@@ -43,7 +43,8 @@ def _suite(folder: Path, transport: str = "tcp") -> Path:
     (folder / "component.py").write_text(textwrap.dedent(COMPONENT))
     (folder / "test_iso.py").write_text(textwrap.dedent(TEST))
     path = folder / "redline.toml"
-    path.write_text(textwrap.dedent("""\
+    path.write_text(
+        textwrap.dedent("""\
         name = "iso"
         tests = ["test_iso.py"]
         transport = "{transport}"
@@ -51,21 +52,26 @@ def _suite(folder: Path, transport: str = "tcp") -> Path:
         name = "chatty"
         command = ["python", "component.py"]
         ready = { log = "component ready" }
-        """).replace("{transport}", transport))
+        """).replace("{transport}", transport)
+    )
     return path
 
 
 @pytest.mark.parametrize("transport", ["tcp", "unix"])
 def test_two_simultaneous_runs_record_only_their_own_traffic(
-        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, transport: str) -> None:
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, transport: str
+) -> None:
     monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
     results: dict[str, RunResult] = {}
     errors: list[BaseException] = []
 
     def run(name: str) -> None:
         try:
-            results[name] = run_suite(_suite(tmp_path / name, transport), tmp_path / f"{name}.mcap",
-                                      overrides={"key": f"iso/driver/{name}"})
+            results[name] = run_suite(
+                _suite(tmp_path / name, transport),
+                tmp_path / f"{name}.mcap",
+                overrides={"key": f"iso/driver/{name}"},
+            )
         except BaseException as exc:  # reported by the main thread
             errors.append(exc)
 
@@ -86,15 +92,19 @@ def test_two_simultaneous_runs_record_only_their_own_traffic(
         counts = recording.metadata["redline.recorder"]  # the driver's 50 puts were all recorded
         assert counts["checked_keys"] == "1" and counts["lost"] == "0", counts
         assert counts["zenoh_shared_memory"] == "on"
-        assert counts["zenoh_endpoint"].startswith({"tcp": "tcp/127.0.0.1:",
-                                                    "unix": "unixsock-stream/"}[transport])
+        assert counts["zenoh_endpoint"].startswith(
+            {"tcp": "tcp/127.0.0.1:", "unix": "unixsock-stream/"}[transport]
+        )
 
 
 def test_suite_transport_is_checked_and_names_its_line(tmp_path: Path) -> None:
     assert load_suite(_suite(tmp_path / "unix", "unix")).transport == "unix"
     bad = _suite(tmp_path / "bad", "udp")
-    with pytest.raises(SuiteError, match=r"redline.toml:3: 'transport' must be one of 'tcp', "
-                                         r"'unix', got 'udp'"):
+    with pytest.raises(
+        SuiteError,
+        match=r"redline.toml:3: 'transport' must be one of 'tcp', "
+        r"'unix', got 'udp'",
+    ):
         load_suite(bad)
 
 
@@ -105,5 +115,6 @@ def test_unix_transport_uses_a_socket_and_no_port(tmp_path: Path) -> None:
         assert socket_path.is_socket()
         peer = network.peer_settings()
         assert peer["listen"]["endpoints"] == [] and peer["connect"]["endpoints"] == [
-            network.endpoint]
+            network.endpoint
+        ]
     assert not socket_path.parent.exists()  # the private folder goes with the network

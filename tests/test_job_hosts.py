@@ -43,8 +43,7 @@ def test_a_host_not_holding_the_job_can_neither_fail_nor_upload_it(api: Api, tmp
     assert _fail(api, job["id"], "perf1").status_code == 409  # uploaded: no longer held
 
 
-def test_a_lapsed_host_cannot_fail_or_upload_a_job_re_leased_to_another(
-        api: Api, tmp_path: Path):
+def test_a_lapsed_host_cannot_fail_or_upload_a_job_re_leased_to_another(api: Api, tmp_path: Path):
     job = api.lease("perf1")
     data = recording_for(job, tmp_path / "r1.mcap")
     _expire(api, job["id"])
@@ -57,14 +56,17 @@ def test_a_lapsed_host_cannot_fail_or_upload_a_job_re_leased_to_another(
 
 
 def test_a_token_bound_to_one_host_cannot_fail_or_upload_for_another(api: Api, tmp_path: Path):
-    made = api.post("/api/v1/tokens", "admin", {"name": "perf1-token", "scopes": ["agent"],
-                                                "host": "perf1"})
+    made = api.post(
+        "/api/v1/tokens", "admin", {"name": "perf1-token", "scopes": ["agent"], "host": "perf1"}
+    )
     assert made.status_code == 201, made.text
     api.tokens["perf1-token"] = {"Authorization": f"Bearer {made.json()['token']}"}
     job = api.lease("perf2")
     data = recording_for(job, tmp_path / "r1.mcap")
-    for answer in (_fail(api, job["id"], "perf2", scope="perf1-token"),
-                   api.upload(job["id"], data, host="perf2", scope="perf1-token")):
+    for answer in (
+        _fail(api, job["id"], "perf2", scope="perf1-token"),
+        api.upload(job["id"], data, host="perf2", scope="perf1-token"),
+    ):
         assert answer.status_code == 403, answer.text
         assert "perf1" in answer.json()["detail"] and "perf2" in answer.json()["detail"]
     assert api.job(job["id"])["state"] == "leased"
@@ -73,8 +75,11 @@ def test_a_token_bound_to_one_host_cannot_fail_or_upload_for_another(api: Api, t
 def test_an_upload_must_name_its_host(api: Api, tmp_path: Path):
     job = api.lease("perf1")
     data = recording_for(job, tmp_path / "r1.mcap")
-    answer = api.client.put(f"/api/v1/jobs/{job['id']}/recording", content=data,
-                            headers={**api.tokens["agent"], "X-Redline-Sha256": "0" * 64})
+    answer = api.client.put(
+        f"/api/v1/jobs/{job['id']}/recording",
+        content=data,
+        headers={**api.tokens["agent"], "X-Redline-Sha256": "0" * 64},
+    )
     assert answer.status_code == 422 and "x-redline-host" in answer.text.lower()
 
 
@@ -87,9 +92,15 @@ class _LostLeaseClient:
         self.failed: list[int] = []
 
     def lease(self, wait: int = 0) -> dict:
-        return {"id": 7, "component": "builder", "commit": "abc123", "repo": "/src/x.git",
-                "suite": "perf/redline.toml", "execution_index": 0,
-                "revision": {"title": "r1", "sort_key": "1"}}
+        return {
+            "id": 7,
+            "component": "builder",
+            "commit": "abc123",
+            "repo": "/src/x.git",
+            "suite": "perf/redline.toml",
+            "execution_index": 0,
+            "revision": {"title": "r1", "sort_key": "1"},
+        }
 
     def heartbeat(self, job_id: int) -> None:
         raise LeaseLost(f"job {job_id} is not leased to host 'perf1'")
@@ -100,7 +111,8 @@ class _LostLeaseClient:
 
 @pytest.mark.parametrize("error", [JobFailed("build broke"), OSError("disk full")])
 def test_the_agent_does_not_fail_a_job_whose_lease_it_lost(
-        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, error: Exception):
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, error: Exception
+):
     client = _LostLeaseClient()
     daemon = AgentDaemon(client=client, workdir=tmp_path)  # type: ignore[arg-type]
 
@@ -112,8 +124,7 @@ def test_the_agent_does_not_fail_a_job_whose_lease_it_lost(
     assert client.failed == []
 
 
-def test_cancelling_a_revision_stops_its_jobs_and_its_agent_learns_at_the_next_heartbeat(
-        api: Api):
+def test_cancelling_a_revision_stops_its_jobs_and_its_agent_learns_at_the_next_heartbeat(api: Api):
     api.component("cancellable", executions=2)
     created = api.revision("c1", "1", component="cancellable")
     running = api.lease()  # newest revision first: one of c1's two jobs

@@ -25,11 +25,11 @@ with {kind}():
 """
 
 
-def _hold_in_child(kind: str, log: Path, lock: Path,
-                   hold: float = 0.5) -> subprocess.Popen[bytes]:
-    child = subprocess.Popen([sys.executable, "-c", HOLDER.format(kind=kind, hold=hold),
-                              str(log)],
-                             env={**os.environ, quiet.LOCK_VARIABLE: str(lock)})
+def _hold_in_child(kind: str, log: Path, lock: Path, hold: float = 0.5) -> subprocess.Popen[bytes]:
+    child = subprocess.Popen(
+        [sys.executable, "-c", HOLDER.format(kind=kind, hold=hold), str(log)],
+        env={**os.environ, quiet.LOCK_VARIABLE: str(lock)},
+    )
     deadline = time.monotonic() + 20
     while "held" not in (log.read_text() if log.exists() else ""):
         assert time.monotonic() < deadline and child.poll() is None, "child never took the lock"
@@ -46,8 +46,7 @@ def test_analysis_waits_for_a_run_in_progress(tmp_path: Path, monkeypatch: pytes
     assert child.wait(timeout=20) == 0
 
 
-def test_a_run_waits_for_the_analysis_in_progress(tmp_path: Path,
-                                                  monkeypatch: pytest.MonkeyPatch):
+def test_a_run_waits_for_the_analysis_in_progress(tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
     lock, log = tmp_path / "measurement.lock", tmp_path / "log"
     monkeypatch.setenv(quiet.LOCK_VARIABLE, str(lock))
     child = _hold_in_child("analysing", log, lock)
@@ -57,7 +56,8 @@ def test_a_run_waits_for_the_analysis_in_progress(tmp_path: Path,
 
 
 def test_analyses_share_the_lock_and_without_it_nothing_waits(
-        tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+):
     lock, log = tmp_path / "measurement.lock", tmp_path / "log"
     monkeypatch.setenv(quiet.LOCK_VARIABLE, str(lock))
     child = _hold_in_child("analysing", log, lock, hold=60)  # until we say go

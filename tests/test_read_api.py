@@ -20,10 +20,24 @@ def api(services: Services, tmp_path: Path) -> Iterator[Api]:
 
 
 def imported(api: Api, revision: str, key: str) -> dict:
-    body = {"component": "builder", "revision": revision, "sort_key": key, "results": [
-        {"case": "build", "phase": "steady", "params": {"legs": legs}, "process": proc,
-         "counter": counter, "values": [float(legs), float(legs) + 1]}
-        for legs in (4, 8) for proc in ("builder", "host") for counter in ("cpu", "rss")]}
+    body = {
+        "component": "builder",
+        "revision": revision,
+        "sort_key": key,
+        "results": [
+            {
+                "case": "build",
+                "phase": "steady",
+                "params": {"legs": legs},
+                "process": proc,
+                "counter": counter,
+                "values": [float(legs), float(legs) + 1],
+            }
+            for legs in (4, 8)
+            for proc in ("builder", "host")
+            for counter in ("cpu", "rss")
+        ],
+    }
     answer = api.post("/api/v1/import/results", "ci", body)
     assert answer.status_code == 201, answer.text
     return answer.json()
@@ -31,8 +45,9 @@ def imported(api: Api, revision: str, key: str) -> dict:
 
 def test_revisions_page_in_sort_key_order_with_a_cursor(api: Api):
     for title, key in (("r10", "10"), ("r9", "9"), ("r2", "2"), ("r11", "11"), ("r1", "1")):
-        api.post("/api/v1/revisions", "ci",
-                 {"component": "builder", "title": title, "sort_key": key}).raise_for_status()
+        api.post(
+            "/api/v1/revisions", "ci", {"component": "builder", "title": title, "sort_key": key}
+        ).raise_for_status()
     seen, cursor, pages = [], None, 0
     while True:
         query = "?limit=2" + (f"&cursor={cursor}" if cursor else "")
@@ -51,10 +66,12 @@ def test_series_filter_by_case_phase_parameter_process_and_counter(api: Api):
     imported(api, "r1", "1")
     url = "/api/v1/components/builder/series"
     assert len(api.client.get(url).json()) == 8
-    chosen = api.client.get(f"{url}?param.legs=8&process=builder&counter=cpu&phase=steady"
-                            "&case=build").json()
+    chosen = api.client.get(
+        f"{url}?param.legs=8&process=builder&counter=cpu&phase=steady&case=build"
+    ).json()
     assert [(s["params"], s["process"], s["counter"]) for s in chosen] == [
-        ({"legs": 8}, "builder", "cpu")]
+        ({"legs": 8}, "builder", "cpu")
+    ]
     assert api.client.get(f"{url}?param.legs=3").json() == []
     assert api.client.get(f"{url}?case=other").json() == []
 
@@ -62,8 +79,9 @@ def test_series_filter_by_case_phase_parameter_process_and_counter(api: Api):
 def test_series_points_carry_each_executions_quantiles_and_sketch(api: Api):
     imported(api, "r1", "1")
     imported(api, "r2", "2")
-    series = api.client.get("/api/v1/components/builder/series?param.legs=4&process=builder"
-                            "&counter=rss").json()[0]
+    series = api.client.get(
+        "/api/v1/components/builder/series?param.legs=4&process=builder&counter=rss"
+    ).json()[0]
     detail = api.client.get(f"/api/v1/series/{series['id']}").json()
     assert [s["revision"] for s in detail["summaries"]] == ["r1", "r2"]
     first = detail["summaries"][0]
@@ -86,18 +104,23 @@ def test_openapi_gives_every_route_a_response_model(api: Api):
     for path, operations in document["paths"].items():
         for method, operation in operations.items():
             ok = [code for code in operation["responses"] if code.startswith("2")]
-            if not any("content" in operation["responses"][code] or code == "204"
-                       for code in ok):
+            if not any("content" in operation["responses"][code] or code == "204" for code in ok):
                 missing.append(f"{method.upper()} {path}")
     assert missing == []
-    for path in ("/api/v1/webhooks/github", "/api/v1/import/lnt", "/api/v1/tokens",
-                 "/api/v1/components/{name}/compare", "/api/v1/series/{series_id}"):
+    for path in (
+        "/api/v1/webhooks/github",
+        "/api/v1/import/lnt",
+        "/api/v1/tokens",
+        "/api/v1/components/{name}/compare",
+        "/api/v1/series/{series_id}",
+    ):
         assert path in document["paths"]
 
 
 def test_metrics_count_requests_and_jobs_by_state(api: Api):
-    api.post("/api/v1/revisions", "ci",
-             {"component": "builder", "title": "r1", "sort_key": "1"}).raise_for_status()
+    api.post(
+        "/api/v1/revisions", "ci", {"component": "builder", "title": "r1", "sort_key": "1"}
+    ).raise_for_status()
     api.client.get("/api/v1/components")
     text = api.client.get("/metrics").text
     assert 'redline_jobs{state="queued"} 1.0' in text

@@ -27,14 +27,19 @@ pytestmark = pytest.mark.integration
 def _write(path: Path) -> Path:
     with RecordingWriter(path) as writer:
         for index in range(3000):  # several chunks, three channels, two encodings
-            writer.write(f"robot/{index % 3}", bytes([index % 251]) * (index % 700),
-                         encoding="zenoh/bytes" if index % 3 else "json", t_ns=1000 + index)
+            writer.write(
+                f"robot/{index % 3}",
+                bytes([index % 251]) * (index % 700),
+                encoding="zenoh/bytes" if index % 3 else "json",
+                t_ns=1000 + index,
+            )
         writer.metadata("redline.run", {"component": "c"})
     return path
 
 
 def test_lean_chunk_builder_writes_the_same_bytes_as_mcaps_own(
-        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     lean = _write(tmp_path / "lean.mcap")
     monkeypatch.setattr(writer_module, "_use_lean_chunks", lambda writer: None)
     plain = _write(tmp_path / "plain.mcap")
@@ -48,8 +53,19 @@ def _start_recorder(network: RunNetwork, folder: Path) -> subprocess.Popen[str]:
     (folder / "meta.json").write_text(json.dumps({"run": {"component": "c"}, "host": {}}))
     env = {**os.environ, "REDLINE_ZENOH": json.dumps(network.client_settings())}
     recorder = subprocess.Popen(
-        [sys.executable, "-m", "redline.agent.recorder", "--out", str(folder / "out.mcap"),
-         "--meta", str(folder / "meta.json")], env=env, stdout=subprocess.PIPE, text=True)
+        [
+            sys.executable,
+            "-m",
+            "redline.agent.recorder",
+            "--out",
+            str(folder / "out.mcap"),
+            "--meta",
+            str(folder / "meta.json"),
+        ],
+        env=env,
+        stdout=subprocess.PIPE,
+        text=True,
+    )
     assert recorder.stdout is not None and "ready" in recorder.stdout.readline()
     return recorder
 
@@ -75,7 +91,8 @@ def _record(folder: Path, shared_memory: bool, sent_extra: int) -> dict[str, str
 
 
 def test_samples_the_driver_sent_but_the_recorder_never_saw_are_counted_per_key(
-        tmp_path: Path) -> None:
+    tmp_path: Path,
+) -> None:
     counts = _record(tmp_path, shared_memory=True, sent_extra=7)
     assert counts["lost"] == "7" and counts["checked_keys"] == "1"
     assert json.loads(counts["lost_by_key"]) == {"robot/cmd": {"sent": 207, "recorded": 200}}

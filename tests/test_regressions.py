@@ -45,13 +45,19 @@ class Client:
 
 @pytest.fixture
 def api(services: Services, database_url: str, tmp_path: Path) -> Iterator[Client]:
-    settings = Settings(database_url=database_url, redis_url=services.redis_url,
-                        storage_dir=tmp_path / "storage", queue=f"test-{uuid.uuid4().hex[:8]}")
+    settings = Settings(
+        database_url=database_url,
+        redis_url=services.redis_url,
+        storage_dir=tmp_path / "storage",
+        queue=f"test-{uuid.uuid4().hex[:8]}",
+    )
     with session_factory(database_url)() as session:
         session.execute(text(f"TRUNCATE {TABLES} RESTART IDENTITY CASCADE"))
         session.commit()
-        tokens = {scope: {"Authorization": f"Bearer {issue_token(session, scope, scope)[1]}"}
-                  for scope in ("admin", "ci", "read", "agent")}
+        tokens = {
+            scope: {"Authorization": f"Bearer {issue_token(session, scope, scope)[1]}"}
+            for scope in ("admin", "ci", "read", "agent")
+        }
     with TestClient(create_app(settings)) as client:
         yield Client(client, tokens)
 
@@ -61,20 +67,29 @@ def history(database_url: str, tmp_path: Path, cpus: list[float], seed: int = 5)
     rng = np.random.default_rng(seed)
     with session_factory(database_url)() as session:
         create_component(session, ComponentCreate(name="builder"))
-        executions = [add_execution(session, tmp_path, "builder", f"r{n}", str(n),
-                                    {"cpu": rng.normal(cpu, cpu / 20, 60)})
-                      for n, cpu in enumerate(cpus, start=1)]
+        executions = [
+            add_execution(
+                session,
+                tmp_path,
+                "builder",
+                f"r{n}",
+                str(n),
+                {"cpu": rng.normal(cpu, cpu / 20, 60)},
+            )
+            for n, cpu in enumerate(cpus, start=1)
+        ]
     for execution in executions:
         ingest_execution(database_url, execution.id)
         detect_revision(database_url, execution.revision_id)
 
 
-def test_two_separate_changes_make_two_regressions_with_their_ranges(api, database_url,
-                                                                     tmp_path):
+def test_two_separate_changes_make_two_regressions_with_their_ranges(api, database_url, tmp_path):
     history(database_url, tmp_path, [20.0, 20.0, 60.0, 60.0, 200.0])
     regressions = api.get("/regressions").json()
     assert [(r["good_revision"], r["bad_revision"], r["state"]) for r in regressions] == [
-        ("r4", "r5", "new"), ("r2", "r3", "new")]
+        ("r4", "r5", "new"),
+        ("r2", "r3", "new"),
+    ]
     assert "ks" in regressions[0]["methods"] and regressions[0]["detections"] >= 1
     detail = api.get(f"/regressions/{regressions[1]['id']}").json()
     assert {d["revision"] for d in detail["flagged"]} == {"r3"}
@@ -82,8 +97,7 @@ def test_two_separate_changes_make_two_regressions_with_their_ranges(api, databa
     assert detail["history"] == []
 
 
-def test_triage_records_who_when_from_to_and_why_and_needs_ci_or_admin(api, database_url,
-                                                                       tmp_path):
+def test_triage_records_who_when_from_to_and_why_and_needs_ci_or_admin(api, database_url, tmp_path):
     history(database_url, tmp_path, [20.0, 60.0])
     (regression,) = api.get("/regressions").json()
     path = f"/regressions/{regression['id']}"
@@ -94,8 +108,9 @@ def test_triage_records_who_when_from_to_and_why_and_needs_ci_or_admin(api, data
     assert answer.status_code == 200 and answer.json()["state"] == "confirmed"
     steps = api.get(path + "/history").json()
     assert [(s["who"], s["from_state"], s["to_state"], s["comment"]) for s in steps] == [
-        ("ci", "new", "acknowledged", ""), ("admin", "acknowledged", "confirmed",
-                                            "bisected to r2")]
+        ("ci", "new", "acknowledged", ""),
+        ("admin", "acknowledged", "confirmed", "bisected to r2"),
+    ]
     assert steps[0]["at"] <= steps[1]["at"]
     assert api.patch(path, "ci", {"state": "confirmed"}).status_code == 400  # already
     assert api.patch(path, "ci", {"state": "closed"}).status_code == 422
@@ -104,13 +119,11 @@ def test_triage_records_who_when_from_to_and_why_and_needs_ci_or_admin(api, data
     assert api.get("/regressions?state=new").json() == []
 
 
-def test_precision_per_method_counts_labels_and_leaves_out_ignored(api, database_url,
-                                                                   tmp_path):
+def test_precision_per_method_counts_labels_and_leaves_out_ignored(api, database_url, tmp_path):
     history(database_url, tmp_path, [20.0, 60.0, 60.0, 200.0, 200.0, 600.0])
     first, second, third = sorted(api.get("/regressions").json(), key=lambda r: r["id"])
     assert api.get("/accuracy").json()["labelled_regressions"] == 0
-    for regression, state in ((first, "confirmed"), (second, "false_positive"),
-                              (third, "ignored")):
+    for regression, state in ((first, "confirmed"), (second, "false_positive"), (third, "ignored")):
         api.patch(f"/regressions/{regression['id']}", "ci", {"state": state}).raise_for_status()
     report = api.get("/accuracy").json()
     assert report["labelled_regressions"] == 2
@@ -119,8 +132,9 @@ def test_precision_per_method_counts_labels_and_leaves_out_ignored(api, database
     assert ks["precision"] == pytest.approx(0.5)
 
 
-def test_triaged_regression_survives_reanalysis_that_no_longer_flags_it(api, database_url,
-                                                                       tmp_path):
+def test_triaged_regression_survives_reanalysis_that_no_longer_flags_it(
+    api, database_url, tmp_path
+):
     history(database_url, tmp_path, [20.0, 60.0])
     (regression,) = api.get("/regressions").json()
     api.patch(f"/regressions/{regression['id']}", "ci", {"state": "false_positive"})
@@ -136,8 +150,12 @@ def test_triaged_regression_survives_reanalysis_that_no_longer_flags_it(api, dat
 def test_detections_list_every_verdict_with_the_reason(api, database_url, tmp_path):
     history(database_url, tmp_path, [20.0, 60.0])
     first = api.get("/detections?revision=r1").json()
-    assert first and all(d["verdict"] == "not enough data" and d["baseline"] is None
-                         and "missing baseline" in d["reason"] for d in first)
+    assert first and all(
+        d["verdict"] == "not enough data"
+        and d["baseline"] is None
+        and "missing baseline" in d["reason"]
+        for d in first
+    )
     ks = api.get("/detections?revision=r2&method=ks").json()
     assert [(d["verdict"], d["baseline"]) for d in ks] == [("change", "r1")]
     assert api.get("/changes?flagged=true").json()[0]["method"] == "ks"

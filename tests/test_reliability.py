@@ -90,8 +90,9 @@ def _tiny_repo(root: Path) -> tuple[Path, str]:
     subprocess.run([*git, "init", "-q", "-b", "main"], cwd=repo, check=True)
     subprocess.run([*git, "add", "-A"], cwd=repo, check=True)
     subprocess.run([*git, "commit", "-qm", "tiny"], cwd=repo, check=True)
-    commit = subprocess.run(["git", "rev-parse", "HEAD"], cwd=repo, check=True,
-                            capture_output=True, text=True).stdout.strip()
+    commit = subprocess.run(
+        ["git", "rev-parse", "HEAD"], cwd=repo, check=True, capture_output=True, text=True
+    ).stdout.strip()
     return repo, commit
 
 
@@ -113,14 +114,28 @@ class Service:
         return {"Authorization": f"Bearer {self.tokens[scope]}"}
 
     def start_server(self) -> None:
-        self.stack._spawn("server", "server", "--host", "127.0.0.1", "--port",
-                          str(self.stack.port))
+        self.stack._spawn("server", "server", "--host", "127.0.0.1", "--port", str(self.stack.port))
         self.stack._wait_healthy()
 
     def start_agent(self, name: str) -> Child:
-        self.stack._spawn(name, "agent", "--server", self.stack.url, "--token",
-                          self.tokens["agent"], "--name", name, "--work", str(self.root / name),
-                          "--poll", "0.5", "--wait", "2", "--grace", "300")
+        self.stack._spawn(
+            name,
+            "agent",
+            "--server",
+            self.stack.url,
+            "--token",
+            self.tokens["agent"],
+            "--name",
+            name,
+            "--work",
+            str(self.root / name),
+            "--poll",
+            "0.5",
+            "--wait",
+            "2",
+            "--grace",
+            "300",
+        )
         return self.stack.children[-1]
 
     def kill(self, child: Child, signum: int = signal.SIGKILL) -> None:
@@ -132,13 +147,23 @@ class Service:
 
     def job(self, component: str, title: str = "r1") -> int:
         """Register ``component`` on the tiny repository and report one revision: its job id."""
-        answer = httpx.post(f"{self.stack.url}/api/v1/components", headers=self.headers("admin"),
-                            json={"name": component, "repo": str(self.repo),
-                                  "suite": "perf/redline.toml"})
+        answer = httpx.post(
+            f"{self.stack.url}/api/v1/components",
+            headers=self.headers("admin"),
+            json={"name": component, "repo": str(self.repo), "suite": "perf/redline.toml"},
+        )
         assert answer.status_code in (201, 409), answer.text
-        answer = httpx.post(f"{self.stack.url}/api/v1/revisions", headers=self.headers("ci"),
-                            json={"component": component, "title": title, "sort_key": "1",
-                                  "commit": self.commit, "repo": str(self.repo)})
+        answer = httpx.post(
+            f"{self.stack.url}/api/v1/revisions",
+            headers=self.headers("ci"),
+            json={
+                "component": component,
+                "title": title,
+                "sort_key": "1",
+                "commit": self.commit,
+                "repo": str(self.repo),
+            },
+        )
         assert answer.status_code == 201, answer.text
         with session_factory(self.database_url)() as session:
             return session.scalars(select(Job.id).order_by(Job.id.desc())).first() or 0
@@ -151,8 +176,12 @@ class Service:
 
     def executions(self, job_id: int) -> int:
         with session_factory(self.database_url)() as session:
-            return session.scalar(select(func.count()).select_from(Execution)
-                                  .where(Execution.job_id == job_id)) or 0
+            return (
+                session.scalar(
+                    select(func.count()).select_from(Execution).where(Execution.job_id == job_id)
+                )
+                or 0
+            )
 
     def stop_agents(self) -> None:
         for child in [c for c in self.stack.children if c.name != "server"]:
@@ -162,8 +191,11 @@ class Service:
                 child.log.close()
                 self.stack.children.remove(child)
         with session_factory(self.database_url)() as session:  # nothing left for the next test
-            session.execute(update(Job).where(Job.state.in_(["queued", "leased", "running"]))
-                            .values(state=JobState.cancelled))
+            session.execute(
+                update(Job)
+                .where(Job.state.in_(["queued", "leased", "running"]))
+                .values(state=JobState.cancelled)
+            )
             session.commit()
 
 
@@ -171,10 +203,16 @@ def _service(database_url: str, redis_url: str, root: Path, lease_s: int) -> Ser
     repo, commit = _tiny_repo(root)
     stack = Stack(root / "data", free_port())
     (stack.data / "logs").mkdir(parents=True, exist_ok=True)
-    stack.env = dict(os.environ, REDLINE_DATABASE_URL=database_url, REDLINE_REDIS_URL=redis_url,
-                     REDLINE_STORAGE_DIR=str(root / "storage"), REDLINE_LEASE_SECONDS=str(lease_s),
-                     REDLINE_QUEUE=f"rel-{uuid.uuid4().hex[:8]}", PYTHONUNBUFFERED="1",
-                     REDLINE_WEBHOOK_SECRET="the-real-secret")
+    stack.env = dict(
+        os.environ,
+        REDLINE_DATABASE_URL=database_url,
+        REDLINE_REDIS_URL=redis_url,
+        REDLINE_STORAGE_DIR=str(root / "storage"),
+        REDLINE_LEASE_SECONDS=str(lease_s),
+        REDLINE_QUEUE=f"rel-{uuid.uuid4().hex[:8]}",
+        PYTHONUNBUFFERED="1",
+        REDLINE_WEBHOOK_SECRET="the-real-secret",
+    )
     stack._redline("migrate")
     service = Service(stack, root, repo, commit)
     service.tokens = {scope: stack.token(scope, scope) for scope in ("admin", "ci", "agent")}
@@ -204,7 +242,8 @@ def _holder(service: Service, job_id: int, host: str) -> bool:
 
 
 def test_agent_killed_mid_job_is_replaced_after_its_lease_lapses_and_one_execution_is_stored(
-        service: Service):
+    service: Service,
+):
     job_id = service.job("killed")
     slow = service.start_agent("slow-killed")
     _until(lambda: _holder(service, job_id, "slow-killed"), "the slow agent runs the job")
@@ -240,8 +279,7 @@ def test_one_sigterm_lets_the_agent_finish_its_job_then_stop(service: Service):
     assert service.executions(job_id) == 1
 
 
-def test_server_killed_during_an_upload_the_agent_retries_and_it_is_stored_once(
-        service: Service):
+def test_server_killed_during_an_upload_the_agent_retries_and_it_is_stored_once(service: Service):
     job_id = service.job("restarted")
     agent = service.start_agent("fast-restart")
     server = next(c for c in service.stack.children if c.name == "server")
@@ -257,8 +295,7 @@ def test_server_killed_during_an_upload_the_agent_retries_and_it_is_stored_once(
     assert service.row(job_id).state == JobState.uploaded
 
 
-def test_twenty_agents_leasing_two_hundred_jobs_over_http_lease_each_exactly_once(
-        service: Service):
+def test_twenty_agents_leasing_two_hundred_jobs_over_http_lease_each_exactly_once(service: Service):
     """Over HTTP to a server process whose leases outlast the race."""
     second = Stack(service.root / "data2", free_port())
     second.env = dict(service.stack.env, REDLINE_LEASE_SECONDS="600")
@@ -269,8 +306,9 @@ def test_twenty_agents_leasing_two_hundred_jobs_over_http_lease_each_exactly_onc
         ids = _two_hundred_jobs(service)
         hosts = [f"racer-{n:02d}" for n in range(20)]
         with ThreadPoolExecutor(len(hosts)) as pool:  # the long-lease server: none may lapse
-            leased = list(pool.map(lambda host: _race(second.url, host, service.tokens["agent"]),
-                                   hosts))
+            leased = list(
+                pool.map(lambda host: _race(second.url, host, service.tokens["agent"]), hosts)
+            )
     finally:
         second.stop()
     counts = Counter(job_id for mine in leased for job_id in mine)
@@ -279,30 +317,48 @@ def test_twenty_agents_leasing_two_hundred_jobs_over_http_lease_each_exactly_onc
 
 
 def test_forged_webhook_signature_to_the_server_process_is_401_and_creates_nothing(
-        service: Service):
+    service: Service,
+):
     service.job("hooked")
-    push = json.dumps({"ref": "refs/heads/main", "repository": {"clone_url": str(service.repo)},
-                       "commits": [{"id": "f" * 40, "message": "forged", "timestamp":
-                                    "2026-11-22T03:00:00+00:00"}]}).encode()
+    push = json.dumps(
+        {
+            "ref": "refs/heads/main",
+            "repository": {"clone_url": str(service.repo)},
+            "commits": [
+                {"id": "f" * 40, "message": "forged", "timestamp": "2026-11-22T03:00:00+00:00"}
+            ],
+        }
+    ).encode()
     forged = "sha256=" + hmac.new(b"guessed", push, hashlib.sha256).hexdigest()
     with session_factory(service.database_url)() as session:
         before = session.scalar(select(func.count()).select_from(Revision))
-    answer = httpx.post(f"{service.stack.url}/api/v1/webhooks/github", content=push, headers={
-        "X-Hub-Signature-256": forged, "X-GitHub-Event": "push",
-        "Content-Type": "application/json"})
+    answer = httpx.post(
+        f"{service.stack.url}/api/v1/webhooks/github",
+        content=push,
+        headers={
+            "X-Hub-Signature-256": forged,
+            "X-GitHub-Event": "push",
+            "Content-Type": "application/json",
+        },
+    )
     assert answer.status_code == 401, answer.text
     with session_factory(service.database_url)() as session:
         assert session.scalar(select(func.count()).select_from(Revision)) == before
 
 
 def _two_hundred_jobs(service: Service) -> list[int]:
-    answer = httpx.post(f"{service.stack.url}/api/v1/components", headers=service.headers("admin"),
-                        json={"name": "raced", "repo": "/nowhere.git", "suite": "s.toml",
-                              "executions": 10})
+    answer = httpx.post(
+        f"{service.stack.url}/api/v1/components",
+        headers=service.headers("admin"),
+        json={"name": "raced", "repo": "/nowhere.git", "suite": "s.toml", "executions": 10},
+    )
     assert answer.status_code == 201, answer.text
     for n in range(20):
-        answer = httpx.post(f"{service.stack.url}/api/v1/revisions", headers=service.headers("ci"),
-                            json={"component": "raced", "title": f"r{n}", "sort_key": str(n)})
+        answer = httpx.post(
+            f"{service.stack.url}/api/v1/revisions",
+            headers=service.headers("ci"),
+            json={"component": "raced", "title": f"r{n}", "sort_key": str(n)},
+        )
         assert answer.status_code == 201, answer.text
     with session_factory(service.database_url)() as session:
         ids = list(session.scalars(select(Job.id).where(Job.state == JobState.queued)))
@@ -348,7 +404,8 @@ def own_postgres(services: Services, tmp_path: Path) -> Iterator[tuple[str, Call
 
 
 def test_postgres_away_the_api_answers_503_agents_spool_and_nothing_is_lost(
-        own_postgres: tuple[str, Callable, Callable], services: Services, tmp_path: Path):
+    own_postgres: tuple[str, Callable, Callable], services: Services, tmp_path: Path
+):
     url, stop_postgres, start_postgres = own_postgres
     service = _service(url, services.redis_url, tmp_path, lease_s=120)
     try:
@@ -358,13 +415,18 @@ def test_postgres_away_the_api_answers_503_agents_spool_and_nothing_is_lost(
         stop_postgres()
         health = httpx.get(f"{service.stack.url}/healthz")
         assert health.status_code == 503 and health.json()["status"] == "unavailable"
-        lease = httpx.post(f"{service.stack.url}/api/v1/agent/lease",
-                           headers=service.headers("agent"), json={"host": "fast-spooling"})
+        lease = httpx.post(
+            f"{service.stack.url}/api/v1/agent/lease",
+            headers=service.headers("agent"),
+            json={"host": "fast-spooling"},
+        )
         assert lease.status_code == 503, lease.text
         assert "database is unavailable" in lease.json()["detail"]
         spooled = tmp_path / "fast-spooling" / "spool" / f"job-{job_id}.mcap"
-        _until(lambda: spooled.exists() and "recording spooled" in agent.tail(40),
-               "the agent spools its recording")
+        _until(
+            lambda: spooled.exists() and "recording spooled" in agent.tail(40),
+            "the agent spools its recording",
+        )
         start_postgres()
         _until(lambda: not spooled.exists(), "the spooled recording is accepted", timeout=120)
         assert httpx.get(f"{service.stack.url}/healthz").json()["database"] == "ok"

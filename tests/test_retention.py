@@ -28,12 +28,21 @@ def api(services: Services, tmp_path: Path) -> Iterator[Api]:
 
 
 def run(api: Api, revision: str, key: str, base: float, age_days: int) -> int:
-    body = {"component": "builder", "revision": revision, "sort_key": key, "results": [
-        {"case": "build", "counter": "cpu", "values": [base + i % 5 for i in range(40)]}]}
+    body = {
+        "component": "builder",
+        "revision": revision,
+        "sort_key": key,
+        "results": [
+            {"case": "build", "counter": "cpu", "values": [base + i % 5 for i in range(40)]}
+        ],
+    }
     execution_id = api.post("/api/v1/import/results", "ci", body).json()["execution_id"]
     with session_factory(api.settings.database_url)() as session:
-        session.execute(update(Execution).where(Execution.id == execution_id)
-                        .values(created=utcnow() - timedelta(days=age_days)))
+        session.execute(
+            update(Execution)
+            .where(Execution.id == execution_id)
+            .values(created=utcnow() - timedelta(days=age_days))
+        )
         session.commit()
     return execution_id
 
@@ -60,18 +69,27 @@ def test_compare_after_pruning_uses_the_sketch_and_says_so(api: Api):
     run(api, "r1", "1", 10.0, age_days=40)
     run(api, "r2", "2", 20.0, age_days=1)
     prune_recordings(api.settings.database_url, days=30)
-    row = api.client.get("/api/v1/components/builder/compare?base=r1&candidate=r2"
-                         ).json()["series"][0]
+    row = api.client.get("/api/v1/components/builder/compare?base=r1&candidate=r2").json()[
+        "series"
+    ][0]
     assert row["exact"] is False and row["baseline"]["n"] == 32
     assert row["change"] == pytest.approx(10 / 12, rel=0.05) and row["ks_statistic"] == 1.0
 
 
 def test_cli_runs_retention_once(api: Api):
     old = run(api, "r1", "1", 10.0, age_days=100)
-    env = {**os.environ, "REDLINE_DATABASE_URL": api.settings.database_url,
-           "REDLINE_RETENTION_DAYS": "60"}
-    done = subprocess.run([str(Path(sys.executable).parent / "redline"), "retention", "run"],
-                          env=env, capture_output=True, text=True, cwd=ROOT)
+    env = {
+        **os.environ,
+        "REDLINE_DATABASE_URL": api.settings.database_url,
+        "REDLINE_RETENTION_DAYS": "60",
+    }
+    done = subprocess.run(
+        [str(Path(sys.executable).parent / "redline"), "retention", "run"],
+        env=env,
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+    )
     assert done.returncode == 0, done.stderr
     assert "1 executions older than 60 days" in done.stdout
     assert not paths_of(api, old)[0].exists()

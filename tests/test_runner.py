@@ -35,23 +35,38 @@ def test_recording_holds_counters_for_every_measured_segment(objectbuilder_run) 
     assert len(measured) == 4
     for segment in measured:
         for counter in ("cpu_percent", "rss_bytes", "threads"):
-            values = [v for k, v in samples.items() if k.process == "objectbuilder"
-                      and k.counter == counter and k.phase == segment.phase
-                      and k.params == canonical_params(segment.params)]
+            values = [
+                v
+                for k, v in samples.items()
+                if k.process == "objectbuilder"
+                and k.counter == counter
+                and k.phase == segment.phase
+                and k.params == canonical_params(segment.params)
+            ]
             assert values and values[0], f"no {counter} in {segment}"
     processes = {c["process"] for c in recording.counters}
     assert processes == {"objectbuilder", "host"}
     assert all(c["pid"] > 0 for c in recording.counters if c["process"] == "objectbuilder")
     counters = {k.counter for k in samples if k.process == "objectbuilder"}
-    assert {"cpu_user_percent", "cpu_system_percent", "vms_bytes", "uss_bytes", "pss_bytes",
-            "ctx_voluntary_per_s", "ctx_involuntary_per_s", "fds", "processes"} <= counters
+    assert {
+        "cpu_user_percent",
+        "cpu_system_percent",
+        "vms_bytes",
+        "uss_bytes",
+        "pss_bytes",
+        "ctx_voluntary_per_s",
+        "ctx_involuntary_per_s",
+        "fds",
+        "processes",
+    } <= counters
     assert {"cpu_steal_percent", "load_1m"} <= {k.counter for k in samples if k.process == "host"}
 
 
 def test_recording_holds_markers_traffic_and_driver_metrics(objectbuilder_run) -> None:
     _, recording = objectbuilder_run
-    names = {(s.phase, f"legs={s.params['legs']},rate={s.params['rate']}")
-             for s in recording.segments()}
+    names = {
+        (s.phase, f"legs={s.params['legs']},rate={s.params['rate']}") for s in recording.segments()
+    }
     expected = {f"legs={legs},rate={rate}" for legs in (2, 8) for rate in (10, 40)}
     assert names == {(phase, name) for phase in ("warmup", "steady") for name in expected}
     assert recording.traffic["objectbuilder/legs"] > 0
@@ -106,7 +121,8 @@ def _suite(tmp_path: Path, component: str, ready: str, test: str) -> Path:
     (tmp_path / "component.py").write_text(textwrap.dedent(component))
     (tmp_path / "test_it.py").write_text(textwrap.dedent(test))
     path = tmp_path / "redline.toml"
-    path.write_text(textwrap.dedent(f"""\
+    path.write_text(
+        textwrap.dedent(f"""\
         name = "failing"
         tests = ["test_it.py"]
         [[component]]
@@ -115,7 +131,8 @@ def _suite(tmp_path: Path, component: str, ready: str, test: str) -> Path:
         ready = {ready}
         start_timeout = 3
         stop_timeout = 2
-        """))
+        """)
+    )
     return path
 
 

@@ -42,8 +42,12 @@ def spawn() -> Iterator[object]:
     started: list[subprocess.Popen[str]] = []
 
     def start(code: str) -> subprocess.Popen[str]:
-        process = subprocess.Popen([sys.executable, "-c", textwrap.dedent(code)],
-                                   stdout=subprocess.PIPE, text=True, start_new_session=True)
+        process = subprocess.Popen(
+            [sys.executable, "-c", textwrap.dedent(code)],
+            stdout=subprocess.PIPE,
+            text=True,
+            start_new_session=True,
+        )
         started.append(process)
         return process
 
@@ -119,9 +123,15 @@ def test_host_sampler_reports_cpu_shares_including_steal_and_load() -> None:
     samples = _samples(host, 6)  # type: ignore[arg-type]
     host.close()
     last = samples[-1]
-    for counter in ("cpu_percent", "cpu_user_percent", "cpu_system_percent",
-                    "cpu_iowait_percent", "cpu_steal_percent"):
+    for counter in (
+        "cpu_percent",
+        "cpu_user_percent",
+        "cpu_system_percent",
+        "cpu_iowait_percent",
+        "cpu_steal_percent",
+    ):
         assert 0 <= last[counter] <= 100, (counter, last)
     assert last["cpu_percent"] == pytest.approx(
-        last["cpu_user_percent"] + last["cpu_system_percent"], abs=0.01)
+        last["cpu_user_percent"] + last["cpu_system_percent"], abs=0.01
+    )
     assert last["load_1m"] >= 0

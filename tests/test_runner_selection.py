@@ -20,7 +20,11 @@ IDLE = TestCase("idle", [Phase("p", Static(1))])
 
 def test_parse_overrides_reads_json_values_and_falls_back_to_text() -> None:
     assert parse_overrides(["rate=40", "mode=fast", "scale=0.5", "on=true"]) == {
-        "rate": 40, "mode": "fast", "scale": 0.5, "on": True}
+        "rate": 40,
+        "mode": "fast",
+        "scale": 0.5,
+        "on": True,
+    }
     with pytest.raises(ValidationError, match="expected NAME=VALUE"):
         parse_overrides(["rate"])
 
@@ -51,18 +55,26 @@ def test_execution_paths_number_the_recordings_when_there_are_several() -> None:
 
 @pytest.mark.integration
 def test_two_executions_restart_the_component_and_record_one_file_each(
-        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
-    results = run_executions(ECHO, tmp_path / "echo.mcap", executions=2,
-                             only=["relay", "replay"], overrides={"speed": 4.0})
+    results = run_executions(
+        ECHO,
+        tmp_path / "echo.mcap",
+        executions=2,
+        only=["relay", "replay"],
+        overrides={"speed": 4.0},
+    )
     assert [r.recording.name for r in results] == ["echo-1.mcap", "echo-2.mcap"]
     pids = []
     for index, result in enumerate(results, start=1):
         recording = read_recording(result.recording)
         assert recording.run["execution"] == str(index) and recording.run["executions"] == "2"
         assert [(s.case, s.params) for s in recording.segments()] == [
-            ("relay", {"points": 10, "rate": 100}), ("relay", {"points": 500, "rate": 100}),
-            ("replay", {"speed": 4.0})]
+            ("relay", {"points": 10, "rate": 100}),
+            ("relay", {"points": 500, "rate": 100}),
+            ("replay", {"speed": 4.0}),
+        ]
         listened = [d for d in recording.driver if d["action"] == "Listen"]
         assert [d["received"] for d in listened] == [100, 100, 50]
         assert [d.get("lost") for d in listened] == [0, 0, None]  # replayed scans carry no seq
@@ -72,14 +84,24 @@ def test_two_executions_restart_the_component_and_record_one_file_each(
     assert len(pids[0]) == len(pids[1]) == 1 and pids[0] != pids[1]
 
 
-def test_redline_run_names_an_unknown_case_and_parameter_and_starts_nothing(
-        tmp_path: Path) -> None:
+def test_redline_run_names_an_unknown_case_and_parameter_and_starts_nothing(tmp_path: Path) -> None:
     from redline.cli.main import _register_all, app
     from typer.testing import CliRunner
 
     _register_all()
-    result = CliRunner().invoke(app, ["run", str(ECHO), "--out", str(tmp_path / "x.mcap"),
-                                      "--only", "pong", "--param", "sped=2"])
+    result = CliRunner().invoke(
+        app,
+        [
+            "run",
+            str(ECHO),
+            "--out",
+            str(tmp_path / "x.mcap"),
+            "--only",
+            "pong",
+            "--param",
+            "sped=2",
+        ],
+    )
     assert result.exit_code == 1
     assert "--only 'pong': no such test case (the suite has: ping, relay, replay)" in result.output
     assert "--param 'sped'" in result.output

@@ -52,10 +52,14 @@ class StopAfter(Action):
 
 
 def test_validation_names_every_missing_parameter_with_case_and_phase() -> None:
-    first = TestCase("first", [
-        Phase("warm", FixedRate(Param("rate"), 1, Static(b"")), warmup=True),
-        Phase("load", Publish("k", Repeat(Param("text"), Param("times")))),
-    ], Cartesian(rate=[1, 2], times=[3]))
+    first = TestCase(
+        "first",
+        [
+            Phase("warm", FixedRate(Param("rate"), 1, Static(b"")), warmup=True),
+            Phase("load", Publish("k", Repeat(Param("text"), Param("times")))),
+        ],
+        Cartesian(rate=[1, 2], times=[3]),
+    )
     second = TestCase("second", [Phase("only", Param("size"))], [{"size": 1}, {"other": 2}])
     with pytest.raises(ValidationError) as caught:
         validate_cases([first, second])
@@ -69,8 +73,11 @@ def test_validation_names_every_missing_parameter_with_case_and_phase() -> None:
 
 
 def test_validation_accepts_cases_whose_parameters_are_all_provided() -> None:
-    case = TestCase("ok", [Phase("p", FixedRate(Param("rate"), Param("seconds"), Static(1)))],
-                    Cartesian(rate=[5], seconds=[0.1]))
+    case = TestCase(
+        "ok",
+        [Phase("p", FixedRate(Param("rate"), Param("seconds"), Static(1)))],
+        Cartesian(rate=[5], seconds=[0.1]),
+    )
     validate_cases([case])
 
 
@@ -86,10 +93,18 @@ def test_validation_reports_duplicate_names_and_empty_providers() -> None:
 
 def test_cartesian_yields_every_combination_in_order_with_printable_names() -> None:
     sets = list(Cartesian(legs=[2, 8], rate=[10, 40]))
-    assert sets == [{"legs": 2, "rate": 10}, {"legs": 2, "rate": 40},
-                    {"legs": 8, "rate": 10}, {"legs": 8, "rate": 40}]
-    assert [s.name for s in sets] == ["legs=2,rate=10", "legs=2,rate=40",
-                                      "legs=8,rate=10", "legs=8,rate=40"]
+    assert sets == [
+        {"legs": 2, "rate": 10},
+        {"legs": 2, "rate": 40},
+        {"legs": 8, "rate": 10},
+        {"legs": 8, "rate": 40},
+    ]
+    assert [s.name for s in sets] == [
+        "legs=2,rate=10",
+        "legs=2,rate=40",
+        "legs=8,rate=10",
+        "legs=8,rate=40",
+    ]
     assert ParameterSet().name == "default"
 
 
@@ -155,8 +170,11 @@ def test_publish_puts_built_payloads_on_real_zenoh() -> None:
         if len(received) == 5:
             done.set()
 
-    with RunNetwork() as network, open_client(network.client_settings()) as listener, \
-            open_client(network.client_settings()) as talker:
+    with (
+        RunNetwork() as network,
+        open_client(network.client_settings()) as listener,
+        open_client(network.client_settings()) as talker,
+    ):
         subscriber = listener.declare_subscriber("sdk/test", take)
         link = Link(talker)
         ctx = Context(ParameterSet(text="hi", times=2), link=link)
@@ -173,18 +191,26 @@ def test_publish_puts_built_payloads_on_real_zenoh() -> None:
 def test_validation_names_every_malformed_key_expression_before_the_run() -> None:
     from redline.testing import Listen, Query, Replay, WaitFor
 
-    case = TestCase("keys", [
-        Phase("send", Sequence(Publish("a//b", b"x"), Publish(Param("key"), b"y"),
-                               Query("svc/*x"))),
-        Phase("receive", Listen("ok/**", WaitFor("bad#", 1.0))),
-        Phase("replay", Replay("r.mcap", keys=["robot/$x"], remap={"robot": "sim/"})),
-    ], Cartesian(key=["fine/key"]))
+    case = TestCase(
+        "keys",
+        [
+            Phase(
+                "send",
+                Sequence(Publish("a//b", b"x"), Publish(Param("key"), b"y"), Query("svc/*x")),
+            ),
+            Phase("receive", Listen("ok/**", WaitFor("bad#", 1.0))),
+            Phase("replay", Replay("r.mcap", keys=["robot/$x"], remap={"robot": "sim/"})),
+        ],
+        Cartesian(key=["fine/key"]),
+    )
     with pytest.raises(ValidationError) as caught:
         validate_cases([case])
     problems = caught.value.problems
     assert len(problems) == 5, problems
-    assert problems[0].startswith("test case 'keys', phase 'send': Publish: 'a//b' is not a "
-                                  "valid key expression (empty chunks are forbidden")
+    assert problems[0].startswith(
+        "test case 'keys', phase 'send': Publish: 'a//b' is not a "
+        "valid key expression (empty chunks are forbidden"
+    )
     assert "Query: 'svc/*x'" in problems[1] and "'*' may only" not in problems[1]
     assert "phase 'receive': WaitFor: 'bad#'" in problems[2]
     assert "Replay keys: 'robot/$x'" in problems[3] and "Replay remap: 'sim/'" in problems[4]

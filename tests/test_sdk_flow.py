@@ -132,9 +132,13 @@ def test_child_of_a_plain_event_notices_the_parent() -> None:
 
 def test_table_rows_as_dicts_or_header_and_tuples() -> None:
     assert [p.name for p in Table([{"legs": 2, "rate": 10}, {"legs": 8}])] == [
-        "legs=2,rate=10", "legs=8"]
+        "legs=2,rate=10",
+        "legs=8",
+    ]
     assert list(Table(["legs", "rate"], [(2, 10), (8, 40)])) == [
-        {"legs": 2, "rate": 10}, {"legs": 8, "rate": 40}]
+        {"legs": 2, "rate": 10},
+        {"legs": 8, "rate": 40},
+    ]
     with pytest.raises(ValueError, match="row 2 has 1 values for 2 columns"):
         Table(["legs", "rate"], [(2, 10), (8,)])
     with pytest.raises(TypeError, match="row 1 must be a dict"):
@@ -143,8 +147,9 @@ def test_table_rows_as_dicts_or_header_and_tuples() -> None:
 
 def test_table_rows_missing_a_parameter_fail_validation_by_row_name() -> None:
     case = TestCase("t", [Phase("p", Loop(Static(1), Param("n")))], Table([{"n": 1}, {"m": 2}]))
-    with pytest.raises(ValidationError, match="parameter 'n' is missing from parameter set"
-                                              "\\(s\\) m=2"):
+    with pytest.raises(
+        ValidationError, match="parameter 'n' is missing from parameter set\\(s\\) m=2"
+    ):
         validate_cases([case])
 
 
@@ -158,15 +163,20 @@ def test_cartesian_where_keeps_only_accepted_combinations() -> None:
 def test_json_message_scales_repeated_fields_and_strings_by_parameters() -> None:
     template: dict[str, Any] = {
         "legs": Repeated(lambda i: {"x": i, "y": 0.5}, Param("legs")),
-        "tags": Repeated(Param("tag"), 2), "note": Filler(Param("size")), "fixed": 1,
+        "tags": Repeated(Param("tag"), 2),
+        "note": Filler(Param("size")),
+        "fixed": 1,
     }
     message = Message.json(template)
     assert message.params_used() == {"legs", "tag", "size"}
     payload = message.run(Context(ParameterSet(legs=3, tag="t", size=5)))
     assert payload.encoding == "application/json"
-    assert json.loads(payload) == {"legs": [{"x": 0, "y": 0.5}, {"x": 1, "y": 0.5},
-                                            {"x": 2, "y": 0.5}],
-                                   "tags": ["t", "t"], "note": "xxxxx", "fixed": 1}
+    assert json.loads(payload) == {
+        "legs": [{"x": 0, "y": 0.5}, {"x": 1, "y": 0.5}, {"x": 2, "y": 0.5}],
+        "tags": ["t", "t"],
+        "note": "xxxxx",
+        "fixed": 1,
+    }
 
 
 def test_raw_message_has_the_size_of_its_parameter() -> None:
@@ -188,8 +198,13 @@ def _point_cloud_class() -> Any:
         point.field.add(name=name, number=number, type=field.TYPE_FLOAT)
     cloud = proto.message_type.add(name="Cloud")
     cloud.field.add(name="frame", number=1, type=field.TYPE_STRING)
-    cloud.field.add(name="points", number=2, type=field.TYPE_MESSAGE,
-                    type_name=".redline.test.Point", label=field.LABEL_REPEATED)
+    cloud.field.add(
+        name="points",
+        number=2,
+        type=field.TYPE_MESSAGE,
+        type_name=".redline.test.Point",
+        label=field.LABEL_REPEATED,
+    )
     pool = descriptor_pool.DescriptorPool()
     pool.Add(proto)
     return message_factory.GetMessageClass(pool.FindMessageTypeByName("redline.test.Cloud"))
@@ -197,8 +212,9 @@ def _point_cloud_class() -> Any:
 
 def test_protobuf_message_scales_a_repeated_field_and_decodes_back() -> None:
     cloud = _point_cloud_class()
-    message = Message.protobuf(cloud, {"frame": Filler(3, "f"),
-                                       "points": Repeated(lambda i: {"x": i, "y": 2}, Param("n"))})
+    message = Message.protobuf(
+        cloud, {"frame": Filler(3, "f"), "points": Repeated(lambda i: {"x": i, "y": 2}, Param("n"))}
+    )
     small = message.run(Context({"n": 2}))
     large = message.run(Context({"n": 200}))
     assert small.encoding == "application/protobuf;redline.test.Cloud"

@@ -40,8 +40,11 @@ class Peers:
 
 @pytest.fixture
 def peers() -> Iterator[Peers]:
-    with RunNetwork() as network, open_client(network.client_settings()) as component, \
-            open_client(network.client_settings()) as driver:
+    with (
+        RunNetwork() as network,
+        open_client(network.client_settings()) as component,
+        open_client(network.client_settings()) as driver,
+    ):
         both = Peers(component, driver)
         yield both
         both.link.close()
@@ -52,6 +55,7 @@ def _echo(session: zenoh.Session, key: str) -> zenoh.Queryable[None]:
         with query:
             data = query.payload.to_bytes() if query.payload is not None else b""
             query.reply(key, b"echo:" + data)
+
     return session.declare_queryable(key, answer)
 
 
@@ -128,8 +132,9 @@ def test_wait_for_gets_the_matching_reply_to_what_it_triggered(peers: Peers) -> 
     arrived = threading.Event()
     trigger = Publish("svc/in", b"1")
     _until(lambda: WaitFor("svc/out", 0.2, after=trigger).run(ctx) and arrived.set(), arrived)
-    wait = WaitFor("svc/*", 2.0, where=lambda data: int(data) >= 40,
-                   after=Publish("svc/in", Param("n")))
+    wait = WaitFor(
+        "svc/*", 2.0, where=lambda data: int(data) >= 40, after=Publish("svc/in", Param("n"))
+    )
     ctx.reports.clear()
     ctx.tallies.clear()
     assert wait.run(peers.ctx(n="4")) == b"40"
@@ -153,8 +158,9 @@ def test_listen_counts_per_key_loss_from_sequence_numbers(peers: Peers) -> None:
     probe = Publish("svc/orig/probe", b"o", sequence=True)
     _until(lambda: WaitFor("svc/copy/probe", 0.2, after=probe).run(ctx) and ready.set(), ready)
     ctx.reports.clear()
-    received = Listen("svc/copy/data", Loop(Publish("svc/orig/data", b"o", sequence=True), 50),
-                      grace=0.5).run(ctx)
+    received = Listen(
+        "svc/copy/data", Loop(Publish("svc/orig/data", b"o", sequence=True), 50), grace=0.5
+    ).run(ctx)
     (report,) = [r for r in ctx.reports if r["action"] == "Listen"]
     assert received == report["received"] == 40 and report["sequenced"] == 40
     assert report["lost"] == 10 and report["duplicates"] == 0  # 3, 8, ... 48 of 0..49
@@ -182,8 +188,13 @@ def test_replay_selects_remaps_and_loops_a_recording(peers: Peers, tmp_path: Pat
         seen.set()
 
     subscriber = peers.component.declare_subscriber("**", take)
-    replay = Replay(_recording(tmp_path / "r.mcap"), speed=Param("speed"), keys=["robot/scan"],
-                    remap={"robot": "sim/robot"}, loop=2)
+    replay = Replay(
+        _recording(tmp_path / "r.mcap"),
+        speed=Param("speed"),
+        keys=["robot/scan"],
+        remap={"robot": "sim/robot"},
+        loop=2,
+    )
     ctx = peers.ctx(speed=4.0)
     _until(lambda: Publish("probe/x", b"").run(ctx), seen)
     got.clear()
@@ -241,7 +252,8 @@ def test_replay_of_a_cut_off_recording_replays_what_it_holds(tmp_path: Path) -> 
 
 
 def test_strict_reading_refuses_a_cut_off_file_and_lenient_reading_keeps_its_prefix(
-        tmp_path: Path) -> None:
+    tmp_path: Path,
+) -> None:
     full_path = tmp_path / "full.mcap"
     with RecordingWriter(full_path, chunk_size=512) as writer:
         for index in range(300):
@@ -255,5 +267,3 @@ def test_strict_reading_refuses_a_cut_off_file_and_lenient_reading_keeps_its_pre
     values = [sample["values"]["cpu_percent"] for sample in kept.counters]
     assert not kept.complete and 0 < len(values) < 300
     assert values == [float(index) for index in range(len(values))]
-
-

@@ -41,7 +41,8 @@ def _wait_for(condition, timeout: float, what: str) -> None:  # noqa: ANN001
 
 
 def test_stopping_mid_run_leaves_no_process_and_releases_the_job(
-        services: Services, tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
+    services: Services, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+):
     from redline.agent.network import free_port
 
     database_url, _ = fresh_database(services.database_url)
@@ -55,8 +56,11 @@ def test_stopping_mid_run_leaves_no_process_and_releases_the_job(
         first = demo.make_history(repo)[0]
         demo.submit(stack.url, stack.admin_token, stack.token("ci", "ci"), repo, [first])
         children = {child.process.pid for child in stack.children}
-        _wait_for(lambda: len({p.pid for p in _started_under(stack.data)} - children) >= 2, 120,
-                  "the run's component and recorder")
+        _wait_for(
+            lambda: len({p.pid for p in _started_under(stack.data)} - children) >= 2,
+            120,
+            "the run's component and recorder",
+        )
     finally:
         stack.stop()
     assert [p.cmdline() for p in _started_under(stack.data) if p.is_running()] == []
@@ -64,9 +68,15 @@ def test_stopping_mid_run_leaves_no_process_and_releases_the_job(
     restarted = Stack(tmp_path / "data", free_port())
     try:
         restarted.start()
-        detail = httpx.get(f"{restarted.url}/api/v1/components/objectbuilder/revisions/"
-                           f"{first.title}").json()
-        assert [job["state"] for job in detail["jobs"]] in (["queued"], ["leased"], ["running"],
-                                                            ["uploaded"], ["done"]), detail
+        detail = httpx.get(
+            f"{restarted.url}/api/v1/components/objectbuilder/revisions/{first.title}"
+        ).json()
+        assert [job["state"] for job in detail["jobs"]] in (
+            ["queued"],
+            ["leased"],
+            ["running"],
+            ["uploaded"],
+            ["done"],
+        ), detail
     finally:
         restarted.stop()

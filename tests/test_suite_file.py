@@ -62,34 +62,40 @@ def test_malformed_toml_names_file_and_line(tmp_path: Path) -> None:
 
 
 def test_unknown_top_level_field_is_named_with_its_line(tmp_path: Path) -> None:
-    message = error_of(tmp_path, VALID.replace('tests = ', 'executons = 2\ntests = '))
+    message = error_of(tmp_path, VALID.replace("tests = ", "executons = 2\ntests = "))
     assert f"{tmp_path / 'redline.toml'}:2:" in message
     assert "unknown field 'executons'" in message
 
 
 def test_unknown_component_field_is_named_with_its_line(tmp_path: Path) -> None:
-    message = error_of(tmp_path, VALID + 'stop_timout = 3\n')
+    message = error_of(tmp_path, VALID + "stop_timout = 3\n")
     assert ":8:" in message and "unknown field 'stop_timout' in [[component]] #1" in message
 
 
 def test_missing_required_fields_are_named(tmp_path: Path) -> None:
     assert "missing required field 'tests'" in error_of(
-        tmp_path, VALID.replace('tests = ["test_demo.py"]\n', ""))
+        tmp_path, VALID.replace('tests = ["test_demo.py"]\n', "")
+    )
     message = error_of(tmp_path, VALID.replace('command = ["python", "demo.py"]\n', ""))
     assert ":4:" in message and "missing required field 'command'" in message
-    assert "no [[component]]" in error_of(tmp_path, 'name = "x"\ntests = ["test_demo.py"]\n'
-                                                    "component = []\n")
+    assert "no [[component]]" in error_of(
+        tmp_path, 'name = "x"\ntests = ["test_demo.py"]\ncomponent = []\n'
+    )
 
 
 def test_bad_values_are_named(tmp_path: Path) -> None:
     assert "'ready' must be one of" in error_of(
-        tmp_path, VALID.replace('{ log = "ready" }', '{ log = "a", delay = 1 }'))
+        tmp_path, VALID.replace('{ log = "ready" }', '{ log = "a", delay = 1 }')
+    )
     assert "ready log regex '(' is invalid" in error_of(
-        tmp_path, VALID.replace('{ log = "ready" }', '{ log = "(" }'))
+        tmp_path, VALID.replace('{ log = "ready" }', '{ log = "(" }')
+    )
     assert "'executions' must be a positive integer" in error_of(
-        tmp_path, "executions = 0\n" + VALID)
+        tmp_path, "executions = 0\n" + VALID
+    )
     assert "'command' must be a non-empty list" in error_of(
-        tmp_path, VALID.replace('["python", "demo.py"]', '"python demo.py"'))
+        tmp_path, VALID.replace('["python", "demo.py"]', '"python demo.py"')
+    )
 
 
 def test_missing_test_module_is_named(tmp_path: Path) -> None:
@@ -113,7 +119,10 @@ def test_objectbuilder_full_suite_has_the_three_sweeps_and_thread_configurations
 
     suite = load_suite(OBJECTBUILDER.parent / "full.toml")
     assert [c.name for c in suite.components] == [
-        "objectbuilder-t1", "objectbuilder-t2", "objectbuilder-t4"]
+        "objectbuilder-t1",
+        "objectbuilder-t2",
+        "objectbuilder-t4",
+    ]
     cases = load_test_cases(suite.tests)
     validate_cases(cases)
     assert [c.name for c in cases] == ["leg_count", "leg_rate", "pose_rate", "threads"]
@@ -130,7 +139,8 @@ def test_sibling_modules_come_from_each_revisions_own_folder(tmp_path: Path) -> 
         (folder / "test_case.py").write_text(
             "from redline.testing import Cartesian, Phase, Sleep, TestCase\n"
             "from shared_rates import RATE\n"
-            "case = TestCase('load', [Phase('p', Sleep(0))], Cartesian(rate=[RATE]))\n")
+            "case = TestCase('load', [Phase('p', Sleep(0))], Cartesian(rate=[RATE]))\n"
+        )
         return folder / "test_case.py"
 
     first = load_test_cases([revision("r1", 10)])

@@ -25,8 +25,11 @@ def api(services: Services, tmp_path: Path) -> Iterator[Api]:
 
 
 def test_admin_issues_a_token_stored_only_as_its_hash(api: Api):
-    answer = api.client.post("/api/v1/tokens", headers=api.tokens["admin"],
-                             json={"name": "perf2", "scopes": ["agent"], "host": "perf2"})
+    answer = api.client.post(
+        "/api/v1/tokens",
+        headers=api.tokens["admin"],
+        json={"name": "perf2", "scopes": ["agent"], "host": "perf2"},
+    )
     assert answer.status_code == 201, answer.text
     secret = answer.json()["token"]
     with session_factory(api.settings.database_url)() as session:
@@ -34,30 +37,35 @@ def test_admin_issues_a_token_stored_only_as_its_hash(api: Api):
         assert stored is not None and secret not in stored.token_hash and stored.host == "perf2"
     listed = api.client.get("/api/v1/tokens", headers=api.tokens["admin"]).json()
     assert "token" not in listed[-1] and listed[-1]["name"] == "perf2"
-    again = api.client.post("/api/v1/tokens", headers=api.tokens["admin"],
-                            json={"name": "perf2", "scopes": ["agent"]})
+    again = api.client.post(
+        "/api/v1/tokens", headers=api.tokens["admin"], json={"name": "perf2", "scopes": ["agent"]}
+    )
     assert again.status_code == 409
-    bad = api.client.post("/api/v1/tokens", headers=api.tokens["admin"],
-                          json={"name": "x", "scopes": ["root"]})
+    bad = api.client.post(
+        "/api/v1/tokens", headers=api.tokens["admin"], json={"name": "x", "scopes": ["root"]}
+    )
     assert bad.status_code == 400 and "'root'" in bad.json()["detail"]
     assert api.client.get("/api/v1/tokens", headers=api.tokens["ci"]).status_code == 403
 
 
 def test_use_is_recorded_and_revocation_is_immediate(api: Api):
-    created = api.client.post("/api/v1/tokens", headers=api.tokens["admin"],
-                              json={"name": "jenkins", "scopes": ["ci"]}).json()
+    created = api.client.post(
+        "/api/v1/tokens", headers=api.tokens["admin"], json={"name": "jenkins", "scopes": ["ci"]}
+    ).json()
     assert created["last_used"] is None
     headers = {"Authorization": f"Bearer {created['token']}"}
     body = {"component": "ghost", "title": "r1", "sort_key": "1"}
     assert api.client.post("/api/v1/revisions", json=body, headers=headers).status_code == 404
-    listed = {t["name"]: t for t in api.client.get("/api/v1/tokens",
-                                                   headers=api.tokens["admin"]).json()}
+    listed = {
+        t["name"]: t for t in api.client.get("/api/v1/tokens", headers=api.tokens["admin"]).json()
+    }
     assert listed["jenkins"]["last_used"] is not None
     revoked = api.client.delete("/api/v1/tokens/jenkins", headers=api.tokens["admin"])
     assert revoked.status_code == 200 and revoked.json()[0]["revoked"] is True
     assert api.client.post("/api/v1/revisions", json=body, headers=headers).status_code == 401
-    assert api.client.delete("/api/v1/tokens/jenkins",
-                             headers=api.tokens["admin"]).status_code == 404
+    assert (
+        api.client.delete("/api/v1/tokens/jenkins", headers=api.tokens["admin"]).status_code == 404
+    )
 
 
 def test_read_access_token_mode_needs_a_read_token(services: Services, tmp_path: Path):
@@ -71,8 +79,7 @@ def test_read_access_token_mode_needs_a_read_token(services: Services, tmp_path:
         api.client.cookies.set("redline_token", secret)
         assert api.client.get("/api/v1/components").status_code == 200
         api.client.cookies.clear()
-        assert api.client.get("/api/v1/components",
-                              headers=api.tokens["agent"]).status_code == 403
+        assert api.client.get("/api/v1/components", headers=api.tokens["agent"]).status_code == 403
 
 
 def test_read_access_open_by_default(api: Api):
@@ -83,25 +90,34 @@ def test_read_access_open_by_default(api: Api):
 def test_cli_lists_and_revokes_tokens(api: Api):
     env = {**os.environ, "REDLINE_DATABASE_URL": api.settings.database_url}
     command = [str(Path(sys.executable).parent / "redline"), "token"]
-    listed = subprocess.run([*command, "list"], env=env, capture_output=True, text=True,
-                            cwd=ROOT, check=True).stdout
+    listed = subprocess.run(
+        [*command, "list"], env=env, capture_output=True, text=True, cwd=ROOT, check=True
+    ).stdout
     assert "\tci\tci\t" in listed and "never" in listed
-    done = subprocess.run([*command, "revoke", "ci"], env=env, capture_output=True, text=True,
-                          cwd=ROOT)
+    done = subprocess.run(
+        [*command, "revoke", "ci"], env=env, capture_output=True, text=True, cwd=ROOT
+    )
     assert done.returncode == 0 and "revoked" in done.stdout
     body = {"component": "ghost", "title": "r1", "sort_key": "1"}
-    assert api.client.post("/api/v1/revisions", json=body,
-                           headers=api.tokens["ci"]).status_code == 401
-    missing = subprocess.run([*command, "revoke", "nobody"], env=env, capture_output=True,
-                             text=True, cwd=ROOT)
+    assert (
+        api.client.post("/api/v1/revisions", json=body, headers=api.tokens["ci"]).status_code == 401
+    )
+    missing = subprocess.run(
+        [*command, "revoke", "nobody"], env=env, capture_output=True, text=True, cwd=ROOT
+    )
     assert missing.returncode == 1 and "nobody" in missing.stderr
 
 
 def test_cli_creates_a_host_bound_token_one_live_per_name(api: Api):
     env = {**os.environ, "REDLINE_DATABASE_URL": api.settings.database_url}
     command = [str(Path(sys.executable).parent / "redline"), "token", "create", "perf-1"]
-    made = subprocess.run([*command, "--scopes", "agent", "--host", "perf-1"], env=env,
-                          capture_output=True, text=True, cwd=ROOT)
+    made = subprocess.run(
+        [*command, "--scopes", "agent", "--host", "perf-1"],
+        env=env,
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+    )
     assert made.returncode == 0, made.stderr
     secret = made.stdout.strip()
     with session_factory(api.settings.database_url)() as session:
@@ -110,9 +126,15 @@ def test_cli_creates_a_host_bound_token_one_live_per_name(api: Api):
     own = {"Authorization": f"Bearer {secret}"}
     answer = api.client.post("/api/v1/agent/lease", json={"host": "perf-9"}, headers=own)
     assert answer.status_code == 403 and "perf-1" in answer.json()["detail"]
-    again = subprocess.run([*command, "--scopes", "agent"], env=env, capture_output=True,
-                           text=True, cwd=ROOT)
+    again = subprocess.run(
+        [*command, "--scopes", "agent"], env=env, capture_output=True, text=True, cwd=ROOT
+    )
     assert again.returncode == 1 and "'perf-1'" in again.stderr and not again.stdout
-    bad = subprocess.run([*command[:-1], "other", "--scopes", "root"], env=env,
-                         capture_output=True, text=True, cwd=ROOT)
+    bad = subprocess.run(
+        [*command[:-1], "other", "--scopes", "root"],
+        env=env,
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+    )
     assert bad.returncode == 1 and "'root'" in bad.stderr

@@ -28,36 +28,66 @@ COMMITS = [
 @pytest.fixture
 def api(services: Services, tmp_path: Path) -> Iterator[Api]:
     with api_with(services, tmp_path, webhook_secret=SECRET) as api:
-        api.post("/api/v1/components", "admin", {
-            "name": "builder", "repo": "https://github.com/Org/Builder.git", "branch": "main",
-            "suite": "perf/redline.toml", "executions": 2, "host_labels": ["quiet"],
-        }).raise_for_status()
+        api.post(
+            "/api/v1/components",
+            "admin",
+            {
+                "name": "builder",
+                "repo": "https://github.com/Org/Builder.git",
+                "branch": "main",
+                "suite": "perf/redline.toml",
+                "executions": 2,
+                "host_labels": ["quiet"],
+            },
+        ).raise_for_status()
         yield api
 
 
-def github_push(repo: str = "https://github.com/org/builder", ref: str = "refs/heads/main",
-                commits: list[dict] = COMMITS) -> bytes:
-    return json.dumps({"ref": ref, "commits": commits, "repository": {
-        "clone_url": repo + ".git", "html_url": repo}}).encode()
+def github_push(
+    repo: str = "https://github.com/org/builder",
+    ref: str = "refs/heads/main",
+    commits: list[dict] = COMMITS,
+) -> bytes:
+    return json.dumps(
+        {
+            "ref": ref,
+            "commits": commits,
+            "repository": {"clone_url": repo + ".git", "html_url": repo},
+        }
+    ).encode()
 
 
 def send_github(api: Api, body: bytes, secret: str = SECRET, event: str = "push") -> object:
     signature = "sha256=" + hmac.new(secret.encode(), body, hashlib.sha256).hexdigest()
-    return api.client.post("/api/v1/webhooks/github", content=body, headers={
-        "X-Hub-Signature-256": signature, "X-GitHub-Event": event,
-        "Content-Type": "application/json"})
+    return api.client.post(
+        "/api/v1/webhooks/github",
+        content=body,
+        headers={
+            "X-Hub-Signature-256": signature,
+            "X-GitHub-Event": event,
+            "Content-Type": "application/json",
+        },
+    )
 
 
 def counts(api: Api) -> tuple[int, int]:
     with session_factory(api.settings.database_url)() as session:
-        return (session.scalar(select(func.count()).select_from(Revision)) or 0,
-                session.scalar(select(func.count()).select_from(Job)) or 0)
+        return (
+            session.scalar(select(func.count()).select_from(Revision)) or 0,
+            session.scalar(select(func.count()).select_from(Job)) or 0,
+        )
 
 
 def test_repository_urls_normalize_across_https_ssh_and_dot_git():
-    keys = {repo_key(url) for url in (
-        "https://github.com/Org/Repo.git", "git@github.com:org/repo",
-        "ssh://git@github.com:22/org/repo.git", "http://github.com/org/repo/")}
+    keys = {
+        repo_key(url)
+        for url in (
+            "https://github.com/Org/Repo.git",
+            "git@github.com:org/repo",
+            "ssh://git@github.com:22/org/repo.git",
+            "http://github.com/org/repo/",
+        )
+    }
     assert keys == {"github.com/org/repo"}
     assert repo_key("https://github.com/org/other") != "github.com/org/repo"
     assert repo_key("") == ""
@@ -110,8 +140,9 @@ def test_ping_is_acknowledged_and_ignored(api: Api):
 
 
 def test_component_secret_overrides_the_setting(api: Api):
-    api.client.patch("/api/v1/components/builder", json={"webhook_secret": "own"},
-                     headers=api.tokens["admin"]).raise_for_status()
+    api.client.patch(
+        "/api/v1/components/builder", json={"webhook_secret": "own"}, headers=api.tokens["admin"]
+    ).raise_for_status()
     assert send_github(api, github_push()).status_code == 401
     assert send_github(api, github_push(), secret="own").status_code == 200
     shown = api.client.get("/api/v1/components/builder").json()
@@ -119,14 +150,22 @@ def test_component_secret_overrides_the_setting(api: Api):
 
 
 def test_gitlab_push_with_its_token_creates_revisions(api: Api):
-    body = json.dumps({"object_kind": "push", "ref": "refs/heads/main", "commits": COMMITS[:1],
-                       "project": {"git_ssh_url": "git@github.com:org/builder.git"}})
+    body = json.dumps(
+        {
+            "object_kind": "push",
+            "ref": "refs/heads/main",
+            "commits": COMMITS[:1],
+            "project": {"git_ssh_url": "git@github.com:org/builder.git"},
+        }
+    )
     headers = {"X-Gitlab-Event": "Push Hook", "Content-Type": "application/json"}
-    wrong = api.client.post("/api/v1/webhooks/gitlab", content=body,
-                            headers={**headers, "X-Gitlab-Token": "nope"})
+    wrong = api.client.post(
+        "/api/v1/webhooks/gitlab", content=body, headers={**headers, "X-Gitlab-Token": "nope"}
+    )
     assert wrong.status_code == 401 and counts(api) == (0, 0)
-    answer = api.client.post("/api/v1/webhooks/gitlab", content=body,
-                             headers={**headers, "X-Gitlab-Token": SECRET})
+    answer = api.client.post(
+        "/api/v1/webhooks/gitlab", content=body, headers={**headers, "X-Gitlab-Token": SECRET}
+    )
     assert answer.status_code == 200 and len(answer.json()["created"]) == 1
     assert counts(api) == (1, 2)
 
@@ -134,12 +173,19 @@ def test_gitlab_push_with_its_token_creates_revisions(api: Api):
 def test_component_settings_are_created_patched_and_shown(api: Api):
     shown = api.client.get("/api/v1/components/builder").json()
     assert (shown["host_labels"], shown["executions"], shown["has_webhook_secret"]) == (
-        ["quiet"], 2, False)
-    patched = api.client.patch("/api/v1/components/builder", headers=api.tokens["admin"],
-                               json={"branch": "develop", "executions": 3})
+        ["quiet"],
+        2,
+        False,
+    )
+    patched = api.client.patch(
+        "/api/v1/components/builder",
+        headers=api.tokens["admin"],
+        json={"branch": "develop", "executions": 3},
+    )
     assert patched.status_code == 200
     assert (patched.json()["branch"], patched.json()["suite"]) == ("develop", "perf/redline.toml")
-    denied = api.client.patch("/api/v1/components/builder", headers=api.tokens["ci"],
-                              json={"branch": "x"})
+    denied = api.client.patch(
+        "/api/v1/components/builder", headers=api.tokens["ci"], json={"branch": "x"}
+    )
     assert denied.status_code == 403
     assert send_github(api, github_push()).status_code == 202  # main no longer matches

@@ -30,7 +30,8 @@ def _job(session, execution) -> Job:
 
 
 def test_a_passing_database_outage_leaves_the_job_uploaded_for_a_retry(
-        session, database_url, tmp_path, monkeypatch):
+    session, database_url, tmp_path, monkeypatch
+):
     (execution,) = _history(session, tmp_path, [20.0])
 
     def outage(*_args):
@@ -56,30 +57,43 @@ def test_stale_uploads_are_requeued_periodically(session, database_url, tmp_path
     stuck, fresh, done = _history(session, tmp_path, [20.0, 20.0, 20.0])
     ingest_execution(database_url, done.id)
     old = utcnow() - timedelta(hours=1)
-    session.execute(update(Job).where(Job.id.in_([stuck.job_id, done.job_id]))
-                    .values(updated=old))
+    session.execute(update(Job).where(Job.id.in_([stuck.job_id, done.job_id])).values(updated=old))
     session.commit()
     assert stale_uploads(session) == [stuck.id]
     assert stale_uploads(session, older_than=timedelta(0)) == [stuck.id, fresh.id]
-    schedule = {entry["task"]: entry["schedule"] for entry in
-                celery_app.conf.beat_schedule.values()}
+    schedule = {
+        entry["task"]: entry["schedule"] for entry in celery_app.conf.beat_schedule.values()
+    }
     assert schedule[REQUEUE_TASK] <= 600 and REQUEUE_TASK in celery_app.tasks
 
 
 def _detections(session) -> list[tuple]:
     session.expire_all()
-    return sorted(session.execute(
-        select(Detection.series_id, Detection.revision_id, Detection.method, Detection.verdict,
-               Detection.score, Detection.flagged, Detection.baseline_revision_id)).all())
+    return sorted(
+        session.execute(
+            select(
+                Detection.series_id,
+                Detection.revision_id,
+                Detection.method,
+                Detection.verdict,
+                Detection.score,
+                Detection.flagged,
+                Detection.baseline_revision_id,
+            )
+        ).all()
+    )
 
 
 def _counts(session) -> tuple[int, int]:
-    return (session.scalar(select(func.count()).select_from(Change)),
-            session.scalar(select(func.count()).select_from(Regression)))
+    return (
+        session.scalar(select(func.count()).select_from(Change)),
+        session.scalar(select(func.count()).select_from(Regression)),
+    )
 
 
-def _detect_at_once(database_url: str, revision_id: int, barrier: threading.Barrier,
-                    errors: list[Exception]) -> None:
+def _detect_at_once(
+    database_url: str, revision_id: int, barrier: threading.Barrier, errors: list[Exception]
+) -> None:
     barrier.wait()
     try:
         detect_revision(database_url, revision_id)
@@ -88,16 +102,20 @@ def _detect_at_once(database_url: str, revision_id: int, barrier: threading.Barr
 
 
 def test_concurrent_detections_of_one_revision_both_succeed_as_one_would(
-        session, database_url, tmp_path):
+    session, database_url, tmp_path
+):
     executions = _history(session, tmp_path, [20.0, 60.0])
     _run(database_url, executions)
     single, counts = _detections(session), _counts(session)
     revision_id = executions[1].revision_id
     for _ in range(3):
         barrier, errors = threading.Barrier(2), []
-        threads = [threading.Thread(target=_detect_at_once,
-                                    args=(database_url, revision_id, barrier, errors))
-                   for _ in range(2)]
+        threads = [
+            threading.Thread(
+                target=_detect_at_once, args=(database_url, revision_id, barrier, errors)
+            )
+            for _ in range(2)
+        ]
         for thread in threads:
             thread.start()
         for thread in threads:

@@ -61,7 +61,7 @@ class ObjectBuilder:
             px, py, theta = self._pose
         persons: list[dict[str, Any]] = []
         for i, a in enumerate(legs):
-            for b in legs[i + 1:]:
+            for b in legs[i + 1 :]:
                 score = pair_score(a, b)
                 if math.hypot(a["x"] - b["x"], a["y"] - b["y"]) <= MAX_LEG_GAP:
                     persons.append(_person(a, b, score, px, py, theta))
@@ -69,8 +69,9 @@ class ObjectBuilder:
         self._publisher.put(json.dumps(reply), encoding="application/json")
 
 
-def _person(a: dict[str, float], b: dict[str, float], score: float,
-            px: float, py: float, theta: float) -> dict[str, float]:
+def _person(
+    a: dict[str, float], b: dict[str, float], score: float, px: float, py: float, theta: float
+) -> dict[str, float]:
     mx, my = (a["x"] + b["x"]) / 2, (a["y"] + b["y"]) / 2
     cos, sin = math.cos(theta), math.sin(theta)
     return {"x": px + cos * mx - sin * my, "y": py + sin * mx + cos * my, "score": score}
@@ -86,8 +87,11 @@ def _guarded(work: Any, data: bytes) -> None:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--threads", type=int, default=2, help="worker threads for leg messages")
-    parser.add_argument("--prefix", default="objectbuilder",
-                        help="key prefix of its inputs and output (several can run side by side)")
+    parser.add_argument(
+        "--prefix",
+        default="objectbuilder",
+        help="key prefix of its inputs and output (several can run side by side)",
+    )
     args = parser.parse_args(argv)
     stop = threading.Event()
     for signum in (signal.SIGTERM, signal.SIGINT):
@@ -95,15 +99,23 @@ def main(argv: list[str] | None = None) -> int:
     legs_pool = ThreadPoolExecutor(args.threads, thread_name_prefix="legs")
     pose_pool = ThreadPoolExecutor(1, thread_name_prefix="pose")
     with zenoh.open(zenoh.Config.from_env()) as session:
-        keys = {key: key.replace("objectbuilder", args.prefix, 1)
-                for key in (LEGS_KEY, POSE_KEY, PERSONS_KEY)}
+        keys = {
+            key: key.replace("objectbuilder", args.prefix, 1)
+            for key in (LEGS_KEY, POSE_KEY, PERSONS_KEY)
+        }
         builder = ObjectBuilder(session.declare_publisher(keys[PERSONS_KEY]))
-        session.declare_subscriber(keys[LEGS_KEY], lambda s: legs_pool.submit(
-            _guarded, builder.on_legs, s.payload.to_bytes()))
-        session.declare_subscriber(keys[POSE_KEY], lambda s: pose_pool.submit(
-            _guarded, builder.on_pose, s.payload.to_bytes()))
-        print(f"objectbuilder ready (threads={args.threads}, work per pair={WORK_PER_PAIR})",
-              flush=True)
+        session.declare_subscriber(
+            keys[LEGS_KEY],
+            lambda s: legs_pool.submit(_guarded, builder.on_legs, s.payload.to_bytes()),
+        )
+        session.declare_subscriber(
+            keys[POSE_KEY],
+            lambda s: pose_pool.submit(_guarded, builder.on_pose, s.payload.to_bytes()),
+        )
+        print(
+            f"objectbuilder ready (threads={args.threads}, work per pair={WORK_PER_PAIR})",
+            flush=True,
+        )
         while not stop.wait(0.2):  # a timed wait keeps signal handlers responsive
             pass
     legs_pool.shutdown(wait=True, cancel_futures=True)

@@ -18,20 +18,21 @@ depends_on = None
 
 
 def upgrade() -> None:
-    op.add_column("component", sa.Column("repo_key", sa.Text(), nullable=False,
-                                         server_default=""))
-    op.add_column("component", sa.Column("host_labels", sa.JSON(), nullable=False,
-                                         server_default="[]"))
+    op.add_column("component", sa.Column("repo_key", sa.Text(), nullable=False, server_default=""))
+    op.add_column(
+        "component", sa.Column("host_labels", sa.JSON(), nullable=False, server_default="[]")
+    )
     op.add_column("component", sa.Column("webhook_secret", sa.Text(), nullable=True))
-    op.add_column("component", sa.Column("description", sa.Text(), nullable=False,
-                                         server_default=""))
+    op.add_column(
+        "component", sa.Column("description", sa.Text(), nullable=False, server_default="")
+    )
     op.create_index("ix_component_repo_key", "component", ["repo_key"])
     _backfill_repo_keys()
-    op.add_column("revision", sa.Column("branch", sa.String(200), nullable=False,
-                                        server_default=""))
+    op.add_column(
+        "revision", sa.Column("branch", sa.String(200), nullable=False, server_default="")
+    )
     op.add_column("revision", sa.Column("message", sa.Text(), nullable=False, server_default=""))
-    op.add_column("revision", sa.Column("committed_at", sa.DateTime(timezone=True),
-                                        nullable=True))
+    op.add_column("revision", sa.Column("committed_at", sa.DateTime(timezone=True), nullable=True))
     op.add_column("job", sa.Column("labels", sa.JSON(), nullable=False, server_default="[]"))
     op.add_column("api_token", sa.Column("host", sa.String(200), nullable=True))
     op.add_column("execution", sa.Column("pruned_at", sa.DateTime(timezone=True), nullable=True))
@@ -44,8 +45,10 @@ def _backfill_repo_keys() -> None:
     connection = op.get_bind()
     rows = connection.execute(sa.text("SELECT id, repo FROM component")).all()
     for ident, repo in rows:
-        connection.execute(sa.text("UPDATE component SET repo_key = :key WHERE id = :id"),
-                           {"key": repo_key(repo), "id": ident})
+        connection.execute(
+            sa.text("UPDATE component SET repo_key = :key WHERE id = :id"),
+            {"key": repo_key(repo), "id": ident},
+        )
 
 
 def downgrade() -> None:

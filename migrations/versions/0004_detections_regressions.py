@@ -31,10 +31,10 @@ def upgrade() -> None:
     op.create_table(
         "regression",
         sa.Column("id", sa.Integer(), primary_key=True),
-        sa.Column("component_id", sa.Integer(), sa.ForeignKey("component.id"), nullable=False,
-                  index=True),
-        sa.Column("good_revision_id", sa.Integer(), sa.ForeignKey("revision.id"),
-                  nullable=False),
+        sa.Column(
+            "component_id", sa.Integer(), sa.ForeignKey("component.id"), nullable=False, index=True
+        ),
+        sa.Column("good_revision_id", sa.Integer(), sa.ForeignKey("revision.id"), nullable=False),
         sa.Column("bad_revision_id", sa.Integer(), sa.ForeignKey("revision.id"), nullable=False),
         sa.Column("good_key", sa.String(1000, collation="C"), nullable=False),
         sa.Column("bad_key", sa.String(1000, collation="C"), nullable=False),
@@ -45,8 +45,13 @@ def upgrade() -> None:
     op.create_table(
         "regression_event",
         sa.Column("id", sa.Integer(), primary_key=True),
-        sa.Column("regression_id", sa.Integer(),
-                  sa.ForeignKey("regression.id", ondelete="CASCADE"), nullable=False, index=True),
+        sa.Column(
+            "regression_id",
+            sa.Integer(),
+            sa.ForeignKey("regression.id", ondelete="CASCADE"),
+            nullable=False,
+            index=True,
+        ),
         sa.Column("at", sa.DateTime(timezone=True), nullable=False),
         sa.Column("who", sa.String(200), nullable=False),
         sa.Column("from_state", sa.String(20), nullable=False),
@@ -56,12 +61,15 @@ def upgrade() -> None:
     op.create_table(
         "detection",
         sa.Column("id", sa.Integer(), primary_key=True),
-        sa.Column("series_id", sa.Integer(), sa.ForeignKey("series.id"), nullable=False,
-                  index=True),
-        sa.Column("revision_id", sa.Integer(), sa.ForeignKey("revision.id"), nullable=False,
-                  index=True),
-        sa.Column("baseline_revision_id", sa.Integer(), sa.ForeignKey("revision.id"),
-                  nullable=True),
+        sa.Column(
+            "series_id", sa.Integer(), sa.ForeignKey("series.id"), nullable=False, index=True
+        ),
+        sa.Column(
+            "revision_id", sa.Integer(), sa.ForeignKey("revision.id"), nullable=False, index=True
+        ),
+        sa.Column(
+            "baseline_revision_id", sa.Integer(), sa.ForeignKey("revision.id"), nullable=True
+        ),
         sa.Column("baseline_revisions", sa.Integer(), nullable=False),
         sa.Column("method", sa.String(50), nullable=False),
         sa.Column("verdict", sa.String(20), nullable=False),
@@ -71,8 +79,13 @@ def upgrade() -> None:
         sa.Column("effect", sa.Float(), nullable=True),
         sa.Column("direction", sa.String(10), nullable=False),
         sa.Column("flagged", sa.Boolean(), nullable=False),
-        sa.Column("regression_id", sa.Integer(),
-                  sa.ForeignKey("regression.id", ondelete="SET NULL"), nullable=True, index=True),
+        sa.Column(
+            "regression_id",
+            sa.Integer(),
+            sa.ForeignKey("regression.id", ondelete="SET NULL"),
+            nullable=True,
+            index=True,
+        ),
         _now(),
         sa.UniqueConstraint("series_id", "revision_id", "method"),
     )

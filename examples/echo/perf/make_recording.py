@@ -20,11 +20,16 @@ def main() -> None:
         for tick in range(100):  # 50 Hz for 2 s
             t_ns = start + tick * 20_000_000
             odom = {"x": tick * 0.01, "y": 0.0, "theta": 0.0}
-            writer.write("robot/odom", json.dumps(odom).encode(), encoding="application/json",
-                         t_ns=t_ns)
+            writer.write(
+                "robot/odom", json.dumps(odom).encode(), encoding="application/json", t_ns=t_ns
+            )
             if tick % 2 == 0:
-                writer.write("robot/scan", bytes([tick % 256]) * 1024,
-                             encoding="application/octet-stream", t_ns=t_ns)
+                writer.write(
+                    "robot/scan",
+                    bytes([tick % 256]) * 1024,
+                    encoding="application/octet-stream",
+                    t_ns=t_ns,
+                )
         writer.metadata("redline.run", {"component": "robot", "note": "synthetic example"})
 
 

@@ -37,22 +37,42 @@ ping = TestCase(
         Phase("warmup", FixedRate(50, 0.3, PING), warmup=True),
         Phase("steady", FixedRate(Param("rate"), 1.0, PING)),
     ],
-    params=Cartesian(size=[64, 4096], rate=[50, 200],
-                     where=lambda p: p["size"] < 4096 or p["rate"] <= 50),  # no 4 KiB at 200 Hz
+    params=Cartesian(
+        size=[64, 4096], rate=[50, 200], where=lambda p: p["size"] < 4096 or p["rate"] <= 50
+    ),  # no 4 KiB at 200 Hz
 )
 
 READING = Message.json({"ranges": Repeated(lambda i: 1.0 + i * 0.01, Param("points"))})
 
 relay = TestCase(
     "relay",
-    phases=[Phase("stream", Listen("echo/out", FixedRate(
-        Param("rate"), 1.0, Publish("echo/in", READING, sequence=True))))],
+    phases=[
+        Phase(
+            "stream",
+            Listen(
+                "echo/out",
+                FixedRate(Param("rate"), 1.0, Publish("echo/in", READING, sequence=True)),
+            ),
+        )
+    ],
     params=Table(["points", "rate"], [(10, 100), (500, 100)]),
 )
 
 replay = TestCase(
     "replay",
-    phases=[Phase("scans", Listen("echo/out", Replay(
-        RECORDING, speed=Param("speed"), keys=["robot/scan"], remap={"robot/scan": "echo/in"})))],
+    phases=[
+        Phase(
+            "scans",
+            Listen(
+                "echo/out",
+                Replay(
+                    RECORDING,
+                    speed=Param("speed"),
+                    keys=["robot/scan"],
+                    remap={"robot/scan": "echo/in"},
+                ),
+            ),
+        )
+    ],
     params=Cartesian(speed=[1.0, 4.0]),
 )

@@ -37,8 +37,10 @@ def legs_then_pose(prefix: str) -> Sequence:
 
 def steady(prefix: str) -> list[Phase]:
     """A short warm-up, then the measured phase, both at ``rate`` messages/s."""
-    return [Phase("warmup", FixedRate(Param("rate"), 0.5, legs_then_pose(prefix)), warmup=True),
-            Phase("steady", FixedRate(Param("rate"), SECONDS, legs_then_pose(prefix)))]
+    return [
+        Phase("warmup", FixedRate(Param("rate"), 0.5, legs_then_pose(prefix)), warmup=True),
+        Phase("steady", FixedRate(Param("rate"), SECONDS, legs_then_pose(prefix))),
+    ]
 
 
 leg_count = TestCase("leg_count", steady("ob-t2"), Cartesian(legs=[1, 2, 4, 8, 16], rate=[20]))
@@ -47,19 +49,37 @@ leg_rate = TestCase("leg_rate", steady("ob-t2"), Cartesian(legs=[4], rate=[10, 2
 
 pose_rate = TestCase(
     "pose_rate",
-    phases=[Phase("steady", WithBackground(
-        FixedRate(20, SECONDS, Publish("ob-t2/legs", LegMessage(4), encoding="application/json")),
-        FixedRate(Param("pose_rate"), SECONDS + 1.0, Publish("ob-t2/pose", POSE)),
-    ))],
+    phases=[
+        Phase(
+            "steady",
+            WithBackground(
+                FixedRate(
+                    20, SECONDS, Publish("ob-t2/legs", LegMessage(4), encoding="application/json")
+                ),
+                FixedRate(Param("pose_rate"), SECONDS + 1.0, Publish("ob-t2/pose", POSE)),
+            ),
+        )
+    ],
     params=Cartesian(pose_rate=[10, 50, 100, 200]),
 )
 
 threads = TestCase(
     "threads",
-    phases=[Phase("steady", FixedRate(40, SECONDS, Sequence(
-        Publish(Param("legs_key"), LegMessage(8), encoding="application/json"),
-        Publish(Param("pose_key"), POSE, encoding="application/json"),
-    )))],
-    params=Table(["threads", "legs_key", "pose_key"], [
-        (n, f"ob-t{n}/legs", f"ob-t{n}/pose") for n in (1, 2, 4)]),
+    phases=[
+        Phase(
+            "steady",
+            FixedRate(
+                40,
+                SECONDS,
+                Sequence(
+                    Publish(Param("legs_key"), LegMessage(8), encoding="application/json"),
+                    Publish(Param("pose_key"), POSE, encoding="application/json"),
+                ),
+            ),
+        )
+    ],
+    params=Table(
+        ["threads", "legs_key", "pose_key"],
+        [(n, f"ob-t{n}/legs", f"ob-t{n}/pose") for n in (1, 2, 4)],
+    ),
 )

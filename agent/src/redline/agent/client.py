@@ -42,7 +42,8 @@ class ServerClient:
     def __init__(self, server: str, token: str, host: str, *, timeout: float = 30.0) -> None:
         self.host = host
         self._http = httpx.Client(
-            base_url=server.rstrip("/"), timeout=timeout,
+            base_url=server.rstrip("/"),
+            timeout=timeout,
             headers={"Authorization": f"Bearer {token}"},
         )
 
@@ -50,18 +51,25 @@ class ServerClient:
         self._http.close()
 
     def register(self, fingerprint: dict[str, Any], labels: list[str]) -> int:
-        answer = self._http.post("/api/v1/agent/register", json={
-            "name": self.host, "fingerprint": fingerprint, "labels": labels,
-        })
+        answer = self._http.post(
+            "/api/v1/agent/register",
+            json={
+                "name": self.host,
+                "fingerprint": fingerprint,
+                "labels": labels,
+            },
+        )
         answer.raise_for_status()
         return int(answer.json()["host_id"])
 
     def lease(self, wait: int = 0) -> dict[str, Any] | None:
         """The next job, or None; with ``wait`` the server holds the call up to that long."""
-        answer = self._http.post("/api/v1/agent/lease", json={"host": self.host},
-                                 params={"wait": wait} if wait else None,
-                                 timeout=(self._http.timeout.read or 0) + wait if wait
-                                 else httpx.USE_CLIENT_DEFAULT)
+        answer = self._http.post(
+            "/api/v1/agent/lease",
+            json={"host": self.host},
+            params={"wait": wait} if wait else None,
+            timeout=(self._http.timeout.read or 0) + wait if wait else httpx.USE_CLIENT_DEFAULT,
+        )
         if answer.status_code == 204:
             return None
         answer.raise_for_status()
@@ -75,8 +83,9 @@ class ServerClient:
 
     def fail(self, job_id: int, reason: str) -> None:
         """Fail the job this host holds; a 409 (no longer ours) is ignored."""
-        self._http.post(f"/api/v1/jobs/{job_id}/fail",
-                        json={"host": self.host, "reason": reason[-4000:]})
+        self._http.post(
+            f"/api/v1/jobs/{job_id}/fail", json={"host": self.host, "reason": reason[-4000:]}
+        )
 
     def release(self, job_id: int) -> None:
         """Give the job back to the queue without counting an attempt."""
@@ -84,24 +93,29 @@ class ServerClient:
         if answer.status_code != 409:  # 409: no longer ours, nothing to give back
             answer.raise_for_status()
 
-    def upload(self, job_id: int, recording: Path, *, attempts: int = 5,
-               backoff: float = 1.0) -> int:
+    def upload(
+        self, job_id: int, recording: Path, *, attempts: int = 5, backoff: float = 1.0
+    ) -> int:
         """Stream the recording; retried with exponential backoff on network errors and 5xx.
 
         The server keys uploads by sha256, so a retry after a lost answer never doubles a result.
         Raises UploadRejected on a 4xx, ServerUnavailable when every attempt failed.
         """
         digest = sha256_of(recording)
-        headers = {"X-Redline-Sha256": digest, "X-Redline-Host": self.host,
-                   "Content-Type": "application/octet-stream",
-                   "Content-Length": str(recording.stat().st_size)}
+        headers = {
+            "X-Redline-Sha256": digest,
+            "X-Redline-Host": self.host,
+            "Content-Type": "application/octet-stream",
+            "Content-Length": str(recording.stat().st_size),
+        }
         problem = ""
         for attempt in range(1, attempts + 1):
             if attempt > 1:
                 time.sleep(backoff * 2 ** (attempt - 2))
             try:
-                answer = self._http.put(f"/api/v1/jobs/{job_id}/recording",
-                                        content=_chunks(recording), headers=headers)
+                answer = self._http.put(
+                    f"/api/v1/jobs/{job_id}/recording", content=_chunks(recording), headers=headers
+                )
             except httpx.TransportError as exc:
                 problem = f"{type(exc).__name__}: {exc}"
                 continue
@@ -109,8 +123,10 @@ class ServerClient:
                 problem = f"{answer.status_code}: {answer.text[:500]}"
                 continue
             if answer.status_code >= 400:
-                raise UploadRejected(f"upload of {recording.name} refused "
-                                     f"({answer.status_code}): {answer.text}")
+                raise UploadRejected(
+                    f"upload of {recording.name} refused ({answer.status_code}): {answer.text}"
+                )
             return int(answer.json()["execution_id"])
-        raise ServerUnavailable(f"upload of {recording.name} for job {job_id} failed "
-                                f"{attempts} times; last: {problem}")
+        raise ServerUnavailable(
+            f"upload of {recording.name} for job {job_id} failed {attempts} times; last: {problem}"
+        )

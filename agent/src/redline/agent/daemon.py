@@ -110,12 +110,18 @@ class AgentDaemon:
             self.client.release(job["id"])
             return False
         if self.spool.holds(job["id"]):  # run before, its lease lapsed while the server was away
-            log.info("job %s: its recording is spooled; sending it instead of running again",
-                     job["id"])
+            log.info(
+                "job %s: its recording is spooled; sending it instead of running again", job["id"]
+            )
             self.sender.send_all()
             return True
-        log.info("job %s: %s %s (%s)", job["id"], job["component"],
-                 job["revision"]["title"], job["commit"][:12])
+        log.info(
+            "job %s: %s %s (%s)",
+            job["id"],
+            job["component"],
+            job["revision"]["title"],
+            job["commit"][:12],
+        )
         try:
             execution = self._process(job)
             if execution is not None:
@@ -205,8 +211,9 @@ def _build(command: tuple[str, ...] | None, cwd: Path) -> None:
     shown = " ".join(command)
     log.info("building: %s", shown)
     try:
-        done = subprocess.run(command, cwd=cwd, capture_output=True, text=True,
-                              timeout=BUILD_TIMEOUT_S)
+        done = subprocess.run(
+            command, cwd=cwd, capture_output=True, text=True, timeout=BUILD_TIMEOUT_S
+        )
     except (OSError, subprocess.TimeoutExpired) as exc:
         raise JobFailed(f"build command {shown!r} could not run: {exc}") from exc
     if done.returncode != 0:

@@ -20,34 +20,57 @@ class Markers:
     def __init__(self, session: zenoh.Session) -> None:
         # Markers are rare and a lost one loses a whole segment, so this publisher may block.
         self._publisher = session.declare_publisher(
-            MARKERS_KEY, congestion_control=zenoh.CongestionControl.BLOCK)
+            MARKERS_KEY, congestion_control=zenoh.CongestionControl.BLOCK
+        )
 
     def publish(self, event: str, case: str, phase: Phase, params: dict[str, Any]) -> None:
-        self._publisher.put(json.dumps({
-            "t_ns": time.time_ns(), "event": event, "case": case, "phase": phase.name,
-            "params": params, "warmup": phase.warmup,
-        }, default=str))
+        self._publisher.put(
+            json.dumps(
+                {
+                    "t_ns": time.time_ns(),
+                    "event": event,
+                    "case": case,
+                    "phase": phase.name,
+                    "params": params,
+                    "warmup": phase.warmup,
+                },
+                default=str,
+            )
+        )
 
     def close(self) -> None:
         self._publisher.undeclare()
 
 
-def _run_segment(case: TestCase, phase: Phase, params: ParameterSet, link: Link,
-                 markers: Markers, stop: threading.Event) -> None:
+def _run_segment(
+    case: TestCase,
+    phase: Phase,
+    params: ParameterSet,
+    link: Link,
+    markers: Markers,
+    stop: threading.Event,
+) -> None:
     ctx = Context(params, case.name, phase.name, link, stop)
     markers.publish("begin", case.name, phase, params)
     try:
         phase.action.run(ctx)
     except Exception as exc:
-        raise RunError(f"test case {case.name!r}, phase {phase.name!r} [{params.name}]: "
-                       f"{type(exc).__name__}: {exc}") from exc
+        raise RunError(
+            f"test case {case.name!r}, phase {phase.name!r} [{params.name}]: "
+            f"{type(exc).__name__}: {exc}"
+        ) from exc
     finally:
         ctx.flush_metrics()  # query round trips, waits: one summary per action and key
         markers.publish("end", case.name, phase, params)
 
 
-def execute_cases(cases: Sequence[TestCase], link: Link, markers: Markers,
-                  stop: threading.Event, say: Callable[[str], None]) -> int:
+def execute_cases(
+    cases: Sequence[TestCase],
+    link: Link,
+    markers: Markers,
+    stop: threading.Event,
+    say: Callable[[str], None],
+) -> int:
     """Run every case → parameter set → phase until done or ``stop``; returns segments run.
 
     For each parameter set the case's phases run in order, so a warm-up phase warms up the load

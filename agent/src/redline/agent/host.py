@@ -40,7 +40,9 @@ def host_fingerprint(governor_state: str) -> dict[str, str]:
         "kernel": platform.release(),
         "os": platform.platform(),
         "python": platform.python_version(),
-        "load_1m": f"{load[0]:.2f}", "load_5m": f"{load[1]:.2f}", "load_15m": f"{load[2]:.2f}",
+        "load_1m": f"{load[0]:.2f}",
+        "load_5m": f"{load[1]:.2f}",
+        "load_15m": f"{load[2]:.2f}",
         "governor_state": governor_state,
         "governors": ",".join(sorted(set(governors.values()))) or "none",
     }

@@ -49,16 +49,19 @@ class _Publishing:
     """One publisher per process name; the message layout of format.py."""
 
     def __init__(self, session: zenoh.Session, names: list[str]) -> None:
-        self._publishers = {name: session.declare_publisher(COUNTERS_PREFIX + name)
-                            for name in names}
+        self._publishers = {
+            name: session.declare_publisher(COUNTERS_PREFIX + name) for name in names
+        }
 
     def put(self, name: str, pid: int, values: dict[str, float]) -> None:
-        self._publishers[name].put(json.dumps({
-            "t_ns": time.time_ns(), "pid": pid, "process": name, "values": values}))
+        self._publishers[name].put(
+            json.dumps({"t_ns": time.time_ns(), "pid": pid, "process": name, "values": values})
+        )
 
 
-def _sample_all(samplers: list[TreeSampler], host: HostSampler | None, out: _Publishing,
-                detail: bool) -> None:
+def _sample_all(
+    samplers: list[TreeSampler], host: HostSampler | None, out: _Publishing, detail: bool
+) -> None:
     for sampler in list(samplers):
         try:
             values = sampler.sample(detail=detail)
@@ -72,8 +75,9 @@ def _sample_all(samplers: list[TreeSampler], host: HostSampler | None, out: _Pub
         out.put(HOST, 0, host.sample())
 
 
-def run(targets: list[tuple[str, int]], rate: float, stop: threading.Event,
-        with_host: bool = True) -> None:
+def run(
+    targets: list[tuple[str, int]], rate: float, stop: threading.Event, with_host: bool = True
+) -> None:
     """Sample every target at ``rate`` Hz on absolute deadlines until ``stop`` is set."""
     samplers = [TreeSampler(name, pid) for name, pid in targets]
     host = HostSampler() if with_host else None

@@ -40,15 +40,18 @@ def free_port() -> int:
         return int(sock.getsockname()[1])
 
 
-def _isolated(mode: str, listen: list[str], connect: list[str],
-              shared_memory: bool) -> dict[str, Any]:
+def _isolated(
+    mode: str, listen: list[str], connect: list[str], shared_memory: bool
+) -> dict[str, Any]:
     return {
         "mode": mode,
         "listen": {"endpoints": listen},
         "connect": {"endpoints": connect},
         "scouting": {"multicast": {"enabled": False}, "gossip": {"enabled": True}},
-        "transport": {"shared_memory": {"enabled": shared_memory},
-                      "link": {"tx": {"queue": {"size": {"data": DATA_QUEUE_BATCHES}}}}},
+        "transport": {
+            "shared_memory": {"enabled": shared_memory},
+            "link": {"tx": {"queue": {"size": {"data": DATA_QUEUE_BATCHES}}}},
+        },
     }
 
 
@@ -72,8 +75,9 @@ def shared_memory_enabled(settings: dict[str, Any]) -> bool:
 class RunNetwork:
     """Owns the run's router session; hands out configurations for everything else."""
 
-    def __init__(self, port: int | None = None, *, transport: str = "tcp",
-                 shared_memory: bool = True) -> None:
+    def __init__(
+        self, port: int | None = None, *, transport: str = "tcp", shared_memory: bool = True
+    ) -> None:
         if transport not in TRANSPORTS:
             raise ValueError(f"transport must be one of {TRANSPORTS}, got {transport!r}")
         self.transport = transport

@@ -27,7 +27,8 @@ class ProcessExited(RunError):
     def __init__(self, name: str, code: int, log: Path, tail: str) -> None:
         self.name, self.code, self.log = name, code, log
         super().__init__(
-            f"{name} exited early with exit code {code}; log {log}, last lines:\n{tail}")
+            f"{name} exited early with exit code {code}; log {log}, last lines:\n{tail}"
+        )
 
 
 class ManagedProcess:
@@ -55,13 +56,19 @@ class ManagedProcess:
         self._log = open(self.log_path, "wb")  # noqa: SIM115 - closed in stop()
         try:
             self._popen = subprocess.Popen(
-                self.spec.command, cwd=self.spec.cwd, env=self._env, stdin=subprocess.DEVNULL,
-                stdout=self._log, stderr=subprocess.STDOUT,
+                self.spec.command,
+                cwd=self.spec.cwd,
+                env=self._env,
+                stdin=subprocess.DEVNULL,
+                stdout=self._log,
+                stderr=subprocess.STDOUT,
                 start_new_session=True,  # Ctrl-C reaches the runner only; it stops every process
             )
         except OSError as exc:
-            raise RunError(f"cannot start {self.name} ({' '.join(self.spec.command)}) "
-                           f"in {self.spec.cwd}: {exc}") from None
+            raise RunError(
+                f"cannot start {self.name} ({' '.join(self.spec.command)}) "
+                f"in {self.spec.cwd}: {exc}"
+            ) from None
         self._started = time.monotonic()
         return self
 
@@ -104,9 +111,11 @@ class ManagedProcess:
             if passed:
                 return
             if time.monotonic() > deadline:
-                raise RunError(f"{self.name} was not ready within {self.spec.start_timeout:g} s "
-                               f"({_describe(self.spec)}); log {self.log_path}, last lines:\n"
-                               f"{self.tail()}")
+                raise RunError(
+                    f"{self.name} was not ready within {self.spec.start_timeout:g} s "
+                    f"({_describe(self.spec)}); log {self.log_path}, last lines:\n"
+                    f"{self.tail()}"
+                )
             time.sleep(POLL_S)
 
     def stop(self) -> int | None:

@@ -34,7 +34,7 @@ def open_optional(path: str) -> int | None:
 
 def stat_fields(raw: bytes) -> list[bytes]:
     """Fields of /proc/PID/stat after the command name (field 3 = index 0)."""
-    return raw[raw.rindex(b")") + 2:].split()
+    return raw[raw.rindex(b")") + 2 :].split()
 
 
 def start_time(pid: int) -> int:
@@ -49,7 +49,7 @@ def _after(text: bytes, label: bytes) -> int:
         return 0
     start = at + len(label)
     end = text.find(b"\n", start)
-    return int(text[start:end if end >= 0 else None])
+    return int(text[start : end if end >= 0 else None])
 
 
 class WindowRate:
@@ -213,7 +213,10 @@ class ProcessSampler:
 
 
 def _uss_pss(rollup: bytes) -> dict[str, float]:
-    kib = {line.split(b":")[0]: int(line.split()[1]) for line in rollup.splitlines()[1:]
-           if line.endswith(b"kB")}
+    kib = {
+        line.split(b":")[0]: int(line.split()[1])
+        for line in rollup.splitlines()[1:]
+        if line.endswith(b"kB")
+    }
     private = kib.get(b"Private_Clean", 0) + kib.get(b"Private_Dirty", 0)
     return {"uss_bytes": private * 1024, "pss_bytes": kib.get(b"Pss", 0) * 1024}

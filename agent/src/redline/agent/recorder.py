@@ -58,8 +58,9 @@ class Tap:
         if len(self.buffer) >= self.capacity:
             self.dropped += 1
             return
-        self.buffer.append((str(sample.key_expr), JSON_ENCODING, sample.payload.to_bytes(),
-                            time.time_ns()))
+        self.buffer.append(
+            (str(sample.key_expr), JSON_ENCODING, sample.payload.to_bytes(), time.time_ns())
+        )
 
 
 class Recorder:
@@ -94,8 +95,12 @@ class Recorder:
         """Samples received, written and dropped by the recorder, and ``lag_max_ms``: how far the
         writer fell behind the router's stamps at worst (a backlog, not a loss)."""
         received = sum(self.traffic.values()) + self.tap.received
-        return {"received": received, "written": self.written, "dropped": self.tap.dropped,
-                "lag_max_ms": self.lag_max_ns // 1_000_000}
+        return {
+            "received": received,
+            "written": self.written,
+            "dropped": self.tap.dropped,
+            "lag_max_ms": self.lag_max_ns // 1_000_000,
+        }
 
     def losses(self) -> dict[str, tuple[int, int]]:
         """Per key the driver published on: (sent, recorded), where fewer were recorded."""
@@ -141,8 +146,9 @@ class Recorder:
         while self.own:
             key, encoding, data, t_ns = self.own.popleft()
             stamp = _json(data).get("t_ns")
-            self.writer.write(key, data, encoding=encoding,
-                              t_ns=stamp if isinstance(stamp, int) else t_ns)
+            self.writer.write(
+                key, data, encoding=encoding, t_ns=stamp if isinstance(stamp, int) else t_ns
+            )
             count += 1
         self.written += count
         return count
@@ -173,14 +179,19 @@ class Recorder:
         losses = self.losses()
         self.writer.metadata(META_RUN, meta.get("run", {}))
         self.writer.metadata(META_HOST, meta.get("host", {}))
-        self.writer.metadata(META_RECORDER, {
-            **self.counts(), "lost": sum(sent - got for sent, got in losses.values()),
-            "lost_by_key": {key: {"sent": sent, "recorded": got}
-                            for key, (sent, got) in losses.items()},
-            "checked_keys": len(self.sent),
-            "zenoh_shared_memory": "on" if shared_memory_enabled(settings) else "off",
-            "zenoh_endpoint": ",".join(settings.get("connect", {}).get("endpoints", [])),
-        })
+        self.writer.metadata(
+            META_RECORDER,
+            {
+                **self.counts(),
+                "lost": sum(sent - got for sent, got in losses.values()),
+                "lost_by_key": {
+                    key: {"sent": sent, "recorded": got} for key, (sent, got) in losses.items()
+                },
+                "checked_keys": len(self.sent),
+                "zenoh_shared_memory": "on" if shared_memory_enabled(settings) else "off",
+                "zenoh_endpoint": ",".join(settings.get("connect", {}).get("endpoints", [])),
+            },
+        )
         self.writer.close()
 
 
@@ -215,7 +226,8 @@ def record(out: Path, meta: Path, buffer_size: int, stop: threading.Event) -> di
     try:
         with open_client(settings) as session:
             recorder.source = session.declare_subscriber(
-                "**", zenoh.handlers.FifoChannel(buffer_size))
+                "**", zenoh.handlers.FifoChannel(buffer_size)
+            )
             session.declare_subscriber(REDLINE_PREFIX + "**", recorder.tap)
 
             def status(query: zenoh.Query) -> None:

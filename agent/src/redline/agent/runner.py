@@ -71,8 +71,15 @@ def query_recorder(session: zenoh.Session, timeout: float = 1.0) -> dict[str, in
 class _Run:
     """One execution of a suite in a workspace; `execute` does it and cleans up after itself."""
 
-    def __init__(self, suite: Suite, cases: list[TestCase], workspace: Path, out: Path,
-                 run_metadata: dict[str, str], say: Progress) -> None:
+    def __init__(
+        self,
+        suite: Suite,
+        cases: list[TestCase],
+        workspace: Path,
+        out: Path,
+        run_metadata: dict[str, str],
+        say: Progress,
+    ) -> None:
         self.suite, self.cases, self.workspace, self.out = suite, cases, workspace, out
         self.say = say
         self.meta_path = workspace / "run-meta.json"
@@ -84,22 +91,34 @@ class _Run:
     def _run_metadata(self, given: dict[str, str]) -> dict[str, str]:
         names = [spec.name for spec in self.suite.components]
         return {
-            "component": names[0], **given, "suite": self.suite.name,
-            "suite_file": str(self.suite.path), "suite_sha256": self.suite.sha256,
-            "components": ",".join(names), "sampling_hz": f"{self.suite.sampling_hz:g}",
+            "component": names[0],
+            **given,
+            "suite": self.suite.name,
+            "suite_file": str(self.suite.path),
+            "suite_sha256": self.suite.sha256,
+            "components": ",".join(names),
+            "sampling_hz": f"{self.suite.sampling_hz:g}",
             "redline_version": _version("redline-agent"),
             "zenoh_version": _version("eclipse-zenoh"),
-            "started_at": _now(), "ended_at": "", "status": "running",
+            "started_at": _now(),
+            "ended_at": "",
+            "status": "running",
         }
 
     def _write_meta(self) -> None:
         self.meta_path.write_text(json.dumps(self.meta, indent=2))
 
-    def _helper(self, name: str, args: list[str], env: dict[str, str],
-                stop_timeout: float = 5.0) -> ManagedProcess:
-        spec = ProcessSpec(name=name, command=(sys.executable, "-m", *args), cwd=self.workspace,
-                           ready=ReadyCheck("log", f"^{name} ready"), start_timeout=30.0,
-                           stop_timeout=stop_timeout)
+    def _helper(
+        self, name: str, args: list[str], env: dict[str, str], stop_timeout: float = 5.0
+    ) -> ManagedProcess:
+        spec = ProcessSpec(
+            name=name,
+            command=(sys.executable, "-m", *args),
+            cwd=self.workspace,
+            ready=ReadyCheck("log", f"^{name} ready"),
+            start_timeout=30.0,
+            stop_timeout=stop_timeout,
+        )
         return self._start(spec, env)
 
     def _start(self, spec: ProcessSpec, env: dict[str, str]) -> ManagedProcess:
@@ -116,8 +135,17 @@ class _Run:
             session: zenoh.Session | None = None
             try:
                 recorder = self._helper(
-                    "redline-recorder", ["redline.agent.recorder", "--out", str(self.out),
-                                         "--meta", str(self.meta_path)], helper_env, 60.0)
+                    "redline-recorder",
+                    [
+                        "redline.agent.recorder",
+                        "--out",
+                        str(self.out),
+                        "--meta",
+                        str(self.meta_path),
+                    ],
+                    helper_env,
+                    60.0,
+                )
                 recorder.wait_ready()
                 session = open_client(network.client_settings())
                 recorder.wait_ready(probe=lambda: query_recorder(session, 0.5) is not None)
@@ -132,17 +160,25 @@ class _Run:
                 self._shut_down(session)
         return self.segments
 
-    def _run_tests(self, network: RunNetwork, session: zenoh.Session,
-                   helper_env: dict[str, str]) -> None:
-        config = {"ZENOH_CONFIG": str(network.write_component_config(
-            self.workspace / "zenoh-component.json"))}
-        components = [self._start_ready(spec, config, session)
-                      for spec in (*self.suite.fixtures, *self.suite.components)]
-        components = components[len(self.suite.fixtures):]
+    def _run_tests(
+        self, network: RunNetwork, session: zenoh.Session, helper_env: dict[str, str]
+    ) -> None:
+        config = {
+            "ZENOH_CONFIG": str(
+                network.write_component_config(self.workspace / "zenoh-component.json")
+            )
+        }
+        components = [
+            self._start_ready(spec, config, session)
+            for spec in (*self.suite.fixtures, *self.suite.components)
+        ]
+        components = components[len(self.suite.fixtures) :]
         targets = [f"{p.name}={p.pid}" for p in components]
-        monitor = self._helper("redline-monitor", ["redline.agent.monitor", "--rate",
-                                                   f"{self.suite.sampling_hz:g}", *targets],
-                               helper_env)
+        monitor = self._helper(
+            "redline-monitor",
+            ["redline.agent.monitor", "--rate", f"{self.suite.sampling_hz:g}", *targets],
+            helper_env,
+        )
         monitor.wait_ready()
         watchdog = threading.Thread(target=self._watch, args=([*components, monitor],), daemon=True)
         watchdog.start()
@@ -156,8 +192,9 @@ class _Run:
         for process in [*components, monitor]:
             process.check_alive()
 
-    def _start_ready(self, spec: ProcessSpec, env: dict[str, str],
-                     session: zenoh.Session) -> ManagedProcess:
+    def _start_ready(
+        self, spec: ProcessSpec, env: dict[str, str], session: zenoh.Session
+    ) -> ManagedProcess:
         self.say(f"starting {spec.name}: {' '.join(spec.command)}")
         began = time.monotonic()
         process = self._start(spec, env)
@@ -165,8 +202,11 @@ class _Run:
             seen = threading.Event()
             subscriber = (
                 session.declare_subscriber(str(spec.ready.value), lambda _s: seen.set())
-                if spec.ready.kind == "key" else session.liveliness().declare_subscriber(
-                    str(spec.ready.value), lambda _s: seen.set(), history=True))
+                if spec.ready.kind == "key"
+                else session.liveliness().declare_subscriber(
+                    str(spec.ready.value), lambda _s: seen.set(), history=True
+                )
+            )
             try:
                 process.wait_ready(probe=seen.is_set)
             finally:
@@ -200,13 +240,22 @@ class _Run:
         self._write_meta()
         code = recorder.stop()
         if code != 0 and sys.exc_info()[0] is None:
-            raise RunError(f"the recorder failed (exit code {code}); log {recorder.log_path}:\n"
-                           f"{recorder.tail()}")
+            raise RunError(
+                f"the recorder failed (exit code {code}); log {recorder.log_path}:\n"
+                f"{recorder.tail()}"
+            )
 
 
-def run_suite(suite_path: Path, out: Path, *, run_metadata: dict[str, str] | None = None,
-              progress: Progress | None = None, keep_workspace: bool = False,
-              only: Sequence[str] = (), overrides: Mapping[str, Any] | None = None) -> RunResult:
+def run_suite(
+    suite_path: Path,
+    out: Path,
+    *,
+    run_metadata: dict[str, str] | None = None,
+    progress: Progress | None = None,
+    keep_workspace: bool = False,
+    only: Sequence[str] = (),
+    overrides: Mapping[str, Any] | None = None,
+) -> RunResult:
     """Run a suite once (one execution) and write its recording to ``out``.
 
     ``only`` restricts the run to the named test cases; ``overrides`` replaces parameter values
@@ -236,8 +285,13 @@ def run_suite(suite_path: Path, out: Path, *, run_metadata: dict[str, str] | Non
         else:
             shutil.rmtree(workspace, ignore_errors=True)
     say(f"recorded {segments} segment(s) to {out}")
-    return RunResult(recording=out, workspace=workspace if kept else None, segments=segments,
-                     run_metadata=run.meta["run"], host=run.meta["host"])
+    return RunResult(
+        recording=out,
+        workspace=workspace if kept else None,
+        segments=segments,
+        run_metadata=run.meta["run"],
+        host=run.meta["host"],
+    )
 
 
 def execution_paths(out: Path, executions: int) -> list[Path]:
@@ -248,9 +302,15 @@ def execution_paths(out: Path, executions: int) -> list[Path]:
     return [out.with_name(f"{out.stem}-{index}{out.suffix}") for index in range(1, executions + 1)]
 
 
-def run_executions(suite_path: Path, out: Path, *, executions: int | None = None,
-                   run_metadata: dict[str, str] | None = None, progress: Progress | None = None,
-                   **options: Any) -> list[RunResult]:
+def run_executions(
+    suite_path: Path,
+    out: Path,
+    *,
+    executions: int | None = None,
+    run_metadata: dict[str, str] | None = None,
+    progress: Progress | None = None,
+    **options: Any,
+) -> list[RunResult]:
     """Run the suite ``executions`` times (default: the suite file's), one recording each.
 
     The components are started afresh for every execution (and never between parameter sets
@@ -265,6 +325,5 @@ def run_executions(suite_path: Path, out: Path, *, executions: int | None = None
         if count > 1:
             say(f"execution {index} of {count} → {path}")
         meta = {**(run_metadata or {}), "execution": str(index), "executions": str(count)}
-        results.append(run_suite(suite_path, path, run_metadata=meta, progress=progress,
-                                 **options))
+        results.append(run_suite(suite_path, path, run_metadata=meta, progress=progress, **options))
     return results

@@ -87,16 +87,19 @@ class HostSampler:
         ticks = [int(v) for v in pread(self._stat, 512).split(b"\n", 1)[0].split()[1:9]]
         user, nice, system, idle, iowait, irq, softirq, steal = ticks
         values: dict[str, float] = {"load_1m": float(pread(self._loadavg).split()[0])}
-        rates = self._rates.update(time.monotonic_ns(), (
-            user + nice, system + irq + softirq, idle, iowait, steal))
+        rates = self._rates.update(
+            time.monotonic_ns(), (user + nice, system + irq + softirq, idle, iowait, steal)
+        )
         total = sum(rates) if rates is not None else 0
         if rates is not None and total > 0:
             busy_user, busy_system, _idle, waiting, stolen = (100.0 * r / total for r in rates)
-            values |= {"cpu_percent": round(busy_user + busy_system, 3),
-                       "cpu_user_percent": round(busy_user, 3),
-                       "cpu_system_percent": round(busy_system, 3),
-                       "cpu_iowait_percent": round(waiting, 3),
-                       "cpu_steal_percent": round(stolen, 3)}
+            values |= {
+                "cpu_percent": round(busy_user + busy_system, 3),
+                "cpu_user_percent": round(busy_user, 3),
+                "cpu_system_percent": round(busy_system, 3),
+                "cpu_iowait_percent": round(waiting, 3),
+                "cpu_steal_percent": round(stolen, 3),
+            }
         return values
 
     def close(self) -> None:

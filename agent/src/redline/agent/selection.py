@@ -51,20 +51,27 @@ def _names_of(case: TestCase) -> set[str]:
     return names
 
 
-def select_cases(cases: Sequence[TestCase], only: Sequence[str] = (),
-                 overrides: Mapping[str, Any] | None = None) -> list[TestCase]:
+def select_cases(
+    cases: Sequence[TestCase], only: Sequence[str] = (), overrides: Mapping[str, Any] | None = None
+) -> list[TestCase]:
     """The cases named by ``only`` (all when empty), with ``overrides`` applied to every set.
 
     Raises `ValidationError` naming every unknown case and every parameter no chosen case uses.
     """
     known = [case.name for case in cases]
-    problems = [f"--only {name!r}: no such test case (the suite has: {', '.join(known)})"
-                for name in only if name not in known]
+    problems = [
+        f"--only {name!r}: no such test case (the suite has: {', '.join(known)})"
+        for name in only
+        if name not in known
+    ]
     chosen = [case for case in cases if not only or case.name in only]
     used = set().union(*(_names_of(case) for case in chosen)) if chosen else set()
-    problems += [f"--param {name!r}: no chosen test case uses this parameter "
-                 f"(they use: {', '.join(sorted(used)) or 'none'})"
-                 for name in (overrides or {}) if name not in used]
+    problems += [
+        f"--param {name!r}: no chosen test case uses this parameter "
+        f"(they use: {', '.join(sorted(used)) or 'none'})"
+        for name in (overrides or {})
+        if name not in used
+    ]
     if problems:
         raise ValidationError(problems)
     if not overrides:

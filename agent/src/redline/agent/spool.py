@@ -47,12 +47,16 @@ class Spool:
 
     def pending(self) -> list[Spooled]:
         """What still waits for the server, oldest job first."""
-        found = [(int(m.group(1)), p) for p in self.root.iterdir()
-                 if p.is_file() and (m := _NAME.match(p.name))]
+        found = [
+            (int(m.group(1)), p)
+            for p in self.root.iterdir()
+            if p.is_file() and (m := _NAME.match(p.name))
+        ]
         return [Spooled(job_id, path) for job_id, path in sorted(found)]
 
-    def send(self, client: ServerClient, entry: Spooled, *, attempts: int = 1,
-             backoff: float = 1.0) -> int | None:
+    def send(
+        self, client: ServerClient, entry: Spooled, *, attempts: int = 1, backoff: float = 1.0
+    ) -> int | None:
         """Upload one entry; its execution id once accepted (and removed), None if refused.
 
         Raises ServerUnavailable (the entry stays) when the server cannot take it now.
@@ -61,8 +65,9 @@ class Spool:
             if not entry.path.exists():  # sent meanwhile by the other side
                 return None
             try:
-                execution = client.upload(entry.job_id, entry.path, attempts=attempts,
-                                          backoff=backoff)
+                execution = client.upload(
+                    entry.job_id, entry.path, attempts=attempts, backoff=backoff
+                )
             except UploadRejected:
                 os.replace(entry.path, self.root / "rejected" / entry.path.name)
                 raise
@@ -73,8 +78,15 @@ class Spool:
 class SpoolSender:
     """Retries the spool in the background until every recording is accepted."""
 
-    def __init__(self, spool: Spool, client: ServerClient, stop: threading.Event, *,
-                 min_delay: float = 1.0, max_delay: float = 60.0) -> None:
+    def __init__(
+        self,
+        spool: Spool,
+        client: ServerClient,
+        stop: threading.Event,
+        *,
+        min_delay: float = 1.0,
+        max_delay: float = 60.0,
+    ) -> None:
         self.spool, self.client, self.stop = spool, client, stop
         self.min_delay, self.max_delay = min_delay, max_delay
         self.wake = threading.Event()
@@ -98,8 +110,11 @@ class SpoolSender:
             except UploadRejected as exc:
                 log.error("spooled job %s refused, kept in spool/rejected: %s", entry.job_id, exc)
             except ServerUnavailable as exc:
-                log.warning("server unavailable, %d recording(s) stay spooled: %s",
-                            len(self.spool.pending()), exc)
+                log.warning(
+                    "server unavailable, %d recording(s) stay spooled: %s",
+                    len(self.spool.pending()),
+                    exc,
+                )
                 return False
             except Exception:  # never let the sender die: the spool is the agent's memory
                 log.exception("sending spooled job %s failed", entry.job_id)

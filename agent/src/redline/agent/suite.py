@@ -33,8 +33,7 @@ from typing import Any
 
 from redline.agent.network import TRANSPORTS
 
-_TOP = {"name", "tests", "build", "executions", "sampling_hz", "transport", "component",
-        "fixture"}
+_TOP = {"name", "tests", "build", "executions", "sampling_hz", "transport", "component", "fixture"}
 _PROCESS = {"name", "command", "env", "cwd", "ready", "start_timeout", "stop_timeout"}
 _READY = {"log", "delay", "key", "liveliness"}
 
@@ -95,8 +94,11 @@ class _Checker:
     def line_of(self, key: str, section: str | None = None, index: int = 0) -> int | None:
         start = 0
         if section is not None:
-            headers = [n for n, line in enumerate(self.lines)
-                       if re.match(rf"^\s*\[\[\s*{re.escape(section)}\s*\]\]", line)]
+            headers = [
+                n
+                for n, line in enumerate(self.lines)
+                if re.match(rf"^\s*\[\[\s*{re.escape(section)}\s*\]\]", line)
+            ]
             if index >= len(headers):
                 return None
             start = headers[index]
@@ -109,21 +111,40 @@ class _Checker:
                 return number + 1
         return None if section is None else start + 1
 
-    def fail(self, message: str, key: str, section: str | None = None,
-             index: int = 0) -> SuiteError:
+    def fail(
+        self, message: str, key: str, section: str | None = None, index: int = 0
+    ) -> SuiteError:
         line = self.line_of(key, section, index)
         where = f"{self.path}:{line}" if line else str(self.path)
         return SuiteError(f"{where}: {message}")
 
-    def unknown(self, table: dict[str, Any], allowed: set[str], what: str,
-                section: str | None = None, index: int = 0) -> None:
+    def unknown(
+        self,
+        table: dict[str, Any],
+        allowed: set[str],
+        what: str,
+        section: str | None = None,
+        index: int = 0,
+    ) -> None:
         for key in table:
             if key not in allowed:
-                raise self.fail(f"unknown field {key!r} in {what} (allowed: "
-                                f"{', '.join(sorted(allowed))})", key, section, index)
+                raise self.fail(
+                    f"unknown field {key!r} in {what} (allowed: {', '.join(sorted(allowed))})",
+                    key,
+                    section,
+                    index,
+                )
 
-    def number(self, value: Any, key: str, what: str, section: str | None = None,
-               index: int = 0, *, integer: bool = False) -> float:
+    def number(
+        self,
+        value: Any,
+        key: str,
+        what: str,
+        section: str | None = None,
+        index: int = 0,
+        *,
+        integer: bool = False,
+    ) -> float:
         kinds = (int,) if integer else (int, float)
         if isinstance(value, bool) or not isinstance(value, kinds) or value <= 0:
             kind = "a positive integer" if integer else "a positive number"
@@ -131,33 +152,44 @@ class _Checker:
         return value
 
 
-def _string_list(checker: _Checker, value: Any, key: str, what: str,
-                 section: str | None = None, index: int = 0) -> tuple[str, ...]:
+def _string_list(
+    checker: _Checker, value: Any, key: str, what: str, section: str | None = None, index: int = 0
+) -> tuple[str, ...]:
     if not isinstance(value, list) or not value or not all(isinstance(v, str) for v in value):
-        raise checker.fail(f"{what}: {key!r} must be a non-empty list of strings, got {value!r}",
-                           key, section, index)
+        raise checker.fail(
+            f"{what}: {key!r} must be a non-empty list of strings, got {value!r}",
+            key,
+            section,
+            index,
+        )
     return tuple(value)
 
 
 def _ready(checker: _Checker, value: Any, what: str, section: str, index: int) -> ReadyCheck:
     if not isinstance(value, dict) or len(value) != 1:
-        raise checker.fail(f"{what}: 'ready' must be one of {{log = \"regex\"}}, "
-                           f"{{delay = seconds}}, {{key = \"zenoh/key\"}} or "
-                           f"{{liveliness = \"zenoh/key\"}}, got {value!r}",
-                           "ready", section, index)
+        raise checker.fail(
+            f"{what}: 'ready' must be one of {{log = \"regex\"}}, "
+            f'{{delay = seconds}}, {{key = "zenoh/key"}} or '
+            f'{{liveliness = "zenoh/key"}}, got {value!r}',
+            "ready",
+            section,
+            index,
+        )
     checker.unknown(value, _READY, f"{what} 'ready'", section, index)
     kind, setting = next(iter(value.items()))
     if kind == "delay":
         return ReadyCheck(kind, float(checker.number(setting, "ready", what, section, index)))
     if not isinstance(setting, str) or not setting:
-        raise checker.fail(f"{what}: ready {kind} must be a non-empty string",
-                           "ready", section, index)
+        raise checker.fail(
+            f"{what}: ready {kind} must be a non-empty string", "ready", section, index
+        )
     if kind == "log":
         try:
             re.compile(setting)
         except re.error as exc:
-            raise checker.fail(f"{what}: ready log regex {setting!r} is invalid: {exc}",
-                               "ready", section, index) from None
+            raise checker.fail(
+                f"{what}: ready log regex {setting!r} is invalid: {exc}", "ready", section, index
+            ) from None
     return ReadyCheck(kind, setting)
 
 
@@ -168,15 +200,21 @@ def _process(checker: _Checker, table: Any, section: str, index: int) -> Process
     checker.unknown(table, _PROCESS, what, section, index)
     for required in ("name", "command"):
         if required not in table:
-            raise checker.fail(f"{what}: missing required field {required!r}",
-                               section, section, index)
+            raise checker.fail(
+                f"{what}: missing required field {required!r}", section, section, index
+            )
     name = table["name"]
     if not isinstance(name, str) or not re.match(r"^[A-Za-z0-9_.-]+$", name):
-        raise checker.fail(f"{what}: 'name' must be letters, digits, '_', '.' or '-', got {name!r}",
-                           "name", section, index)
+        raise checker.fail(
+            f"{what}: 'name' must be letters, digits, '_', '.' or '-', got {name!r}",
+            "name",
+            section,
+            index,
+        )
     if name == "host":
-        raise checker.fail(f"{what}: 'host' is reserved for the host's counters", "name",
-                           section, index)
+        raise checker.fail(
+            f"{what}: 'host' is reserved for the host's counters", "name", section, index
+        )
     command = _string_list(checker, table["command"], "command", what, section, index)
     if command[0] == "python":
         command = (sys.executable, *command[1:])
@@ -188,20 +226,26 @@ def _process(checker: _Checker, table: Any, section: str, index: int) -> Process
         raise checker.fail(f"{what}: 'cwd' must be a path string", "cwd", section, index)
     ready = table.get("ready")
     return ProcessSpec(
-        name=name, command=command, env=dict(env),
+        name=name,
+        command=command,
+        env=dict(env),
         cwd=(checker.path.parent / cwd).resolve(),
         ready=None if ready is None else _ready(checker, ready, what, section, index),
-        start_timeout=float(checker.number(table.get("start_timeout", 30.0), "start_timeout",
-                                           what, section, index)),
-        stop_timeout=float(checker.number(table.get("stop_timeout", 5.0), "stop_timeout",
-                                          what, section, index)),
+        start_timeout=float(
+            checker.number(table.get("start_timeout", 30.0), "start_timeout", what, section, index)
+        ),
+        stop_timeout=float(
+            checker.number(table.get("stop_timeout", 5.0), "stop_timeout", what, section, index)
+        ),
     )
 
 
 def _transport(checker: _Checker, value: Any) -> str:
     if value not in TRANSPORTS:
-        raise checker.fail(f"'transport' must be one of {', '.join(map(repr, TRANSPORTS))}, "
-                           f"got {value!r}", "transport")
+        raise checker.fail(
+            f"'transport' must be one of {', '.join(map(repr, TRANSPORTS))}, got {value!r}",
+            "transport",
+        )
     return str(value)
 
 
@@ -236,8 +280,9 @@ def load_suite(path: str | Path) -> Suite:
     tests = _string_list(checker, data["tests"], "tests", "the suite")
     for test in tests:
         if not (path.parent / test).is_file():
-            raise checker.fail(f"test module {test!r} does not exist (relative to the suite file)",
-                               "tests")
+            raise checker.fail(
+                f"test module {test!r} does not exist (relative to the suite file)", "tests"
+            )
     build = data.get("build")
     if isinstance(build, str):
         build = ("sh", "-c", build)
@@ -252,12 +297,18 @@ def load_suite(path: str | Path) -> Suite:
     if not sections["component"]:
         raise SuiteError(f"{path}: the suite names no [[component]]")
     return Suite(
-        path=path, name=data["name"], tests=tuple((path.parent / t).resolve() for t in tests),
-        components=sections["component"], fixtures=sections["fixture"], build=build,
-        executions=int(checker.number(data.get("executions", 1), "executions", "the suite",
-                                      integer=True)),
-        sampling_hz=float(checker.number(data.get("sampling_hz", 10.0), "sampling_hz",
-                                         "the suite")),
+        path=path,
+        name=data["name"],
+        tests=tuple((path.parent / t).resolve() for t in tests),
+        components=sections["component"],
+        fixtures=sections["fixture"],
+        build=build,
+        executions=int(
+            checker.number(data.get("executions", 1), "executions", "the suite", integer=True)
+        ),
+        sampling_hz=float(
+            checker.number(data.get("sampling_hz", 10.0), "sampling_hz", "the suite")
+        ),
         transport=_transport(checker, data.get("transport", "tcp")),
         sha256=hashlib.sha256(raw).hexdigest(),
     )

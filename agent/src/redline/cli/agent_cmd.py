@@ -20,19 +20,27 @@ log = logging.getLogger("redline.agent")
 
 
 def agent(
-    server: Annotated[str, typer.Option(help="URL of the Redline server",
-                                        envvar="REDLINE_SERVER")],
-    token: Annotated[str, typer.Option(help="API token with scope 'agent'",
-                                       envvar="REDLINE_TOKEN")],
+    server: Annotated[str, typer.Option(help="URL of the Redline server", envvar="REDLINE_SERVER")],
+    token: Annotated[
+        str, typer.Option(help="API token with scope 'agent'", envvar="REDLINE_TOKEN")
+    ],
     name: Annotated[str, typer.Option(help="this host's name")] = socket.gethostname(),
     work: Annotated[Path, typer.Option(help="folder for clones, recordings and the spool")] = Path(
-        ".redline-agent"),
+        ".redline-agent"
+    ),
     label: Annotated[list[str] | None, typer.Option(help="host labels (repeatable)")] = None,
     poll: Annotated[float, typer.Option(help="seconds between retries after an error")] = 2.0,
-    wait: Annotated[int, typer.Option(help="long poll: seconds the server may hold a lease "
-                                           "call when no job is queued (0: plain polling)")] = 20,
-    grace: Annotated[float, typer.Option(help="after SIGTERM, seconds to finish the current job "
-                                              "before releasing it")] = 600.0,
+    wait: Annotated[
+        int,
+        typer.Option(
+            help="long poll: seconds the server may hold a lease "
+            "call when no job is queued (0: plain polling)"
+        ),
+    ] = 20,
+    grace: Annotated[
+        float,
+        typer.Option(help="after SIGTERM, seconds to finish the current job before releasing it"),
+    ] = 600.0,
 ) -> None:
     """Pull jobs from the server, run them, upload the recordings.
 
@@ -43,8 +51,13 @@ def agent(
     from redline.agent.daemon import AgentDaemon, AgentStopping
 
     logging.basicConfig(level=logging.INFO, format="%(asctime)s agent %(levelname)s %(message)s")
-    daemon = AgentDaemon(ServerClient(server, token, name), work.resolve(), labels=label or [],
-                         poll_interval=poll, long_poll=wait)
+    daemon = AgentDaemon(
+        ServerClient(server, token, name),
+        work.resolve(),
+        labels=label or [],
+        poll_interval=poll,
+        long_poll=wait,
+    )
     _Signals(daemon, grace, AgentStopping).install()
     try:
         daemon.run_forever()
@@ -73,8 +86,12 @@ class _Signals:
             return
         if self.count > 1:
             raise self.stopping(f"signal {signum}")
-        log.info("signal %d: finishing job %s (at most %.0fs), then stopping",
-                 signum, self.daemon.current_job, self.grace)
+        log.info(
+            "signal %d: finishing job %s (at most %.0fs), then stopping",
+            signum,
+            self.daemon.current_job,
+            self.grace,
+        )
         timer = threading.Timer(self.grace, os.kill, (os.getpid(), signal.SIGTERM))
         timer.daemon = True
         timer.start()

@@ -16,8 +16,12 @@ app = typer.Typer(
 
 # Modules that add commands to `app` through a `register(app)` function; the server's are optional.
 _AGENT_COMMANDS = ("redline.cli.run_cmd", "redline.cli.agent_cmd")
-_SERVER_COMMANDS = ("redline.server.cli", "redline.server.up_cmd", "redline.detect.evaluate_cmd",
-                    "redline.detect.compare_cmd")
+_SERVER_COMMANDS = (
+    "redline.server.cli",
+    "redline.server.up_cmd",
+    "redline.detect.evaluate_cmd",
+    "redline.detect.compare_cmd",
+)
 
 
 def server_installed() -> bool:

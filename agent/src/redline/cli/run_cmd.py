@@ -28,26 +28,41 @@ def _summary(path: Path) -> Table:
     for (segment, process), counters in rows.items():
         cpu, rss = counters.get("cpu_percent", []), counters.get("rss_bytes", [])
         threads = counters.get("threads", [])
-        table.add_row(escape(segment), process, f"{sum(cpu) / len(cpu):.1f}" if cpu else "-",
-                      f"{max(rss) / 2**20:.1f}" if rss else "-",
-                      f"{max(threads):.0f}" if threads else "-")
+        table.add_row(
+            escape(segment),
+            process,
+            f"{sum(cpu) / len(cpu):.1f}" if cpu else "-",
+            f"{max(rss) / 2**20:.1f}" if rss else "-",
+            f"{max(threads):.0f}" if threads else "-",
+        )
     return table
 
 
 def run(
-    suite: Annotated[Path, typer.Argument(help="the suite file (redline.toml)", exists=True,
-                                          dir_okay=False)],
+    suite: Annotated[
+        Path, typer.Argument(help="the suite file (redline.toml)", exists=True, dir_okay=False)
+    ],
     out: Annotated[Path, typer.Option("--out", "-o", help="the MCAP recording to write")],
     keep: Annotated[bool, typer.Option("--keep", help="keep the workspace and logs")] = False,
-    meta: Annotated[list[str] | None, typer.Option(
-        "--meta", help="KEY=VALUE added to the run metadata (repeatable)")] = None,
-    only: Annotated[list[str] | None, typer.Option(
-        "--only", help="run only this test case (repeatable)")] = None,
-    param: Annotated[list[str] | None, typer.Option(
-        "--param", help="NAME=VALUE replacing a parameter in every set (repeatable)")] = None,
-    executions: Annotated[int | None, typer.Option(
-        "--executions", "-n", min=1,
-        help="executions (default: the suite's); more than one writes OUT-1.mcap, OUT-2.mcap...")
+    meta: Annotated[
+        list[str] | None,
+        typer.Option("--meta", help="KEY=VALUE added to the run metadata (repeatable)"),
+    ] = None,
+    only: Annotated[
+        list[str] | None, typer.Option("--only", help="run only this test case (repeatable)")
+    ] = None,
+    param: Annotated[
+        list[str] | None,
+        typer.Option("--param", help="NAME=VALUE replacing a parameter in every set (repeatable)"),
+    ] = None,
+    executions: Annotated[
+        int | None,
+        typer.Option(
+            "--executions",
+            "-n",
+            min=1,
+            help="executions (default: the suite's); more than one writes OUT-1.mcap, OUT-2.mcap...",
+        ),
     ] = None,
 ) -> None:
     """Run SUITE (every case, phase and parameter set) and record each execution."""
@@ -64,15 +79,24 @@ def run(
         console.print(f"[dim]{time.monotonic() - began:6.1f}s[/dim] {escape(message)}")
 
     try:
-        results = run_executions(suite, out, executions=executions, run_metadata=extra,
-                                 progress=progress, keep_workspace=keep, only=only or (),
-                                 overrides=parse_overrides(param or []))
+        results = run_executions(
+            suite,
+            out,
+            executions=executions,
+            run_metadata=extra,
+            progress=progress,
+            keep_workspace=keep,
+            only=only or (),
+            overrides=parse_overrides(param or []),
+        )
     except (SuiteError, ValidationError, RunError) as exc:
         console.print(f"[bold red]error:[/bold red] {escape(str(exc))}")
         raise typer.Exit(1) from None
     except KeyboardInterrupt:
-        console.print("[bold red]interrupted[/bold red]: every process was stopped; what was "
-                      "recorded so far is in the recording")
+        console.print(
+            "[bold red]interrupted[/bold red]: every process was stopped; what was "
+            "recorded so far is in the recording"
+        )
         raise typer.Exit(130) from None
     console.print(_summary(results[-1].recording))
     for result in results:

@@ -75,18 +75,25 @@ class Recording:
                 open_[ident] = marker
             elif marker["event"] == "end" and ident in open_:
                 begin = open_.pop(ident)
-                done.append(Segment(
-                    case=marker["case"], phase=marker["phase"], params=marker["params"],
-                    warmup=bool(begin.get("warmup")), begin_ns=begin["t_ns"], end_ns=marker["t_ns"],
-                ))
+                done.append(
+                    Segment(
+                        case=marker["case"],
+                        phase=marker["phase"],
+                        params=marker["params"],
+                        warmup=bool(begin.get("warmup")),
+                        begin_ns=begin["t_ns"],
+                        end_ns=marker["t_ns"],
+                    )
+                )
         return done
 
     def series_samples(self, *, include_warmup: bool = False) -> dict[SeriesKey, list[float]]:
         """Counter samples grouped by series, in time order; warm-up phases are left out."""
         return self._grouped(include_warmup, timed=False)  # type: ignore[return-value]
 
-    def series_timeline(self, *, include_warmup: bool = False
-                        ) -> dict[SeriesKey, list[tuple[int, float]]]:
+    def series_timeline(
+        self, *, include_warmup: bool = False
+    ) -> dict[SeriesKey, list[tuple[int, float]]]:
         """Like `series_samples`, with each sample's time: ``(t_ns, value)`` pairs."""
         return self._grouped(include_warmup, timed=True)  # type: ignore[return-value]
 
@@ -98,8 +105,9 @@ class Recording:
         times = [sample["t_ns"] for sample in counters]
         for segment in segments:
             params = canonical_params(segment.params)
-            inside = counters[bisect_left(times, segment.begin_ns):
-                              bisect_right(times, segment.end_ns)]
+            inside = counters[
+                bisect_left(times, segment.begin_ns) : bisect_right(times, segment.end_ns)
+            ]
             # keyed by a plain tuple while grouping: SeriesKey's hash is Python code, per sample
             for (process, counter), values in _by_counter(inside, timed).items():
                 key = SeriesKey(segment.case, segment.phase, params, process, counter)
@@ -141,8 +149,9 @@ def _chunk_data(chunk: Chunk) -> bytes | None:
     return chunk.data if chunk.compression == "" else None
 
 
-def _take_chunk(recording: Recording, chunk: Chunk, channels: dict[int, tuple[int, str]],
-                counters: list[bytes]) -> None:
+def _take_chunk(
+    recording: Recording, chunk: Chunk, channels: dict[int, tuple[int, str]], counters: list[bytes]
+) -> None:
     """The messages and channels of one chunk, parsed in place (mcap's reader goes byte by byte,
     which made reading the file most of an ingest)."""
     data = _chunk_data(chunk)
@@ -157,20 +166,22 @@ def _take_chunk(recording: Recording, chunk: Chunk, channels: dict[int, tuple[in
         if opcode == Opcode.MESSAGE:
             kind, topic = channels.get(_CHANNEL_ID.unpack_from(data, position)[0], (_TRAFFIC, ""))
             if kind == _COUNTERS:
-                counters.append(data[position + _MESSAGE_HEAD:position + length])
+                counters.append(data[position + _MESSAGE_HEAD : position + length])
             elif kind == _TRAFFIC:
                 recording.traffic[topic] += 1
             else:
-                _take_message(recording, kind, topic,
-                              data[position + _MESSAGE_HEAD:position + length])
+                _take_message(
+                    recording, kind, topic, data[position + _MESSAGE_HEAD : position + length]
+                )
         elif opcode == Opcode.CHANNEL:
-            channel = Channel.read(ReadDataStream(BytesIO(data[position:position + length])))
+            channel = Channel.read(ReadDataStream(BytesIO(data[position : position + length])))
             channels[channel.id] = (_kind(channel.topic), channel.topic)
         position += length
 
 
-def _take_record(recording: Recording, record: Any, channels: dict[int, tuple[int, str]],
-                 counters: list[bytes]) -> None:
+def _take_record(
+    recording: Recording, record: Any, channels: dict[int, tuple[int, str]], counters: list[bytes]
+) -> None:
     if isinstance(record, Chunk):
         _take_chunk(recording, record, channels, counters)
     elif isinstance(record, Message):
@@ -255,7 +266,9 @@ def _check_strict(recording: Recording) -> None:
         detail = recording.problem or "no footer"
         raise RecordingError(f"{name} is truncated or damaged: {detail}")
     if recording.profile != PROFILE:
-        raise RecordingError(f"{name} is an MCAP file but not a Redline recording "
-                             f"(profile {recording.profile!r}, expected {PROFILE!r})")
+        raise RecordingError(
+            f"{name} is an MCAP file but not a Redline recording "
+            f"(profile {recording.profile!r}, expected {PROFILE!r})"
+        )
     if META_RUN not in recording.metadata:
         raise RecordingError(f"{name} has no {META_RUN!r} metadata")

@@ -40,8 +40,16 @@ class _LeanChunkBuilder(ChunkBuilder):
             index = self.message_indices[channel_id] = MessageIndex(channel_id, records=[])
         buffer = self.record_writer._buffer
         index.records.append((log_time, buffer.tell()))
-        buffer.write(_MESSAGE_HEAD.pack(_MESSAGE_OPCODE, _MESSAGE_FIELDS + len(data), channel_id,
-                                        message.sequence, log_time, message.publish_time))
+        buffer.write(
+            _MESSAGE_HEAD.pack(
+                _MESSAGE_OPCODE,
+                _MESSAGE_FIELDS + len(data),
+                channel_id,
+                message.sequence,
+                log_time,
+                message.publish_time,
+            )
+        )
         buffer.write(data)
         self.num_messages += 1
 
@@ -65,12 +73,12 @@ class RecordingWriter:
     Not thread-safe: the recorder feeds it from a single writer thread.
     """
 
-    def __init__(self, path: str | Path, *, library: str = "redline",
-                 chunk_size: int = 1 << 20) -> None:
+    def __init__(
+        self, path: str | Path, *, library: str = "redline", chunk_size: int = 1 << 20
+    ) -> None:
         self.path = Path(path)
         self._stream: BinaryIO = open(self.path, "wb")  # noqa: SIM115 - closed in close()
-        self._writer = Writer(self._stream, compression=CompressionType.ZSTD,
-                              chunk_size=chunk_size)
+        self._writer = Writer(self._stream, compression=CompressionType.ZSTD, chunk_size=chunk_size)
         _use_lean_chunks(self._writer)
         self._writer.start(profile=PROFILE, library=f"{library} (format {FORMAT_VERSION})")
         self._channels: dict[str, int] = {}
@@ -85,14 +93,18 @@ class RecordingWriter:
             self._channels[topic] = channel
         return channel
 
-    def write(self, topic: str, data: bytes, *, encoding: str = "",
-              t_ns: int | None = None) -> None:
+    def write(
+        self, topic: str, data: bytes, *, encoding: str = "", t_ns: int | None = None
+    ) -> None:
         """Write one message; ``t_ns`` is its log time (now if not given)."""
         stamp = time.time_ns() if t_ns is None else t_ns
         self._sequence += 1
         self._writer.add_message(
-            self._channel(topic, encoding), log_time=stamp, data=data,
-            publish_time=stamp, sequence=self._sequence,
+            self._channel(topic, encoding),
+            log_time=stamp,
+            data=data,
+            publish_time=stamp,
+            sequence=self._sequence,
         )
         self.messages += 1
 
@@ -106,12 +118,27 @@ class RecordingWriter:
             {"t_ns": t_ns, "pid": pid, "process": process, "values": values},
         )
 
-    def marker(self, event: str, case: str, phase: str, params: dict[str, Any], *,
-               warmup: bool = False, t_ns: int | None = None) -> None:
-        self.write_json(MARKERS_KEY, {
-            "t_ns": time.time_ns() if t_ns is None else t_ns, "event": event, "case": case,
-            "phase": phase, "params": params, "warmup": warmup,
-        })
+    def marker(
+        self,
+        event: str,
+        case: str,
+        phase: str,
+        params: dict[str, Any],
+        *,
+        warmup: bool = False,
+        t_ns: int | None = None,
+    ) -> None:
+        self.write_json(
+            MARKERS_KEY,
+            {
+                "t_ns": time.time_ns() if t_ns is None else t_ns,
+                "event": event,
+                "case": case,
+                "phase": phase,
+                "params": params,
+                "warmup": warmup,
+            },
+        )
 
     def metadata(self, name: str, data: dict[str, Any]) -> None:
         self._writer.add_metadata(name, _strings(data))

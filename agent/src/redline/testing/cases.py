@@ -45,11 +45,13 @@ class Cartesian:
     (the paper's constraints), e.g. ``where=lambda p: p["legs"] * p["rate"] <= 200``.
     """
 
-    def __init__(self, where: Callable[[ParameterSet], bool] | None = None,
-                 **values: Iterable[Any]) -> None:
+    def __init__(
+        self, where: Callable[[ParameterSet], bool] | None = None, **values: Iterable[Any]
+    ) -> None:
         if where is not None and not callable(where):
-            raise TypeError(f"Cartesian(where=...) takes a function of the parameter set, "
-                            f"got {where!r}")
+            raise TypeError(
+                f"Cartesian(where=...) takes a function of the parameter set, got {where!r}"
+            )
         self.where = where
         self.values: dict[str, list[Any]] = {}
         for name, options in values.items():
@@ -86,15 +88,18 @@ class Table:
         self.rows = []
         for index, row in enumerate(values):
             if len(row) != len(header):
-                raise ValueError(f"Table row {index + 1} has {len(row)} values for "
-                                 f"{len(header)} columns {header}")
+                raise ValueError(
+                    f"Table row {index + 1} has {len(row)} values for "
+                    f"{len(header)} columns {header}"
+                )
             self.rows.append(ParameterSet(zip(header, row, strict=True)))
 
     @staticmethod
     def _row(row: Any, index: int) -> ParameterSet:
         if not isinstance(row, Mapping):
-            raise TypeError(f"Table row {index + 1} must be a dict of parameter values, "
-                            f"got {row!r}")
+            raise TypeError(
+                f"Table row {index + 1} must be a dict of parameter values, got {row!r}"
+            )
         return ParameterSet(row)
 
     def __iter__(self) -> Iterator[ParameterSet]:
@@ -130,8 +135,12 @@ class TestCase:
 
     __test__ = False  # not a pytest class, despite the name
 
-    def __init__(self, name: str, phases: Sequence[Phase],
-                 params: ParameterProvider | Iterable[dict[str, Any]] | None = None) -> None:
+    def __init__(
+        self,
+        name: str,
+        phases: Sequence[Phase],
+        params: ParameterProvider | Iterable[dict[str, Any]] | None = None,
+    ) -> None:
         self.name = _check_name("test case", name)
         self.phases = list(phases)
         if not self.phases or not all(isinstance(p, Phase) for p in self.phases):
@@ -166,13 +175,17 @@ def case_problems(case: TestCase) -> list[str]:
             problems.append(f"test case {case.name!r}: phase {phase.name!r} is defined twice")
         seen.add(phase.name)
         for action in phase.action.walk():
-            problems += [f"test case {case.name!r}, phase {phase.name!r}: {problem}"
-                         for problem in action.problems()]
+            problems += [
+                f"test case {case.name!r}, phase {phase.name!r}: {problem}"
+                for problem in action.problems()
+            ]
         for param in sorted(phase.action.params_used()):
             lacking = [s.name for s in sets if param not in s]
             if lacking:
-                problems.append(f"test case {case.name!r}, phase {phase.name!r}: parameter "
-                                f"{param!r} is missing from parameter set(s) {', '.join(lacking)}")
+                problems.append(
+                    f"test case {case.name!r}, phase {phase.name!r}: parameter "
+                    f"{param!r} is missing from parameter set(s) {', '.join(lacking)}"
+                )
     return problems
 
 

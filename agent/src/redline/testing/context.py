@@ -43,7 +43,9 @@ class Link:
             found = self._publishers.get(ident)
             if found is None:
                 found = self.session.declare_publisher(
-                    key, encoding=encoding, congestion_control=zenoh.CongestionControl.DROP,
+                    key,
+                    encoding=encoding,
+                    congestion_control=zenoh.CongestionControl.DROP,
                 )
                 self._publishers[ident] = found
             return found
@@ -66,11 +68,13 @@ class Link:
             listeners[id(listener)] = listener
             if key not in self._subscribers:
                 self._subscribers[key] = self.session.declare_subscriber(
-                    key, lambda sample: self._dispatch(key, sample))
+                    key, lambda sample: self._dispatch(key, sample)
+                )
 
         def forget() -> None:
             with self._lock:
                 listeners.pop(id(listener), None)
+
         return forget
 
     def _dispatch(self, key: str, sample: zenoh.Sample) -> None:
@@ -142,8 +146,10 @@ class Context:
         try:
             return self.params[name]
         except KeyError:
-            raise KeyError(f"test case {self.case!r}, phase {self.phase!r}: parameter {name!r} "
-                           f"is not in this parameter set ({sorted(self.params)})") from None
+            raise KeyError(
+                f"test case {self.case!r}, phase {self.phase!r}: parameter {name!r} "
+                f"is not in this parameter set ({sorted(self.params)})"
+            ) from None
 
     @property
     def stopped(self) -> bool:
@@ -195,8 +201,13 @@ class Context:
 
     def report(self, metrics: dict[str, Any]) -> None:
         """Record driver-side metrics; published on ``@redline/driver/<case>/<phase>`` in a run."""
-        message = {"t_ns": time.time_ns(), "case": self.case, "phase": self.phase,
-                   "params": dict(self.params), **metrics}
+        message = {
+            "t_ns": time.time_ns(),
+            "case": self.case,
+            "phase": self.phase,
+            "params": dict(self.params),
+            **metrics,
+        }
         self.reports.append(message)
         if self.link is not None:
             self.link.put_json(f"{DRIVER_PREFIX}{self.case}/{self.phase}", message)

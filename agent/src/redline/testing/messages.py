@@ -138,8 +138,9 @@ class ProtobufMessage(Message):
         super().__init__(template)
         descriptor = getattr(message_class, "DESCRIPTOR", None)
         if descriptor is None:
-            raise TypeError(f"Message.protobuf needs a protobuf message class, "
-                            f"got {message_class!r}")
+            raise TypeError(
+                f"Message.protobuf needs a protobuf message class, got {message_class!r}"
+            )
         self.message_class = message_class
         self.encoding = f"application/protobuf;{descriptor.full_name}"
 

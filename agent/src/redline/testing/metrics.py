@@ -52,5 +52,10 @@ class Tally:
         """The message published for this tally."""
         with self._lock:
             values, counts = list(self._values), dict(self._counts)
-        return {"action": self.action, "key": self.key, "count": len(values), **counts,
-                **latency_summary(values, self.measure)}
+        return {
+            "action": self.action,
+            "key": self.key,
+            "count": len(values),
+            **counts,
+            **latency_summary(values, self.measure),
+        }

@@ -54,8 +54,14 @@ class Publish(Action):
     into the recording (``lost_by_key`` in ``redline.recorder``).
     """
 
-    def __init__(self, key: str | Action, payload: bytes | str | Action,
-                 *, encoding: str | None = None, sequence: bool = False) -> None:
+    def __init__(
+        self,
+        key: str | Action,
+        payload: bytes | str | Action,
+        *,
+        encoding: str | None = None,
+        sequence: bool = False,
+    ) -> None:
         self.key = key
         self.payload = payload
         self.encoding = encoding
@@ -67,8 +73,9 @@ class Publish(Action):
     @property
     def cheap(self) -> bool:  # type: ignore[override]
         """A literal key and payload: a run is one put on a cached publisher."""
-        return (isinstance(self.key, str) and not isinstance(self.payload, Action)
-                and not self.sequence)
+        return (
+            isinstance(self.key, str) and not isinstance(self.payload, Action) and not self.sequence
+        )
 
     def compile(self, ctx: Context) -> Callable[[], Any]:
         if not self.cheap:
@@ -107,9 +114,15 @@ class Query(Action):
     ``payload`` may be a `Message`.
     """
 
-    def __init__(self, key: str | Action, payload: bytes | str | Action | None = None, *,
-                 timeout: float | Action = 1.0, wait: bool = True,
-                 encoding: str | None = None) -> None:
+    def __init__(
+        self,
+        key: str | Action,
+        payload: bytes | str | Action | None = None,
+        *,
+        timeout: float | Action = 1.0,
+        wait: bool = True,
+        encoding: str | None = None,
+    ) -> None:
         self.key = key
         self.payload = payload
         self.timeout = timeout

@@ -28,8 +28,14 @@ class WaitFor(Action):
     ``timeouts`` and the wait time percentiles ``wait_p50_us``... on ``@redline/driver/...``.
     """
 
-    def __init__(self, key: str | Action, timeout: float | Action = 1.0, *,
-                 where: Predicate | None = None, after: Action | None = None) -> None:
+    def __init__(
+        self,
+        key: str | Action,
+        timeout: float | Action = 1.0,
+        *,
+        where: Predicate | None = None,
+        after: Action | None = None,
+    ) -> None:
         self.key = key
         self.timeout = timeout
         self.where = where
@@ -92,13 +98,20 @@ class _Arrivals:
         with self.lock:
             received = self.received.get(key, 0)
             numbers = self.sequences.get(key)
-        result: dict[str, Any] = {"action": "Listen", "key": key, "received": received,
-                                  "rate": received / seconds if seconds > 0 else 0.0}
+        result: dict[str, Any] = {
+            "action": "Listen",
+            "key": key,
+            "received": received,
+            "rate": received / seconds if seconds > 0 else 0.0,
+        }
         if numbers:
             expected = max(numbers) - min(numbers) + 1
-            result |= {"sequenced": len(numbers), "lost": expected - len(numbers),
-                       "loss_ratio": (expected - len(numbers)) / expected,
-                       "duplicates": received - len(numbers)}
+            result |= {
+                "sequenced": len(numbers),
+                "lost": expected - len(numbers),
+                "loss_ratio": (expected - len(numbers)) / expected,
+                "duplicates": received - len(numbers),
+            }
         return result
 
 

@@ -48,12 +48,13 @@ def _messages(path: Path) -> Iterator[tuple[Channel, Message]]:
 def _remapped(key: str, remap: Mapping[str, str]) -> str:
     for old, new in remap.items():
         if key == old or key.startswith(old.rstrip("/") + "/"):
-            return new + key[len(old):]
+            return new + key[len(old) :]
     return key
 
 
-def load_recorded(path: str | Path, keys: Sequence[str] | None = None,
-                  remap: Mapping[str, str] | None = None) -> list[Recorded]:
+def load_recorded(
+    path: str | Path, keys: Sequence[str] | None = None, remap: Mapping[str, str] | None = None
+) -> list[Recorded]:
     """The messages of a recording to replay, in log-time order, selected and remapped.
 
     Redline's own channels (``@redline/...``) are never replayed.
@@ -69,8 +70,14 @@ def load_recorded(path: str | Path, keys: Sequence[str] | None = None,
             continue
         if selectors is not None and not any(s.intersects(zenoh.KeyExpr(topic)) for s in selectors):
             continue
-        found.append((message.log_time, _remapped(topic, remap or {}),
-                      channel.message_encoding, message.data))
+        found.append(
+            (
+                message.log_time,
+                _remapped(topic, remap or {}),
+                channel.message_encoding,
+                message.data,
+            )
+        )
     found.sort(key=lambda item: item[0])
     first = found[0][0] if found else 0
     return [Recorded(t - first, key, encoding, data) for t, key, encoding, data in found]
@@ -86,9 +93,15 @@ class Replay(Action):
     skipped. Reports messages sent and lateness percentiles; returns the number of messages sent.
     """
 
-    def __init__(self, recording: str | Path | Action, *, speed: float | Action = 1.0,
-                 keys: Sequence[str] | None = None, remap: Mapping[str, str] | None = None,
-                 loop: bool | int = False) -> None:
+    def __init__(
+        self,
+        recording: str | Path | Action,
+        *,
+        speed: float | Action = 1.0,
+        keys: Sequence[str] | None = None,
+        remap: Mapping[str, str] | None = None,
+        loop: bool | int = False,
+    ) -> None:
         self.recording = recording
         self.speed = speed
         self.keys = list(keys) if keys else None
@@ -98,7 +111,8 @@ class Replay(Action):
 
     def problems(self) -> list[str]:
         return key_problems("Replay keys", *(self.keys or [])) + key_problems(
-            "Replay remap", *self.remap.values())
+            "Replay remap", *self.remap.values()
+        )
 
     def _load(self, path: str) -> list[Recorded]:
         if path not in self._loaded:
@@ -130,8 +144,14 @@ class Replay(Action):
         ctx.report(self._summary(sent, done, lateness, ctx.stopped))
         return sent
 
-    def _summary(self, sent: int, passes: int, lateness: list[int],
-                 interrupted: bool) -> dict[str, Any]:
-        return {"action": "Replay", "recording": str(self.recording), "messages": sent,
-                "passes": passes, "interrupted": interrupted,
-                **latency_summary(lateness, "lateness")}
+    def _summary(
+        self, sent: int, passes: int, lateness: list[int], interrupted: bool
+    ) -> dict[str, Any]:
+        return {
+            "action": "Replay",
+            "recording": str(self.recording),
+            "messages": sent,
+            "passes": passes,
+            "interrupted": interrupted,
+            **latency_summary(lateness, "lateness"),
+        }

@@ -88,12 +88,17 @@ class FixedRate(Action):
         ctx.sleep_until(end)
         elapsed = (time.perf_counter_ns() - start) / 1e9
         lateness.sort()
-        ctx.report({
-            "action": "FixedRate", "rate_target": rate, "duration_s": round(elapsed, 6),
-            "iterations": len(lateness), "rate_achieved": len(lateness) / elapsed,
-            "lateness_p50_us": quantile(lateness, 0.5) / 1e3,
-            "lateness_p99_us": quantile(lateness, 0.99) / 1e3,
-            "lateness_max_us": (lateness[-1] if lateness else 0) / 1e3,
-            "interrupted": ctx.stopped,
-        })
+        ctx.report(
+            {
+                "action": "FixedRate",
+                "rate_target": rate,
+                "duration_s": round(elapsed, 6),
+                "iterations": len(lateness),
+                "rate_achieved": len(lateness) / elapsed,
+                "lateness_p50_us": quantile(lateness, 0.5) / 1e3,
+                "lateness_p99_us": quantile(lateness, 0.99) / 1e3,
+                "lateness_max_us": (lateness[-1] if lateness else 0) / 1e3,
+                "interrupted": ctx.stopped,
+            }
+        )
         return len(lateness)

@@ -8,6 +8,17 @@ from redline.detect.result import CHANGE, NO_CHANGE, NOT_ENOUGH_DATA, Detection
 from redline.detect.shang import ShangRegression
 
 __all__ = [
-    "CHANGE", "NO_CHANGE", "NOT_ENOUGH_DATA", "Detection", "Detector", "EDivisive", "FooRules",
-    "KolmogorovSmirnov", "MannWhitney", "ShangRegression", "WelchT", "aggregate", "compare_test",
+    "CHANGE",
+    "NO_CHANGE",
+    "NOT_ENOUGH_DATA",
+    "Detection",
+    "Detector",
+    "EDivisive",
+    "FooRules",
+    "KolmogorovSmirnov",
+    "MannWhitney",
+    "ShangRegression",
+    "WelchT",
+    "aggregate",
+    "compare_test",
 ]

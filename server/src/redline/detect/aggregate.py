@@ -46,18 +46,29 @@ def aggregate(detections: Sequence[Detection], how: str = "max", method: str = "
     p_values = [d.p_value for d in decided if d.p_value is not None]
     p_value = min(1.0, min(p_values) * len(p_values)) if p_values else None
     reason = f"{len(skipped)} of {len(detections)} series had not enough data" if skipped else ""
-    return Detection(method=name, verdict=CHANGE if flagged else NO_CHANGE,
-                     score=aggregate_scores([d.score for d in decided], how), p_value=p_value,
-                     effect=effect, direction=direction_of(effect), reason=reason,
-                     parts=tuple(d.score for d in decided))
+    return Detection(
+        method=name,
+        verdict=CHANGE if flagged else NO_CHANGE,
+        score=aggregate_scores([d.score for d in decided], how),
+        p_value=p_value,
+        effect=effect,
+        direction=direction_of(effect),
+        reason=reason,
+        parts=tuple(d.score for d in decided),
+    )
 
 
-def compare_test(detector: Detector, baselines: Mapping[str, object],
-                 candidates: Mapping[str, object], how: str = "max") -> Detection:
+def compare_test(
+    detector: Detector,
+    baselines: Mapping[str, object],
+    candidates: Mapping[str, object],
+    how: str = "max",
+) -> Detection:
     """Compare every series of a candidate execution with its baseline, then aggregate.
 
     A series the baseline lacks gets "missing baseline"; it does not silently vanish.
     """
-    detections = [detector.compare(baselines.get(series), values)
-                  for series, values in candidates.items()]
+    detections = [
+        detector.compare(baselines.get(series), values) for series, values in candidates.items()
+    ]
     return aggregate(detections, how=how, method=detector.name)

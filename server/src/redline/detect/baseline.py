@@ -20,8 +20,9 @@ DEFAULT_WINDOW = 10
 T = TypeVar("T")
 
 
-def take_recent(newest_first: Iterable[tuple[T, int, bool]], need: int,
-                window: int = DEFAULT_WINDOW) -> list[T]:
+def take_recent(
+    newest_first: Iterable[tuple[T, int, bool]], need: int, window: int = DEFAULT_WINDOW
+) -> list[T]:
     """The earlier revisions that form the baseline, taken from ``(revision, number of values,
     flagged by the method)`` newest first, and read no further than needed (the iterable may
     compute each revision's values lazily)."""
@@ -37,12 +38,19 @@ def take_recent(newest_first: Iterable[tuple[T, int, bool]], need: int,
     return taken
 
 
-def recent_depth(sizes_newest_first: Sequence[int], need: int, window: int = DEFAULT_WINDOW,
-                 flagged_at: int | None = None) -> int:
+def recent_depth(
+    sizes_newest_first: Sequence[int],
+    need: int,
+    window: int = DEFAULT_WINDOW,
+    flagged_at: int | None = None,
+) -> int:
     """How many of the newest earlier revisions form the baseline (`take_recent` on sizes).
 
     ``flagged_at``: the position in ``sizes_newest_first`` of the newest revision the method
     flagged, or None; the baseline stops there, that revision included.
     """
-    return len(take_recent(((k, size, k == flagged_at) for k, size in
-                            enumerate(sizes_newest_first)), need, window))
+    return len(
+        take_recent(
+            ((k, size, k == flagged_at) for k, size in enumerate(sizes_newest_first)), need, window
+        )
+    )

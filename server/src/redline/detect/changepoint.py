@@ -48,8 +48,11 @@ def split_statistics(x: np.ndarray, min_size: int, alpha: float) -> np.ndarray:
     left = prefix[tau, tau]
     cross = prefix[tau, n] - left
     right = prefix[n, n] - left - 2 * cross
-    energy = (2 * cross / (tau * (n - tau)) - left / (tau * (tau - 1))
-              - right / ((n - tau) * (n - tau - 1)))
+    energy = (
+        2 * cross / (tau * (n - tau))
+        - left / (tau * (tau - 1))
+        - right / ((n - tau) * (n - tau - 1))
+    )
     q = np.full(n + 1, np.nan)
     q[tau] = tau * (n - tau) / n * energy
     return q
@@ -63,8 +66,15 @@ def _relative_change(before: np.ndarray, after: np.ndarray) -> float:
 class EDivisive:
     """Multiple change points in one series (values in revision order)."""
 
-    def __init__(self, sig_level: float = 0.05, permutations: int = 199, min_size: int = 5,
-                 alpha: float = 1.0, min_effect: float = 0.10, random_state: int = 0) -> None:
+    def __init__(
+        self,
+        sig_level: float = 0.05,
+        permutations: int = 199,
+        min_size: int = 5,
+        alpha: float = 1.0,
+        min_effect: float = 0.10,
+        random_state: int = 0,
+    ) -> None:
         self.sig_level = sig_level
         self.permutations = permutations
         self.min_size = min_size
@@ -77,8 +87,9 @@ class EDivisive:
         return self
 
     def detect(self, series: object) -> ChangePoints:
-        checked = check_samples(series, np.empty(0), min_baseline=2 * self.min_size,
-                                min_candidate=0)
+        checked = check_samples(
+            series, np.empty(0), min_baseline=2 * self.min_size, min_candidate=0
+        )
         if isinstance(checked, str):
             reason = checked.replace("baseline", "series")
             return ChangePoints(verdict=NOT_ENOUGH_DATA, reason=reason)
@@ -89,9 +100,10 @@ class EDivisive:
         points = []
         for index, p_value, statistic in found:
             at = bounds.index(index)
-            effect = _relative_change(x[bounds[at - 1]:index], x[index:bounds[at + 1]])
-            points.append(ChangePoint(index, p_value, statistic, effect,
-                                      abs(effect) >= self.min_effect))
+            effect = _relative_change(x[bounds[at - 1] : index], x[index : bounds[at + 1]])
+            points.append(
+                ChangePoint(index, p_value, statistic, effect, abs(effect) >= self.min_effect)
+            )
         verdict = CHANGE if any(p.reported for p in points) else NO_CHANGE
         return ChangePoints(verdict=verdict, change_points=tuple(points))
 
@@ -120,10 +132,12 @@ class EDivisive:
                 best = (start, end, tau, float(q[tau]))
         return best
 
-    def _permutation_p(self, segment: np.ndarray, observed: float,
-                       rng: np.random.Generator) -> float:
+    def _permutation_p(
+        self, segment: np.ndarray, observed: float, rng: np.random.Generator
+    ) -> float:
         exceed = sum(
             np.nanmax(split_statistics(rng.permutation(segment), self.min_size, self.alpha))
             >= observed
-            for _ in range(self.permutations))
+            for _ in range(self.permutations)
+        )
         return float((exceed + 1) / (self.permutations + 1))

@@ -110,8 +110,11 @@ def load_side(paths: Sequence[str | Path], side: str) -> tuple[RecordedSeries, .
             raise CompareError(f"{side} recording {path}: {exc}") from None
         except OSError as exc:
             raise CompareError(f"{side} recording {path}: {exc.strerror or exc}") from None
-        timeline = {key: points for key, points in recording.series_timeline().items()
-                    if key.process != HOST_PROCESS}  # the machine's context, not judged
+        timeline = {
+            key: points
+            for key, points in recording.series_timeline().items()
+            if key.process != HOST_PROCESS
+        }  # the machine's context, not judged
         loaded.append(RecordedSeries(path=path, label=_label(recording), timeline=timeline))
     return tuple(loaded)
 
@@ -130,20 +133,28 @@ def _segment(key: SeriesKey) -> Segment:
 
 
 def _verdict(key: SeriesKey, base: np.ndarray, cand: np.ndarray) -> SeriesVerdict:
-    return SeriesVerdict(key=key, result=judge_series(KolmogorovSmirnov(), key.counter, base, cand),
-                         baseline_mean=float(np.mean(base)), candidate_mean=float(np.mean(cand)),
-                         baseline_n=int(base.size), candidate_n=int(cand.size))
+    return SeriesVerdict(
+        key=key,
+        result=judge_series(KolmogorovSmirnov(), key.counter, base, cand),
+        baseline_mean=float(np.mean(base)),
+        candidate_mean=float(np.mean(cand)),
+        baseline_n=int(base.size),
+        candidate_n=int(cand.size),
+    )
 
 
-def compare_sides(baseline: tuple[RecordedSeries, ...],
-                  candidate: tuple[RecordedSeries, ...]) -> Comparison:
+def compare_sides(
+    baseline: tuple[RecordedSeries, ...], candidate: tuple[RecordedSeries, ...]
+) -> Comparison:
     """Judge every series both sides hold; CompareError when they hold none in common."""
     base, cand = pooled(baseline), pooled(candidate)
     common = sorted(set(base) & set(cand))
     if not common:
-        raise CompareError(f"the baseline and the candidate have no series in common (baseline: "
-                           f"{len(base)} series, candidate: {len(cand)}; compare recordings of "
-                           f"the same test cases, phases and parameter sets)")
+        raise CompareError(
+            f"the baseline and the candidate have no series in common (baseline: "
+            f"{len(base)} series, candidate: {len(cand)}; compare recordings of "
+            f"the same test cases, phases and parameter sets)"
+        )
     by_segment: dict[Segment, list[SeriesVerdict]] = {}
     for key in common:
         by_segment.setdefault(_segment(key), []).append(_verdict(key, base[key], cand[key]))

@@ -46,8 +46,9 @@ def parse_args(argv: list[str]) -> CompareArgs:
             setattr(args, option[2:], Path(value))
             current = option
         elif word.startswith("-"):
-            raise CompareError(f"unknown option {word!r} (expected --baseline, --candidate, "
-                               "--junit, --html)")
+            raise CompareError(
+                f"unknown option {word!r} (expected --baseline, --candidate, --junit, --html)"
+            )
         elif current in _LISTS:
             getattr(args, current[2:]).append(Path(word))
         elif current in _SINGLE and argv[index - 1] == current:
@@ -88,12 +89,15 @@ def compare_cmd(ctx: typer.Context) -> None:
     for segment in comparison.segments:
         mark = f"CHANGED ({len(segment.changed)})" if segment.changed else segment.note or "ok"
         typer.echo(f"{segment.name}: {mark}")
-    typer.echo(f"{len(changed)} counter(s) changed in {len(comparison.segments)} segment(s); "
-               f"JUnit: {args.junit}" + (f"; HTML: {args.html}" if args.html else ""))
+    typer.echo(
+        f"{len(changed)} counter(s) changed in {len(comparison.segments)} segment(s); "
+        f"JUnit: {args.junit}" + (f"; HTML: {args.html}" if args.html else "")
+    )
     if changed:
         raise typer.Exit(EXIT_CHANGE)
 
 
 def register(app: typer.Typer) -> None:
-    app.command("compare", context_settings={"allow_extra_args": True,
-                                             "ignore_unknown_options": True})(compare_cmd)
+    app.command(
+        "compare", context_settings={"allow_extra_args": True, "ignore_unknown_options": True}
+    )(compare_cmd)

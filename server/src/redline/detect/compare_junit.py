@@ -21,23 +21,29 @@ def series_line(verdict: SeriesVerdict) -> str:
     result, key = verdict.result, verdict.key
     p_value = "n/a" if result.p_value is None else f"{result.p_value:.3g}"
     reason = f" [{result.verdict}: {result.reason}]" if result.reason else ""
-    return (f"{key.process}.{key.counter}: effect {result.effect:+.1%}, D {result.score:.3f}, "
-            f"p {p_value}; mean {verdict.baseline_mean:.6g} -> {verdict.candidate_mean:.6g} "
-            f"(n {verdict.baseline_n} -> {verdict.candidate_n}){reason}")
+    return (
+        f"{key.process}.{key.counter}: effect {result.effect:+.1%}, D {result.score:.3f}, "
+        f"p {p_value}; mean {verdict.baseline_mean:.6g} -> {verdict.candidate_mean:.6g} "
+        f"(n {verdict.baseline_n} -> {verdict.candidate_n}){reason}"
+    )
 
 
 def _testcase(parent: ET.Element, segment: SegmentVerdict) -> None:
-    case = ET.SubElement(parent, "testcase", classname=segment.case, name=segment.name,
-                         time="0")
+    case = ET.SubElement(parent, "testcase", classname=segment.case, name=segment.name, time="0")
     if segment.note:
         ET.SubElement(case, "skipped", message=segment.note)
         return
     changed = segment.changed
     if changed:
-        names = ", ".join(f"{v.key.process}.{v.key.counter} {v.result.effect:+.1%}"
-                          for v in changed)
-        failure = ET.SubElement(case, "failure", type="PerformanceChange",
-                                message=f"{len(changed)} counter(s) changed: {names}")
+        names = ", ".join(
+            f"{v.key.process}.{v.key.counter} {v.result.effect:+.1%}" for v in changed
+        )
+        failure = ET.SubElement(
+            case,
+            "failure",
+            type="PerformanceChange",
+            message=f"{len(changed)} counter(s) changed: {names}",
+        )
         failure.text = "\n".join(series_line(v) for v in changed)
     out = ET.SubElement(case, "system-out")
     out.text = "\n".join(series_line(v) for v in segment.series)
@@ -47,9 +53,13 @@ def junit_xml(comparison: Comparison) -> str:
     """The whole report as an XML document (UTF-8 text with its declaration)."""
     segments = comparison.segments
     suite = ET.Element(
-        "testsuite", name=SUITE_NAME, tests=str(len(segments)),
-        failures=str(sum(1 for s in segments if s.changed)), errors="0",
-        skipped=str(sum(1 for s in segments if s.note)), time="0",
+        "testsuite",
+        name=SUITE_NAME,
+        tests=str(len(segments)),
+        failures=str(sum(1 for s in segments if s.changed)),
+        errors="0",
+        skipped=str(sum(1 for s in segments if s.note)),
+        time="0",
     )
     properties = ET.SubElement(suite, "properties")
     for side, recorded in (("baseline", comparison.baseline), ("candidate", comparison.candidate)):
@@ -57,8 +67,13 @@ def junit_xml(comparison: Comparison) -> str:
             ET.SubElement(properties, "property", name=side, value=str(item.path))
     for segment in segments:
         _testcase(suite, segment)
-    suites = ET.Element("testsuites", name=SUITE_NAME, tests=suite.get("tests", "0"),
-                        failures=suite.get("failures", "0"), errors="0")
+    suites = ET.Element(
+        "testsuites",
+        name=SUITE_NAME,
+        tests=suite.get("tests", "0"),
+        failures=suite.get("failures", "0"),
+        errors="0",
+    )
     suites.append(suite)
     ET.indent(suites)
     return ET.tostring(suites, encoding="unicode", xml_declaration=True) + "\n"

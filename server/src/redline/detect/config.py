@@ -64,23 +64,28 @@ class DetectionConfig:
         if unknown:
             raise ConfigError(f"unknown field(s) {sorted(unknown)}")
         thresholds = data.get("thresholds") or {}
-        config = cls(methods=tuple(data.get("methods") or DEFAULT_METHODS),
-                     baseline=str(data.get("baseline", "recent")),
-                     window=int(data.get("window", DEFAULT_WINDOW)), pinned=data.get("pinned"),
-                     thresholds={str(k): dict(v) for k, v in thresholds.items()})
+        config = cls(
+            methods=tuple(data.get("methods") or DEFAULT_METHODS),
+            baseline=str(data.get("baseline", "recent")),
+            window=int(data.get("window", DEFAULT_WINDOW)),
+            pinned=data.get("pinned"),
+            thresholds={str(k): dict(v) for k, v in thresholds.items()},
+        )
         config.validate()
         return config
 
     def validate(self) -> None:
         for name in self.methods:
             if name not in WORKER_DETECTORS:
-                raise ConfigError(f"methods: unknown method {name!r}; known: "
-                                  f"{', '.join(WORKER_DETECTORS)}")
+                raise ConfigError(
+                    f"methods: unknown method {name!r}; known: {', '.join(WORKER_DETECTORS)}"
+                )
         if not self.methods:
             raise ConfigError("methods: at least one method is needed")
         if self.baseline not in BASELINES:
-            raise ConfigError(f"baseline: must be one of {', '.join(BASELINES)}, "
-                              f"not {self.baseline!r}")
+            raise ConfigError(
+                f"baseline: must be one of {', '.join(BASELINES)}, not {self.baseline!r}"
+            )
         if not 1 <= self.window <= MAX_WINDOW:
             raise ConfigError(f"window: must be 1..{MAX_WINDOW}, not {self.window}")
         if self.baseline == "pinned" and not self.pinned:
@@ -91,14 +96,19 @@ class DetectionConfig:
             allowed = list(inspect.signature(WORKER_DETECTORS[name].__init__).parameters)[1:]
             for key in params:
                 if key not in allowed:
-                    raise ConfigError(f"thresholds.{name}: unknown parameter {key!r}; "
-                                      f"known: {', '.join(allowed)}")
+                    raise ConfigError(
+                        f"thresholds.{name}: unknown parameter {key!r}; known: {', '.join(allowed)}"
+                    )
 
     def detectors(self) -> list[Detector]:
         """One detector per configured method, with its thresholds."""
         return [WORKER_DETECTORS[name](**self.thresholds.get(name, {})) for name in self.methods]
 
     def as_dict(self) -> dict[str, Any]:
-        return {"methods": list(self.methods), "baseline": self.baseline, "window": self.window,
-                "pinned": self.pinned,
-                "thresholds": {k: dict(v) for k, v in self.thresholds.items()}}
+        return {
+            "methods": list(self.methods),
+            "baseline": self.baseline,
+            "window": self.window,
+            "pinned": self.pinned,
+            "thresholds": {k: dict(v) for k, v in self.thresholds.items()},
+        }

@@ -21,8 +21,10 @@ import pandas as pd
 
 SAP_ENV = "REDLINE_SAP_CORPUS"
 SAP_RELATIVE = Path("..") / "shared" / "data" / "sap-hana-small-2021"
-SAP_ATTRIBUTION = ("SAP HANA performance regression data set (small, 2021), SAP SE, "
-                   "github.com/SAP/performance-regression-data-set, CC-BY-4.0")
+SAP_ATTRIBUTION = (
+    "SAP HANA performance regression data set (small, 2021), SAP SE, "
+    "github.com/SAP/performance-regression-data-set, CC-BY-4.0"
+)
 POSITIVE_LABEL = "regression"
 COLUMNS = ["series", "build", "value"]
 EXECUTION = "execution"
@@ -98,14 +100,27 @@ def load_sap(path: Path) -> Corpus:
         if label == POSITIVE_LABEL:
             after = data.loc[data["Index"] == change_index + 1, "GHC"]
             if after.empty:
-                raise CorpusError(f"{details}: change point {change_index} of {file} has no "
-                                  "measurement after it")
+                raise CorpusError(
+                    f"{details}: change point {change_index} of {file} has no measurement after it"
+                )
             change_build = int(after.iloc[0])
         labels[series] = SeriesLabel(label, change_build)
-        frames.append(pd.DataFrame({"series": series, "build": data["GHC"].astype(np.int64),
-                                    "value": data["Measurement"].astype(np.float64)}))
-    return Corpus("sap-hana-small-2021", _sorted(pd.concat(frames)), labels,
-                  source=SAP_ATTRIBUTION, license="CC-BY-4.0")
+        frames.append(
+            pd.DataFrame(
+                {
+                    "series": series,
+                    "build": data["GHC"].astype(np.int64),
+                    "value": data["Measurement"].astype(np.float64),
+                }
+            )
+        )
+    return Corpus(
+        "sap-hana-small-2021",
+        _sorted(pd.concat(frames)),
+        labels,
+        source=SAP_ATTRIBUTION,
+        license="CC-BY-4.0",
+    )
 
 
 def _sorted(frame: pd.DataFrame) -> pd.DataFrame:
@@ -127,10 +142,17 @@ def load_generic(path: Path) -> Corpus:
     meta = json.loads((path / "labels.json").read_text())
     kept = [*COLUMNS, EXECUTION] if EXECUTION in frame.columns else COLUMNS
     frame = frame[kept].astype({"series": str, "build": np.int64, "value": np.float64})
-    labels = {str(series): SeriesLabel(str(entry["label"]), entry.get("change_build"))
-              for series, entry in meta.get("series", {}).items()}
-    return Corpus(str(meta.get("name", path.name)), _sorted(frame), labels,
-                  source=str(meta.get("source", "")), license=str(meta.get("license", "")))
+    labels = {
+        str(series): SeriesLabel(str(entry["label"]), entry.get("change_build"))
+        for series, entry in meta.get("series", {}).items()
+    }
+    return Corpus(
+        str(meta.get("name", path.name)),
+        _sorted(frame),
+        labels,
+        source=str(meta.get("source", "")),
+        license=str(meta.get("license", "")),
+    )
 
 
 def load_corpus(name_or_path: str) -> Corpus:
@@ -146,15 +168,22 @@ def write_corpus(corpus: Corpus, path: Path) -> None:
     """Write a corpus in Redline's format (Parquet + labels.json), e.g. to convert SAP's."""
     path.mkdir(parents=True, exist_ok=True)
     corpus.measurements.to_parquet(path / "measurements.parquet", index=False)
-    series = {s: {"label": lab.label, "change_build": lab.change_build}
-              for s, lab in corpus.labels.items()}
-    meta = {"name": corpus.name, "source": corpus.source, "license": corpus.license,
-            "series": series}
+    series = {
+        s: {"label": lab.label, "change_build": lab.change_build}
+        for s, lab in corpus.labels.items()
+    }
+    meta = {
+        "name": corpus.name,
+        "source": corpus.source,
+        "license": corpus.license,
+        "series": series,
+    }
     (path / "labels.json").write_text(json.dumps(meta, indent=1) + "\n")
 
 
-def series_builds(corpus: Corpus) -> Iterator[tuple[str, SeriesLabel,
-                                                   list[tuple[int, list[np.ndarray]]]]]:
+def series_builds(
+    corpus: Corpus,
+) -> Iterator[tuple[str, SeriesLabel, list[tuple[int, list[np.ndarray]]]]]:
     """Each series with its label and its builds in order, a build as its executions' samples
     (without an ``execution`` column, every sample is its own execution, as the loader says)."""
     for series, frame in corpus.measurements.groupby("series", sort=True):

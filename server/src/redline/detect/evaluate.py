@@ -93,8 +93,9 @@ def roc_auc(positive: Sequence[bool], scores: Sequence[float]) -> float:
     return float((ranks[labels].sum() - n_pos * (n_pos + 1) / 2) / (n_pos * n_neg))
 
 
-def precision_recall_f1(positive: Sequence[bool],
-                        flagged: Sequence[bool]) -> tuple[float, float, float, int, int, int]:
+def precision_recall_f1(
+    positive: Sequence[bool], flagged: Sequence[bool]
+) -> tuple[float, float, float, int, int, int]:
     """(precision, recall, F1, tp, fp, fn); a ratio with a zero denominator is 0."""
     labels, flags = np.asarray(positive, dtype=bool), np.asarray(flagged, dtype=bool)
     tp = int((labels & flags).sum())
@@ -108,16 +109,23 @@ def precision_recall_f1(positive: Sequence[bool],
 
 def summarize(outcomes: Sequence[Outcome]) -> MethodScores:
     positive = [o.positive for o in outcomes]
-    precision, recall, f1, tp, fp, fn = precision_recall_f1(positive,
-                                                            [o.flagged for o in outcomes])
+    precision, recall, f1, tp, fp, fn = precision_recall_f1(positive, [o.flagged for o in outcomes])
     negatives = len(outcomes) - sum(positive)
     large = [o for o in outcomes if o.positive and o.size >= LARGE_CHANGE]
-    return MethodScores(roc_auc=roc_auc(positive, [o.score for o in outcomes]),
-                        precision=precision, recall=recall, f1=f1, tp=tp, fp=fp, fn=fn,
-                        units=len(outcomes), decided=sum(o.decided for o in outcomes),
-                        false_alarms_per_100=100 * fp / negatives if negatives else math.nan,
-                        recall_large=(sum(o.flagged for o in large) / len(large)
-                                      if large else math.nan), large=len(large))
+    return MethodScores(
+        roc_auc=roc_auc(positive, [o.score for o in outcomes]),
+        precision=precision,
+        recall=recall,
+        f1=f1,
+        tp=tp,
+        fp=fp,
+        fn=fn,
+        units=len(outcomes),
+        decided=sum(o.decided for o in outcomes),
+        false_alarms_per_100=100 * fp / negatives if negatives else math.nan,
+        recall_large=(sum(o.flagged for o in large) / len(large) if large else math.nan),
+        large=len(large),
+    )
 
 
 def change_sizes(corpus: Corpus) -> dict[str, float]:
@@ -143,8 +151,9 @@ def counter_of(series: str) -> str:
     return series.rsplit("/", 1)[-1]
 
 
-def walk(detector: Detector, corpus: Corpus,
-         window: int = DEFAULT_WINDOW) -> Iterator[tuple[Unit, Detection]]:
+def walk(
+    detector: Detector, corpus: Corpus, window: int = DEFAULT_WINDOW
+) -> Iterator[tuple[Unit, Detection]]:
     """Each unit of the corpus with ``detector``'s verdict on it, series by series in build
     order; the baseline follows the ``recent`` policy (it restarts where the detector flagged)."""
     for series, label, builds in series_builds(corpus):
@@ -154,10 +163,15 @@ def walk(detector: Detector, corpus: Corpus,
             sizes = [len(values[j]) for j in range(k - 1, -1, -1)]
             flagged_at = None if last_flagged is None else k - 1 - last_flagged
             depth = recent_depth(sizes, detector.baseline_values, window, flagged_at)
-            baseline, candidate = np.concatenate(values[k - depth:k]), values[k]
+            baseline, candidate = np.concatenate(values[k - depth : k]), values[k]
             build = builds[k][0]
-            unit = Unit(series, build, baseline, candidate,
-                        label.label == POSITIVE_LABEL and build == label.change_build)
+            unit = Unit(
+                series,
+                build,
+                baseline,
+                candidate,
+                label.label == POSITIVE_LABEL and build == label.change_build,
+            )
             if detector.ndim == 2:
                 baseline, candidate = baseline[:, None], candidate[:, None]
             # as the worker judges: the detector, then the counter's absolute floor (a series
@@ -170,9 +184,16 @@ def walk(detector: Detector, corpus: Corpus,
 
 def run_detector(detector: Detector, corpus: Corpus) -> list[Outcome]:
     sizes = change_sizes(corpus)
-    return [Outcome(unit.positive, found.score, found.flagged, found.decided,
-                    sizes.get(unit.series, math.nan) if unit.positive else math.nan)
-            for unit, found in walk(detector, corpus)]
+    return [
+        Outcome(
+            unit.positive,
+            found.score,
+            found.flagged,
+            found.decided,
+            sizes.get(unit.series, math.nan) if unit.positive else math.nan,
+        )
+        for unit, found in walk(detector, corpus)
+    ]
 
 
 def units_of(corpus: Corpus) -> list[Unit]:
@@ -181,8 +202,9 @@ def units_of(corpus: Corpus) -> list[Unit]:
     return [unit for unit, _ in walk(DETECTORS[DEFAULT_METHOD](), corpus)]
 
 
-def run_change_points(corpus: Corpus, units: Sequence[Unit],
-                      detector: EDivisive | None = None) -> list[Outcome]:
+def run_change_points(
+    corpus: Corpus, units: Sequence[Unit], detector: EDivisive | None = None
+) -> list[Outcome]:
     """E-divisive over each series' history of per-build medians, judged on the same units.
 
     A build scores 1 - p when a significant change point starts at it (0 otherwise) and is
@@ -198,19 +220,29 @@ def run_change_points(corpus: Corpus, units: Sequence[Unit],
         if not result.change_points and result.verdict == "not enough data":
             undecided.add(str(series))
         for point in result.change_points:
-            found[(str(series), int(medians.index[point.index]))] = (1 - point.p_value,
-                                                                     point.reported)
+            found[(str(series), int(medians.index[point.index]))] = (
+                1 - point.p_value,
+                point.reported,
+            )
     sizes = change_sizes(corpus)
     outcomes = []
     for unit in units:
         score, flagged = found.get((unit.series, unit.build), (0.0, False))
-        outcomes.append(Outcome(unit.positive, score, flagged, unit.series not in undecided,
-                                sizes.get(unit.series, math.nan) if unit.positive else math.nan))
+        outcomes.append(
+            Outcome(
+                unit.positive,
+                score,
+                flagged,
+                unit.series not in undecided,
+                sizes.get(unit.series, math.nan) if unit.positive else math.nan,
+            )
+        )
     return outcomes
 
 
-def evaluate_corpus(corpus: Corpus,
-                    methods: Sequence[str] | None = None) -> dict[str, MethodScores]:
+def evaluate_corpus(
+    corpus: Corpus, methods: Sequence[str] | None = None
+) -> dict[str, MethodScores]:
     """Scores of each named method (default: all) on the corpus's units."""
     names = list(methods) if methods else [*DETECTORS, CHANGE_POINT_METHOD]
     results = {}

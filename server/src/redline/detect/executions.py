@@ -74,9 +74,15 @@ class ExecutionShift(Detector):
     name = "execution_shift"
     level: ClassVar[str] = "execution"
 
-    def __init__(self, threshold: float = 8.0, min_effect: float = 0.05,
-                 rel_scale: float = 0.01, baseline_values: int = 15, min_baseline: int = 6,
-                 min_candidate: int = 1) -> None:
+    def __init__(
+        self,
+        threshold: float = 8.0,
+        min_effect: float = 0.05,
+        rel_scale: float = 0.01,
+        baseline_values: int = 15,
+        min_baseline: int = 6,
+        min_candidate: int = 1,
+    ) -> None:
         self.threshold = threshold
         self.min_effect = min_effect
         self.rel_scale = rel_scale
@@ -87,15 +93,22 @@ class ExecutionShift(Detector):
     def _detect(self, base: np.ndarray, cand: np.ndarray) -> Detection:
         shift = median_shift(base, cand, self.rel_scale)
         z = abs(shift.after - shift.before) / (
-            shift.spread * math.sqrt(1 / len(cand) + 1 / len(base)))
+            shift.spread * math.sqrt(1 / len(cand) + 1 / len(base))
+        )
         effect = shift.effect
         score = min(z / self.threshold, abs(effect) / self.min_effect)
         reason = ""
         if z >= self.threshold and abs(effect) < self.min_effect:
             reason = f"|median shift| {abs(effect):.3g} below the floor {self.min_effect}"
-        return Detection(method=self.name, verdict=CHANGE if score >= 1 else NO_CHANGE,
-                         score=score, effect=effect, direction=direction_of(effect),
-                         reason=reason, parts=(z,))
+        return Detection(
+            method=self.name,
+            verdict=CHANGE if score >= 1 else NO_CHANGE,
+            score=score,
+            effect=effect,
+            direction=direction_of(effect),
+            reason=reason,
+            parts=(z,),
+        )
 
 
 class BuildShift(ExecutionShift):
@@ -112,9 +125,20 @@ class BuildShift(ExecutionShift):
     name = "build_shift"
     level: ClassVar[str] = "build"
 
-    def __init__(self, threshold: float = 8.0, min_effect: float = 0.05,
-                 rel_scale: float = 0.01, baseline_values: int = 10, min_baseline: int = 5,
-                 min_candidate: int = 1) -> None:
-        super().__init__(threshold=threshold, min_effect=min_effect, rel_scale=rel_scale,
-                         baseline_values=baseline_values, min_baseline=min_baseline,
-                         min_candidate=min_candidate)
+    def __init__(
+        self,
+        threshold: float = 8.0,
+        min_effect: float = 0.05,
+        rel_scale: float = 0.01,
+        baseline_values: int = 10,
+        min_baseline: int = 5,
+        min_candidate: int = 1,
+    ) -> None:
+        super().__init__(
+            threshold=threshold,
+            min_effect=min_effect,
+            rel_scale=rel_scale,
+            baseline_values=baseline_values,
+            min_baseline=min_baseline,
+            min_candidate=min_candidate,
+        )

@@ -41,8 +41,9 @@ def discretize(values: np.ndarray, mean: np.ndarray, std: np.ndarray, z: float) 
     return items
 
 
-def mine_rules(items: np.ndarray, min_support: float,
-               min_confidence: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def mine_rules(
+    items: np.ndarray, min_support: float, min_confidence: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Rules premise -> consequence as (premise item or -1, consequence item, confidence)."""
     n = items.shape[0]
     support = items.mean(axis=0)
@@ -50,17 +51,21 @@ def mine_rules(items: np.ndarray, min_support: float,
     with np.errstate(divide="ignore", invalid="ignore"):
         confidence = together / support[:, None]
     counter = np.arange(items.shape[1]) // LEVELS
-    ok = ((together >= min_support) & (confidence >= min_confidence)
-          & (counter[:, None] != counter[None, :]))
+    ok = (
+        (together >= min_support)
+        & (confidence >= min_confidence)
+        & (counter[:, None] != counter[None, :])
+    )
     premise, consequence = np.nonzero(ok)
     empty = np.nonzero(support >= min_confidence)[0]
-    return (np.concatenate([premise, np.full(len(empty), -1)]),
-            np.concatenate([consequence, empty]),
-            np.concatenate([confidence[premise, consequence], support[empty]]))
+    return (
+        np.concatenate([premise, np.full(len(empty), -1)]),
+        np.concatenate([consequence, empty]),
+        np.concatenate([confidence[premise, consequence], support[empty]]),
+    )
 
 
-def rule_confidence(items: np.ndarray, premise: np.ndarray,
-                    consequence: np.ndarray) -> np.ndarray:
+def rule_confidence(items: np.ndarray, premise: np.ndarray, consequence: np.ndarray) -> np.ndarray:
     """Each rule's confidence in ``items``; NaN where the premise never occurs."""
     n = items.shape[0]
     support = items.mean(axis=0)
@@ -83,9 +88,17 @@ class FooRules(Detector):
     name = "foo"
     ndim = 2
 
-    def __init__(self, z: float = 2.0, min_support: float = 0.1, min_confidence: float = 0.9,
-                 min_confidence_change: float = 0.3, min_effect: float | np.ndarray = 0.10,
-                 aggregate: str = "max", min_baseline: int = 5, min_candidate: int = 1) -> None:
+    def __init__(
+        self,
+        z: float = 2.0,
+        min_support: float = 0.1,
+        min_confidence: float = 0.9,
+        min_confidence_change: float = 0.3,
+        min_effect: float | np.ndarray = 0.10,
+        aggregate: str = "max",
+        min_baseline: int = 5,
+        min_candidate: int = 1,
+    ) -> None:
         self.z = z
         self.min_support = min_support
         self.min_confidence = min_confidence
@@ -98,11 +111,13 @@ class FooRules(Detector):
     def _detect(self, base: np.ndarray, cand: np.ndarray) -> Detection:
         mean, std = base.mean(axis=0), base.std(axis=0, ddof=1)
         base_items = discretize(base, mean, std, self.z)
-        premise, consequence, before = mine_rules(base_items, self.min_support,
-                                                  self.min_confidence)
+        premise, consequence, before = mine_rules(base_items, self.min_support, self.min_confidence)
         if len(consequence) == 0:
-            return not_enough(self.name, "no association rule in the baseline reaches support "
-                              f"{self.min_support} and confidence {self.min_confidence}")
+            return not_enough(
+                self.name,
+                "no association rule in the baseline reaches support "
+                f"{self.min_support} and confidence {self.min_confidence}",
+            )
         after = rule_confidence(discretize(cand, mean, std, self.z), premise, consequence)
         known = ~np.isnan(after)
         if not known.any():
@@ -113,8 +128,12 @@ class FooRules(Detector):
         floor = passes_floor(effects, self.min_effect)
         reported = violated[floor[violated]] if len(violated) else violated
         effect = largest(effects[reported]) if len(reported) else largest(effects)
-        return Detection(method=self.name, verdict=CHANGE if len(reported) else NO_CHANGE,
-                         score=aggregate_scores(changes, self.aggregate), effect=effect,
-                         direction=direction_of(effect), parts=tuple(changes.tolist()),
-                         reason=f"violated rules on counters {reported.tolist()}"
-                         if len(reported) else "")
+        return Detection(
+            method=self.name,
+            verdict=CHANGE if len(reported) else NO_CHANGE,
+            score=aggregate_scores(changes, self.aggregate),
+            effect=effect,
+            direction=direction_of(effect),
+            parts=tuple(changes.tolist()),
+            reason=f"violated rules on counters {reported.tolist()}" if len(reported) else "",
+        )

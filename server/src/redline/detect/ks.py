@@ -38,8 +38,14 @@ def relative_effect(baseline: np.ndarray, candidate: np.ndarray) -> float:
     return (after - before) / abs(before)
 
 
-def ks(baseline: np.ndarray, candidate: np.ndarray, *, alpha: float = DEFAULT_ALPHA,
-       min_effect: float = DEFAULT_MIN_EFFECT, min_change: float = 0.0) -> KsResult:
+def ks(
+    baseline: np.ndarray,
+    candidate: np.ndarray,
+    *,
+    alpha: float = DEFAULT_ALPHA,
+    min_effect: float = DEFAULT_MIN_EFFECT,
+    min_change: float = 0.0,
+) -> KsResult:
     """Compare a candidate revision's samples of one series with its baseline's.
 
     ``flagged`` is true when the KS test rejects equality (``p_value < alpha``, default 0.01)
@@ -51,8 +57,10 @@ def ks(baseline: np.ndarray, candidate: np.ndarray, *, alpha: float = DEFAULT_AL
     base = np.asarray(baseline, dtype=np.float64).ravel()
     cand = np.asarray(candidate, dtype=np.float64).ravel()
     if base.size == 0 or cand.size == 0:
-        raise ValueError("both samples need at least one value "
-                         f"(baseline has {base.size}, candidate {cand.size})")
+        raise ValueError(
+            "both samples need at least one value "
+            f"(baseline has {base.size}, candidate {cand.size})"
+        )
     result = _ks_2samp(base, cand)
     statistic, p_value = float(result.statistic), float(result.pvalue)
     effect = relative_effect(base, cand)

@@ -50,9 +50,13 @@ class Detector:
         return self
 
     def detect(self, candidate: object) -> Detection:
-        checked = check_samples(getattr(self, "baseline_", None), candidate,
-                                min_baseline=self.min_baseline,
-                                min_candidate=self.min_candidate, ndim=self.ndim)
+        checked = check_samples(
+            getattr(self, "baseline_", None),
+            candidate,
+            min_baseline=self.min_baseline,
+            min_candidate=self.min_candidate,
+            ndim=self.ndim,
+        )
         if isinstance(checked, str):
             return not_enough(self.name, checked)
         return self._detect(*checked)
@@ -67,16 +71,30 @@ class Detector:
         raise NotImplementedError
 
 
-def _decide(name: str, score: float, p_value: float | None, significant: bool,
-            effect: float, min_effect: float) -> Detection:
+def _decide(
+    name: str,
+    score: float,
+    p_value: float | None,
+    significant: bool,
+    effect: float,
+    min_effect: float,
+) -> Detection:
     """A decided `Detection`: a change needs significance *and* an effect above the floor."""
     above = bool(passes_floor(np.array([effect]), min_effect)[0])
     verdict = CHANGE if significant and above else NO_CHANGE
     reason = ""
     if significant and not above:
         reason = f"|effect| {abs(effect):.3g} below the floor {min_effect}"
-    return Detection(method=name, verdict=verdict, score=score, p_value=p_value, effect=effect,
-                     direction=direction_of(effect), reason=reason, parts=(score,))
+    return Detection(
+        method=name,
+        verdict=verdict,
+        score=score,
+        p_value=p_value,
+        effect=effect,
+        direction=direction_of(effect),
+        reason=reason,
+        parts=(score,),
+    )
 
 
 class KolmogorovSmirnov(Detector):
@@ -90,9 +108,13 @@ class KolmogorovSmirnov(Detector):
 
     name = "ks"
 
-    def __init__(self, alpha: float = ks_module.DEFAULT_ALPHA,
-                 min_effect: float = ks_module.DEFAULT_MIN_EFFECT,
-                 min_baseline: int = 2, min_candidate: int = 2) -> None:
+    def __init__(
+        self,
+        alpha: float = ks_module.DEFAULT_ALPHA,
+        min_effect: float = ks_module.DEFAULT_MIN_EFFECT,
+        min_baseline: int = 2,
+        min_candidate: int = 2,
+    ) -> None:
         self.alpha = alpha
         self.min_effect = min_effect
         self.min_baseline = min_baseline
@@ -100,8 +122,14 @@ class KolmogorovSmirnov(Detector):
 
     def _detect(self, base: np.ndarray, cand: np.ndarray) -> Detection:
         result = ks_module.ks(base, cand, alpha=self.alpha, min_effect=self.min_effect)
-        return _decide(self.name, result.statistic, result.p_value, result.p_value < self.alpha,
-                       result.effect, self.min_effect)
+        return _decide(
+            self.name,
+            result.statistic,
+            result.p_value,
+            result.p_value < self.alpha,
+            result.effect,
+            self.min_effect,
+        )
 
 
 class MannWhitney(Detector):
@@ -117,8 +145,13 @@ class MannWhitney(Detector):
 
     name = "mann_whitney"
 
-    def __init__(self, confidence_lv: float = 0.05, min_effect: float = 0.01,
-                 min_baseline: int = 4, min_candidate: int = 4) -> None:
+    def __init__(
+        self,
+        confidence_lv: float = 0.05,
+        min_effect: float = 0.01,
+        min_baseline: int = 4,
+        min_candidate: int = 4,
+    ) -> None:
         self.confidence_lv = confidence_lv
         self.min_effect = min_effect
         self.min_baseline = min_baseline
@@ -128,8 +161,9 @@ class MannWhitney(Detector):
         p_value = float(stats.mannwhitneyu(cand, base, alternative="two-sided").pvalue)
         score = -math.log10(max(p_value, 1e-300))
         effect = float(relative_effects(base, cand)[0])
-        return _decide(self.name, score, p_value, p_value < self.confidence_lv, effect,
-                       self.min_effect)
+        return _decide(
+            self.name, score, p_value, p_value < self.confidence_lv, effect, self.min_effect
+        )
 
 
 def _linear_weighted_mean(values: np.ndarray) -> float:
@@ -154,8 +188,13 @@ class WelchT(Detector):
 
     name = "welch_t"
 
-    def __init__(self, t_threshold: float = 7.0, min_effect: float = 0.02,
-                 min_baseline: int = 12, min_candidate: int = 2) -> None:
+    def __init__(
+        self,
+        t_threshold: float = 7.0,
+        min_effect: float = 0.02,
+        min_baseline: int = 12,
+        min_candidate: int = 2,
+    ) -> None:
         self.t_threshold = t_threshold
         self.min_effect = min_effect
         self.min_baseline = min_baseline
@@ -171,8 +210,10 @@ class WelchT(Detector):
             t, p_value = math.inf, 0.0
         else:
             t = abs(delta) / math.sqrt(se2)
-            df = se2**2 / ((var1 / len(base)) ** 2 / (len(base) - 1)
-                           + (var2 / len(cand)) ** 2 / (len(cand) - 1))
+            df = se2**2 / (
+                (var1 / len(base)) ** 2 / (len(base) - 1)
+                + (var2 / len(cand)) ** 2 / (len(cand) - 1)
+            )
             p_value = float(2 * stats.t.sf(t, df))
         effect = largest(relative_effects(base, cand))
         return _decide(self.name, t, p_value, t > self.t_threshold, effect, self.min_effect)

@@ -65,8 +65,14 @@ class MedianShift(Detector):
 
     name = "median_shift"
 
-    def __init__(self, alpha: float = 0.001, min_effect: float = 0.15, rel_scale: float = 0.01,
-                 min_baseline: int = 4, min_candidate: int = 4) -> None:
+    def __init__(
+        self,
+        alpha: float = 0.001,
+        min_effect: float = 0.15,
+        rel_scale: float = 0.01,
+        min_baseline: int = 4,
+        min_candidate: int = 4,
+    ) -> None:
         self.alpha = alpha
         self.min_effect = min_effect
         self.rel_scale = rel_scale
@@ -79,8 +85,18 @@ class MedianShift(Detector):
         p_value = float(stats.mannwhitneyu(cand, base, alternative="two-sided").pvalue)
         significant = p_value < self.alpha
         above = abs(effect) >= self.min_effect
-        reason = "" if above or not significant else \
-            f"|median shift| {abs(effect):.3g} below the floor {self.min_effect}"
-        return Detection(method=self.name, verdict=CHANGE if significant and above else NO_CHANGE,
-                         score=score, p_value=p_value, effect=effect,
-                         direction=direction_of(effect), reason=reason, parts=(score,))
+        reason = (
+            ""
+            if above or not significant
+            else f"|median shift| {abs(effect):.3g} below the floor {self.min_effect}"
+        )
+        return Detection(
+            method=self.name,
+            verdict=CHANGE if significant and above else NO_CHANGE,
+            score=score,
+            p_value=p_value,
+            effect=effect,
+            direction=direction_of(effect),
+            reason=reason,
+            parts=(score,),
+        )

@@ -44,8 +44,11 @@ def cluster_counters(base: np.ndarray, min_correlation: float) -> list[np.ndarra
         distance = 1.0 - np.abs(np.corrcoef(base[:, varying], rowvar=False))
     distance = np.nan_to_num((distance + distance.T) / 2, nan=1.0)
     np.fill_diagonal(distance, 0.0)
-    labels = fcluster(linkage(squareform(distance, checks=False), method="average"),
-                      t=1.0 - min_correlation, criterion="distance")
+    labels = fcluster(
+        linkage(squareform(distance, checks=False), method="average"),
+        t=1.0 - min_correlation,
+        criterion="distance",
+    )
     return alone + [varying[labels == label] for label in np.unique(labels)]
 
 
@@ -83,9 +86,15 @@ class ShangRegression(Detector):
     name = "shang"
     ndim = 2
 
-    def __init__(self, min_correlation: float = 0.7, min_error_change: float = 0.10,
-                 min_effect: float | np.ndarray = 0.10, aggregate: str = "max",
-                 min_baseline: int = 5, min_candidate: int = 1) -> None:
+    def __init__(
+        self,
+        min_correlation: float = 0.7,
+        min_error_change: float = 0.10,
+        min_effect: float | np.ndarray = 0.10,
+        aggregate: str = "max",
+        min_baseline: int = 5,
+        min_candidate: int = 1,
+    ) -> None:
         self.min_correlation = min_correlation
         self.min_error_change = min_error_change
         self.min_effect = min_effect
@@ -95,16 +104,29 @@ class ShangRegression(Detector):
 
     def _detect(self, base: np.ndarray, cand: np.ndarray) -> Detection:
         clusters = cluster_counters(base, self.min_correlation)
-        growth = np.array([max(0.0, after - before) for before, after in
-                           (cluster_errors(base, cand, members) for members in clusters)])
+        growth = np.array(
+            [
+                max(0.0, after - before)
+                for before, after in (cluster_errors(base, cand, members) for members in clusters)
+            ]
+        )
         effects = relative_effects(base, cand)
         floor = passes_floor(effects, self.min_effect)
-        reported = [members[floor[members]] for members, grew in zip(clusters, growth, strict=True)
-                    if grew >= self.min_error_change]
+        reported = [
+            members[floor[members]]
+            for members, grew in zip(clusters, growth, strict=True)
+            if grew >= self.min_error_change
+        ]
         counters = np.concatenate(reported) if reported else np.array([], dtype=int)
         effect = largest(effects[counters]) if len(counters) else largest(effects)
-        return Detection(method=self.name, verdict=CHANGE if len(counters) else NO_CHANGE,
-                         score=aggregate_scores(growth, self.aggregate), effect=effect,
-                         direction=direction_of(effect), parts=tuple(growth.tolist()),
-                         reason=f"prediction error grew on counters {sorted(counters.tolist())}"
-                         if len(counters) else "")
+        return Detection(
+            method=self.name,
+            verdict=CHANGE if len(counters) else NO_CHANGE,
+            score=aggregate_scores(growth, self.aggregate),
+            effect=effect,
+            direction=direction_of(effect),
+            parts=tuple(growth.tolist()),
+            reason=f"prediction error grew on counters {sorted(counters.tolist())}"
+            if len(counters)
+            else "",
+        )

@@ -18,8 +18,13 @@ from redline.detect.result import NO_CHANGE, Detection, not_enough
 log = logging.getLogger(__name__)
 
 
-def judge_series(detector: Detector, counter: str, baseline: np.ndarray | None,
-                 candidate: np.ndarray, missing: str = "missing baseline") -> Detection:
+def judge_series(
+    detector: Detector,
+    counter: str,
+    baseline: np.ndarray | None,
+    candidate: np.ndarray,
+    missing: str = "missing baseline",
+) -> Detection:
     """``detector`` on one series, a change also needing the counter's absolute floor.
 
     ``baseline`` None means there is none; ``missing`` then says why.
@@ -37,7 +42,13 @@ def judge_series(detector: Detector, counter: str, baseline: np.ndarray | None,
     moved = abs(float(np.mean(candidate)) - float(np.mean(baseline)))
     if moved >= floor:
         return found
-    return Detection(method=found.method, verdict=NO_CHANGE, score=found.score,
-                     p_value=found.p_value, effect=found.effect, direction=found.direction,
-                     reason=f"change of the mean {moved:.3g} below the absolute floor {floor:g} "
-                            f"of {counter}", parts=found.parts)
+    return Detection(
+        method=found.method,
+        verdict=NO_CHANGE,
+        score=found.score,
+        p_value=found.p_value,
+        effect=found.effect,
+        direction=found.direction,
+        reason=f"change of the mean {moved:.3g} below the absolute floor {floor:g} of {counter}",
+        parts=found.parts,
+    )

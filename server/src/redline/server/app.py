@@ -33,16 +33,18 @@ async def _unstorable(request: Request, exc: Exception) -> JSONResponse:
     """A value Postgres cannot hold (an id past 2**31, a NUL in a text): the caller's fault."""
     orig = getattr(exc, "orig", None) or exc
     reason = (str(orig).strip().splitlines() or [type(orig).__name__])[0]
-    return JSONResponse({"detail": f"a value in the request cannot be stored: {reason}"},
-                        status_code=422)
+    return JSONResponse(
+        {"detail": f"a value in the request cannot be stored: {reason}"}, status_code=422
+    )
 
 
 async def _invalid(request: Request, exc: Exception) -> JSONResponse:
     """FastAPI's 422, with a non-finite input (NaN, inf) quoted: JSON has no such numbers."""
     assert isinstance(exc, RequestValidationError)
     finite = {float: lambda value: value if math.isfinite(value) else str(value)}
-    return JSONResponse({"detail": jsonable_encoder(exc.errors(), custom_encoder=finite)},
-                        status_code=422)
+    return JSONResponse(
+        {"detail": jsonable_encoder(exc.errors(), custom_encoder=finite)}, status_code=422
+    )
 
 
 async def _service_error(request: Request, exc: Exception) -> JSONResponse:
@@ -65,8 +67,19 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     for down in health.DATABASE_DOWN:  # 503 with a message, never a 500, while Postgres is away
         app.add_exception_handler(down, health.database_unavailable)
     metrics.install(app, settings)
-    for module in (health, components, revisions, agent, jobs, webhooks, tokens, series,
-                   executions, imports, regressions):
+    for module in (
+        health,
+        components,
+        revisions,
+        agent,
+        jobs,
+        webhooks,
+        tokens,
+        series,
+        executions,
+        imports,
+        regressions,
+    ):
         app.include_router(module.router)
     web.mount(app, settings)
     return app

@@ -49,13 +49,20 @@ def worker_cmd(
 
     schedule = celery_app.conf.redline_settings.storage_dir / "celerybeat-schedule"
     schedule.parent.mkdir(parents=True, exist_ok=True)  # beat keeps its state beside the data
-    celery_app.worker_main(["worker", f"--concurrency={concurrency}", f"--loglevel={loglevel}",
-                            *(["--beat", f"--schedule={schedule}"] if beat else [])])
+    celery_app.worker_main(
+        [
+            "worker",
+            f"--concurrency={concurrency}",
+            f"--loglevel={loglevel}",
+            *(["--beat", f"--schedule={schedule}"] if beat else []),
+        ]
+    )
 
 
 def retention_run(
-    days: Annotated[int | None, typer.Option(help="age in days (default REDLINE_RETENTION_DAYS)")]
-    = None,
+    days: Annotated[
+        int | None, typer.Option(help="age in days (default REDLINE_RETENTION_DAYS)")
+    ] = None,
 ) -> None:
     """Delete raw recordings (MCAP, Parquet) older than the retention age, once; summaries stay."""
     from redline.worker.retention import prune_recordings
@@ -70,8 +77,9 @@ def retention_run(
 def token_create(
     name: Annotated[str, typer.Argument(help="who or what the token is for")],
     scopes: Annotated[str, typer.Option(help="comma-separated: ci, agent, read, admin")],
-    host: Annotated[str | None, typer.Option(
-        help="for an agent token: the one host it may act as")] = None,
+    host: Annotated[
+        str | None, typer.Option(help="for an agent token: the one host it may act as")
+    ] = None,
 ) -> None:
     """Create a token and print it; it is stored only as a hash and cannot be shown again."""
     from redline.server.db import session_factory
@@ -97,8 +105,10 @@ def token_list() -> None:
         for token in list_tokens(session):
             used = token.last_used.isoformat(timespec="seconds") if token.last_used else "never"
             state = "revoked" if token.revoked else "live"
-            typer.echo(f"{token.id}\t{token.name}\t{','.join(token.scopes)}\t"
-                       f"{token.host or '-'}\t{token.created:%Y-%m-%d}\t{used}\t{state}")
+            typer.echo(
+                f"{token.id}\t{token.name}\t{','.join(token.scopes)}\t"
+                f"{token.host or '-'}\t{token.created:%Y-%m-%d}\t{used}\t{state}"
+            )
 
 
 @token_app.command("revoke")

@@ -46,9 +46,10 @@ def bulk_insert(session: Session, table: Table, rows: Sequence[Mapping[str, Any]
         return "TEXT" if isinstance(kind, String) else kind.compile(dialect=dialect)
 
     arrays = ", ".join(f"CAST(:{name} AS {array_type(name)}[])" for name in columns)
-    session.execute(text(f"INSERT INTO {table.name} ({', '.join(columns)}) "
-                         f"SELECT * FROM unnest({arrays})"),
-                    {name: [row[name] for row in rows] for name in columns})
+    session.execute(
+        text(f"INSERT INTO {table.name} ({', '.join(columns)}) SELECT * FROM unnest({arrays})"),
+        {name: [row[name] for row in rows] for name in columns},
+    )
 
 
 def alembic_config(database_url: str, migrations_dir: Path | None = None):  # noqa: ANN201

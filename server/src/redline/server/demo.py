@@ -37,10 +37,16 @@ class DemoRevision:
 
 
 def _git(repo: Path, *args: str) -> str:
-    env = dict(os.environ, GIT_AUTHOR_NAME="Redline Demo", GIT_AUTHOR_EMAIL="demo@redline.invalid",
-               GIT_COMMITTER_NAME="Redline Demo", GIT_COMMITTER_EMAIL="demo@redline.invalid")
-    return subprocess.run(["git", *args], cwd=repo, env=env, check=True, capture_output=True,
-                          text=True).stdout.strip()
+    env = dict(
+        os.environ,
+        GIT_AUTHOR_NAME="Redline Demo",
+        GIT_AUTHOR_EMAIL="demo@redline.invalid",
+        GIT_COMMITTER_NAME="Redline Demo",
+        GIT_COMMITTER_EMAIL="demo@redline.invalid",
+    )
+    return subprocess.run(
+        ["git", *args], cwd=repo, env=env, check=True, capture_output=True, text=True
+    ).stdout.strip()
 
 
 def _commit(repo: Path, subject: str) -> str:
@@ -56,7 +62,7 @@ def triple_work(tuning: Path) -> None:
     if match is None:
         raise RuntimeError(f"{tuning} has no line 'WORK_PER_PAIR = <number>'")
     tripled = f"WORK_PER_PAIR = {int(match.group(1)) * 3}"
-    tuning.write_text(text[: match.start()] + tripled + text[match.end():])
+    tuning.write_text(text[: match.start()] + tripled + text[match.end() :])
 
 
 def make_history(repo: Path) -> list[DemoRevision]:
@@ -64,8 +70,11 @@ def make_history(repo: Path) -> list[DemoRevision]:
     if not (repo / ".git").exists():
         repo.mkdir(parents=True, exist_ok=True)
         _git(repo, "init", "--quiet", "--initial-branch=main")
-        shutil.copytree(examples_dir() / COMPONENT, repo / COMPONENT,
-                        ignore=shutil.ignore_patterns("__pycache__"))
+        shutil.copytree(
+            examples_dir() / COMPONENT,
+            repo / COMPONENT,
+            ignore=shutil.ignore_patterns("__pycache__"),
+        )
         _commit(repo, "objectbuilder: first version")
         notes = repo / COMPONENT / "NOTES.md"
         notes.write_text("Poses are processed on one worker thread; legs in a pool.\n")
@@ -84,15 +93,28 @@ def make_history(repo: Path) -> list[DemoRevision]:
 DEMO_KS_FLOOR = 0.5
 
 
-def submit(url: str, admin_token: str, ci_token: str, repo: Path,
-           revisions: list[DemoRevision], executions: int = 1) -> None:
+def submit(
+    url: str,
+    admin_token: str,
+    ci_token: str,
+    repo: Path,
+    revisions: list[DemoRevision],
+    executions: int = 1,
+) -> None:
     """Register the component and report each revision, as a CI system would; repeats are no-ops."""
     admin = {"Authorization": f"Bearer {admin_token}"}
     ci = {"Authorization": f"Bearer {ci_token}"}
-    answer = httpx.post(f"{url}/api/v1/components", headers=admin, json={
-        "name": COMPONENT, "repo": str(repo), "branch": "main", "suite": SUITE,
-        "executions": executions,
-    })
+    answer = httpx.post(
+        f"{url}/api/v1/components",
+        headers=admin,
+        json={
+            "name": COMPONENT,
+            "repo": str(repo),
+            "branch": "main",
+            "suite": SUITE,
+            "executions": executions,
+        },
+    )
     if answer.status_code not in (201, 409):
         answer.raise_for_status()
     # One execution per revision on whatever host runs the demo: on the 2-core VMs Redline is
@@ -100,15 +122,24 @@ def submit(url: str, admin_token: str, ci_token: str, repo: Path,
     # docs/detection.md, corpus 2), far over KS's 10 % floor. The demo's regression triples the
     # work (the e2e test asserts +80 % and more), so a 50 % floor keeps most of the noise out
     # and the regression in.
-    answer = httpx.put(f"{url}/api/v1/components/{COMPONENT}/detection-config", headers=admin,
-                       json={"thresholds": {"ks": {"min_effect": DEMO_KS_FLOOR}},
-                             "reanalyze": False})
+    answer = httpx.put(
+        f"{url}/api/v1/components/{COMPONENT}/detection-config",
+        headers=admin,
+        json={"thresholds": {"ks": {"min_effect": DEMO_KS_FLOOR}}, "reanalyze": False},
+    )
     answer.raise_for_status()
     for revision in revisions:
-        answer = httpx.post(f"{url}/api/v1/revisions", headers=ci, json={
-            "component": COMPONENT, "title": revision.title, "sort_key": revision.sort_key,
-            "commit": revision.commit, "repo": str(repo),
-        })
+        answer = httpx.post(
+            f"{url}/api/v1/revisions",
+            headers=ci,
+            json={
+                "component": COMPONENT,
+                "title": revision.title,
+                "sort_key": revision.sort_key,
+                "commit": revision.commit,
+                "repo": str(repo),
+            },
+        )
         if answer.status_code not in (201, 409):
             answer.raise_for_status()
 

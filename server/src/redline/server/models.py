@@ -107,7 +107,8 @@ class Job(Base):
     revision_id: Mapped[int] = mapped_column(ForeignKey("revision.id"), index=True)
     execution_index: Mapped[int] = mapped_column(Integer)
     state: Mapped[JobState] = mapped_column(
-        Enum(JobState, name="job_state", native_enum=False, length=20), default=JobState.queued,
+        Enum(JobState, name="job_state", native_enum=False, length=20),
+        default=JobState.queued,
         index=True,
     )
     attempts: Mapped[int] = mapped_column(Integer, default=0)

@@ -64,13 +64,16 @@ class Regression(Base):
     bad_key: Mapped[str] = mapped_column(String(1000, collation="C"))
     state: Mapped[RegressionState] = mapped_column(
         Enum(RegressionState, name="regression_state", native_enum=False, length=20),
-        default=RegressionState.new, index=True)
+        default=RegressionState.new,
+        index=True,
+    )
     created: Mapped[datetime] = mapped_column(default=utcnow)
     updated: Mapped[datetime] = mapped_column(default=utcnow, onupdate=utcnow)
     good_revision: Mapped[Revision] = relationship(foreign_keys=[good_revision_id])
     bad_revision: Mapped[Revision] = relationship(foreign_keys=[bad_revision_id])
     events: Mapped[list[RegressionEvent]] = relationship(
-        order_by="RegressionEvent.id", cascade="all, delete-orphan")
+        order_by="RegressionEvent.id", cascade="all, delete-orphan"
+    )
 
 
 class RegressionEvent(Base):
@@ -78,8 +81,9 @@ class RegressionEvent(Base):
 
     __tablename__ = "regression_event"
     id: Mapped[int] = mapped_column(primary_key=True)
-    regression_id: Mapped[int] = mapped_column(ForeignKey("regression.id", ondelete="CASCADE"),
-                                               index=True)
+    regression_id: Mapped[int] = mapped_column(
+        ForeignKey("regression.id", ondelete="CASCADE"), index=True
+    )
     at: Mapped[datetime] = mapped_column(default=utcnow)
     who: Mapped[str] = mapped_column(String(200))
     from_state: Mapped[str] = mapped_column(String(20))
@@ -100,8 +104,9 @@ class Detection(Base):
     id: Mapped[int] = mapped_column(primary_key=True)
     series_id: Mapped[int] = mapped_column(ForeignKey("series.id"), index=True)
     revision_id: Mapped[int] = mapped_column(ForeignKey("revision.id"), index=True)
-    baseline_revision_id: Mapped[int | None] = mapped_column(ForeignKey("revision.id"),
-                                                             default=None)
+    baseline_revision_id: Mapped[int | None] = mapped_column(
+        ForeignKey("revision.id"), default=None
+    )
     baseline_revisions: Mapped[int] = mapped_column(Integer, default=0)
     method: Mapped[str] = mapped_column(String(50))
     verdict: Mapped[str] = mapped_column(String(20))
@@ -112,7 +117,8 @@ class Detection(Base):
     direction: Mapped[str] = mapped_column(String(10), default="none")
     flagged: Mapped[bool] = mapped_column(Boolean, default=False)
     regression_id: Mapped[int | None] = mapped_column(
-        ForeignKey("regression.id", ondelete="SET NULL"), index=True, default=None)
+        ForeignKey("regression.id", ondelete="SET NULL"), index=True, default=None
+    )
     created: Mapped[datetime] = mapped_column(default=utcnow)
     series: Mapped[Series] = relationship()
     revision: Mapped[Revision] = relationship(foreign_keys=[revision_id])

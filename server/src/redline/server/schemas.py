@@ -12,30 +12,40 @@ class ComponentSettings(BaseModel):
     """What PATCH may change; every field is optional there."""
 
     repo: str | None = Field(default=None, description="URL or path; https/ssh/.git all match")
-    branch: str | None = Field(default=None, max_length=200, description="the default branch; "
-                               "pushes to it become revisions")
-    suite: str | None = Field(default=None,
-                              description="path of the suite file inside the repository")
-    executions: int | None = Field(default=None, ge=1, le=100,
-                                   description="executions (jobs) per revision")
-    host_labels: list[str] | None = Field(default=None,
-                                          description="labels a host needs to run its jobs")
-    webhook_secret: str | None = Field(default=None, description="overrides "
-                                       "REDLINE_WEBHOOK_SECRET for this repository; '' clears")
+    branch: str | None = Field(
+        default=None,
+        max_length=200,
+        description="the default branch; pushes to it become revisions",
+    )
+    suite: str | None = Field(
+        default=None, description="path of the suite file inside the repository"
+    )
+    executions: int | None = Field(
+        default=None, ge=1, le=100, description="executions (jobs) per revision"
+    )
+    host_labels: list[str] | None = Field(
+        default=None, description="labels a host needs to run its jobs"
+    )
+    webhook_secret: str | None = Field(
+        default=None, description="overrides REDLINE_WEBHOOK_SECRET for this repository; '' clears"
+    )
     description: str | None = None
 
 
 class ComponentCreate(BaseModel):
     name: str = Field(min_length=1, max_length=200, pattern=r"^[A-Za-z0-9._-]+$")
     repo: str = Field(default="", description="URL or path; https/ssh/.git spellings all match")
-    branch: str = Field(default="main", max_length=200,
-                        description="the default branch; pushes to it become revisions")
+    branch: str = Field(
+        default="main",
+        max_length=200,
+        description="the default branch; pushes to it become revisions",
+    )
     suite: str = Field(default="", description="path of the suite file inside the repository")
     executions: int = Field(default=1, ge=1, le=100, description="executions per revision")
-    host_labels: list[str] = Field(default_factory=list,
-                                   description="labels a host needs to run its jobs")
-    webhook_secret: str | None = Field(default=None,
-                                       description="overrides REDLINE_WEBHOOK_SECRET")
+    host_labels: list[str] = Field(
+        default_factory=list, description="labels a host needs to run its jobs"
+    )
+    webhook_secret: str | None = Field(default=None, description="overrides REDLINE_WEBHOOK_SECRET")
     description: str = ""
 
 
@@ -58,8 +68,9 @@ class RevisionCreate(BaseModel):
     sort_key: str = Field(min_length=1, max_length=200, description="orders revisions; '9' < '10'")
     commit: str = Field(default="", max_length=200)
     repo: str = Field(default="", description="defaults to the component's repository")
-    branch: str = Field(default="", max_length=200,
-                        description="defaults to the component's branch")
+    branch: str = Field(
+        default="", max_length=200, description="defaults to the component's branch"
+    )
     message: str = Field(default="", max_length=10_000, description="the commit message")
     committed_at: datetime | None = None
 

@@ -54,16 +54,18 @@ class PushRevision(BaseModel):
 
 class WebhookResult(BaseModel):
     detail: str
-    created: list[PushRevision] = Field(default_factory=list,
-                                        description="revisions new with this delivery")
+    created: list[PushRevision] = Field(
+        default_factory=list, description="revisions new with this delivery"
+    )
     existing: int = Field(default=0, description="commits already known (a repeated delivery)")
 
 
 class TokenCreate(BaseModel):
     name: str = Field(min_length=1, max_length=200)
     scopes: list[str] = Field(min_length=1, description="ci, agent, read, admin")
-    host: str | None = Field(default=None, max_length=200,
-                             description="for an agent token: the one host it may act as")
+    host: str | None = Field(
+        default=None, max_length=200, description="for an agent token: the one host it may act as"
+    )
 
 
 class TokenOut(BaseModel):
@@ -99,7 +101,8 @@ class ResultValue(BaseModel):
     process: str = Field(default="benchmark", min_length=1, max_length=200)
     counter: str = Field(min_length=1, max_length=200)
     values: list[Annotated[float, Field(allow_inf_nan=False)]] = Field(
-        min_length=1, description="finite samples (NaN and infinities are refused)")
+        min_length=1, description="finite samples (NaN and infinities are refused)"
+    )
 
 
 class ResultsImport(BaseModel):

@@ -46,7 +46,8 @@ class ExecutionDetail(BaseModel):
     created: datetime
     metadata: dict[str, Any]
     recording_pruned_at: datetime | None = Field(
-        description="when retention deleted the raw recording; summaries are kept")
+        description="when retention deleted the raw recording; summaries are kept"
+    )
     series: int = Field(description="how many series this execution summarized")
 
 
@@ -66,8 +67,9 @@ class SeriesComparison(BaseModel):
     change: float | None = Field(description="relative change of the mean; null if undefined")
     ks_statistic: float = Field(description="two-sample KS D, 0..1")
     p_value: float
-    exact: bool = Field(description="false when raw samples were pruned and the quantile "
-                                    "sketches stood in for them")
+    exact: bool = Field(
+        description="false when raw samples were pruned and the quantile sketches stood in for them"
+    )
 
 
 class Comparison(BaseModel):

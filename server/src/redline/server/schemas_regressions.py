@@ -74,11 +74,14 @@ class AccuracyOut(BaseModel):
 
 
 class DetectionConfigIn(BaseModel):
-    methods: list[str] | None = Field(default=None, description="default: the evaluated "
-                                      "default and ks")
+    methods: list[str] | None = Field(
+        default=None, description="default: the evaluated default and ks"
+    )
     baseline: Literal["recent", "previous", "window", "pinned"] = Field(
-        default="recent", description="recent: the newest revisions, pooled until the method "
-        "has enough values (at most `window`), restarting at its newest flagged change")
+        default="recent",
+        description="recent: the newest revisions, pooled until the method "
+        "has enough values (at most `window`), restarting at its newest flagged change",
+    )
     window: int = Field(default=DEFAULT_WINDOW, ge=1, le=MAX_WINDOW)
     pinned: str | None = Field(default=None, description="revision title when pinned")
     thresholds: dict[str, dict[str, float | str]] = Field(default_factory=dict)

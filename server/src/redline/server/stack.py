@@ -69,12 +69,31 @@ class Stack:
         agent = self.token("agent", "agent")
         # On one machine, analysis must yield to measurement: the server and the worker run
         # at a lower priority than the agent, whose runs they would otherwise disturb.
-        self._spawn("server", "server", "--host", "127.0.0.1", "--port", str(self.port),
-                    nice=BACKGROUND_NICE)
+        self._spawn(
+            "server",
+            "server",
+            "--host",
+            "127.0.0.1",
+            "--port",
+            str(self.port),
+            nice=BACKGROUND_NICE,
+        )
         self._wait_healthy()
         self._spawn("worker", "worker", "--concurrency", "1", nice=BACKGROUND_NICE)
-        self._spawn("agent", "agent", "--server", self.url, "--token", agent,
-                    "--name", "local-agent", "--work", str(self.data / "agent"), "--poll", "1")
+        self._spawn(
+            "agent",
+            "agent",
+            "--server",
+            self.url,
+            "--token",
+            agent,
+            "--name",
+            "local-agent",
+            "--work",
+            str(self.data / "agent"),
+            "--poll",
+            "1",
+        )
 
     def _service_env(self) -> dict[str, str]:
         env = dict(os.environ)
@@ -92,8 +111,9 @@ class Stack:
         return env
 
     def _redline(self, *args: str) -> str:
-        done = subprocess.run([redline_executable(), *args], env=self.env, capture_output=True,
-                              text=True)
+        done = subprocess.run(
+            [redline_executable(), *args], env=self.env, capture_output=True, text=True
+        )
         if done.returncode != 0:
             raise StackError(f"`redline {' '.join(args)}` failed:\n{done.stderr.strip()}")
         return done.stdout.strip()
@@ -112,9 +132,14 @@ class Stack:
     def _spawn(self, name: str, *args: str, nice: int = 0) -> None:
         log_path = self.data / "logs" / f"{name}.log"
         log = open(log_path, "ab")  # noqa: SIM115 - closed in stop()
-        process = subprocess.Popen([redline_executable(), *args], env=self.env, stdout=log,
-                                   stderr=subprocess.STDOUT, start_new_session=True,
-                                   preexec_fn=(lambda: os.nice(nice)) if nice else None)
+        process = subprocess.Popen(
+            [redline_executable(), *args],
+            env=self.env,
+            stdout=log,
+            stderr=subprocess.STDOUT,
+            start_new_session=True,
+            preexec_fn=(lambda: os.nice(nice)) if nice else None,
+        )
         self.children.append(Child(name, process, log_path, log))
 
     def _wait_healthy(self, timeout: float = 60.0) -> None:
@@ -133,8 +158,10 @@ class Stack:
         for child in self.children:
             code = child.process.poll()
             if code is not None:
-                raise StackError(f"{child.name} exited with code {code}; the end of "
-                                 f"{child.log_path}:\n{child.tail()}")
+                raise StackError(
+                    f"{child.name} exited with code {code}; the end of "
+                    f"{child.log_path}:\n{child.tail()}"
+                )
 
     def stop(self) -> None:
         """Stop the agent alone first, then the worker and the server, then Postgres and Redis.

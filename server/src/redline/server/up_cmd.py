@@ -14,8 +14,9 @@ from redline.server.stack import Stack, StackError
 from rich.console import Console
 
 console = Console()
-DataOption = typer.Option(Path(".redline"), "--data",
-                          help="folder for the database, recordings, logs")
+DataOption = typer.Option(
+    Path(".redline"), "--data", help="folder for the database, recordings, logs"
+)
 PortOption = typer.Option(8080, "--port", help="port of the API server and web UI")
 
 
@@ -60,13 +61,17 @@ def demo(data: Path = DataOption, port: int = PortOption) -> None:
         revisions = example.make_history(stack.data / "demo-repo")
         ci_token = stack.token("ci", "ci")
         example.submit(stack.url, stack.admin_token, ci_token, stack.data / "demo-repo", revisions)
-        console.print(f"submitted {len(revisions)} revisions of {example.COMPONENT}; "
-                      "the local agent runs them one by one")
+        console.print(
+            f"submitted {len(revisions)} revisions of {example.COMPONENT}; "
+            "the local agent runs them one by one"
+        )
         example.wait_for_results(stack.url, console.print)
         changes = httpx.get(f"{stack.url}/api/v1/components/{example.COMPONENT}/changes").json()
         for change in (c for c in changes if c.get("flagged")):
-            console.print(f"[yellow]change[/yellow] {change['revision']}: {change['series']} "
-                          f"effect {change['effect']:+.0%} (KS D={change['score']:.2f})")
+            console.print(
+                f"[yellow]change[/yellow] {change['revision']}: {change['series']} "
+                f"effect {change['effect']:+.0%} (KS D={change['score']:.2f})"
+            )
         console.print(f"trend charts: [bold]{stack.url}/components/{example.COMPONENT}[/bold]")
 
     _serve(data, port, then=show)
@@ -75,5 +80,3 @@ def demo(data: Path = DataOption, port: int = PortOption) -> None:
 def register(app: typer.Typer) -> None:
     app.command("up")(up)
     app.command("demo")(demo)
-
-

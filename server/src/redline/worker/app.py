@@ -21,13 +21,16 @@ REQUEUE_TASK = "redline.requeue_stale_uploads"
 def broker_url(redis_url: str) -> str:
     """kombu spells a Redis unix socket ``redis+socket:///path``; we accept ``unix:///path``."""
     if redis_url.startswith("unix://"):
-        return "redis+socket://" + redis_url[len("unix://"):]
+        return "redis+socket://" + redis_url[len("unix://") :]
     return redis_url
 
 
 def make_celery(settings: Settings) -> Celery:
-    app = Celery("redline", broker=broker_url(settings.redis_url),
-                 include=["redline.worker.tasks", "redline.worker.retention"])
+    app = Celery(
+        "redline",
+        broker=broker_url(settings.redis_url),
+        include=["redline.worker.tasks", "redline.worker.retention"],
+    )
     app.conf.update(
         task_acks_late=True,  # a task lost with its worker is redelivered; tasks are idempotent
         task_reject_on_worker_lost=True,
@@ -35,8 +38,12 @@ def make_celery(settings: Settings) -> Celery:
         task_ignore_result=True,
         task_default_queue=settings.queue,
         broker_connection_retry_on_startup=True,
-        task_publish_retry_policy={"max_retries": 3, "interval_start": 0.2,
-                                   "interval_step": 0.5, "interval_max": 1.0},
+        task_publish_retry_policy={
+            "max_retries": 3,
+            "interval_start": 0.2,
+            "interval_step": 0.5,
+            "interval_max": 1.0,
+        },
     )
     app.conf.beat_schedule = {
         "retention": {"task": RETENTION_TASK, "schedule": 24 * 3600.0},

@@ -58,8 +58,9 @@ DETECT_LOCK = 0x5244  # "RD"
 def ingested_executions() -> Select[tuple[int]]:
     """Executions whose ingestion finished (their job is done), whatever series they hold: a
     recording whose every sample was NaN has no summary rows but must still be judged."""
-    return (select(Execution.id).join(Job, Job.id == Execution.job_id)
-            .where(Job.state == JobState.done))
+    return (
+        select(Execution.id).join(Job, Job.id == Execution.job_id).where(Job.state == JobState.done)
+    )
 
 
 #: Per series id, one array of samples per execution (in execution order).
@@ -68,14 +69,17 @@ Samples = dict[int, list[np.ndarray]]
 
 def _ingested(session: Session, revision_id: int) -> list[tuple[int, str]]:
     """(id, recording path) of the revision's ingested executions, in execution order."""
-    return [(execution_id, path) for execution_id, path in session.execute(
-        select(Execution.id, Execution.recording_path)
-        .where(Execution.revision_id == revision_id,
-               Execution.id.in_(ingested_executions())).order_by(Execution.id))]
+    return [
+        (execution_id, path)
+        for execution_id, path in session.execute(
+            select(Execution.id, Execution.recording_path)
+            .where(Execution.revision_id == revision_id, Execution.id.in_(ingested_executions()))
+            .order_by(Execution.id)
+        )
+    ]
 
 
-def read_samples(session: Session,
-                 revision_id: int) -> tuple[Samples, int, tuple[int, ...]]:
+def read_samples(session: Session, revision_id: int) -> tuple[Samples, int, tuple[int, ...]]:
     """Every ingested sample of the revision, per series id and execution; with how many of
     its ingested executions' side tables were read, and the ids of those executions.
 
@@ -95,8 +99,7 @@ def read_samples(session: Session,
         values = table.column("value").to_numpy()
         order = np.argsort(series, kind="stable")
         ids, starts = np.unique(series[order], return_index=True)
-        for series_id, chunk in zip(ids.tolist(), np.split(values[order], starts[1:]),
-                                    strict=True):
+        for series_id, chunk in zip(ids.tolist(), np.split(values[order], starts[1:]), strict=True):
             samples[series_id].append(chunk)
     return dict(samples), read, tuple(execution_id for execution_id, _ in executions)
 
@@ -131,8 +134,9 @@ class SampleCache:
             self.reduced.pop(oldest, None)
         self.entries[revision_id] = samples
 
-    def values(self, session: Session, revision_id: int, series_id: int,
-               detector: Detector) -> np.ndarray | None:
+    def values(
+        self, session: Session, revision_id: int, series_id: int, detector: Detector
+    ) -> np.ndarray | None:
         """The revision's values of the series as ``detector`` judges them; None if absent."""
         samples = self.get(session, revision_id)
         if series_id not in samples:
@@ -151,8 +155,8 @@ def ingested_fingerprint(session: Session, component_id: int) -> tuple[int, int]
     count, newest = session.execute(
         select(func.count(Execution.id), func.coalesce(func.max(Execution.id), 0))
         .join(Revision, Revision.id == Execution.revision_id)
-        .where(Revision.component_id == component_id,
-               Execution.id.in_(ingested_executions()))).one()
+        .where(Revision.component_id == component_id, Execution.id.in_(ingested_executions()))
+    ).one()
     return int(count), int(newest)
 
 
@@ -196,15 +200,28 @@ class Walk:
     def newest_first(self) -> list[tuple[int, frozenset[int]]]:
         return list(reversed(self.recent))
 
-    def judged(self, session: Session, revision_id: int, samples: Samples,
-               rows: list[dict[str, Any]], complete: bool) -> None:
+    def judged(
+        self,
+        session: Session,
+        revision_id: int,
+        samples: Samples,
+        rows: list[dict[str, Any]],
+        complete: bool,
+    ) -> None:
         """``complete``: every ingested execution's samples were read; else the revision's
         series are those its summaries name, as the database sees them."""
-        self.flagged.update((row["series_id"], row["method"], revision_id)
-                            for row in rows if row["flagged"])
+        self.flagged.update(
+            (row["series_id"], row["method"], revision_id) for row in rows if row["flagged"]
+        )
         if complete:
-            self._add(revision_id, frozenset(series_id for series_id, runs in samples.items()
-                                             if any(np.isfinite(run).any() for run in runs)))
+            self._add(
+                revision_id,
+                frozenset(
+                    series_id
+                    for series_id, runs in samples.items()
+                    if any(np.isfinite(run).any() for run in runs)
+                ),
+            )
         else:
             self._add(revision_id, _summarized_series(session, revision_id))
 
@@ -219,10 +236,14 @@ class Walk:
 
 
 def _summarized_series(session: Session, revision_id: int) -> frozenset[int]:
-    return frozenset(session.scalars(
-        select(Summary.series_id).distinct()
-        .join(Execution, Execution.id == Summary.execution_id)
-        .where(Execution.revision_id == revision_id)))
+    return frozenset(
+        session.scalars(
+            select(Summary.series_id)
+            .distinct()
+            .join(Execution, Execution.id == Summary.execution_id)
+            .where(Execution.revision_id == revision_id)
+        )
+    )
 
 
 def _before(revision: Revision):  # noqa: ANN202 - an SQL expression
@@ -233,11 +254,15 @@ def successor_with_data(session: Session, revision_id: int) -> int | None:
     """The next revision (by sort key) of the same component that has ingested results."""
     revision = session.get_one(Revision, revision_id)
     return session.scalar(
-        select(Revision.id).join(Execution, Execution.revision_id == Revision.id)
-        .where(Revision.component_id == revision.component_id,
-               tuple_(Revision.order_key, Revision.id) > (revision.order_key, revision.id),
-               Execution.id.in_(ingested_executions()))
-        .order_by(Revision.order_key, Revision.id).limit(1)
+        select(Revision.id)
+        .join(Execution, Execution.revision_id == Revision.id)
+        .where(
+            Revision.component_id == revision.component_id,
+            tuple_(Revision.order_key, Revision.id) > (revision.order_key, revision.id),
+            Execution.id.in_(ingested_executions()),
+        )
+        .order_by(Revision.order_key, Revision.id)
+        .limit(1)
     )
 
 
@@ -247,42 +272,66 @@ def component_config(session: Session, component_id: int) -> DetectionConfig:
     try:
         return DetectionConfig.parse(row.config if row else None)
     except ConfigError as exc:
-        log.error("component %s: stored detection configuration unusable (%s); defaults used",
-                  component_id, exc)
+        log.error(
+            "component %s: stored detection configuration unusable (%s); defaults used",
+            component_id,
+            exc,
+        )
         return DetectionConfig()
 
 
 def _judged_counters(session: Session, series_ids: list[int]) -> dict[int, str]:
     """Series id → counter, for the component's own processes (host-wide series are context)."""
-    rows = session.execute(select(Series.id, Series.counter)
-                           .where(Series.id.in_(series_ids), Series.process != HOST_PROCESS))
+    rows = session.execute(
+        select(Series.id, Series.counter).where(
+            Series.id.in_(series_ids), Series.process != HOST_PROCESS
+        )
+    )
     return {series_id: counter for series_id, counter in rows}
 
 
 def _newest_with_summaries(session: Session, revision: Revision, depth: int) -> list[int]:
-    has_samples = (select(Summary.id).join(Execution, Execution.id == Summary.execution_id)
-                   .where(Execution.revision_id == Revision.id).exists())
-    return list(session.scalars(
-        select(Revision.id).where(Revision.component_id == revision.component_id,
-                                  _before(revision), has_samples)
-        .order_by(Revision.order_key.desc(), Revision.id.desc()).limit(depth)))
+    has_samples = (
+        select(Summary.id)
+        .join(Execution, Execution.id == Summary.execution_id)
+        .where(Execution.revision_id == Revision.id)
+        .exists()
+    )
+    return list(
+        session.scalars(
+            select(Revision.id)
+            .where(Revision.component_id == revision.component_id, _before(revision), has_samples)
+            .order_by(Revision.order_key.desc(), Revision.id.desc())
+            .limit(depth)
+        )
+    )
 
 
-def _ranked_previous(session: Session, revision: Revision, series_ids: list[int],
-                     depth: int) -> dict[int, list[int]]:
+def _ranked_previous(
+    session: Session, revision: Revision, series_ids: list[int], depth: int
+) -> dict[int, list[int]]:
     """Per series, the ids of the ``depth`` newest earlier revisions with samples of it, by
     ranking every earlier revision's summaries of those series (the general case)."""
-    rank = func.dense_rank().over(partition_by=Summary.series_id,
-                                  order_by=(Revision.order_key.desc(), Revision.id.desc()))
-    ranked = (select(Summary.series_id, Revision.id.label("revision_id"), rank.label("rank"))
-              .join(Execution, Execution.id == Summary.execution_id)
-              .join(Revision, Revision.id == Execution.revision_id)
-              .where(Revision.component_id == revision.component_id,
-                     Summary.series_id.in_(series_ids), _before(revision))
-              .subquery())
-    rows = session.execute(select(ranked.c.series_id, ranked.c.revision_id, ranked.c.rank)
-                           .where(ranked.c.rank <= depth).distinct()
-                           .order_by(ranked.c.series_id, ranked.c.rank))
+    rank = func.dense_rank().over(
+        partition_by=Summary.series_id, order_by=(Revision.order_key.desc(), Revision.id.desc())
+    )
+    ranked = (
+        select(Summary.series_id, Revision.id.label("revision_id"), rank.label("rank"))
+        .join(Execution, Execution.id == Summary.execution_id)
+        .join(Revision, Revision.id == Execution.revision_id)
+        .where(
+            Revision.component_id == revision.component_id,
+            Summary.series_id.in_(series_ids),
+            _before(revision),
+        )
+        .subquery()
+    )
+    rows = session.execute(
+        select(ranked.c.series_id, ranked.c.revision_id, ranked.c.rank)
+        .where(ranked.c.rank <= depth)
+        .distinct()
+        .order_by(ranked.c.series_id, ranked.c.rank)
+    )
     found: dict[int, list[int]] = defaultdict(list)
     for series_id, revision_id, _rank in rows:
         if revision_id not in found[series_id]:
@@ -290,9 +339,13 @@ def _ranked_previous(session: Session, revision: Revision, series_ids: list[int]
     return found
 
 
-def _previous_revisions(session: Session, revision: Revision, series_ids: list[int],
-                        depth: int, known: Sequence[tuple[int, frozenset[int]]] | None = None,
-                        ) -> dict[int, list[int]]:
+def _previous_revisions(
+    session: Session,
+    revision: Revision,
+    series_ids: list[int],
+    depth: int,
+    known: Sequence[tuple[int, frozenset[int]]] | None = None,
+) -> dict[int, list[int]]:
     """Per series, the ids of the ``depth`` newest earlier revisions with samples of it.
 
     The newest ``depth`` earlier revisions with results nearly always hold every series: they
@@ -310,10 +363,12 @@ def _previous_revisions(session: Session, revision: Revision, series_ids: list[i
     else:
         newest = _newest_with_summaries(session, revision, depth)
     if newest and known is None:
-        rows = session.execute(select(Summary.series_id, Execution.revision_id).distinct()
-                               .join(Execution, Execution.id == Summary.execution_id)
-                               .where(Execution.revision_id.in_(newest),
-                                      Summary.series_id.in_(series_ids)))
+        rows = session.execute(
+            select(Summary.series_id, Execution.revision_id)
+            .distinct()
+            .join(Execution, Execution.id == Summary.execution_id)
+            .where(Execution.revision_id.in_(newest), Summary.series_id.in_(series_ids))
+        )
         for series_id, revision_id in rows:
             holds[series_id].add(revision_id)
     found = {series_id: [r for r in newest if r in holds[series_id]] for series_id in series_ids}
@@ -332,14 +387,16 @@ class Baseline:
     missing: str = ""
 
 
-def flagged_verdicts(session: Session, revision_ids: set[int],
-                     series_ids: list[int] | None = None) -> set[tuple[int, str, int]]:
+def flagged_verdicts(
+    session: Session, revision_ids: set[int], series_ids: list[int] | None = None
+) -> set[tuple[int, str, int]]:
     """(series, method, revision) of the stored flagged verdicts of those revisions (and of
     those series, when given)."""
     if not revision_ids:
         return set()
-    query = (select(Detection.series_id, Detection.method, Detection.revision_id)
-             .where(Detection.flagged, Detection.revision_id.in_(revision_ids)))
+    query = select(Detection.series_id, Detection.method, Detection.revision_id).where(
+        Detection.flagged, Detection.revision_id.in_(revision_ids)
+    )
     if series_ids is not None:
         query = query.where(Detection.series_id.in_(series_ids))
     rows = session.execute(query)
@@ -349,22 +406,33 @@ def flagged_verdicts(session: Session, revision_ids: set[int],
 class Baselines:
     """Each series' baseline for each method under the configuration."""
 
-    def __init__(self, session: Session, revision: Revision, config: DetectionConfig,
-                 series_ids: list[int], walk: Walk | None = None) -> None:
+    def __init__(
+        self,
+        session: Session,
+        revision: Revision,
+        config: DetectionConfig,
+        series_ids: list[int],
+        walk: Walk | None = None,
+    ) -> None:
         """``walk``: what a re-analysis knows of the earlier revisions; else it is read."""
         self.session, self.config = session, config
         self.cache = walk.cache if walk else SampleCache(config.window + 1)
         self.pinned: int | None = None
         self.flagged: set[tuple[int, str, int]] = walk.flagged if walk else set()
         if config.baseline == "pinned":
-            self.pinned = session.scalar(select(Revision.id).where(
-                Revision.component_id == revision.component_id, Revision.title == config.pinned,
-                _before(revision)))
+            self.pinned = session.scalar(
+                select(Revision.id).where(
+                    Revision.component_id == revision.component_id,
+                    Revision.title == config.pinned,
+                    _before(revision),
+                )
+            )
             self.previous: dict[int, list[int]] = {}
             return
         depth = 1 if config.baseline == "previous" else config.window
-        self.previous = _previous_revisions(session, revision, series_ids, depth,
-                                            walk.newest_first() if walk else None)
+        self.previous = _previous_revisions(
+            session, revision, series_ids, depth, walk.newest_first() if walk else None
+        )
         if config.baseline == "recent" and walk is None:
             earlier = {r for ids in self.previous.values() for r in ids}
             self.flagged = flagged_verdicts(session, earlier, series_ids)
@@ -378,37 +446,58 @@ class Baselines:
             ids = [self.pinned] if self.pinned is not None else []
         else:
             ids = self.previous.get(series_id, [])
-        present = ((i, values) for i in ids
-                   if (values := self.values(i, series_id, detector)) is not None)
+        present = (
+            (i, values) for i in ids if (values := self.values(i, series_id, detector)) is not None
+        )
         if self.config.baseline != "recent":
             return list(present)
-        return take_recent((((i, values), len(values), (series_id, detector.name, i)
-                             in self.flagged) for i, values in present),
-                           detector.baseline_values, self.config.window)
+        return take_recent(
+            (
+                ((i, values), len(values), (series_id, detector.name, i) in self.flagged)
+                for i, values in present
+            ),
+            detector.baseline_values,
+            self.config.window,
+        )
 
     def of(self, series_id: int, detector: Detector) -> Baseline:
         if self.config.baseline == "pinned" and self.pinned is None:
-            return Baseline(None, missing=f"missing baseline: pinned revision "
-                            f"{self.config.pinned!r} is not an earlier revision")
+            return Baseline(
+                None,
+                missing=f"missing baseline: pinned revision "
+                f"{self.config.pinned!r} is not an earlier revision",
+            )
         found = self._revisions(series_id, detector)
         if not found:
             known = self.pinned is not None or self.previous.get(series_id)
-            return Baseline(None, missing="missing baseline: the baseline revision's samples "
-                            "of this series are unreadable or absent" if known else
-                            "missing baseline: no earlier revision has samples of this series")
+            return Baseline(
+                None,
+                missing="missing baseline: the baseline revision's samples "
+                "of this series are unreadable or absent"
+                if known
+                else "missing baseline: no earlier revision has samples of this series",
+            )
         return Baseline(np.concatenate([values for _, values in found]), found[0][0], len(found))
 
 
 def _row(series_id: int, revision_id: int, base: Baseline, verdict: Verdict) -> dict[str, Any]:
     """A `Detection` row, as the values of a bulk insert."""
     effect = verdict.effect if verdict.decided and np.isfinite(verdict.effect) else None
-    return dict(series_id=series_id, revision_id=revision_id,
-                baseline_revision_id=base.newest, baseline_revisions=base.revisions,
-                method=verdict.method, verdict=verdict.verdict, reason=verdict.reason,
-                score=float(verdict.score),
-                p_value=None if verdict.p_value is None else float(verdict.p_value),
-                effect=None if effect is None else float(effect), direction=verdict.direction,
-                flagged=bool(verdict.flagged), created=utcnow())
+    return dict(
+        series_id=series_id,
+        revision_id=revision_id,
+        baseline_revision_id=base.newest,
+        baseline_revisions=base.revisions,
+        method=verdict.method,
+        verdict=verdict.verdict,
+        reason=verdict.reason,
+        score=float(verdict.score),
+        p_value=None if verdict.p_value is None else float(verdict.p_value),
+        effect=None if effect is None else float(effect),
+        direction=verdict.direction,
+        flagged=bool(verdict.flagged),
+        created=utcnow(),
+    )
 
 
 @dataclass(frozen=True)
@@ -430,16 +519,26 @@ class KsChange:
 def _ks_change(row: dict[str, Any], verdict: Verdict) -> KsChange | None:
     if row["method"] != METHOD_KS or verdict.verdict == NOT_ENOUGH_DATA or verdict.p_value is None:
         return None
-    return KsChange(series_id=row["series_id"], revision_id=row["revision_id"],
-                    baseline_revision_id=row["baseline_revision_id"], method=METHOD_KS,
-                    score=float(verdict.score), p_value=float(verdict.p_value),
-                    effect=float(verdict.effect), flagged=bool(verdict.flagged),
-                    created=row["created"])
+    return KsChange(
+        series_id=row["series_id"],
+        revision_id=row["revision_id"],
+        baseline_revision_id=row["baseline_revision_id"],
+        method=METHOD_KS,
+        score=float(verdict.score),
+        p_value=float(verdict.p_value),
+        effect=float(verdict.effect),
+        flagged=bool(verdict.flagged),
+        created=row["created"],
+    )
 
 
-def analyze(session: Session, revision: Revision, config: DetectionConfig,
-            candidate: Samples | None = None, walk: Walk | None = None,
-            ) -> tuple[list[dict[str, Any]], list[KsChange]]:
+def analyze(
+    session: Session,
+    revision: Revision,
+    config: DetectionConfig,
+    candidate: Samples | None = None,
+    walk: Walk | None = None,
+) -> tuple[list[dict[str, Any]], list[KsChange]]:
     """Every configured method on every judged series of the revision (nothing stored).
 
     ``candidate``: the revision's samples, when already read; ``walk``: what a re-analysis
@@ -456,8 +555,9 @@ def analyze(session: Session, revision: Revision, config: DetectionConfig,
         for detector in detectors:
             base = baselines.of(series_id, detector)
             values = baselines.values(revision.id, series_id, detector)
-            verdict = judge_series(detector, counters[series_id], base.values, values,
-                                   missing=base.missing)
+            verdict = judge_series(
+                detector, counters[series_id], base.values, values, missing=base.missing
+            )
             rows.append(_row(series_id, revision.id, base, verdict))
             change = _ks_change(rows[-1], verdict)
             if change is not None:
@@ -465,16 +565,18 @@ def analyze(session: Session, revision: Revision, config: DetectionConfig,
     return rows, changes
 
 
-def store(session: Session, revision: Revision, rows: list[dict[str, Any]],
-          changes: list[KsChange]) -> None:
+def store(
+    session: Session, revision: Revision, rows: list[dict[str, Any]], changes: list[KsChange]
+) -> None:
     """Replace the revision's detections and KS changes, then regroup its regressions.
 
     One statement per table (`bulk_insert`): 500 series x 2 methods would otherwise spend more
     time in the ORM and in round trips than in the detectors.
     """
     session.execute(delete(Detection).where(Detection.revision_id == revision.id))
-    session.execute(delete(Change).where(Change.revision_id == revision.id,
-                                         Change.method == METHOD_KS))
+    session.execute(
+        delete(Change).where(Change.revision_id == revision.id, Change.method == METHOD_KS)
+    )
     bulk_insert(session, Detection.__table__, rows)
     bulk_insert(session, Change.__table__, [asdict(change) for change in changes])
     group_revision(session, revision)
@@ -492,10 +594,7 @@ class Judged:
     executions: tuple[int, ...]
 
 
-
-
-def judge_revision(session: Session, revision_id: int,
-                   walk: Walk | None = None) -> Judged | None:
+def judge_revision(session: Session, revision_id: int, walk: Walk | None = None) -> Judged | None:
     """The reading half of `detect_revision`: every verdict computed, nothing stored.
 
     None when there is nothing to store: no such revision, or ingested executions none of whose
@@ -509,8 +608,12 @@ def judge_revision(session: Session, revision_id: int,
         walk.check(session, revision.component_id)
     candidate, read, executions = read_samples(session, revision.id)
     if executions and not read:
-        log.warning("revision %s: the samples of its %d executions are gone (pruned?); "
-                    "its stored results are kept", revision_id, len(executions))
+        log.warning(
+            "revision %s: the samples of its %d executions are gone (pruned?); "
+            "its stored results are kept",
+            revision_id,
+            len(executions),
+        )
         if walk is not None:
             walk.kept(session, revision_id)
         return None

@@ -19,21 +19,28 @@ from sqlalchemy import delete, exists, select
 from sqlalchemy.orm import Session
 
 
-def _span(session: Session, detection: Detection,
-          revision: Revision) -> tuple[Revision, Revision] | None:
+def _span(
+    session: Session, detection: Detection, revision: Revision
+) -> tuple[Revision, Revision] | None:
     if detection.baseline_revision_id is None:
         return None
     return session.get_one(Revision, detection.baseline_revision_id), revision
 
 
-def _overlapping(session: Session, component_id: int, good: Revision,
-                 bad: Revision) -> Regression | None:
+def _overlapping(
+    session: Session, component_id: int, good: Revision, bad: Revision
+) -> Regression | None:
     """The oldest regression whose (good, bad] range overlaps this one."""
     return session.scalar(
-        select(Regression).where(Regression.component_id == component_id,
-                                 Regression.good_key < bad.order_key,
-                                 Regression.bad_key > good.order_key)
-        .order_by(Regression.id).limit(1))
+        select(Regression)
+        .where(
+            Regression.component_id == component_id,
+            Regression.good_key < bad.order_key,
+            Regression.bad_key > good.order_key,
+        )
+        .order_by(Regression.id)
+        .limit(1)
+    )
 
 
 def _widen(regression: Regression, good: Revision, bad: Revision) -> None:
@@ -46,9 +53,16 @@ def _widen(regression: Regression, good: Revision, bad: Revision) -> None:
 def _drop_untriaged_empty(session: Session, component_id: int) -> None:
     has_detection = exists().where(Detection.regression_id == Regression.id)
     has_event = exists().where(RegressionEvent.regression_id == Regression.id)
-    session.execute(delete(Regression).where(
-        Regression.component_id == component_id, Regression.state == RegressionState.new,
-        ~has_detection, ~has_event).execution_options(synchronize_session=False))
+    session.execute(
+        delete(Regression)
+        .where(
+            Regression.component_id == component_id,
+            Regression.state == RegressionState.new,
+            ~has_detection,
+            ~has_event,
+        )
+        .execution_options(synchronize_session=False)
+    )
 
 
 def group_revision(session: Session, revision: Revision) -> None:
@@ -56,11 +70,14 @@ def group_revision(session: Session, revision: Revision) -> None:
 
     The component's row is locked first, so two workers never open overlapping regressions.
     """
-    session.execute(select(Component.id).where(Component.id == revision.component_id)
-                    .with_for_update())
-    flagged = session.scalars(select(Detection).where(Detection.revision_id == revision.id,
-                                                      Detection.flagged)
-                              .order_by(Detection.id))
+    session.execute(
+        select(Component.id).where(Component.id == revision.component_id).with_for_update()
+    )
+    flagged = session.scalars(
+        select(Detection)
+        .where(Detection.revision_id == revision.id, Detection.flagged)
+        .order_by(Detection.id)
+    )
     for detection in flagged:
         span = _span(session, detection, revision)
         if span is None:
@@ -68,9 +85,14 @@ def group_revision(session: Session, revision: Revision) -> None:
         good, bad = span
         regression = _overlapping(session, revision.component_id, good, bad)
         if regression is None:
-            regression = Regression(component_id=revision.component_id, good_revision_id=good.id,
-                                    bad_revision_id=bad.id, good_key=good.order_key,
-                                    bad_key=bad.order_key, state=RegressionState.new)
+            regression = Regression(
+                component_id=revision.component_id,
+                good_revision_id=good.id,
+                bad_revision_id=bad.id,
+                good_key=good.order_key,
+                bad_key=bad.order_key,
+                state=RegressionState.new,
+            )
             session.add(regression)
             session.flush()
         else:

@@ -44,11 +44,13 @@ def summarize(values: np.ndarray) -> dict[str, Any] | None:
     if values.size == 0:
         return None
     stats: dict[str, Any] = {
-        "n": int(values.size), "mean": float(values.mean()), "std": float(values.std()),
-        "min": float(values.min()), "max": float(values.max()),
+        "n": int(values.size),
+        "mean": float(values.mean()),
+        "std": float(values.std()),
+        "min": float(values.min()),
+        "max": float(values.max()),
     }
-    for name, value in zip(QUANTILES, np.percentile(values, list(QUANTILES.values())),
-                           strict=True):
+    for name, value in zip(QUANTILES, np.percentile(values, list(QUANTILES.values())), strict=True):
         stats[name] = float(value)
     stats["sketch"] = [float(v) for v in np.quantile(values, SKETCH_LEVELS)]
     return stats
@@ -57,20 +59,33 @@ def summarize(values: np.ndarray) -> dict[str, Any] | None:
 def _series_ids(session: Session, component_id: int, keys: list[SeriesKey]) -> dict[SeriesKey, int]:
     """Create the series the recording names that do not exist yet; return every key's id."""
     if keys:
-        rows = [dict(component_id=component_id, case=k.case, phase=k.phase, params=k.params,
-                     process=k.process, counter=k.counter) for k in keys]
+        rows = [
+            dict(
+                component_id=component_id,
+                case=k.case,
+                phase=k.phase,
+                params=k.params,
+                process=k.process,
+                counter=k.counter,
+            )
+            for k in keys
+        ]
         session.execute(insert(Series).values(rows).on_conflict_do_nothing())
     known = session.scalars(select(Series).where(Series.component_id == component_id))
     by_key = {SeriesKey(s.case, s.phase, s.params, s.process, s.counter): s.id for s in known}
     return {key: by_key[key] for key in keys}
 
 
-def _write_samples(path: Path, ids: dict[SeriesKey, int],
-                   samples: dict[SeriesKey, list[float]]) -> None:
-    series = np.concatenate([np.full(len(samples[k]), ids[k], dtype=np.int64) for k in ids]
-                            or [np.empty(0, dtype=np.int64)])
-    values = np.concatenate([np.asarray(samples[k], dtype=np.float64) for k in ids]
-                            or [np.empty(0, dtype=np.float64)])
+def _write_samples(
+    path: Path, ids: dict[SeriesKey, int], samples: dict[SeriesKey, list[float]]
+) -> None:
+    series = np.concatenate(
+        [np.full(len(samples[k]), ids[k], dtype=np.int64) for k in ids]
+        or [np.empty(0, dtype=np.int64)]
+    )
+    values = np.concatenate(
+        [np.asarray(samples[k], dtype=np.float64) for k in ids] or [np.empty(0, dtype=np.float64)]
+    )
     partial = path.with_suffix(".part")
     pq.write_table(pa.table({"series_id": series, "value": values}), partial)
     os.replace(partial, path)
@@ -86,7 +101,8 @@ def _ingest(session: Session, execution: Execution) -> None:
     summaries = {key: summarize(np.asarray(samples[key], dtype=np.float64)) for key in ids}
     session.add_all(
         Summary(execution_id=execution.id, series_id=ids[key], **stats)
-        for key, stats in summaries.items() if stats is not None
+        for key, stats in summaries.items()
+        if stats is not None
     )
     _write_samples(samples_path(execution.recording_path), ids, samples)
     job.state, job.reason = JobState.done, ""
@@ -119,23 +135,33 @@ def ingest_execution(database_url: str, execution_id: int) -> list[int]:
             _ingest(session, execution)
             later = successor_with_data(session, execution.revision_id)
             revisions = [execution.revision_id] + ([later] if later is not None else [])
-            session.execute(update(Revision).where(Revision.id.in_(revisions))
-                            .values(analyzed_at=None))
+            session.execute(
+                update(Revision).where(Revision.id.in_(revisions)).values(analyzed_at=None)
+            )
             return revisions
     except ValueError as exc:  # RecordingError is one
         _fail(database_url, execution_id, f"ingest failed: {exc}")
         raise
 
 
-def stale_uploads(session: Session, older_than: timedelta = STALE_UPLOAD,
-                  limit: int = 500) -> list[int]:
+def stale_uploads(
+    session: Session, older_than: timedelta = STALE_UPLOAD, limit: int = 500
+) -> list[int]:
     """Executions whose job has been `uploaded` for longer than ``older_than``, oldest first.
 
     Their ingestion was never queued (broker down at upload) or was lost; ingestion is
     idempotent, so queueing one again that is merely slow costs a repeat, nothing more.
     """
-    return list(session.scalars(
-        select(Execution.id).join(Job, Job.id == Execution.job_id)
-        .where(Job.state == JobState.uploaded, Job.updated < utcnow() - older_than,
-               Execution.pruned_at.is_(None))
-        .order_by(Job.updated, Execution.id).limit(limit)))
+    return list(
+        session.scalars(
+            select(Execution.id)
+            .join(Job, Job.id == Execution.job_id)
+            .where(
+                Job.state == JobState.uploaded,
+                Job.updated < utcnow() - older_than,
+                Execution.pruned_at.is_(None),
+            )
+            .order_by(Job.updated, Execution.id)
+            .limit(limit)
+        )
+    )

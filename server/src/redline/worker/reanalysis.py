@@ -46,11 +46,20 @@ def _progress(session: Session, component_id: int) -> Reanalysis:
 
 
 def revisions_with_data(session: Session, component_id: int) -> list[int]:
-    return list(session.scalars(
-        select(Revision.id).where(Revision.component_id == component_id)
-        .where(select(Execution.id).where(Execution.id.in_(ingested_executions()),
-                                          Execution.revision_id == Revision.id).exists())
-        .order_by(Revision.order_key, Revision.id)))
+    return list(
+        session.scalars(
+            select(Revision.id)
+            .where(Revision.component_id == component_id)
+            .where(
+                select(Execution.id)
+                .where(
+                    Execution.id.in_(ingested_executions()), Execution.revision_id == Revision.id
+                )
+                .exists()
+            )
+            .order_by(Revision.order_key, Revision.id)
+        )
+    )
 
 
 class _Writer(threading.Thread):
@@ -125,8 +134,10 @@ def reanalyze_component(database_url: str, component_id: int) -> int:
     """Detect every revision of the component again; returns how many were analysed."""
     with session_scope(database_url) as session:
         revisions = revisions_with_data(session, component_id)
-        walk = Walk.over(component_config(session, component_id).window,
-                         ingested_fingerprint(session, component_id))
+        walk = Walk.over(
+            component_config(session, component_id).window,
+            ingested_fingerprint(session, component_id),
+        )
         row = _progress(session, component_id)
         row.state, row.total, row.done, row.error = "running", len(revisions), 0, ""
         row.started, row.finished = utcnow(), None

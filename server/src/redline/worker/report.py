@@ -25,12 +25,15 @@ pre{background:#f6f6f6;padding:.5em;white-space:pre-wrap}.fig{height:300px}"""
 
 
 def _sides(comparison: Comparison) -> list[tuple[str, RecordedSeries]]:
-    return [*(("baseline", r) for r in comparison.baseline),
-            *(("candidate", r) for r in comparison.candidate)]
+    return [
+        *(("baseline", r) for r in comparison.baseline),
+        *(("candidate", r) for r in comparison.candidate),
+    ]
 
 
-def evolution_figure(key: SeriesKey, files: list[tuple[str, RecordedSeries]],
-                     verdict: SeriesVerdict) -> dict[str, Any]:
+def evolution_figure(
+    key: SeriesKey, files: list[tuple[str, RecordedSeries]], verdict: SeriesVerdict
+) -> dict[str, Any]:
     """Mean ± std of the series in each recording, one trace per side."""
     data = []
     for side, color in SIDE_COLORS.items():
@@ -41,21 +44,33 @@ def evolution_figure(key: SeriesKey, files: list[tuple[str, RecordedSeries]],
                 labels.append(recorded.label)
                 means.append(float(np.mean(values)))
                 stds.append(float(np.std(values)))
-        data.append({"type": "scatter", "mode": "markers+lines", "name": side, "x": labels,
-                     "y": means, "error_y": {"type": "data", "array": stds, "visible": True},
-                     "marker": {"color": color}})
+        data.append(
+            {
+                "type": "scatter",
+                "mode": "markers+lines",
+                "name": side,
+                "x": labels,
+                "y": means,
+                "error_y": {"type": "data", "array": stds, "visible": True},
+                "marker": {"color": color},
+            }
+        )
     flag = "changed: " if verdict.result.flagged else ""
-    title = f"{flag}{key.process}.{key.counter} (D {verdict.result.score:.3f}, " \
-            f"effect {verdict.result.effect:+.1%})"
-    layout = {"title": {"text": title, "font": {"size": 13}}, "height": 300,
-              "margin": {"l": 60, "r": 20, "t": 40, "b": 80},
-              "xaxis": {"type": "category", "title": {"text": "recording (revision)"}},
-              "yaxis": {"title": {"text": key.counter}}}
+    title = (
+        f"{flag}{key.process}.{key.counter} (D {verdict.result.score:.3f}, "
+        f"effect {verdict.result.effect:+.1%})"
+    )
+    layout = {
+        "title": {"text": title, "font": {"size": 13}},
+        "height": 300,
+        "margin": {"l": 60, "r": 20, "t": 40, "b": 80},
+        "xaxis": {"type": "category", "title": {"text": "recording (revision)"}},
+        "yaxis": {"title": {"text": key.counter}},
+    }
     return {"data": data, "layout": layout}
 
 
-def timeseries_figure(key: SeriesKey, files: list[tuple[str, RecordedSeries]]
-                      ) -> dict[str, Any]:
+def timeseries_figure(key: SeriesKey, files: list[tuple[str, RecordedSeries]]) -> dict[str, Any]:
     """The raw samples of one series in each recording, against seconds since it began."""
     data = []
     for side, recorded in files:
@@ -63,26 +78,43 @@ def timeseries_figure(key: SeriesKey, files: list[tuple[str, RecordedSeries]]
         if not points:
             continue
         start = points[0][0]
-        data.append({"type": "scatter", "mode": "lines", "name": f"{side}: {recorded.label}",
-                     "x": [(t - start) / 1e9 for t, _ in points], "y": [v for _, v in points],
-                     "line": {"color": SIDE_COLORS[side], "width": 1}})
-    layout = {"title": {"text": f"{key.process}.{key.counter}: raw samples",
-                        "font": {"size": 13}}, "height": 300,
-              "margin": {"l": 60, "r": 20, "t": 40, "b": 40},
-              "xaxis": {"title": {"text": "seconds into the segment"}},
-              "yaxis": {"title": {"text": key.counter}}}
+        data.append(
+            {
+                "type": "scatter",
+                "mode": "lines",
+                "name": f"{side}: {recorded.label}",
+                "x": [(t - start) / 1e9 for t, _ in points],
+                "y": [v for _, v in points],
+                "line": {"color": SIDE_COLORS[side], "width": 1},
+            }
+        )
+    layout = {
+        "title": {"text": f"{key.process}.{key.counter}: raw samples", "font": {"size": 13}},
+        "height": 300,
+        "margin": {"l": 60, "r": 20, "t": 40, "b": 40},
+        "xaxis": {"title": {"text": "seconds into the segment"}},
+        "yaxis": {"title": {"text": key.counter}},
+    }
     return {"data": data, "layout": layout}
 
 
-def _segment_html(segment: SegmentVerdict, files: list[tuple[str, RecordedSeries]],
-                  figures: dict[str, dict[str, Any]]) -> str:
+def _segment_html(
+    segment: SegmentVerdict,
+    files: list[tuple[str, RecordedSeries]],
+    figures: dict[str, dict[str, Any]],
+) -> str:
     changed = segment.changed
-    status = (f'<span class="changed">{len(changed)} changed</span>' if changed
-              else f'<span class="ok">{html.escape(segment.note or "no change")}</span>')
+    status = (
+        f'<span class="changed">{len(changed)} changed</span>'
+        if changed
+        else f'<span class="ok">{html.escape(segment.note or "no change")}</span>'
+    )
     parts = [f"<h2>{html.escape(segment.name)} — {status}</h2>"]
     if segment.series:
-        lines = "\n".join(("CHANGED " if v.result.flagged else "        ") + series_line(v)
-                          for v in segment.series)
+        lines = "\n".join(
+            ("CHANGED " if v.result.flagged else "        ") + series_line(v)
+            for v in segment.series
+        )
         parts.append(f"<pre>{html.escape(lines)}</pre>")
     for verdict in changed:
         figures[f"fig{len(figures)}"] = timeseries_figure(verdict.key, files)
@@ -105,11 +137,15 @@ def html_report(comparison: Comparison) -> str:
     listing = "".join(f"<li>{side}: {html.escape(str(r.path))}</li>" for side, r in files)
     changes = len(comparison.changed)
     headline = f"{changes} counter(s) changed" if changes else "no change"
-    plot = ("for (const [id, fig] of Object.entries(FIGURES)) "
-            "Plotly.newPlot(id, fig.data, fig.layout, {responsive: true});")
-    return (f'<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8">'
-            f"<title>Redline compare: {headline}</title><style>{STYLE}</style>\n"
-            f"<script>{get_plotlyjs()}</script></head>\n<body>\n"
-            f"<h1>Redline compare: {headline}</h1><ul>{listing}</ul>\n{body}\n"
-            f"<script>const FIGURES = {_script_json(figures)};\n{plot}</script>\n"
-            f"</body></html>\n")
+    plot = (
+        "for (const [id, fig] of Object.entries(FIGURES)) "
+        "Plotly.newPlot(id, fig.data, fig.layout, {responsive: true});"
+    )
+    return (
+        f'<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8">'
+        f"<title>Redline compare: {headline}</title><style>{STYLE}</style>\n"
+        f"<script>{get_plotlyjs()}</script></head>\n<body>\n"
+        f"<h1>Redline compare: {headline}</h1><ul>{listing}</ul>\n{body}\n"
+        f"<script>const FIGURES = {_script_json(figures)};\n{plot}</script>\n"
+        f"</body></html>\n"
+    )

@@ -29,9 +29,15 @@ def prune_recordings(database_url: str, days: int, batch: int = 500) -> int:
     pruned = 0
     while True:
         with session_scope(database_url) as session:
-            executions = list(session.scalars(
-                select(Execution).where(Execution.created < cutoff, Execution.pruned_at.is_(None))
-                .order_by(Execution.id).limit(batch).with_for_update(skip_locked=True)))
+            executions = list(
+                session.scalars(
+                    select(Execution)
+                    .where(Execution.created < cutoff, Execution.pruned_at.is_(None))
+                    .order_by(Execution.id)
+                    .limit(batch)
+                    .with_for_update(skip_locked=True)
+                )
+            )
             for execution in executions:
                 for path in raw_files(execution.recording_path):
                     path.unlink(missing_ok=True)
@@ -39,8 +45,9 @@ def prune_recordings(database_url: str, days: int, batch: int = 500) -> int:
         pruned += len(executions)
         if len(executions) < batch:
             break
-    log.info("retention: pruned the raw recordings of %d executions older than %d days",
-             pruned, days)
+    log.info(
+        "retention: pruned the raw recordings of %d executions older than %d days", pruned, days
+    )
     return pruned
 
 

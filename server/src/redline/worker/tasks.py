@@ -51,8 +51,12 @@ def detect_revision(revision_id: int) -> None:
     """Compare a revision with its baseline, series by series (KS), replacing earlier results."""
     with analysing():
         changes = run_detection(_settings().database_url, revision_id)
-    log.info("revision %s: %d series compared, %d flagged", revision_id, len(changes),
-             sum(change.flagged for change in changes))
+    log.info(
+        "revision %s: %d series compared, %d flagged",
+        revision_id,
+        len(changes),
+        sum(change.flagged for change in changes),
+    )
 
 
 @celery_app.task(name=REQUEUE_TASK, acks_late=True)
@@ -63,8 +67,11 @@ def requeue_stale_uploads() -> int:
     for execution_id in executions:
         ingest_execution.delay(execution_id)
     if executions:
-        log.warning("ingestion queued again for %d executions left uploaded: %s",
-                    len(executions), executions)
+        log.warning(
+            "ingestion queued again for %d executions left uploaded: %s",
+            len(executions),
+            executions,
+        )
     return len(executions)
 
 

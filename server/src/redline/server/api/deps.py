@@ -35,15 +35,18 @@ SessionDep = Annotated[Session, Depends(get_session)]
 def _checked(session: Session, secret: str | None, scope: str) -> ApiToken:
     unauthorized = {"WWW-Authenticate": "Bearer"}
     if not secret:
-        raise HTTPException(status.HTTP_401_UNAUTHORIZED, "missing bearer token",
-                            headers=unauthorized)
+        raise HTTPException(
+            status.HTTP_401_UNAUTHORIZED, "missing bearer token", headers=unauthorized
+        )
     token = authenticate(session, secret)
     if token is None:
-        raise HTTPException(status.HTTP_401_UNAUTHORIZED, "invalid or revoked token",
-                            headers=unauthorized)
+        raise HTTPException(
+            status.HTTP_401_UNAUTHORIZED, "invalid or revoked token", headers=unauthorized
+        )
     if not grants(token.scopes, scope):
-        raise HTTPException(status.HTTP_403_FORBIDDEN,
-                            f"token {token.name!r} lacks the {scope!r} scope")
+        raise HTTPException(
+            status.HTTP_403_FORBIDDEN, f"token {token.name!r} lacks the {scope!r} scope"
+        )
     return token
 
 
@@ -73,23 +76,30 @@ AgentToken = Annotated[ApiToken, Depends(require_agent)]
 def ensure_own_host(token: ApiToken, host: str) -> None:
     """An agent token that names its host acts for that host only (403 otherwise)."""
     if token.host and token.host != host:
-        raise HTTPException(status.HTTP_403_FORBIDDEN,
-                            f"token {token.name!r} belongs to host {token.host!r}, not {host!r}")
+        raise HTTPException(
+            status.HTTP_403_FORBIDDEN,
+            f"token {token.name!r} belongs to host {token.host!r}, not {host!r}",
+        )
 
 
 READ_COOKIE = "redline_token"
 
 
 def require_read(
-    request: Request, session: SessionDep, settings: SettingsDep,
+    request: Request,
+    session: SessionDep,
+    settings: SettingsDep,
     credentials: Annotated[HTTPAuthorizationCredentials | None, Depends(_bearer)],
 ) -> None:
     """Reading is open unless ``REDLINE_READ_ACCESS=token``; then a ``read`` token is needed,
     as a bearer header, the ``redline_token`` cookie or ``?token=`` (for the browser UI)."""
     if settings.read_access != "token":
         return
-    secret = (_bearer_secret(credentials) or request.cookies.get(READ_COOKIE)
-              or request.query_params.get("token"))
+    secret = (
+        _bearer_secret(credentials)
+        or request.cookies.get(READ_COOKIE)
+        or request.query_params.get("token")
+    )
     _checked(session, secret, "read")
 
 

@@ -31,8 +31,9 @@ class JobCollector:
         jobs = GaugeMetricFamily("redline_jobs", "jobs by state", labels=["state"])
         try:
             with session_factory(self.settings.database_url)() as session:
-                counts = dict(session.execute(
-                    select(Job.state, func.count()).group_by(Job.state)).all())
+                counts = dict(
+                    session.execute(select(Job.state, func.count()).group_by(Job.state)).all()
+                )
             for state in JobState:
                 jobs.add_metric([state.value], counts.get(state, 0))
         except Exception:  # a scrape during an outage reports what it can
@@ -40,8 +41,9 @@ class JobCollector:
         yield jobs
         depth = self._queue_depth()
         if depth is not None:
-            yield GaugeMetricFamily("redline_task_queue_depth",
-                                    "tasks waiting in the Celery queue", value=depth)
+            yield GaugeMetricFamily(
+                "redline_task_queue_depth", "tasks waiting in the Celery queue", value=depth
+            )
 
     def _queue_depth(self) -> int | None:
         """Best effort: the Redis list named after the queue; None when Redis is away."""
@@ -51,7 +53,7 @@ class JobCollector:
 
             url = broker_url(self.settings.redis_url)
             if url.startswith("redis+socket://"):
-                client = redis.Redis(unix_socket_path=url[len("redis+socket://"):])
+                client = redis.Redis(unix_socket_path=url[len("redis+socket://") :])
             else:
                 client = redis.Redis.from_url(url)
             with client:
@@ -63,15 +65,21 @@ class JobCollector:
 def install(app: FastAPI, settings: Settings) -> None:
     """Count and time every request (by route template) and serve ``GET /metrics``."""
     registry = CollectorRegistry()
-    requests = Counter("redline_http_requests", "HTTP requests", ["method", "route", "status"],
-                       registry=registry)
-    latency = Histogram("redline_http_request_seconds", "HTTP request latency",
-                        ["method", "route"], registry=registry)
+    requests = Counter(
+        "redline_http_requests", "HTTP requests", ["method", "route", "status"], registry=registry
+    )
+    latency = Histogram(
+        "redline_http_request_seconds",
+        "HTTP request latency",
+        ["method", "route"],
+        registry=registry,
+    )
     registry.register(JobCollector(settings))
 
     @app.middleware("http")
-    async def measure(request: Request,
-                      call_next: Callable[[Request], Awaitable[Response]]) -> Response:
+    async def measure(
+        request: Request, call_next: Callable[[Request], Awaitable[Response]]
+    ) -> Response:
         start = time.perf_counter()
         response = await call_next(request)
         route = getattr(request.scope.get("route"), "path", "unmatched")

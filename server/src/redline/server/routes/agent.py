@@ -26,8 +26,7 @@ from redline.server.schemas import (
 from redline.server.services import jobs
 from starlette.concurrency import run_in_threadpool
 
-router = APIRouter(prefix="/api/v1/agent", tags=["agent"],
-                   dependencies=[Depends(require_agent)])
+router = APIRouter(prefix="/api/v1/agent", tags=["agent"], dependencies=[Depends(require_agent)])
 
 MAX_WAIT_S = 60
 #: How often a waiting lease looks at the queue again: one cheap query per waiting agent.
@@ -46,12 +45,20 @@ def _lease_once(settings: Settings, host: str) -> LeasedJob | None:
         return None if job is None else jobs.leased_job(job)
 
 
-@router.post("/lease", response_model=LeasedJob | None,
-             responses={204: {"description": "no job is queued"}, 404: {"model": Problem}})
+@router.post(
+    "/lease",
+    response_model=LeasedJob | None,
+    responses={204: {"description": "no job is queued"}, 404: {"model": Problem}},
+)
 async def lease(
-    data: HostRequest, request: Request, settings: SettingsDep, token: AgentToken,
-    wait: Annotated[int, Query(ge=0, le=MAX_WAIT_S,
-                               description="seconds to wait for a job before answering 204")] = 0,
+    data: HostRequest,
+    request: Request,
+    settings: SettingsDep,
+    token: AgentToken,
+    wait: Annotated[
+        int,
+        Query(ge=0, le=MAX_WAIT_S, description="seconds to wait for a job before answering 204"),
+    ] = 0,
 ) -> LeasedJob | Response:
     """The next job for this host (newest revision first), leased for ``lease_seconds``.
 

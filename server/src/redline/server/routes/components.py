@@ -23,8 +23,12 @@ router = APIRouter(prefix="/api/v1/components", tags=["components"])
 NOT_FOUND = {404: {"model": Problem, "description": "unknown component or revision"}}
 
 
-@router.post("", status_code=status.HTTP_201_CREATED, dependencies=[Depends(require("admin"))],
-             responses={409: {"model": Problem}})
+@router.post(
+    "",
+    status_code=status.HTTP_201_CREATED,
+    dependencies=[Depends(require("admin"))],
+    responses={409: {"model": Problem}},
+)
 def create_component(data: ComponentCreate, session: SessionDep) -> ComponentOut:
     """A component and all its settings; its webhook secret is stored, never shown again."""
     return components.component_out(components.create_component(session, data))
@@ -48,7 +52,9 @@ def update_component(name: str, data: ComponentSettings, session: SessionDep) ->
 
 @router.get("/{name}/revisions", responses=NOT_FOUND, dependencies=READ)
 def list_revisions(
-    name: str, session: SessionDep, response: Response,
+    name: str,
+    session: SessionDep,
+    response: Response,
     limit: Annotated[int | None, Query(ge=1, le=1000, description="page size")] = None,
     cursor: Annotated[str | None, Query(description="X-Next-Cursor of the previous page")] = None,
 ) -> list[RevisionOut]:
@@ -68,8 +74,9 @@ def revision_detail(name: str, title: str, session: SessionDep) -> RevisionDetai
     return revisions.revision_detail(session, name, title)
 
 
-@router.post("/{name}/revisions/{title}/cancel", responses=NOT_FOUND,
-             dependencies=[Depends(require("ci"))])
+@router.post(
+    "/{name}/revisions/{title}/cancel", responses=NOT_FOUND, dependencies=[Depends(require("ci"))]
+)
 def cancel_revision(name: str, title: str, session: SessionDep) -> RevisionDetail:
     """Cancel the revision's jobs that have not finished; results already stored stay."""
     return revisions.cancel_revision(session, name, title)
@@ -77,14 +84,21 @@ def cancel_revision(name: str, title: str, session: SessionDep) -> RevisionDetai
 
 @router.get("/{name}/series", responses=NOT_FOUND, dependencies=READ)
 def list_series(
-    name: str, session: SessionDep, request: Request,
-    case: str | None = None, phase: str | None = None, process: str | None = None,
+    name: str,
+    session: SessionDep,
+    request: Request,
+    case: str | None = None,
+    phase: str | None = None,
+    process: str | None = None,
     counter: str | None = None,
 ) -> list[SeriesOut]:
     """The component's series with one point per revision; filtered by ``case``, ``phase``,
     ``process``, ``counter`` and parameters as ``param.NAME=VALUE`` (e.g. ``param.legs=8``)."""
-    params = {key.removeprefix("param."): value for key, value in request.query_params.items()
-              if key.startswith("param.")}
+    params = {
+        key.removeprefix("param."): value
+        for key, value in request.query_params.items()
+        if key.startswith("param.")
+    }
     fields = {"case": case, "phase": phase, "process": process, "counter": counter}
     return read.filter_series(results.component_series(session, name), fields, params)
 

@@ -13,8 +13,11 @@ from starlette.concurrency import run_in_threadpool
 router = APIRouter(tags=["health"])
 
 #: Errors meaning "no database to talk to" (refused, shut down, pool exhausted), not a bad query.
-DATABASE_DOWN: tuple[type[Exception], ...] = (exc.OperationalError, exc.InterfaceError,
-                                              exc.TimeoutError)
+DATABASE_DOWN: tuple[type[Exception], ...] = (
+    exc.OperationalError,
+    exc.InterfaceError,
+    exc.TimeoutError,
+)
 RETRY_AFTER_S = "5"
 
 
@@ -33,7 +36,9 @@ async def database_unavailable(request: Request, error: Exception) -> JSONRespon
     """The app's handler for DATABASE_DOWN: agents keep their recordings and try again."""
     return JSONResponse(
         {"detail": f"the database is unavailable ({_reason(error)}); try again later"},
-        status_code=503, headers={"Retry-After": RETRY_AFTER_S})
+        status_code=503,
+        headers={"Retry-After": RETRY_AFTER_S},
+    )
 
 
 def _ping(database_url: str) -> str:
@@ -45,12 +50,18 @@ def _ping(database_url: str) -> str:
     return "ok"
 
 
-@router.get("/healthz", response_model=Health,
-            responses={503: {"model": Health, "description": "no database"}})
+@router.get(
+    "/healthz",
+    response_model=Health,
+    responses={503: {"model": Health, "description": "no database"}},
+)
 async def healthz(settings: SettingsDep) -> Health | Response:
     """Liveness and the database's state; 503 while the database cannot be reached."""
     database = await run_in_threadpool(_ping, settings.database_url)
     if database != "ok":
-        return JSONResponse(Health(status="unavailable", database=database).model_dump(),
-                            status_code=503, headers={"Retry-After": RETRY_AFTER_S})
+        return JSONResponse(
+            Health(status="unavailable", database=database).model_dump(),
+            status_code=503,
+            headers={"Retry-After": RETRY_AFTER_S},
+        )
     return Health(status="ok", database=database)

@@ -12,15 +12,26 @@ from redline.server.services.imports import from_results, store_import
 from redline.server.services.lnt import ORDER_FIELD, parse_lnt
 from starlette.concurrency import run_in_threadpool
 
-router = APIRouter(prefix="/api/v1/import", tags=["import"],
-                   dependencies=[Depends(require("ci"))])
+router = APIRouter(prefix="/api/v1/import", tags=["import"], dependencies=[Depends(require("ci"))])
 RESPONSES: dict[int | str, dict] = {
     200: {"model": ImportResult, "description": "imported before; nothing new stored"},
-    400: {"model": Problem}, 404: {"model": Problem},
+    400: {"model": Problem},
+    404: {"model": Problem},
 }
-LNT_BODY = {"requestBody": {"required": True, "content": {"application/json": {"schema": {
-    "type": "object", "description": "an LNT report, format_version 2",
-    "required": ["format_version", "machine", "run", "tests"]}}}}}
+LNT_BODY = {
+    "requestBody": {
+        "required": True,
+        "content": {
+            "application/json": {
+                "schema": {
+                    "type": "object",
+                    "description": "an LNT report, format_version 2",
+                    "required": ["format_version", "machine", "run", "tests"],
+                }
+            }
+        },
+    }
+}
 
 
 def _finish(result: ImportResult, request: Request, response: Response) -> ImportResult:
@@ -31,13 +42,16 @@ def _finish(result: ImportResult, request: Request, response: Response) -> Impor
     return result
 
 
-@router.post("/lnt", status_code=status.HTTP_201_CREATED, responses=RESPONSES,
-             openapi_extra=LNT_BODY)
+@router.post(
+    "/lnt", status_code=status.HTTP_201_CREATED, responses=RESPONSES, openapi_extra=LNT_BODY
+)
 async def import_lnt(
-    request: Request, response: Response, session: SessionDep, settings: SettingsDep,
+    request: Request,
+    response: Response,
+    session: SessionDep,
+    settings: SettingsDep,
     component: Annotated[str, Query(description="the Redline component it belongs to")],
-    order_field: Annotated[str, Query(description="the run field that orders runs")]
-    = ORDER_FIELD,
+    order_field: Annotated[str, Query(description="the run field that orders runs")] = ORDER_FIELD,
 ) -> ImportResult:
     """One LNT run: each test's metric becomes a series (case = test, counter = metric)."""
     body = await request.body()
@@ -47,9 +61,15 @@ async def import_lnt(
 
 
 @router.post("/results", status_code=status.HTTP_201_CREATED, responses=RESPONSES)
-def import_results(data: ResultsImport, request: Request, response: Response,
-                   session: SessionDep, settings: SettingsDep) -> ImportResult:
+def import_results(
+    data: ResultsImport,
+    request: Request,
+    response: Response,
+    session: SessionDep,
+    settings: SettingsDep,
+) -> ImportResult:
     """A benchmark's samples per named series, for one revision (docs/api.md)."""
     body = data.model_dump_json().encode()
-    return _finish(store_import(session, settings.storage_dir, from_results(data), body),
-                   request, response)
+    return _finish(
+        store_import(session, settings.storage_dir, from_results(data), body), request, response
+    )

@@ -34,8 +34,9 @@ PROBLEMS = {code: {"model": Problem} for code in (400, 404, 409, 413)}
 
 
 @router.post("/{job_id}/heartbeat", responses=PROBLEMS)
-def heartbeat(job_id: int, data: HostRequest, session: SessionDep,
-              settings: SettingsDep, token: AgentToken) -> HeartbeatResponse:
+def heartbeat(
+    job_id: int, data: HostRequest, session: SessionDep, settings: SettingsDep, token: AgentToken
+) -> HeartbeatResponse:
     """Extend this host's lease; 409 when the job is no longer leased to it."""
     ensure_own_host(token, data.host)
     job = jobs.heartbeat(session, job_id, data.host, settings.lease_seconds)
@@ -44,8 +45,7 @@ def heartbeat(job_id: int, data: HostRequest, session: SessionDep,
 
 
 @router.post("/{job_id}/release", responses=PROBLEMS)
-def release(job_id: int, data: HostRequest, session: SessionDep,
-            token: AgentToken) -> JobStateOut:
+def release(job_id: int, data: HostRequest, session: SessionDep, token: AgentToken) -> JobStateOut:
     """Give the job back to the queue without counting an attempt (the agent is stopping)."""
     ensure_own_host(token, data.host)
     job = jobs.release_job(session, job_id, data.host)
@@ -60,22 +60,34 @@ def fail(job_id: int, data: FailRequest, session: SessionDep, token: AgentToken)
     return JobStateOut(id=job.id, state=job.state.value, reason=job.reason)
 
 
-def _accept(settings: Settings, job_id: int, staged: Staged, claimed: str,
-            host: str) -> Accepted:
+def _accept(settings: Settings, job_id: int, staged: Staged, claimed: str, host: str) -> Accepted:
     with session_factory(settings.database_url)() as session:
         return accept_recording(session, settings.storage_dir, job_id, staged, claimed, host)
 
 
-@router.put("/{job_id}/recording", status_code=status.HTTP_201_CREATED,
-            responses={200: {"model": UploadResponse, "description": "already stored"},
-                       **PROBLEMS},
-            openapi_extra={"requestBody": {"required": True, "content": {
-                "application/octet-stream": {"schema": {"type": "string", "format": "binary"}}}}})
+@router.put(
+    "/{job_id}/recording",
+    status_code=status.HTTP_201_CREATED,
+    responses={200: {"model": UploadResponse, "description": "already stored"}, **PROBLEMS},
+    openapi_extra={
+        "requestBody": {
+            "required": True,
+            "content": {
+                "application/octet-stream": {"schema": {"type": "string", "format": "binary"}}
+            },
+        }
+    },
+)
 async def upload_recording(
-    job_id: int, request: Request, response: Response, settings: SettingsDep, token: AgentToken,
+    job_id: int,
+    request: Request,
+    response: Response,
+    settings: SettingsDep,
+    token: AgentToken,
     x_redline_sha256: Annotated[str, Header(description="sha256 of the body, hex")],
-    x_redline_host: Annotated[str, Header(min_length=1, max_length=200,
-                                          description="the host holding the job")],
+    x_redline_host: Annotated[
+        str, Header(min_length=1, max_length=200, description="the host holding the job")
+    ],
 ) -> UploadResponse:
     """Store the job's MCAP recording (raw body) and queue its ingestion; idempotent by hash.
 
@@ -84,16 +96,20 @@ async def upload_recording(
     ensure_own_host(token, x_redline_host)
     declared = request.headers.get("content-length", "")
     if declared.isdigit() and int(declared) > settings.max_upload_bytes:
-        raise TooLarge(f"recording of {declared} bytes is larger than the limit of "
-                       f"{settings.max_upload_bytes} bytes")
+        raise TooLarge(
+            f"recording of {declared} bytes is larger than the limit of "
+            f"{settings.max_upload_bytes} bytes"
+        )
     staged = await stage_upload(request.stream(), settings.storage_dir, settings.max_upload_bytes)
     try:
-        accepted = await run_in_threadpool(_accept, settings, job_id, staged, x_redline_sha256,
-                                           x_redline_host)
+        accepted = await run_in_threadpool(
+            _accept, settings, job_id, staged, x_redline_sha256, x_redline_host
+        )
     finally:
         staged.path.unlink(missing_ok=True)
     if not accepted.created:
         response.status_code = status.HTTP_200_OK
     queued = accepted.needs_ingest and await run_in_threadpool(
-        request.app.state.tasks.ingest, accepted.execution_id)
+        request.app.state.tasks.ingest, accepted.execution_id
+    )
     return UploadResponse(execution_id=accepted.execution_id, ingest_queued=queued)

@@ -31,8 +31,9 @@ BAD = {400: {"model": Problem}, **NOT_FOUND}
 
 
 @router.get("/{name}/regressions", responses=NOT_FOUND, dependencies=READ)
-def list_regressions(name: str, session: SessionDep,
-                     state: State | None = None) -> list[RegressionOut]:
+def list_regressions(
+    name: str, session: SessionDep, state: State | None = None
+) -> list[RegressionOut]:
     """Flagged detections grouped by overlapping revision ranges; ``?state=`` filters."""
     return regressions.list_regressions(session, name, state)
 
@@ -43,16 +44,21 @@ def get_regression(name: str, regression_id: int, session: SessionDep) -> Regres
 
 
 @router.patch("/{name}/regressions/{regression_id}", responses=BAD)
-def triage_regression(name: str, regression_id: int, change: TriageRequest, session: SessionDep,
-                      token: Annotated[ApiToken, Depends(require("ci"))]) -> RegressionDetail:
+def triage_regression(
+    name: str,
+    regression_id: int,
+    change: TriageRequest,
+    session: SessionDep,
+    token: Annotated[ApiToken, Depends(require("ci"))],
+) -> RegressionDetail:
     """Set the triage state (``ci`` or ``admin`` scope); recorded in the history."""
     return regressions.triage(session, name, regression_id, change, token)
 
 
-@router.get("/{name}/regressions/{regression_id}/history", responses=NOT_FOUND,
-            dependencies=READ)
-def regression_history(name: str, regression_id: int,
-                       session: SessionDep) -> list[RegressionEventOut]:
+@router.get("/{name}/regressions/{regression_id}/history", responses=NOT_FOUND, dependencies=READ)
+def regression_history(
+    name: str, regression_id: int, session: SessionDep
+) -> list[RegressionEventOut]:
     return regressions.regression_detail(session, name, regression_id).history
 
 
@@ -63,9 +69,13 @@ def method_accuracy(name: str, session: SessionDep) -> AccuracyOut:
 
 
 @router.get("/{name}/detections", responses=NOT_FOUND, dependencies=READ)
-def list_detections(name: str, session: SessionDep, revision: str | None = None,
-                    method: str | None = None,
-                    limit: Annotated[int, Query(ge=1, le=10_000)] = 1000) -> list[DetectionOut]:
+def list_detections(
+    name: str,
+    session: SessionDep,
+    revision: str | None = None,
+    method: str | None = None,
+    limit: Annotated[int, Query(ge=1, le=10_000)] = 1000,
+) -> list[DetectionOut]:
     """Every method's verdict per series, "not enough data" with its reason included."""
     return regressions.list_detections(session, name, revision, method, limit)
 
@@ -76,8 +86,9 @@ def get_detection_config(name: str, session: SessionDep) -> DetectionConfigOut:
 
 
 @router.put("/{name}/detection-config", responses=BAD, dependencies=[Depends(require("admin"))])
-def put_detection_config(name: str, data: DetectionConfigIn, request: Request,
-                         session: SessionDep) -> DetectionConfigOut:
+def put_detection_config(
+    name: str, data: DetectionConfigIn, request: Request, session: SessionDep
+) -> DetectionConfigOut:
     """Store the configuration; with ``reanalyze`` (default) the history is analysed again."""
     component = detection_config.set_config(session, name, data)
     if data.reanalyze:
@@ -86,8 +97,12 @@ def put_detection_config(name: str, data: DetectionConfigIn, request: Request,
     return detection_config.get_config(session, name)
 
 
-@router.post("/{name}/reanalysis", status_code=status.HTTP_202_ACCEPTED, responses=NOT_FOUND,
-             dependencies=[Depends(require("admin"))])
+@router.post(
+    "/{name}/reanalysis",
+    status_code=status.HTTP_202_ACCEPTED,
+    responses=NOT_FOUND,
+    dependencies=[Depends(require("admin"))],
+)
 def start_reanalysis(name: str, request: Request, session: SessionDep) -> ReanalysisOut:
     """Queue a background re-analysis of every revision; progress at GET."""
     component = get_component(session, name)

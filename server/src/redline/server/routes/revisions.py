@@ -10,8 +10,12 @@ from redline.server.services.revisions import create_revision
 router = APIRouter(prefix="/api/v1/revisions", tags=["revisions"])
 
 
-@router.post("", status_code=status.HTTP_201_CREATED, dependencies=[Depends(require("ci"))],
-             responses={404: {"model": Problem}, 409: {"model": Problem}})
+@router.post(
+    "",
+    status_code=status.HTTP_201_CREATED,
+    dependencies=[Depends(require("ci"))],
+    responses={404: {"model": Problem}, 409: {"model": Problem}},
+)
 def report_revision(data: RevisionCreate, session: SessionDep) -> RevisionCreated:
     """Record the revision and queue one job per execution the component asks for."""
     revision = create_revision(session, data)

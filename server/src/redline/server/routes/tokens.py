@@ -8,8 +8,9 @@ from redline.server.schemas import Problem
 from redline.server.schemas_intake import TokenCreate, TokenCreated, TokenOut
 from redline.server.services import tokens
 
-router = APIRouter(prefix="/api/v1/tokens", tags=["tokens"],
-                   dependencies=[Depends(require("admin"))])
+router = APIRouter(
+    prefix="/api/v1/tokens", tags=["tokens"], dependencies=[Depends(require("admin"))]
+)
 PROBLEMS = {code: {"model": Problem} for code in (400, 404, 409)}
 
 

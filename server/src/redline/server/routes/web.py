@@ -28,7 +28,8 @@ def _templates(request: Request) -> Jinja2Templates:
 @router.get("/", response_class=HTMLResponse)
 def index(request: Request, session: SessionDep) -> HTMLResponse:
     return _templates(request).TemplateResponse(
-        request, "index.html", {"components": components.list_components(session)})
+        request, "index.html", {"components": components.list_components(session)}
+    )
 
 
 @router.get("/components/{name}", response_class=HTMLResponse)
@@ -37,16 +38,21 @@ def component_page(name: str, request: Request, session: SessionDep) -> HTMLResp
         component = components.get_component(session, name)
     except NotFound as exc:
         return _templates(request).TemplateResponse(
-            request, "not_found.html", {"message": exc.detail}, status_code=404)
+            request, "not_found.html", {"message": exc.detail}, status_code=404
+        )
     changes = results.component_changes(session, name)
-    figures = [trend_figure(series, changes)
-               for series in results.component_series(session, name)]
-    return _templates(request).TemplateResponse(request, "component.html", {
-        "component": component, "figures": figures,
-        "revisions": revisions.list_revisions(session, name),
-        "flagged": [change for change in changes if change.flagged],
-        "regressions": regressions.list_regressions(session, name),
-    })
+    figures = [trend_figure(series, changes) for series in results.component_series(session, name)]
+    return _templates(request).TemplateResponse(
+        request,
+        "component.html",
+        {
+            "component": component,
+            "figures": figures,
+            "revisions": revisions.list_revisions(session, name),
+            "flagged": [change for change in changes if change.flagged],
+            "regressions": regressions.list_regressions(session, name),
+        },
+    )
 
 
 @router.get("/static/plotly.min.js")

@@ -27,7 +27,8 @@ def revision_samples(session: Session, revision_id: int) -> tuple[dict[int, np.n
     parts: dict[int, list[np.ndarray]] = defaultdict(list)
     exact = True
     executions = session.scalars(
-        select(Execution).where(Execution.revision_id == revision_id).order_by(Execution.id))
+        select(Execution).where(Execution.revision_id == revision_id).order_by(Execution.id)
+    )
     for execution in executions:
         path = samples_path(execution.recording_path)
         if execution.pruned_at is None and path.exists():
@@ -35,24 +36,34 @@ def revision_samples(session: Session, revision_id: int) -> tuple[dict[int, np.n
             for series_id, values in table.groupby("series_id")["value"]:
                 parts[int(series_id)].append(values.to_numpy())
             continue
-        for summary in session.scalars(select(Summary)
-                                       .where(Summary.execution_id == execution.id)):
+        for summary in session.scalars(select(Summary).where(Summary.execution_id == execution.id)):
             exact = False
-            stand_in = summary.sketch or [summary.p5, summary.p25, summary.p50, summary.p75,
-                                          summary.p95]
+            stand_in = summary.sketch or [
+                summary.p5,
+                summary.p25,
+                summary.p50,
+                summary.p75,
+                summary.p95,
+            ]
             parts[summary.series_id].append(np.asarray(stand_in, dtype=np.float64))
     return {sid: np.concatenate(chunks) for sid, chunks in parts.items()}, exact
 
 
 def statistics(values: np.ndarray) -> Statistics:
-    return Statistics(n=int(values.size), mean=float(values.mean()), std=float(values.std()),
-                      min=float(values.min()), max=float(values.max()),
-                      p50=float(np.median(values)))
+    return Statistics(
+        n=int(values.size),
+        mean=float(values.mean()),
+        std=float(values.std()),
+        min=float(values.min()),
+        max=float(values.max()),
+        p50=float(np.median(values)),
+    )
 
 
 def _revision(session: Session, component_id: int, component: str, title: str) -> Revision:
-    revision = session.scalar(select(Revision).where(Revision.component_id == component_id,
-                                                     Revision.title == title))
+    revision = session.scalar(
+        select(Revision).where(Revision.component_id == component_id, Revision.title == title)
+    )
     if revision is None:
         raise NotFound(f"component {component!r} has no revision {title!r}")
     return revision
@@ -71,11 +82,15 @@ def compare(session: Session, component_name: str, base: str, candidate: str) ->
     for series_id in common:
         old, new = base_samples[series_id], cand_samples[series_id]
         result = ks(old, new)
-        rows.append(SeriesComparison(
-            series=series_ref(series[series_id]), baseline=statistics(old),
-            candidate=statistics(new),
-            change=result.effect if math.isfinite(result.effect) else None,
-            ks_statistic=result.statistic, p_value=result.p_value,
-            exact=base_exact and cand_exact,
-        ))
+        rows.append(
+            SeriesComparison(
+                series=series_ref(series[series_id]),
+                baseline=statistics(old),
+                candidate=statistics(new),
+                change=result.effect if math.isfinite(result.effect) else None,
+                ks_statistic=result.statistic,
+                p_value=result.p_value,
+                exact=base_exact and cand_exact,
+            )
+        )
     return Comparison(component=component.name, base=base, candidate=candidate, series=rows)

@@ -14,10 +14,15 @@ from sqlalchemy.orm import Session
 def component_out(component: Component) -> ComponentOut:
     """The component as the API shows it: its webhook secret only as whether there is one."""
     return ComponentOut(
-        name=component.name, repo=component.repo, branch=component.branch,
-        suite=component.suite, executions=component.executions,
-        host_labels=list(component.host_labels or []), description=component.description,
-        has_webhook_secret=bool(component.webhook_secret), created=component.created,
+        name=component.name,
+        repo=component.repo,
+        branch=component.branch,
+        suite=component.suite,
+        executions=component.executions,
+        host_labels=list(component.host_labels or []),
+        description=component.description,
+        has_webhook_secret=bool(component.webhook_secret),
+        created=component.created,
     )
 
 
@@ -57,5 +62,3 @@ def get_component(session: Session, name: str) -> Component:
     if component is None:
         raise NotFound(f"unknown component {name!r}")
     return component
-
-

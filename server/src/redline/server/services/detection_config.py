@@ -53,8 +53,23 @@ def reanalysis_status(session: Session, component_name: str) -> ReanalysisOut:
     component = get_component(session, component_name)
     row = session.get(Reanalysis, component.id)
     if row is None:
-        return ReanalysisOut(component=component.name, state="none", total=0, done=0, error="",
-                             requested=None, started=None, finished=None)
-    return ReanalysisOut(component=component.name, state=row.state, total=row.total,
-                         done=row.done, error=row.error, requested=row.requested,
-                         started=row.started, finished=row.finished)
+        return ReanalysisOut(
+            component=component.name,
+            state="none",
+            total=0,
+            done=0,
+            error="",
+            requested=None,
+            started=None,
+            finished=None,
+        )
+    return ReanalysisOut(
+        component=component.name,
+        state=row.state,
+        total=row.total,
+        done=row.done,
+        error=row.error,
+        requested=row.requested,
+        started=row.started,
+        finished=row.finished,
+    )

@@ -42,21 +42,32 @@ class ImportedRun:
 def from_results(data: ResultsImport) -> ImportedRun:
     samples: dict[SeriesKey, list[float]] = {}
     for item in data.results:
-        key = SeriesKey(item.case, item.phase, canonical_params(item.params), item.process,
-                        item.counter)
+        key = SeriesKey(
+            item.case, item.phase, canonical_params(item.params), item.process, item.counter
+        )
         samples.setdefault(key, []).extend(item.values)
-    return ImportedRun(data.component, data.revision, data.sort_key, data.commit, data.host,
-                       samples)
+    return ImportedRun(
+        data.component, data.revision, data.sort_key, data.commit, data.host, samples
+    )
 
 
 def _revision(session: Session, run: ImportedRun) -> Revision:
     component = get_component(session, run.component)
-    revision = session.scalar(select(Revision).where(Revision.component_id == component.id,
-                                                     Revision.title == run.revision))
+    revision = session.scalar(
+        select(Revision).where(
+            Revision.component_id == component.id, Revision.title == run.revision
+        )
+    )
     if revision is None:
-        revision = Revision(component=component, title=run.revision, sort_key=run.sort_key,
-                            order_key=order_key(run.sort_key), commit=run.commit,
-                            repo=component.repo, branch=component.branch)
+        revision = Revision(
+            component=component,
+            title=run.revision,
+            sort_key=run.sort_key,
+            order_key=order_key(run.sort_key),
+            commit=run.commit,
+            repo=component.repo,
+            branch=component.branch,
+        )
         session.add(revision)
         session.flush()
     return revision
@@ -73,10 +84,18 @@ def _host(session: Session, name: str) -> Host | None:
 
 
 def _job(session: Session, revision: Revision, host: Host | None) -> Job:
-    index = session.scalar(select(func.coalesce(func.max(Job.execution_index) + 1, 0))
-                           .where(Job.revision_id == revision.id))
-    job = Job(revision=revision, execution_index=index or 0, state=JobState.done,
-              reason="imported", host=host)
+    index = session.scalar(
+        select(func.coalesce(func.max(Job.execution_index) + 1, 0)).where(
+            Job.revision_id == revision.id
+        )
+    )
+    job = Job(
+        revision=revision,
+        execution_index=index or 0,
+        state=JobState.done,
+        reason="imported",
+        host=host,
+    )
     session.add(job)
     return job
 
@@ -91,33 +110,54 @@ def _keep(storage_dir: Path, body: bytes, sha256: str, suffix: str) -> Path:
     return path
 
 
-def store_import(session: Session, storage_dir: Path, run: ImportedRun, body: bytes,
-                 suffix: str = ".json") -> ImportResult:
+def store_import(
+    session: Session, storage_dir: Path, run: ImportedRun, body: bytes, suffix: str = ".json"
+) -> ImportResult:
     """Store the run as one execution; a body imported before returns its execution."""
     sha256 = hashlib.sha256(body).hexdigest()
     known = session.scalar(select(Execution).where(Execution.sha256 == sha256))
     if known is not None:
         revision = session.get_one(Revision, known.revision_id)
-        count = session.scalar(select(func.count()).select_from(Summary)
-                               .where(Summary.execution_id == known.id))
-        return ImportResult(component=run.component, revision=revision.title,
-                            revision_id=revision.id, execution_id=known.id, series=count or 0,
-                            created=False)
+        count = session.scalar(
+            select(func.count()).select_from(Summary).where(Summary.execution_id == known.id)
+        )
+        return ImportResult(
+            component=run.component,
+            revision=revision.title,
+            revision_id=revision.id,
+            execution_id=known.id,
+            series=count or 0,
+            created=False,
+        )
     revision = _revision(session, run)
     job = _job(session, revision, _host(session, run.host))
     path = _keep(storage_dir, body, sha256, suffix)
-    execution = Execution(job=job, revision_id=revision.id, recording_path=str(path),
-                          sha256=sha256, size=len(body), meta={"imported": suffix[1:]})
+    execution = Execution(
+        job=job,
+        revision_id=revision.id,
+        recording_path=str(path),
+        sha256=sha256,
+        size=len(body),
+        meta={"imported": suffix[1:]},
+    )
     session.add(execution)
     session.flush()
     ids = _series_ids(session, revision.component_id, sorted(run.samples))
-    summaries = {key: summarize(np.asarray(values, dtype=np.float64))
-                 for key, values in run.samples.items()}
-    session.add_all(Summary(execution_id=execution.id, series_id=ids[key], **stats)
-                    for key, stats in summaries.items() if stats is not None)  # None: no finite
+    summaries = {
+        key: summarize(np.asarray(values, dtype=np.float64)) for key, values in run.samples.items()
+    }
+    session.add_all(
+        Summary(execution_id=execution.id, series_id=ids[key], **stats)
+        for key, stats in summaries.items()
+        if stats is not None
+    )  # None: no finite
     _write_samples(samples_path(path), ids, run.samples)
     session.commit()
-    return ImportResult(component=run.component, revision=revision.title,
-                        revision_id=revision.id, execution_id=execution.id,
-                        series=sum(stats is not None for stats in summaries.values()),
-                        created=True)
+    return ImportResult(
+        component=run.component,
+        revision=revision.title,
+        revision_id=revision.id,
+        execution_id=execution.id,
+        series=sum(stats is not None for stats in summaries.values()),
+        created=True,
+    )

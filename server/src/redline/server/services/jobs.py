@@ -39,13 +39,18 @@ def _fail_exhausted(session: Session, now: datetime, max_attempts: int) -> None:
     session.execute(
         update(Job)
         .where(Job.state.in_(HELD), Job.lease_expires_at < now, Job.attempts >= max_attempts)
-        .values(state=JobState.failed, lease_expires_at=None, updated=now,
-                reason=f"lease expired {max_attempts} times without a recording")
+        .values(
+            state=JobState.failed,
+            lease_expires_at=None,
+            updated=now,
+            reason=f"lease expired {max_attempts} times without a recording",
+        )
     )
 
 
-def lease_job(session: Session, host_name: str, lease_seconds: int,
-              max_attempts: int) -> Job | None:
+def lease_job(
+    session: Session, host_name: str, lease_seconds: int, max_attempts: int
+) -> Job | None:
     """Hand the host the newest revision's next queued (or abandoned) job whose pool it is in
     (it has every label the job asks for); None when there is none.
 
@@ -61,9 +66,12 @@ def lease_job(session: Session, host_name: str, lease_seconds: int,
     )
     in_pool = cast(Job.labels, JSONB).contained_by(list(host.labels or []))  # has every label
     job = session.scalar(
-        select(Job).join(Revision).where(available, in_pool)
+        select(Job)
+        .join(Revision)
+        .where(available, in_pool)
         .order_by(Revision.id.desc(), Job.execution_index)
-        .limit(1).with_for_update(skip_locked=True, of=Job)
+        .limit(1)
+        .with_for_update(skip_locked=True, of=Job)
     )
     host.last_seen = now
     if job is not None:
@@ -79,10 +87,14 @@ def leased_job(job: Job) -> LeasedJob:
     revision = job.revision
     assert job.lease_expires_at is not None
     return LeasedJob(
-        id=job.id, component=revision.component.name, repo=revision.repo, commit=revision.commit,
+        id=job.id,
+        component=revision.component.name,
+        repo=revision.repo,
+        commit=revision.commit,
         suite=revision.component.suite,
         revision=LeasedRevision(title=revision.title, sort_key=revision.sort_key),
-        execution_index=job.execution_index, lease_expires_at=job.lease_expires_at,
+        execution_index=job.execution_index,
+        lease_expires_at=job.lease_expires_at,
     )
 
 
@@ -101,8 +113,10 @@ def holder(job: Job) -> str | None:
 def ensure_held(job: Job, host_name: str) -> None:
     """Conflict unless ``host_name`` holds the job now (a lapsed host's job may be re-leased)."""
     if job.state not in HELD or holder(job) != host_name:
-        raise Conflict(f"job {job.id} is not leased to host {host_name!r} "
-                       f"(state {job.state.value}, host {holder(job)!r})")
+        raise Conflict(
+            f"job {job.id} is not leased to host {host_name!r} "
+            f"(state {job.state.value}, host {holder(job)!r})"
+        )
 
 
 def heartbeat(session: Session, job_id: int, host_name: str, lease_seconds: int) -> Job:

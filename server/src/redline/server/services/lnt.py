@@ -33,8 +33,11 @@ def _object(report: dict[str, Any], field: str) -> dict[str, Any]:
 def _values(test: str, metric: str, value: Any) -> list[float]:
     """A metric's samples; non-numeric metrics (hashes, statuses as text) give none."""
     items = value if isinstance(value, list) else [value]
-    numbers = [float(item) for item in items
-               if isinstance(item, int | float) and not isinstance(item, bool)]
+    numbers = [
+        float(item)
+        for item in items
+        if isinstance(item, int | float) and not isinstance(item, bool)
+    ]
     if any(not math.isfinite(number) for number in numbers):
         raise BadRequest(f"LNT report: test {test!r} metric {metric!r} is not finite")
     return numbers
@@ -72,7 +75,11 @@ def parse_lnt(body: bytes, component: str, order_field: str = ORDER_FIELD) -> Im
     if not isinstance(order, str | int) or isinstance(order, bool) or str(order) == "":
         raise BadRequest(f"LNT report: run has no order field {order_field!r}")
     title = str(order)[:200]
-    return ImportedRun(component=component, revision=title, sort_key=title,
-                       commit=str(run.get("git_sha", run.get("commit", "")))[:200],
-                       host=str(machine.get("name", ""))[:200], samples=_samples(
-                           report.get("tests")))
+    return ImportedRun(
+        component=component,
+        revision=title,
+        sort_key=title,
+        commit=str(run.get("git_sha", run.get("commit", "")))[:200],
+        host=str(machine.get("name", ""))[:200],
+        samples=_samples(report.get("tests")),
+    )

@@ -17,19 +17,21 @@ FIELDS = ("case", "phase", "process", "counter")
 
 def matches(series: SeriesRef, fields: dict[str, str | None], params: dict[str, str]) -> bool:
     """Whether the series has these field values and parameter values (compared as text)."""
-    if any(value is not None and getattr(series, name) != value
-           for name, value in fields.items()):
+    if any(value is not None and getattr(series, name) != value for name, value in fields.items()):
         return False
-    return all(name in series.params and _text(series.params[name]) == value
-               for name, value in params.items())
+    return all(
+        name in series.params and _text(series.params[name]) == value
+        for name, value in params.items()
+    )
 
 
 def _text(value: object) -> str:
     return value if isinstance(value, str) else json.dumps(value)
 
 
-def filter_series(items: list[SeriesOut], fields: dict[str, str | None],
-                  params: dict[str, str]) -> list[SeriesOut]:
+def filter_series(
+    items: list[SeriesOut], fields: dict[str, str | None], params: dict[str, str]
+) -> list[SeriesOut]:
     return [item for item in items if matches(item, fields, params)]
 
 
@@ -47,29 +49,49 @@ def series_detail(session: Session, series_id: int) -> SeriesDetail:
         .order_by(Revision.order_key, Revision.id, Execution.id)
     ).mappings()
     name = session.scalar(select(Component.name).where(Component.id == series.component_id))
-    return SeriesDetail.model_validate({**series_ref(series).model_dump(), "component": name or "",
-                                        "summaries": [dict(row) for row in rows]})
+    return SeriesDetail.model_validate(
+        {
+            **series_ref(series).model_dump(),
+            "component": name or "",
+            "summaries": [dict(row) for row in rows],
+        }
+    )
 
 
-_SUMMARY_COLUMNS = [getattr(Summary, field) for field in SummaryOut.model_fields
-                    if field not in ("revision", "sort_key")]
+_SUMMARY_COLUMNS = [
+    getattr(Summary, field)
+    for field in SummaryOut.model_fields
+    if field not in ("revision", "sort_key")
+]
 
 
 def execution_detail(session: Session, execution_id: int) -> ExecutionDetail:
     execution = session.scalar(
-        select(Execution).where(Execution.id == execution_id)
-        .options(selectinload(Execution.job).selectinload(Job.host),
-                 selectinload(Execution.job).selectinload(Job.revision)
-                 .selectinload(Revision.component)))
+        select(Execution)
+        .where(Execution.id == execution_id)
+        .options(
+            selectinload(Execution.job).selectinload(Job.host),
+            selectinload(Execution.job).selectinload(Job.revision).selectinload(Revision.component),
+        )
+    )
     if execution is None:
         raise NotFound(f"unknown execution {execution_id}")
     job, revision = execution.job, execution.job.revision
-    count = session.scalar(select(func.count()).select_from(Summary)
-                           .where(Summary.execution_id == execution_id))
+    count = session.scalar(
+        select(func.count()).select_from(Summary).where(Summary.execution_id == execution_id)
+    )
     return ExecutionDetail(
-        id=execution.id, component=revision.component.name, revision=revision.title,
-        sort_key=revision.sort_key, job_id=job.id, execution_index=job.execution_index,
-        host=job.host.name if job.host else None, sha256=execution.sha256, size=execution.size,
-        created=execution.created, metadata=execution.meta,
-        recording_pruned_at=execution.pruned_at, series=count or 0,
+        id=execution.id,
+        component=revision.component.name,
+        revision=revision.title,
+        sort_key=revision.sort_key,
+        job_id=job.id,
+        execution_index=job.execution_index,
+        host=job.host.name if job.host else None,
+        sha256=execution.sha256,
+        size=execution.size,
+        created=execution.created,
+        metadata=execution.meta,
+        recording_pruned_at=execution.pruned_at,
+        series=count or 0,
     )

@@ -32,8 +32,9 @@ from sqlalchemy.orm import Session, aliased
 
 def _methods(session: Session, ids: list[int]) -> dict[int, tuple[list[str], int]]:
     """Per regression: the methods that flagged in it, and how many detections it holds."""
-    rows = session.execute(select(Detection.regression_id, Detection.method)
-                           .where(Detection.regression_id.in_(ids)))
+    rows = session.execute(
+        select(Detection.regression_id, Detection.method).where(Detection.regression_id.in_(ids))
+    )
     found: dict[int, list[str]] = defaultdict(list)
     for regression_id, method in rows:
         found[regression_id].append(method)
@@ -41,19 +42,29 @@ def _methods(session: Session, ids: list[int]) -> dict[int, tuple[list[str], int
 
 
 def _out(regression: Regression, component: str, methods: list[str], count: int) -> dict:
-    return dict(id=regression.id, component=component,
-                good_revision=regression.good_revision.title,
-                bad_revision=regression.bad_revision.title, state=regression.state.value,
-                methods=methods, detections=count, created=regression.created,
-                updated=regression.updated)
+    return dict(
+        id=regression.id,
+        component=component,
+        good_revision=regression.good_revision.title,
+        bad_revision=regression.bad_revision.title,
+        state=regression.state.value,
+        methods=methods,
+        detections=count,
+        created=regression.created,
+        updated=regression.updated,
+    )
 
 
-def list_regressions(session: Session, component_name: str,
-                     state: str | None = None) -> list[RegressionOut]:
+def list_regressions(
+    session: Session, component_name: str, state: str | None = None
+) -> list[RegressionOut]:
     """The component's regressions, newest range first; ``state`` filters."""
     component = get_component(session, component_name)
-    query = (select(Regression).where(Regression.component_id == component.id)
-             .order_by(Regression.bad_key.desc(), Regression.id.desc()))
+    query = (
+        select(Regression)
+        .where(Regression.component_id == component.id)
+        .order_by(Regression.bad_key.desc(), Regression.id.desc())
+    )
     if state is not None:
         query = query.where(Regression.state == RegressionState(state))
     regressions = list(session.scalars(query))
@@ -71,48 +82,76 @@ def _get(session: Session, component_name: str, regression_id: int) -> Regressio
 
 def _detections_query(component_id: int) -> Select:
     baseline = aliased(Revision)
-    return (select(Detection, Series, Revision.title, baseline.title)
-            .join(Series, Series.id == Detection.series_id)
-            .join(Revision, Revision.id == Detection.revision_id)
-            .outerjoin(baseline, baseline.id == Detection.baseline_revision_id)
-            .where(Series.component_id == component_id))
+    return (
+        select(Detection, Series, Revision.title, baseline.title)
+        .join(Series, Series.id == Detection.series_id)
+        .join(Revision, Revision.id == Detection.revision_id)
+        .outerjoin(baseline, baseline.id == Detection.baseline_revision_id)
+        .where(Series.component_id == component_id)
+    )
 
 
 def _detection_out(row: tuple) -> DetectionOut:
     detection, series, title, base = row
-    return DetectionOut(series=series_ref(series), revision=title, baseline=base,
-                        baseline_revisions=detection.baseline_revisions,
-                        method=detection.method, verdict=detection.verdict,
-                        reason=detection.reason, score=detection.score,
-                        p_value=detection.p_value, effect=detection.effect,
-                        direction=detection.direction, flagged=detection.flagged,
-                        regression_id=detection.regression_id)
+    return DetectionOut(
+        series=series_ref(series),
+        revision=title,
+        baseline=base,
+        baseline_revisions=detection.baseline_revisions,
+        method=detection.method,
+        verdict=detection.verdict,
+        reason=detection.reason,
+        score=detection.score,
+        p_value=detection.p_value,
+        effect=detection.effect,
+        direction=detection.direction,
+        flagged=detection.flagged,
+        regression_id=detection.regression_id,
+    )
 
 
-def regression_detail(session: Session, component_name: str,
-                      regression_id: int) -> RegressionDetail:
+def regression_detail(
+    session: Session, component_name: str, regression_id: int
+) -> RegressionDetail:
     regression = _get(session, component_name, regression_id)
-    rows = session.execute(_detections_query(regression.component_id)
-                           .where(Detection.regression_id == regression.id)
-                           .order_by(Revision.order_key, Series.id, Detection.method))
+    rows = session.execute(
+        _detections_query(regression.component_id)
+        .where(Detection.regression_id == regression.id)
+        .order_by(Revision.order_key, Series.id, Detection.method)
+    )
     flagged = [_detection_out(row) for row in rows]
-    history = [RegressionEventOut(at=e.at, who=e.who, from_state=e.from_state,
-                                  to_state=e.to_state, comment=e.comment)
-               for e in regression.events]
+    history = [
+        RegressionEventOut(
+            at=e.at, who=e.who, from_state=e.from_state, to_state=e.to_state, comment=e.comment
+        )
+        for e in regression.events
+    ]
     methods = sorted({d.method for d in flagged})
-    return RegressionDetail(**_out(regression, component_name, methods, len(flagged)),
-                            flagged=flagged, history=history)
+    return RegressionDetail(
+        **_out(regression, component_name, methods, len(flagged)), flagged=flagged, history=history
+    )
 
 
-def triage(session: Session, component_name: str, regression_id: int, change: TriageRequest,
-           token: ApiToken) -> RegressionDetail:
+def triage(
+    session: Session,
+    component_name: str,
+    regression_id: int,
+    change: TriageRequest,
+    token: ApiToken,
+) -> RegressionDetail:
     """Move the regression to a new state and record who, when, from, to and why."""
     regression = _get(session, component_name, regression_id)
     new = RegressionState(change.state)
     if new == regression.state:
         raise BadRequest(f"regression {regression_id} is already {new.value!r}")
-    regression.events.append(RegressionEvent(who=token.name, from_state=regression.state.value,
-                                             to_state=new.value, comment=change.comment))
+    regression.events.append(
+        RegressionEvent(
+            who=token.name,
+            from_state=regression.state.value,
+            to_state=new.value,
+            comment=change.comment,
+        )
+    )
     regression.state = new
     session.commit()
     return regression_detail(session, component_name, regression_id)
@@ -125,9 +164,12 @@ def accuracy(session: Session, component_name: str) -> AccuracyOut:
     acknowledged and ignored are not labels.
     """
     component = get_component(session, component_name)
-    rows = session.execute(select(Detection.method, Regression.id, Regression.state)
-                           .join(Regression, Regression.id == Detection.regression_id)
-                           .where(Regression.component_id == component.id).distinct())
+    rows = session.execute(
+        select(Detection.method, Regression.id, Regression.state)
+        .join(Regression, Regression.id == Detection.regression_id)
+        .where(Regression.component_id == component.id)
+        .distinct()
+    )
     counts: dict[str, list[int]] = defaultdict(lambda: [0, 0, 0])
     labelled: set[int] = set()
     for method, regression_id, state in rows:
@@ -135,15 +177,28 @@ def accuracy(session: Session, component_name: str) -> AccuracyOut:
         counts[method][slot] += 1
         if slot < 2:
             labelled.add(regression_id)
-    methods = [MethodAccuracy(method=m, true_positives=tp, false_positives=fp,
-                              precision=tp / (tp + fp) if tp + fp else None, unlabelled=rest)
-               for m, (tp, fp, rest) in sorted(counts.items())]
-    return AccuracyOut(component=component.name, labelled_regressions=len(labelled),
-                       methods=methods)
+    methods = [
+        MethodAccuracy(
+            method=m,
+            true_positives=tp,
+            false_positives=fp,
+            precision=tp / (tp + fp) if tp + fp else None,
+            unlabelled=rest,
+        )
+        for m, (tp, fp, rest) in sorted(counts.items())
+    ]
+    return AccuracyOut(
+        component=component.name, labelled_regressions=len(labelled), methods=methods
+    )
 
 
-def list_detections(session: Session, component_name: str, revision: str | None = None,
-                    method: str | None = None, limit: int = 1000) -> list[DetectionOut]:
+def list_detections(
+    session: Session,
+    component_name: str,
+    revision: str | None = None,
+    method: str | None = None,
+    limit: int = 1000,
+) -> list[DetectionOut]:
     """Stored verdicts, newest revision first; filtered by revision title and method."""
     component = get_component(session, component_name)
     query = _detections_query(component.id)
@@ -151,6 +206,7 @@ def list_detections(session: Session, component_name: str, revision: str | None 
         query = query.where(Revision.title == revision)
     if method is not None:
         query = query.where(Detection.method == method)
-    query = query.order_by(Revision.order_key.desc(), Detection.flagged.desc(), Series.id,
-                           Detection.method).limit(limit)
+    query = query.order_by(
+        Revision.order_key.desc(), Detection.flagged.desc(), Series.id, Detection.method
+    ).limit(limit)
     return [_detection_out(row) for row in session.execute(query)]

@@ -32,16 +32,28 @@ class _Pool:
     def point(self, revision: Revision) -> SeriesPoint:
         mean = self.total / self.n
         variance = max(self.squares / self.n - mean * mean, 0.0)
-        return SeriesPoint(revision=revision.title, sort_key=revision.sort_key, n=self.n,
-                           mean=mean, std=math.sqrt(variance))
+        return SeriesPoint(
+            revision=revision.title,
+            sort_key=revision.sort_key,
+            n=self.n,
+            mean=mean,
+            std=math.sqrt(variance),
+        )
 
 
 def series_ref(series: Series) -> SeriesRef:
-    label = SeriesKey(series.case, series.phase, series.params, series.process,
-                      series.counter).label()
-    return SeriesRef(id=series.id, label=label, case=series.case, phase=series.phase,
-                     params=json.loads(series.params), process=series.process,
-                     counter=series.counter)
+    label = SeriesKey(
+        series.case, series.phase, series.params, series.process, series.counter
+    ).label()
+    return SeriesRef(
+        id=series.id,
+        label=label,
+        case=series.case,
+        phase=series.phase,
+        params=json.loads(series.params),
+        process=series.process,
+        counter=series.counter,
+    )
 
 
 def component_series(session: Session, component_name: str) -> list[SeriesOut]:
@@ -53,9 +65,16 @@ def component_series(session: Session, component_name: str) -> list[SeriesOut]:
         .join(Execution, Execution.id == Summary.execution_id)
         .join(Revision, Revision.id == Execution.revision_id)
         .where(Series.component_id == component.id)
-        .order_by(Series.process == HOST_PROCESS,  # the component's series first, then context
-                  Series.case, Series.phase, Series.params, Series.process, Series.counter,
-                  Revision.order_key, Revision.id)
+        .order_by(
+            Series.process == HOST_PROCESS,  # the component's series first, then context
+            Series.case,
+            Series.phase,
+            Series.params,
+            Series.process,
+            Series.counter,
+            Revision.order_key,
+            Revision.id,
+        )
     )
     pools: dict[Series, dict[Revision, _Pool]] = defaultdict(dict)
     for series, revision, n, mean, std in rows:
@@ -69,8 +88,9 @@ def component_series(session: Session, component_name: str) -> list[SeriesOut]:
     ]
 
 
-def component_changes(session: Session, component_name: str,
-                      flagged_only: bool = False) -> list[ChangeOut]:
+def component_changes(
+    session: Session, component_name: str, flagged_only: bool = False
+) -> list[ChangeOut]:
     """Detected changes of the component, newest revision first, flagged ones first within it."""
     component = get_component(session, component_name)
     baseline = aliased(Revision)
@@ -86,10 +106,15 @@ def component_changes(session: Session, component_name: str,
         query = query.where(Change.flagged)
     return [
         ChangeOut(
-            series=series_ref(series), revision=title, baseline=base,
-            method=change.method, score=change.score, p_value=change.p_value,
+            series=series_ref(series),
+            revision=title,
+            baseline=base,
+            method=change.method,
+            score=change.score,
+            p_value=change.p_value,
             effect=change.effect if math.isfinite(change.effect) else None,
-            flagged=change.flagged, created=change.created,
+            flagged=change.flagged,
+            created=change.created,
         )
         for change, series, title, base in session.execute(query)
     ]

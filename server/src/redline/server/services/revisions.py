@@ -35,12 +35,19 @@ def order_key(sort_key: str) -> str:
 def new_revision(component: Component, data: RevisionCreate) -> Revision:
     """An unsaved revision with one queued job per execution, for the component's host pool."""
     return Revision(
-        component=component, title=data.title, sort_key=data.sort_key,
-        order_key=order_key(data.sort_key), commit=data.commit,
-        repo=data.repo or component.repo, branch=data.branch or component.branch,
-        message=data.message, committed_at=data.committed_at,
-        jobs=[Job(execution_index=index, labels=list(component.host_labels or []))
-              for index in range(component.executions)],
+        component=component,
+        title=data.title,
+        sort_key=data.sort_key,
+        order_key=order_key(data.sort_key),
+        commit=data.commit,
+        repo=data.repo or component.repo,
+        branch=data.branch or component.branch,
+        message=data.message,
+        committed_at=data.committed_at,
+        jobs=[
+            Job(execution_index=index, labels=list(component.host_labels or []))
+            for index in range(component.executions)
+        ],
     )
 
 
@@ -82,12 +89,18 @@ def revision_state(states: list[JobState], analyzed: bool = True) -> str:
 
 def _revision_out(revision: Revision) -> dict:
     return dict(
-        id=revision.id, title=revision.title, sort_key=revision.sort_key, commit=revision.commit,
-        repo=revision.repo, branch=revision.branch, committed_at=revision.committed_at,
+        id=revision.id,
+        title=revision.title,
+        sort_key=revision.sort_key,
+        commit=revision.commit,
+        repo=revision.repo,
+        branch=revision.branch,
+        committed_at=revision.committed_at,
         created=revision.created,
         analyzed_at=revision.analyzed_at,
-        state=revision_state([job.state for job in revision.jobs],
-                             analyzed=revision.analyzed_at is not None),
+        state=revision_state(
+            [job.state for job in revision.jobs], analyzed=revision.analyzed_at is not None
+        ),
     )
 
 
@@ -106,8 +119,9 @@ def _decode_cursor(cursor: str) -> tuple[str, int]:
         raise BadRequest(f"malformed cursor {cursor!r}; pass back a next_cursor") from None
 
 
-def list_revisions(session: Session, component_name: str, limit: int | None = None,
-                   cursor: str | None = None) -> list[RevisionOut]:
+def list_revisions(
+    session: Session, component_name: str, limit: int | None = None, cursor: str | None = None
+) -> list[RevisionOut]:
     """Revisions in sort-key order; ``limit`` of them after ``cursor`` when given."""
     return [revision_out(r) for r in page_revisions(session, component_name, limit, cursor)]
 
@@ -116,15 +130,22 @@ def revision_out(revision: Revision) -> RevisionOut:
     return RevisionOut(**_revision_out(revision))
 
 
-def page_revisions(session: Session, component_name: str, limit: int | None,
-                   cursor: str | None) -> list[Revision]:
+def page_revisions(
+    session: Session, component_name: str, limit: int | None, cursor: str | None
+) -> list[Revision]:
     component = get_component(session, component_name)
-    query = (select(Revision).where(Revision.component_id == component.id)
-             .order_by(Revision.order_key, Revision.id).options(selectinload(Revision.jobs)))
+    query = (
+        select(Revision)
+        .where(Revision.component_id == component.id)
+        .order_by(Revision.order_key, Revision.id)
+        .options(selectinload(Revision.jobs))
+    )
     if cursor:
         key, ident = _decode_cursor(cursor)
-        query = query.where(tuple_(Revision.order_key, Revision.id) > tuple_(
-            literal(key, Revision.order_key.type), literal(ident)))
+        query = query.where(
+            tuple_(Revision.order_key, Revision.id)
+            > tuple_(literal(key, Revision.order_key.type), literal(ident))
+        )
     if limit is not None:
         query = query.limit(limit)
     return list(session.scalars(query))
@@ -133,9 +154,14 @@ def page_revisions(session: Session, component_name: str, limit: int | None,
 def job_out(job: Job) -> JobOut:
     execution = ExecutionOut.model_validate(job.execution) if job.execution else None
     return JobOut(
-        id=job.id, execution_index=job.execution_index, state=job.state.value,
-        attempts=job.attempts, reason=job.reason, host=job.host.name if job.host else None,
-        lease_expires_at=job.lease_expires_at, execution=execution,
+        id=job.id,
+        execution_index=job.execution_index,
+        state=job.state.value,
+        attempts=job.attempts,
+        reason=job.reason,
+        host=job.host.name if job.host else None,
+        lease_expires_at=job.lease_expires_at,
+        execution=execution,
     )
 
 
@@ -147,12 +173,16 @@ def cancel_revision(session: Session, component_name: str, title: str) -> Revisi
     and an agent running one learns it at its next heartbeat (409) and abandons it. Jobs
     already uploaded or finished keep their results."""
     component = get_component(session, component_name)
-    revision = session.scalar(select(Revision).where(Revision.component_id == component.id,
-                                                     Revision.title == title))
+    revision = session.scalar(
+        select(Revision).where(Revision.component_id == component.id, Revision.title == title)
+    )
     if revision is None:
         raise NotFound(f"component {component_name!r} has no revision {title!r}")
-    jobs = session.scalars(select(Job).where(Job.revision_id == revision.id,
-                                             Job.state.in_(UNFINISHED)).with_for_update())
+    jobs = session.scalars(
+        select(Job)
+        .where(Job.revision_id == revision.id, Job.state.in_(UNFINISHED))
+        .with_for_update()
+    )
     for job in jobs:
         job.state, job.reason = JobState.cancelled, "cancelled"
     session.commit()
@@ -162,13 +192,17 @@ def cancel_revision(session: Session, component_name: str, title: str) -> Revisi
 def revision_detail(session: Session, component_name: str, title: str) -> RevisionDetail:
     component = get_component(session, component_name)
     revision = session.scalar(
-        select(Revision).where(Revision.component_id == component.id, Revision.title == title)
-        .options(selectinload(Revision.jobs).selectinload(Job.execution),
-                 selectinload(Revision.jobs).selectinload(Job.host))
+        select(Revision)
+        .where(Revision.component_id == component.id, Revision.title == title)
+        .options(
+            selectinload(Revision.jobs).selectinload(Job.execution),
+            selectinload(Revision.jobs).selectinload(Job.host),
+        )
     )
     if revision is None:
         raise NotFound(f"component {component_name!r} has no revision {title!r}")
     return RevisionDetail(
-        **_revision_out(revision), component=component.name,
+        **_revision_out(revision),
+        component=component.name,
         jobs=[job_out(job) for job in revision.jobs],
     )

@@ -20,8 +20,9 @@ def authenticate(session: Session, secret: str) -> ApiToken | None:
     return token
 
 
-def issue_token(session: Session, name: str, scopes: str | list[str],
-                host: str | None = None) -> tuple[ApiToken, str]:
+def issue_token(
+    session: Session, name: str, scopes: str | list[str], host: str | None = None
+) -> tuple[ApiToken, str]:
     """A new token and its secret (shown once: only its hash is stored); an agent token is
     bound to ``host``; one live token per name. The one way tokens are made (API and CLI)."""
     try:

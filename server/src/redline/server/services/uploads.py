@@ -61,8 +61,10 @@ def _mismatch(recording: Recording, job: Job) -> str:
     """What in the recording's ``redline.run`` metadata contradicts the job, or ''."""
     revision = job.revision
     expected = {
-        "job_id": str(job.id), "component": revision.component.name,
-        "revision_title": revision.title, "revision_sort_key": revision.sort_key,
+        "job_id": str(job.id),
+        "component": revision.component.name,
+        "revision_title": revision.title,
+        "revision_sort_key": revision.sort_key,
         "execution_index": str(job.execution_index),
     }
     run = recording.run
@@ -70,14 +72,19 @@ def _mismatch(recording: Recording, job: Job) -> str:
         if key not in run:
             return f"{recording.path.name}: redline.run metadata has no {key!r}"
         if run[key] != value:
-            return (f"{recording.path.name}: redline.run {key} is {run[key]!r} "
-                    f"but job {job.id} expects {value!r}")
+            return (
+                f"{recording.path.name}: redline.run {key} is {run[key]!r} "
+                f"but job {job.id} expects {value!r}"
+            )
     commit = run.get("commit", "")
     # a revision may be reported by a short hash; the agent records what it checked out
-    if revision.commit and not (commit.startswith(revision.commit)
-                                or revision.commit.startswith(commit or "\0")):
-        return (f"{recording.path.name}: redline.run commit is {commit!r} "
-                f"but job {job.id} expects {revision.commit!r}")
+    if revision.commit and not (
+        commit.startswith(revision.commit) or revision.commit.startswith(commit or "\0")
+    ):
+        return (
+            f"{recording.path.name}: redline.run commit is {commit!r} "
+            f"but job {job.id} expects {revision.commit!r}"
+        )
     return ""
 
 
@@ -99,26 +106,36 @@ def _existing(session: Session, job: Job, sha256: str, host_name: str) -> Accept
         raise Conflict(f"this recording is already stored for job {same.job_id}")
     if same is not None:
         if holder(job) != host_name:
-            raise Conflict(f"job {job.id}'s recording was uploaded by host {holder(job)!r}, "
-                           f"not {host_name!r}")
+            raise Conflict(
+                f"job {job.id}'s recording was uploaded by host {holder(job)!r}, not {host_name!r}"
+            )
         return Accepted(same.id, created=False, needs_ingest=job.state == JobState.uploaded)
     if job.execution is not None:
-        raise Conflict(f"job {job.id} already has a different recording "
-                       f"(sha256 {job.execution.sha256})")
+        raise Conflict(
+            f"job {job.id} already has a different recording (sha256 {job.execution.sha256})"
+        )
     ensure_held(job, host_name)
     return None
 
 
-def accept_recording(session: Session, storage_dir: Path, job_id: int, staged: Staged,
-                     claimed_sha256: str, host_name: str) -> Accepted:
+def accept_recording(
+    session: Session,
+    storage_dir: Path,
+    job_id: int,
+    staged: Staged,
+    claimed_sha256: str,
+    host_name: str,
+) -> Accepted:
     """Store a staged upload from ``host_name`` as the job's execution, or refuse it naming
     the problem.
 
     Invalid recordings fail the job with the same reason they are refused with.
     """
     if claimed_sha256.strip().lower() != staged.sha256:
-        raise BadRequest(f"X-Redline-Sha256 {claimed_sha256!r} does not match the "
-                         f"{staged.size} bytes received (sha256 {staged.sha256}); send it again")
+        raise BadRequest(
+            f"X-Redline-Sha256 {claimed_sha256!r} does not match the "
+            f"{staged.size} bytes received (sha256 {staged.sha256}); send it again"
+        )
     job = session.scalar(select(Job).where(Job.id == job_id).with_for_update())
     if job is None:
         raise NotFound(f"unknown job {job_id}")
@@ -135,8 +152,12 @@ def accept_recording(session: Session, storage_dir: Path, job_id: int, staged: S
     os.replace(staged.path, final)
     try:
         execution = Execution(
-            job=job, revision_id=job.revision_id, recording_path=str(final),
-            sha256=staged.sha256, size=staged.size, meta=dict(recording.metadata),
+            job=job,
+            revision_id=job.revision_id,
+            recording_path=str(final),
+            sha256=staged.sha256,
+            size=staged.size,
+            meta=dict(recording.metadata),
         )
         session.add(execution)
         job.state, job.lease_expires_at, job.reason = JobState.uploaded, None, ""

@@ -75,9 +75,13 @@ def _candidates(session: Session, push: Push) -> list[Component]:
     keys = {key for key in map(repo_key, push.urls) if key}
     if not keys or push.branch is None:
         return []
-    return list(session.scalars(
-        select(Component).where(Component.repo_key.in_(keys), Component.branch == push.branch)
-        .order_by(Component.name)))
+    return list(
+        session.scalars(
+            select(Component)
+            .where(Component.repo_key.in_(keys), Component.branch == push.branch)
+            .order_by(Component.name)
+        )
+    )
 
 
 def sort_key(commit: PushCommit, index: int, received: datetime) -> str:
@@ -104,25 +108,38 @@ def _record(session: Session, components: list[Component], push: Push) -> Webhoo
     for component in components:
         for index, commit in enumerate(push.commits):
             data = RevisionCreate(
-                component=component.name, title=commit.id[:TITLE_LENGTH],
-                sort_key=sort_key(commit, index, received), commit=commit.id,
-                branch=push.branch or "", message=commit.message[:10_000],
-                committed_at=commit.timestamp)
+                component=component.name,
+                title=commit.id[:TITLE_LENGTH],
+                sort_key=sort_key(commit, index, received),
+                commit=commit.id,
+                branch=push.branch or "",
+                message=commit.message[:10_000],
+                committed_at=commit.timestamp,
+            )
             revision = _add_revision(session, component, data)
             if revision is None:
                 result.existing += 1
                 continue
-            result.created.append(PushRevision(
-                component=component.name, revision_id=revision.id, title=revision.title,
-                sort_key=revision.sort_key, job_ids=[job.id for job in revision.jobs]))
+            result.created.append(
+                PushRevision(
+                    component=component.name,
+                    revision_id=revision.id,
+                    title=revision.title,
+                    sort_key=revision.sort_key,
+                    job_ids=[job.id for job in revision.jobs],
+                )
+            )
     session.commit()
-    result.detail = (f"{len(result.created)} revision(s) created, {result.existing} already known"
-                     f" for {', '.join(c.name for c in components)}")
+    result.detail = (
+        f"{len(result.created)} revision(s) created, {result.existing} already known"
+        f" for {', '.join(c.name for c in components)}"
+    )
     return result
 
 
-def authenticate_push(session: Session, body: bytes, verify: Verifier,
-                      default_secret: str) -> tuple[Push, list[Component]]:
+def authenticate_push(
+    session: Session, body: bytes, verify: Verifier, default_secret: str
+) -> tuple[Push, list[Component]]:
     """The push and the components it is authentically meant for (maybe none).
 
     Raises Unauthorized when no applicable secret (a matching component's own, else
@@ -138,13 +155,17 @@ def authenticate_push(session: Session, body: bytes, verify: Verifier,
     candidates = _candidates(session, push)
     secrets = {c.webhook_secret or default_secret for c in candidates} or {default_secret}
     if not any(verify(secret) for secret in secrets):
-        raise Unauthorized("webhook signature does not match"
-                           if any(secrets) else "no webhook secret is configured")
+        raise Unauthorized(
+            "webhook signature does not match"
+            if any(secrets)
+            else "no webhook secret is configured"
+        )
     return push, [c for c in candidates if verify(c.webhook_secret or default_secret)]
 
 
-def receive_push(session: Session, body: bytes, verify: Verifier, default_secret: str,
-                 event: str = "push") -> tuple[bool, WebhookResult]:
+def receive_push(
+    session: Session, body: bytes, verify: Verifier, default_secret: str, event: str = "push"
+) -> tuple[bool, WebhookResult]:
     """Authenticate and record a push; returns whether anything was recorded, and the result.
 
     Events other than ``push`` are authenticated and acknowledged, never recorded.
@@ -155,6 +176,5 @@ def receive_push(session: Session, body: bytes, verify: Verifier, default_secret
     if not matched:
         where = f"branch {push.branch!r}" if push.branch else "this ref (not a branch)"
         repo = push.urls[0] if push.urls else "?"
-        return False, WebhookResult(
-            detail=f"no component matches repository {repo!r} and {where}")
+        return False, WebhookResult(detail=f"no component matches repository {repo!r} and {where}")
     return True, _record(session, matched, push)
