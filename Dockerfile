@@ -6,9 +6,6 @@ WORKDIR /app
 COPY pyproject.toml uv.lock ./
 COPY agent agent
 COPY server server
-COPY migrations migrations
-COPY alembic.ini ./
-COPY web web
 COPY examples examples
 RUN uv sync --all-packages --frozen --no-dev
 ENV PATH="/app/.venv/bin:$PATH" REDLINE_STORAGE_DIR=/data/storage

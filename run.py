@@ -4,6 +4,8 @@
     python3 run.py demo [ARGS]   install what is needed, then `redline demo ARGS`
     python3 run.py test [ARGS]   install what is needed, then run the test suite (pytest ARGS)
     python3 run.py redline ARGS  install what is needed, then any `redline` command
+    python3 run.py check         install what is needed, then the house's checks: ruff (lint and
+                                 format), lint-imports (the layers), mypy (types)
 
 It makes `.venv/` with `python -m venv`, puts `uv` into it with pip, and lets uv install the
 workspace (agent and server, editable) from `uv.lock`. Browser tests need Debian's Chromium;
@@ -68,12 +70,29 @@ def ensure_chromium() -> None:
     )
 
 
+CHECKS = (["ruff", "check", "."], ["ruff", "format", "--check", "."], ["lint-imports"], ["mypy"])
+
+
+def check() -> int:
+    """Every check, each reported; non-zero when any failed."""
+    failed = []
+    for tool, *args in CHECKS:
+        say(f"{tool} {' '.join(args)}")
+        if subprocess.run([str(BIN / tool), *args], cwd=ROOT).returncode != 0:
+            failed.append(tool + (f" {args[0]}" if args and tool == "ruff" else ""))
+    if failed:
+        say(f"failed: {', '.join(failed)}")
+    return 1 if failed else 0
+
+
 def main(argv: list[str]) -> int:
-    if not argv or argv[0] not in {"demo", "test", "redline"}:
+    if not argv or argv[0] not in {"demo", "test", "redline", "check"}:
         print(__doc__)
         return 2
     command, rest = argv[0], argv[1:]
     ensure_environment()
+    if command == "check":
+        return check()
     if command == "test":
         ensure_chromium()
         args = [str(BIN / "python"), "-m", "pytest", *rest]

@@ -26,7 +26,7 @@ def _on(url: str, name: str) -> str:
 @contextmanager
 def database() -> Iterator[str]:
     """The URL of a new, migrated database; dropped (or its server removed) at the end."""
-    from redline.server.embedded import start_postgres
+    from redline.commands.embedded import start_postgres
 
     configured = os.environ.get("REDLINE_DATABASE_URL")
     folder, handle = None, None
@@ -60,7 +60,7 @@ def database() -> Iterator[str]:
 def api_server(database_url: str) -> Iterator[tuple[str, dict[str, str]]]:
     """`redline server` on ``database_url`` as a child process: its URL and a token per scope."""
     from redline.agent.network import free_port
-    from redline.server.stack import Stack
+    from redline.commands.stack import Stack
 
     with tempfile.TemporaryDirectory() as tmp:
         stack = Stack(Path(tmp), free_port())

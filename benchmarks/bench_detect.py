@@ -19,8 +19,8 @@ from collections.abc import Callable
 import numpy as np
 from redline.detect.baseline import DEFAULT_WINDOW, recent_depth
 from redline.detect.changepoint import EDivisive
-from redline.detect.evaluate import DEFAULT_METHOD, DETECTORS
-from redline.detect.executions import values_for
+from redline.detect.execution_shift import values_for
+from redline.detect.registry import DEFAULT_METHOD, DETECTORS
 
 SAMPLES, EXECUTIONS, BASELINE_REVISIONS = 20, 3, 5
 REVISIONS, HISTORY_SERIES = 1000, 100

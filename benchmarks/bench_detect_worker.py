@@ -20,18 +20,20 @@ import time
 from pathlib import Path
 
 import numpy as np
+from redline.commands.embedded import start_postgres
 from redline.detect.config import DetectionConfig
-from redline.detect.executions import values_for
+from redline.detect.execution_shift import values_for
 from redline.recording import RecordingWriter
 from redline.server.db import migrate, session_factory
-from redline.server.embedded import start_postgres
 from redline.server.models import Execution, JobState
-from redline.server.schemas import ComponentCreate, RevisionCreate
+from redline.server.schemas.components import ComponentCreate
+from redline.server.schemas.revisions import RevisionCreate
 from redline.server.services.components import create_component
 from redline.server.services.revisions import create_revision
-from redline.worker.detection import detect_revision, revision_samples
+from redline.worker.detection import detect_revision
 from redline.worker.ingest import ingest_execution
 from redline.worker.reanalysis import reanalyze_component, revisions_with_data
+from redline.worker.samples import revision_samples
 
 
 def _recording(

@@ -22,7 +22,8 @@ from mcap.stream_reader import StreamReader
 from redline.recording import RecordingWriter
 from redline.server.db import session_factory
 from redline.server.models import Execution, JobState
-from redline.server.schemas import ComponentCreate, RevisionCreate
+from redline.server.schemas.components import ComponentCreate
+from redline.server.schemas.revisions import RevisionCreate
 from redline.server.services.components import create_component
 from redline.server.services.revisions import create_revision
 from redline.worker.ingest import ingest_execution

@@ -19,7 +19,8 @@ from concurrent.futures import ThreadPoolExecutor
 from _service import api_server, database
 from redline.agent.client import ServerClient
 from redline.server.db import session_factory
-from redline.server.schemas import ComponentCreate, RevisionCreate
+from redline.server.schemas.components import ComponentCreate
+from redline.server.schemas.revisions import RevisionCreate
 from redline.server.services.components import create_component
 from redline.server.services.revisions import create_revision
 

@@ -73,7 +73,7 @@ def _drop_created() -> None:
 
 @pytest.fixture(scope="session")
 def services(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Services]:
-    from redline.server.embedded import EmbeddedServices, start_postgres, start_redis
+    from redline.commands.embedded import EmbeddedServices, start_postgres, start_redis
 
     embedded = EmbeddedServices()
     configured_db = os.environ.get("REDLINE_TEST_DATABASE_URL")

@@ -17,11 +17,11 @@ import redis
 from fastapi.testclient import TestClient
 from redline.server.app import create_app
 from redline.server.core.config import Settings
+from redline.server.core.tasks import broker_url
 from redline.server.db import migrate, session_factory
 from redline.server.models import ApiToken, Execution, Job, utcnow
 from redline.server.services.revisions import order_key
 from redline.server.services.tokens import issue_token
-from redline.worker.app import broker_url
 from redline.worker.detection import detect_revision
 from redline.worker.ingest import ingest_execution
 from sqlalchemy import func, select, text, update
@@ -49,7 +49,7 @@ class Api:
             "admin",
             {
                 "name": name,
-                "repo": f"/src/{name}.git",
+                "repo": f"https://git.example/{name}.git",
                 "suite": "perf/redline.toml",
                 "executions": executions,
                 "host_labels": host_labels or [],

@@ -2,12 +2,19 @@
 
 from __future__ import annotations
 
+import os
+import re
 import subprocess
 import sys
+from collections.abc import Iterator
 from importlib import metadata
+from pathlib import Path
 
 import pytest
+import typer
 from redline.cli import main as cli
+from typer.core import TyperCommand, TyperGroup
+from typer.testing import CliRunner
 
 AGENT_ONLY = """
 import importlib.metadata as md, sys
@@ -41,3 +48,120 @@ def test_with_the_server_distribution_every_command_is_offered(monkeypatch: pyte
 
 def _missing(name: str) -> None:
     raise metadata.PackageNotFoundError(name)
+
+
+# Libraries that only some commands' bodies need; building the CLI must not load them.
+HEAVY = (
+    "scipy",
+    "pandas",
+    "numpy",
+    "sqlalchemy",
+    "fastapi",
+    "celery",
+    "plotly",
+    "pyarrow",
+    "pydantic_settings",
+    "sklearn",
+)
+LOADED = """
+import sys
+from redline.cli.main import main
+sys.argv = ["redline", *sys.argv[1:]]
+try:
+    main()
+except SystemExit:
+    pass
+print("loaded:", *sorted({name.partition(".")[0] for name in sys.modules}), file=sys.stderr)
+"""
+ECHO_SUITE = Path(__file__).resolve().parents[1] / "examples" / "echo" / "perf" / "redline.toml"
+
+
+def _loaded(*args: str) -> tuple[list[str], subprocess.CompletedProcess[str]]:
+    """Run `redline ARGS` in a fresh interpreter; which of HEAVY and zenoh it had imported."""
+    done = subprocess.run(
+        [sys.executable, "-c", LOADED, *args], capture_output=True, text=True, timeout=120
+    )
+    marker = [line for line in done.stderr.splitlines() if line.startswith("loaded:")]
+    assert marker, done.stderr
+    loaded = set(marker[-1].split()[1:])
+    return sorted(loaded & {*HEAVY, "zenoh"}), done
+
+
+@pytest.mark.parametrize("args", [["--help"], ["run", "--help"], ["compare", "--help"]])
+def test_help_loads_none_of_the_service_libraries(args: list[str]) -> None:
+    loaded, done = _loaded(*args)
+    assert "Usage" in done.stdout
+    assert loaded == [], f"`redline {' '.join(args)}` imported {loaded}"
+
+
+def test_a_bad_suite_is_reported_with_its_line_before_any_service_library_loads(
+    tmp_path: Path,
+) -> None:
+    suite = tmp_path / "redline.toml"  # the echo example's, with a misspelt field
+    suite.write_text(ECHO_SUITE.read_text().replace("sampling_hz", "sampling_rate"))
+    loaded, done = _loaded("run", str(suite), "--out", str(tmp_path / "x.mcap"))
+    error = " ".join(done.stderr.split())
+    assert re.search(rf"{re.escape(str(suite))}:\d+: unknown field 'sampling_rate'", error), error
+    assert set(loaded) <= {"zenoh"}, f"a bad suite file imported {loaded}"
+
+
+Command = TyperCommand | TyperGroup
+
+
+def _commands(
+    command: Command, path: tuple[str, ...] = ()
+) -> Iterator[tuple[tuple[str, ...], Command]]:
+    """Every command of the tree under ``command``, with the words that reach it."""
+    if isinstance(command, TyperGroup):
+        for name, sub in command.commands.items():
+            yield from _commands(sub, (*path, name))
+    else:
+        yield path, command
+
+
+def test_every_command_declares_its_options_and_its_help_lists_each() -> None:
+    cli._register_all()
+    commands = list(_commands(typer.main.get_command(cli.app)))
+    assert {path[0] for path, _ in commands} >= {"run", "agent", "compare", "evaluate", "up"}
+    for path, command in commands:
+        # An option Click does not know of can be neither listed nor named when it is missing.
+        assert not command.context_settings.get("ignore_unknown_options"), path
+        shown = CliRunner().invoke(cli.app, [*path, "--help"], env={"COLUMNS": "200"})
+        assert shown.exit_code == 0, (path, shown.output)
+        for param in command.params:
+            option = param.param_type_name == "option"
+            names = [*param.opts, *param.secondary_opts] if option else [param.name]
+            for name in names:
+                assert name in shown.output, f"`redline {' '.join(path)} --help` omits {name}"
+
+
+def test_a_database_command_without_a_database_says_so_without_a_traceback(tmp_path: Path) -> None:
+    from redline.agent.network import free_port
+
+    unreachable = f"postgresql+psycopg://postgres@127.0.0.1:{free_port()}/none"
+    redline = str(Path(sys.executable).with_name("redline"))
+    done = subprocess.run(
+        [redline, "token", "list"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        env={**os.environ, "REDLINE_DATABASE_URL": unreachable},
+    )
+    assert done.returncode == 1
+    assert "cannot reach the database" in done.stderr and "REDLINE_DATABASE_URL" in done.stderr
+    assert "Traceback" not in done.stderr
+
+
+def test_a_run_stopped_before_anything_was_recorded_says_so(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    import signal
+    import time
+
+    from redline.cli import run_cmd
+
+    with pytest.raises(typer.Exit) as stopped:
+        run_cmd._stopped_by(signal.SIGTERM, tmp_path / "run.mcap", time.time())
+    assert stopped.value.exit_code == 143
+    said = " ".join(capsys.readouterr().err.split())
+    assert "terminated by SIGTERM" in said and "before anything was recorded" in said

@@ -11,8 +11,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 import typer
+from redline.commands.compare import parse_args, register
 from redline.detect.compare import CompareError
-from redline.detect.compare_cmd import parse_args, register
 from redline.recording import RecordingWriter
 from typer.testing import CliRunner
 
@@ -216,3 +216,18 @@ def test_the_redline_cli_has_the_compare_command(tmp_path: Path, baseline: list[
     )
     assert result.returncode == 0, result.stderr
     assert len(_cases(junit)) == 2
+
+
+def test_a_missing_side_or_report_is_named_for_what_it_is(
+    tmp_path: Path, baseline: list[Path]
+) -> None:
+    junit = tmp_path / "out.xml"
+    for args, missing in (
+        (["--baseline", *baseline], "--candidate"),
+        (["--baseline", *baseline, "--junit", junit], "--candidate"),
+        (["--candidate", *baseline, "--junit", junit], "--baseline"),
+        (["--baseline", *baseline, "--candidate", *baseline], "--junit"),
+    ):
+        code, output = invoke(*args)
+        assert code == 2 and f"Missing option '{missing}'" in output, output
+    assert not junit.exists()

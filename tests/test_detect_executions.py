@@ -10,9 +10,10 @@ import pandas as pd
 import pytest
 from redline.detect.baseline import recent_depth
 from redline.detect.corpus import Corpus, SeriesLabel, first_executions
-from redline.detect.evaluate import DEFAULT_METHOD, DETECTORS, walk
-from redline.detect.executions import BuildShift, ExecutionShift, execution_values, values_for
+from redline.detect.evaluate import walk
+from redline.detect.execution_shift import BuildShift, ExecutionShift, execution_values, values_for
 from redline.detect.methods import WelchT
+from redline.detect.registry import DEFAULT_METHOD, DETECTORS
 from redline.detect.result import CHANGE, NO_CHANGE, NOT_ENOUGH_DATA
 
 
@@ -184,7 +185,7 @@ def test_an_execution_with_a_non_finite_sample_is_named_not_hidden_by_its_median
 
 
 def test_the_fast_median_equals_numpys() -> None:
-    from redline.detect.robust import median
+    from redline.detect.median_shift import median
 
     rng = np.random.default_rng(0)
     for size in (1, 2, 3, 10, 11, 60):

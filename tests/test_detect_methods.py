@@ -9,15 +9,15 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
+from redline.commands.evaluate import as_json
 from redline.detect.aggregate import aggregate, compare_test
+from redline.detect.association_rules import FooRules
 from redline.detect.changepoint import EDivisive
 from redline.detect.corpus import Corpus, SeriesLabel, load_corpus, write_corpus
+from redline.detect.counter_clusters import ShangRegression
 from redline.detect.evaluate import precision_recall_f1, roc_auc, run_detector, summarize, walk
-from redline.detect.evaluate_cmd import as_json
-from redline.detect.foo import FooRules
 from redline.detect.methods import KolmogorovSmirnov, MannWhitney, WelchT
 from redline.detect.result import CHANGE, NO_CHANGE, NOT_ENOUGH_DATA
-from redline.detect.shang import ShangRegression
 
 SERIES_METHODS = [KolmogorovSmirnov, MannWhitney, WelchT]
 COUNTER_METHODS = [FooRules, ShangRegression]

@@ -10,18 +10,24 @@ import pytest
 from redline.detect.config import ConfigError, DetectionConfig
 from redline.detect.methods import KolmogorovSmirnov
 from redline.detect.verdict import judge_series
-from redline.server.models import Component, Execution, Revision, Series, Summary
-from redline.server.models_regressions import (
+from redline.server.models import (
+    Component,
     Detection,
     DetectionConfigRow,
+    Execution,
     Reanalysis,
     Regression,
+    Revision,
+    Series,
+    Summary,
 )
-from redline.server.schemas import ComponentCreate
+from redline.server.schemas.components import ComponentCreate
 from redline.server.services.components import create_component
-from redline.worker.detection import SampleCache, detect_revision, samples_path
+from redline.server.storage import samples_path
+from redline.worker.detection import detect_revision
 from redline.worker.ingest import ingest_execution
 from redline.worker.reanalysis import reanalyze_component
+from redline.worker.samples import SampleCache
 from sqlalchemy import func, select
 
 from tests import test_ingest
@@ -135,10 +141,13 @@ def test_reanalysis_reproduces_the_verdicts_of_detection_revision_by_revision(
 ):
     executions = _runs_history(session, tmp_path, [15.0] * 5 + [19.5] * 3 + [15.0] * 3)
     _run(database_url, executions)
-    keyed = lambda: {
-        key: (d.verdict, d.score, d.baseline_revisions, d.baseline_revision_id)  # noqa: E731
-        for key, d in _verdicts(session).items()
-    }
+
+    def keyed():
+        return {
+            key: (d.verdict, d.score, d.baseline_revisions, d.baseline_revision_id)
+            for key, d in _verdicts(session).items()
+        }
+
     incremental = keyed()
     assert any(d[0] == "change" for d in incremental.values())
     component = session.scalar(select(Component))
@@ -322,8 +331,8 @@ def test_a_series_with_no_finite_sample_gets_no_summary_but_a_verdict(
 
 
 def test_median_shift_ignores_a_few_huge_outliers_that_move_the_mean():
+    from redline.detect.median_shift import MedianShift
     from redline.detect.methods import WelchT
-    from redline.detect.robust import MedianShift
 
     rng = np.random.default_rng(2)
     base = rng.normal(15.0, 0.5, 60)
@@ -390,10 +399,13 @@ def test_reanalysis_with_a_pruned_revision_keeps_its_verdicts_and_matches_detect
     pruned = [e for e in executions if e.revision_id == executions[18].revision_id]  # r7
     for execution in pruned:
         samples_path(execution.recording_path).unlink()
-    keyed = lambda: {
-        key: (d.verdict, d.score, d.baseline_revisions, d.baseline_revision_id)  # noqa: E731
-        for key, d in _verdicts(session).items()
-    }
+
+    def keyed():
+        return {
+            key: (d.verdict, d.score, d.baseline_revisions, d.baseline_revision_id)
+            for key, d in _verdicts(session).items()
+        }
+
     before = keyed()
     for revision_id in dict.fromkeys(e.revision_id for e in executions):
         detect_revision(database_url, revision_id)  # one by one, flags read from the database
@@ -439,16 +451,19 @@ def test_reanalysis_skips_an_all_nan_revision_in_baselines_as_detection_does(
     cpus = [20.0, 20.0, 20.0, np.full(60, np.nan), 20.0, 20.0, 20.0, 20.0, 60.0]
     executions = _history(session, tmp_path, cpus)
     _run(database_url, executions)
-    keyed = lambda: {
-        key: (
-            d.verdict,
-            d.reason,
-            d.score,
-            d.baseline_revisions,  # noqa: E731
-            d.baseline_revision_id,
-        )
-        for key, d in _verdicts(session).items()
-    }
+
+    def keyed():
+        return {
+            key: (
+                d.verdict,
+                d.reason,
+                d.score,
+                d.baseline_revisions,
+                d.baseline_revision_id,
+            )
+            for key, d in _verdicts(session).items()
+        }
+
     by_detection = keyed()
     assert "NaN" in by_detection[("r4", "ks")][1]
     assert by_detection[("r5", "ks")][4] == executions[2].revision_id  # r3, past r4
@@ -460,7 +475,7 @@ def test_reanalysis_skips_an_all_nan_revision_in_baselines_as_detection_does(
 def _second_run_later(session, tmp_path: Path, database_url: str):
     """r1..r6 with one run each at 20 % CPU, then r7 whose first run (20 %) is ingested now and
     whose second run (60 %) only later; returns r7's revision id and a function ingesting it."""
-    from redline.server.schemas import RevisionCreate
+    from redline.server.schemas.revisions import RevisionCreate
     from redline.server.services.revisions import create_revision
 
     from tests.test_ingest import run_metadata, write_recording
@@ -520,7 +535,8 @@ def test_the_walk_stops_using_its_memory_once_an_execution_is_ingested_under_it(
     session, database_url, tmp_path
 ):
     from redline.server.db import session_factory
-    from redline.worker.detection import Walk, ingested_fingerprint
+    from redline.worker.history import ingested_fingerprint
+    from redline.worker.reanalysis import Walk
 
     revision_id, ingest_second_run = _second_run_later(session, tmp_path, database_url)
     component_id = session.scalar(select(Component.id))

@@ -19,8 +19,8 @@ from pathlib import Path
 
 import httpx
 import pytest
-from redline.server import demo
-from redline.server.stack import Stack
+from redline.commands import demo
+from redline.commands.stack import Stack
 
 from tests.conftest import Services, fresh_database
 

@@ -9,8 +9,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import typer
+from redline.commands.evaluate import register
 from redline.detect.corpus import Corpus, SeriesLabel, write_corpus
-from redline.detect.evaluate_cmd import register
 from typer.testing import CliRunner
 
 runner = CliRunner()
@@ -96,7 +96,8 @@ def test_the_default_meets_the_issue_goals_on_corpus_2() -> None:
     changes of 10 % or more, on the committed corpus (docs/detection.md): a change to a
     detector or to the evaluation that loses them fails here."""
     from redline.detect.corpus import load_corpus
-    from redline.detect.evaluate import DEFAULT_METHOD, evaluate_corpus
+    from redline.detect.evaluate import evaluate_corpus
+    from redline.detect.registry import DEFAULT_METHOD
 
     scores = evaluate_corpus(load_corpus(str(CORPUS_2)), [DEFAULT_METHOD])[DEFAULT_METHOD]
     assert scores.roc_auc >= 0.95, scores

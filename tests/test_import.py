@@ -9,9 +9,9 @@ from pathlib import Path
 import pytest
 import redis
 from redline.recording import SeriesKey, canonical_params
+from redline.server.core.tasks import DETECT_TASK
 from redline.server.db import session_factory
 from redline.server.services.imports import ImportedRun, store_import
-from redline.worker.app import DETECT_TASK
 
 from tests.conftest import Services
 from tests.intake import api_with

@@ -13,7 +13,7 @@ from fastapi.testclient import TestClient
 from redline.server.app import create_app
 from redline.server.core.config import Settings
 from redline.server.db import session_factory
-from redline.server.schemas import ComponentCreate
+from redline.server.schemas.components import ComponentCreate
 from redline.server.services.components import create_component
 from redline.server.services.tokens import issue_token
 from redline.worker.detection import detect_revision

@@ -2,7 +2,7 @@
 Postgres gone for a while, and 20 agents racing for 200 jobs.
 
 The server and the agents are `redline server` / `redline agent` child processes started through
-`redline.server.stack`, on real Postgres and Redis. The suite they run is tiny (a component that
+`redline.commands.stack`, on real Postgres and Redis. The suite they run is tiny (a component that
 idles, one one-second phase) so that a job takes seconds; its build step hangs for agents whose
 work folder is named ``slow-*``, which is how a test holds an agent in the middle of a job.
 """
@@ -29,9 +29,9 @@ import httpx
 import pytest
 from redline.agent.client import ServerClient
 from redline.agent.network import free_port
+from redline.commands.stack import Child, Stack
 from redline.server.db import session_factory
 from redline.server.models import Execution, Job, JobState, Revision
-from redline.server.stack import Child, Stack
 from sqlalchemy import func, select, update
 
 from tests.conftest import Services, fresh_database
@@ -123,8 +123,6 @@ class Service:
             "agent",
             "--server",
             self.stack.url,
-            "--token",
-            self.tokens["agent"],
             "--name",
             name,
             "--work",
@@ -135,6 +133,7 @@ class Service:
             "2",
             "--grace",
             "300",
+            env={"REDLINE_TOKEN": self.tokens["agent"]},
         )
         return self.stack.children[-1]
 
@@ -212,6 +211,7 @@ def _service(database_url: str, redis_url: str, root: Path, lease_s: int) -> Ser
         REDLINE_QUEUE=f"rel-{uuid.uuid4().hex[:8]}",
         PYTHONUNBUFFERED="1",
         REDLINE_WEBHOOK_SECRET="the-real-secret",
+        REDLINE_ALLOW_FILE_REPOS="true",
     )
     stack._redline("migrate")
     service = Service(stack, root, repo, commit)
@@ -381,7 +381,7 @@ def _race(url: str, host: str, token: str) -> list[int]:
 @pytest.fixture
 def own_postgres(services: Services, tmp_path: Path) -> Iterator[tuple[str, Callable, Callable]]:
     """An embedded Postgres this test may stop and start (not the shared one)."""
-    from redline.server.embedded import start_postgres
+    from redline.commands.embedded import start_postgres
 
     folder = Path(tempfile.mkdtemp(prefix="redline-test-pgdown-"))
     url, handle = start_postgres(folder / "data", "redline")

@@ -154,11 +154,18 @@ def test_fixed_rate_rejects_a_non_positive_rate() -> None:
         FixedRate(Param("rate"), 1, Static(1)).run(Context({"rate": 0}))
 
 
+class _SilentLink:
+    """A link that has put nothing: enough for an action that fails before it publishes."""
+
+    def sent(self) -> dict[str, int]:
+        return {}
+
+
 def test_publish_outside_a_run_and_with_a_bad_payload_fail_clearly() -> None:
     with pytest.raises(RuntimeError, match="needs a Context with a link"):
         Publish("k", b"x").run(Context({}))
     with pytest.raises(TypeError, match="Publish\\('k'\\): payload must be bytes or str"):
-        Publish("k", Static(3)).run(Context({}, link=object()))  # type: ignore[arg-type]
+        Publish("k", Static(3)).run(Context({}, link=_SilentLink()))  # type: ignore[arg-type]
 
 
 def test_publish_puts_built_payloads_on_real_zenoh() -> None:

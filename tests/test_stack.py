@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import threading
 import time
 import uuid
 from pathlib import Path
@@ -10,8 +11,9 @@ from pathlib import Path
 import httpx
 import psutil
 import pytest
-from redline.server import demo
-from redline.server.stack import Stack
+from redline.agent.network import free_port
+from redline.commands import demo
+from redline.commands.stack import Stack
 
 from tests.conftest import Services, fresh_database
 
@@ -40,16 +42,17 @@ def _wait_for(condition, timeout: float, what: str) -> None:  # noqa: ANN001
         time.sleep(0.3)
 
 
-def test_stopping_mid_run_leaves_no_process_and_releases_the_job(
-    services: Services, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
-):
-    from redline.agent.network import free_port
-
+@pytest.fixture
+def stack(services: Services, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Stack:
+    """A stack, not yet started, on a database and a queue of its own."""
     database_url, _ = fresh_database(services.database_url)
     monkeypatch.setenv("REDLINE_DATABASE_URL", database_url)
     monkeypatch.setenv("REDLINE_REDIS_URL", services.redis_url)
     monkeypatch.setenv("REDLINE_QUEUE", f"stack-{uuid.uuid4().hex[:8]}")
-    stack = Stack(tmp_path / "data", free_port())
+    return Stack(tmp_path / "data", free_port())
+
+
+def test_stopping_mid_run_leaves_no_process_and_releases_the_job(stack: Stack, tmp_path: Path):
     try:
         stack.start()
         repo = tmp_path / "repo"
@@ -80,3 +83,48 @@ def test_stopping_mid_run_leaves_no_process_and_releases_the_job(
         ), detail
     finally:
         restarted.stop()
+
+
+def test_secrets_stay_out_of_process_lists_and_logs(stack: Stack):
+    """No token in any child's command line (every user reads those in ps), none in the logs,
+    and the logs readable by their owner only."""
+    try:
+        stack.start()
+        secrets = [stack.admin_token, stack.token("agent", "agent")]
+        commands = [" ".join(psutil.Process(c.process.pid).cmdline()) for c in stack.children]
+        assert len(commands) == 3 and "agent" in commands[-1]
+        assert not [c for c in commands if any(secret in c for secret in secrets)]
+        page = httpx.get(f"{stack.url}/components/nothing?token={stack.admin_token}")
+        assert page.status_code == 404
+        _wait_for(
+            lambda: "/components/nothing" in (stack.data / "logs" / "server.log").read_text(),
+            20,
+            "the request in the access log",
+        )
+    finally:
+        stack.stop()
+    logs = stack.data / "logs"
+    assert stack.data.stat().st_mode & 0o777 == 0o700  # made by the stack: its owner's only
+    assert logs.stat().st_mode & 0o777 == 0o700
+    for log in logs.iterdir():
+        assert log.stat().st_mode & 0o777 == 0o600, log
+        assert not [s for s in secrets if s in log.read_text()], log
+    assert "token=***" in (logs / "server.log").read_text()
+
+
+def test_the_demo_prints_a_change_whose_effect_is_undefined():
+    change = {
+        "revision": "r3",
+        "series": {"label": "case/main [legs=8] p.cpu_system_percent"},
+        "effect": None,
+        "score": 0.95,
+    }
+    assert demo.change_line(change) == (
+        "r3: case/main [legs=8] p.cpu_system_percent effect n/a (KS D=0.95)"
+    )
+
+
+def test_the_demos_wait_ends_at_once_when_stopped():
+    stop = threading.Event()
+    stop.set()  # Ctrl-C while the revisions run: the demo must stop waiting, not finish them
+    assert demo.wait_for_results("http://127.0.0.1:9", print, stop=stop) == []

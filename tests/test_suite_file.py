@@ -147,3 +147,38 @@ def test_sibling_modules_come_from_each_revisions_own_folder(tmp_path: Path) -> 
     second = load_test_cases([revision("r2", 20)])
     assert [s["rate"] for s in first[0].parameter_sets()] == [10]
     assert [s["rate"] for s in second[0].parameter_sets()] == [20]
+
+
+def test_placeholders_in_commands_are_substituted_and_other_braces_left_alone(
+    tmp_path: Path,
+) -> None:
+    command = (
+        'command = ["python", "demo.py", "--config", "{zenoh_config}", '
+        '\'{"a": {"b": 1}}\', "{{zenoh_config}}", "${HOME}", "c={zenoh_config}"]'
+    )
+    text = VALID.replace('command = ["python", "demo.py"]', command)
+    (component,) = load_suite(write(tmp_path, text)).components
+    assert component.command[3] == "{zenoh_config}"  # substituted when the run knows the path
+    expanded = component.expanded({"zenoh_config": "/run/zenoh.json"})
+    assert expanded.command[2:] == (
+        "--config",
+        "/run/zenoh.json",
+        '{"a": {"b": 1}}',
+        "{zenoh_config}",
+        "${HOME}",
+        "c=/run/zenoh.json",
+    )
+    assert expanded.name == component.name and expanded.ready == component.ready
+
+
+def test_an_unknown_placeholder_is_named_with_file_line_and_the_known_ones(tmp_path: Path) -> None:
+    text = VALID.replace(
+        'command = ["python", "demo.py"]',
+        'command = ["python", "demo.py", "--config", "{zenoh_cfg}"]',
+    )
+    message = error_of(tmp_path, text)
+    assert message.startswith(f"{tmp_path / 'redline.toml'}:6: [[component]] #1:")
+    assert "unknown placeholder {zenoh_cfg}" in message and "{zenoh_config}" in message
+    assert "{{zenoh_cfg}}" in message  # how to write it literally
+    fixture = VALID + '\n[[fixture]]\nname = "map"\ncommand = ["map", "{map_file}"]\n'
+    assert error_of(tmp_path, fixture).startswith(f"{tmp_path / 'redline.toml'}:11: [[fixture]]")

@@ -8,12 +8,13 @@ import threading
 from datetime import timedelta
 
 import pytest
-from redline.server.models import Change, Job, JobState, utcnow
-from redline.server.models_regressions import Detection, Regression
+from redline.server.core.tasks import REQUEUE_TASK
+from redline.server.models import Detection, Job, JobState, Regression, utcnow
+from redline.server.storage import samples_path
 from redline.worker import ingest as ingest_module
 from redline.worker import tasks
-from redline.worker.app import REQUEUE_TASK, celery_app
-from redline.worker.detection import detect_revision, samples_path
+from redline.worker.app import celery_app
+from redline.worker.detection import detect_revision
 from redline.worker.ingest import ingest_execution, stale_uploads
 from sqlalchemy import func, select, update
 from sqlalchemy.exc import InterfaceError, OperationalError
@@ -86,7 +87,11 @@ def _detections(session) -> list[tuple]:
 
 def _counts(session) -> tuple[int, int]:
     return (
-        session.scalar(select(func.count()).select_from(Change)),
+        session.scalar(
+            select(func.count())
+            .select_from(Detection)
+            .where(Detection.method == "ks", Detection.p_value.is_not(None))
+        ),
         session.scalar(select(func.count()).select_from(Regression)),
     )
 

@@ -1,19 +1,74 @@
-"""A cache of clones on the performance host: one mirror per repository, one work tree per job."""
+"""A cache of clones on the performance host: one mirror per repository, one work tree per job.
+
+The repository and commit come from the server, so git is never handed them where it could read
+an option: URLs are checked against the schemes a performance host fetches from (https, ssh, git,
+and local paths only when allowed), git itself is told to refuse every other transport, and a
+commit is resolved with ``--end-of-options`` before it is checked out.
+"""
 
 from __future__ import annotations
 
 import hashlib
+import os
+import re
 import shutil
 import subprocess
 from pathlib import Path
+
+SCHEMES = ("https", "ssh", "git")
+_TRANSPORT = re.compile(r"^([A-Za-z][A-Za-z0-9+.-]*)::")  # git's <transport>::<address>
+_URL = re.compile(r"^([A-Za-z][A-Za-z0-9+.-]*)://")
+#: user@host:path, ssh's short form; neither user nor host may start with '-' (an ssh option)
+_SCP_LIKE = re.compile(r"^(?:[\w.][\w.-]*@)?[\w.][\w.-]*:(?!//)")
 
 
 class CheckoutError(RuntimeError):
     """git could not produce the requested revision; the message carries git's own words."""
 
 
+def refused_repo(url: str, allow_file: bool) -> str | None:
+    """Why a performance host must not fetch ``url``, or None when it may.
+
+    Allowed: ``https://``, ``ssh://``, ``git://`` and ssh's ``user@host:path``; a local path or
+    ``file://`` URL only with ``allow_file``. Never: anything git could read as an option (a
+    leading ``-``), its ``ext::``/``fd::`` transports, plain http, relative paths.
+    """
+    schemes = ", ".join((*SCHEMES, "file") if allow_file else SCHEMES)
+    if not url:
+        return "no repository is configured"
+    if url != url.strip() or any(ord(char) < 32 or ord(char) == 127 for char in url):
+        return "a repository URL may not hold whitespace or control characters"
+    if url.startswith("-"):
+        return "a repository URL must not start with '-' (git would read it as an option)"
+    if (match := _TRANSPORT.match(url)) is not None:  # remote helpers run programs
+        return f"scheme {match.group(1)!r} is not allowed (allowed: {schemes})"
+    if (match := _URL.match(url)) is not None:
+        scheme = match.group(1).lower()
+        if not (scheme in SCHEMES or (scheme == "file" and allow_file)):
+            return f"scheme {scheme!r} is not allowed (allowed: {schemes})"
+        # ssh://-oProxyCommand=... : git hands the host to ssh, which reads it as an option
+        authority = url[match.end() :].split("/", 1)[0]
+        if any(part.startswith("-") for part in re.split(r"[@:]", authority)):
+            return "a repository URL's user, host or port must not start with '-'"
+        return None
+    if url.startswith("/"):
+        return (
+            None
+            if allow_file
+            else (
+                f"a local repository (a path or file:// URL) is not allowed (allowed: {schemes}; "
+                "a server or agent "
+                "allows local paths with REDLINE_ALLOW_FILE_REPOS=true)"
+            )
+        )
+    if _SCP_LIKE.match(url):
+        return None
+    return f"{url!r} is neither a URL nor an absolute path (allowed: {schemes})"
+
+
 def _git(*args: str, cwd: Path | None = None) -> str:
-    done = subprocess.run(["git", *args], cwd=cwd, capture_output=True, text=True)
+    env = {**os.environ, "GIT_TERMINAL_PROMPT": "0"}  # a missing credential fails, never waits
+    done = subprocess.run(["git", *args], cwd=cwd, capture_output=True, text=True, env=env)
     if done.returncode != 0:
         detail = done.stderr.strip() or done.stdout.strip()
         raise CheckoutError(f"git {' '.join(args)} failed: {detail}")
@@ -21,27 +76,55 @@ def _git(*args: str, cwd: Path | None = None) -> str:
 
 
 class CloneCache:
-    def __init__(self, root: Path) -> None:
+    def __init__(self, root: Path, allow_file: bool = False) -> None:
         self.root = root
+        self.allow_file = allow_file
         (root / "mirrors").mkdir(parents=True, exist_ok=True)
         (root / "trees").mkdir(parents=True, exist_ok=True)
 
+    def _protocols(self) -> list[str]:
+        """git's own guard on every transport it uses to fetch, submodules included."""
+        allowed = (*SCHEMES, "file") if self.allow_file else SCHEMES
+        return [
+            "-c",
+            "protocol.allow=never",
+            *(part for scheme in allowed for part in ("-c", f"protocol.{scheme}.allow=always")),
+        ]
+
     def mirror(self, repo: str) -> Path:
         """Clone ``repo`` once as a bare mirror; fetch on later uses."""
+        reason = refused_repo(repo, self.allow_file)
+        if reason is not None:
+            raise CheckoutError(f"repository {repo!r} refused: {reason}")
         path = self.root / "mirrors" / hashlib.sha256(repo.encode()).hexdigest()[:16]
         if path.exists():
-            _git("fetch", "--quiet", "--prune", "origin", cwd=path)
+            _git(*self._protocols(), "fetch", "--quiet", "--prune", "origin", cwd=path)
         else:
-            _git("clone", "--quiet", "--mirror", repo, str(path))
+            _git(*self._protocols(), "clone", "--quiet", "--mirror", "--", repo, str(path))
         return path
 
     def checkout(self, repo: str, commit: str, name: str) -> Path:
         """A fresh work tree of ``repo`` at ``commit`` under ``trees/name``."""
+        if not commit or commit.startswith("-"):
+            raise CheckoutError(
+                f"commit {commit!r} refused: it must name a revision and must not start with '-'"
+            )
         mirror = self.mirror(repo)
         tree = self.root / "trees" / name
         shutil.rmtree(tree, ignore_errors=True)
-        _git("clone", "--quiet", "--shared", "--no-checkout", str(mirror), str(tree))
-        _git("-c", "advice.detachedHead=false", "checkout", "--quiet", commit, cwd=tree)
+        _git("clone", "--quiet", "--shared", "--no-checkout", "--", str(mirror), str(tree))
+        try:
+            sha = _git(
+                "rev-parse",
+                "--verify",
+                "--quiet",
+                "--end-of-options",
+                f"{commit}^{{commit}}",
+                cwd=tree,
+            ).strip()
+        except CheckoutError:
+            raise CheckoutError(f"commit {commit!r} is not in {repo}") from None
+        _git("-c", "advice.detachedHead=false", "checkout", "--quiet", "--detach", sha, cwd=tree)
         return tree
 
     def discard(self, name: str) -> None:

@@ -26,6 +26,9 @@ from redline.agent.quiet import measuring
 from redline.agent.runner import run_suite
 from redline.agent.spool import Spool, SpoolSender
 from redline.agent.suite import load_suite
+from redline.recording import read_recording
+from redline.recording.disturbance import recording_disturbances, threshold
+from redline.recording.format import NO_TRAFFIC
 
 log = logging.getLogger("redline.agent")
 
@@ -53,6 +56,10 @@ class AgentDaemon:
     poll_interval: float = 2.0
     long_poll: int = 20
     heartbeat_interval: float = 10.0
+    #: may a job's repository be a local path or file:// URL (`redline up` on one machine)
+    allow_file_repos: bool = False
+    #: how many times an execution is run again when the host was busy during a phase
+    disturbed_retries: int = 2
     stop: threading.Event = field(default_factory=threading.Event)
     #: the job being checked out, built or run: what a second signal releases
     current_job: int | None = None
@@ -60,7 +67,7 @@ class AgentDaemon:
     waiting: bool = False
 
     def __post_init__(self) -> None:
-        self.cache = CloneCache(self.workdir / "cache")
+        self.cache = CloneCache(self.workdir / "cache", allow_file=self.allow_file_repos)
         (self.workdir / "recordings").mkdir(parents=True, exist_ok=True)
         self.spool = Spool(self.workdir / "spool")
         self.sender = SpoolSender(self.spool, self.client, self.stop)
@@ -163,14 +170,36 @@ class AgentDaemon:
     def _run(self, job: dict[str, Any], name: str) -> Path:
         """Check out, build and run the job's suite; the finished recording."""
         tree = self.cache.checkout(job["repo"], job["commit"], name)
-        suite_path = tree / job["suite"]
+        suite_path = (tree / job["suite"]).resolve()
+        if not suite_path.is_relative_to(tree.resolve()):
+            raise JobFailed(f"suite file {job['suite']} is outside the repository")
         if not suite_path.is_file():
             raise JobFailed(f"suite file {job['suite']} not found at commit {job['commit']}")
         suite = load_suite(suite_path)
         _build(suite.build, suite.directory)
         out = self.workdir / "recordings" / f"{name}.mcap"
-        with measuring():  # on a shared machine, the worker's analysis waits meanwhile
-            run_suite(suite_path, out, run_metadata=_run_metadata(job))
+        retried: dict[str, str] = {}
+        for attempt in range(self.disturbed_retries + 1):
+            with measuring():  # on a shared machine, the worker's analysis waits meanwhile
+                result = run_suite(suite_path, out, run_metadata={**_run_metadata(job), **retried})
+            busy = recording_disturbances(
+                read_recording(out, strict=False).series_samples(), threshold()
+            )
+            if not busy or attempt == self.disturbed_retries:
+                break
+            reason = next(iter(busy.values()))
+            log.warning(
+                "job %s: %s in %d phase(s); running the execution again (%d of %d)",
+                job["id"],
+                reason,
+                len(busy),
+                attempt + 1,
+                self.disturbed_retries,
+            )
+            # the retry is visible: the recording uploaded says how many runs were disturbed
+            retried = {"disturbed_runs": str(attempt + 1), "disturbed_reason": reason}
+        if result.run_metadata.get("status") == NO_TRAFFIC:  # uploaded: the server says why
+            log.warning("job %s: no traffic: %s", job["id"], result.run_metadata.get("warning"))
         return out
 
     def _deliver(self, job_id: int, recording: Path) -> int | None:

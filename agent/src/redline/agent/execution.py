@@ -22,8 +22,11 @@ class Markers:
         self._publisher = session.declare_publisher(
             MARKERS_KEY, congestion_control=zenoh.CongestionControl.BLOCK
         )
+        self._open: tuple[str, Phase, dict[str, Any]] | None = None
 
     def publish(self, event: str, case: str, phase: Phase, params: dict[str, Any]) -> None:
+        if event == "begin":
+            self._open = (case, phase, params)
         self._publisher.put(
             json.dumps(
                 {
@@ -37,9 +40,22 @@ class Markers:
                 default=str,
             )
         )
+        if event == "end":
+            self._open = None
 
     def close(self) -> None:
+        """End a segment that a signal cut short between its markers, then undeclare.
+
+        The reader ignores an end without its begin, so an end sent twice or for a begin that
+        never went out is harmless; a begin without its end would lose the segment.
+        """
+        if self._open is not None:
+            self.publish("end", *self._open)
         self._publisher.undeclare()
+
+
+#: Called with each segment's phase and the driver reports it published (`TrafficCheck`).
+Observer = Callable[[Phase, list[dict[str, Any]]], None]
 
 
 def _run_segment(
@@ -49,8 +65,9 @@ def _run_segment(
     link: Link,
     markers: Markers,
     stop: threading.Event,
+    observe: Observer | None,
 ) -> None:
-    ctx = Context(params, case.name, phase.name, link, stop)
+    ctx = Context(params, case.name, phase.name, link, stop, paths=phase.paths)
     markers.publish("begin", case.name, phase, params)
     try:
         phase.action.run(ctx)
@@ -62,6 +79,8 @@ def _run_segment(
     finally:
         ctx.flush_metrics()  # query round trips, waits: one summary per action and key
         markers.publish("end", case.name, phase, params)
+        if observe is not None:
+            observe(phase, ctx.reports)
 
 
 def execute_cases(
@@ -70,6 +89,7 @@ def execute_cases(
     markers: Markers,
     stop: threading.Event,
     say: Callable[[str], None],
+    observe: Observer | None = None,
 ) -> int:
     """Run every case → parameter set → phase until done or ``stop``; returns segments run.
 
@@ -85,6 +105,6 @@ def execute_cases(
                     return done
                 label = " (warm-up)" if phase.warmup else ""
                 say(f"{case.name}/{phase.name} [{params.name}]{label}")
-                _run_segment(case, phase, params, link, markers, stop)
+                _run_segment(case, phase, params, link, markers, stop, observe)
                 done += 1
     return done

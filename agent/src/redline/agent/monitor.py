@@ -11,13 +11,17 @@ windows), ``rss_bytes``, ``vms_bytes``, ``threads``, ``processes``, ``io_read_by
 ``io_write_bytes`` (cumulative); once a second also ``uss_bytes``, ``pss_bytes``, ``fds``,
 ``ctx_voluntary_per_s`` and ``ctx_involuntary_per_s`` (summed over threads). Host: ``cpu_percent``,
 ``cpu_user_percent``, ``cpu_system_percent``, ``cpu_iowait_percent``, ``cpu_steal_percent`` (% of
-all CPUs) and ``load_1m``.
+all CPUs) and ``load_1m``. Redline's own processes (``--own PID``: the runner with its driver
+and router, the recorder, and the monitor itself; each alone, not its children) are summed as
+``@redline/counters/redline`` (process ``redline``): ``cpu_percent``, so that what else used the
+host during a phase can be told (`redline.recording.disturbance`).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import signal
 import sys
 import threading
@@ -27,7 +31,7 @@ import zenoh
 from redline.agent.network import client_settings_from_env, open_client
 from redline.agent.procstat import ProcessSampler
 from redline.agent.sampling import HostSampler, TreeSampler
-from redline.recording.format import COUNTERS_PREFIX
+from redline.recording.format import COUNTERS_PREFIX, OWN_PROCESS
 from redline.recording.format import HOST_PROCESS as HOST
 
 DETAIL_S = 1.0  # USS/PSS (~1 ms a read), thread lists, context switches, fds: once a second
@@ -59,6 +63,18 @@ class _Publishing:
         )
 
 
+def _sample_own(own: list[ProcessSampler], out: _Publishing) -> None:
+    """Redline's own processes' CPU, summed (a process that is gone is dropped)."""
+    total = 0.0
+    for sampler in list(own):
+        try:
+            total += sampler.sample()["cpu_percent"]
+        except OSError:
+            own.remove(sampler)
+            sampler.close()
+    out.put(OWN_PROCESS, 0, {"cpu_percent": round(total, 3)})
+
+
 def _sample_all(
     samplers: list[TreeSampler], host: HostSampler | None, out: _Publishing, detail: bool
 ) -> None:
@@ -76,21 +92,38 @@ def _sample_all(
 
 
 def run(
-    targets: list[tuple[str, int]], rate: float, stop: threading.Event, with_host: bool = True
+    targets: list[tuple[str, int]],
+    rate: float,
+    stop: threading.Event,
+    with_host: bool = True,
+    own: list[int] | None = None,
 ) -> None:
-    """Sample every target at ``rate`` Hz on absolute deadlines until ``stop`` is set."""
+    """Sample every target at ``rate`` Hz on absolute deadlines until ``stop`` is set; ``own``:
+    Redline's own processes, whose CPU is summed as process ``redline``."""
     samplers = [TreeSampler(name, pid) for name, pid in targets]
     host = HostSampler() if with_host else None
+    mine = (
+        [ProcessSampler(OWN_PROCESS, pid) for pid in dict.fromkeys([*(own or []), os.getpid()])]
+        if own is not None
+        else []
+    )
     with open_client(client_settings_from_env()) as session:
-        out = _Publishing(session, [s.name for s in samplers] + ([HOST] if host else []))
+        out = _Publishing(
+            session,
+            [s.name for s in samplers] + ([HOST] if host else []) + ([OWN_PROCESS] if mine else []),
+        )
         print(f"redline-monitor ready: {', '.join(f'{n}={p}' for n, p in targets)}", flush=True)
         period, start, tick = 1e9 / rate, time.monotonic_ns(), 1
         detail_every = max(1, round(rate * DETAIL_S))
         while not stop.wait(max(0.0, (start + tick * period - time.monotonic_ns()) / 1e9)):
             _sample_all(samplers, host, out, detail=tick % detail_every == 1 % detail_every)
+            if mine:
+                _sample_own(mine, out)
             tick += 1
     for sampler in samplers:
         sampler.close()
+    for own_sampler in mine:
+        own_sampler.close()
     if host is not None:
         host.close()
 
@@ -99,12 +132,20 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description="Redline's process monitor")
     parser.add_argument("--rate", type=float, default=10.0, help="samples per second")
     parser.add_argument("--no-host", action="store_true", help="do not sample the host")
+    parser.add_argument(
+        "--own",
+        type=int,
+        action="append",
+        default=None,
+        metavar="PID",
+        help="a process of Redline's own run (repeatable; the monitor adds itself)",
+    )
     parser.add_argument("targets", nargs="+", help="NAME=PID of each process to sample")
     args = parser.parse_args(argv)
     stop = threading.Event()
     for signum in (signal.SIGTERM, signal.SIGINT):
         signal.signal(signum, lambda *_: stop.set())
-    run(_targets(args.targets), args.rate, stop, with_host=not args.no_host)
+    run(_targets(args.targets), args.rate, stop, with_host=not args.no_host, own=args.own)
     return 0
 
 

@@ -14,12 +14,17 @@ cannot give each its own socket path), so their traffic goes through the router.
 Shared memory (zenoh's default, for payloads of ~3 KiB and more between local processes) changes
 large-message throughput ~10x, so it is an explicit setting of the run, the same for every
 process, and the recorder writes it into the recording.
+
+The router notes the zenoh id of every session that connects to it (`RunNetwork.sessions_seen`);
+Redline's own processes get ids chosen for them (`session_id`), so any other id is a process of
+the suite that joined the network.
 """
 
 from __future__ import annotations
 
 import json
 import os
+import secrets
 import shutil
 import socket
 import tempfile
@@ -55,10 +60,17 @@ def _isolated(
     }
 
 
+def session_id() -> str:
+    """A fresh zenoh session id (32 hex digits; zenoh refuses a leading 0)."""
+    return f"{secrets.randbits(128) | 1 << 127:032x}"
+
+
 def config_from_dict(settings: dict[str, Any]) -> zenoh.Config:
     config = zenoh.Config()
     for key in ("mode", "listen", "connect", "scouting"):
         config.insert_json5(key, json.dumps(settings[key]))
+    if "id" in settings:
+        config.insert_json5("id", json.dumps(settings["id"]))
     if "transport" in settings:  # merged with zenoh's defaults for what it leaves out
         config.insert_json5("transport", json.dumps(settings["transport"]))
     return config
@@ -90,11 +102,20 @@ class RunNetwork:
         else:
             self.endpoint = f"tcp/127.0.0.1:{port or free_port()}"
         self._router: zenoh.Session | None = None
+        self._seen: set[str] = set()
 
     def open(self) -> RunNetwork:
         settings = _isolated("router", [self.endpoint], [], self.shared_memory)
         self._router = zenoh.open(config_from_dict(settings))
+        self._router.info.declare_transport_events_listener(  # lives as long as the router
+            lambda event: self._seen.add(str(event.transport.zid)), history=True
+        )
         return self
+
+    def sessions_seen(self) -> set[str]:
+        """The ids of every zenoh session that has connected to the router since it opened
+        (whether or not it is still connected)."""
+        return set(self._seen)
 
     def close(self) -> None:
         if self._router is not None:
@@ -116,8 +137,10 @@ class RunNetwork:
         listen = ["tcp/127.0.0.1:0"] if self.transport == "tcp" else []
         return _isolated("peer", listen, [self.endpoint], self.shared_memory)
 
-    def client_settings(self) -> dict[str, Any]:
-        return _isolated("client", [], [self.endpoint], self.shared_memory)
+    def client_settings(self, zid: str | None = None) -> dict[str, Any]:
+        """What Redline's own processes get: a client of the router, with id ``zid`` if given."""
+        settings = _isolated("client", [], [self.endpoint], self.shared_memory)
+        return settings if zid is None else {**settings, "id": zid}
 
     def write_component_config(self, path: Path) -> Path:
         path.write_text(json.dumps(self.peer_settings(), indent=2))

@@ -12,6 +12,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import IO
 
+from redline.agent.affinity import AffinityError, preexec
 from redline.agent.suite import ProcessSpec
 
 POLL_S = 0.05
@@ -32,11 +33,11 @@ class ProcessExited(RunError):
 
 
 class ManagedProcess:
-    """One process of a run: started in its own session, logged to ``<workspace>/<name>.log``."""
+    """One process of a run: started in its own session, logged to ``<logs>/<name>.log``."""
 
-    def __init__(self, spec: ProcessSpec, workspace: Path, env: dict[str, str]) -> None:
+    def __init__(self, spec: ProcessSpec, logs: Path, env: dict[str, str]) -> None:
         self.spec = spec
-        self.log_path = workspace / f"{spec.name}.log"
+        self.log_path = logs / f"{spec.name}.log"
         self._env = {**os.environ, "PYTHONUNBUFFERED": "1", **spec.env, **env}
         self._popen: subprocess.Popen[bytes] | None = None
         self._log: IO[bytes] | None = None
@@ -53,6 +54,10 @@ class ManagedProcess:
         return self._popen.pid
 
     def start(self) -> ManagedProcess:
+        try:
+            pin = preexec(self.spec.cpus)
+        except AffinityError as exc:
+            raise RunError(f"cannot start {self.name}: {exc}") from None
         self._log = open(self.log_path, "wb")  # noqa: SIM115 - closed in stop()
         try:
             self._popen = subprocess.Popen(
@@ -62,6 +67,7 @@ class ManagedProcess:
                 stdin=subprocess.DEVNULL,
                 stdout=self._log,
                 stderr=subprocess.STDOUT,
+                preexec_fn=pin,
                 start_new_session=True,  # Ctrl-C reaches the runner only; it stops every process
             )
         except OSError as exc:

@@ -184,6 +184,7 @@ class Recorder:
             {
                 **self.counts(),
                 "lost": sum(sent - got for sent, got in losses.values()),
+                "sent": sum(self.sent.values()),
                 "lost_by_key": {
                     key: {"sent": sent, "recorded": got} for key, (sent, got) in losses.items()
                 },

@@ -1,7 +1,8 @@
 """Running a suite once: environment, processes, test execution, one MCAP recording.
 
-`run_suite` loads the suite and its tests, validates the parameters, then in a temporary workspace
-(every process's log in it): opens the run's isolated zenoh network, starts the recorder and waits
+`run_suite` loads the suite and its tests, validates the parameters, then in a workspace (every
+process's log beside the recording; see `redline.agent.workspace`): opens the run's isolated zenoh
+network, starts the recorder and waits
 until it is subscribed, starts fixtures and components with ``ZENOH_CONFIG`` and waits for their
 readiness, starts the monitor on the components' PIDs, runs every case → phase → parameter set
 between markers, and stops everything in reverse order; the recorder finishes the file last, so
@@ -11,12 +12,12 @@ the recording keeps what was captured even when the run fails.
 from __future__ import annotations
 
 import json
-import shutil
+import os
 import sys
-import tempfile
 import threading
 import time
 from collections.abc import Callable, Mapping, Sequence
+from contextlib import ExitStack
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from importlib import metadata
@@ -24,15 +25,20 @@ from pathlib import Path
 from typing import Any
 
 import zenoh
+from redline.agent.affinity import AffinityError, check_available, pinned
 from redline.agent.execution import Markers, execute_cases
 from redline.agent.governor import pinned_governor
 from redline.agent.host import host_fingerprint
+from redline.agent.interrupts import SignalGuard, ending, signals_as_exceptions
 from redline.agent.loader import load_test_cases
-from redline.agent.network import RunNetwork, open_client
+from redline.agent.network import RunNetwork, open_client, session_id
 from redline.agent.processes import ManagedProcess, RunError
 from redline.agent.recorder import STATUS_KEY
 from redline.agent.selection import select_cases
 from redline.agent.suite import ProcessSpec, ReadyCheck, Suite, load_suite
+from redline.agent.traffic import TrafficCheck
+from redline.agent.workspace import fresh_logs, new_workspace, tidy
+from redline.recording.format import NO_TRAFFIC
 from redline.testing import Link, Stop, TestCase, validate_cases
 
 Progress = Callable[[str], None]
@@ -43,10 +49,11 @@ class RunResult:
     """What a finished run produced."""
 
     recording: Path
-    workspace: Path | None  # kept only on failure or when asked
+    workspace: Path | None  # kept only when asked
     segments: int
     run_metadata: dict[str, str]
     host: dict[str, str]
+    logs: Path | None = None  # the processes' logs beside the recording, kept when asked
 
 
 def _now() -> str:
@@ -75,18 +82,21 @@ class _Run:
         self,
         suite: Suite,
         cases: list[TestCase],
-        workspace: Path,
+        places: tuple[Path, Path],
         out: Path,
         run_metadata: dict[str, str],
         say: Progress,
+        guard: SignalGuard,
     ) -> None:
-        self.suite, self.cases, self.workspace, self.out = suite, cases, workspace, out
-        self.say = say
-        self.meta_path = workspace / "run-meta.json"
+        self.suite, self.cases, self.out = suite, cases, out
+        self.workspace, self.logs = places
+        self.say, self.guard = say, guard
+        self.meta_path = self.workspace / "run-meta.json"
         self.meta: dict[str, dict[str, str]] = {"run": self._run_metadata(run_metadata), "host": {}}
         self.started: list[ManagedProcess] = []
         self.stop = Stop()
         self.segments = 0
+        self.traffic = TrafficCheck()
 
     def _run_metadata(self, given: dict[str, str]) -> dict[str, str]:
         names = [spec.name for spec in self.suite.components]
@@ -109,8 +119,12 @@ class _Run:
         self.meta_path.write_text(json.dumps(self.meta, indent=2))
 
     def _helper(
-        self, name: str, args: list[str], env: dict[str, str], stop_timeout: float = 5.0
+        self, name: str, args: list[str], network: RunNetwork, stop_timeout: float = 5.0
     ) -> ManagedProcess:
+        """A process of Redline's own (``redline-recorder``, ``redline-monitor``), on the cores
+        the suite's affinity gives it, with a zenoh session id the traffic check knows."""
+        zid = session_id()
+        self.traffic.own_sessions.add(zid)
         spec = ProcessSpec(
             name=name,
             command=(sys.executable, "-m", *args),
@@ -118,20 +132,30 @@ class _Run:
             ready=ReadyCheck("log", f"^{name} ready"),
             start_timeout=30.0,
             stop_timeout=stop_timeout,
+            cpus=self.suite.affinity.of(name.removeprefix("redline-")),
         )
-        return self._start(spec, env)
+        return self._start(spec, {"REDLINE_ZENOH": json.dumps(network.client_settings(zid))})
 
     def _start(self, spec: ProcessSpec, env: dict[str, str]) -> ManagedProcess:
-        process = ManagedProcess(spec, self.workspace, env).start()
-        self.started.append(process)
+        with self.guard.held():  # a process started is a process the shutdown knows of
+            process = ManagedProcess(spec, self.logs, env).start()
+            self.started.append(process)
         return process
 
     def execute(self) -> int:
-        with pinned_governor() as governor, RunNetwork(transport=self.suite.transport) as network:
+        with ExitStack() as stack:
+            with self.guard.held():
+                governor = stack.enter_context(pinned_governor())
+                # the driver and the router (their threads start inside) on the driver's cores
+                stack.enter_context(pinned(self.suite.affinity.of("driver")))
+                network = stack.enter_context(RunNetwork(transport=self.suite.transport))
             self.meta["host"] = host_fingerprint(governor)
-            self.say(f"governor: {governor}; zenoh router on {network.endpoint}")
+            self.meta["run"]["affinity"] = self.suite.affinity.describe()
+            self.say(
+                f"governor: {governor}; zenoh router on {network.endpoint}; affinity: "
+                f"{self.meta['run']['affinity']}"
+            )
             self._write_meta()
-            helper_env = {"REDLINE_ZENOH": json.dumps(network.client_settings())}
             session: zenoh.Session | None = None
             try:
                 recorder = self._helper(
@@ -143,48 +167,60 @@ class _Run:
                         "--meta",
                         str(self.meta_path),
                     ],
-                    helper_env,
+                    network,
                     60.0,
                 )
                 recorder.wait_ready()
-                session = open_client(network.client_settings())
+                driver = session_id()
+                self.traffic.own_sessions.add(driver)
+                session = open_client(network.client_settings(driver))
                 recorder.wait_ready(probe=lambda: query_recorder(session, 0.5) is not None)
                 self.say("recorder subscribed")
-                self._run_tests(network, session, helper_env)
-                self.meta["run"]["status"] = "ok"
+                self._run_tests(network, session)
+                self._judge_traffic(network)
             except BaseException as exc:
-                self.meta["run"]["status"] = "failed"
-                self.meta["run"]["error"] = f"{type(exc).__name__}: {exc}"[:4000]
+                self.meta["run"].update(ending(exc))
                 raise
             finally:
+                self.guard.stopping()  # a second signal must not cut the shutdown short
                 self._shut_down(session)
         return self.segments
 
-    def _run_tests(
-        self, network: RunNetwork, session: zenoh.Session, helper_env: dict[str, str]
-    ) -> None:
-        config = {
-            "ZENOH_CONFIG": str(
-                network.write_component_config(self.workspace / "zenoh-component.json")
-            )
-        }
+    def _judge_traffic(self, network: RunNetwork) -> None:
+        """Every test ran: ``ok``, or ``no_traffic`` said loudly (`redline.agent.traffic`)."""
+        warnings = self.traffic.warnings(network.sessions_seen())
+        if not warnings:
+            self.meta["run"]["status"] = "ok"
+            return
+        self.meta["run"].update(status=NO_TRAFFIC, warning="; ".join(warnings))
+        for warning in warnings:
+            self.say(f"WARNING: no traffic: {warning}")
+
+    def _run_tests(self, network: RunNetwork, session: zenoh.Session) -> None:
+        path = str(network.write_component_config(self.workspace / "zenoh-component.json"))
         components = [
-            self._start_ready(spec, config, session)
+            self._start_ready(
+                spec.expanded({"zenoh_config": path}), {"ZENOH_CONFIG": path}, session
+            )
             for spec in (*self.suite.fixtures, *self.suite.components)
         ]
         components = components[len(self.suite.fixtures) :]
         targets = [f"{p.name}={p.pid}" for p in components]
+        # Redline's own: this process (driver, router) and the recorder, started first
+        own = [arg for pid in (os.getpid(), self.started[0].pid) for arg in ("--own", str(pid))]
         monitor = self._helper(
             "redline-monitor",
-            ["redline.agent.monitor", "--rate", f"{self.suite.sampling_hz:g}", *targets],
-            helper_env,
+            ["redline.agent.monitor", "--rate", f"{self.suite.sampling_hz:g}", *own, *targets],
+            network,
         )
         monitor.wait_ready()
         watchdog = threading.Thread(target=self._watch, args=([*components, monitor],), daemon=True)
         watchdog.start()
         link, markers = Link(session), Markers(session)
         try:
-            self.segments = execute_cases(self.cases, link, markers, self.stop, self.say)
+            self.segments = execute_cases(
+                self.cases, link, markers, self.stop, self.say, self.traffic.observe
+            )
         finally:
             self.stop.set()
             markers.close()
@@ -255,42 +291,56 @@ def run_suite(
     keep_workspace: bool = False,
     only: Sequence[str] = (),
     overrides: Mapping[str, Any] | None = None,
+    work_dir: str | Path | None = None,
 ) -> RunResult:
     """Run a suite once (one execution) and write its recording to ``out``.
 
     ``only`` restricts the run to the named test cases; ``overrides`` replaces parameter values
-    in every parameter set (``{"rate": 40}``). Raises `SuiteError` for a bad suite file,
+    in every parameter set (``{"rate": 40}``). The workspace is made in ``work_dir`` (default:
+    ``$REDLINE_WORK_DIR``, else the system's temporary folder) and removed afterwards unless
+    ``keep_workspace``; every process logs to ``<out without suffix>.logs/``, kept when the run
+    fails (or with ``keep_workspace``). Raises `SuiteError` for a bad suite file,
     `ValidationError` for tests that cannot run, and `RunError` (e.g. `ProcessExited`, with exit
-    code and log tail) when the run fails; the workspace with every log is then kept and named
-    in the progress output.
+    code, log path and log tail) when the run fails. Called from the main thread, SIGTERM and
+    SIGHUP raise `Terminated` during the run as SIGINT raises `KeyboardInterrupt` (see
+    `redline.agent.interrupts`): every process is stopped and the recording finished as
+    ``terminated`` or ``interrupted`` first.
     """
     say = progress or (lambda _message: None)
     suite = load_suite(suite_path)
+    try:  # before anything starts: a core this host does not offer is the suite's fault
+        for cores in [
+            *suite.affinity.cores.values(),
+            *(spec.cpus for spec in (*suite.components, *suite.fixtures)),
+        ]:
+            check_available(cores)
+    except AffinityError as exc:
+        raise RunError(f"{suite.path}: {exc}") from None
     cases = load_test_cases(suite.tests)
     validate_cases(cases)
     cases = select_cases(cases, only, overrides)
     validate_cases(cases)
     out = Path(out).resolve()
     out.parent.mkdir(parents=True, exist_ok=True)
-    workspace = Path(tempfile.mkdtemp(prefix=f"redline-{suite.name}-"))
-    say(f"suite {suite.name}: {len(cases)} test case(s); workspace {workspace}")
-    run = _Run(suite, cases, workspace, out, dict(run_metadata or {}), say)
-    kept = True
-    try:
-        segments = run.execute()
-        kept = keep_workspace
-    finally:
-        if kept:
-            say(f"workspace kept: {workspace}")
-        else:
-            shutil.rmtree(workspace, ignore_errors=True)
+    with signals_as_exceptions() as guard:
+        with guard.held():  # a workspace made is a workspace removed
+            places = new_workspace(suite.name, work_dir), fresh_logs(out)
+        say(f"suite {suite.name}: {len(cases)} test case(s); workspace {places[0]}")
+        run = _Run(suite, cases, places, out, dict(run_metadata or {}), say, guard)
+        succeeded = False
+        try:
+            segments = run.execute()
+            succeeded = True
+        finally:
+            workspace, logs = tidy(*places, succeeded=succeeded, keep=keep_workspace, say=say)
     say(f"recorded {segments} segment(s) to {out}")
     return RunResult(
         recording=out,
-        workspace=workspace if kept else None,
+        workspace=workspace,
         segments=segments,
         run_metadata=run.meta["run"],
         host=run.meta["host"],
+        logs=logs,
     )
 
 
@@ -321,9 +371,12 @@ def run_executions(
     if count < 1:
         raise RunError(f"executions must be at least 1, got {count}")
     results = []
-    for index, path in enumerate(execution_paths(out, count), start=1):
-        if count > 1:
-            say(f"execution {index} of {count} → {path}")
-        meta = {**(run_metadata or {}), "execution": str(index), "executions": str(count)}
-        results.append(run_suite(suite_path, path, run_metadata=meta, progress=progress, **options))
+    with signals_as_exceptions():  # between executions too: a signal ends them all
+        for index, path in enumerate(execution_paths(out, count), start=1):
+            if count > 1:
+                say(f"execution {index} of {count} → {path}")
+            meta = {**(run_metadata or {}), "execution": str(index), "executions": str(count)}
+            results.append(
+                run_suite(suite_path, path, run_metadata=meta, progress=progress, **options)
+            )
     return results

@@ -11,12 +11,29 @@
     [[component]]                       # one or more; [[fixture]] entries have the same fields
     name = "objectbuilder"
     command = ["python", "../objectbuilder.py"]   # "python" = the Python running Redline
+                                        # placeholders: see below
     env = { LOG_LEVEL = "info" }
     cwd = ".."                          # default: this file's directory
     ready = { log = "ready" }           # or { delay = 1.5 }, { key = "some/zenoh/key" },
                                         # or { liveliness = "some/token/key" }
     start_timeout = 30                  # seconds to become ready
     stop_timeout = 5                    # seconds between SIGTERM and SIGKILL
+
+Every process gets the run's zenoh configuration (peer mode, isolated) as a file whose path is
+in the environment variable ``ZENOH_CONFIG`` (what ``zenoh.Config.from_env()`` reads). A program
+that takes the configuration as an argument instead, as every eclipse-zenoh example does
+(``--config FILE``), gets the same path through a placeholder in its ``command``:
+
+    command = ["python", "z_sub.py", "--config", "{zenoh_config}"]
+
+Placeholders are whole known names in single braces, substituted in ``command`` (not in ``env``,
+``cwd`` or ``build``) when the process starts; the known ones:
+
+    {zenoh_config}    the path of the run's zenoh configuration file (what ZENOH_CONFIG holds)
+
+Any other ``{name}`` (letters, digits, '_') is an error naming the file and line; write
+``{{name}}`` for a literal ``{name}``. Other braces are left as they are: JSON such as
+``{"a": 1}``, and shell syntax ``${NAME}``.
 
 Every error names the file and, where it can be found, the line.
 """
@@ -27,15 +44,37 @@ import hashlib
 import re
 import sys
 import tomllib
-from dataclasses import dataclass, field
+from collections.abc import Mapping
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
+from redline.agent.affinity import Affinity, parse_affinity, parse_cores
 from redline.agent.network import TRANSPORTS
+from redline.recording.driver import DRIVER_PROCESS, RECORDER_PROCESS
+from redline.recording.format import HOST_PROCESS, OWN_PROCESS
 
-_TOP = {"name", "tests", "build", "executions", "sampling_hz", "transport", "component", "fixture"}
-_PROCESS = {"name", "command", "env", "cwd", "ready", "start_timeout", "stop_timeout"}
+_TOP = {
+    "name",
+    "tests",
+    "build",
+    "executions",
+    "sampling_hz",
+    "transport",
+    "affinity",
+    "component",
+    "fixture",
+}
+_PROCESS = {"name", "command", "env", "cwd", "ready", "start_timeout", "stop_timeout", "cpus"}
 _READY = {"log", "delay", "key", "liveliness"}
+#: The placeholders a command may hold, and what each stands for (see the module docstring).
+PLACEHOLDERS = {"zenoh_config": "the path of the run's zenoh configuration file"}
+# {{name}} (a literal {name}) or {name} not preceded by '$' (that is the shell's ${NAME})
+_PLACEHOLDER = re.compile(r"\{\{([A-Za-z_]\w*)\}\}|(?<!\$)\{([A-Za-z_]\w*)\}")
+
+
+#: process names Redline records its own series under: the host, its own processes, the driver
+RESERVED_NAMES = frozenset({HOST_PROCESS, OWN_PROCESS, DRIVER_PROCESS, RECORDER_PROCESS})
 
 
 class SuiteError(ValueError):
@@ -62,6 +101,27 @@ class ProcessSpec:
     ready: ReadyCheck | None = None
     start_timeout: float = 30.0
     stop_timeout: float = 5.0
+    cpus: tuple[int, ...] = ()  # the cores it may use (`redline.agent.affinity`); () all
+
+    def expanded(self, values: Mapping[str, str]) -> ProcessSpec:
+        """This process with the placeholders of its command replaced by ``values``."""
+        return replace(
+            self,
+            command=tuple(
+                _PLACEHOLDER.sub(lambda m: f"{{{m[1]}}}" if m[1] else values[m[2]], arg)
+                for arg in self.command
+            ),
+        )
+
+
+def unknown_placeholders(command: tuple[str, ...]) -> list[str]:
+    """The ``{name}``s in a command that are not known placeholders."""
+    return [
+        m[2]
+        for arg in command
+        for m in _PLACEHOLDER.finditer(arg)
+        if m[2] and m[2] not in PLACEHOLDERS
+    ]
 
 
 @dataclass(frozen=True)
@@ -78,6 +138,7 @@ class Suite:
     sampling_hz: float = 10.0
     transport: str = "tcp"
     sha256: str = ""
+    affinity: Affinity = field(default_factory=Affinity)
 
     @property
     def directory(self) -> Path:
@@ -211,11 +272,24 @@ def _process(checker: _Checker, table: Any, section: str, index: int) -> Process
             section,
             index,
         )
-    if name == "host":
+    if name in RESERVED_NAMES:
         raise checker.fail(
-            f"{what}: 'host' is reserved for the host's counters", "name", section, index
+            f"{what}: {name!r} is reserved for Redline's own series (reserved: "
+            f"{', '.join(sorted(RESERVED_NAMES))})",
+            "name",
+            section,
+            index,
         )
     command = _string_list(checker, table["command"], "command", what, section, index)
+    for name in unknown_placeholders(command):
+        known = ", ".join(f"{{{known}}}" for known in PLACEHOLDERS)
+        raise checker.fail(
+            f"{what}: unknown placeholder {{{name}}} in 'command' (known: "
+            f"{known}; write {{{{{name}}}}} for a literal {{{name}}})",
+            "command",
+            section,
+            index,
+        )
     if command[0] == "python":
         command = (sys.executable, *command[1:])
     env = table.get("env", {})
@@ -225,6 +299,10 @@ def _process(checker: _Checker, table: Any, section: str, index: int) -> Process
     if not isinstance(cwd, str):
         raise checker.fail(f"{what}: 'cwd' must be a path string", "cwd", section, index)
     ready = table.get("ready")
+    try:
+        cpus = parse_cores(table["cpus"], f"{what}: 'cpus'") if "cpus" in table else ()
+    except ValueError as exc:
+        raise checker.fail(str(exc), "cpus", section, index) from None
     return ProcessSpec(
         name=name,
         command=command,
@@ -237,6 +315,7 @@ def _process(checker: _Checker, table: Any, section: str, index: int) -> Process
         stop_timeout=float(
             checker.number(table.get("stop_timeout", 5.0), "stop_timeout", what, section, index)
         ),
+        cpus=cpus,
     )
 
 
@@ -296,6 +375,14 @@ def load_suite(path: str | Path) -> Suite:
         sections[section] = tuple(_process(checker, t, section, i) for i, t in enumerate(tables))
     if not sections["component"]:
         raise SuiteError(f"{path}: the suite names no [[component]]")
+    try:
+        affinity = parse_affinity(data.get("affinity"))
+    except ValueError as exc:
+        raise checker.fail(str(exc), "affinity") from None
+    for section, specs in sections.items():  # a process without its own cores: the components'
+        sections[section] = tuple(
+            spec if spec.cpus else replace(spec, cpus=affinity.of("components")) for spec in specs
+        )
     return Suite(
         path=path,
         name=data["name"],
@@ -311,4 +398,5 @@ def load_suite(path: str | Path) -> Suite:
         ),
         transport=_transport(checker, data.get("transport", "tcp")),
         sha256=hashlib.sha256(raw).hexdigest(),
+        affinity=affinity,
     )

@@ -21,9 +21,15 @@ log = logging.getLogger("redline.agent")
 
 def agent(
     server: Annotated[str, typer.Option(help="URL of the Redline server", envvar="REDLINE_SERVER")],
-    token: Annotated[
-        str, typer.Option(help="API token with scope 'agent'", envvar="REDLINE_TOKEN")
-    ],
+    token_file: Annotated[
+        Path | None,
+        typer.Option(
+            help="file holding the API token (scope 'agent'), readable by its owner only; or set "
+            "REDLINE_TOKEN. Never on the command line, where every user sees it in ps",
+            envvar="REDLINE_TOKEN_FILE",
+            dir_okay=False,
+        ),
+    ] = None,
     name: Annotated[str, typer.Option(help="this host's name")] = socket.gethostname(),
     work: Annotated[Path, typer.Option(help="folder for clones, recordings and the spool")] = Path(
         ".redline-agent"
@@ -41,6 +47,23 @@ def agent(
         float,
         typer.Option(help="after SIGTERM, seconds to finish the current job before releasing it"),
     ] = 600.0,
+    disturbed_retries: Annotated[
+        int,
+        typer.Option(
+            min=0,
+            envvar="REDLINE_DISTURBED_RETRIES",
+            help="times an execution is run again when the host was busy during a phase "
+            "(other load over REDLINE_DISTURBED_CPU_PERCENT)",
+        ),
+    ] = 2,
+    allow_file_repos: Annotated[
+        bool,
+        typer.Option(
+            help="fetch jobs' repositories from local paths and file:// URLs too (one-machine "
+            "setups); otherwise only https, ssh and git",
+            envvar="REDLINE_ALLOW_FILE_REPOS",
+        ),
+    ] = False,
 ) -> None:
     """Pull jobs from the server, run them, upload the recordings.
 
@@ -50,6 +73,7 @@ def agent(
     from redline.agent.client import ServerClient
     from redline.agent.daemon import AgentDaemon, AgentStopping
 
+    token = read_token(token_file)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s agent %(levelname)s %(message)s")
     daemon = AgentDaemon(
         ServerClient(server, token, name),
@@ -57,12 +81,43 @@ def agent(
         labels=label or [],
         poll_interval=poll,
         long_poll=wait,
+        allow_file_repos=allow_file_repos,
+        disturbed_retries=disturbed_retries,
     )
     _Signals(daemon, grace, AgentStopping).install()
     try:
         daemon.run_forever()
     except AgentStopping:
         log.info("agent stopped")
+
+
+def read_token(token_file: Path | None) -> str:
+    """The agent's token: from ``token_file`` (which only its owner may read) or
+    ``REDLINE_TOKEN``; a clear error naming both otherwise."""
+    if token_file is not None:
+        try:
+            mode = token_file.stat().st_mode
+            token = token_file.read_text().strip()
+        except OSError as exc:
+            raise typer.BadParameter(
+                f"cannot read {token_file}: {exc.strerror}", param_hint="--token-file"
+            ) from None
+        if mode & 0o077:
+            raise typer.BadParameter(
+                f"{token_file} is readable by other users (mode {mode & 0o777:o}); "
+                f"chmod 600 {token_file}",
+                param_hint="--token-file",
+            )
+        if not token:
+            raise typer.BadParameter(f"{token_file} is empty", param_hint="--token-file")
+        return token
+    token = os.environ.get("REDLINE_TOKEN", "").strip()
+    if not token:
+        raise typer.BadParameter(
+            "give the agent's token in REDLINE_TOKEN or a file (--token-file FILE, mode 600)",
+            param_hint="--token-file",
+        )
+    return token
 
 
 class _Signals:

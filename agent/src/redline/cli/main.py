@@ -12,15 +12,18 @@ app = typer.Typer(
     help="Redline: performance regression testing for zenoh components.",
     no_args_is_help=True,
     add_completion=False,
+    # Click's plain help: typer's rich renderer costs ~0.3 s at every `--help` and error
+    rich_markup_mode=None,
 )
 
 # Modules that add commands to `app` through a `register(app)` function; the server's are optional.
 _AGENT_COMMANDS = ("redline.cli.run_cmd", "redline.cli.agent_cmd")
 _SERVER_COMMANDS = (
-    "redline.server.cli",
-    "redline.server.up_cmd",
-    "redline.detect.evaluate_cmd",
-    "redline.detect.compare_cmd",
+    "redline.commands.service",
+    "redline.commands.up",
+    "redline.commands.evaluate",
+    "redline.commands.calibrate",
+    "redline.commands.compare",
 )
 
 

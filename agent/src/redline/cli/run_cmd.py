@@ -1,41 +1,29 @@
-"""`redline run`: run a performance suite once on this machine and write its recording."""
+"""`redline run`: run a performance suite once on this machine and write its recording.
+
+The runner and rich are imported when the command runs, not here: every `redline` command line
+imports this module to build the CLI.
+"""
 
 from __future__ import annotations
 
-import json
+import signal
 import time
+from functools import cache
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated, NoReturn
 
 import typer
-from redline.recording.format import params_name
-from rich.console import Console
-from rich.markup import escape
-from rich.table import Table
 
-console = Console(stderr=True, highlight=False)
+if TYPE_CHECKING:
+    from redline.agent.runner import RunResult
+    from rich.console import Console
 
 
-def _summary(path: Path) -> Table:
-    """Per segment and process: mean CPU, peak RSS and threads, read back from the file."""
-    from redline.recording import read_recording
+@cache
+def _console() -> Console:
+    from rich.console import Console
 
-    rows: dict[tuple[str, str], dict[str, list[float]]] = {}
-    for key, values in read_recording(path).series_samples().items():
-        segment = f"{key.case}/{key.phase} [{params_name(json.loads(key.params))}]"
-        rows.setdefault((segment, key.process), {})[key.counter] = values
-    table = Table("segment", "process", "cpu % (mean)", "rss MiB (max)", "threads (max)")
-    for (segment, process), counters in rows.items():
-        cpu, rss = counters.get("cpu_percent", []), counters.get("rss_bytes", [])
-        threads = counters.get("threads", [])
-        table.add_row(
-            escape(segment),
-            process,
-            f"{sum(cpu) / len(cpu):.1f}" if cpu else "-",
-            f"{max(rss) / 2**20:.1f}" if rss else "-",
-            f"{max(threads):.0f}" if threads else "-",
-        )
-    return table
+    return Console(stderr=True, highlight=False)
 
 
 def run(
@@ -43,7 +31,18 @@ def run(
         Path, typer.Argument(help="the suite file (redline.toml)", exists=True, dir_okay=False)
     ],
     out: Annotated[Path, typer.Option("--out", "-o", help="the MCAP recording to write")],
-    keep: Annotated[bool, typer.Option("--keep", help="keep the workspace and logs")] = False,
+    keep: Annotated[
+        bool, typer.Option("--keep", help="keep the workspace, and the logs after a good run too")
+    ] = False,
+    work: Annotated[
+        Path | None,
+        typer.Option(
+            "--work",
+            envvar="REDLINE_WORK_DIR",
+            file_okay=False,
+            help="folder for the run's workspace (default: the system's temporary folder)",
+        ),
+    ] = None,
     meta: Annotated[
         list[str] | None,
         typer.Option("--meta", help="KEY=VALUE added to the run metadata (repeatable)"),
@@ -61,19 +60,35 @@ def run(
             "--executions",
             "-n",
             min=1,
-            help="executions (default: the suite's); more than one writes OUT-1.mcap, OUT-2.mcap...",
+            help=(
+                "executions (default: the suite's); more than one writes OUT-1.mcap, OUT-2.mcap..."
+            ),
         ),
     ] = None,
 ) -> None:
-    """Run SUITE (every case, phase and parameter set) and record each execution."""
+    """Run SUITE (every case, phase and parameter set) and record each execution.
+
+    Every process of a run logs to OUT.logs/ beside the recording (run.mcap: run.logs/): kept
+    when the run fails, and its error names the log and shows its last lines; removed after a
+    good run unless --keep. The workspace (run metadata, the components' zenoh configuration)
+    is made in --work and removed after every run unless --keep.
+
+    Exit codes: 0 every test ran; 1 an error (the run is recorded as failed); 3 every test ran
+    but the component took no part (it never joined the run's zenoh network, or no query was
+    answered: recorded as no_traffic, with the reason); 130, 143, 129 stopped by SIGINT,
+    SIGTERM, SIGHUP.
+    """
+    from redline.agent.interrupts import Terminated
     from redline.agent.processes import RunError
     from redline.agent.runner import run_executions
     from redline.agent.selection import parse_overrides
     from redline.agent.suite import SuiteError
     from redline.testing import ValidationError
+    from rich.markup import escape
 
+    console = _console()
     extra = dict(item.split("=", 1) for item in meta or [] if "=" in item)
-    began = time.monotonic()
+    began, started = time.monotonic(), time.time()
 
     def progress(message: str) -> None:
         console.print(f"[dim]{time.monotonic() - began:6.1f}s[/dim] {escape(message)}")
@@ -88,19 +103,71 @@ def run(
             keep_workspace=keep,
             only=only or (),
             overrides=parse_overrides(param or []),
+            work_dir=work,
         )
     except (SuiteError, ValidationError, RunError) as exc:
         console.print(f"[bold red]error:[/bold red] {escape(str(exc))}")
         raise typer.Exit(1) from None
-    except KeyboardInterrupt:
-        console.print(
-            "[bold red]interrupted[/bold red]: every process was stopped; what was "
-            "recorded so far is in the recording"
-        )
-        raise typer.Exit(130) from None
-    console.print(_summary(results[-1].recording))
-    for result in results:
+    except (KeyboardInterrupt, Terminated) as exc:
+        signum = exc.signum if isinstance(exc, Terminated) else signal.SIGINT
+        _stopped_by(signum, out, started)
+    _report(results)
+
+
+def _stopped_by(signum: int, out: Path, started: float) -> NoReturn:
+    """Say how the run ended and which recordings it left (none, when stopped before the
+    recorder started), then exit as the shells do: 130, 143, 129."""
+    how = "interrupted" if signum == signal.SIGINT else "terminated"
+    made = [
+        path
+        for path in (out, *out.parent.glob(f"{out.stem}-*{out.suffix}"))
+        if path.exists() and path.stat().st_mtime >= started
+    ]
+    kept = (
+        f"what was recorded so far is in {', '.join(map(str, made))}"
+        if made
+        else "it was stopped before anything was recorded"
+    )
+    _console().print(
+        f"[bold red]{how} by {signal.Signals(signum).name}[/bold red]: every process "
+        f"was stopped; {kept}"
+    )
+    raise typer.Exit(128 + signum)
+
+
+def _report(results: list[RunResult]) -> None:
+    """The last recording's summary, where each went, the phases the host was busy in; exit 3
+    if any run saw no traffic."""
+    from redline.cli.run_summary import driver_table, process_table
+    from redline.recording import read_recording
+    from redline.recording.disturbance import recording_disturbances, threshold
+    from redline.recording.format import NO_TRAFFIC
+    from rich.markup import escape
+
+    console = _console()
+    every = [read_recording(result.recording).series_samples() for result in results]
+    console.print(process_table(every[-1]))
+    driven = driver_table(every[-1])
+    if driven is not None:
+        console.print(driven)
+    limit = threshold()
+    for result, samples in zip(results, every, strict=True):
         console.print(f"[green]recorded[/green] {result.segments} segments to {result.recording}")
+        for (case, phase, params), why in recording_disturbances(samples, limit).items():
+            console.print(
+                f"[bold yellow]WARNING[/bold yellow] {escape(case)}/{escape(phase)} "
+                f"{escape(params)}: {escape(why)}; its measurements are charted, not "
+                "judged (the threshold: REDLINE_DISTURBED_CPU_PERCENT)"
+            )
+    silent = [r for r in results if r.run_metadata.get("status") == NO_TRAFFIC]
+    for result in silent:
+        console.print(
+            f"[bold red]WARNING: no traffic[/bold red] in {result.recording}: "
+            f"{escape(result.run_metadata.get('warning', ''))}; its measurements say "
+            "nothing of the component (recorded with status no_traffic)"
+        )
+    if silent:
+        raise typer.Exit(3)
 
 
 def register(app: typer.Typer) -> None:

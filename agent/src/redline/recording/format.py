@@ -13,20 +13,28 @@ it) and lands on these channels, all JSON-encoded:
     ``{"t_ns", "event": "begin" | "end", "case", "phase", "params": {...}, "warmup": bool}``:
     the progress of the test; counter samples between a begin and its end belong to that segment.
 ``@redline/driver/<case>/<phase>``
-    driver-side metrics, JSON objects with an ``action`` field: FixedRate (rates, lateness),
-    Query (round trips, timeouts), WaitFor, Listen (received, per-key loss), Replay.
+    driver-side metrics, JSON objects with ``t_ns``, ``case``, ``phase``, ``params``, ``action``
+    and ``path`` (the action's place in the phase's tree, `redline.testing.paths`): FixedRate
+    (rates, lateness), Query (round trips, timeouts), WaitFor, Listen (received, per-key loss),
+    Replay. `redline.recording.driver` turns them into series.
 
 Metadata records: ``redline.run`` (component, revision, sort key, commit, job id, suite hash,
-versions, start and end), ``redline.host`` (the host fingerprint), ``redline.recorder`` (counts of
+versions, start and end, and ``status``: ``ok``; ``no_traffic`` when every test ran but the
+component showed no sign of taking part, with ``warning`` saying why (see
+`redline.agent.traffic`); ``failed`` with ``error``; ``interrupted`` (SIGINT) or ``terminated``
+(SIGTERM, SIGHUP) with ``signal`` and ``error``), ``redline.host`` (the host fingerprint),
+``redline.recorder`` (counts of
 samples received, written and dropped by the recorder; ``lost`` and ``lost_by_key`` (JSON
-``{key: {"sent", "recorded"}}``) for samples the driver put that never reached it, with
-``checked_keys`` the number of keys the driver reported; ``zenoh_shared_memory`` ``on``/``off``
-and ``zenoh_endpoint``, the run's router). All values are strings, as MCAP requires.
+``{key: {"sent", "recorded"}}``) for samples the driver put that never reached it, out of
+``sent`` it put in all, with ``checked_keys`` the number of keys the driver reported;
+``zenoh_shared_memory`` ``on``/``off`` and ``zenoh_endpoint``, the run's router). All values
+are strings, as MCAP requires.
 """
 
 from __future__ import annotations
 
 import json
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -46,12 +54,25 @@ RECORDER_SENT_KEY = "@redline/recorder/sent"
 #: The process name under which the monitor publishes host-wide counters (CPU, steal, load):
 #: the context of a run, not behaviour of the component, so detectors leave them out.
 HOST_PROCESS = "host"
+#: The process name under which the monitor publishes Redline's own processes' CPU (the runner
+#: with its driver and router, the recorder, the monitor): context, never judged.
+OWN_PROCESS = "redline"
 
 META_RUN = "redline.run"
+#: The ``status`` of a run whose every test ran while the component took no part in it.
+NO_TRAFFIC = "no_traffic"
 META_HOST = "redline.host"
 META_RECORDER = "redline.recorder"
 
 JSON_ENCODING = "json"
+
+
+def no_traffic_reason(run: Mapping[str, str]) -> str | None:
+    """Why a recording's measurements say nothing of its component, from its ``redline.run``
+    metadata; None unless its status is ``no_traffic``."""
+    if run.get("status") != NO_TRAFFIC:
+        return None
+    return f"no traffic: {run.get('warning') or 'the component took no part in the run'}"
 
 
 def canonical_params(params: dict[str, Any]) -> str:

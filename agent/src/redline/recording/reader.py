@@ -22,11 +22,28 @@ from mcap.data_stream import ReadDataStream
 from mcap.opcode import Opcode
 from mcap.records import Channel, Chunk, Footer, Header, Message, Metadata
 from mcap.stream_reader import StreamReader, breakup_chunk
+from redline.recording.disturbance import OTHER_CPU, other_load
+from redline.recording.driver import (
+    CPU_PER_OP,
+    DRIVER_PROCESS,
+    RECORDER_PROCESS,
+    RUN_CASE,
+    RUN_PHASE,
+    recorder_values,
+    report_values,
+    segment_of,
+    series_name,
+    work_done,
+)
 from redline.recording.format import (
     COUNTERS_PREFIX,
     DRIVER_PREFIX,
+    HOST_PROCESS,
     MARKERS_KEY,
+    META_HOST,
+    META_RECORDER,
     META_RUN,
+    OWN_PROCESS,
     PROFILE,
     SeriesKey,
     canonical_params,
@@ -89,17 +106,22 @@ class Recording:
 
     def series_samples(self, *, include_warmup: bool = False) -> dict[SeriesKey, list[float]]:
         """Counter samples grouped by series, in time order; warm-up phases are left out."""
-        return self._grouped(include_warmup, timed=False)  # type: ignore[return-value]
+        return self._grouped(include_warmup, timed=False)
 
     def series_timeline(
         self, *, include_warmup: bool = False
     ) -> dict[SeriesKey, list[tuple[int, float]]]:
         """Like `series_samples`, with each sample's time: ``(t_ns, value)`` pairs."""
-        return self._grouped(include_warmup, timed=True)  # type: ignore[return-value]
+        return self._grouped(include_warmup, timed=True)
 
     def _grouped(self, include_warmup: bool, timed: bool) -> dict[SeriesKey, list[Any]]:
-        segments = [s for s in self.segments() if include_warmup or not s.warmup]
-        segments.sort(key=lambda s: s.begin_ns)
+        """The monitor's counters per segment with what else used the host in it
+        (`recording.disturbance`), then the driver's metrics (`recording.driver`)."""
+        every = self.segments()
+        cores = _int(self.metadata.get(META_HOST, {}).get("cpu_cores"))
+        segments = sorted(
+            (s for s in every if include_warmup or not s.warmup), key=lambda s: s.begin_ns
+        )
         grouped: dict[SeriesKey, list[Any]] = {}
         counters = sorted(self.counters, key=itemgetter("t_ns"))
         times = [sample["t_ns"] for sample in counters]
@@ -109,10 +131,77 @@ class Recording:
                 bisect_left(times, segment.begin_ns) : bisect_right(times, segment.end_ns)
             ]
             # keyed by a plain tuple while grouping: SeriesKey's hash is Python code, per sample
-            for (process, counter), values in _by_counter(inside, timed).items():
+            by_counter = _by_counter(inside, timed)
+            for (process, counter), values in by_counter.items():
                 key = SeriesKey(segment.case, segment.phase, params, process, counter)
                 grouped.setdefault(key, []).extend(values)
+            other = other_load(by_counter, cores)
+            if other is not None:
+                key = SeriesKey(segment.case, segment.phase, params, HOST_PROCESS, OTHER_CPU)
+                grouped.setdefault(key, []).append((segment.end_ns, other) if timed else other)
+        self._add_driver(grouped, every, include_warmup, timed)
         return grouped
+
+    def _add_driver(
+        self,
+        grouped: dict[SeriesKey, list[Any]],
+        segments: list[Segment],
+        include_warmup: bool,
+        timed: bool,
+    ) -> None:
+        """One value per driver report and field, in its segment; each component's CPU per
+        unit of work the driver delivered there; the recorder's run-wide counts in the run's
+        own segment (`redline.recording.driver`)."""
+        reports: dict[int, tuple[Segment, list[dict[str, Any]]]] = {}  # by the segment's id
+        for report in self.driver:
+            segment = segment_of(report, segments)
+            if segment is None or (segment.warmup and not include_warmup):
+                continue  # a report outside any finished segment measured nothing whole
+            reports.setdefault(id(segment), (segment, []))[1].append(report)
+            params, name, t_ns = (
+                canonical_params(segment.params),
+                series_name(report),
+                int(report.get("t_ns", segment.end_ns)),
+            )
+            for field_name, value in report_values(report).items():
+                key = SeriesKey(
+                    segment.case, segment.phase, params, DRIVER_PROCESS, f"{name}:{field_name}"
+                )
+                grouped.setdefault(key, []).append((t_ns, value) if timed else value)
+        for segment, made in reports.values():
+            _add_cpu_per_op(grouped, segment, work_done(made), timed)
+        end = max((s.end_ns for s in segments), default=0)
+        for field_name, value in recorder_values(self.metadata.get(META_RECORDER, {})).items():
+            key = SeriesKey(RUN_CASE, RUN_PHASE, canonical_params({}), RECORDER_PROCESS, field_name)
+            grouped.setdefault(key, []).append((end, value) if timed else value)
+
+
+def _int(text: str | None) -> int:
+    try:
+        return int(text or 0)
+    except ValueError:
+        return 0
+
+
+def _add_cpu_per_op(
+    grouped: dict[SeriesKey, list[Any]], segment: Segment, work: float, timed: bool
+) -> None:
+    """Each monitored process's CPU time in the segment per unit of work (µs per sample
+    published or query answered), from its mean CPU share over the segment's duration."""
+    if work <= 0:
+        return
+    params, seconds = canonical_params(segment.params), (segment.end_ns - segment.begin_ns) / 1e9
+    for key in [
+        k
+        for k in grouped
+        if k.counter == "cpu_percent"
+        and k.process not in (HOST_PROCESS, OWN_PROCESS)
+        and (k.case, k.phase, k.params) == (segment.case, segment.phase, params)
+    ]:
+        shares = [v[1] if timed else v for v in grouped[key]]
+        value = sum(shares) / len(shares) / 100.0 * seconds * 1e6 / work
+        derived = SeriesKey(key.case, key.phase, key.params, key.process, CPU_PER_OP)
+        grouped.setdefault(derived, []).append((segment.end_ns, value) if timed else value)
 
 
 def _by_counter(samples: list[dict[str, Any]], timed: bool) -> dict[tuple[str, str], list[Any]]:

@@ -9,6 +9,7 @@ from typing import Any, Protocol
 
 from redline.recording.format import params_name
 from redline.testing.actions import Action
+from redline.testing.paths import action_paths
 
 _NAME = re.compile(r"^[A-Za-z0-9_.-]+$")  # names become zenoh key chunks: no '/', '*', '$', '#'
 
@@ -121,6 +122,8 @@ class Phase:
         self.name = _check_name("phase", name)
         self.action = action
         self.warmup = warmup
+        #: each action of the tree (by id) with its path, under which its metrics are recorded
+        self.paths = action_paths(action)
 
     def __repr__(self) -> str:
         return f"Phase({self.name!r}, {self.action!r}, warmup={self.warmup})"

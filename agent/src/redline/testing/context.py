@@ -140,6 +140,14 @@ class Context:
     stop: threading.Event = field(default_factory=Stop)
     reports: list[dict[str, Any]] = field(default_factory=list)
     tallies: dict[tuple[str, str], Tally] = field(default_factory=dict)
+    #: each action of the phase's tree (by id) with its path (`redline.testing.paths`)
+    paths: Mapping[int, str] = field(default_factory=dict)
+    #: samples put per key through the link when the segment began (`flush_metrics`)
+    sent_before: dict[str, int] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if self.link is not None and not self.sent_before:
+            self.sent_before = self.link.sent()
 
     def param(self, name: str) -> Any:
         """The value of parameter ``name``; a clear KeyError when the set does not provide it."""
@@ -186,26 +194,47 @@ class Context:
             pass
         return not self.stop.is_set()
 
-    def tally(self, action: str, key: str, measure: str = "rtt") -> Tally:
-        """The `Tally` of ``action`` on ``key`` in this segment, created on first use."""
-        ident = (action, key)
+    def path_of(self, action: Any) -> str:
+        """``action``'s place in the phase's tree; outside a phase (a unit test, a REPL) its
+        class name, and a name given as text as it is."""
+        if isinstance(action, str):
+            return action
+        return self.paths.get(id(action)) or type(action).__name__
+
+    def tally(self, action: Any, key: str, measure: str = "rtt") -> Tally:
+        """The `Tally` of ``action`` (an action of the tree, or a name) on ``key`` in this
+        segment, created on first use."""
+        ident = (self.path_of(action), key)
         found = self.tallies.get(ident)
         if found is None:
-            found = self.tallies.setdefault(ident, Tally(action, key, measure))
+            name = action if isinstance(action, str) else type(action).__name__
+            found = self.tallies.setdefault(ident, Tally(name, key, measure, path=ident[0]))
         return found
 
     def flush_metrics(self) -> None:
-        """Report every tally of this segment (the runner calls this when the segment ends)."""
+        """Report every tally of this segment, and the samples `Publish` put per key in it (the
+        runner calls this when the segment ends)."""
         for ident in list(self.tallies):
             self.report(self.tallies.pop(ident).summary())
+        if self.link is not None:
+            for key, total in self.link.sent().items():
+                published = total - self.sent_before.get(key, 0)
+                if published:
+                    self.report(
+                        {"action": "Publish", "path": "Publish", "key": key, "published": published}
+                    )
+            self.sent_before = self.link.sent()
 
-    def report(self, metrics: dict[str, Any]) -> None:
-        """Record driver-side metrics; published on ``@redline/driver/<case>/<phase>`` in a run."""
+    def report(self, metrics: dict[str, Any], action: Any = None) -> None:
+        """Record driver-side metrics of ``action`` (its path names them); published on
+        ``@redline/driver/<case>/<phase>`` in a run."""
+        path = self.path_of(action) if action is not None else metrics.get("path", "")
         message = {
             "t_ns": time.time_ns(),
             "case": self.case,
             "phase": self.phase,
             "params": dict(self.params),
+            "path": path,
             **metrics,
         }
         self.reports.append(message)

@@ -32,8 +32,8 @@ def latency_summary(values_ns: list[int], prefix: str) -> dict[str, float]:
 class Tally:
     """Durations and counts of one action on one key; thread-safe."""
 
-    def __init__(self, action: str, key: str, measure: str) -> None:
-        self.action, self.key, self.measure = action, key, measure
+    def __init__(self, action: str, key: str, measure: str, path: str = "") -> None:
+        self.action, self.key, self.measure, self.path = action, key, measure, path
         self._lock = threading.Lock()
         self._values: list[int] = []
         self._counts: Counter[str] = Counter()
@@ -54,6 +54,7 @@ class Tally:
             values, counts = list(self._values), dict(self._counts)
         return {
             "action": self.action,
+            "path": self.path or self.action,
             "key": self.key,
             "count": len(values),
             **counts,

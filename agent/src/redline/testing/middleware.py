@@ -142,7 +142,7 @@ class Query(Action):
             if encoding is not None:
                 options["encoding"] = encoding
         session = ctx.require_link().session
-        round_trip = _RoundTrip(ctx.tally("Query", key))
+        round_trip = _RoundTrip(ctx.tally(self, key))
         round_trip.tally.count("queries")
         if not self.wait:
             session.get(key, zenoh.handlers.Callback(round_trip.take, round_trip.done), **options)

@@ -47,7 +47,7 @@ class WaitFor(Action):
     def run(self, ctx: Context) -> bytes | None:
         key = str(resolve(self.key, ctx))
         timeout = float(resolve(self.timeout, ctx))
-        tally = ctx.tally("WaitFor", key, "wait")
+        tally = ctx.tally(self, key, "wait")
         tally.count("waits")
         found: list[bytes] = []
         arrived = threading.Event()
@@ -108,6 +108,7 @@ class _Arrivals:
             expected = max(numbers) - min(numbers) + 1
             result |= {
                 "sequenced": len(numbers),
+                "expected": expected,
                 "lost": expected - len(numbers),
                 "loss_ratio": (expected - len(numbers)) / expected,
                 "duplicates": received - len(numbers),
@@ -156,5 +157,5 @@ class Listen(Action):
         finally:
             forget()
         for concrete in sorted(arrivals.received) or [key]:
-            ctx.report(arrivals.summary(concrete, seconds))
+            ctx.report(arrivals.summary(concrete, seconds), action=self)
         return sum(arrivals.received.values())

@@ -141,7 +141,7 @@ class Replay(Action):
                 link.publisher(item.key, item.encoding or None).put(item.data)
                 sent += 1
             done += 1
-        ctx.report(self._summary(sent, done, lateness, ctx.stopped))
+        ctx.report(self._summary(sent, done, lateness, ctx.stopped), action=self)
         return sent
 
     def _summary(

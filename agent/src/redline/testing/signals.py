@@ -18,6 +18,8 @@ POLL_S = 0.05  # how late a child notices a plain-Event parent being set
 class Stop(threading.Event):
     """A stop signal with an optional parent signal and an optional deadline (perf_counter_ns)."""
 
+    _deadline_ns: int | None
+
     def __init__(
         self, parent: threading.Event | None = None, deadline_ns: int | None = None
     ) -> None:

@@ -89,7 +89,8 @@ class FixedRate(Action):
         elapsed = (time.perf_counter_ns() - start) / 1e9
         lateness.sort()
         ctx.report(
-            {
+            action=self,
+            metrics={
                 "action": "FixedRate",
                 "rate_target": rate,
                 "duration_s": round(elapsed, 6),
@@ -99,6 +100,6 @@ class FixedRate(Action):
                 "lateness_p99_us": quantile(lateness, 0.99) / 1e3,
                 "lateness_max_us": (lateness[-1] if lateness else 0) / 1e3,
                 "interrupted": ctx.stopped,
-            }
+            },
         )
         return len(lateness)

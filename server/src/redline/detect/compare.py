@@ -3,30 +3,41 @@
 Baseline and candidate are each one or more recordings; the samples of every series are pooled
 per side (the paper: "the individual measurements ... of potentially multiple executions form an
 observation") and judged exactly as the service's KS judges them: `redline.detect.verdict`'s
-`judge_series` with `KolmogorovSmirnov` (the KS test, then the counter's absolute floor), host-wide
-series left out. Results are grouped into one verdict per test case × phase × parameter set.
-Reading the files is the only I/O here.
+`judge_series` with `KolmogorovSmirnov` (the KS test, then the counter's absolute floor), the
+host-wide series and the user/system split of CPU left out (`redline.detect.counters`). Results
+are grouped into one verdict per test case × phase × parameter set. Reading the files is the
+only I/O here.
 """
 
 from __future__ import annotations
 
 import json
-from collections.abc import Sequence
-from dataclasses import dataclass, field
+from collections.abc import Collection, Sequence
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
+from redline.detect.count_rate import CountRate
+from redline.detect.counters import (
+    CONTEXT_COUNTERS,
+    driver_metric,
+    is_count,
+    is_load,
+    judged,
+    kind,
+)
 from redline.detect.methods import KolmogorovSmirnov
-from redline.detect.result import Detection
+from redline.detect.relative_change import RelativeChange
+from redline.detect.result import Detection, not_enough
 from redline.detect.verdict import judge_series
 from redline.recording import (
-    HOST_PROCESS,
     Recording,
     RecordingError,
     SeriesKey,
     params_name,
     read_recording,
 )
+from redline.recording.disturbance import DEFAULT_THRESHOLD, recording_disturbances
 
 Timeline = dict[SeriesKey, list[tuple[int, float]]]
 Segment = tuple[str, str, str]  # case, phase, canonical parameters
@@ -43,6 +54,8 @@ class RecordedSeries:
     path: Path
     label: str  # file name, with the revision title when the recording has one
     timeline: Timeline
+    #: (case, phase, params) → why: the segments the host was busy in (a warning, not a verdict)
+    disturbed: dict[Segment, str] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -95,8 +108,15 @@ def _label(recording: Recording) -> str:
     return f"{recording.path.name} ({title})" if title else recording.path.name
 
 
-def load_side(paths: Sequence[str | Path], side: str) -> tuple[RecordedSeries, ...]:
-    """Read a side's recordings strictly; CompareError names the first file that is unusable."""
+def load_side(
+    paths: Sequence[str | Path],
+    side: str,
+    context: Collection[str] = CONTEXT_COUNTERS,
+    busy_limit: float = DEFAULT_THRESHOLD,
+) -> tuple[RecordedSeries, ...]:
+    """Read a side's recordings strictly, keeping the series a verdict is asked of
+    (`redline.detect.counters`) and noting the segments the host was busy in (other load over
+    ``busy_limit``, % of a core); CompareError names the first file that is unusable."""
     if not paths:
         raise CompareError(f"no {side} recording given")
     loaded = []
@@ -110,12 +130,19 @@ def load_side(paths: Sequence[str | Path], side: str) -> tuple[RecordedSeries, .
             raise CompareError(f"{side} recording {path}: {exc}") from None
         except OSError as exc:
             raise CompareError(f"{side} recording {path}: {exc.strerror or exc}") from None
+        everything = recording.series_timeline()
+        busy = recording_disturbances(
+            {key: [value for _, value in points] for key, points in everything.items()}, busy_limit
+        )
+        # the judged series, and the driver's loads that its counts are rated out of
         timeline = {
             key: points
-            for key, points in recording.series_timeline().items()
-            if key.process != HOST_PROCESS
-        }  # the machine's context, not judged
-        loaded.append(RecordedSeries(path=path, label=_label(recording), timeline=timeline))
+            for key, points in everything.items()
+            if judged(key.process, key.counter, context) or is_load(key.process, key.counter)
+        }
+        loaded.append(
+            RecordedSeries(path=path, label=_label(recording), timeline=timeline, disturbed=busy)
+        )
     return tuple(loaded)
 
 
@@ -132,14 +159,42 @@ def _segment(key: SeriesKey) -> Segment:
     return key.case, key.phase, key.params
 
 
-def _verdict(key: SeriesKey, base: np.ndarray, cand: np.ndarray) -> SeriesVerdict:
+def _judge(
+    key: SeriesKey, base: dict[SeriesKey, np.ndarray], cand: dict[SeriesKey, np.ndarray]
+) -> Detection:
+    """A process counter by KS on its samples; a driver's count of rare events as a rate out of
+    its total (`CountRate`); a driver's other metric, one value per recording, by the change of
+    its median (`RelativeChange`)."""
+    if is_count(key.process, key.counter):
+        stem = key.counter.rpartition(":")[0]
+        metric = driver_metric(key.process, key.counter)
+        totals = [
+            replace(key, counter=f"{stem}:{of}" if stem else of)
+            for of in (metric.of if metric else ())
+        ]
+        total = next((t for t in totals if t in base and t in cand), None)
+        if total is None:
+            return not_enough("count_rate", "nothing says what these events are counted out of")
+        return CountRate().compare(
+            float(base[key].sum()),
+            float(base[total].sum()),
+            float(cand[key].sum()),
+            float(cand[total].sum()),
+        )
+    detector = RelativeChange() if kind(key.process) != "counter" else KolmogorovSmirnov()
+    return judge_series(detector, key.counter, base[key], cand[key])
+
+
+def _verdict(
+    key: SeriesKey, base: dict[SeriesKey, np.ndarray], cand: dict[SeriesKey, np.ndarray]
+) -> SeriesVerdict:
     return SeriesVerdict(
         key=key,
-        result=judge_series(KolmogorovSmirnov(), key.counter, base, cand),
-        baseline_mean=float(np.mean(base)),
-        candidate_mean=float(np.mean(cand)),
-        baseline_n=int(base.size),
-        candidate_n=int(cand.size),
+        result=_judge(key, base, cand),
+        baseline_mean=float(np.mean(base[key])),
+        candidate_mean=float(np.mean(cand[key])),
+        baseline_n=int(base[key].size),
+        candidate_n=int(cand[key].size),
     )
 
 
@@ -148,7 +203,7 @@ def compare_sides(
 ) -> Comparison:
     """Judge every series both sides hold; CompareError when they hold none in common."""
     base, cand = pooled(baseline), pooled(candidate)
-    common = sorted(set(base) & set(cand))
+    common = sorted(key for key in set(base) & set(cand) if not is_load(key.process, key.counter))
     if not common:
         raise CompareError(
             f"the baseline and the candidate have no series in common (baseline: "
@@ -157,7 +212,7 @@ def compare_sides(
         )
     by_segment: dict[Segment, list[SeriesVerdict]] = {}
     for key in common:
-        by_segment.setdefault(_segment(key), []).append(_verdict(key, base[key], cand[key]))
+        by_segment.setdefault(_segment(key), []).append(_verdict(key, base, cand))
     segments = [SegmentVerdict(*ident, series=tuple(found)) for ident, found in by_segment.items()]
     for side, only in (("baseline", base), ("candidate", cand)):
         for ident in sorted({_segment(key) for key in only} - set(by_segment)):
@@ -166,6 +221,16 @@ def compare_sides(
     return Comparison(baseline=baseline, candidate=candidate, segments=tuple(segments))
 
 
-def compare_files(baseline: Sequence[str | Path], candidate: Sequence[str | Path]) -> Comparison:
-    """Read both sides and compare them (raises CompareError on bad input)."""
-    return compare_sides(load_side(baseline, "baseline"), load_side(candidate, "candidate"))
+def compare_files(
+    baseline: Sequence[str | Path],
+    candidate: Sequence[str | Path],
+    context: Collection[str] = CONTEXT_COUNTERS,
+    busy_limit: float = DEFAULT_THRESHOLD,
+) -> Comparison:
+    """Read both sides and compare them (raises CompareError on bad input); ``context``: the
+    counters not judged (by default the user/system split of CPU, whose total is judged);
+    ``busy_limit``: the other load (% of a core) over which a segment was disturbed."""
+    return compare_sides(
+        load_side(baseline, "baseline", context, busy_limit),
+        load_side(candidate, "candidate", context, busy_limit),
+    )

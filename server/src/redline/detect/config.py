@@ -7,32 +7,19 @@ the API validates what an admin sends with `DetectionConfig.parse`. Errors name 
 from __future__ import annotations
 
 import inspect
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
 from redline.detect.baseline import DEFAULT_WINDOW
-from redline.detect.evaluate import DEFAULT_METHOD
-from redline.detect.executions import BuildShift, ExecutionShift
-from redline.detect.foo import FooRules
-from redline.detect.methods import Detector, KolmogorovSmirnov, MannWhitney, WelchT
-from redline.detect.robust import MedianShift
-from redline.detect.shang import ShangRegression
+from redline.detect.counters import CONTEXT_COUNTERS
+from redline.detect.methods import Detector
+from redline.detect.registry import DEFAULT_METHOD, DETECTORS
 
-#: Methods the worker can run per series on every ingest. Foo and Shang run in their
-#: one-counter form (a series is one counter); E-divisive needs a whole history, not one build.
-WORKER_DETECTORS: dict[str, Callable[..., Detector]] = {
-    "execution_shift": ExecutionShift,
-    "build_shift": BuildShift,
-    "ks": KolmogorovSmirnov,
-    "mann_whitney": MannWhitney,
-    "welch_t": WelchT,
-    "median_shift": MedianShift,
-    "foo": FooRules,
-    "shang": ShangRegression,
-}
-#: The evaluated default (docs/detection.md) and KS, which the trend charts draw.
-DEFAULT_METHODS: tuple[str, ...] = tuple(dict.fromkeys((DEFAULT_METHOD, "ks")))
+#: The method whose verdicts the trend charts draw and ``/changes`` lists.
+CHARTED_METHOD = "ks"
+#: The evaluated default (docs/detection.md) and the charted method.
+DEFAULT_METHODS: tuple[str, ...] = tuple(dict.fromkeys((DEFAULT_METHOD, CHARTED_METHOD)))
 BASELINES = ("recent", "previous", "window", "pinned")
 MAX_WINDOW = 50
 
@@ -48,6 +35,8 @@ class DetectionConfig:
     `redline.detect.baseline`), ``previous`` (the last revision with the series), ``window``
     (the last ``window`` such revisions, pooled) or ``pinned`` (the revision titled ``pinned``).
     ``thresholds``: per method, keyword arguments of its detector (``{"ks": {"alpha": 0.001}}``).
+    ``context_counters``: counters recorded and charted but not judged (by default the
+    user/system split of CPU, whose total is judged; `redline.detect.counters`).
     """
 
     methods: tuple[str, ...] = DEFAULT_METHODS
@@ -55,12 +44,20 @@ class DetectionConfig:
     window: int = DEFAULT_WINDOW
     pinned: str | None = None
     thresholds: Mapping[str, Mapping[str, float]] = field(default_factory=dict)
+    context_counters: tuple[str, ...] = CONTEXT_COUNTERS
 
     @classmethod
     def parse(cls, data: Mapping[str, Any] | None) -> DetectionConfig:
         """A validated configuration from plain data; missing fields take the defaults."""
         data = dict(data or {})
-        unknown = set(data) - {"methods", "baseline", "window", "pinned", "thresholds"}
+        unknown = set(data) - {
+            "methods",
+            "baseline",
+            "window",
+            "pinned",
+            "thresholds",
+            "context_counters",
+        }
         if unknown:
             raise ConfigError(f"unknown field(s) {sorted(unknown)}")
         thresholds = data.get("thresholds") or {}
@@ -70,15 +67,16 @@ class DetectionConfig:
             window=int(data.get("window", DEFAULT_WINDOW)),
             pinned=data.get("pinned"),
             thresholds={str(k): dict(v) for k, v in thresholds.items()},
+            context_counters=tuple(str(c) for c in data.get("context_counters", CONTEXT_COUNTERS)),
         )
         config.validate()
         return config
 
     def validate(self) -> None:
         for name in self.methods:
-            if name not in WORKER_DETECTORS:
+            if name not in DETECTORS:
                 raise ConfigError(
-                    f"methods: unknown method {name!r}; known: {', '.join(WORKER_DETECTORS)}"
+                    f"methods: unknown method {name!r}; known: {', '.join(DETECTORS)}"
                 )
         if not self.methods:
             raise ConfigError("methods: at least one method is needed")
@@ -93,7 +91,7 @@ class DetectionConfig:
         for name, params in self.thresholds.items():
             if name not in self.methods:
                 raise ConfigError(f"thresholds: {name!r} is not among the methods")
-            allowed = list(inspect.signature(WORKER_DETECTORS[name].__init__).parameters)[1:]
+            allowed = list(inspect.signature(DETECTORS[name].__init__).parameters)[1:]
             for key in params:
                 if key not in allowed:
                     raise ConfigError(
@@ -102,7 +100,7 @@ class DetectionConfig:
 
     def detectors(self) -> list[Detector]:
         """One detector per configured method, with its thresholds."""
-        return [WORKER_DETECTORS[name](**self.thresholds.get(name, {})) for name in self.methods]
+        return [DETECTORS[name](**self.thresholds.get(name, {})) for name in self.methods]
 
     def as_dict(self) -> dict[str, Any]:
         return {
@@ -111,4 +109,5 @@ class DetectionConfig:
             "window": self.window,
             "pinned": self.pinned,
             "thresholds": {k: dict(v) for k, v in self.thresholds.items()},
+            "context_counters": list(self.context_counters),
         }

@@ -11,42 +11,19 @@ and effect-size floor, is "change". Pure computation over a loaded `Corpus`.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import asdict, dataclass
 
 import numpy as np
 from redline.detect.baseline import DEFAULT_WINDOW, recent_depth
 from redline.detect.changepoint import EDivisive
 from redline.detect.corpus import POSITIVE_LABEL, Corpus, Unit, series_builds
-from redline.detect.executions import BuildShift, ExecutionShift, values_for
-from redline.detect.foo import FooRules
-from redline.detect.methods import Detector, KolmogorovSmirnov, MannWhitney, WelchT
+from redline.detect.execution_shift import values_for
+from redline.detect.methods import Detector
+from redline.detect.registry import CHANGE_POINT_METHOD, DEFAULT_METHOD, EVALUATED
 from redline.detect.result import Detection
-from redline.detect.robust import MedianShift
-from redline.detect.shang import ShangRegression
 from redline.detect.verdict import judge_series
 from scipy.stats import rankdata
-
-#: Chosen on corpus 2's tuning half and checked on its held-out half and on SAP's set
-#: (docs/detection.md, "Choosing the default").
-DEFAULT_METHOD = "execution_shift"
-
-DETECTORS: dict[str, Callable[[], Detector]] = {
-    "execution_shift": ExecutionShift,
-    "build_shift": BuildShift,
-    "ks": KolmogorovSmirnov,
-    "mann_whitney": MannWhitney,
-    "welch_t": WelchT,
-    "median_shift": MedianShift,
-    "foo": FooRules,
-    "foo.min": lambda: FooRules(aggregate="min"),
-    "foo.mean": lambda: FooRules(aggregate="mean"),
-    "shang": ShangRegression,
-    "shang.min": lambda: ShangRegression(aggregate="min"),
-    "shang.mean": lambda: ShangRegression(aggregate="mean"),
-}
-CHANGE_POINT_METHOD = "e_divisive"
-
 
 #: "Changes of 10 % or more" (the issue's recall goal), by the size `change_sizes` measures.
 LARGE_CHANGE = 0.10
@@ -199,7 +176,7 @@ def run_detector(detector: Detector, corpus: Corpus) -> list[Outcome]:
 def units_of(corpus: Corpus) -> list[Unit]:
     """The corpus's units, with the baselines the default method would use (for E-divisive,
     which judges whole histories but is scored on the same builds)."""
-    return [unit for unit, _ in walk(DETECTORS[DEFAULT_METHOD](), corpus)]
+    return [unit for unit, _ in walk(EVALUATED[DEFAULT_METHOD](), corpus)]
 
 
 def run_change_points(
@@ -244,11 +221,11 @@ def evaluate_corpus(
     corpus: Corpus, methods: Sequence[str] | None = None
 ) -> dict[str, MethodScores]:
     """Scores of each named method (default: all) on the corpus's units."""
-    names = list(methods) if methods else [*DETECTORS, CHANGE_POINT_METHOD]
+    names = list(methods) if methods else [*EVALUATED, CHANGE_POINT_METHOD]
     results = {}
     for name in names:
         if name == CHANGE_POINT_METHOD:
             results[name] = summarize(run_change_points(corpus, units_of(corpus)))
         else:
-            results[name] = summarize(run_detector(DETECTORS[name](), corpus))
+            results[name] = summarize(run_detector(EVALUATED[name](), corpus))
     return results

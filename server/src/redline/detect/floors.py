@@ -4,7 +4,9 @@ A relative floor alone misjudges small values: 0.4 percentage points of CPU on a
 uses 4 % of a core is a 10 % change, and exactly the size of run-to-run noise on a shared host
 (measured on the example component, see docs/detection.md). A change must clear both floors.
 The values are the resolution below which a developer could not act on a change: one
-percentage point of a core, one MiB of memory, one thread, process or file descriptor.
+percentage point of a core, one MiB of memory, one thread, process or file descriptor; for the
+driver's metrics, 20 µs of a round trip or of lateness (a tenth of a loopback zenoh round trip,
+~200 µs; FIELD-NOTES) and one message per second of a rate.
 """
 
 from __future__ import annotations
@@ -19,6 +21,10 @@ FLOORS: tuple[tuple[str, float], ...] = (
     ("processes", 1.0),
     ("fds", 1.0),
     ("_per_s", 10.0),  # context switches and other rates, per second
+    ("_per_op", 1.0),  # a component's CPU microseconds per unit of work the driver delivered
+    ("_us", 20.0),  # the driver's round trips, waits and lateness
+    ("rate_achieved", 1.0),  # FixedRate's iterations per second
+    (":rate", 1.0),  # Listen's samples per second
 )
 
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import inspect
 import math
-from typing import Any, ClassVar, Self
+from typing import Any, ClassVar, Protocol, Self
 
 import numpy as np
 from redline.detect import ks as ks_module
@@ -26,6 +26,21 @@ from redline.detect.result import (
     relative_effects,
 )
 from scipy import stats
+
+
+class Levelled(Protocol):
+    """What judging a series needs of a method besides its verdict: its name, the level whose
+    values it judges (samples, one per execution, one per build) and how many values a
+    ``recent`` baseline pools. Every `Detector` is one, and so is `CountRate`."""
+
+    @property
+    def name(self) -> str: ...
+
+    @property
+    def level(self) -> str: ...
+
+    @property
+    def baseline_values(self) -> int: ...
 
 
 class Detector:

@@ -22,13 +22,16 @@ def judge_series(
     detector: Detector,
     counter: str,
     baseline: np.ndarray | None,
-    candidate: np.ndarray,
+    candidate: np.ndarray | None,
     missing: str = "missing baseline",
 ) -> Detection:
     """``detector`` on one series, a change also needing the counter's absolute floor.
 
-    ``baseline`` None means there is none; ``missing`` then says why.
+    ``baseline`` None means there is none; ``missing`` then says why. ``candidate`` None: the
+    revision has no samples of the series.
     """
+    if candidate is None:
+        return not_enough(detector.name, "no samples of this series in the revision")
     if baseline is None:
         return not_enough(detector.name, missing)
     try:

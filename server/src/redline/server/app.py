@@ -3,13 +3,17 @@
 from __future__ import annotations
 
 import math
+import reprlib
+from typing import Any
 
 from fastapi import FastAPI, Request
 from fastapi.encoders import jsonable_encoder
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from redline.server.core import metrics
+from redline.server.core.bodies import BodyLimit
 from redline.server.core.config import Settings, get_settings
+from redline.server.core.tasks import TaskSender
 from redline.server.routes import (
     agent,
     components,
@@ -25,7 +29,6 @@ from redline.server.routes import (
     webhooks,
 )
 from redline.server.services.errors import ServiceError
-from redline.worker.app import TaskSender
 from sqlalchemy.exc import DataError
 
 
@@ -38,12 +41,31 @@ async def _unstorable(request: Request, exc: Exception) -> JSONResponse:
     )
 
 
+_EXCERPT = reprlib.Repr()  # keyword arguments only from Python 3.12
+_EXCERPT.maxlevel, _EXCERPT.maxstring, _EXCERPT.maxother = 2, 80, 80
+_EXCERPT.maxlist = _EXCERPT.maxdict = 4
+
+
+def _excerpt(value: Any) -> Any:
+    """What a 422 quotes of the input at fault: a number as it is, anything else cut short.
+    JSON has no NaN or infinity, so those are quoted as text."""
+    if isinstance(value, bool) or value is None:
+        return value
+    if isinstance(value, int):
+        return value if abs(value) < 10**18 else f"{str(value)[:20]}... ({len(str(value))} digits)"
+    if isinstance(value, float):
+        return value if math.isfinite(value) else str(value)
+    if isinstance(value, str):
+        return value if len(value) <= 80 else value[:77] + "..."
+    return _EXCERPT.repr(value)
+
+
 async def _invalid(request: Request, exc: Exception) -> JSONResponse:
-    """FastAPI's 422, with a non-finite input (NaN, inf) quoted: JSON has no such numbers."""
+    """FastAPI's 422, quoting no more than a short excerpt of each input at fault."""
     assert isinstance(exc, RequestValidationError)
-    finite = {float: lambda value: value if math.isfinite(value) else str(value)}
+    errors = [{**error, "input": _excerpt(error.get("input"))} for error in exc.errors()]
     return JSONResponse(
-        {"detail": jsonable_encoder(exc.errors(), custom_encoder=finite)}, status_code=422
+        {"detail": jsonable_encoder(errors, custom_encoder={float: _excerpt})}, status_code=422
     )
 
 
@@ -66,6 +88,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.add_exception_handler(RequestValidationError, _invalid)
     for down in health.DATABASE_DOWN:  # 503 with a message, never a 500, while Postgres is away
         app.add_exception_handler(down, health.database_unavailable)
+    # inside the metrics middleware, whose own reads of the request must not meet the limit
+    app.add_middleware(BodyLimit, settings=settings)
     metrics.install(app, settings)
     for module in (
         health,

@@ -8,7 +8,7 @@ from functools import lru_cache
 from pathlib import Path
 from typing import Any
 
-from redline.server.core.config import REPO_ROOT
+from redline.server.core.config import PACKAGE
 from sqlalchemy import Engine, String, Table, create_engine, text
 from sqlalchemy.orm import Session, sessionmaker
 
@@ -55,8 +55,8 @@ def bulk_insert(session: Session, table: Table, rows: Sequence[Mapping[str, Any]
 def alembic_config(database_url: str, migrations_dir: Path | None = None):  # noqa: ANN201
     from alembic.config import Config
 
-    config = Config(str(REPO_ROOT / "alembic.ini"))
-    config.set_main_option("script_location", str(migrations_dir or REPO_ROOT / "migrations"))
+    config = Config()
+    config.set_main_option("script_location", str(migrations_dir or PACKAGE / "migrations"))
     # '%' is configparser's interpolation character; URLs may carry percent-escapes
     config.set_main_option("sqlalchemy.url", database_url.replace("%", "%%"))
     return config

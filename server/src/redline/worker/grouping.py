@@ -1,6 +1,8 @@
 """Grouping flagged detections into regressions: same component, overlapping revision ranges.
 
-A flagged detection spans (newest baseline revision, its revision]; it joins the oldest
+Only a change for the worse is a regression (`redline.detect.counters.worse`: a CPU or round
+trip that rose, an achieved rate that fell); a flagged improvement stays a detection. A flagged
+detection spans (newest baseline revision, its revision]; it joins the oldest
 regression of the component whose range overlaps that span (widening the range), else it opens
 a new one. A regression left without detections after a re-analysis is deleted while it is
 untriaged ("new", no history); a triaged one stays, because its label is ground truth.
@@ -8,12 +10,15 @@ untriaged ("new", no history); a triaged one stays, because its label is ground 
 
 from __future__ import annotations
 
-from redline.server.models import Component, Revision
-from redline.server.models_regressions import (
+from redline.detect.counters import worse
+from redline.server.models import (
+    Component,
     Detection,
     Regression,
     RegressionEvent,
     RegressionState,
+    Revision,
+    Series,
 )
 from sqlalchemy import delete, exists, select
 from sqlalchemy.orm import Session
@@ -73,12 +78,15 @@ def group_revision(session: Session, revision: Revision) -> None:
     session.execute(
         select(Component.id).where(Component.id == revision.component_id).with_for_update()
     )
-    flagged = session.scalars(
-        select(Detection)
+    flagged = session.execute(
+        select(Detection, Series.process, Series.counter)
+        .join(Series, Series.id == Detection.series_id)
         .where(Detection.revision_id == revision.id, Detection.flagged)
         .order_by(Detection.id)
     )
-    for detection in flagged:
+    for detection, process, counter in flagged:
+        if detection.direction != worse(process, counter):
+            continue  # an improvement
         span = _span(session, detection, revision)
         if span is None:
             continue

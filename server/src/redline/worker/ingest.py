@@ -8,104 +8,36 @@ for one execution take turns on its job row), so a lost or doubled queue message
 from __future__ import annotations
 
 import logging
-import os
 from datetime import timedelta
-from pathlib import Path
-from typing import Any
 
-import numpy as np
-import pyarrow as pa
-import pyarrow.parquet as pq
-from redline.recording import SeriesKey, read_recording
+from redline.recording import read_recording
+from redline.recording.disturbance import recording_disturbances, threshold
+from redline.recording.format import no_traffic_reason
 from redline.server.db import session_scope
-from redline.server.models import Execution, Job, JobState, Revision, Series, Summary, utcnow
-from redline.worker.detection import samples_path, successor_with_data
-from sqlalchemy import delete, select, update
-from sqlalchemy.dialects.postgresql import insert
+from redline.server.models import Execution, Job, JobState, Revision, utcnow
+from redline.server.services.ingestion import store_samples
+from redline.worker.history import successor_with_data
+from sqlalchemy import select, update
 from sqlalchemy.orm import Session
 
 log = logging.getLogger(__name__)
 
-QUANTILES = {"p5": 5, "p25": 25, "p50": 50, "p75": 75, "p95": 95}
-#: the quantile sketch: 32 evenly spaced levels, mid-bucket (1/64, 3/64, ... 63/64); enough to
-#: redraw the distribution and to compare it once the raw samples are pruned
-SKETCH_LEVELS = (np.arange(32) + 0.5) / 32
 #: how long a job may stay `uploaded` (stored, not ingested) before its ingestion is queued again
 STALE_UPLOAD = timedelta(minutes=10)
-
-
-def summarize(values: np.ndarray) -> dict[str, Any] | None:
-    """n, mean, std (population), min, max, the quantiles and the sketch of one series.
-
-    Only finite samples count (``n`` is how many there were); None when there is none. The raw
-    samples, NaN and infinities included, stay in the Parquet table for detection to judge.
-    """
-    values = values[np.isfinite(values)]
-    if values.size == 0:
-        return None
-    stats: dict[str, Any] = {
-        "n": int(values.size),
-        "mean": float(values.mean()),
-        "std": float(values.std()),
-        "min": float(values.min()),
-        "max": float(values.max()),
-    }
-    for name, value in zip(QUANTILES, np.percentile(values, list(QUANTILES.values())), strict=True):
-        stats[name] = float(value)
-    stats["sketch"] = [float(v) for v in np.quantile(values, SKETCH_LEVELS)]
-    return stats
-
-
-def _series_ids(session: Session, component_id: int, keys: list[SeriesKey]) -> dict[SeriesKey, int]:
-    """Create the series the recording names that do not exist yet; return every key's id."""
-    if keys:
-        rows = [
-            dict(
-                component_id=component_id,
-                case=k.case,
-                phase=k.phase,
-                params=k.params,
-                process=k.process,
-                counter=k.counter,
-            )
-            for k in keys
-        ]
-        session.execute(insert(Series).values(rows).on_conflict_do_nothing())
-    known = session.scalars(select(Series).where(Series.component_id == component_id))
-    by_key = {SeriesKey(s.case, s.phase, s.params, s.process, s.counter): s.id for s in known}
-    return {key: by_key[key] for key in keys}
-
-
-def _write_samples(
-    path: Path, ids: dict[SeriesKey, int], samples: dict[SeriesKey, list[float]]
-) -> None:
-    series = np.concatenate(
-        [np.full(len(samples[k]), ids[k], dtype=np.int64) for k in ids]
-        or [np.empty(0, dtype=np.int64)]
-    )
-    values = np.concatenate(
-        [np.asarray(samples[k], dtype=np.float64) for k in ids] or [np.empty(0, dtype=np.float64)]
-    )
-    partial = path.with_suffix(".part")
-    pq.write_table(pa.table({"series_id": series, "value": values}), partial)
-    os.replace(partial, path)
 
 
 def _ingest(session: Session, execution: Execution) -> None:
     job = session.get_one(Job, execution.job_id, with_for_update=True)  # one run at a time
     recording = read_recording(execution.recording_path, strict=True)
-    samples = {key: values for key, values in recording.series_samples().items() if values}
     revision = session.get_one(Revision, execution.revision_id)
-    ids = _series_ids(session, revision.component_id, sorted(samples))
-    session.execute(delete(Summary).where(Summary.execution_id == execution.id))
-    summaries = {key: summarize(np.asarray(samples[key], dtype=np.float64)) for key in ids}
-    session.add_all(
-        Summary(execution_id=execution.id, series_id=ids[key], **stats)
-        for key, stats in summaries.items()
-        if stats is not None
-    )
-    _write_samples(samples_path(execution.recording_path), ids, samples)
-    job.state, job.reason = JobState.done, ""
+    # a run the component took no part in: its samples are kept, but neither summarized (no
+    # point on a trend, no baseline) nor judged; detection says "not enough data" and why
+    reason = no_traffic_reason(recording.run)
+    samples = recording.series_samples()
+    # a phase during which the host was busy is charted, not judged (recording.disturbance)
+    disturbed = recording_disturbances(samples, threshold())
+    store_samples(session, execution, revision.component_id, samples, reason, disturbed)
+    job.state, job.reason = JobState.done, reason or ""
 
 
 def _fail(database_url: str, execution_id: int, reason: str) -> None:

@@ -12,29 +12,107 @@ import logging
 import queue
 import threading
 import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
 
+import numpy as np
 from redline.server.db import session_scope
-from redline.server.models import Execution, Revision, utcnow
-from redline.server.models_regressions import Reanalysis
-from redline.worker.detection import (
-    Judged,
-    Walk,
+from redline.server.models import Execution, Reanalysis, Revision, utcnow
+from redline.worker.detection import judge_revision, store_judged
+from redline.worker.history import (
     component_config,
-    ingested_executions,
+    flagged_verdicts,
     ingested_fingerprint,
-    judge_revision,
-    store_judged,
+    summarized_series,
 )
+from redline.worker.rows import Judged
+from redline.worker.samples import SampleCache, Samples, ingested_executions
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 log = logging.getLogger(__name__)
-REANALYZE_TASK = "redline.reanalyze_component"
 #: how often the stored progress (done / total) is brought up to date, at most
 PROGRESS_EVERY_S = 0.5
 #: judged revisions waiting for the writer, at most (their verdicts are held in memory)
 WRITE_AHEAD = 4
 KEPT = "kept"  # a revision whose samples are gone: its stored results stand
+
+
+@dataclass
+class Walk:
+    """What a re-analysis carries from one revision to the next, so that a revision's baselines
+    need nothing read back: earlier revisions' samples, every flagged (series, method,
+    revision) so far, and the newest revisions with summaries, each with the series it has
+    summaries of (a series with at least one finite sample), newest last.
+
+    Valid only while the history stays as it was when the walk began (``fingerprint``) and the
+    configuration's window is the walk's: otherwise ``usable`` turns False for good, and the
+    revisions left are judged from the database as `detect_revision` judges them.
+    """
+
+    cache: SampleCache
+    window: int
+    fingerprint: tuple[int, int]
+    flagged: set[tuple[int, str, int]] = field(default_factory=set)
+    recent: deque[tuple[int, frozenset[int]]] = field(default_factory=deque)
+    usable: bool = True
+    #: called once when the walk turns unusable, before anything is read from the database
+    #: (a re-analysis waits there until every revision judged so far is stored)
+    on_disable: Callable[[], None] | None = None
+
+    @classmethod
+    def over(cls, window: int, fingerprint: tuple[int, int]) -> Walk:
+        return cls(SampleCache(window + 1), window, fingerprint, recent=deque(maxlen=window))
+
+    def check(self, session: Session, component_id: int) -> None:
+        """Stop using the memory if executions were ingested since the walk began."""
+        if self.usable and ingested_fingerprint(session, component_id) != self.fingerprint:
+            self.disable(f"component {component_id}: executions ingested during the re-analysis")
+
+    def disable(self, why: str) -> None:
+        log.info("%s; the rest of the re-analysis reads its baselines from the database", why)
+        self.usable = False
+        if self.on_disable is not None:
+            self.on_disable()
+
+    def newest_first(self) -> list[tuple[int, frozenset[int]]]:
+        return list(reversed(self.recent))
+
+    def judged(
+        self,
+        session: Session,
+        revision_id: int,
+        samples: Samples,
+        rows: list[dict[str, Any]],
+        complete: bool,
+    ) -> None:
+        """``complete``: every ingested execution's samples were read; else the revision's
+        series are those its summaries name, as the database sees them."""
+        self.flagged.update(
+            (row["series_id"], row["method"], revision_id) for row in rows if row["flagged"]
+        )
+        if complete:
+            self._add(
+                revision_id,
+                frozenset(
+                    series_id
+                    for series_id, runs in samples.items()
+                    if any(np.isfinite(run).any() for run in runs)
+                ),
+            )
+        else:
+            self._add(revision_id, summarized_series(session, revision_id))
+
+    def kept(self, session: Session, revision_id: int) -> None:
+        """A revision whose samples are gone: its stored verdicts and summaries still count."""
+        self.flagged |= flagged_verdicts(session, {revision_id})
+        self._add(revision_id, summarized_series(session, revision_id))
+
+    def _add(self, revision_id: int, series: frozenset[int]) -> None:
+        if series:  # a revision without summaries is no earlier revision "with samples"
+            self.recent.append((revision_id, series))
 
 
 def _progress(session: Session, component_id: int) -> Reanalysis:

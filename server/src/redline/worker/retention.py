@@ -52,7 +52,8 @@ def prune_recordings(database_url: str, days: int, batch: int = 500) -> int:
 
 
 def _register() -> None:
-    from redline.worker.app import RETENTION_TASK, celery_app
+    from redline.server.core.tasks import RETENTION_TASK
+    from redline.worker.app import celery_app
 
     @celery_app.task(name=RETENTION_TASK, acks_late=True)
     def prune_old_recordings() -> int:

@@ -9,12 +9,12 @@ from typing import Any
 from celery.signals import worker_init
 from redline.agent.quiet import analysing
 from redline.server.core.config import Settings
+from redline.server.core.tasks import DETECT_TASK, INGEST_TASK, REANALYZE_TASK, REQUEUE_TASK
 from redline.server.db import session_scope
-from redline.worker.app import DETECT_TASK, INGEST_TASK, REQUEUE_TASK, celery_app
+from redline.worker.app import celery_app
 from redline.worker.detection import detect_revision as run_detection
 from redline.worker.ingest import ingest_execution as run_ingest
 from redline.worker.ingest import stale_uploads
-from redline.worker.reanalysis import REANALYZE_TASK
 from redline.worker.reanalysis import reanalyze_component as run_reanalysis
 from sqlalchemy.exc import InterfaceError, OperationalError
 

@@ -3,13 +3,14 @@
 from __future__ import annotations
 
 from functools import lru_cache
+from importlib.resources import files
 from pathlib import Path
 from typing import Literal
 
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
-# server/src/redline/server/core/config.py -> the repository root holds web/ and migrations/
-REPO_ROOT = Path(__file__).resolve().parents[5]
+#: the installed package: the UI's templates and static files, and the migrations, ship in it
+PACKAGE = Path(str(files("redline.server")))
 
 
 class Settings(BaseSettings):
@@ -21,11 +22,16 @@ class Settings(BaseSettings):
     redis_url: str = "redis://127.0.0.1:6379/0"
     queue: str = "redline"  # the Celery queue; distinct names keep stacks sharing a Redis apart
     storage_dir: Path = Path("redline-data/storage")
-    web_dir: Path = REPO_ROOT / "web"
-    migrations_dir: Path = REPO_ROOT / "migrations"
+    web_dir: Path = PACKAGE / "ui"  # templates/ and static/
+    migrations_dir: Path = PACKAGE / "migrations"
     lease_seconds: int = 120
     max_attempts: int = 3
-    max_upload_bytes: int = 2 * 1024**3
+    max_upload_bytes: int = 2 * 1024**3  # one MCAP recording
+    max_webhook_bytes: int = 25 * 1024**2  # GitHub's own cap on a delivery
+    max_import_bytes: int = 32 * 1024**2  # an LNT report or a results import
+    max_json_bytes: int = 1024**2  # any other request body
+    # may a component's repository be a local path or file:// URL? (`redline up` allows it)
+    allow_file_repos: bool = False
     webhook_secret: str = ""  # GitHub/GitLab push secret; a component's own one overrides it
     read_access: Literal["open", "token"] = "open"  # token: reading needs a `read` token
     retention_days: int = 90  # raw recordings (MCAP, Parquet) older than this are deleted

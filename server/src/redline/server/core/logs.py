@@ -1,10 +1,39 @@
-"""Structured logs: one JSON object per line when ``REDLINE_LOG_JSON=true``."""
+"""Structured logs: one JSON object per line when ``REDLINE_LOG_JSON=true``; secrets redacted."""
 
 from __future__ import annotations
 
 import json
 import logging
+import re
 from datetime import UTC, datetime
+
+from redline.server.core.security import TOKEN_PREFIX
+
+#: a credential in a URL's query (``?token=...``), and a Redline token wherever it appears
+_CREDENTIAL = re.compile(
+    r"(?P<name>[?&](?:token|access_token|api_key|key|secret|password|signature)=)[^&\s\"']*",
+    re.IGNORECASE,
+)
+_TOKEN = re.compile(r"(?<![A-Za-z0-9_])" + re.escape(TOKEN_PREFIX) + r"[A-Za-z0-9_-]{20,}")
+REDACTED = "***"
+
+
+def redact(text: str) -> str:
+    """``text`` with query-string credentials and Redline tokens replaced by ``***``."""
+    return _TOKEN.sub(REDACTED, _CREDENTIAL.sub(rf"\g<name>{REDACTED}", text))
+
+
+class RedactSecrets(logging.Filter):
+    """Rewrites each record's message with `redact` (an access log line quotes the whole URL,
+    query string included, and the UI takes a read token as ``?token=``)."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        message = record.getMessage()
+        cleaned = redact(message)
+        if cleaned != message:
+            record.msg, record.args = cleaned, None
+        return True
+
 
 _STANDARD = set(vars(logging.LogRecord("", 0, "", 0, "", None, None))) | {"message", "asctime"}
 
@@ -26,8 +55,9 @@ class JsonFormatter(logging.Formatter):
 
 
 def configure(json_lines: bool, level: int = logging.INFO) -> None:
-    """Log to stderr, as JSON lines or as text."""
+    """Log to stderr, as JSON lines or as text, with secrets redacted."""
     handler = logging.StreamHandler()
+    handler.addFilter(RedactSecrets())
     handler.setFormatter(
         JsonFormatter()
         if json_lines

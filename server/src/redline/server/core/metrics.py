@@ -49,7 +49,7 @@ class JobCollector:
         """Best effort: the Redis list named after the queue; None when Redis is away."""
         try:
             import redis
-            from redline.worker.app import broker_url
+            from redline.server.core.tasks import broker_url
 
             url = broker_url(self.settings.redis_url)
             if url.startswith("redis+socket://"):

@@ -14,19 +14,20 @@ from redline.server.api.deps import (
     ensure_own_host,
     require_agent,
 )
+from redline.server.core.bodies import JsonRoute
 from redline.server.core.config import Settings
 from redline.server.db import session_factory
-from redline.server.schemas import (
-    HostRequest,
-    LeasedJob,
-    Problem,
-    RegisterRequest,
-    RegisterResponse,
-)
+from redline.server.schemas.common import Problem
+from redline.server.schemas.jobs import HostRequest, LeasedJob, RegisterRequest, RegisterResponse
 from redline.server.services import jobs
 from starlette.concurrency import run_in_threadpool
 
-router = APIRouter(prefix="/api/v1/agent", tags=["agent"], dependencies=[Depends(require_agent)])
+router = APIRouter(
+    prefix="/api/v1/agent",
+    tags=["agent"],
+    dependencies=[Depends(require_agent)],
+    route_class=JsonRoute,
+)
 
 MAX_WAIT_S = 60
 #: How often a waiting lease looks at the queue again: one cheap query per waiting agent.

@@ -5,22 +5,16 @@ from __future__ import annotations
 from typing import Annotated
 
 from fastapi import APIRouter, Depends, Query, Request, Response, status
-from redline.server.api.deps import READ, SessionDep, require
-from redline.server.schemas import (
-    ChangeOut,
-    ComponentCreate,
-    ComponentOut,
-    ComponentSettings,
-    Problem,
-    RevisionDetail,
-    RevisionOut,
-    SeriesOut,
-)
-from redline.server.schemas_read import Comparison
+from redline.server.api.deps import READ, SessionDep, SettingsDep, require
+from redline.server.core.bodies import JsonRoute
+from redline.server.schemas.common import Problem, problems
+from redline.server.schemas.components import ComponentCreate, ComponentOut, ComponentSettings
+from redline.server.schemas.results import ChangeOut, Comparison, SeriesOut
+from redline.server.schemas.revisions import RevisionDetail, RevisionOut
 from redline.server.services import compare, components, read, results, revisions
 
-router = APIRouter(prefix="/api/v1/components", tags=["components"])
-NOT_FOUND = {404: {"model": Problem, "description": "unknown component or revision"}}
+router = APIRouter(prefix="/api/v1/components", tags=["components"], route_class=JsonRoute)
+NOT_FOUND = problems(404, description="unknown component or revision")
 
 
 @router.post(
@@ -29,9 +23,13 @@ NOT_FOUND = {404: {"model": Problem, "description": "unknown component or revisi
     dependencies=[Depends(require("admin"))],
     responses={409: {"model": Problem}},
 )
-def create_component(data: ComponentCreate, session: SessionDep) -> ComponentOut:
+def create_component(
+    data: ComponentCreate, session: SessionDep, settings: SettingsDep
+) -> ComponentOut:
     """A component and all its settings; its webhook secret is stored, never shown again."""
-    return components.component_out(components.create_component(session, data))
+    return components.component_out(
+        components.create_component(session, data, settings.allow_file_repos)
+    )
 
 
 @router.get("", dependencies=READ)
@@ -45,9 +43,13 @@ def get_component(name: str, session: SessionDep) -> ComponentOut:
 
 
 @router.patch("/{name}", responses=NOT_FOUND, dependencies=[Depends(require("admin"))])
-def update_component(name: str, data: ComponentSettings, session: SessionDep) -> ComponentOut:
+def update_component(
+    name: str, data: ComponentSettings, session: SessionDep, settings: SettingsDep
+) -> ComponentOut:
     """Change the settings given; ``"webhook_secret": ""`` returns to REDLINE_WEBHOOK_SECRET."""
-    return components.component_out(components.update_component(session, name, data))
+    return components.component_out(
+        components.update_component(session, name, data, settings.allow_file_repos)
+    )
 
 
 @router.get("/{name}/revisions", responses=NOT_FOUND, dependencies=READ)

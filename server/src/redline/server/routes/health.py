@@ -6,11 +6,12 @@ from fastapi import APIRouter, Request
 from fastapi.responses import JSONResponse, Response
 from pydantic import BaseModel
 from redline.server.api.deps import SettingsDep
+from redline.server.core.bodies import JsonRoute
 from redline.server.db import get_engine
 from sqlalchemy import exc, text
 from starlette.concurrency import run_in_threadpool
 
-router = APIRouter(tags=["health"])
+router = APIRouter(tags=["health"], route_class=JsonRoute)
 
 #: Errors meaning "no database to talk to" (refused, shut down, pool exhausted), not a bad query.
 DATABASE_DOWN: tuple[type[Exception], ...] = (

@@ -6,13 +6,19 @@ from typing import Annotated
 
 from fastapi import APIRouter, Depends, Query, Request, Response, status
 from redline.server.api.deps import SessionDep, SettingsDep, require
-from redline.server.schemas import Problem
-from redline.server.schemas_intake import ImportResult, ResultsImport
+from redline.server.core.bodies import JsonRoute
+from redline.server.schemas.common import Problem
+from redline.server.schemas.imports import ImportResult, ResultsImport
 from redline.server.services.imports import from_results, store_import
 from redline.server.services.lnt import ORDER_FIELD, parse_lnt
 from starlette.concurrency import run_in_threadpool
 
-router = APIRouter(prefix="/api/v1/import", tags=["import"], dependencies=[Depends(require("ci"))])
+router = APIRouter(
+    prefix="/api/v1/import",
+    tags=["import"],
+    dependencies=[Depends(require("ci"))],
+    route_class=JsonRoute,
+)
 RESPONSES: dict[int | str, dict] = {
     200: {"model": ImportResult, "description": "imported before; nothing new stored"},
     400: {"model": Problem},

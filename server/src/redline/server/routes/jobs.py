@@ -13,14 +13,15 @@ from redline.server.api.deps import (
     ensure_own_host,
     require_agent,
 )
+from redline.server.core.bodies import JsonRoute
 from redline.server.core.config import Settings
 from redline.server.db import session_factory
-from redline.server.schemas import (
+from redline.server.schemas.common import problems
+from redline.server.schemas.jobs import (
     FailRequest,
     HeartbeatResponse,
     HostRequest,
     JobStateOut,
-    Problem,
     UploadResponse,
 )
 from redline.server.services import jobs
@@ -29,8 +30,13 @@ from redline.server.services.uploads import Accepted, Staged, accept_recording, 
 from starlette.concurrency import run_in_threadpool
 
 log = logging.getLogger(__name__)
-router = APIRouter(prefix="/api/v1/jobs", tags=["jobs"], dependencies=[Depends(require_agent)])
-PROBLEMS = {code: {"model": Problem} for code in (400, 404, 409, 413)}
+router = APIRouter(
+    prefix="/api/v1/jobs",
+    tags=["jobs"],
+    dependencies=[Depends(require_agent)],
+    route_class=JsonRoute,
+)
+PROBLEMS = problems(400, 404, 409, 413)
 
 
 @router.post("/{job_id}/heartbeat", responses=PROBLEMS)

@@ -7,9 +7,10 @@ from typing import Annotated
 
 from fastapi import APIRouter, Depends, Query, Request, status
 from redline.server.api.deps import READ, SessionDep, require
-from redline.server.models import ApiToken
-from redline.server.schemas import Problem
-from redline.server.schemas_regressions import (
+from redline.server.core.bodies import JsonRoute
+from redline.server.models import ApiToken, RegressionState
+from redline.server.schemas.common import Responses, problems
+from redline.server.schemas.regressions import (
     AccuracyOut,
     DetectionConfigIn,
     DetectionConfigOut,
@@ -18,21 +19,19 @@ from redline.server.schemas_regressions import (
     RegressionDetail,
     RegressionEventOut,
     RegressionOut,
-    State,
     TriageRequest,
 )
 from redline.server.services import detection_config, regressions
 from redline.server.services.components import get_component
-from redline.worker.reanalysis import REANALYZE_TASK
 
-router = APIRouter(prefix="/api/v1/components", tags=["regressions"])
-NOT_FOUND = {404: {"model": Problem, "description": "unknown component or regression"}}
-BAD = {400: {"model": Problem}, **NOT_FOUND}
+router = APIRouter(prefix="/api/v1/components", tags=["regressions"], route_class=JsonRoute)
+NOT_FOUND = problems(404, description="unknown component or regression")
+BAD: Responses = {**problems(400), **NOT_FOUND}
 
 
 @router.get("/{name}/regressions", responses=NOT_FOUND, dependencies=READ)
 def list_regressions(
-    name: str, session: SessionDep, state: State | None = None
+    name: str, session: SessionDep, state: RegressionState | None = None
 ) -> list[RegressionOut]:
     """Flagged detections grouped by overlapping revision ranges; ``?state=`` filters."""
     return regressions.list_regressions(session, name, state)
@@ -93,7 +92,7 @@ def put_detection_config(
     component = detection_config.set_config(session, name, data)
     if data.reanalyze:
         detection_config.request_reanalysis(session, component)
-        request.app.state.tasks.send(REANALYZE_TASK, component.id)
+        request.app.state.tasks.reanalyze(component.id)
     return detection_config.get_config(session, name)
 
 
@@ -107,7 +106,7 @@ def start_reanalysis(name: str, request: Request, session: SessionDep) -> Reanal
     """Queue a background re-analysis of every revision; progress at GET."""
     component = get_component(session, name)
     detection_config.request_reanalysis(session, component)
-    request.app.state.tasks.send(REANALYZE_TASK, component.id)
+    request.app.state.tasks.reanalyze(component.id)
     return detection_config.reanalysis_status(session, name)
 
 

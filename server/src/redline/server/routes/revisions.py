@@ -4,10 +4,12 @@ from __future__ import annotations
 
 from fastapi import APIRouter, Depends, status
 from redline.server.api.deps import SessionDep, require
-from redline.server.schemas import Problem, RevisionCreate, RevisionCreated
+from redline.server.core.bodies import JsonRoute
+from redline.server.schemas.common import Problem
+from redline.server.schemas.revisions import RevisionCreate, RevisionCreated
 from redline.server.services.revisions import create_revision
 
-router = APIRouter(prefix="/api/v1/revisions", tags=["revisions"])
+router = APIRouter(prefix="/api/v1/revisions", tags=["revisions"], route_class=JsonRoute)
 
 
 @router.post(

@@ -4,11 +4,14 @@ from __future__ import annotations
 
 from fastapi import APIRouter
 from redline.server.api.deps import READ, SessionDep
-from redline.server.schemas import Problem
-from redline.server.schemas_read import SeriesDetail
+from redline.server.core.bodies import JsonRoute
+from redline.server.schemas.common import Problem
+from redline.server.schemas.results import SeriesDetail
 from redline.server.services import read
 
-router = APIRouter(prefix="/api/v1/series", tags=["series"], dependencies=READ)
+router = APIRouter(
+    prefix="/api/v1/series", tags=["series"], dependencies=READ, route_class=JsonRoute
+)
 
 
 @router.get("/{series_id}", responses={404: {"model": Problem}})

@@ -4,14 +4,18 @@ from __future__ import annotations
 
 from fastapi import APIRouter, Depends, status
 from redline.server.api.deps import SessionDep, require
-from redline.server.schemas import Problem
-from redline.server.schemas_intake import TokenCreate, TokenCreated, TokenOut
+from redline.server.core.bodies import JsonRoute
+from redline.server.schemas.common import problems
+from redline.server.schemas.tokens import TokenCreate, TokenCreated, TokenOut
 from redline.server.services import tokens
 
 router = APIRouter(
-    prefix="/api/v1/tokens", tags=["tokens"], dependencies=[Depends(require("admin"))]
+    prefix="/api/v1/tokens",
+    tags=["tokens"],
+    dependencies=[Depends(require("admin"))],
+    route_class=JsonRoute,
 )
-PROBLEMS = {code: {"model": Problem} for code in (400, 404, 409)}
+PROBLEMS = problems(400, 404, 409)
 
 
 @router.post("", status_code=status.HTTP_201_CREATED, responses=PROBLEMS)

@@ -10,15 +10,16 @@ from fastapi.responses import FileResponse, HTMLResponse
 from fastapi.staticfiles import StaticFiles
 from fastapi.templating import Jinja2Templates
 from redline.server.api.deps import READ, SessionDep
+from redline.server.core.bodies import JsonRoute
 from redline.server.core.config import Settings
 from redline.server.services import components, regressions, results, revisions
 from redline.server.services.errors import NotFound
-from redline.worker.render import trend_figure
+from redline.server.ui.figures import trend_figure
 
 PLOTLY_JS = Path(plotly.__file__).parent / "package_data" / "plotly.min.js"
 
 # REDLINE_READ_ACCESS=token: the pages need a read token (cookie redline_token or ?token=)
-router = APIRouter(include_in_schema=False, dependencies=READ)
+router = APIRouter(include_in_schema=False, dependencies=READ, route_class=JsonRoute)
 
 
 def _templates(request: Request) -> Jinja2Templates:

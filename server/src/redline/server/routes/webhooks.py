@@ -7,10 +7,11 @@ from typing import Annotated
 
 from fastapi import APIRouter, Header, Request, Response, status
 from redline.server.api.deps import SettingsDep
+from redline.server.core.bodies import JsonRoute
 from redline.server.core.config import Settings
 from redline.server.db import session_factory
-from redline.server.schemas import Problem
-from redline.server.schemas_intake import PushEvent, WebhookResult
+from redline.server.schemas.common import Problem
+from redline.server.schemas.webhooks import PushEvent, WebhookResult
 from redline.server.services.webhooks import (
     Verifier,
     github_verifier,
@@ -19,7 +20,7 @@ from redline.server.services.webhooks import (
 )
 from starlette.concurrency import run_in_threadpool
 
-router = APIRouter(prefix="/api/v1/webhooks", tags=["webhooks"])
+router = APIRouter(prefix="/api/v1/webhooks", tags=["webhooks"], route_class=JsonRoute)
 RESPONSES: dict[int | str, dict] = {
     202: {
         "model": WebhookResult,

@@ -12,12 +12,13 @@ from collections import defaultdict
 import numpy as np
 import pyarrow.parquet as pq
 from redline.detect.ks import ks
+from redline.detect.summary import describe
 from redline.server.models import Execution, Revision, Series, Summary
-from redline.server.schemas_read import Comparison, SeriesComparison, Statistics
+from redline.server.schemas.results import Comparison, SeriesComparison, Statistics
 from redline.server.services.components import get_component
 from redline.server.services.errors import NotFound
 from redline.server.services.results import series_ref
-from redline.server.storage import samples_path
+from redline.server.storage import not_judged, samples_path
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
@@ -32,8 +33,10 @@ def revision_samples(session: Session, revision_id: int) -> tuple[dict[int, np.n
     for execution in executions:
         path = samples_path(execution.recording_path)
         if execution.pruned_at is None and path.exists():
-            table = pq.read_table(path).to_pandas()
-            for series_id, values in table.groupby("series_id")["value"]:
+            table = pq.read_table(path)
+            if not_judged(table) is not None:  # the component took no part: nothing to compare
+                continue
+            for series_id, values in table.to_pandas().groupby("series_id")["value"]:
                 parts[int(series_id)].append(values.to_numpy())
             continue
         for summary in session.scalars(select(Summary).where(Summary.execution_id == execution.id)):
@@ -50,14 +53,7 @@ def revision_samples(session: Session, revision_id: int) -> tuple[dict[int, np.n
 
 
 def statistics(values: np.ndarray) -> Statistics:
-    return Statistics(
-        n=int(values.size),
-        mean=float(values.mean()),
-        std=float(values.std()),
-        min=float(values.min()),
-        max=float(values.max()),
-        p50=float(np.median(values)),
-    )
+    return Statistics(**describe(values))
 
 
 def _revision(session: Session, component_id: int, component: str, title: str) -> Revision:

@@ -2,9 +2,10 @@
 
 from __future__ import annotations
 
+from redline.agent.checkout import refused_repo
 from redline.server.models import Component
-from redline.server.schemas import ComponentCreate, ComponentOut, ComponentSettings
-from redline.server.services.errors import Conflict, NotFound
+from redline.server.schemas.components import ComponentCreate, ComponentOut, ComponentSettings
+from redline.server.services.errors import Conflict, NotFound, Unprocessable
 from redline.server.services.repos import repo_key
 from sqlalchemy import select
 from sqlalchemy.exc import IntegrityError
@@ -26,7 +27,17 @@ def component_out(component: Component) -> ComponentOut:
     )
 
 
-def create_component(session: Session, data: ComponentCreate) -> Component:
+def check_repo(repo: str, allow_file: bool) -> None:
+    """Unprocessable unless a performance host may fetch ``repo`` (empty: none set yet)."""
+    reason = refused_repo(repo, allow_file) if repo else None
+    if reason is not None:
+        raise Unprocessable(f"repo {repo[:200]!r}: {reason}")
+
+
+def create_component(
+    session: Session, data: ComponentCreate, allow_file: bool = False
+) -> Component:
+    check_repo(data.repo, allow_file)
     component = Component(**data.model_dump())
     component.webhook_secret = data.webhook_secret or None
     component.repo_key = repo_key(data.repo)
@@ -39,9 +50,13 @@ def create_component(session: Session, data: ComponentCreate) -> Component:
     return component
 
 
-def update_component(session: Session, name: str, data: ComponentSettings) -> Component:
+def update_component(
+    session: Session, name: str, data: ComponentSettings, allow_file: bool = False
+) -> Component:
     """Change the settings given (fields left out stay as they are)."""
     component = get_component(session, name)
+    if data.repo is not None:
+        check_repo(data.repo, allow_file)
     for field, value in data.model_dump(exclude_unset=True).items():
         if value is None and field != "webhook_secret":
             continue  # null means "unchanged" for every setting but the secret

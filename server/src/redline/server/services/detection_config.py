@@ -3,11 +3,11 @@
 from __future__ import annotations
 
 from redline.detect.config import ConfigError, DetectionConfig
-from redline.server.models import Component, utcnow
-from redline.server.models_regressions import DetectionConfigRow, Reanalysis
-from redline.server.schemas_regressions import DetectionConfigIn, DetectionConfigOut, ReanalysisOut
+from redline.server.models import Component, DetectionConfigRow, Reanalysis, utcnow
+from redline.server.schemas.regressions import DetectionConfigIn, DetectionConfigOut, ReanalysisOut
 from redline.server.services.components import get_component
 from redline.server.services.errors import BadRequest
+from sqlalchemy.dialects.postgresql import insert
 from sqlalchemy.orm import Session
 
 
@@ -29,23 +29,26 @@ def set_config(session: Session, component_name: str, data: DetectionConfigIn) -
         config = DetectionConfig.parse(fields)
     except ConfigError as exc:
         raise BadRequest(f"detection configuration: {exc}") from None
-    row = session.get(DetectionConfigRow, component.id)
-    if row is None:
-        session.add(DetectionConfigRow(component_id=component.id, config=config.as_dict()))
-    else:
-        row.config = config.as_dict()
+    stored = dict(config=config.as_dict(), updated=utcnow())
+    session.execute(
+        insert(DetectionConfigRow)
+        .values(component_id=component.id, **stored)
+        .on_conflict_do_update(index_elements=["component_id"], set_=stored)
+    )
     session.commit()
     return component
 
 
 def request_reanalysis(session: Session, component: Component) -> None:
     """Mark a re-analysis queued (replacing the last one's progress); the caller sends the task."""
-    row = session.get(Reanalysis, component.id)
-    if row is None:
-        row = Reanalysis(component_id=component.id)
-        session.add(row)
-    row.state, row.total, row.done, row.error = "queued", 0, 0, ""
-    row.requested, row.started, row.finished = utcnow(), None, None
+    queued = dict(
+        state="queued", total=0, done=0, error="", requested=utcnow(), started=None, finished=None
+    )
+    session.execute(
+        insert(Reanalysis)
+        .values(component_id=component.id, **queued)
+        .on_conflict_do_update(index_elements=["component_id"], set_=queued)
+    )
     session.commit()
 
 

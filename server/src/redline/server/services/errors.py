@@ -15,6 +15,16 @@ class BadRequest(ServiceError):
     status_code = 400
 
 
+class Forbidden(ServiceError):
+    status_code = 403
+
+
+class Unprocessable(ServiceError):
+    """A well-formed request whose value cannot be used (422, as for a schema error)."""
+
+    status_code = 422
+
+
 class NotFound(ServiceError):
     status_code = 404
 

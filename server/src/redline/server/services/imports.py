@@ -13,15 +13,14 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
 from redline.recording import SeriesKey, canonical_params
 from redline.server.models import Execution, Host, Job, JobState, Revision, Summary
-from redline.server.schemas_intake import ImportResult, ResultsImport
+from redline.server.schemas.imports import ImportResult, ResultsImport
 from redline.server.services.components import get_component
+from redline.server.services.ingestion import store_samples
 from redline.server.services.revisions import order_key
-from redline.server.storage import samples_path
-from redline.worker.ingest import _series_ids, _write_samples, summarize
 from sqlalchemy import func, select
+from sqlalchemy.dialects.postgresql import insert
 from sqlalchemy.orm import Session
 
 IMPORT_PROCESS = "benchmark"
@@ -52,15 +51,13 @@ def from_results(data: ResultsImport) -> ImportedRun:
 
 
 def _revision(session: Session, run: ImportedRun) -> Revision:
+    """The run's revision, created if new, locked: imports into one revision take turns, so
+    each gets its own execution index (INSERT ... ON CONFLICT: concurrent imports never race)."""
     component = get_component(session, run.component)
-    revision = session.scalar(
-        select(Revision).where(
-            Revision.component_id == component.id, Revision.title == run.revision
-        )
-    )
-    if revision is None:
-        revision = Revision(
-            component=component,
+    session.execute(
+        insert(Revision)
+        .values(
+            component_id=component.id,
             title=run.revision,
             sort_key=run.sort_key,
             order_key=order_key(run.sort_key),
@@ -68,19 +65,24 @@ def _revision(session: Session, run: ImportedRun) -> Revision:
             repo=component.repo,
             branch=component.branch,
         )
-        session.add(revision)
-        session.flush()
-    return revision
+        .on_conflict_do_nothing(index_elements=["component_id", "title"])
+    )
+    return session.scalars(
+        select(Revision)
+        .where(Revision.component_id == component.id, Revision.title == run.revision)
+        .with_for_update()
+    ).one()
 
 
 def _host(session: Session, name: str) -> Host | None:
     if not name:
         return None
-    host = session.scalar(select(Host).where(Host.name == name))
-    if host is None:
-        host = Host(name=name, fingerprint={"imported": True}, labels=[])
-        session.add(host)
-    return host
+    session.execute(
+        insert(Host)
+        .values(name=name, fingerprint={"imported": True}, labels=[])
+        .on_conflict_do_nothing(index_elements=["name"])
+    )
+    return session.scalars(select(Host).where(Host.name == name)).one()
 
 
 def _job(session: Session, revision: Revision, host: Host | None) -> Job:
@@ -115,8 +117,10 @@ def store_import(
 ) -> ImportResult:
     """Store the run as one execution; a body imported before returns its execution."""
     sha256 = hashlib.sha256(body).hexdigest()
+    revision = _revision(session, run)  # locked: the same body sent twice at once waits here
     known = session.scalar(select(Execution).where(Execution.sha256 == sha256))
     if known is not None:
+        session.rollback()  # nothing new; an emptied revision made just now is not kept
         revision = session.get_one(Revision, known.revision_id)
         count = session.scalar(
             select(func.count()).select_from(Summary).where(Summary.execution_id == known.id)
@@ -129,7 +133,6 @@ def store_import(
             series=count or 0,
             created=False,
         )
-    revision = _revision(session, run)
     job = _job(session, revision, _host(session, run.host))
     path = _keep(storage_dir, body, sha256, suffix)
     execution = Execution(
@@ -142,22 +145,13 @@ def store_import(
     )
     session.add(execution)
     session.flush()
-    ids = _series_ids(session, revision.component_id, sorted(run.samples))
-    summaries = {
-        key: summarize(np.asarray(values, dtype=np.float64)) for key, values in run.samples.items()
-    }
-    session.add_all(
-        Summary(execution_id=execution.id, series_id=ids[key], **stats)
-        for key, stats in summaries.items()
-        if stats is not None
-    )  # None: no finite
-    _write_samples(samples_path(path), ids, run.samples)
+    series = store_samples(session, execution, revision.component_id, run.samples)
     session.commit()
     return ImportResult(
         component=run.component,
         revision=revision.title,
         revision_id=revision.id,
         execution_id=execution.id,
-        series=sum(stats is not None for stats in summaries.values()),
+        series=series,
         created=True,
     )

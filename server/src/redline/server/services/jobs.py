@@ -5,26 +5,27 @@ from __future__ import annotations
 from datetime import datetime, timedelta
 
 from redline.server.models import Host, Job, JobState, Revision, utcnow
-from redline.server.schemas import LeasedJob, LeasedRevision, RegisterRequest
+from redline.server.schemas.jobs import LeasedJob, LeasedRevision, RegisterRequest
 from redline.server.services.errors import Conflict, NotFound
 from sqlalchemy import and_, cast, or_, select, update
-from sqlalchemy.dialects.postgresql import JSONB
+from sqlalchemy.dialects.postgresql import JSONB, insert
 from sqlalchemy.orm import Session
 
 HELD = (JobState.leased, JobState.running)
 
 
 def register_host(session: Session, data: RegisterRequest) -> Host:
-    """Create the host or refresh its fingerprint and labels (registering again is fine)."""
-    host = session.scalar(select(Host).where(Host.name == data.name).with_for_update())
-    if host is None:
-        host = Host(name=data.name)
-        session.add(host)
-    host.fingerprint = data.fingerprint
-    host.labels = data.labels
-    host.last_seen = utcnow()
+    """Create the host or refresh its fingerprint and labels (registering again is fine; two
+    agents registering one name at once both succeed: INSERT ... ON CONFLICT DO UPDATE)."""
+    fields = dict(fingerprint=data.fingerprint, labels=data.labels, last_seen=utcnow())
+    host_id = session.scalar(
+        insert(Host)
+        .values(name=data.name, **fields)
+        .on_conflict_do_update(index_elements=["name"], set_=fields)
+        .returning(Host.id)
+    )
     session.commit()
-    return host
+    return session.get_one(Host, host_id, populate_existing=True)
 
 
 def _host(session: Session, name: str) -> Host:
@@ -87,9 +88,10 @@ def leased_job(job: Job) -> LeasedJob:
     revision = job.revision
     assert job.lease_expires_at is not None
     return LeasedJob(
+        # the component's repository as an admin set it, never one stored with the revision
         id=job.id,
         component=revision.component.name,
-        repo=revision.repo,
+        repo=revision.component.repo,
         commit=revision.commit,
         suite=revision.component.suite,
         revision=LeasedRevision(title=revision.title, sort_key=revision.sort_key),

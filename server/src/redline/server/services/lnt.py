@@ -11,11 +11,12 @@ Each test's metric becomes a series (case = test name, counter = metric); the ru
 
 from __future__ import annotations
 
-import json
 import math
 from typing import Any
 
 from redline.recording import SeriesKey, canonical_params
+from redline.server.core.bodies import BadJson, parse_json
+from redline.server.schemas.fields import path_segment
 from redline.server.services.errors import BadRequest
 from redline.server.services.imports import IMPORT_PROCESS, ImportedRun
 
@@ -33,13 +34,16 @@ def _object(report: dict[str, Any], field: str) -> dict[str, Any]:
 def _values(test: str, metric: str, value: Any) -> list[float]:
     """A metric's samples; non-numeric metrics (hashes, statuses as text) give none."""
     items = value if isinstance(value, list) else [value]
-    numbers = [
-        float(item)
-        for item in items
-        if isinstance(item, int | float) and not isinstance(item, bool)
-    ]
+    try:
+        numbers = [
+            float(item)
+            for item in items
+            if isinstance(item, int | float) and not isinstance(item, bool)
+        ]
+    except OverflowError:  # an integer beyond any float
+        numbers = [math.inf]
     if any(not math.isfinite(number) for number in numbers):
-        raise BadRequest(f"LNT report: test {test!r} metric {metric!r} is not finite")
+        raise BadRequest(f"LNT report: test {test!r} metric {metric!r} is not a finite number")
     return numbers
 
 
@@ -65,16 +69,22 @@ def _samples(tests: Any) -> dict[SeriesKey, list[float]]:
 def parse_lnt(body: bytes, component: str, order_field: str = ORDER_FIELD) -> ImportedRun:
     """The run an LNT v2 report describes; BadRequest naming the field at fault otherwise."""
     try:
-        report = json.loads(body)
-    except ValueError as exc:
-        raise BadRequest(f"LNT report is not JSON: {exc}") from None
-    if not isinstance(report, dict) or str(report.get("format_version")) != "2":
+        report = parse_json(body)
+    except BadJson as exc:
+        raise BadRequest(f"LNT report: {exc}") from None
+    if not isinstance(report, dict):
+        raise BadRequest(f"LNT report: the body must be a JSON object, not {type(report).__name__}")
+    if str(report.get("format_version")) != "2":
         raise BadRequest("LNT report: 'format_version' must be \"2\" (version 1 is not read)")
     machine, run = _object(report, "machine"), _object(report, "run")
     order = run.get(order_field)
     if not isinstance(order, str | int) or isinstance(order, bool) or str(order) == "":
         raise BadRequest(f"LNT report: run has no order field {order_field!r}")
     title = str(order)[:200]
+    try:
+        path_segment(title)
+    except ValueError as exc:  # the revision's title must be addressable in the API's URLs
+        raise BadRequest(f"LNT report: run field {order_field!r} ({title[:80]!r}) {exc}") from None
     return ImportedRun(
         component=component,
         revision=title,

@@ -5,8 +5,13 @@ from __future__ import annotations
 import json
 
 from redline.server.models import Component, Execution, Job, Revision, Series, Summary
-from redline.server.schemas import SeriesOut, SeriesRef
-from redline.server.schemas_read import ExecutionDetail, SeriesDetail, SummaryOut
+from redline.server.schemas.results import (
+    ExecutionDetail,
+    SeriesDetail,
+    SeriesOut,
+    SeriesRef,
+    SummaryOut,
+)
 from redline.server.services.errors import NotFound
 from redline.server.services.results import series_ref
 from sqlalchemy import func, select

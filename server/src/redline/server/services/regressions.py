@@ -5,16 +5,18 @@ from __future__ import annotations
 
 from collections import defaultdict
 
-from redline.server.models import ApiToken, Revision, Series
-from redline.server.models_regressions import (
+from redline.server.models import (
     FALSE_POSITIVE_STATES,
     TRUE_POSITIVE_STATES,
+    ApiToken,
     Detection,
     Regression,
     RegressionEvent,
     RegressionState,
+    Revision,
+    Series,
 )
-from redline.server.schemas_regressions import (
+from redline.server.schemas.regressions import (
     AccuracyOut,
     DetectionOut,
     MethodAccuracy,
@@ -37,7 +39,8 @@ def _methods(session: Session, ids: list[int]) -> dict[int, tuple[list[str], int
     )
     found: dict[int, list[str]] = defaultdict(list)
     for regression_id, method in rows:
-        found[regression_id].append(method)
+        if regression_id is not None:  # the query asks for some: typed as nullable all the same
+            found[regression_id].append(method)
     return {i: (sorted(set(found[i])), len(found[i])) for i in ids}
 
 

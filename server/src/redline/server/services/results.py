@@ -5,40 +5,18 @@ from __future__ import annotations
 import json
 import math
 from collections import defaultdict
-from dataclasses import dataclass
 
+from redline.detect.config import CHARTED_METHOD
+from redline.detect.counters import judged, kind, worse
+from redline.detect.result import NOT_ENOUGH_DATA
+from redline.detect.summary import Pooled
 from redline.recording import SeriesKey
 from redline.recording.format import HOST_PROCESS
-from redline.server.models import Change, Execution, Revision, Series, Summary
-from redline.server.schemas import ChangeOut, SeriesOut, SeriesPoint, SeriesRef
+from redline.server.models import Detection, Execution, Revision, Series, Summary
+from redline.server.schemas.results import ChangeOut, SeriesOut, SeriesPoint, SeriesRef
 from redline.server.services.components import get_component
 from sqlalchemy import select
 from sqlalchemy.orm import Session, aliased
-
-
-@dataclass
-class _Pool:
-    """Pools per-execution summaries (n, mean, std) into one revision's n, mean, std."""
-
-    n: int = 0
-    total: float = 0.0
-    squares: float = 0.0
-
-    def add(self, n: int, mean: float, std: float) -> None:
-        self.n += n
-        self.total += n * mean
-        self.squares += n * (std * std + mean * mean)
-
-    def point(self, revision: Revision) -> SeriesPoint:
-        mean = self.total / self.n
-        variance = max(self.squares / self.n - mean * mean, 0.0)
-        return SeriesPoint(
-            revision=revision.title,
-            sort_key=revision.sort_key,
-            n=self.n,
-            mean=mean,
-            std=math.sqrt(variance),
-        )
 
 
 def series_ref(series: Series) -> SeriesRef:
@@ -53,6 +31,9 @@ def series_ref(series: Series) -> SeriesRef:
         params=json.loads(series.params),
         process=series.process,
         counter=series.counter,
+        kind=kind(series.process),
+        worse=worse(series.process, series.counter),
+        judged=judged(series.process, series.counter),
     )
 
 
@@ -76,13 +57,22 @@ def component_series(session: Session, component_name: str) -> list[SeriesOut]:
             Revision.id,
         )
     )
-    pools: dict[Series, dict[Revision, _Pool]] = defaultdict(dict)
+    pools: dict[Series, dict[Revision, Pooled]] = defaultdict(dict)
     for series, revision, n, mean, std in rows:
-        pools[series].setdefault(revision, _Pool()).add(n, mean, std)
+        pools[series].setdefault(revision, Pooled()).add(n, mean, std)
     return [
         SeriesOut(
             **series_ref(series).model_dump(),
-            points=[pool.point(revision) for revision, pool in by_revision.items()],
+            points=[
+                SeriesPoint(
+                    revision=revision.title,
+                    sort_key=revision.sort_key,
+                    n=pool.n,
+                    mean=pool.mean,
+                    std=pool.std,
+                )
+                for revision, pool in by_revision.items()
+            ],
         )
         for series, by_revision in pools.items()
     ]
@@ -91,30 +81,38 @@ def component_series(session: Session, component_name: str) -> list[SeriesOut]:
 def component_changes(
     session: Session, component_name: str, flagged_only: bool = False
 ) -> list[ChangeOut]:
-    """Detected changes of the component, newest revision first, flagged ones first within it."""
+    """KS's decided verdicts on the component's series (what the trend charts draw), newest
+    revision first, flagged ones first within it."""
     component = get_component(session, component_name)
     baseline = aliased(Revision)
     query = (
-        select(Change, Series, Revision.title, baseline.title)
-        .join(Series, Series.id == Change.series_id)
-        .join(Revision, Revision.id == Change.revision_id)
-        .join(baseline, baseline.id == Change.baseline_revision_id)
-        .where(Series.component_id == component.id)
-        .order_by(Revision.order_key.desc(), Change.flagged.desc(), Change.p_value, Series.id)
+        select(Detection, Series, Revision.title, baseline.title)
+        .join(Series, Series.id == Detection.series_id)
+        .join(Revision, Revision.id == Detection.revision_id)
+        .join(baseline, baseline.id == Detection.baseline_revision_id)
+        .where(
+            Series.component_id == component.id,
+            Detection.method == CHARTED_METHOD,
+            Detection.verdict != NOT_ENOUGH_DATA,
+            Detection.p_value.is_not(None),
+        )
+        .order_by(Revision.order_key.desc(), Detection.flagged.desc(), Detection.p_value, Series.id)
     )
     if flagged_only:
-        query = query.where(Change.flagged)
+        query = query.where(Detection.flagged)
     return [
         ChangeOut(
             series=series_ref(series),
             revision=title,
             baseline=base,
-            method=change.method,
-            score=change.score,
-            p_value=change.p_value,
-            effect=change.effect if math.isfinite(change.effect) else None,
-            flagged=change.flagged,
-            created=change.created,
+            method=found.method,
+            score=found.score,
+            p_value=found.p_value,
+            effect=found.effect
+            if found.effect is not None and math.isfinite(found.effect)
+            else None,
+            flagged=found.flagged,
+            created=found.created,
         )
-        for change, series, title, base in session.execute(query)
+        for found, series, title, base in session.execute(query)
     ]

@@ -7,9 +7,16 @@ import re
 from collections import Counter
 
 from redline.server.models import Component, Job, JobState, Revision
-from redline.server.schemas import ExecutionOut, JobOut, RevisionCreate, RevisionDetail, RevisionOut
+from redline.server.schemas.revisions import (
+    ExecutionOut,
+    JobOut,
+    RevisionCreate,
+    RevisionDetail,
+    RevisionOut,
+)
 from redline.server.services.components import get_component
-from redline.server.services.errors import BadRequest, Conflict, NotFound
+from redline.server.services.errors import BadRequest, Conflict, Forbidden, NotFound
+from redline.server.services.repos import repo_key
 from sqlalchemy import literal, select, tuple_
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session, selectinload
@@ -33,14 +40,17 @@ def order_key(sort_key: str) -> str:
 
 
 def new_revision(component: Component, data: RevisionCreate) -> Revision:
-    """An unsaved revision with one queued job per execution, for the component's host pool."""
+    """An unsaved revision with one queued job per execution, for the component's host pool.
+
+    Its code comes from the component's own repository, whatever the request says.
+    """
     return Revision(
         component=component,
         title=data.title,
         sort_key=data.sort_key,
         order_key=order_key(data.sort_key),
         commit=data.commit,
-        repo=data.repo or component.repo,
+        repo=component.repo,
         branch=data.branch or component.branch,
         message=data.message,
         committed_at=data.committed_at,
@@ -54,6 +64,12 @@ def new_revision(component: Component, data: RevisionCreate) -> Revision:
 def create_revision(session: Session, data: RevisionCreate) -> Revision:
     """A revision and one queued job per execution the component asks for."""
     component = get_component(session, data.component)
+    if data.repo and repo_key(data.repo) != component.repo_key:
+        raise Forbidden(
+            f"a revision of {component.name!r} runs the component's own repository "
+            f"({component.repo or 'none set'}), not {data.repo[:200]!r}; only an admin changes "
+            f"where its code comes from (PATCH /api/v1/components/{component.name})"
+        )
     revision = new_revision(component, data)
     session.add(revision)
     try:

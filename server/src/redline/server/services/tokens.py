@@ -5,8 +5,10 @@ from __future__ import annotations
 from redline.server.core.security import hash_token, new_token, parse_scopes
 from redline.server.models import ApiToken, utcnow
 from redline.server.services.errors import BadRequest, Conflict, NotFound
-from sqlalchemy import select
+from sqlalchemy import func, select
 from sqlalchemy.orm import Session
+
+TOKEN_NAME_LOCK = 0x544B  # "TK": the first key of the advisory lock an issuer takes per name
 
 
 def authenticate(session: Session, secret: str) -> ApiToken | None:
@@ -29,6 +31,8 @@ def issue_token(
         parsed = parse_scopes(scopes)
     except ValueError as exc:
         raise BadRequest(str(exc)) from None
+    # one issuer per name at a time, so two at once cannot both find no live token
+    session.execute(select(func.pg_advisory_xact_lock(TOKEN_NAME_LOCK, func.hashtext(name))))
     live = session.scalar(select(ApiToken).where(ApiToken.name == name, ~ApiToken.revoked))
     if live is not None:
         raise Conflict(f"a live token named {name!r} exists; revoke it first")

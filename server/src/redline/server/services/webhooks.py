@@ -9,15 +9,23 @@ from __future__ import annotations
 
 import hashlib
 import hmac
-import json
+import re
 from collections.abc import Callable
 from dataclasses import dataclass
 from datetime import UTC, datetime
 
 from pydantic import ValidationError
+from redline.server.core.bodies import BadJson, parse_json
 from redline.server.models import Component, Revision
-from redline.server.schemas import RevisionCreate
-from redline.server.schemas_intake import PushCommit, PushEvent, PushRevision, WebhookResult
+from redline.server.schemas.fields import parse_commit_time
+from redline.server.schemas.revisions import RevisionCreate
+from redline.server.schemas.webhooks import (
+    PushCommit,
+    PushEvent,
+    PushRevision,
+    RefusedCommit,
+    WebhookResult,
+)
 from redline.server.services.errors import BadRequest, ServiceError
 from redline.server.services.repos import repo_key
 from redline.server.services.revisions import new_revision
@@ -26,6 +34,7 @@ from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
 TITLE_LENGTH = 12  # a commit's revision title: its first 12 hex digits
+_COMMIT_ID = re.compile(r"^[0-9a-fA-F]{7,64}$")
 
 
 class Unauthorized(ServiceError):
@@ -62,32 +71,42 @@ class Push:
 
 def parse_push(body: bytes) -> Push:
     try:
-        event = PushEvent.model_validate(json.loads(body))
-    except (ValueError, ValidationError) as exc:
+        event = PushEvent.model_validate(parse_json(body))
+    except BadJson as exc:
         raise BadRequest(f"not a push event: {exc}") from None
+    except ValidationError as exc:
+        first = exc.errors()[0]
+        where = ".".join(str(part) for part in first["loc"]) or "the body"
+        raise BadRequest(f"not a push event: {where}: {first['msg']}") from None
     urls = [url for repo in (event.repository, event.project) if repo for url in repo.urls()]
     branch = event.ref.removeprefix("refs/heads/") if event.ref.startswith("refs/heads/") else None
     commits = event.commits or ([event.head_commit] if event.head_commit else [])
     return Push(urls, branch, commits)
 
 
-def _candidates(session: Session, push: Push) -> list[Component]:
+def _of_repository(session: Session, push: Push) -> list[Component]:
+    """The components of the repository the push names, whatever their branch: their secrets
+    authenticate any event of it (a ping too), their branch decides what is recorded."""
     keys = {key for key in map(repo_key, push.urls) if key}
-    if not keys or push.branch is None:
+    if not keys:
         return []
     return list(
         session.scalars(
-            select(Component)
-            .where(Component.repo_key.in_(keys), Component.branch == push.branch)
-            .order_by(Component.name)
+            select(Component).where(Component.repo_key.in_(keys)).order_by(Component.name)
         )
     )
 
 
-def sort_key(commit: PushCommit, index: int, received: datetime) -> str:
+def commit_time(commit: PushCommit) -> datetime | None:
+    """The commit's time; ValueError saying what is wrong with the commit otherwise."""
+    if not _COMMIT_ID.match(commit.id):
+        raise ValueError(f"id {commit.id[:80]!r} is not a commit hash (7 to 64 hex digits)")
+    return parse_commit_time(commit.timestamp) if commit.timestamp else None
+
+
+def sort_key(when: datetime, index: int) -> str:
     """Commit time (UTC), then the commit's place in the push: ``20261122T021651Z.0002``."""
-    when = (commit.timestamp or received).astimezone(UTC)
-    return f"{when:%Y%m%dT%H%M%SZ}.{index:04d}"
+    return f"{when.astimezone(UTC):%Y%m%dT%H%M%SZ}.{index:04d}"
 
 
 def _add_revision(session: Session, component: Component, data: RevisionCreate) -> Revision | None:
@@ -103,18 +122,25 @@ def _add_revision(session: Session, component: Component, data: RevisionCreate) 
 
 
 def _record(session: Session, components: list[Component], push: Push) -> WebhookResult:
+    """One revision per valid commit and component; a bad commit is refused, not the push."""
     received = datetime.now(UTC)
     result = WebhookResult(detail="")
+    timed: list[tuple[int, PushCommit, datetime | None]] = []
+    for index, commit in enumerate(push.commits):
+        try:
+            timed.append((index, commit, commit_time(commit)))
+        except ValueError as exc:
+            result.refused.append(RefusedCommit(commit=commit.id[:200], reason=str(exc)))
     for component in components:
-        for index, commit in enumerate(push.commits):
+        for index, commit, when in timed:
             data = RevisionCreate(
                 component=component.name,
                 title=commit.id[:TITLE_LENGTH],
-                sort_key=sort_key(commit, index, received),
+                sort_key=sort_key(when or received, index),
                 commit=commit.id,
                 branch=push.branch or "",
                 message=commit.message[:10_000],
-                committed_at=commit.timestamp,
+                committed_at=when,
             )
             revision = _add_revision(session, component, data)
             if revision is None:
@@ -130,9 +156,10 @@ def _record(session: Session, components: list[Component], push: Push) -> Webhoo
                 )
             )
     session.commit()
+    refused = f", {len(result.refused)} commit(s) refused" if result.refused else ""
     result.detail = (
         f"{len(result.created)} revision(s) created, {result.existing} already known"
-        f" for {', '.join(c.name for c in components)}"
+        f"{refused} for {', '.join(c.name for c in components)}"
     )
     return result
 
@@ -152,7 +179,7 @@ def authenticate_push(
         if not verify(default_secret):
             raise Unauthorized("webhook signature does not match") from None
         raise
-    candidates = _candidates(session, push)
+    candidates = _of_repository(session, push)
     secrets = {c.webhook_secret or default_secret for c in candidates} or {default_secret}
     if not any(verify(secret) for secret in secrets):
         raise Unauthorized(
@@ -160,7 +187,13 @@ def authenticate_push(
             if any(secrets)
             else "no webhook secret is configured"
         )
-    return push, [c for c in candidates if verify(c.webhook_secret or default_secret)]
+    return push, [
+        c
+        for c in candidates
+        if push.branch is not None
+        and c.branch == push.branch
+        and verify(c.webhook_secret or default_secret)
+    ]
 
 
 def receive_push(

@@ -1,0 +1,160 @@
+"""`redline compare`: KS per series between recordings, as JUnit XML and an HTML report.
+
+    redline compare --baseline A.mcap [A2.mcap ...] --candidate B.mcap [B2.mcap ...]
+                    --junit out.xml [--html out.html]
+
+Exit status: 1 when a change is found, 0 when none is, 2 on bad input (an unreadable or
+truncated recording, named; no series in common; a malformed command line).
+
+The comparison (scipy) is imported where it runs, not here: every `redline` command line imports
+this module to build the CLI.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Annotated
+
+import typer
+from typer.core import TyperCommand, TyperOption
+
+if TYPE_CHECKING:
+    from redline.detect.compare import Comparison
+    from typer._click.core import Context  # the Context typer vendors from click
+
+EXIT_CHANGE, EXIT_BAD_INPUT = 1, 2
+
+
+@dataclass
+class CompareArgs:
+    baseline: list[Path] = field(default_factory=list)
+    candidate: list[Path] = field(default_factory=list)
+    junit: Path | None = None
+    html: Path | None = None
+    judge_split: bool = False
+
+
+class FilesAfterOption(TyperCommand):
+    """A command whose repeatable options also take every further file that follows them:
+    ``--baseline A B`` reads as ``--baseline A --baseline B``."""
+
+    def parse_args(self, ctx: Context, args: list[str]) -> list[str]:
+        return super().parse_args(ctx, self.repeat_options(ctx, args))
+
+    def repeat_options(self, ctx: Context, args: list[str]) -> list[str]:
+        options = [param for param in self.params if isinstance(param, TyperOption)]
+        repeatable = {name for option in options if option.multiple for name in option.opts}
+        valued = {name for option in options if not option.is_flag for name in option.opts}
+        words: list[str] = []
+        current: str | None = None  # the repeatable option that a bare file name belongs to
+        awaiting: str | None = None  # the option whose value the next word is
+        for word in args:
+            is_option = word.startswith("-")
+            if awaiting:
+                if is_option:  # Click would take this option's name for the file's
+                    raise typer.BadParameter("needs a file name", ctx, param_hint=awaiting)
+                words.append(word)
+                awaiting = None
+            elif is_option:
+                name = word.partition("=")[0]
+                current = name if name in repeatable else None
+                awaiting = name if name in valued and "=" not in word else None
+                words.append(word)
+            else:
+                words += [current, word] if current else [word]
+        return words
+
+
+def compare_cmd(
+    baseline: Annotated[
+        list[Path],
+        typer.Option(
+            help="baseline recording(s): every file after the option (it may also repeat)"
+        ),
+    ],
+    candidate: Annotated[
+        list[Path], typer.Option(help="candidate recording(s), given as the baseline's")
+    ],
+    junit: Annotated[
+        Path,
+        typer.Option(help="the JUnit XML to write: a test case per case, phase and parameter set"),
+    ],
+    html: Annotated[
+        Path | None, typer.Option(help="also an HTML report plotting the changed counters")
+    ] = None,
+    judge_split: Annotated[
+        bool,
+        typer.Option(
+            help="judge the user/system split of CPU too (by default only the total is judged: "
+            "the split moves between runs of the same code)"
+        ),
+    ] = False,
+) -> None:
+    """Compare candidate recordings with baseline ones: KS per counter series, JUnit XML out.
+
+    Exit 1 when a change is found, 0 when none, 2 on bad input.
+    """
+    from redline.detect.compare import CompareError, compare_files
+    from redline.detect.counters import CONTEXT_COUNTERS
+    from redline.recording.disturbance import threshold
+
+    args = CompareArgs(baseline, candidate, junit, html, judge_split)
+    try:
+        comparison = compare_files(
+            args.baseline, args.candidate, () if args.judge_split else CONTEXT_COUNTERS, threshold()
+        )
+        write_outputs(comparison, args)
+    except CompareError as exc:
+        typer.echo(f"compare: {exc}", err=True)
+        raise typer.Exit(EXIT_BAD_INPUT) from None
+    except OSError as exc:
+        typer.echo(f"compare: cannot write {exc.filename}: {exc.strerror}", err=True)
+        raise typer.Exit(EXIT_BAD_INPUT) from None
+    for recorded in (*comparison.baseline, *comparison.candidate):
+        for (case, phase, params), why in recorded.disturbed.items():
+            typer.echo(
+                f"warning: {recorded.label}: {case}/{phase} {params}: {why} (its "
+                "measurements may not be the component's own)",
+                err=True,
+            )
+    changed = comparison.changed
+    for segment in comparison.segments:
+        mark = f"CHANGED ({len(segment.changed)})" if segment.changed else segment.note or "ok"
+        typer.echo(f"{segment.name}: {mark}")
+    typer.echo(
+        f"{len(changed)} counter(s) changed in {len(comparison.segments)} segment(s); "
+        f"JUnit: {args.junit}" + (f"; HTML: {args.html}" if args.html else "")
+    )
+    if changed:
+        raise typer.Exit(EXIT_CHANGE)
+
+
+def write_outputs(comparison: Comparison, args: CompareArgs) -> None:
+    from redline.detect.compare_junit import junit_xml
+
+    assert args.junit is not None
+    args.junit.write_text(junit_xml(comparison), encoding="utf-8")
+    if args.html is not None:
+        # plotly only when a report is asked for
+        from redline.commands.compare_report import html_report
+
+        args.html.write_text(html_report(comparison), encoding="utf-8")
+
+
+def register(app: typer.Typer) -> None:
+    app.command("compare", cls=FilesAfterOption)(compare_cmd)
+
+
+def parse_args(argv: list[str]) -> CompareArgs:
+    """A `redline compare` command line as the command reads it. Raises CompareError naming
+    what is wrong."""
+    from redline.detect.compare import CompareError
+
+    app = typer.Typer()
+    register(app)
+    try:
+        ctx = typer.main.get_command(app).make_context("compare", list(argv))
+    except typer.TyperException as exc:  # Click's usage errors
+        raise CompareError(exc.format_message()) from None
+    return CompareArgs(**ctx.params)

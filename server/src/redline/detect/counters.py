@@ -1,0 +1,72 @@
+"""What Redline knows of a series by its name: its kind, which way is worse, whether a verdict is
+asked of it.
+
+- **counter**: a component process's counter from the monitor (CPU, memory, threads...): a
+  higher value is worse.
+- **driver**: a metric the test driver measured of the component (`redline.recording.driver`):
+  round trips and lateness are worse higher, achieved rates worse lower, timeouts and losses
+  worse higher and judged as counts; the load it delivered (queries sent...) is not judged.
+- **host**, **redline** and **recorder**: the machine's context (what else used it), Redline's own
+  processes' CPU, and the recorder's own counts, charted; of the recorder's, only its losses
+  are judged.
+
+Some counters move without the code changing: two runs of one commit moved ``cpu_system_percent``
+by +27 % and ``cpu_user_percent`` by -26 % while ``cpu_percent`` (their sum) moved -3.8 %
+(issue 11). The split is recorded and charted; by default only the total is judged, and a
+component judges the split when it asks (its detection configuration's ``context_counters``;
+`redline compare --judge-split`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Collection
+
+from redline.recording import HOST_PROCESS
+from redline.recording.driver import DRIVER_PROCESS, RECORDER_PROCESS, Metric, metric_of
+from redline.recording.format import OWN_PROCESS
+
+#: Counters recorded and charted but, unless a component asks, not judged.
+CONTEXT_COUNTERS: tuple[str, ...] = ("cpu_user_percent", "cpu_system_percent")
+
+
+def kind(process: str) -> str:
+    """``counter``, ``driver``, ``host``, ``redline`` or ``recorder``."""
+    if process == HOST_PROCESS:
+        return "host"
+    if process == OWN_PROCESS:
+        return "redline"
+    if process in (DRIVER_PROCESS, RECORDER_PROCESS):
+        return process
+    return "counter"
+
+
+def driver_metric(process: str, counter: str) -> Metric | None:
+    """The driver's (or recorder's) metric a series measures; None for any other series."""
+    return metric_of(counter) if process in (DRIVER_PROCESS, RECORDER_PROCESS) else None
+
+
+def worse(process: str, counter: str) -> str:
+    """The direction of a change for the worse: ``increase`` (a higher value of the series is
+    worse) or ``decrease`` (a lower one is, as for an achieved rate)."""
+    metric = driver_metric(process, counter)
+    return metric.worse if metric is not None else "increase"
+
+
+def is_count(process: str, counter: str) -> bool:
+    """Whether the series counts rare events (timeouts, losses), judged as a rate."""
+    metric = driver_metric(process, counter)
+    return metric is not None and metric.is_count
+
+
+def is_load(process: str, counter: str) -> bool:
+    """Whether the series is a load the driver delivered (queries sent...), not a measurement."""
+    return kind(process) in ("driver", "recorder") and metric_of(counter) is None
+
+
+def judged(process: str, counter: str, context: Collection[str] = CONTEXT_COUNTERS) -> bool:
+    """Whether a verdict is asked of this series: not the host's, not a context counter, not a
+    load the driver delivered."""
+    series_kind = kind(process)
+    if series_kind in ("driver", "recorder"):
+        return metric_of(counter) is not None
+    return series_kind == "counter" and counter not in context

@@ -1,0 +1,41 @@
+"""Every detector Redline has, by the name that configurations, the API, the worker and
+`redline evaluate` use: the one registry of methods."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from functools import partial
+
+from redline.detect.association_rules import FooRules
+from redline.detect.counter_clusters import ShangRegression
+from redline.detect.execution_shift import BuildShift, ExecutionShift
+from redline.detect.median_shift import MedianShift
+from redline.detect.methods import Detector, KolmogorovSmirnov, MannWhitney, WelchT
+from redline.detect.relative_change import RelativeChange
+
+#: The methods a component can be configured with: each judges one series of one revision
+#: against its baseline. Foo and Shang run in their one-counter form (a series is one counter).
+DETECTORS: dict[str, Callable[..., Detector]] = {
+    "execution_shift": ExecutionShift,
+    "build_shift": BuildShift,
+    "ks": KolmogorovSmirnov,
+    "mann_whitney": MannWhitney,
+    "welch_t": WelchT,
+    "median_shift": MedianShift,
+    "foo": FooRules,
+    "shang": ShangRegression,
+    "relative_change": RelativeChange,
+}
+#: Offline only: Foo's and Shang's scores aggregated as the paper also tried (min, mean).
+VARIANTS: dict[str, Callable[..., Detector]] = {
+    f"{name}.{how}": partial(kind, aggregate=how)
+    for name, kind in (("foo", FooRules), ("shang", ShangRegression))
+    for how in ("min", "mean")
+}
+#: What `redline evaluate` can measure per series.
+EVALUATED: dict[str, Callable[..., Detector]] = {**DETECTORS, **VARIANTS}
+#: Change points over a whole history (E-divisive): evaluated offline, not a per-revision method.
+CHANGE_POINT_METHOD = "e_divisive"
+#: Chosen on corpus 2's tuning half and checked on its held-out half and on SAP's set
+#: (docs/detection.md, "Choosing the default").
+DEFAULT_METHOD = "execution_shift"

@@ -1,0 +1,156 @@
+"""What a request body may be: its size by kind of route, and, for JSON, its depth and its text.
+
+Every body is limited before it is read whole (`BodyLimit`): a declared ``Content-Length`` over
+the limit is refused at once, and a body without one is counted as it streams in. JSON is parsed
+in one place (`parse_json`, used by every route through `JsonRoute` and by the routes that read
+raw bodies) so that a document nested deeper than `MAX_DEPTH` or holding a lone surrogate (text
+no database can store) is a 400 naming the fault, never a 500.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from collections.abc import Callable, Coroutine
+from typing import Any
+
+import numpy as np
+from fastapi import HTTPException, Request, Response
+from fastapi.responses import JSONResponse
+from fastapi.routing import APIRoute
+from redline.server.core.config import Settings
+from starlette.datastructures import Headers
+from starlette.types import ASGIApp, Message, Receive, Scope, Send
+
+#: Deepest JSON nesting accepted: GitHub's and GitLab's pushes and LNT's reports need under ten;
+#: far deeper documents would break the recursive code that reads them back (pages, the API).
+MAX_DEPTH = 32
+
+_STRING = re.compile(rb'"[^"\\]*(?:\\.[^"\\]*)*"')  # a JSON string, escapes included
+_NOT_BRACKETS = bytes(b for b in range(256) if b not in b"[]{}")
+_SURROGATE_ESCAPE = re.compile(rb"\\u[dD][89a-fA-F]")  # \ud800-\udfff, paired or not
+
+
+class BadJson(ValueError):
+    """A body that is not acceptable JSON; the message says why and, where it can, where."""
+
+
+def _depth(body: bytes) -> int:
+    """The deepest nesting of a valid JSON document, counted on its bytes (no recursion)."""
+    marks = _STRING.sub(b"", body).translate(None, delete=_NOT_BRACKETS)
+    if not marks:
+        return 0
+    opens = np.frombuffer(marks, dtype=np.uint8)
+    steps = np.where((opens == ord("[")) | (opens == ord("{")), 1, -1)
+    return int(np.cumsum(steps).max())
+
+
+def _shown(key: str) -> str:
+    return key.encode("utf-8", "backslashreplace").decode()
+
+
+def _lone_surrogate(value: Any, path: str = "$") -> str | None:
+    """Where in ``value`` a string (or key) holds a lone surrogate, e.g. ``$.results[0].case``."""
+    if isinstance(value, str):
+        try:
+            value.encode("utf-8")
+        except UnicodeEncodeError:
+            return path
+        return None
+    if isinstance(value, list):
+        for index, item in enumerate(value):
+            if (found := _lone_surrogate(item, f"{path}[{index}]")) is not None:
+                return found
+    elif isinstance(value, dict):
+        for key, item in value.items():
+            where = f"{path}.{_shown(key)}"
+            if (
+                found := _lone_surrogate(key, f"{where} (its name)") or _lone_surrogate(item, where)
+            ) is not None:
+                return found
+    return None
+
+
+def parse_json(body: bytes) -> Any:
+    """The JSON document in ``body``; `BadJson` naming the fault when it is malformed, nested
+    deeper than `MAX_DEPTH`, or holds a lone surrogate (``"\\ud800"``), which is not text."""
+    try:
+        value = json.loads(body)
+    except RecursionError:
+        raise BadJson(f"JSON nested deeper than {MAX_DEPTH} levels") from None
+    except ValueError as exc:  # JSONDecodeError, invalid UTF-8, an over-long integer
+        raise BadJson(f"not valid JSON: {exc}") from None
+    if _depth(body) > MAX_DEPTH:
+        raise BadJson(f"JSON nested deeper than {MAX_DEPTH} levels")
+    if _SURROGATE_ESCAPE.search(body) and (where := _lone_surrogate(value)) is not None:
+        raise BadJson(
+            f"the string at {where} holds a lone surrogate (\\ud800-\\udfff), which is not text"
+        )
+    return value
+
+
+class JsonRequest(Request):
+    """A request whose ``json()`` is `parse_json`: a bad document is a 422 naming its fault, in
+    the shape of FastAPI's own answer to malformed JSON."""
+
+    async def json(self) -> Any:
+        if not hasattr(self, "_json"):
+            try:
+                self._json = parse_json(await self.body())
+            except BadJson as exc:
+                raise HTTPException(
+                    422, [{"type": "json_invalid", "loc": ["body"], "msg": str(exc), "input": None}]
+                ) from None
+        return self._json
+
+
+class JsonRoute(APIRoute):
+    """The route class of every router: request bodies are parsed by `parse_json`."""
+
+    def get_route_handler(self) -> Callable[[Request], Coroutine[Any, Any, Response]]:
+        handler = super().get_route_handler()
+
+        async def handle(request: Request) -> Response:
+            return await handler(JsonRequest(request.scope, request.receive))
+
+        return handle
+
+
+def body_limit(settings: Settings, path: str) -> tuple[int, str]:
+    """The largest body a request to ``path`` may bring, and the setting that says so."""
+    if path.startswith("/api/v1/webhooks/"):
+        return settings.max_webhook_bytes, "REDLINE_MAX_WEBHOOK_BYTES"
+    if path.startswith("/api/v1/import/"):
+        return settings.max_import_bytes, "REDLINE_MAX_IMPORT_BYTES"
+    if path.startswith("/api/v1/jobs/") and path.endswith("/recording"):
+        return settings.max_upload_bytes, "REDLINE_MAX_UPLOAD_BYTES"
+    return settings.max_json_bytes, "REDLINE_MAX_JSON_BYTES"
+
+
+class BodyLimit:
+    """ASGI middleware: 413 for a body over its route's limit, before it is read whole."""
+
+    def __init__(self, app: ASGIApp, settings: Settings) -> None:
+        self.app, self.settings = app, settings
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+        limit, setting = body_limit(self.settings, scope["path"])
+        detail = f"request body larger than the limit of {limit} bytes ({setting})"
+        declared = Headers(scope=scope).get("content-length", "")
+        if declared.isdigit() and int(declared) > limit:
+            await JSONResponse({"detail": detail}, status_code=413)(scope, receive, send)
+            return
+        received = 0
+
+        async def limited() -> Message:
+            nonlocal received
+            message = await receive()
+            received += len(message.get("body", b""))
+            if received > limit:  # raised where the route reads its body: FastAPI answers it
+                raise HTTPException(413, detail)
+            return message
+
+        await self.app(scope, limited, send)

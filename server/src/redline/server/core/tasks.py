@@ -1,0 +1,76 @@
+"""The work the API hands to the workers: task names, and a sender that builds its Celery client
+only when it first sends (the API process never builds the worker's application).
+
+The tasks themselves live in `redline.worker`; this module is all the server knows of them.
+"""
+
+from __future__ import annotations
+
+import logging
+from typing import TYPE_CHECKING
+
+from redline.server.core.config import Settings
+
+if TYPE_CHECKING:
+    from celery import Celery
+
+log = logging.getLogger(__name__)
+
+INGEST_TASK = "redline.ingest_execution"
+DETECT_TASK = "redline.detect_revision"
+REANALYZE_TASK = "redline.reanalyze_component"
+RETENTION_TASK = "redline.prune_old_recordings"
+REQUEUE_TASK = "redline.requeue_stale_uploads"
+
+
+def broker_url(redis_url: str) -> str:
+    """kombu spells a Redis unix socket ``redis+socket:///path``; we accept ``unix:///path``."""
+    if redis_url.startswith("unix://"):
+        return "redis+socket://" + redis_url[len("unix://") :]
+    return redis_url
+
+
+def celery_client(settings: Settings, **options: object) -> Celery:
+    """A Celery application on the settings' broker and queue (the worker's adds its tasks)."""
+    from celery import Celery
+
+    app = Celery("redline", broker=broker_url(settings.redis_url), **options)
+    app.conf.update(
+        task_ignore_result=True,
+        task_default_queue=settings.queue,
+        broker_connection_retry_on_startup=True,
+        task_publish_retry_policy={
+            "max_retries": 3,
+            "interval_start": 0.2,
+            "interval_step": 0.5,
+            "interval_max": 1.0,
+        },
+    )
+    return app
+
+
+class TaskSender:
+    """How the API hands work to the workers; a broker outage is logged, never a lost upload."""
+
+    def __init__(self, settings: Settings) -> None:
+        self.settings = settings
+        self._celery: Celery | None = None
+
+    def send(self, name: str, *args: int) -> bool:
+        try:
+            if self._celery is None:
+                self._celery = celery_client(self.settings)
+            self._celery.send_task(name, args=list(args))
+        except Exception:  # the upload is stored; the periodic re-queue (or a repeat) queues it
+            log.exception("could not queue %s%r", name, args)
+            return False
+        return True
+
+    def ingest(self, execution_id: int) -> bool:
+        return self.send(INGEST_TASK, execution_id)
+
+    def detect(self, revision_id: int) -> bool:
+        return self.send(DETECT_TASK, revision_id)
+
+    def reanalyze(self, component_id: int) -> bool:
+        return self.send(REANALYZE_TASK, component_id)

@@ -1,0 +1,40 @@
+"""The database tables (SQLAlchemy 2, typed), one module per concern; importing this package
+registers every table on `Base.metadata`, which Alembic's autogenerate compares with the schema.
+Schema changes go through Alembic (``redline/server/migrations``)."""
+
+from redline.server.models.base import Base, utcnow
+from redline.server.models.detection import (
+    FALSE_POSITIVE_STATES,
+    TRUE_POSITIVE_STATES,
+    Detection,
+    DetectionConfigRow,
+    Reanalysis,
+    Regression,
+    RegressionEvent,
+    RegressionState,
+)
+from redline.server.models.results import Series, Summary
+from redline.server.models.tokens import ApiToken
+from redline.server.models.work import Component, Execution, Host, Job, JobState, Revision
+
+__all__ = [
+    "FALSE_POSITIVE_STATES",
+    "TRUE_POSITIVE_STATES",
+    "ApiToken",
+    "Base",
+    "Component",
+    "Detection",
+    "DetectionConfigRow",
+    "Execution",
+    "Host",
+    "Job",
+    "JobState",
+    "Reanalysis",
+    "Regression",
+    "RegressionEvent",
+    "RegressionState",
+    "Revision",
+    "Series",
+    "Summary",
+    "utcnow",
+]

@@ -1,0 +1,140 @@
+"""Tables of detection and triage: per-component configuration, every method's verdict per series
+and revision, regressions grouped from flagged verdicts with their triage history, re-analyses."""
+
+from __future__ import annotations
+
+import enum
+from datetime import datetime
+from typing import TYPE_CHECKING, Any
+
+from redline.server.models.base import Base, utcnow
+from sqlalchemy import (
+    JSON,
+    Boolean,
+    Enum,
+    Float,
+    ForeignKey,
+    Integer,
+    String,
+    Text,
+    UniqueConstraint,
+)
+from sqlalchemy.orm import Mapped, mapped_column, relationship
+
+if TYPE_CHECKING:
+    from redline.server.models.results import Series
+    from redline.server.models.work import Revision
+
+
+class RegressionState(enum.StrEnum):
+    new = "new"
+    acknowledged = "acknowledged"
+    confirmed = "confirmed"
+    fixed = "fixed"
+    ignored = "ignored"
+    false_positive = "false_positive"
+
+
+#: Triage labels as ground truth for a method's precision (ignored, new, acknowledged: no label).
+TRUE_POSITIVE_STATES = frozenset({RegressionState.confirmed, RegressionState.fixed})
+FALSE_POSITIVE_STATES = frozenset({RegressionState.false_positive})
+
+
+class DetectionConfigRow(Base):
+    """A component's detection configuration (`redline.detect.config.DetectionConfig`)."""
+
+    __tablename__ = "detection_config"
+    component_id: Mapped[int] = mapped_column(ForeignKey("component.id"), primary_key=True)
+    config: Mapped[dict[str, Any]] = mapped_column(JSON)
+    updated: Mapped[datetime] = mapped_column(default=utcnow, onupdate=utcnow)
+
+
+class Regression(Base):
+    """Flagged detections of one component whose revision ranges overlap.
+
+    The range is (good, bad]: the change happened after ``good_revision`` (the newest baseline
+    revision) and shows at ``bad_revision``; the order keys are copied for the overlap query.
+    """
+
+    __tablename__ = "regression"
+    id: Mapped[int] = mapped_column(primary_key=True)
+    component_id: Mapped[int] = mapped_column(ForeignKey("component.id"), index=True)
+    good_revision_id: Mapped[int] = mapped_column(ForeignKey("revision.id"))
+    bad_revision_id: Mapped[int] = mapped_column(ForeignKey("revision.id"))
+    good_key: Mapped[str] = mapped_column(String(1000, collation="C"))
+    bad_key: Mapped[str] = mapped_column(String(1000, collation="C"))
+    state: Mapped[RegressionState] = mapped_column(
+        Enum(RegressionState, name="regression_state", native_enum=False, length=20),
+        default=RegressionState.new,
+        index=True,
+    )
+    created: Mapped[datetime] = mapped_column(default=utcnow)
+    updated: Mapped[datetime] = mapped_column(default=utcnow, onupdate=utcnow)
+    good_revision: Mapped[Revision] = relationship(foreign_keys=[good_revision_id])
+    bad_revision: Mapped[Revision] = relationship(foreign_keys=[bad_revision_id])
+    events: Mapped[list[RegressionEvent]] = relationship(
+        order_by="RegressionEvent.id", cascade="all, delete-orphan"
+    )
+
+
+class RegressionEvent(Base):
+    """One triage step: who moved the regression from one state to another, when, and why."""
+
+    __tablename__ = "regression_event"
+    id: Mapped[int] = mapped_column(primary_key=True)
+    regression_id: Mapped[int] = mapped_column(
+        ForeignKey("regression.id", ondelete="CASCADE"), index=True
+    )
+    at: Mapped[datetime] = mapped_column(default=utcnow)
+    who: Mapped[str] = mapped_column(String(200))
+    from_state: Mapped[str] = mapped_column(String(20))
+    to_state: Mapped[str] = mapped_column(String(20))
+    comment: Mapped[str] = mapped_column(Text, default="")
+
+
+class Detection(Base):
+    """One method's verdict on one series of one revision against its baseline.
+
+    ``verdict`` is "change", "no change" or "not enough data" (then ``reason`` says what is
+    missing and the baseline may be absent). ``baseline_revision_id`` is the newest baseline
+    revision; ``baseline_revisions`` how many were pooled.
+    """
+
+    __tablename__ = "detection"
+    __table_args__ = (UniqueConstraint("series_id", "revision_id", "method"),)
+    id: Mapped[int] = mapped_column(primary_key=True)
+    series_id: Mapped[int] = mapped_column(ForeignKey("series.id"), index=True)
+    revision_id: Mapped[int] = mapped_column(ForeignKey("revision.id"), index=True)
+    baseline_revision_id: Mapped[int | None] = mapped_column(
+        ForeignKey("revision.id"), default=None
+    )
+    baseline_revisions: Mapped[int] = mapped_column(Integer, default=0)
+    method: Mapped[str] = mapped_column(String(50))
+    verdict: Mapped[str] = mapped_column(String(20))
+    reason: Mapped[str] = mapped_column(Text, default="")
+    score: Mapped[float] = mapped_column(Float, default=0.0)
+    p_value: Mapped[float | None] = mapped_column(Float, default=None)
+    effect: Mapped[float | None] = mapped_column(Float, default=None)  # None when undefined
+    direction: Mapped[str] = mapped_column(String(10), default="none")
+    flagged: Mapped[bool] = mapped_column(Boolean, default=False)
+    regression_id: Mapped[int | None] = mapped_column(
+        ForeignKey("regression.id", ondelete="SET NULL"), index=True, default=None
+    )
+    created: Mapped[datetime] = mapped_column(default=utcnow)
+    series: Mapped[Series] = relationship()
+    revision: Mapped[Revision] = relationship(foreign_keys=[revision_id])
+    baseline_revision: Mapped[Revision | None] = relationship(foreign_keys=[baseline_revision_id])
+
+
+class Reanalysis(Base):
+    """The latest re-analysis of a component's whole history, with its progress."""
+
+    __tablename__ = "reanalysis"
+    component_id: Mapped[int] = mapped_column(ForeignKey("component.id"), primary_key=True)
+    state: Mapped[str] = mapped_column(String(20), default="queued")  # running, done, failed
+    total: Mapped[int] = mapped_column(Integer, default=0)
+    done: Mapped[int] = mapped_column(Integer, default=0)
+    error: Mapped[str] = mapped_column(Text, default="")
+    requested: Mapped[datetime] = mapped_column(default=utcnow)
+    started: Mapped[datetime | None] = mapped_column(default=None)
+    finished: Mapped[datetime | None] = mapped_column(default=None)

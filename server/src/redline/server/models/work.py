@@ -1,0 +1,116 @@
+"""What is measured and who measures it: components, their revisions, the jobs that run them on
+performance hosts, and each job's execution (its recording)."""
+
+from __future__ import annotations
+
+import enum
+from datetime import datetime
+from typing import Any
+
+from redline.server.models.base import Base, utcnow
+from sqlalchemy import (
+    JSON,
+    BigInteger,
+    Enum,
+    ForeignKey,
+    Integer,
+    String,
+    Text,
+    UniqueConstraint,
+)
+from sqlalchemy.orm import Mapped, mapped_column, relationship
+
+
+class JobState(enum.StrEnum):
+    queued = "queued"
+    leased = "leased"
+    running = "running"
+    uploaded = "uploaded"
+    done = "done"
+    failed = "failed"
+    cancelled = "cancelled"
+
+
+class Component(Base):
+    __tablename__ = "component"
+    id: Mapped[int] = mapped_column(primary_key=True)
+    name: Mapped[str] = mapped_column(String(200), unique=True)
+    repo: Mapped[str] = mapped_column(Text, default="")
+    branch: Mapped[str] = mapped_column(String(200), default="main")
+    suite: Mapped[str] = mapped_column(Text, default="")
+    executions: Mapped[int] = mapped_column(Integer, default=1)
+    created: Mapped[datetime] = mapped_column(default=utcnow)
+    # redline.server.services.repos.repo_key(repo): https/ssh/.git spellings of one repository
+    repo_key: Mapped[str] = mapped_column(Text, default="", index=True)
+    host_labels: Mapped[list[str]] = mapped_column(JSON, default=list)  # a host must have all
+    webhook_secret: Mapped[str | None] = mapped_column(Text, default=None)  # else the setting
+    description: Mapped[str] = mapped_column(Text, default="")
+
+
+class Revision(Base):
+    __tablename__ = "revision"
+    __table_args__ = (UniqueConstraint("component_id", "title"),)
+    id: Mapped[int] = mapped_column(primary_key=True)
+    component_id: Mapped[int] = mapped_column(ForeignKey("component.id"), index=True)
+    title: Mapped[str] = mapped_column(String(200))
+    sort_key: Mapped[str] = mapped_column(String(200))
+    # sort_key with digit runs made comparable as text ("9" < "10"); "C" collation: bytewise order
+    order_key: Mapped[str] = mapped_column(String(1000, collation="C"), index=True)
+    commit: Mapped[str] = mapped_column(String(200), default="")
+    repo: Mapped[str] = mapped_column(Text, default="")
+    branch: Mapped[str] = mapped_column(String(200), default="")
+    message: Mapped[str] = mapped_column(Text, default="")
+    committed_at: Mapped[datetime | None] = mapped_column(default=None)
+    created: Mapped[datetime] = mapped_column(default=utcnow)
+    # set by detection, cleared by ingestion: the changes shown are those of all ingested data
+    analyzed_at: Mapped[datetime | None] = mapped_column(default=None)
+    component: Mapped[Component] = relationship()
+    jobs: Mapped[list[Job]] = relationship(
+        back_populates="revision", order_by="Job.execution_index"
+    )
+
+
+class Job(Base):
+    __tablename__ = "job"
+    __table_args__ = (UniqueConstraint("revision_id", "execution_index"),)
+    id: Mapped[int] = mapped_column(primary_key=True)
+    revision_id: Mapped[int] = mapped_column(ForeignKey("revision.id"), index=True)
+    execution_index: Mapped[int] = mapped_column(Integer)
+    state: Mapped[JobState] = mapped_column(
+        Enum(JobState, name="job_state", native_enum=False, length=20),
+        default=JobState.queued,
+        index=True,
+    )
+    attempts: Mapped[int] = mapped_column(Integer, default=0)
+    lease_expires_at: Mapped[datetime | None] = mapped_column(default=None)
+    host_id: Mapped[int | None] = mapped_column(ForeignKey("host.id"), default=None)
+    reason: Mapped[str] = mapped_column(Text, default="")
+    labels: Mapped[list[str]] = mapped_column(JSON, default=list)  # the host pool: all required
+    created: Mapped[datetime] = mapped_column(default=utcnow)
+    updated: Mapped[datetime] = mapped_column(default=utcnow, onupdate=utcnow)
+    revision: Mapped[Revision] = relationship(back_populates="jobs")
+    host: Mapped[Host | None] = relationship()
+    execution: Mapped[Execution | None] = relationship(back_populates="job")
+
+
+class Execution(Base):
+    __tablename__ = "execution"
+    id: Mapped[int] = mapped_column(primary_key=True)
+    job_id: Mapped[int] = mapped_column(ForeignKey("job.id"), unique=True)
+    revision_id: Mapped[int] = mapped_column(ForeignKey("revision.id"), index=True)
+    recording_path: Mapped[str] = mapped_column(Text)
+    sha256: Mapped[str] = mapped_column(String(64), unique=True)
+    size: Mapped[int] = mapped_column(BigInteger, default=0)
+    meta: Mapped[dict[str, Any]] = mapped_column("metadata", JSON, default=dict)
+    created: Mapped[datetime] = mapped_column(default=utcnow)
+    pruned_at: Mapped[datetime | None] = mapped_column(default=None)  # raw files deleted
+    job: Mapped[Job] = relationship(back_populates="execution")
+
+
+class Host(Base):
+    __tablename__ = "host"
+    id: Mapped[int] = mapped_column(primary_key=True)
+    name: Mapped[str] = mapped_column(String(200), unique=True)
+    fingerprint: Mapped[dict[str, Any]] = mapped_column(default=dict)
+    labels: Mapped[list[str]] = mapped_column(JSON, default=list)
+    last_seen: Mapped[datetime] = mapped_column(default=utcnow)

@@ -1,0 +1,66 @@
+"""Components: what is measured, and the settings an admin gives it."""
+
+from __future__ import annotations
+
+from datetime import datetime
+
+from pydantic import BaseModel, ConfigDict, Field
+from redline.server.schemas.fields import ComponentName
+
+
+class ComponentSettings(BaseModel):
+    """What PATCH may change; every field is optional there."""
+
+    repo: str | None = Field(default=None, description="URL or path; https/ssh/.git all match")
+    branch: str | None = Field(
+        default=None,
+        max_length=200,
+        description="the default branch; pushes to it become revisions",
+    )
+    suite: str | None = Field(
+        default=None, description="path of the suite file inside the repository"
+    )
+    executions: int | None = Field(
+        default=None, ge=1, le=100, description="executions (jobs) per revision"
+    )
+    host_labels: list[str] | None = Field(
+        default=None, description="labels a host needs to run its jobs"
+    )
+    webhook_secret: str | None = Field(
+        default=None, description="overrides REDLINE_WEBHOOK_SECRET for this repository; '' clears"
+    )
+    description: str | None = None
+
+
+class ComponentCreate(BaseModel):
+    name: ComponentName
+    repo: str = Field(
+        default="",
+        description="https://, ssh:// or git:// URL, or user@host:path; "
+        "a local path or file:// only where REDLINE_ALLOW_FILE_REPOS is set",
+    )
+    branch: str = Field(
+        default="main",
+        max_length=200,
+        description="the default branch; pushes to it become revisions",
+    )
+    suite: str = Field(default="", description="path of the suite file inside the repository")
+    executions: int = Field(default=1, ge=1, le=100, description="executions per revision")
+    host_labels: list[str] = Field(
+        default_factory=list, description="labels a host needs to run its jobs"
+    )
+    webhook_secret: str | None = Field(default=None, description="overrides REDLINE_WEBHOOK_SECRET")
+    description: str = ""
+
+
+class ComponentOut(BaseModel):
+    model_config = ConfigDict(from_attributes=True)
+    name: str
+    repo: str
+    branch: str
+    suite: str
+    executions: int
+    host_labels: list[str] = Field(default_factory=list)
+    description: str = ""
+    has_webhook_secret: bool = Field(default=False, description="the secret is never shown")
+    created: datetime

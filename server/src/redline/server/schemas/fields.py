@@ -1,0 +1,64 @@
+"""Field types the request schemas share: what may be a name in a URL, a commit, a time.
+
+Each refuses at the edge (422 naming the field) what could be stored but not used afterwards:
+a title no URL can address, a date Python cannot read back, a commit git would read as an option.
+"""
+
+from __future__ import annotations
+
+import re
+from datetime import UTC, datetime, timedelta
+from typing import Annotated
+
+from pydantic import AfterValidator, Field
+
+#: commit times accepted: from the Unix epoch to a year ahead (a skewed clock, not a typo)
+EARLIEST = datetime(1970, 1, 1, tzinfo=UTC)
+FUTURE_SLACK = timedelta(days=366)
+_CONTROL = re.compile(r"[\x00-\x1f\x7f]")
+
+
+def path_segment(value: str) -> str:
+    """A value that is one URL path segment: no ``/``, no control character, not ``.``/``..``."""
+    if "/" in value:
+        raise ValueError("must not contain '/' (it names one path segment of the API's URLs)")
+    if _CONTROL.search(value):
+        raise ValueError("must not contain control characters")
+    if value in (".", ".."):
+        raise ValueError(f"{value!r} cannot be addressed in a URL")
+    return value
+
+
+def commit_time(value: datetime) -> datetime:
+    """``value`` in UTC (naive means UTC), between 1970 and a year from now."""
+    if value.tzinfo is None:
+        value = value.replace(tzinfo=UTC)
+    try:
+        utc = value.astimezone(UTC)
+    except OverflowError:
+        raise ValueError(f"{value.isoformat()} is not a representable time in UTC") from None
+    latest = datetime.now(UTC) + FUTURE_SLACK
+    if not EARLIEST <= utc <= latest:
+        raise ValueError(
+            f"{utc.isoformat()} is not between {EARLIEST:%Y-%m-%d} and a year from now"
+        )
+    return utc
+
+
+def parse_commit_time(text: str) -> datetime:
+    """An ISO 8601 time (as a push event gives it) checked by `commit_time`."""
+    try:
+        return commit_time(datetime.fromisoformat(text))
+    except ValueError as exc:
+        raise ValueError(f"timestamp {text[:40]!r}: {exc}") from None
+
+
+#: a component's name: letters, digits, '.', '_', '-', starting with a letter or digit
+ComponentName = Annotated[
+    str, Field(min_length=1, max_length=200, pattern=r"^[A-Za-z0-9][A-Za-z0-9._-]*$")
+]
+#: a revision's title: one path segment (a commit hash, a tag, "v1.2 rc1"...)
+Title = Annotated[str, Field(min_length=1, max_length=200), AfterValidator(path_segment)]
+#: a commit as git names it (a hash, a tag, a branch); never starting with '-'
+Commit = Annotated[str, Field(max_length=200, pattern=r"^(?:[A-Za-z0-9_][\w./@+-]*)?$")]
+CommitTime = Annotated[datetime, AfterValidator(commit_time)]

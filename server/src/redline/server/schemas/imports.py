@@ -1,0 +1,41 @@
+"""Results imported without the SDK: Redline's generic results, and the answer to any import."""
+
+from __future__ import annotations
+
+from typing import Annotated, Any
+
+from pydantic import BaseModel, Field
+from redline.server.schemas.fields import Commit, Title
+
+
+class ImportResult(BaseModel):
+    component: str
+    revision: str
+    revision_id: int
+    execution_id: int
+    series: int = Field(description="series with a summary in this import")
+    created: bool = Field(description="false when the same report was imported before")
+
+
+class ResultValue(BaseModel):
+    """One measured series of a generic result: its name and its samples."""
+
+    case: str = Field(min_length=1, max_length=200)
+    phase: str = Field(default="main", min_length=1, max_length=200)
+    params: dict[str, Any] = Field(default_factory=dict)
+    process: str = Field(default="benchmark", min_length=1, max_length=200)
+    counter: str = Field(min_length=1, max_length=200)
+    values: list[Annotated[float, Field(allow_inf_nan=False)]] = Field(
+        min_length=1, description="finite samples (NaN and infinities are refused)"
+    )
+
+
+class ResultsImport(BaseModel):
+    """A benchmark's results without the SDK; see docs/api.md."""
+
+    component: str = Field(min_length=1, max_length=200)
+    revision: Title = Field(description="the revision's title")
+    sort_key: str = Field(min_length=1, max_length=200)
+    commit: Commit = ""
+    host: str = Field(default="", max_length=200, description="where it was measured")
+    results: list[ResultValue] = Field(min_length=1)

@@ -1,0 +1,58 @@
+"""The agent's job protocol: registering a host, leasing, heartbeats, uploads, failures."""
+
+from __future__ import annotations
+
+from datetime import datetime
+from typing import Any
+
+from pydantic import BaseModel, Field
+
+
+class RegisterRequest(BaseModel):
+    name: str = Field(min_length=1, max_length=200)
+    fingerprint: dict[str, Any] = Field(default_factory=dict)
+    labels: list[str] = Field(default_factory=list)
+
+
+class RegisterResponse(BaseModel):
+    host_id: int
+
+
+class HostRequest(BaseModel):
+    host: str = Field(min_length=1, max_length=200)
+
+
+class LeasedRevision(BaseModel):
+    title: str
+    sort_key: str
+
+
+class LeasedJob(BaseModel):
+    id: int
+    component: str
+    repo: str
+    commit: str
+    suite: str
+    revision: LeasedRevision
+    execution_index: int
+    lease_expires_at: datetime
+
+
+class HeartbeatResponse(BaseModel):
+    lease_expires_at: datetime
+
+
+class UploadResponse(BaseModel):
+    execution_id: int
+    ingest_queued: bool = Field(description="whether ingestion was handed to the workers")
+
+
+class FailRequest(BaseModel):
+    host: str = Field(min_length=1, max_length=200, description="the host holding the job")
+    reason: str = Field(min_length=1, max_length=10_000)
+
+
+class JobStateOut(BaseModel):
+    id: int
+    state: str
+    reason: str

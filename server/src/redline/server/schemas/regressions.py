@@ -1,0 +1,114 @@
+"""Detections, regressions, triage, accuracy, the detection configuration and re-analysis."""
+
+from __future__ import annotations
+
+from datetime import datetime
+from typing import Literal
+
+from pydantic import BaseModel, Field
+from redline.detect.baseline import DEFAULT_WINDOW
+from redline.detect.config import MAX_WINDOW
+from redline.detect.counters import CONTEXT_COUNTERS
+from redline.server.models import RegressionState
+from redline.server.schemas.results import SeriesRef
+
+
+class DetectionOut(BaseModel):
+    series: SeriesRef
+    revision: str
+    baseline: str | None = Field(description="the newest baseline revision; null when missing")
+    baseline_revisions: int = Field(description="how many revisions the baseline pools")
+    method: str
+    verdict: Literal["change", "no change", "not enough data"]
+    reason: str = Field(description="what is missing, or why a significant result is no change")
+    score: float
+    p_value: float | None
+    effect: float | None = Field(description="relative change of the mean; null when undefined")
+    direction: str
+    flagged: bool
+    regression_id: int | None
+
+
+class RegressionEventOut(BaseModel):
+    at: datetime
+    who: str
+    from_state: str
+    to_state: str
+    comment: str
+
+
+class RegressionOut(BaseModel):
+    id: int
+    component: str
+    good_revision: str = Field(description="the newest revision before the change")
+    bad_revision: str = Field(description="the last revision in the range showing it")
+    state: RegressionState
+    methods: list[str] = Field(description="methods with a flagged detection in it")
+    detections: int
+    created: datetime
+    updated: datetime
+
+
+class RegressionDetail(RegressionOut):
+    flagged: list[DetectionOut]
+    history: list[RegressionEventOut]
+
+
+class TriageRequest(BaseModel):
+    state: RegressionState
+    comment: str = Field(default="", max_length=10_000)
+
+
+class MethodAccuracy(BaseModel):
+    method: str
+    true_positives: int = Field(description="confirmed or fixed regressions it flagged")
+    false_positives: int = Field(description="regressions labelled false_positive it flagged")
+    precision: float | None = Field(description="TP / (TP + FP); null before any label")
+    unlabelled: int = Field(description="its regressions still new, acknowledged or ignored")
+
+
+class AccuracyOut(BaseModel):
+    component: str
+    labelled_regressions: int
+    methods: list[MethodAccuracy]
+
+
+class DetectionConfigIn(BaseModel):
+    methods: list[str] | None = Field(
+        default=None, description="default: the evaluated default and ks"
+    )
+    baseline: Literal["recent", "previous", "window", "pinned"] = Field(
+        default="recent",
+        description="recent: the newest revisions, pooled until the method "
+        "has enough values (at most `window`), restarting at its newest flagged change",
+    )
+    window: int = Field(default=DEFAULT_WINDOW, ge=1, le=MAX_WINDOW)
+    pinned: str | None = Field(default=None, description="revision title when pinned")
+    thresholds: dict[str, dict[str, float | str]] = Field(default_factory=dict)
+    context_counters: list[str] = Field(
+        default_factory=lambda: list(CONTEXT_COUNTERS),
+        max_length=100,
+        description="counters recorded and charted but not judged; by default the user/system "
+        "split of CPU, whose total is judged ([] judges every counter)",
+    )
+    reanalyze: bool = Field(default=True, description="re-analyse the whole history after")
+
+
+class DetectionConfigOut(BaseModel):
+    methods: list[str]
+    baseline: str
+    window: int
+    pinned: str | None
+    thresholds: dict[str, dict[str, float | str]]
+    context_counters: list[str]
+
+
+class ReanalysisOut(BaseModel):
+    component: str
+    state: Literal["none", "queued", "running", "done", "failed"]
+    total: int
+    done: int
+    error: str
+    requested: datetime | None
+    started: datetime | None
+    finished: datetime | None

@@ -1,0 +1,67 @@
+"""Revisions as CI reports them, and as the API shows them with their jobs and executions."""
+
+from __future__ import annotations
+
+from datetime import datetime
+
+from pydantic import BaseModel, ConfigDict, Field
+from redline.server.schemas.fields import Commit, CommitTime, Title
+
+
+class RevisionCreate(BaseModel):
+    component: str = Field(min_length=1, max_length=200)
+    title: Title
+    sort_key: str = Field(min_length=1, max_length=200, description="orders revisions; '9' < '10'")
+    commit: Commit = ""
+    repo: str = Field(
+        default="",
+        description="optional; when given, it must name the "
+        "component's own repository (only an admin changes that, by PATCH)",
+    )
+    branch: str = Field(
+        default="", max_length=200, description="defaults to the component's branch"
+    )
+    message: str = Field(default="", max_length=10_000, description="the commit message")
+    committed_at: CommitTime | None = None
+
+
+class RevisionCreated(BaseModel):
+    revision_id: int
+    job_ids: list[int]
+
+
+class ExecutionOut(BaseModel):
+    model_config = ConfigDict(from_attributes=True)
+    id: int
+    sha256: str
+    size: int
+    created: datetime
+
+
+class JobOut(BaseModel):
+    id: int
+    execution_index: int
+    state: str
+    attempts: int
+    reason: str
+    host: str | None
+    lease_expires_at: datetime | None
+    execution: ExecutionOut | None
+
+
+class RevisionOut(BaseModel):
+    id: int
+    title: str
+    sort_key: str
+    commit: str
+    repo: str
+    branch: str = ""
+    committed_at: datetime | None = None
+    state: str = Field(description="derived from the revision's jobs and its analysis")
+    created: datetime
+    analyzed_at: datetime | None = Field(description="when changes were last detected")
+
+
+class RevisionDetail(RevisionOut):
+    component: str
+    jobs: list[JobOut]

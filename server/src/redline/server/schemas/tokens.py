@@ -1,0 +1,30 @@
+"""API tokens: what an admin asks for, and what is shown (the secret once)."""
+
+from __future__ import annotations
+
+from datetime import datetime
+
+from pydantic import BaseModel, ConfigDict, Field
+
+
+class TokenCreate(BaseModel):
+    name: str = Field(min_length=1, max_length=200)
+    scopes: list[str] = Field(min_length=1, description="ci, agent, read, admin")
+    host: str | None = Field(
+        default=None, max_length=200, description="for an agent token: the one host it may act as"
+    )
+
+
+class TokenOut(BaseModel):
+    model_config = ConfigDict(from_attributes=True)
+    id: int
+    name: str
+    scopes: list[str]
+    host: str | None
+    created: datetime
+    last_used: datetime | None
+    revoked: bool
+
+
+class TokenCreated(TokenOut):
+    token: str = Field(description="the secret; shown once, stored only as a hash")

@@ -1,0 +1,112 @@
+"""Ingestion's public half: an execution's samples become its series, summaries (Postgres) and
+the Parquet side table beside its file.
+
+One path for every way data arrives: the worker's ingestion of an uploaded recording
+(`redline.worker.ingest`) and an import of results (`redline.server.services.imports`) both
+end in `store_samples`.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from collections.abc import Mapping
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+from redline.detect.summary import summarize
+from redline.recording import SeriesKey
+from redline.server.models import Execution, Series, Summary
+from redline.server.storage import DISTURBED, NOT_JUDGED, samples_path
+from sqlalchemy import delete, select
+from sqlalchemy.dialects.postgresql import insert
+from sqlalchemy.orm import Session
+
+Samples = dict[SeriesKey, list[float]]
+
+
+def series_ids(session: Session, component_id: int, keys: list[SeriesKey]) -> dict[SeriesKey, int]:
+    """Create the series named that do not exist yet (race-free); return every key's id."""
+    if keys:
+        rows = [
+            dict(
+                component_id=component_id,
+                case=k.case,
+                phase=k.phase,
+                params=k.params,
+                process=k.process,
+                counter=k.counter,
+            )
+            for k in keys
+        ]
+        session.execute(insert(Series).values(rows).on_conflict_do_nothing())
+    known = session.scalars(select(Series).where(Series.component_id == component_id))
+    by_key = {SeriesKey(s.case, s.phase, s.params, s.process, s.counter): s.id for s in known}
+    return {key: by_key[key] for key in keys}
+
+
+def write_samples(
+    path: Path,
+    ids: dict[SeriesKey, int],
+    samples: Samples,
+    not_judged: str | None = None,
+    disturbed: Mapping[int, str] | None = None,
+) -> None:
+    """The side table; in its metadata ``not_judged`` (why none of its samples may be judged)
+    and ``disturbed`` (series id → why that series' samples may not)."""
+    series = np.concatenate(
+        [np.full(len(samples[k]), ids[k], dtype=np.int64) for k in ids]
+        or [np.empty(0, dtype=np.int64)]
+    )
+    values = np.concatenate(
+        [np.asarray(samples[k], dtype=np.float64) for k in ids] or [np.empty(0, dtype=np.float64)]
+    )
+    partial = path.with_suffix(".part")
+    table = pa.table({"series_id": series, "value": values})
+    meta = {}
+    if not_judged is not None:
+        meta[NOT_JUDGED] = not_judged.encode()
+    if disturbed:
+        meta[DISTURBED] = json.dumps({str(k): v for k, v in disturbed.items()}).encode()
+    if meta:
+        table = table.replace_schema_metadata(meta)
+    pq.write_table(table, partial)
+    os.replace(partial, path)
+
+
+def store_samples(
+    session: Session,
+    execution: Execution,
+    component_id: int,
+    samples: Samples,
+    not_judged: str | None = None,
+    disturbed: Mapping[tuple[str, str, str], str] | None = None,
+) -> int:
+    """The execution's series, summaries and side table, replacing any it had (idempotent);
+    how many series got a summary.
+
+    A series without a finite sample gets no summary (its samples stay for detection to name
+    the fault). ``not_judged``: the run must not be judged (the component took no part): its
+    samples are kept, but no series gets a summary, so it makes no trend point and no baseline.
+    ``disturbed``: (case, phase, params) → why: the series of those segments are summarized and
+    charted, but not judged in this execution (`redline.recording.disturbance`).
+    """
+    samples = {key: values for key, values in samples.items() if len(values)}
+    ids = series_ids(session, component_id, sorted(samples))
+    session.execute(delete(Summary).where(Summary.execution_id == execution.id))
+    summaries = {key: summarize(np.asarray(samples[key], dtype=np.float64)) for key in ids}
+    rows = [
+        Summary(execution_id=execution.id, series_id=ids[key], **stats)
+        for key, stats in summaries.items()
+        if stats is not None and not_judged is None
+    ]
+    session.add_all(rows)
+    bad = {
+        ids[key]: disturbed[(key.case, key.phase, key.params)]
+        for key in ids
+        if disturbed and (key.case, key.phase, key.params) in disturbed
+    }
+    write_samples(samples_path(execution.recording_path), ids, samples, not_judged, bad)
+    return len(rows)

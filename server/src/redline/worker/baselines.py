@@ -1,0 +1,114 @@
+"""The baseline policy: for each series and method, which earlier revisions' values a revision is
+judged against (``recent``, ``previous``, ``window`` or ``pinned``; `redline.detect.config`)."""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+from redline.detect.baseline import take_recent
+from redline.detect.config import DetectionConfig
+from redline.detect.methods import Levelled
+from redline.server.models import (
+    Revision,
+)
+from redline.worker.history import earlier_than, flagged_verdicts, previous_revisions
+from redline.worker.samples import SampleCache
+from sqlalchemy import select
+from sqlalchemy.orm import Session
+
+log = logging.getLogger(__name__)
+
+if TYPE_CHECKING:
+    from redline.worker.reanalysis import Walk
+
+
+@dataclass(frozen=True)
+class Baseline:
+    values: np.ndarray | None
+    newest: int | None = None  # the newest baseline revision
+    revisions: int = 0
+    missing: str = ""
+
+
+class Baselines:
+    """Each series' baseline for each method under the configuration."""
+
+    def __init__(
+        self,
+        session: Session,
+        revision: Revision,
+        config: DetectionConfig,
+        series_ids: list[int],
+        walk: Walk | None = None,
+    ) -> None:
+        """``walk``: what a re-analysis knows of the earlier revisions; else it is read."""
+        self.session, self.config = session, config
+        self.cache = walk.cache if walk else SampleCache(config.window + 1)
+        self.pinned: int | None = None
+        self.flagged: set[tuple[int, str, int]] = walk.flagged if walk else set()
+        if config.baseline == "pinned":
+            self.pinned = session.scalar(
+                select(Revision.id).where(
+                    Revision.component_id == revision.component_id,
+                    Revision.title == config.pinned,
+                    earlier_than(revision),
+                )
+            )
+            self.previous: dict[int, list[int]] = {}
+            return
+        depth = 1 if config.baseline == "previous" else config.window
+        self.previous = previous_revisions(
+            session, revision, series_ids, depth, walk.newest_first() if walk else None
+        )
+        if config.baseline == "recent" and walk is None:
+            earlier = {r for ids in self.previous.values() for r in ids}
+            self.flagged = flagged_verdicts(session, earlier, series_ids)
+
+    def values(self, revision_id: int, series_id: int, detector: Levelled) -> np.ndarray | None:
+        return self.cache.values(self.session, revision_id, series_id, detector)
+
+    def _revisions(self, series_id: int, detector: Levelled) -> list[tuple[int, np.ndarray]]:
+        """The baseline's revisions, newest first, with the detector's values of the series."""
+        if self.config.baseline == "pinned":
+            ids = [self.pinned] if self.pinned is not None else []
+        else:
+            ids = self.previous.get(series_id, [])
+        present = (
+            (i, values) for i in ids if (values := self.values(i, series_id, detector)) is not None
+        )
+        if self.config.baseline != "recent":
+            return list(present)
+        return take_recent(
+            (
+                ((i, values), len(values), (series_id, detector.name, i) in self.flagged)
+                for i, values in present
+            ),
+            detector.baseline_values,
+            self.config.window,
+        )
+
+    def revisions_of(self, series_id: int, detector: Levelled) -> list[int]:
+        """The ids of the baseline's revisions of the series for ``detector``, newest first."""
+        return [revision_id for revision_id, _ in self._revisions(series_id, detector)]
+
+    def of(self, series_id: int, detector: Levelled) -> Baseline:
+        if self.config.baseline == "pinned" and self.pinned is None:
+            return Baseline(
+                None,
+                missing=f"missing baseline: pinned revision "
+                f"{self.config.pinned!r} is not an earlier revision",
+            )
+        found = self._revisions(series_id, detector)
+        if not found:
+            known = self.pinned is not None or self.previous.get(series_id)
+            return Baseline(
+                None,
+                missing="missing baseline: the baseline revision's samples "
+                "of this series are unreadable or absent"
+                if known
+                else "missing baseline: no earlier revision has samples of this series",
+            )
+        return Baseline(np.concatenate([values for _, values in found]), found[0][0], len(found))

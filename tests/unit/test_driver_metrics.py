@@ -1,0 +1,215 @@
+"""The driver's metrics as series, read back from real recordings written by RecordingWriter:
+paths in the tree, which fields are measurements, counts as rates, CPU per unit of work, what
+else used the host, and `redline compare` judging them (no service needed)."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from redline.detect.compare import compare_files
+from redline.detect.count_rate import CountRate
+from redline.detect.counters import is_count, judged, kind, worse
+from redline.detect.relative_change import RelativeChange
+from redline.recording import RecordingWriter, SeriesKey, read_recording
+from redline.recording.disturbance import OTHER_CPU, recording_disturbances
+from redline.recording.driver import DRIVER_PROCESS, report_values, series_name
+from redline.testing import Context, FixedRate, Parallel, Publish, Query, Sequence
+from redline.testing.paths import action_paths
+
+PARAMS = {"rate": 10}
+CANON = json.dumps(PARAMS, sort_keys=True, separators=(",", ":"))
+
+
+def _query_report(answered: int, timeouts: int, rtt_p50: float, t_ns: int) -> dict:
+    return {
+        "t_ns": t_ns,
+        "case": "c",
+        "phase": "steady",
+        "params": PARAMS,
+        "action": "Query",
+        "path": "FixedRate/Query(svc/get)",
+        "key": "svc/get",
+        "count": answered,
+        "queries": answered + timeouts,
+        **({"timeouts": timeouts} if timeouts else {}),
+        "rtt_p50_us": rtt_p50,
+        "rtt_p99_us": 3 * rtt_p50,
+    }
+
+
+def record(
+    path: Path,
+    *,
+    answered: int = 100,
+    timeouts: int = 0,
+    rtt_p50: float = 500.0,
+    cpu: float = 20.0,
+    host: float = 15.0,
+    own: float = 5.0,
+    cores: int = 2,
+    with_own: bool = True,
+) -> Path:
+    """One execution: a 2 s 'steady' segment with component, host and own CPU samples, and the
+    driver's Query and Publish reports."""
+    rng = np.random.default_rng(int(cpu * 10 + timeouts))
+    begin, end = 1_000_000_000, 3_000_000_000
+    with RecordingWriter(path) as writer:
+        writer.metadata("redline.run", {"component": "svc", "revision_title": path.stem})
+        writer.metadata("redline.host", {"cpu_cores": str(cores)})
+        writer.metadata(
+            "redline.recorder", {"received": "400", "dropped": "0", "lost": "2", "sent": "200"}
+        )
+        writer.marker("begin", "c", "steady", PARAMS, warmup=False, t_ns=begin)
+        for t_ns in range(begin + 100_000_000, end, 100_000_000):
+            writer.counters("svc", 42, {"cpu_percent": rng.normal(cpu, 0.5)}, t_ns)
+            writer.counters("host", 0, {"cpu_percent": host, "cpu_steal_percent": 0.0}, t_ns)
+            if with_own:
+                writer.counters("redline", 0, {"cpu_percent": own}, t_ns)
+        writer.write_json(
+            "@redline/driver/c/steady", _query_report(answered, timeouts, rtt_p50, end - 1000)
+        )
+        writer.write_json(
+            "@redline/driver/c/steady",
+            {
+                "t_ns": end - 900,
+                "case": "c",
+                "phase": "steady",
+                "params": PARAMS,
+                "action": "Publish",
+                "path": "Publish",
+                "key": "svc/in",
+                "published": 100,
+            },
+        )
+        writer.marker("end", "c", "steady", PARAMS, warmup=False, t_ns=end)
+    return path
+
+
+def _driver(samples: dict[SeriesKey, list[float]], field: str) -> float:
+    (value,) = [
+        v
+        for k, v in samples.items()
+        if k.process == DRIVER_PROCESS and k.counter.endswith(f":{field}")
+    ][0]
+    return value
+
+
+def test_each_action_of_a_phase_has_a_path_siblings_numbered() -> None:
+    first, second = Query("svc/get"), Query("svc/get")
+    root = Sequence(FixedRate(10, 1.0, first), Parallel(second, Publish("svc/in", b"x")))
+    paths = action_paths(root)
+    assert paths[id(first)] == "Sequence/FixedRate/Query(svc/get)"
+    assert paths[id(second)] == "Sequence/Parallel/Query(svc/get)"
+    twins = Sequence(Query("a"), Query("a"))
+    assert sorted(action_paths(twins).values()) == [
+        "Sequence",
+        "Sequence/Query(a)",
+        "Sequence/Query(a)#2",
+    ]
+
+
+def test_a_report_is_named_by_its_actions_path() -> None:
+    action = Query("svc/get")
+    ctx = Context(PARAMS, "c", "steady", paths={id(action): "Sequence/Query(svc/get)"})
+    ctx.tally(action, "svc/get").count("queries")
+    ctx.flush_metrics()
+    (report,) = ctx.reports
+    assert report["path"] == "Sequence/Query(svc/get)" and report["action"] == "Query"
+    assert report_values(report) == {
+        "count": 0.0,
+        "queries": 1.0,
+        "timeouts": 0.0,
+        "errors": 0.0,
+        "unanswered": 0.0,
+        **{f"rtt_{q}_us": 0.0 for q in ("p50", "p90", "p99", "max")},
+    }
+
+
+def test_series_names_show_a_wildcards_concrete_key() -> None:
+    assert series_name({"path": "Listen(robot/*)", "key": "robot/a"}) == "Listen(robot/*)[robot/a]"
+    assert series_name({"path": "Seq/Query(a/b)", "key": "a/b"}) == "Seq/Query(a/b)"
+
+
+def test_driver_metrics_become_series_one_value_per_segment(tmp_path: Path) -> None:
+    samples = read_recording(record(tmp_path / "r.mcap", timeouts=3)).series_samples()
+    named = {k.counter for k in samples if k.process == DRIVER_PROCESS}
+    assert {
+        "FixedRate/Query(svc/get):rtt_p50_us",
+        "FixedRate/Query(svc/get):timeouts",
+        "FixedRate/Query(svc/get):queries",
+        "Publish[svc/in]:published",
+    } <= named
+    assert _driver(samples, "timeouts") == 3 and _driver(samples, "queries") == 103
+    recorder = {k.counter: v for k, v in samples.items() if k.process == "recorder"}
+    assert recorder["lost"] == [2.0] and recorder["sent"] == [200.0]
+
+
+def test_a_series_kind_direction_and_whether_it_is_judged() -> None:
+    assert (kind("svc"), worse("svc", "cpu_percent"), judged("svc", "cpu_percent")) == (
+        "counter",
+        "increase",
+        True,
+    )
+    assert not judged("svc", "cpu_user_percent")  # the split: charted, not judged by default
+    assert judged("svc", "cpu_user_percent", context=())
+    assert worse(DRIVER_PROCESS, "FixedRate:rate_achieved") == "decrease"
+    assert worse(DRIVER_PROCESS, "Q:rtt_p99_us") == "increase"
+    assert is_count(DRIVER_PROCESS, "Q:timeouts") and not judged(DRIVER_PROCESS, "Q:queries")
+    assert not judged("host", "cpu_percent") and kind("host") == "host"
+    assert not judged("redline", "cpu_percent") and kind("redline") == "redline"
+
+
+def test_cpu_per_unit_of_work_divides_the_components_cpu_by_what_the_driver_delivered(
+    tmp_path: Path,
+) -> None:
+    samples = read_recording(record(tmp_path / "r.mcap", cpu=20.0)).series_samples()
+    (per_op,) = [v for k, v in samples.items() if k.counter == "cpu_us_per_op"]
+    # 20 % of a core over 2 s = 0.4 CPU-s, for 100 answered queries and 100 published samples
+    assert per_op[0] == pytest.approx(0.4e6 / 200, rel=0.05)
+
+
+def test_other_load_is_the_hosts_cpu_beyond_the_runs_own(tmp_path: Path) -> None:
+    quiet = read_recording(record(tmp_path / "q.mcap", cpu=20.0, host=15.0, own=5.0))
+    (other,) = [v for k, v in quiet.series_samples().items() if k.counter == OTHER_CPU]
+    assert other[0] == pytest.approx(15.0 * 2 - 20.0 - 5.0, abs=1.0)  # % of one core
+    assert recording_disturbances(quiet.series_samples(), 30.0) == {}
+    busy = read_recording(record(tmp_path / "b.mcap", cpu=20.0, host=80.0, own=5.0))
+    (reason,) = recording_disturbances(busy.series_samples(), 30.0).values()
+    assert reason.startswith("host busy: other load 135 % of a core")
+    blind = read_recording(record(tmp_path / "o.mcap", with_own=False))  # an older recording
+    assert not [k for k in blind.series_samples() if k.counter == OTHER_CPU]
+
+
+def test_counts_of_rare_events_are_judged_as_rates() -> None:
+    judge = CountRate()
+    assert judge.compare(0, 4217, 6, 6).flagged  # every query timed out where none did
+    assert not judge.compare(0, 1000, 1, 1000).flagged  # one in a thousand: not significant
+    assert judge.compare(0, 10_000, 50, 10_000).direction == "increase"
+    assert not judge.compare(0, 0, 1, 5).decided  # nothing sent to rate
+    assert not judge.compare(5, 4, 0, 4).decided  # more events than their total
+    assert judge.compare(0, 4217, 6, 6).score >= 1 > judge.compare(0, 1000, 1, 1000).score
+
+
+def test_one_value_a_side_is_judged_by_the_change_of_its_median() -> None:
+    judge = RelativeChange()
+    assert judge.compare([500.0], [600.0]).flagged  # +20 %
+    assert not judge.compare([500.0], [520.0]).flagged  # +4 %
+    assert judge.compare([500.0], [500.0]).verdict == "no change"  # not "not enough data"
+    assert math.isinf(judge.compare([0.0], [1.0]).effect)
+
+
+def test_compare_judges_a_round_trip_and_a_timeout_change(tmp_path: Path) -> None:
+    base = [record(tmp_path / f"b{i}.mcap", rtt_p50=500.0) for i in range(2)]
+    slower = [record(tmp_path / f"s{i}.mcap", rtt_p50=600.0) for i in range(2)]
+    lost = [record(tmp_path / f"t{i}.mcap", answered=0, timeouts=100) for i in range(2)]
+    flagged = {v.key.counter: v for v in compare_files(base, slower).changed}
+    assert "FixedRate/Query(svc/get):rtt_p50_us" in flagged
+    assert "FixedRate/Query(svc/get):timeouts" not in flagged
+    timed_out = {v.key.counter: v for v in compare_files(base, lost).changed}
+    assert timed_out["FixedRate/Query(svc/get):timeouts"].result.method == "count_rate"
+    unchanged = compare_files(base, [record(tmp_path / "u.mcap", rtt_p50=505.0)])
+    assert not [v for v in unchanged.changed if v.key.process == DRIVER_PROCESS]

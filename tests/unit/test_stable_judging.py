@@ -1,0 +1,139 @@
+"""What is judged and how sure it can be: the CPU split left as context unless asked for, the
+calibration's figures, and a suite's CPU affinity (no service needed)."""
+
+from __future__ import annotations
+
+import math
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+from redline.agent.affinity import AffinityError, check_available, parse_affinity, pinned
+from redline.agent.suite import SuiteError, load_suite
+from redline.detect.calibration import calibrate, calibrate_series
+from redline.detect.compare import compare_files
+from redline.detect.config import ConfigError, DetectionConfig
+from redline.recording import RecordingWriter, SeriesKey
+
+KEY = SeriesKey("c", "steady", "{}", "svc", "cpu_percent")
+
+
+def _split(path: Path, user: float, system: float) -> Path:
+    """A recording whose total CPU holds while its user/system split moves."""
+    rng = np.random.default_rng(int(user))
+    with RecordingWriter(path) as writer:
+        writer.metadata("redline.run", {"component": "svc"})
+        writer.marker("begin", "c", "steady", {}, t_ns=1_000_000_000)
+        for i in range(200):
+            u, s = rng.normal(user, 0.3), rng.normal(system, 0.3)
+            writer.counters(
+                "svc",
+                1,
+                {"cpu_percent": u + s, "cpu_user_percent": u, "cpu_system_percent": s},
+                1_000_000_000 + i * 10_000_000,
+            )
+        writer.marker("end", "c", "steady", {}, t_ns=3_100_000_000)
+    return path
+
+
+def test_the_cpu_split_moving_while_the_total_holds_is_no_change(tmp_path: Path) -> None:
+    base = [_split(tmp_path / "a.mcap", user=20, system=10)]
+    moved = [_split(tmp_path / "b.mcap", user=15, system=15)]  # user -25 %, system +50 %
+    assert compare_files(base, moved).changed == []
+    counters = {v.key.counter for v in compare_files(base, moved, context=()).changed}
+    assert counters == {"cpu_user_percent", "cpu_system_percent"}  # asked for: judged
+
+
+def test_context_counters_are_part_of_a_components_configuration() -> None:
+    default = DetectionConfig.parse(None)
+    assert default.context_counters == ("cpu_user_percent", "cpu_system_percent")
+    assert DetectionConfig.parse({"context_counters": []}).context_counters == ()
+    assert DetectionConfig.parse(default.as_dict()) == default
+    with pytest.raises(ConfigError, match="unknown field"):
+        DetectionConfig.parse({"judge_split": True})
+
+
+def test_calibration_sizes_executions_from_the_spread_between_them() -> None:
+    values = [100.0, 101.0, 99.0, 100.5, 99.5]
+    steady = calibrate_series(KEY, values, per_revision=1, target=0.05)
+    assert steady is not None and steady.cv == pytest.approx(0.0079, abs=0.001)
+    assert steady.spread == 0.01  # ExecutionShift's rel_scale: no series counts as quieter
+    # threshold 8 x spread x sqrt(1/1 + 1/15): one execution a revision sees 8.3 % at best
+    assert steady.detectable == pytest.approx(8 * 0.01 * math.sqrt(1 + 1 / 15))
+    assert steady.needed == 4  # 8 x 0.01 x sqrt(1/4 + 1/15) <= 5 %
+    five = calibrate_series(KEY, values, per_revision=5, target=0.05)
+    assert five is not None and five.detectable == 0.05  # the floor, min_effect
+    noisy = calibrate_series(KEY, [100.0, 110.0, 90.0, 105.0, 95.0], per_revision=1, target=0.05)
+    assert noisy is not None and noisy.detectable > 0.5
+    assert noisy.needed is None  # 5 % is out of reach: the baseline's own noise exceeds it
+    reachable = calibrate_series(
+        KEY, [100.0, 101.0, 99.0, 101.5, 98.5], per_revision=1, target=0.10
+    )
+    assert reachable is not None and reachable.needed is not None and reachable.needed >= 1
+    assert calibrate_series(KEY, [100.0], per_revision=1, target=0.05) is None
+    assert calibrate_series(KEY, [100.0, 100.0], per_revision=1, target=0.01).needed is None
+    order = calibrate(
+        {KEY: [1.0, 1.0, 1.0], KEY.__class__(*[*vars(KEY).values()][:4], "rss"): [1.0, 2.0, 3.0]},
+        per_revision=1,
+    )
+    assert order[0].key.counter == "rss"  # the noisiest first
+    assert math.isinf(calibrate_series(KEY, [0.0, 1.0, -1.0], 1, 0.05).spread)
+
+
+SUITE = """name = "demo"
+tests = ["t.py"]
+{affinity}
+[[component]]
+name = "demo"
+command = ["python", "-c", "pass"]
+{cpus}
+"""
+
+
+def _suite(tmp_path: Path, affinity: str = "", cpus: str = "") -> Path:
+    (tmp_path / "t.py").write_text("")
+    path = tmp_path / "redline.toml"
+    path.write_text(SUITE.format(affinity=affinity, cpus=cpus))
+    return path
+
+
+def test_a_suites_affinity_pins_components_unless_one_names_its_own(tmp_path: Path) -> None:
+    suite = load_suite(_suite(tmp_path, "[affinity]\ncomponents = [0]\ndriver = [0]\n"))
+    assert suite.components[0].cpus == (0,) and suite.affinity.of("driver") == (0,)
+    assert suite.affinity.describe() == '{"components": [0], "driver": [0]}'
+    own = load_suite(_suite(tmp_path, "[affinity]\ncomponents = [0]\n", "cpus = [0, 0]"))
+    assert own.components[0].cpus == (0,)
+    assert load_suite(_suite(tmp_path)).affinity.describe() == "none"
+
+
+@pytest.mark.parametrize(
+    "affinity,cpus,fault",
+    [
+        ("[affinity]\nbrain = [0]\n", "", "unknown part 'brain'"),
+        ("[affinity]\ndriver = []\n", "", "non-empty list of core numbers"),
+        ("[affinity]\ndriver = [-1]\n", "", "non-empty list of core numbers"),
+        ("", 'cpus = "all"', "'cpus' must be a non-empty list"),
+    ],
+)
+def test_a_malformed_affinity_names_the_field(
+    tmp_path: Path, affinity: str, cpus: str, fault: str
+) -> None:
+    with pytest.raises(SuiteError, match=fault):
+        load_suite(_suite(tmp_path, affinity, cpus))
+
+
+def test_a_core_the_host_does_not_offer_is_refused_before_anything_runs() -> None:
+    offered = sorted(os.sched_getaffinity(0))
+    assert check_available(offered[:1]) == set(offered[:1])
+    with pytest.raises(AffinityError, match="not available on this host"):
+        check_available([max(offered) + 64])
+    with pytest.raises(ValueError, match="must be a table"):
+        parse_affinity([0])
+
+
+def test_pinning_moves_every_thread_and_gives_their_affinity_back() -> None:
+    before = os.sched_getaffinity(0)
+    with pinned([min(before)]):
+        assert os.sched_getaffinity(0) == {min(before)}
+    assert os.sched_getaffinity(0) == before
