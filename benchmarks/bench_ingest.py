@@ -1,10 +1,13 @@
 """Ingest of a 10-minute recording against just reading its MCAP file, in the same run.
 
 The recording is synthesized with RecordingWriter: 10 minutes at 10 Hz, 5 processes with 12
-counters each (30,000 counter messages), 10 one-minute segments, and zenoh traffic up to 100,000
-messages in all. "Read" decompresses and walks every MCAP record (mcap's StreamReader, no
-decoding); "ingest" is `ingest_execution` on real Postgres: strict read, series, summaries,
-Parquet samples, job marked done. The target is ingest <= 3x read.
+counters each (30,000 counter messages: three components, the host and Redline's own processes,
+so the other load of each phase is derived), 10 one-minute segments with the driver's reports of
+a tree of 6 actions each (queries with round-trip quantiles and timeouts, fixed rates, a
+listener with losses: 60 driver series), and zenoh traffic up to 100,000 messages in all.
+"Read" decompresses and walks every MCAP record (mcap's StreamReader, no decoding); "ingest" is
+`ingest_execution` on real Postgres: strict read, series, summaries, Parquet samples, job marked
+done. The target is ingest <= 3x read.
 
 Run: .venv/bin/python benchmarks/bench_ingest.py   (prints figures; not a test)
 """
@@ -30,7 +33,47 @@ from redline.worker.ingest import ingest_execution
 
 MINUTES, RATE, PROCESSES, COUNTERS, MESSAGES, SEGMENTS = 10, 10, 5, 12, 100_000, 10
 REPEATS = 5
-COUNTER_NAMES = [f"counter_{n:02d}" for n in range(COUNTERS)]
+COUNTER_NAMES = ["cpu_percent", *(f"counter_{n:02d}" for n in range(1, COUNTERS))]
+PROCESS_NAMES = ["proc0", "proc1", "proc2", "host", "redline"]
+REPORTS = [  # the driver's reports at each segment's end: what a tree of 6 actions measures
+    *(
+        {
+            "action": "Query",
+            "path": f"FixedRate/Query(svc/q{n})",
+            "key": f"svc/q{n}",
+            "queries": 600,
+            "count": 598,
+            "timeouts": 2,
+            "rtt_p50_us": 500.0,
+            "rtt_p90_us": 700.0,
+            "rtt_p99_us": 900.0,
+            "rtt_max_us": 2000.0,
+        }
+        for n in range(3)
+    ),
+    *(
+        {
+            "action": "FixedRate",
+            "path": f"Parallel/FixedRate#{n}",
+            "rate_target": 10.0,
+            "rate_achieved": 9.98,
+            "iterations": 600,
+            "lateness_p50_us": 80.0,
+            "lateness_p99_us": 400.0,
+            "lateness_max_us": 900.0,
+        }
+        for n in range(2)
+    ),
+    {
+        "action": "Listen",
+        "path": "Listen(svc/out)",
+        "key": "svc/out",
+        "received": 590,
+        "expected": 600,
+        "lost": 10,
+        "rate": 9.8,
+    },
+]
 
 
 def synthesize(path: Path, run: dict[str, str]) -> int:
@@ -45,6 +88,7 @@ def synthesize(path: Path, run: dict[str, str]) -> int:
     t0, step = 1_000_000_000, 1_000_000_000 // RATE
     with RecordingWriter(path) as writer:
         writer.metadata("redline.run", run)
+        writer.metadata("redline.host", {"cpu_cores": "2"})
         for tick in range(ticks):
             t_ns = t0 + tick * step
             segment, offset = divmod(tick, ticks // SEGMENTS)
@@ -53,7 +97,7 @@ def synthesize(path: Path, run: dict[str, str]) -> int:
                 writer.marker("begin", "load", "steady", params, t_ns=t_ns - 1)
             for process in range(PROCESSES):
                 writer.counters(
-                    f"proc{process}",
+                    PROCESS_NAMES[process],
                     100 + process,
                     dict(zip(COUNTER_NAMES, values[tick, process].tolist(), strict=True)),
                     t_ns,
@@ -61,6 +105,17 @@ def synthesize(path: Path, run: dict[str, str]) -> int:
             for n in range(per_tick[tick]):
                 writer.write(f"bench/topic{n % 4}", payload, t_ns=t_ns + n + 1)
             if offset == ticks // SEGMENTS - 1:
+                for report in REPORTS:
+                    writer.write_json(
+                        "@redline/driver/load/steady",
+                        {
+                            "t_ns": t_ns + step - 2,
+                            "case": "load",
+                            "phase": "steady",
+                            "params": params,
+                            **report,
+                        },
+                    )
                 writer.marker("end", "load", "steady", params, t_ns=t_ns + step - 1)
         return writer.messages
 

@@ -137,3 +137,31 @@ def test_pinning_moves_every_thread_and_gives_their_affinity_back() -> None:
     with pinned([min(before)]):
         assert os.sched_getaffinity(0) == {min(before)}
     assert os.sched_getaffinity(0) == before
+
+
+def _hosted(path: Path, cpu: float, host: float) -> Path:
+    """One execution whose host was ``host`` % busy (of 2 cores) beside the component's CPU."""
+    with RecordingWriter(path) as writer:
+        writer.metadata("redline.run", {"component": "svc"})
+        writer.metadata("redline.host", {"cpu_cores": "2"})
+        writer.marker("begin", "c", "steady", {}, t_ns=1_000_000_000)
+        for i in range(20):
+            t_ns = 1_000_000_000 + i * 100_000_000
+            writer.counters("svc", 1, {"cpu_percent": cpu}, t_ns)
+            writer.counters("host", 0, {"cpu_percent": host}, t_ns)
+            writer.counters("redline", 0, {"cpu_percent": 4.0}, t_ns)
+        writer.marker("end", "c", "steady", {}, t_ns=3_100_000_000)
+    return path
+
+
+def test_calibration_leaves_out_executions_the_host_was_busy_in(tmp_path: Path) -> None:
+    from redline.commands.calibrate import _execution_values
+
+    recordings = [
+        _hosted(tmp_path / "quiet-1.mcap", cpu=20.0, host=15.0),
+        _hosted(tmp_path / "busy.mcap", cpu=14.0, host=95.0),  # other load ~166 % of a core
+        _hosted(tmp_path / "quiet-2.mcap", cpu=21.0, host=15.0),
+    ]
+    values, busy = _execution_values(recordings, limit=30.0)
+    assert values[KEY] == [20.0, 21.0]  # the busy execution's 14 % is not the component's spread
+    assert busy[KEY] == 1

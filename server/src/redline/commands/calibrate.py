@@ -23,7 +23,8 @@ def _execution_values(
     recordings: list[Path], limit: float
 ) -> tuple[dict[SeriesKey, list[float]], dict[SeriesKey, int]]:
     """Per judged series, one value per recording (the median of its samples), and in how
-    many recordings its segment was disturbed (the host busy)."""
+    many recordings its segment was disturbed (the host busy). A disturbed segment's value is
+    left out, as the service does not judge it: the spread is the quiet host's."""
     import numpy as np
     from redline.detect.counters import is_count, judged
     from redline.recording import read_recording
@@ -41,9 +42,10 @@ def _execution_values(
                 or is_count(key.process, key.counter)
             ):
                 continue
-            values.setdefault(key, []).append(float(np.median(series)))
             if (key.case, key.phase, key.params) in disturbed:
                 busy[key] = busy.get(key, 0) + 1
+                continue
+            values.setdefault(key, []).append(float(np.median(series)))
     return values, busy
 
 
@@ -127,8 +129,15 @@ def calibrate_cmd(
         f"{executions} executions; detectable: the smallest change flagged with {per} "
         f"execution(s) per revision; n for: executions per revision for a "
         f"{100 * target:g} % change ('-': out of reach at the defaults); busy: "
-        f"executions whose phase the host was busy in. Recordings: {folder}"
+        f"executions whose phase the host was busy in, left out. Recordings: {folder}"
     )
+    unmeasured = sorted(key.label() for key in busy.keys() - values.keys())
+    if unmeasured:
+        typer.echo(
+            f"warning: {len(unmeasured)} series had the host busy in every execution and are "
+            f"left out (first: {unmeasured[0]}); run again on a quiet host",
+            err=True,
+        )
     if json_out is not None:
         json_out.write_text(
             json.dumps(

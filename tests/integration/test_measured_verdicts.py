@@ -1,0 +1,211 @@
+"""What the tests drive, judged by the worker on real Postgres (issue 11): the driver's metrics as
+series with a kind and a direction, counts of rare events judged as rates, improvements kept out
+of regressions, a busy host's phases not judged, and bad input answered with a reason."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from redline.recording import RecordingWriter
+from redline.server.models import Detection, Execution, JobState, Regression, Revision, Series
+from redline.server.schemas.components import ComponentCreate
+from redline.server.schemas.revisions import RevisionCreate
+from redline.server.services.components import create_component
+from redline.server.services.revisions import create_revision
+from redline.worker.detection import detect_revision
+from redline.worker.ingest import ingest_execution
+from sqlalchemy import select
+
+from tests import test_ingest
+from tests.intake import api_with
+
+database_url, session = test_ingest.database_url, test_ingest.session  # the fixtures, shared
+
+NAME, CASE, PHASE, PARAMS = "svc", "ask", "steady", {"rate": 50}
+QUERY = "FixedRate/Query(svc/get)"
+RUNS = 3  # executions per revision: two revisions fill execution_shift's baseline of 6
+
+
+def _record(
+    path: Path,
+    run: dict[str, str],
+    *,
+    seed: int,
+    queries: int = 100,
+    timeouts: int = 0,
+    rtt_us: float = 500.0,
+    host_percent: float = 20.0,
+    report: bool = True,
+    path_in_tree: str = QUERY,
+    counters: bool = True,
+) -> Path:
+    """One execution's recording: a 2 s steady phase with the component's CPU, the host's and
+    Redline's own, and the driver's report of its queries (as `redline.testing.Query` makes)."""
+    rng = np.random.default_rng(seed)
+    begin, end = 1_000_000_000, 3_000_000_000
+    with RecordingWriter(path) as writer:
+        writer.metadata("redline.run", run)
+        writer.metadata("redline.host", {"cpu_cores": "2"})
+        writer.marker("begin", CASE, PHASE, PARAMS, warmup=False, t_ns=begin)
+        for t_ns in range(begin + 50_000_000, end, 50_000_000) if counters else ():
+            writer.counters(NAME, 42, {"cpu_percent": rng.normal(20.0, 0.4)}, t_ns)
+            writer.counters("host", 0, {"cpu_percent": host_percent}, t_ns)
+            writer.counters("redline", 0, {"cpu_percent": 4.0}, t_ns)
+        if report:
+            answered = queries - timeouts
+            message: dict[str, Any] = {
+                "t_ns": end - 1000,
+                "case": CASE,
+                "phase": PHASE,
+                "params": PARAMS,
+                "action": "Query",
+                "path": path_in_tree,
+                "key": "svc/get",
+                "count": answered,
+                "queries": queries,
+                "rtt_p50_us": float(rng.normal(rtt_us, rtt_us * 0.01)),
+            }
+            if timeouts:
+                message["timeouts"] = timeouts
+            writer.write_json(f"@redline/driver/{CASE}/{PHASE}", message)
+        writer.marker("end", CASE, PHASE, PARAMS, warmup=False, t_ns=end)
+    return path
+
+
+def _revision(session, tmp_path: Path, number: int, **recorded: Any) -> list[Execution]:
+    """Revision r<number> with RUNS executions recorded by `_record` and ingested."""
+    title = f"r{number}"
+    revision = create_revision(
+        session, RevisionCreate(component=NAME, title=title, sort_key=str(number))
+    )
+    executions = []
+    for job in sorted(revision.jobs, key=lambda j: j.execution_index):
+        run = test_ingest.run_metadata(job, NAME, title, str(number))
+        name = f"{title}-{job.execution_index}"
+        path = _record(
+            tmp_path / f"{name}.mcap", run, seed=number * 10 + job.execution_index, **recorded
+        )
+        execution = Execution(
+            job_id=job.id,
+            revision_id=revision.id,
+            recording_path=str(path),
+            sha256=name.ljust(64, "0"),
+            size=path.stat().st_size,
+        )
+        job.state = JobState.uploaded
+        session.add(execution)
+        executions.append(execution)
+    session.commit()
+    return executions
+
+
+def _history(session, database_url: str, tmp_path: Path, last: dict[str, Any]) -> Revision:
+    """r1..r3 alike (100 queries answered in ~500 us, no timeout), then r4 recorded with
+    ``last``; every revision ingested and judged in order. Returns r4."""
+    create_component(session, ComponentCreate(name=NAME, executions=RUNS))
+    for number in range(1, 5):
+        executions = _revision(session, tmp_path, number, **(last if number == 4 else {}))
+        for execution in executions:
+            ingest_execution(database_url, execution.id)
+        detect_revision(database_url, executions[0].revision_id)
+    session.expire_all()
+    return session.scalars(select(Revision).where(Revision.title == "r4")).one()
+
+
+def _verdicts(session, revision: Revision) -> dict[tuple[str, str, str], Detection]:
+    rows = session.execute(
+        select(Detection, Series)
+        .join(Series, Series.id == Detection.series_id)
+        .where(Detection.revision_id == revision.id)
+    )
+    return {(s.process, s.counter, d.method): d for d, s in rows}
+
+
+def test_timeouts_where_there_were_none_are_judged_as_a_rate_and_make_a_regression(
+    session, database_url, tmp_path
+):
+    r4 = _history(session, database_url, tmp_path, {"timeouts": 30})
+    found = _verdicts(session, r4)
+    timeouts = found[("driver", f"{QUERY}:timeouts", "count_rate")]
+    assert timeouts.flagged and timeouts.verdict == "change" and timeouts.direction == "increase"
+    # judged as a rate only: no mean-of-samples method looks at the count
+    assert not [key for key in found if key[1].endswith(":timeouts") and key[2] != "count_rate"]
+    # what the counts are out of is load, recorded and not judged
+    assert not [key for key in found if key[1].endswith(":queries")]
+    (regression,) = session.scalars(select(Regression))
+    assert timeouts.regression_id == regression.id
+
+
+def test_the_series_api_says_each_series_kind_direction_and_whether_it_is_judged(
+    session, database_url, tmp_path, services
+):
+    with api_with(services, tmp_path) as api:
+        _history(session, database_url, tmp_path, {})
+        answer = api.client.get(f"/api/v1/components/{NAME}/series")
+        assert answer.status_code == 200, answer.text
+        found = {(s["process"], s["counter"]): s for s in answer.json()}
+    shown = {key: (s["kind"], s["worse"], s["judged"]) for key, s in found.items()}
+    assert shown[(NAME, "cpu_percent")] == ("counter", "increase", True)
+    assert shown[("driver", f"{QUERY}:rtt_p50_us")] == ("driver", "increase", True)
+    assert shown[("driver", f"{QUERY}:timeouts")] == ("driver", "increase", True)
+    assert shown[("driver", f"{QUERY}:queries")] == ("driver", "increase", False)  # load
+    assert shown[("host", "other_cpu_percent")][0] == "host"
+    assert shown[("redline", "cpu_percent")][0] == "redline"
+
+
+def test_a_faster_round_trip_is_a_change_but_not_a_regression(session, database_url, tmp_path):
+    r4 = _history(session, database_url, tmp_path, {"rtt_us": 250.0})
+    found = _verdicts(session, r4)
+    rtt = found[("driver", f"{QUERY}:rtt_p50_us", "execution_shift")]
+    assert rtt.flagged and rtt.direction == "decrease"  # lower is better for a round trip
+    assert rtt.regression_id is None
+    assert session.scalars(select(Regression)).all() == []
+
+
+def test_a_slower_round_trip_is_a_regression(session, database_url, tmp_path):
+    r4 = _history(session, database_url, tmp_path, {"rtt_us": 1000.0})
+    rtt = _verdicts(session, r4)[("driver", f"{QUERY}:rtt_p50_us", "execution_shift")]
+    assert rtt.flagged and rtt.direction == "increase" and rtt.regression_id is not None
+
+
+def test_a_phase_the_host_was_busy_in_is_not_judged_and_says_why(session, database_url, tmp_path):
+    # the host at 90 % of 2 cores while the run's own processes used ~24 % of one: ~156 % other
+    r4 = _history(session, database_url, tmp_path, {"host_percent": 90.0, "rtt_us": 1000.0})
+    found = _verdicts(session, r4)
+    cpu = found[(NAME, "cpu_percent", "execution_shift")]
+    assert cpu.verdict == "not enough data" and "host busy" in cpu.reason
+    rtt = found[("driver", f"{QUERY}:rtt_p50_us", "execution_shift")]
+    assert rtt.verdict == "not enough data" and not rtt.flagged  # a slow round trip, not judged
+    assert session.scalars(select(Regression)).all() == []
+
+
+def test_a_driver_report_missing_from_the_revision_is_not_measured_not_a_pass(
+    session, database_url, tmp_path
+):
+    r4 = _history(session, database_url, tmp_path, {"report": False})
+    found = _verdicts(session, r4)
+    rtt = found[("driver", f"{QUERY}:rtt_p50_us", "execution_shift")]
+    assert rtt.verdict == "not enough data" and "not measured in this revision" in rtt.reason
+    assert found[(NAME, "cpu_percent", "execution_shift")].verdict == "no change"
+
+
+def test_a_new_action_path_has_no_baseline_yet_and_says_so(session, database_url, tmp_path):
+    moved = f"Sequence/{QUERY}"
+    r4 = _history(session, database_url, tmp_path, {"path_in_tree": moved})
+    found = _verdicts(session, r4)
+    new = found[("driver", f"{moved}:rtt_p50_us", "execution_shift")]
+    assert new.verdict == "not enough data" and new.reason
+    old = found[("driver", f"{QUERY}:rtt_p50_us", "execution_shift")]
+    assert old.verdict == "not enough data" and "not measured in this revision" in old.reason
+
+
+def test_a_phase_without_counter_samples_is_judged_by_what_was_measured(
+    session, database_url, tmp_path
+):
+    r4 = _history(session, database_url, tmp_path, {"counters": False})
+    found = _verdicts(session, r4)
+    cpu = found[(NAME, "cpu_percent", "execution_shift")]
+    assert cpu.verdict == "not enough data" and cpu.reason
+    assert found[("driver", f"{QUERY}:rtt_p50_us", "execution_shift")].verdict == "no change"
