@@ -13,6 +13,7 @@ from fastapi.testclient import TestClient
 from redline.server.app import create_app
 from redline.server.core.config import Settings
 from redline.server.db import session_factory
+from redline.server.models import DetectionConfigRow
 from redline.server.schemas.components import ComponentCreate
 from redline.server.services.components import create_component
 from redline.server.services.tokens import issue_token
@@ -63,10 +64,14 @@ def api(services: Services, database_url: str, tmp_path: Path) -> Iterator[Clien
 
 
 def history(database_url: str, tmp_path: Path, cpus: list[float], seed: int = 5) -> None:
-    """Revisions r1.. of 'builder' with a cpu series of the given means, ingested and detected."""
+    """Revisions r1.. of 'builder' with a cpu series of the given means, ingested and detected.
+    KS alone judges and raises regressions (one execution per revision: the default,
+    execution_shift, would wait for 6), so the regressions' own workings show in a few."""
     rng = np.random.default_rng(seed)
     with session_factory(database_url)() as session:
-        create_component(session, ComponentCreate(name="builder"))
+        component = create_component(session, ComponentCreate(name="builder"))
+        session.add(DetectionConfigRow(component_id=component.id, config={"methods": ["ks"]}))
+        session.commit()
         executions = [
             add_execution(
                 session,

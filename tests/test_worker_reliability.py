@@ -130,7 +130,7 @@ def test_concurrent_detections_of_one_revision_both_succeed_as_one_would(
 
 
 def test_revision_whose_samples_are_pruned_keeps_its_results(session, database_url, tmp_path):
-    executions = _history(session, tmp_path, [20.0, 60.0])
+    executions = _history(session, tmp_path, [20.0, 60.0], config={"methods": ["ks"]})
     _run(database_url, executions)
     before, counts = _detections(session), _counts(session)
     assert any(row[5] for row in before) and counts[1] == 1  # r2 flagged, one regression

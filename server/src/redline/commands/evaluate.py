@@ -72,6 +72,16 @@ def evaluate_cmd(
         int | None,
         typer.Option("--executions", min=1, help="use only each build's first N executions"),
     ] = None,
+    confirm: Annotated[
+        int,
+        typer.Option(
+            "--confirm",
+            min=0,
+            max=10,
+            help="later builds a flagged change must hold over to count as flagged, as the "
+            "service confirms by history (0: every flagged unit counts)",
+        ),
+    ] = 0,
 ) -> None:
     """ROC-AUC, precision, recall and F1 of every detection method on a labelled corpus."""
     from redline.detect.corpus import CorpusError, first_executions, load_corpus
@@ -94,7 +104,7 @@ def evaluate_cmd(
         raise typer.Exit(2) from exc
     if executions:
         loaded = first_executions(loaded, executions)
-    results = evaluate_corpus(loaded, chosen)
+    results = evaluate_corpus(loaded, chosen, confirm)
     if json_output:
         typer.echo(as_json(results))
         return

@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from redline.detect.baseline import DEFAULT_WINDOW
+from redline.detect.confirmation import DEFAULT_CONFIRM_REVISIONS
 from redline.detect.counters import CONTEXT_COUNTERS
 from redline.detect.methods import Detector
 from redline.detect.registry import DEFAULT_METHOD, DETECTORS
@@ -22,10 +23,17 @@ CHARTED_METHOD = "ks"
 DEFAULT_METHODS: tuple[str, ...] = tuple(dict.fromkeys((DEFAULT_METHOD, CHARTED_METHOD)))
 BASELINES = ("recent", "previous", "window", "pinned")
 MAX_WINDOW = 50
+MAX_CONFIRM_REVISIONS = 10
 
 
 class ConfigError(ValueError):
     """A configuration that cannot be used; the message names the field at fault."""
+
+
+def _integer(value: Any, name: str) -> int:
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise ConfigError(f"{name}: must be a whole number, not {value!r}")
+    return value
 
 
 @dataclass(frozen=True)
@@ -37,6 +45,12 @@ class DetectionConfig:
     ``thresholds``: per method, keyword arguments of its detector (``{"ks": {"alpha": 0.001}}``).
     ``context_counters``: counters recorded and charted but not judged (by default the
     user/system split of CPU, whose total is judged; `redline.detect.counters`).
+    ``alarm_methods``: the methods whose flagged changes for the worse become regressions (the
+    others' verdicts are stored and charted); empty: the first method, by default
+    ``execution_shift``, which judges executions (KS on one execution's pooled samples flagged
+    unchanged code: docs/detection.md).
+    ``confirm_revisions``: later revisions a flagged change must hold over before its
+    regression is confirmed (`redline.detect.confirmation`; 0: confirmed when flagged).
     """
 
     methods: tuple[str, ...] = DEFAULT_METHODS
@@ -45,6 +59,8 @@ class DetectionConfig:
     pinned: str | None = None
     thresholds: Mapping[str, Mapping[str, float]] = field(default_factory=dict)
     context_counters: tuple[str, ...] = CONTEXT_COUNTERS
+    confirm_revisions: int = DEFAULT_CONFIRM_REVISIONS
+    alarm_methods: tuple[str, ...] = ()
 
     @classmethod
     def parse(cls, data: Mapping[str, Any] | None) -> DetectionConfig:
@@ -57,6 +73,8 @@ class DetectionConfig:
             "pinned",
             "thresholds",
             "context_counters",
+            "confirm_revisions",
+            "alarm_methods",
         }
         if unknown:
             raise ConfigError(f"unknown field(s) {sorted(unknown)}")
@@ -68,6 +86,10 @@ class DetectionConfig:
             pinned=data.get("pinned"),
             thresholds={str(k): dict(v) for k, v in thresholds.items()},
             context_counters=tuple(str(c) for c in data.get("context_counters", CONTEXT_COUNTERS)),
+            alarm_methods=tuple(str(m) for m in data.get("alarm_methods") or ()),
+            confirm_revisions=_integer(
+                data.get("confirm_revisions", DEFAULT_CONFIRM_REVISIONS), "confirm_revisions"
+            ),
         )
         config.validate()
         return config
@@ -86,6 +108,14 @@ class DetectionConfig:
             )
         if not 1 <= self.window <= MAX_WINDOW:
             raise ConfigError(f"window: must be 1..{MAX_WINDOW}, not {self.window}")
+        for name in self.alarm_methods:
+            if name not in self.methods:
+                raise ConfigError(f"alarm_methods: {name!r} is not among the methods")
+        if not 0 <= self.confirm_revisions <= MAX_CONFIRM_REVISIONS:
+            raise ConfigError(
+                f"confirm_revisions: must be 0..{MAX_CONFIRM_REVISIONS}, "
+                f"not {self.confirm_revisions}"
+            )
         if self.baseline == "pinned" and not self.pinned:
             raise ConfigError("pinned: a pinned baseline needs the revision's title")
         for name, params in self.thresholds.items():
@@ -110,4 +140,11 @@ class DetectionConfig:
             "pinned": self.pinned,
             "thresholds": {k: dict(v) for k, v in self.thresholds.items()},
             "context_counters": list(self.context_counters),
+            "confirm_revisions": self.confirm_revisions,
+            "alarm_methods": list(self.alarm_methods),
         }
+
+    @property
+    def alarming(self) -> tuple[str, ...]:
+        """The methods whose flagged changes for the worse become regressions."""
+        return self.alarm_methods or self.methods[:1]

@@ -17,6 +17,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 from redline.detect.baseline import DEFAULT_WINDOW, recent_depth
 from redline.detect.changepoint import EDivisive
+from redline.detect.confirmation import HELD, hold
 from redline.detect.corpus import POSITIVE_LABEL, Corpus, Unit, series_builds
 from redline.detect.execution_shift import values_for
 from redline.detect.methods import Detector
@@ -159,18 +160,33 @@ def walk(
             yield unit, found
 
 
-def run_detector(detector: Detector, corpus: Corpus) -> list[Outcome]:
+def run_detector(detector: Detector, corpus: Corpus, confirm: int = 0) -> list[Outcome]:
+    """Each unit's outcome; with ``confirm`` > 0 a flagged unit counts as flagged only when the
+    ``confirm`` builds after it hold the new level (`redline.detect.confirmation`, as the
+    service confirms by history; a change too near the end of its series stays suspected and
+    counts as not flagged)."""
     sizes = change_sizes(corpus)
-    return [
-        Outcome(
-            unit.positive,
-            found.score,
-            found.flagged,
-            found.decided,
-            sizes.get(unit.series, math.nan) if unit.positive else math.nan,
+    judged = list(walk(detector, corpus))
+    outcomes = []
+    for index, (unit, found) in enumerate(judged):
+        flagged = found.flagged
+        if flagged and confirm > 0:
+            after = [
+                later.candidate
+                for later, _ in judged[index + 1 : index + 1 + confirm]
+                if later.series == unit.series
+            ]
+            flagged = hold(unit.baseline, unit.candidate, after, confirm).state == HELD
+        outcomes.append(
+            Outcome(
+                unit.positive,
+                found.score,
+                flagged,
+                found.decided,
+                sizes.get(unit.series, math.nan) if unit.positive else math.nan,
+            )
         )
-        for unit, found in walk(detector, corpus)
-    ]
+    return outcomes
 
 
 def units_of(corpus: Corpus) -> list[Unit]:
@@ -218,14 +234,16 @@ def run_change_points(
 
 
 def evaluate_corpus(
-    corpus: Corpus, methods: Sequence[str] | None = None
+    corpus: Corpus, methods: Sequence[str] | None = None, confirm: int = 0
 ) -> dict[str, MethodScores]:
-    """Scores of each named method (default: all) on the corpus's units."""
+    """Scores of each named method (default: all) on the corpus's units; ``confirm``: the
+    later builds a flagged change must hold over (`run_detector`; E-divisive sees the whole
+    history and is not confirmed)."""
     names = list(methods) if methods else [*EVALUATED, CHANGE_POINT_METHOD]
     results = {}
     for name in names:
         if name == CHANGE_POINT_METHOD:
             results[name] = summarize(run_change_points(corpus, units_of(corpus)))
         else:
-            results[name] = summarize(run_detector(EVALUATED[name](), corpus))
+            results[name] = summarize(run_detector(EVALUATED[name](), corpus, confirm))
     return results

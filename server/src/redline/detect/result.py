@@ -114,7 +114,10 @@ def check_samples(
         if bad:
             return f"{name} contains NaN/inf ({bad} values)"
     if len(base) < min_baseline:
-        return f"too few samples: baseline has {len(base)}, needs at least {min_baseline}"
+        return (
+            f"too few samples: baseline has {len(base)}, needs at least {min_baseline} "
+            f"({min_baseline - len(base)} more to come)"
+        )
     if len(cand) < min_candidate:
         return f"too few samples: candidate has {len(cand)}, needs at least {min_candidate}"
     pooled = np.concatenate([base, cand])

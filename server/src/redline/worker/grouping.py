@@ -1,4 +1,6 @@
 """Grouping flagged detections into regressions: same component, overlapping revision ranges.
+Each grouped detection starts suspected, until the later revisions confirm it or not
+(`redline.worker.confirmation`).
 
 Only a change for the worse is a regression (`redline.detect.counters.worse`: a CPU or round
 trip that rose, an achieved rate that fell); a flagged improvement stays a detection. A flagged
@@ -10,6 +12,9 @@ untriaged ("new", no history); a triaged one stays, because its label is ground 
 
 from __future__ import annotations
 
+from collections.abc import Collection
+
+from redline.detect.confirmation import SUSPECTED
 from redline.detect.counters import worse
 from redline.server.models import (
     Component,
@@ -70,8 +75,9 @@ def _drop_untriaged_empty(session: Session, component_id: int) -> None:
     )
 
 
-def group_revision(session: Session, revision: Revision) -> None:
-    """Attach the revision's flagged detections to regressions; drop emptied untriaged ones.
+def group_revision(session: Session, revision: Revision, alarming: Collection[str]) -> None:
+    """Attach the revision's flagged detections of the ``alarming`` methods to regressions; drop
+    emptied untriaged ones.
 
     The component's row is locked first, so two workers never open overlapping regressions.
     """
@@ -81,7 +87,11 @@ def group_revision(session: Session, revision: Revision) -> None:
     flagged = session.execute(
         select(Detection, Series.process, Series.counter)
         .join(Series, Series.id == Detection.series_id)
-        .where(Detection.revision_id == revision.id, Detection.flagged)
+        .where(
+            Detection.revision_id == revision.id,
+            Detection.flagged,
+            Detection.method.in_(alarming),
+        )
         .order_by(Detection.id)
     )
     for detection, process, counter in flagged:
@@ -106,5 +116,6 @@ def group_revision(session: Session, revision: Revision) -> None:
         else:
             _widen(regression, good, bad)
         detection.regression_id = regression.id
+        detection.confirmation = SUSPECTED  # until the later revisions settle it
     session.flush()
     _drop_untriaged_empty(session, revision.component_id)

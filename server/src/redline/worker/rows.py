@@ -34,6 +34,8 @@ def detection_row(
         effect=None if effect is None else float(effect),
         direction=verdict.direction,
         flagged=bool(verdict.flagged),
+        confirmation="",  # a change for the worse becomes suspected when grouped
+        confirmation_reason="",
         created=utcnow(),
     )
 

@@ -68,6 +68,9 @@ class Regression(Base):
         default=RegressionState.new,
         index=True,
     )
+    #: suspected, confirmed or not_confirmed (`redline.worker.confirmation`)
+    confirmation: Mapped[str] = mapped_column(String(20), default="suspected", index=True)
+    confirmation_reason: Mapped[str] = mapped_column(Text, default="")
     created: Mapped[datetime] = mapped_column(default=utcnow)
     updated: Mapped[datetime] = mapped_column(default=utcnow, onupdate=utcnow)
     good_revision: Mapped[Revision] = relationship(foreign_keys=[good_revision_id])
@@ -117,6 +120,9 @@ class Detection(Base):
     effect: Mapped[float | None] = mapped_column(Float, default=None)  # None when undefined
     direction: Mapped[str] = mapped_column(String(10), default="none")
     flagged: Mapped[bool] = mapped_column(Boolean, default=False)
+    #: of a flagged change for the worse: suspected, held or dropped (`detect.confirmation`)
+    confirmation: Mapped[str] = mapped_column(String(20), default="")
+    confirmation_reason: Mapped[str] = mapped_column(Text, default="")
     regression_id: Mapped[int | None] = mapped_column(
         ForeignKey("regression.id", ondelete="SET NULL"), index=True, default=None
     )

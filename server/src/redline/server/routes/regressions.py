@@ -3,7 +3,7 @@ configuration and re-analysis."""
 
 from __future__ import annotations
 
-from typing import Annotated
+from typing import Annotated, Literal
 
 from fastapi import APIRouter, Depends, Query, Request, status
 from redline.server.api.deps import READ, SessionDep, require
@@ -31,10 +31,15 @@ BAD: Responses = {**problems(400), **NOT_FOUND}
 
 @router.get("/{name}/regressions", responses=NOT_FOUND, dependencies=READ)
 def list_regressions(
-    name: str, session: SessionDep, state: RegressionState | None = None
+    name: str,
+    session: SessionDep,
+    state: RegressionState | None = None,
+    confirmation: Literal["suspected", "confirmed", "not_confirmed"] | None = None,
 ) -> list[RegressionOut]:
-    """Flagged detections grouped by overlapping revision ranges; ``?state=`` filters."""
-    return regressions.list_regressions(session, name, state)
+    """Flagged changes for the worse grouped by overlapping revision ranges; ``?state=``
+    (triage) and ``?confirmation=`` (suspected until the later revisions confirm it or not)
+    filter."""
+    return regressions.list_regressions(session, name, state, confirmation)
 
 
 @router.get("/{name}/regressions/{regression_id}", responses=NOT_FOUND, dependencies=READ)

@@ -7,7 +7,8 @@ from typing import Literal
 
 from pydantic import BaseModel, Field
 from redline.detect.baseline import DEFAULT_WINDOW
-from redline.detect.config import MAX_WINDOW
+from redline.detect.config import MAX_CONFIRM_REVISIONS, MAX_WINDOW
+from redline.detect.confirmation import DEFAULT_CONFIRM_REVISIONS
 from redline.detect.counters import CONTEXT_COUNTERS
 from redline.server.models import RegressionState
 from redline.server.schemas.results import SeriesRef
@@ -26,6 +27,11 @@ class DetectionOut(BaseModel):
     effect: float | None = Field(description="relative change of the mean; null when undefined")
     direction: str
     flagged: bool
+    confirmation: Literal["", "suspected", "held", "dropped"] = Field(
+        description="of a flagged change for the worse: suspected until the later revisions "
+        "say whether it held or was dropped (a spike); empty otherwise"
+    )
+    confirmation_reason: str = Field(description="the figures behind the confirmation")
     regression_id: int | None
 
 
@@ -43,6 +49,11 @@ class RegressionOut(BaseModel):
     good_revision: str = Field(description="the newest revision before the change")
     bad_revision: str = Field(description="the last revision in the range showing it")
     state: RegressionState
+    confirmation: Literal["suspected", "confirmed", "not_confirmed"] = Field(
+        description="confirmed when one of its changes held over the later revisions, "
+        "not_confirmed when every one was dropped as a spike, suspected until then"
+    )
+    confirmation_reason: str
     methods: list[str] = Field(description="methods with a flagged detection in it")
     detections: int
     created: datetime
@@ -91,6 +102,19 @@ class DetectionConfigIn(BaseModel):
         description="counters recorded and charted but not judged; by default the user/system "
         "split of CPU, whose total is judged ([] judges every counter)",
     )
+    alarm_methods: list[str] = Field(
+        default_factory=list,
+        max_length=20,
+        description="methods whose flagged changes for the worse become regressions (the "
+        "others are stored and charted); [] : the first method (execution_shift by default)",
+    )
+    confirm_revisions: int = Field(
+        default=DEFAULT_CONFIRM_REVISIONS,
+        ge=0,
+        le=MAX_CONFIRM_REVISIONS,
+        description="later revisions a flagged change must hold over before its regression is "
+        "confirmed (0: confirmed when flagged)",
+    )
     reanalyze: bool = Field(default=True, description="re-analyse the whole history after")
 
 
@@ -101,6 +125,8 @@ class DetectionConfigOut(BaseModel):
     pinned: str | None
     thresholds: dict[str, dict[str, float | str]]
     context_counters: list[str]
+    confirm_revisions: int
+    alarm_methods: list[str]
 
 
 class ReanalysisOut(BaseModel):

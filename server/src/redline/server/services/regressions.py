@@ -51,6 +51,8 @@ def _out(regression: Regression, component: str, methods: list[str], count: int)
         good_revision=regression.good_revision.title,
         bad_revision=regression.bad_revision.title,
         state=regression.state.value,
+        confirmation=regression.confirmation,
+        confirmation_reason=regression.confirmation_reason,
         methods=methods,
         detections=count,
         created=regression.created,
@@ -59,9 +61,13 @@ def _out(regression: Regression, component: str, methods: list[str], count: int)
 
 
 def list_regressions(
-    session: Session, component_name: str, state: str | None = None
+    session: Session,
+    component_name: str,
+    state: str | None = None,
+    confirmation: str | None = None,
 ) -> list[RegressionOut]:
-    """The component's regressions, newest range first; ``state`` filters."""
+    """The component's regressions, newest range first; ``state`` (triage) and
+    ``confirmation`` (suspected, confirmed, not_confirmed) filter."""
     component = get_component(session, component_name)
     query = (
         select(Regression)
@@ -70,6 +76,8 @@ def list_regressions(
     )
     if state is not None:
         query = query.where(Regression.state == RegressionState(state))
+    if confirmation is not None:
+        query = query.where(Regression.confirmation == confirmation)
     regressions = list(session.scalars(query))
     methods = _methods(session, [r.id for r in regressions])
     return [RegressionOut(**_out(r, component.name, *methods[r.id])) for r in regressions]
@@ -109,6 +117,8 @@ def _detection_out(row: tuple) -> DetectionOut:
         effect=detection.effect,
         direction=detection.direction,
         flagged=detection.flagged,
+        confirmation=detection.confirmation,
+        confirmation_reason=detection.confirmation_reason,
         regression_id=detection.regression_id,
     )
 

@@ -1,0 +1,87 @@
+"""Confirmation by history: does a change flagged at one revision hold in the revisions after it?
+
+One revision's executions can move for reasons that are not the code (a busy spell the
+disturbance check did not catch, a cache, a slow disk); the next revisions of unchanged code then
+return to the old level. Perfherder waits for a "fore window" of later results before it shows an
+alert, Otava's E-divisive looks at the whole history; Redline does the same where it cannot run
+the revision again (imported results, a commit that no longer builds, a team that will not spend
+the machine time): a flagged change is *suspected* until ``wait`` later revisions measured the
+series, then it *holds* when those revisions stay on the new side of the old level, at least
+half-way to the flagged one, and is *dropped* (a spike, its figures kept) when they do not.
+
+Levels are medians of one value per execution (`redline.detect.execution_shift`'s view of a
+revision), or means for counts of rare events, which are mostly zero.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+#: Later revisions a flagged change must hold over before it is a regression (the default of a
+#: component's ``confirm_revisions``; 0 makes every flagged change a regression at once).
+DEFAULT_CONFIRM_REVISIONS = 2
+#: The share of the flagged step the later revisions must keep.
+HOLD_SHARE = 0.5
+
+SUSPECTED, HELD, DROPPED = "suspected", "held", "dropped"
+
+
+@dataclass(frozen=True)
+class Hold:
+    """``state``: `SUSPECTED` (not enough later revisions yet), `HELD` or `DROPPED`;
+    ``kept``: the share of the flagged step the later revisions kept (NaN while suspected)."""
+
+    state: str
+    reason: str
+    kept: float = math.nan
+
+
+def _level(values: Sequence[float] | np.ndarray, count: bool) -> float:
+    array = np.asarray(values, dtype=float)
+    array = array[np.isfinite(array)]
+    if not array.size:
+        return math.nan
+    return float(array.mean() if count else np.median(array))
+
+
+def _pct(value: float, base: float) -> str:
+    return f"{100 * (value - base) / abs(base):+.1f} %" if base else f"{value - base:+.3g}"
+
+
+def hold(
+    baseline: Sequence[float] | np.ndarray,
+    flagged: Sequence[float] | np.ndarray,
+    following: Sequence[Sequence[float] | np.ndarray],
+    wait: int = DEFAULT_CONFIRM_REVISIONS,
+    *,
+    count: bool = False,
+) -> Hold:
+    """Whether a change from ``baseline`` (its execution values) to ``flagged`` (the flagged
+    revision's) holds over the revisions after it, ``following`` (each one's execution values,
+    oldest first; only the first ``wait`` count)."""
+    if wait <= 0:
+        return Hold(HELD, "confirmation by history is off (confirm_revisions = 0)", 1.0)
+    after = [np.asarray(v, dtype=float) for v in following[:wait] if len(v)]
+    if len(after) < wait:
+        return Hold(
+            SUSPECTED,
+            f"waiting for {wait - len(after)} more revision(s) after it to measure the series "
+            f"(holds when {wait} later revisions keep the new level)",
+        )
+    old, new = _level(baseline, count), _level(flagged, count)
+    later = _level(np.concatenate(after), count)
+    step = new - old
+    if not all(map(math.isfinite, (old, new, later))) or step == 0:
+        return Hold(DROPPED, "the levels cannot be compared (no finite values, or no step)", 0.0)
+    kept = (later - old) / step
+    figures = (
+        f"flagged at {_pct(new, old)}, the next {wait} revision(s) at {_pct(later, old)} "
+        f"of the old level ({100 * kept:.0f} % of the step kept)"
+    )
+    if kept >= HOLD_SHARE:
+        return Hold(HELD, f"held: {figures}", kept)
+    return Hold(DROPPED, f"not confirmed, returned towards the old level: {figures}", kept)

@@ -1,0 +1,111 @@
+"""Confirmation by history in the service: suspected changes settled by the revisions after them.
+
+A flagged change for the worse is stored `SUSPECTED` (`grouping`). Whenever a revision of the
+component is stored, every suspected detection of the component is looked at again: once
+``confirm_revisions`` later revisions measured its series, `redline.detect.confirmation.hold`
+says whether the change held or was a spike, from the stored per-execution summaries (no
+samples are read). A regression is then *confirmed* when one of its changes held, *not
+confirmed* when every one was dropped (its detections and figures stay), and *suspected* until
+then. The outcome depends only on stored data, so a re-analysis, which stores revisions in
+order with the later ones already ingested, settles each change as the incremental path does.
+"""
+
+from __future__ import annotations
+
+from collections import defaultdict
+
+import numpy as np
+from redline.detect.confirmation import DROPPED, HELD, SUSPECTED, hold
+from redline.detect.counters import is_count
+from redline.server.models import Detection, Execution, Regression, Revision, Series, Summary
+from redline.worker.samples import ingested_executions
+from sqlalchemy import func, select
+from sqlalchemy.orm import Session
+
+CONFIRMED, NOT_CONFIRMED = "confirmed", "not_confirmed"
+
+
+def _levels(session: Session, series_id: int, count: bool) -> list[tuple[str, int, np.ndarray]]:
+    """The series' revisions in order: (sort key, revision id, one value per execution)."""
+    value = Summary.mean if count else Summary.p50
+    rows = session.execute(
+        select(Revision.order_key, Revision.id, value)
+        .join(Execution, Execution.id == Summary.execution_id)
+        .join(Revision, Revision.id == Execution.revision_id)
+        .where(Summary.series_id == series_id, Execution.id.in_(ingested_executions()))
+        .order_by(Revision.order_key, Execution.id)
+    )
+    grouped: dict[tuple[str, int], list[float]] = defaultdict(list)
+    for key, revision_id, number in rows:
+        grouped[(key, revision_id)].append(number)
+    return [(key, rid, np.asarray(v, dtype=float)) for (key, rid), v in grouped.items()]
+
+
+def settle(session: Session, detection: Detection, process: str, counter: str, wait: int) -> None:
+    """Settle one suspected detection if enough later revisions measured its series."""
+    count = is_count(process, counter)
+    levels = _levels(session, detection.series_id, count)
+    position = {rid: i for i, (_, rid, _) in enumerate(levels)}
+    at = position.get(detection.revision_id)
+    newest = position.get(detection.baseline_revision_id or -1)
+    if at is None or newest is None:
+        detection.confirmation, detection.confirmation_reason = (
+            DROPPED,
+            "not confirmed: the revision's or its baseline's summaries are gone",
+        )
+        return
+    first = max(0, newest + 1 - max(1, detection.baseline_revisions))
+    baseline = np.concatenate([values for _, _, values in levels[first : newest + 1]])
+    following = [values for _, _, values in levels[at + 1 :]]
+    found = hold(baseline, levels[at][2], following, wait, count=count)
+    detection.confirmation, detection.confirmation_reason = found.state, found.reason
+
+
+def _summarize_regressions(session: Session, component_id: int, wait: int) -> None:
+    """Each regression of the component: confirmed, not confirmed or suspected, and why."""
+    states: dict[int, dict[str, int]] = defaultdict(dict)
+    for regression_id, state, number in session.execute(
+        select(Detection.regression_id, Detection.confirmation, func.count())
+        .join(Regression, Regression.id == Detection.regression_id)
+        .where(Regression.component_id == component_id)
+        .group_by(Detection.regression_id, Detection.confirmation)
+    ):
+        if regression_id is not None:  # joined to a regression: typed as nullable all the same
+            states[regression_id][state] = number
+    for regression in session.scalars(
+        select(Regression).where(Regression.component_id == component_id)
+    ):
+        counts = states.get(regression.id, {})
+        total = sum(counts.values())
+        if not total:
+            continue  # a triaged regression whose detections a re-analysis took away: kept
+        held, dropped = counts.get(HELD, 0), counts.get(DROPPED, 0)
+        if held:
+            confirmation = CONFIRMED
+            reason = f"{held} of {total} flagged change(s) held over the later revisions"
+        elif total and dropped == total:
+            confirmation = NOT_CONFIRMED
+            reason = f"all {total} flagged change(s) returned to the old level (a spike)"
+        else:
+            confirmation = SUSPECTED
+            waiting = total - dropped
+            reason = (
+                f"{waiting} flagged change(s) waiting for {wait} later revision(s) to measure "
+                "their series"
+            )
+        if (regression.confirmation, regression.confirmation_reason) != (confirmation, reason):
+            regression.confirmation, regression.confirmation_reason = confirmation, reason
+
+
+def confirm_by_history(session: Session, component_id: int, wait: int) -> None:
+    """Settle what the component's stored revisions can settle, then summarize regressions."""
+    suspected = session.execute(
+        select(Detection, Series.process, Series.counter)
+        .join(Series, Series.id == Detection.series_id)
+        .where(Series.component_id == component_id, Detection.confirmation == SUSPECTED)
+        .order_by(Detection.id)
+    ).all()
+    for detection, process, counter in suspected:
+        settle(session, detection, process, counter, wait)
+    session.flush()
+    _summarize_regressions(session, component_id, wait)

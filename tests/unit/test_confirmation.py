@@ -1,0 +1,64 @@
+"""Confirmation by history (`redline.detect.confirmation`): a flagged change is suspected until
+later revisions measured it, held when they keep the new level, dropped when they return."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+from redline.detect.config import ConfigError, DetectionConfig
+from redline.detect.confirmation import DROPPED, HELD, SUSPECTED, hold
+
+BASE = [100.0, 101.0, 99.0, 100.5, 99.5, 100.0]
+UP = [130.0, 131.0, 129.0]
+
+
+def test_a_change_is_suspected_until_enough_later_revisions_measured_it() -> None:
+    found = hold(BASE, UP, [[130.0]], wait=2)
+    assert found.state == SUSPECTED and "1 more revision" in found.reason
+    assert math.isnan(found.kept)
+    assert hold(BASE, UP, [[130.0], []], wait=2).state == SUSPECTED  # an empty one is no measure
+
+
+def test_a_level_the_later_revisions_keep_holds() -> None:
+    found = hold(BASE, UP, [[128.0, 129.0], [131.0], [100.0]], wait=2)  # only 2 count
+    assert found.state == HELD and found.kept > 0.9
+    assert "+30.0 %" in found.reason and "next 2 revision(s) at +29.0 %" in found.reason
+
+
+def test_a_spike_that_returns_is_dropped_with_its_figures() -> None:
+    found = hold(BASE, UP, [[101.0], [99.0]], wait=2)
+    assert found.state == DROPPED and abs(found.kept) < 0.1
+    assert "returned towards the old level" in found.reason and "+30.0 %" in found.reason
+
+
+def test_half_the_step_is_the_line_and_direction_counts() -> None:
+    assert hold(BASE, UP, [[116.0], [116.0]], wait=2).state == HELD  # 53 % of the step
+    assert hold(BASE, UP, [[114.0], [114.0]], wait=2).state == DROPPED  # 47 %
+    down = [70.0, 71.0]
+    assert hold(BASE, down, [[72.0], [69.0]], wait=2).state == HELD  # a fall that stays
+    assert hold(BASE, down, [[130.0], [130.0]], wait=2).state == DROPPED  # overshoots the other way
+
+
+def test_counts_compare_means_not_medians() -> None:
+    # timeouts per execution: mostly none before, a few in most executions after
+    before, flagged = [0.0] * 9, [0.0, 3.0, 4.0]
+    assert hold(before, flagged, [[0.0, 2.0, 3.0], [4.0, 0.0, 0.0]], count=True).state == HELD
+    assert hold(before, flagged, [[0.0, 0.0, 0.0], [0.0] * 3], count=True).state == DROPPED
+
+
+def test_waiting_for_no_revision_confirms_at_once_and_nothing_comparable_is_dropped() -> None:
+    assert hold(BASE, UP, [], wait=0).state == HELD
+    assert hold([math.nan], UP, [[1.0], [1.0]]).state == DROPPED
+    assert hold(BASE, BASE, [[1.0], [1.0]]).state == DROPPED  # no step to confirm
+
+
+def test_the_wait_is_part_of_a_components_configuration() -> None:
+    assert DetectionConfig.parse(None).confirm_revisions == 2
+    assert DetectionConfig.parse({"confirm_revisions": 0}).confirm_revisions == 0
+    parsed = DetectionConfig.parse({"confirm_revisions": 5})
+    assert DetectionConfig.parse(parsed.as_dict()) == parsed
+    with pytest.raises(ConfigError, match="confirm_revisions: must be 0..10, not 11"):
+        DetectionConfig.parse({"confirm_revisions": 11})
+    with pytest.raises(ConfigError, match="confirm_revisions: must be a whole number"):
+        DetectionConfig.parse({"confirm_revisions": "2"})
