@@ -173,8 +173,21 @@ def test_corpus_round_trips_through_the_documented_format(tmp_path: Path) -> Non
 def test_json_output_has_exactly_the_documented_keys() -> None:
     scores = summarize(run_detector(WelchT(min_baseline=3), _tiny_corpus()))
     out = json.loads(as_json({"welch_t": scores}))
-    assert set(out) == {"default", "methods"}
-    assert set(out["methods"]["welch_t"]) == {"roc_auc", "precision", "recall", "f1"}
+    assert set(out) == {"default", "confirm", "methods"}
+    assert set(out["methods"]["welch_t"]) == {
+        "roc_auc",
+        "precision",
+        "recall",
+        "f1",
+        "tp",
+        "fp",
+        "fn",
+        "units",
+        "decided",
+        "false_alarms_per_100",
+        "recall_large",
+        "large",
+    }
 
 
 def test_e_divisive_statistic_equals_the_energy_formula_computed_directly() -> None:

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+import pytest
 import typer
 from redline.commands.evaluate import register
 from redline.detect.corpus import Corpus, SeriesLabel, write_corpus
@@ -46,14 +47,22 @@ def test_json_names_the_default_and_scores_each_chosen_method(tmp_path: Path) ->
         app, ["evaluate", str(_corpus(tmp_path)), "--json", "--methods", "execution_shift,ks"]
     )
     assert result.exit_code == 0, result.output
-    out = json.loads(result.output)
-    assert out["default"] == "execution_shift"
+    out = json.loads(result.stdout)
+    assert out["default"] == "execution_shift" and out["confirm"] == 0
     assert set(out["methods"]) == {"execution_shift", "ks"}
-    assert out["methods"]["execution_shift"] == {
+    assert out["methods"]["execution_shift"] == {  # every figure of the table
         "roc_auc": 1.0,
         "precision": 1.0,
         "recall": 1.0,
         "f1": 1.0,
+        "tp": 1,
+        "fp": 0,
+        "fn": 0,
+        "units": 26,
+        "decided": 23,
+        "false_alarms_per_100": 0.0,
+        "recall_large": 1.0,
+        "large": 1,
     }
 
 
@@ -63,7 +72,7 @@ def test_table_reports_false_alarms_per_100_and_recall_of_large_changes(tmp_path
         ["evaluate", str(_corpus(tmp_path)), "--methods", "execution_shift", "--executions", "3"],
     )
     assert result.exit_code == 0, result.output
-    header, row = result.output.splitlines()[1:3]
+    header, row = result.stdout.splitlines()[1:3]
     assert "FA/100" in header and "rec>=10%" in header
     # 26 units, 25 negative: no false alarm; the one +30 % change found
     assert row.split()[:2] == ["execution_shift", "1.000"]
@@ -77,7 +86,7 @@ def test_executions_option_uses_only_the_first_executions(tmp_path: Path) -> Non
     )
     # one execution a build: a baseline needs 6 builds, so builds 1-5 abstain in both series,
     # and cpu's builds 9-13 too (its baseline restarts at the change it flagged at build 8)
-    decided = next(word for word in one.output.splitlines()[2].split() if "/" in word)
+    decided = next(word for word in one.stdout.splitlines()[2].split() if "/" in word)
     assert decided == "11/26", one.output
 
 
@@ -86,6 +95,89 @@ def test_unknown_method_and_missing_corpus_are_named_with_exit_2(tmp_path: Path)
     assert wrong.exit_code == 2 and "unknown method(s) nope" in wrong.output
     missing = runner.invoke(app, ["evaluate", str(tmp_path / "absent")])
     assert missing.exit_code == 2 and "corpus directory not found" in missing.output
+
+
+def test_each_method_is_printed_when_done_and_progress_goes_to_stderr(tmp_path: Path) -> None:
+    result = runner.invoke(
+        app, ["evaluate", str(_corpus(tmp_path)), "--methods", "execution_shift,ks"]
+    )
+    assert result.exit_code == 0, result.output
+    assert "execution_shift: 2/2 series" in result.stderr and "ks: 2/2 series" in result.stderr
+    header, *rows = result.stdout.splitlines()[1:4]
+    assert [row.split()[0] for row in rows] == ["execution_shift", "ks"]
+    # no two columns run together: every header word is over its own column
+    assert len(header.split()) == 11 and all(len(row.split()) >= 11 for row in rows)
+
+
+def test_units_file_holds_every_units_verdict_and_confirmation(tmp_path: Path) -> None:
+    units = tmp_path / "units.csv"
+    corpus = str(_corpus(tmp_path / "corpus"))
+    result = runner.invoke(
+        app,
+        [
+            "evaluate",
+            corpus,
+            "--methods",
+            "execution_shift",
+            "--confirm",
+            "2",
+            "--units",
+            str(units),
+        ],
+    )
+    assert result.exit_code == 0, result.output
+    frame = pd.read_csv(units)
+    assert list(frame.columns) == [
+        "series",
+        "build",
+        "method",
+        "score",
+        "flagged",
+        "state",
+        "positive",
+    ]
+    assert len(frame) == 26 and set(frame["method"]) == {"execution_shift"}
+    change = frame[(frame["series"] == "cpu") & (frame["build"] == 8)].iloc[0]
+    assert (change["flagged"], change["state"], change["positive"]) == (1, "held", 1)
+    assert set(frame["state"]) <= {"held", "dropped", "suspected", "no change", "not enough data"}
+
+
+def test_several_labelled_changes_of_one_series_each_count(tmp_path: Path) -> None:
+    """Up at build 8, back down at build 16: two positives, each sized between its neighbours
+    (a second real change no longer counts as a false alarm)."""
+    from redline.detect.corpus import load_corpus
+    from redline.detect.evaluate import change_sizes, evaluate_corpus
+
+    rng = np.random.default_rng(4)
+    rows = []
+    for build in range(24):
+        level = 13.0 if 8 <= build < 16 else 10.0
+        for execution in range(4):
+            run = level * (1 + rng.normal(0, 0.02))
+            rows += [("cpu", build, float(v), execution) for v in rng.normal(run, 0.5, 10)]
+    frame = pd.DataFrame(rows, columns=["series", "build", "value", "execution"])
+    (tmp_path / "c").mkdir()
+    frame.to_parquet(tmp_path / "c" / "measurements.parquet")
+    labels = {
+        "cpu": {
+            "label": "regression",
+            "change_builds": [
+                {"build": 16, "direction": "decrease"},
+                {"build": 8, "direction": "increase"},
+            ],
+        }
+    }
+    (tmp_path / "c" / "labels.json").write_text(json.dumps({"name": "c", "series": labels}))
+    corpus = load_corpus(str(tmp_path / "c"))
+    assert corpus.labels["cpu"].change_builds == (8, 16)
+    assert corpus.labels["cpu"].directions == ("increase", "decrease")
+    sizes = change_sizes(corpus)
+    assert sizes[("cpu", 8)] == pytest.approx(0.3, abs=0.03)
+    assert sizes[("cpu", 16)] == pytest.approx(0.23, abs=0.03)  # 13 -> 10, not 10 -> 10
+    scores = evaluate_corpus(corpus, ["execution_shift"])["execution_shift"]
+    assert (scores.tp, scores.fp, scores.large) == (2, 0, 2)
+    write_corpus(corpus, tmp_path / "again")
+    assert load_corpus(str(tmp_path / "again")).labels == corpus.labels
 
 
 CORPUS_2 = Path(__file__).resolve().parents[1] / "benchmarks" / "corpus" / "objectbuilder"

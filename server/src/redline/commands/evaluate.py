@@ -6,14 +6,18 @@ The detectors (scipy) and the corpus (pandas) are imported where they are used, 
 
 from __future__ import annotations
 
+import csv
 import json
 import math
+import sys
+import time
+from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
 
 import typer
 
 if TYPE_CHECKING:
-    from redline.detect.evaluate import MethodScores
+    from redline.detect.evaluate import MethodScores, Outcome
 
 METRICS = ("roc_auc", "precision", "recall", "f1")
 
@@ -22,39 +26,71 @@ def _number(value: float) -> float | None:
     return None if math.isnan(value) else round(value, 4)
 
 
-def as_json(results: dict[str, MethodScores]) -> str:
-    """``{"default": METHOD, "methods": {METHOD: {"roc_auc", "precision", "recall", "f1"}}}``."""
+def as_json(results: dict[str, MethodScores], confirm: int = 0) -> str:
+    """``{"default": METHOD, "confirm": N, "methods": {METHOD: {every figure of the table}}}``:
+    roc_auc, precision, recall, f1, tp, fp, fn, units, decided, false_alarms_per_100,
+    recall_large and large (NaN as null)."""
     from redline.detect.registry import DEFAULT_METHOD
 
     methods = {
-        name: {metric: _number(getattr(scores, metric)) for metric in METRICS}
+        name: {
+            key: _number(value) if isinstance(value, float) else value
+            for key, value in scores.as_dict().items()
+        }
         for name, scores in results.items()
     }
-    return json.dumps({"default": DEFAULT_METHOD, "methods": methods})
+    return json.dumps({"default": DEFAULT_METHOD, "confirm": confirm, "methods": methods})
+
+
+HEADER = (
+    f"{'method':<17} {'ROC-AUC':>7} {'prec.':>6} {'recall':>6} {'F1':>6} {'TP':>5} {'FP':>5} "
+    f"{'FN':>5} {'FA/100':>7} {'rec>=10%':>10} {'decided':>15}"
+)
+LEGEND = (
+    "* default method; FA/100: false alarms per 100 unchanged builds; rec>=10%: "
+    "recall of the changes of 10 % or more (how many); 'decided' = units not "
+    "answered 'not enough data'"
+)
+
+
+def table_row(name: str, s: MethodScores) -> str:
+    """One method's line of the table, every column apart from its neighbours."""
+    from redline.detect.registry import DEFAULT_METHOD
+
+    mark = " *" if name == DEFAULT_METHOD else ""
+    large = f"{s.recall_large:.2f} ({s.large})" if s.large else "-"
+    decided = f"{s.decided}/{s.units}"
+    return (
+        f"{name:<17} {s.roc_auc:>7.3f} {s.precision:>6.3f} {s.recall:>6.3f} {s.f1:>6.3f} "
+        f"{s.tp:>5} {s.fp:>5} {s.fn:>5} {s.false_alarms_per_100:>7.1f} {large:>10} "
+        f"{decided:>15}{mark}"
+    )
 
 
 def as_table(results: dict[str, MethodScores]) -> str:
-    from redline.detect.registry import DEFAULT_METHOD
+    return "\n".join([HEADER, *(table_row(n, s) for n, s in results.items()), LEGEND])
 
-    header = (
-        f"{'method':<16}{'ROC-AUC':>8}{'prec.':>7}{'recall':>7}{'F1':>7}"
-        f"{'TP':>5}{'FP':>5}{'FN':>5}{'FA/100':>8}{'rec>=10%':>10}{'decided':>14}"
-    )
-    lines = [header]
-    for name, s in results.items():
-        mark = " *" if name == DEFAULT_METHOD else ""
-        large = f"{s.recall_large:.2f} ({s.large})" if s.large else "-"
-        lines.append(
-            f"{name:<16}{s.roc_auc:>8.3f}{s.precision:>7.3f}{s.recall:>7.3f}"
-            f"{s.f1:>7.3f}{s.tp:>5}{s.fp:>5}{s.fn:>5}{s.false_alarms_per_100:>8.1f}"
-            f"{large:>10}{s.decided:>7}/{s.units:<6}{mark}"
-        )
-    lines.append(
-        "* default method; FA/100: false alarms per 100 unchanged builds; rec>=10%: "
-        "recall of the changes of 10 % or more (how many); 'decided' = units not "
-        "answered 'not enough data'"
-    )
-    return "\n".join(lines)
+
+def write_units(path: Path, outcomes: dict[str, list[Outcome]]) -> None:
+    """Every unit's verdict per method: series, build, method, score, flagged, state (the
+    verdict; with confirmation, a flagged unit's suspected / held / dropped), positive."""
+    with path.open("w", newline="") as stream:
+        out = csv.writer(stream)
+        out.writerow(["series", "build", "method", "score", "flagged", "state", "positive"])
+        for method, units in outcomes.items():
+            for o in units:
+                state = o.confirmation or o.verdict
+                out.writerow(
+                    [
+                        o.series,
+                        o.build,
+                        method,
+                        f"{o.score:.6g}",
+                        int(o.flagged),
+                        state,
+                        int(o.positive),
+                    ]
+                )
 
 
 def evaluate_cmd(
@@ -82,8 +118,19 @@ def evaluate_cmd(
             "service confirms by history (0: every flagged unit counts)",
         ),
     ] = 0,
+    units: Annotated[
+        Path | None,
+        typer.Option(
+            "--units",
+            dir_okay=False,
+            help="also write every unit's verdict per method to this CSV file (series, build, "
+            "method, score, flagged, state, positive)",
+        ),
+    ] = None,
 ) -> None:
-    """ROC-AUC, precision, recall and F1 of every detection method on a labelled corpus."""
+    """ROC-AUC, precision, recall and F1 of every detection method on a labelled corpus.
+
+    Each method's line is printed as soon as it is done; progress goes to stderr meanwhile."""
     from redline.detect.corpus import CorpusError, first_executions, load_corpus
     from redline.detect.evaluate import evaluate_corpus
     from redline.detect.registry import CHANGE_POINT_METHOD, EVALUATED
@@ -104,12 +151,32 @@ def evaluate_cmd(
         raise typer.Exit(2) from exc
     if executions:
         loaded = first_executions(loaded, executions)
-    results = evaluate_corpus(loaded, chosen, confirm)
+    if not json_output:
+        typer.echo(f"{loaded.name}: {loaded.source}")
+        typer.echo(HEADER)
+    shown = {"at": 0.0}
+
+    def progress(method: str, done: int, total: int) -> None:
+        now = time.monotonic()
+        if now - shown["at"] >= 2 or done == total:
+            shown["at"] = now
+            print(f"  {method}: {done}/{total} series", file=sys.stderr, flush=True)
+
+    kept: dict[str, list[Outcome]] = {}
+
+    def finished(name: str, scores: MethodScores, outcomes: list[Outcome]) -> None:
+        if units is not None:
+            kept[name] = outcomes
+        if not json_output:
+            typer.echo(table_row(name, scores))
+
+    results = evaluate_corpus(loaded, chosen, confirm, progress, finished)
+    if units is not None:
+        write_units(units, kept)
     if json_output:
-        typer.echo(as_json(results))
+        typer.echo(as_json(results, confirm))
         return
-    typer.echo(f"{loaded.name}: {loaded.source}")
-    typer.echo(as_table(results))
+    typer.echo(LEGEND)
 
 
 def register(app: typer.Typer) -> None:

@@ -36,8 +36,44 @@ class CorpusError(ValueError):
 
 @dataclass(frozen=True)
 class SeriesLabel:
+    """A series' label and its labelled changes: ``change_build`` the first build after the
+    first change, ``more`` the first builds after any further ones (each a positive unit);
+    ``directions`` says which way each moved (``increase``/``decrease``, "" when not labelled)."""
+
     label: str
-    change_build: int | None = None  # the first build after the change (the positive unit)
+    change_build: int | None = None
+    more: tuple[int, ...] = ()
+    directions: tuple[str, ...] = ()
+
+    @property
+    def change_builds(self) -> tuple[int, ...]:
+        """Every labelled change's first build, in order (empty unless a regression)."""
+        if self.label != POSITIVE_LABEL or self.change_build is None:
+            return ()
+        return tuple(sorted({self.change_build, *self.more}))
+
+
+def _label(entry: dict) -> SeriesLabel:
+    """One series' entry of labels.json: ``change_build`` (one change) or ``change_builds``
+    (several: ints, or ``{"build": int, "direction": "increase" | "decrease"}``)."""
+    label = str(entry["label"])
+    changes = entry.get("change_builds")
+    if changes is None:
+        first = entry.get("change_build")
+        return SeriesLabel(label, None if first is None else int(first))
+    builds, directions = [], []
+    for change in changes:
+        if isinstance(change, dict):
+            builds.append(int(change["build"]))
+            directions.append(str(change.get("direction", "")))
+        else:
+            builds.append(int(change))
+            directions.append("")
+    if not builds:
+        return SeriesLabel(label)
+    order = sorted(range(len(builds)), key=builds.__getitem__)
+    ordered = [builds[i] for i in order]
+    return SeriesLabel(label, ordered[0], tuple(ordered[1:]), tuple(directions[i] for i in order))
 
 
 @dataclass(frozen=True)
@@ -142,10 +178,7 @@ def load_generic(path: Path) -> Corpus:
     meta = json.loads((path / "labels.json").read_text())
     kept = [*COLUMNS, EXECUTION] if EXECUTION in frame.columns else COLUMNS
     frame = frame[kept].astype({"series": str, "build": np.int64, "value": np.float64})
-    labels = {
-        str(series): SeriesLabel(str(entry["label"]), entry.get("change_build"))
-        for series, entry in meta.get("series", {}).items()
-    }
+    labels = {str(series): _label(entry) for series, entry in meta.get("series", {}).items()}
     return Corpus(
         str(meta.get("name", path.name)),
         _sorted(frame),
@@ -164,14 +197,24 @@ def load_corpus(name_or_path: str) -> Corpus:
     raise CorpusError(f"{path}: neither labels.json nor metadata/dataset_details.csv")
 
 
+def _entry(label: SeriesLabel) -> dict:
+    if not label.more and not any(label.directions):
+        return {"label": label.label, "change_build": label.change_build}
+    builds = [label.change_build, *label.more]
+    directions = label.directions or ("",) * len(builds)
+    return {
+        "label": label.label,
+        "change_builds": [
+            {"build": b, "direction": d} for b, d in zip(builds, directions, strict=True)
+        ],
+    }
+
+
 def write_corpus(corpus: Corpus, path: Path) -> None:
     """Write a corpus in Redline's format (Parquet + labels.json), e.g. to convert SAP's."""
     path.mkdir(parents=True, exist_ok=True)
     corpus.measurements.to_parquet(path / "measurements.parquet", index=False)
-    series = {
-        s: {"label": lab.label, "change_build": lab.change_build}
-        for s, lab in corpus.labels.items()
-    }
+    series = {s: _entry(lab) for s, lab in corpus.labels.items()}
     meta = {
         "name": corpus.name,
         "source": corpus.source,
@@ -185,17 +228,39 @@ def series_builds(
     corpus: Corpus,
 ) -> Iterator[tuple[str, SeriesLabel, list[tuple[int, list[np.ndarray]]]]]:
     """Each series with its label and its builds in order, a build as its executions' samples
-    (without an ``execution`` column, every sample is its own execution, as the loader says)."""
-    for series, frame in corpus.measurements.groupby("series", sort=True):
-        label = corpus.labels.get(str(series), SeriesLabel("unlabelled"))
-        builds = []
-        for build, part in frame.groupby("build", sort=True):
-            if EXECUTION in part.columns:
-                executions = [g["value"].to_numpy() for _, g in part.groupby(EXECUTION)]
-            else:
-                executions = [np.array([value]) for value in part["value"].to_numpy()]
-            builds.append((int(build), executions))
-        yield str(series), label, builds
+    (without an ``execution`` column, every sample is its own execution, as the loader says).
+
+    One sort and one pass over plain arrays: a pandas group-by per build and execution took
+    nine-tenths of an evaluation of 300,000 builds.
+    """
+    frame = corpus.measurements
+    if EXECUTION not in frame.columns:
+        frame = _sorted(frame)
+    frame = frame.sort_values(["series", "build", EXECUTION], kind="stable")
+    series = frame["series"].to_numpy()
+    builds = frame["build"].to_numpy(dtype=np.int64)
+    executions = frame[EXECUTION].to_numpy(dtype=np.int64)
+    values = frame["value"].to_numpy(dtype=np.float64)
+    if not len(values):
+        return
+    new_series = np.r_[True, series[1:] != series[:-1]]
+    new_build = new_series | np.r_[True, builds[1:] != builds[:-1]]
+    new_execution = new_build | np.r_[True, executions[1:] != executions[:-1]]
+    starts = np.flatnonzero(new_execution)
+    runs = np.split(values, starts[1:])
+    run_build = new_build[starts]
+    run_series = new_series[starts]
+    current: list[tuple[int, list[np.ndarray]]] = []
+    name = ""
+    for index, start in enumerate(starts):
+        if run_series[index]:
+            if current:
+                yield name, corpus.labels.get(name, SeriesLabel("unlabelled")), current
+            name, current = str(series[start]), []
+        if run_build[index]:
+            current.append((int(builds[start]), []))
+        current[-1][1].append(runs[index])
+    yield name, corpus.labels.get(name, SeriesLabel("unlabelled")), current
 
 
 def first_executions(corpus: Corpus, count: int) -> Corpus:

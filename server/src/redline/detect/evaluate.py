@@ -11,14 +11,14 @@ and effect-size floor, is "change". Pure computation over a loaded `Corpus`.
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import asdict, dataclass
 
 import numpy as np
 from redline.detect.baseline import DEFAULT_WINDOW, recent_depth
 from redline.detect.changepoint import EDivisive
 from redline.detect.confirmation import HELD, hold
-from redline.detect.corpus import POSITIVE_LABEL, Corpus, Unit, series_builds
+from redline.detect.corpus import Corpus, Unit, series_builds
 from redline.detect.execution_shift import values_for
 from redline.detect.methods import Detector
 from redline.detect.registry import CHANGE_POINT_METHOD, DEFAULT_METHOD, EVALUATED
@@ -37,6 +37,14 @@ class Outcome:
     flagged: bool
     decided: bool
     size: float = math.nan  # a positive's change size (`change_sizes`); NaN for a negative
+    series: str = ""
+    build: int = 0
+    verdict: str = ""
+    confirmation: str = ""  # with confirmation: suspected, held or dropped (flagged units)
+
+
+#: Called with (series done, series in all) as an evaluation walks a corpus.
+Progress = Callable[[int, int], None]
 
 
 @dataclass(frozen=True)
@@ -106,21 +114,25 @@ def summarize(outcomes: Sequence[Outcome]) -> MethodScores:
     )
 
 
-def change_sizes(corpus: Corpus) -> dict[str, float]:
-    """Each regression series' change size as its data show it over the whole series: the
-    relative move of the median of its build medians from before the change to after it (all
-    the builds of the series a side, so one noisy build does not decide it)."""
+def change_sizes(corpus: Corpus) -> dict[tuple[str, int], float]:
+    """Each labelled change's size as the data show it, by (series, first build after it): the
+    relative move of the median of the build medians from the builds since the previous change
+    (or the series' start) to the builds up to the next change (or its end), so one noisy build
+    does not decide it and a second change does not count in the first one's size."""
     sizes = {}
     for series, label, builds in series_builds(corpus):
-        if label.label != POSITIVE_LABEL or label.change_build is None:
+        changes = label.change_builds
+        if not changes:
             continue
         medians = [(build, float(np.median(np.concatenate(runs)))) for build, runs in builds]
-        before = [m for b, m in medians if b < label.change_build]
-        after = [m for b, m in medians if b >= label.change_build]
-        if not before or not after:
-            continue
-        level, moved = float(np.median(before)), float(np.median(after))
-        sizes[series] = abs(moved - level) / abs(level) if level else math.inf
+        bounds = [-math.inf, *changes, math.inf]
+        for index, change in enumerate(changes):
+            before = [m for b, m in medians if bounds[index] <= b < change]
+            after = [m for b, m in medians if change <= b < bounds[index + 2]]
+            if not before or not after:
+                continue
+            level, moved = float(np.median(before)), float(np.median(after))
+            sizes[(series, change)] = abs(moved - level) / abs(level) if level else math.inf
     return sizes
 
 
@@ -130,12 +142,18 @@ def counter_of(series: str) -> str:
 
 
 def walk(
-    detector: Detector, corpus: Corpus, window: int = DEFAULT_WINDOW
+    detector: Detector,
+    corpus: Corpus,
+    window: int = DEFAULT_WINDOW,
+    progress: Progress | None = None,
 ) -> Iterator[tuple[Unit, Detection]]:
     """Each unit of the corpus with ``detector``'s verdict on it, series by series in build
-    order; the baseline follows the ``recent`` policy (it restarts where the detector flagged)."""
-    for series, label, builds in series_builds(corpus):
+    order; the baseline follows the ``recent`` policy (it restarts where the detector flagged).
+    ``progress`` hears after each series."""
+    total = int(corpus.measurements["series"].nunique())
+    for done, (series, label, builds) in enumerate(series_builds(corpus), start=1):
         values = [values_for(detector, executions) for _, executions in builds]
+        changes = set(label.change_builds)
         last_flagged: int | None = None
         for k in range(1, len(builds)):
             sizes = [len(values[j]) for j in range(k - 1, -1, -1)]
@@ -148,7 +166,7 @@ def walk(
                 build,
                 baseline,
                 candidate,
-                label.label == POSITIVE_LABEL and build == label.change_build,
+                build in changes,
             )
             if detector.ndim == 2:
                 baseline, candidate = baseline[:, None], candidate[:, None]
@@ -158,41 +176,50 @@ def walk(
             if found.flagged:
                 last_flagged = k
             yield unit, found
+        if progress is not None:
+            progress(done, total)
 
 
-def run_detector(detector: Detector, corpus: Corpus, confirm: int = 0) -> list[Outcome]:
+def run_detector(
+    detector: Detector, corpus: Corpus, confirm: int = 0, progress: Progress | None = None
+) -> list[Outcome]:
     """Each unit's outcome; with ``confirm`` > 0 a flagged unit counts as flagged only when the
     ``confirm`` builds after it hold the new level (`redline.detect.confirmation`, as the
     service confirms by history; a change too near the end of its series stays suspected and
     counts as not flagged)."""
     sizes = change_sizes(corpus)
-    judged = list(walk(detector, corpus))
+    judged = list(walk(detector, corpus, progress=progress))
     outcomes = []
     for index, (unit, found) in enumerate(judged):
-        flagged = found.flagged
+        flagged, confirmation = found.flagged, ""
         if flagged and confirm > 0:
             after = [
                 later.candidate
                 for later, _ in judged[index + 1 : index + 1 + confirm]
                 if later.series == unit.series
             ]
-            flagged = hold(unit.baseline, unit.candidate, after, confirm).state == HELD
+            confirmation = hold(unit.baseline, unit.candidate, after, confirm).state
+            flagged = confirmation == HELD
         outcomes.append(
             Outcome(
                 unit.positive,
                 found.score,
                 flagged,
                 found.decided,
-                sizes.get(unit.series, math.nan) if unit.positive else math.nan,
+                sizes.get((unit.series, unit.build), math.nan) if unit.positive else math.nan,
+                unit.series,
+                unit.build,
+                found.verdict,
+                confirmation,
             )
         )
     return outcomes
 
 
-def units_of(corpus: Corpus) -> list[Unit]:
+def units_of(corpus: Corpus, progress: Progress | None = None) -> list[Unit]:
     """The corpus's units, with the baselines the default method would use (for E-divisive,
     which judges whole histories but is scored on the same builds)."""
-    return [unit for unit, _ in walk(EVALUATED[DEFAULT_METHOD](), corpus)]
+    return [unit for unit, _ in walk(EVALUATED[DEFAULT_METHOD](), corpus, progress=progress)]
 
 
 def run_change_points(
@@ -221,29 +248,50 @@ def run_change_points(
     outcomes = []
     for unit in units:
         score, flagged = found.get((unit.series, unit.build), (0.0, False))
+        decided = unit.series not in undecided
         outcomes.append(
             Outcome(
                 unit.positive,
                 score,
                 flagged,
-                unit.series not in undecided,
-                sizes.get(unit.series, math.nan) if unit.positive else math.nan,
+                decided,
+                sizes.get((unit.series, unit.build), math.nan) if unit.positive else math.nan,
+                unit.series,
+                unit.build,
+                ("change" if flagged else "no change") if decided else "not enough data",
             )
         )
     return outcomes
 
 
+#: Called with each method's name, scores and units as soon as the method is done.
+Finished = Callable[[str, MethodScores, list[Outcome]], None]
+
+
 def evaluate_corpus(
-    corpus: Corpus, methods: Sequence[str] | None = None, confirm: int = 0
+    corpus: Corpus,
+    methods: Sequence[str] | None = None,
+    confirm: int = 0,
+    progress: Callable[[str, int, int], None] | None = None,
+    finished: Finished | None = None,
 ) -> dict[str, MethodScores]:
     """Scores of each named method (default: all) on the corpus's units; ``confirm``: the
     later builds a flagged change must hold over (`run_detector`; E-divisive sees the whole
-    history and is not confirmed)."""
+    history and is not confirmed). ``progress`` hears (method, series done, series in all);
+    ``finished`` gets each method's figures and units as soon as it is done."""
     names = list(methods) if methods else [*EVALUATED, CHANGE_POINT_METHOD]
     results = {}
     for name in names:
+
+        def step(done: int, total: int, name: str = name) -> None:
+            if progress is not None:
+                progress(name, done, total)
+
         if name == CHANGE_POINT_METHOD:
-            results[name] = summarize(run_change_points(corpus, units_of(corpus)))
+            outcomes = run_change_points(corpus, units_of(corpus, step))
         else:
-            results[name] = summarize(run_detector(EVALUATED[name](), corpus, confirm))
+            outcomes = run_detector(EVALUATED[name](), corpus, confirm, step)
+        results[name] = summarize(outcomes)
+        if finished is not None:
+            finished(name, results[name], outcomes)
     return results
