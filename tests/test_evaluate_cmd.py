@@ -142,6 +142,19 @@ def test_units_file_holds_every_units_verdict_and_confirmation(tmp_path: Path) -
     assert set(frame["state"]) <= {"held", "dropped", "suspected", "no change", "not enough data"}
 
 
+def test_f1_scores_the_flagged_builds_as_change_points_beside_the_references(tmp_path: Path):
+    result = runner.invoke(
+        app,
+        ["evaluate", str(_corpus(tmp_path)), "--methods", "execution_shift", "--f1", "--json"],
+    )
+    assert result.exit_code == 0, result.output
+    points = json.loads(result.stdout)["change_point_f1"]
+    assert set(points) == {"execution_shift", "zero", "binseg"}
+    # cpu's one step found at its build, rss left alone: every change point right
+    assert points["execution_shift"] == 1.0
+    assert points["zero"] == pytest.approx((2 / 3 + 1) / 2, abs=1e-4)  # misses cpu's step
+
+
 def test_several_labelled_changes_of_one_series_each_count(tmp_path: Path) -> None:
     """Up at build 8, back down at build 16: two positives, each sized between its neighbours
     (a second real change no longer counts as a false alarm)."""

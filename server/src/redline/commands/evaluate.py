@@ -26,10 +26,13 @@ def _number(value: float) -> float | None:
     return None if math.isnan(value) else round(value, 4)
 
 
-def as_json(results: dict[str, MethodScores], confirm: int = 0) -> str:
+def as_json(
+    results: dict[str, MethodScores], confirm: int = 0, points: dict[str, float] | None = None
+) -> str:
     """``{"default": METHOD, "confirm": N, "methods": {METHOD: {every figure of the table}}}``:
     roc_auc, precision, recall, f1, tp, fp, fn, units, decided, false_alarms_per_100,
-    recall_large and large (NaN as null)."""
+    recall_large and large (NaN as null); with ``--f1`` also ``"change_point_f1": {METHOD |
+    "zero" | "binseg": F1}``."""
     from redline.detect.registry import DEFAULT_METHOD
 
     methods = {
@@ -39,7 +42,10 @@ def as_json(results: dict[str, MethodScores], confirm: int = 0) -> str:
         }
         for name, scores in results.items()
     }
-    return json.dumps({"default": DEFAULT_METHOD, "confirm": confirm, "methods": methods})
+    out: dict = {"default": DEFAULT_METHOD, "confirm": confirm, "methods": methods}
+    if points:
+        out["change_point_f1"] = {name: round(value, 4) for name, value in points.items()}
+    return json.dumps(out)
 
 
 HEADER = (
@@ -118,6 +124,14 @@ def evaluate_cmd(
             "service confirms by history (0: every flagged unit counts)",
         ),
     ] = 0,
+    f1: Annotated[
+        bool,
+        typer.Option(
+            "--f1",
+            help="also score the flagged builds as change points: TCPDBench's F1 (margin 5), "
+            "beside a detector that never alarms and binary segmentation",
+        ),
+    ] = False,
     units: Annotated[
         Path | None,
         typer.Option(
@@ -132,7 +146,7 @@ def evaluate_cmd(
 
     Each method's line is printed as soon as it is done; progress goes to stderr meanwhile."""
     from redline.detect.corpus import CorpusError, first_executions, load_corpus
-    from redline.detect.evaluate import evaluate_corpus
+    from redline.detect.evaluate import change_point_f1, evaluate_corpus
     from redline.detect.registry import CHANGE_POINT_METHOD, EVALUATED
 
     chosen = [m.strip() for m in methods.split(",") if m.strip()] if methods else None
@@ -165,7 +179,7 @@ def evaluate_cmd(
     kept: dict[str, list[Outcome]] = {}
 
     def finished(name: str, scores: MethodScores, outcomes: list[Outcome]) -> None:
-        if units is not None:
+        if units is not None or f1:
             kept[name] = outcomes
         if not json_output:
             typer.echo(table_row(name, scores))
@@ -173,10 +187,15 @@ def evaluate_cmd(
     results = evaluate_corpus(loaded, chosen, confirm, progress, finished)
     if units is not None:
         write_units(units, kept)
+    points = change_point_f1(loaded, kept) if f1 else {}
     if json_output:
-        typer.echo(as_json(results, confirm))
+        typer.echo(as_json(results, confirm, points))
         return
     typer.echo(LEGEND)
+    if points:
+        typer.echo("change-point F1 (TCPDBench, margin 5, mean over series):")
+        for name, value in points.items():
+            typer.echo(f"  {name:<17} {value:.3f}")
 
 
 def register(app: typer.Typer) -> None:

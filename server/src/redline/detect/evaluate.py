@@ -11,12 +11,13 @@ and effect-size floor, is "change". Pure computation over a loaded `Corpus`.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import asdict, dataclass
 
 import numpy as np
 from redline.detect.baseline import DEFAULT_WINDOW, recent_depth
 from redline.detect.changepoint import EDivisive
+from redline.detect.changepoint_f1 import MARGIN, binary_segmentation, f_measure
 from redline.detect.confirmation import HELD, hold
 from redline.detect.corpus import Corpus, Unit, series_builds
 from redline.detect.execution_shift import values_for
@@ -295,3 +296,33 @@ def evaluate_corpus(
         if finished is not None:
             finished(name, results[name], outcomes)
     return results
+
+
+def change_point_f1(
+    corpus: Corpus, outcomes: Mapping[str, Sequence[Outcome]], margin: int = MARGIN
+) -> dict[str, float]:
+    """TCPDBench's F1 (`redline.detect.changepoint_f1`), the mean over the corpus's series, of
+    each method's flagged builds, of a detector that never alarms (``zero``) and of binary
+    segmentation over the build medians (``binseg``)."""
+    positions: dict[str, dict[int, int]] = {}
+    truth: dict[str, list[int]] = {}
+    levels: dict[str, list[float]] = {}
+    for series, label, builds in series_builds(corpus):
+        positions[series] = {build: i for i, (build, _) in enumerate(builds)}
+        truth[series] = [positions[series][b] for b in label.change_builds]
+        levels[series] = [float(np.median(np.concatenate(runs))) for _, runs in builds]
+    predicted: dict[str, dict[str, list[int]]] = {}
+    for name, found in outcomes.items():
+        flagged: dict[str, list[int]] = {series: [] for series in positions}
+        for o in found:
+            if o.flagged:
+                flagged[o.series].append(positions[o.series][o.build])
+        predicted[name] = flagged
+    predicted["zero"] = {series: [] for series in positions}
+    predicted["binseg"] = {s: binary_segmentation(levels[s]) for s in positions}
+    return {
+        name: float(
+            np.mean([f_measure({"labels": truth[s]}, points[s], margin)[0] for s in positions])
+        )
+        for name, points in predicted.items()
+    }
