@@ -28,7 +28,7 @@ from tests.support.servers import (
 
 
 @pytest.fixture(scope="session")
-def services(tmp_path_factory: pytest.TempPathFactory, worker_id: str) -> Iterator[Services]:
+def services(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Services]:
     from redline.commands.embedded import EmbeddedServices, start_postgres, start_redis
 
     embedded = EmbeddedServices()
@@ -42,7 +42,7 @@ def services(tmp_path_factory: pytest.TempPathFactory, worker_id: str) -> Iterat
         database_url, embedded.postgres = start_postgres(pg_folder / "data", "redline_test")
     redis_url = os.environ.get("REDLINE_TEST_REDIS_URL", "")
     if redis_url:
-        redis_url = redis_for_worker(redis_url, worker_id)
+        redis_url = redis_for_worker(redis_url, os.environ.get("PYTEST_XDIST_WORKER", ""))
     else:
         redis_url, embedded.redis = start_redis(Path(tmp_path_factory.mktemp("redis")))
     yield Services(database_url, redis_url)

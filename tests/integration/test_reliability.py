@@ -34,6 +34,7 @@ from redline.server.db import session_factory
 from redline.server.models import Execution, Job, JobState, Revision
 from sqlalchemy import func, select, update
 
+from tests.support.git import committed_repo
 from tests.support.servers import Services, fresh_database
 
 pytestmark = pytest.mark.slow
@@ -79,21 +80,6 @@ def _until(check: Callable[[], object], what: str, timeout: float = UNTIL_S) -> 
             return result
         time.sleep(0.2)
     pytest.fail(f"gave up waiting: {what}")
-
-
-def _tiny_repo(root: Path) -> tuple[Path, str]:
-    repo = root / "tiny-repo"
-    for name, text in FILES.items():
-        (repo / name).parent.mkdir(parents=True, exist_ok=True)
-        (repo / name).write_text(textwrap.dedent(text))
-    git = ["git", "-c", "user.name=t", "-c", "user.email=t@t.invalid"]
-    subprocess.run([*git, "init", "-q", "-b", "main"], cwd=repo, check=True)
-    subprocess.run([*git, "add", "-A"], cwd=repo, check=True)
-    subprocess.run([*git, "commit", "-qm", "tiny"], cwd=repo, check=True)
-    commit = subprocess.run(
-        ["git", "rev-parse", "HEAD"], cwd=repo, check=True, capture_output=True, text=True
-    ).stdout.strip()
-    return repo, commit
 
 
 @dataclass
@@ -199,7 +185,9 @@ class Service:
 
 
 def _service(database_url: str, redis_url: str, root: Path, lease_s: int) -> Service:
-    repo, commit = _tiny_repo(root)
+    repo, commit = committed_repo(
+        root / "tiny-repo", {name: textwrap.dedent(text) for name, text in FILES.items()}
+    )
     stack = Stack(root / "data", free_port())
     (stack.data / "logs").mkdir(parents=True, exist_ok=True)
     stack.env = dict(
@@ -234,6 +222,17 @@ def service(shared: Service) -> Iterator[Service]:
         shared.start_server()
     yield shared
     shared.stop_agents()
+
+
+def _unread_by_server(port: int) -> int:
+    """Bytes that have arrived for the server listening on 127.0.0.1:``port`` and that it has
+    not read yet: the receive queues of its established connections (/proc/net/tcp)."""
+    unread = 0
+    for line in Path("/proc/net/tcp").read_text().splitlines()[1:]:
+        _, local, _, state, queues, *_ = line.split()
+        if int(local.rsplit(":", 1)[1], 16) == port and state == "01":  # ESTABLISHED
+            unread += int(queues.split(":")[1], 16)
+    return unread
 
 
 def _holder(service: Service, job_id: int, host: str) -> bool:
@@ -286,8 +285,11 @@ def test_server_killed_during_an_upload_the_agent_retries_and_it_is_stored_once(
     _until(lambda: _holder(service, job_id, "fast-restart"), "the agent runs the job")
     server.process.send_signal(signal.SIGSTOP)  # frozen: the upload that comes next hangs
     spooled = service.root / "fast-restart" / "spool" / f"job-{job_id}.mcap"
-    _until(spooled.exists, "the agent starts uploading its recording")
-    time.sleep(0.5)  # the request is on its way into the frozen server's socket
+    size = _until(lambda: spooled.exists() and spooled.stat().st_size, "the recording spooled")
+    _until(  # the upload is in the frozen server's socket (a heartbeat is a few hundred bytes)
+        lambda: _unread_by_server(service.stack.port) >= min(int(size), 16_384),
+        "the upload reaches the frozen server",
+    )
     service.kill(server)
     service.start_server()
     _until(lambda: not spooled.exists(), "the spooled recording is accepted", timeout=120)

@@ -67,8 +67,8 @@ def drop_created_databases() -> None:
 
 def redis_for_worker(url: str, worker: str) -> str:
     """A configured ``redis://`` server's database number for xdist worker ``worker`` ("gw0",
-    "gw1", ...; "master" without xdist keeps ``url``), so that concurrent sessions share no
-    Celery bookkeeping keys. A ``unix://`` URL is kept: its queues are named per test anyway."""
+    "gw1", ...; "" without xdist keeps ``url``), so that concurrent sessions share no Celery
+    bookkeeping keys. A ``unix://`` URL is kept: its queues are named per test anyway."""
     parts = urlsplit(url)
     if not worker.startswith("gw") or parts.scheme not in ("redis", "rediss"):
         return url
