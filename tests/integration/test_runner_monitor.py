@@ -146,7 +146,7 @@ def _child(code: str) -> subprocess.Popen[bytes]:
     return subprocess.Popen([sys.executable, "-c", textwrap.dedent(code)])
 
 
-def _samples(pid: int, count: int) -> list[dict[str, float]]:
+def _samples_of(pid: int, count: int) -> list[dict[str, float]]:
     sampler = ProcessSampler("child", pid)
     values = []
     for _ in range(count):
@@ -160,8 +160,8 @@ def test_monitor_tells_a_busy_process_from_an_idle_one() -> None:
     busy = _child("while True: pass")
     idle = _child("import time; time.sleep(60)")
     try:
-        busy_cpu = [s["cpu_percent"] for s in _samples(busy.pid, 8)]
-        idle_cpu = [s["cpu_percent"] for s in _samples(idle.pid, 8)]
+        busy_cpu = [s["cpu_percent"] for s in _samples_of(busy.pid, 8)]
+        idle_cpu = [s["cpu_percent"] for s in _samples_of(idle.pid, 8)]
     finally:
         for child in (busy, idle):
             child.kill()
@@ -183,7 +183,7 @@ def test_monitor_counts_threads_and_never_goes_negative_when_threads_exit() -> N
             for w in workers: w.join()
         """)
     try:
-        samples = _samples(child.pid, 15)
+        samples = _samples_of(child.pid, 15)
     finally:
         child.kill()
         child.wait()

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import re
 import subprocess
 import sys
@@ -80,7 +81,11 @@ ECHO_SUITE = ROOT / "examples" / "echo" / "perf" / "redline.toml"
 def _loaded(*args: str) -> tuple[list[str], subprocess.CompletedProcess[str]]:
     """Run `redline ARGS` in a fresh interpreter; which of HEAVY and zenoh it had imported."""
     done = subprocess.run(
-        [sys.executable, "-c", LOADED, *args], capture_output=True, text=True, timeout=120
+        [sys.executable, "-c", LOADED, *args],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env={**os.environ, "COLUMNS": "1000"},  # a long path in a message stays on one line
     )
     marker = [line for line in done.stderr.splitlines() if line.startswith("loaded:")]
     assert marker, done.stderr
