@@ -13,7 +13,6 @@ from redline.detect.corpus import Corpus, SeriesLabel, first_executions
 from redline.detect.evaluate import walk
 from redline.detect.execution_shift import BuildShift, ExecutionShift, execution_values, values_for
 from redline.detect.methods import WelchT
-from redline.detect.registry import DEFAULT_METHOD, DETECTORS
 from redline.detect.result import CHANGE, NO_CHANGE, NOT_ENOUGH_DATA
 
 
@@ -25,11 +24,6 @@ def _executions(
         rng.normal(level * (1 + rng.normal(0, between)), level * 0.15, samples)
         for _ in range(count)
     ]
-
-
-def test_default_method_is_execution_shift() -> None:
-    assert DEFAULT_METHOD == "execution_shift"
-    assert isinstance(DETECTORS[DEFAULT_METHOD](), ExecutionShift)
 
 
 def test_execution_values_are_medians_so_one_spike_does_not_move_them() -> None:
