@@ -1,4 +1,5 @@
-"""The SDK's zenoh actions on a real isolated zenoh network: Query, WaitFor, Listen, Replay."""
+"""The SDK's zenoh actions on a real isolated zenoh network: Publish, Query, WaitFor, Listen,
+Replay."""
 
 from __future__ import annotations
 

@@ -1,4 +1,5 @@
-"""Choosing what a run executes (--only, --param) and executions per revision."""
+"""Choosing what a run executes (--only, --param) and how the recordings of several executions
+are named (running them: tests/integration/test_runner.py)."""
 
 from __future__ import annotations
 
