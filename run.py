@@ -2,7 +2,11 @@
 """Bootstrap and run Redline from a fresh checkout, needing only Python 3.11 and pip.
 
     python3 run.py demo [ARGS]   install what is needed, then `redline demo ARGS`
-    python3 run.py test [ARGS]   install what is needed, then run the test suite (pytest ARGS)
+    python3 run.py test          install what is needed, then the whole test suite: tests not
+                                 marked `serial` on pytest-xdist workers, then the `serial` ones
+                                 (they measure CPU or timing) alone
+    python3 run.py test ARGS     install what is needed, then `pytest ARGS` in one process (e.g.
+                                 `tests/unit`, the tests that need no service)
     python3 run.py redline ARGS  install what is needed, then any `redline` command
     python3 run.py check         install what is needed, then the house's checks: ruff (lint and
                                  format), lint-imports (the layers), mypy (types)
@@ -70,6 +74,29 @@ def ensure_chromium() -> None:
     )
 
 
+#: xdist workers for the parallel pass; each starts its own embedded Postgres and Redis (or makes
+#: its own database on configured servers), whole modules at a time so module fixtures run once.
+WORKERS = 2
+PASSES = (
+    ["-n", str(WORKERS), "--dist", "loadfile", "-m", "not serial"],
+    ["-m", "serial"],
+)
+
+
+def test(args: list[str]) -> int:
+    """``pytest ARGS`` in one process; without ARGS the whole suite in its two passes."""
+    pytest = [str(BIN / "python"), "-m", "pytest"]
+    if args:
+        return subprocess.run([*pytest, *args], cwd=ROOT).returncode
+    codes = []
+    for extra in PASSES:
+        say(f"pytest {' '.join(extra)}")
+        codes.append(subprocess.run([*pytest, *extra], cwd=ROOT).returncode)
+    if any(codes):
+        say(f"failed: pass exit codes {codes}")
+    return next((code for code in codes if code), 0)
+
+
 CHECKS = (["ruff", "check", "."], ["ruff", "format", "--check", "."], ["lint-imports"], ["mypy"])
 
 
@@ -95,8 +122,8 @@ def main(argv: list[str]) -> int:
         return check()
     if command == "test":
         ensure_chromium()
-        args = [str(BIN / "python"), "-m", "pytest", *rest]
-    elif command == "demo":
+        return test(rest)
+    if command == "demo":
         args = [str(BIN / "redline"), "demo", *rest]
     else:
         args = [str(BIN / "redline"), *rest]

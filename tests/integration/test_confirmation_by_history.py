@@ -15,10 +15,8 @@ from redline.worker.ingest import ingest_execution
 from redline.worker.reanalysis import reanalyze_component
 from sqlalchemy import select
 
-from tests import test_ingest
-from tests.intake import api_with
-
-database_url, session = test_ingest.database_url, test_ingest.session  # the fixtures, shared
+from tests.support.api import api_with
+from tests.support.history import add_executions
 
 NAME, RUNS = "builder", 3
 
@@ -32,9 +30,7 @@ def _judge(session, database_url: str, tmp_path: Path, levels: list[float], star
             {"cpu": rng.normal(level * (1 + rng.normal(0, 0.01)), level * 0.02, 40)}
             for _ in range(RUNS)
         ]
-        executions = test_ingest.add_executions(
-            session, tmp_path, NAME, f"r{number}", str(number), runs
-        )
+        executions = add_executions(session, tmp_path, NAME, f"r{number}", str(number), runs)
         for execution in executions:
             ingest_execution(database_url, execution.id)
         detect_revision(database_url, executions[0].revision_id)
@@ -130,7 +126,7 @@ def _one_execution_each(session, database_url: str, tmp_path: Path, revisions: i
     rng = np.random.default_rng(11)
     for number in range(1, revisions + 1):
         level = 20.0 * rng.choice([0.92, 1.0, 1.08]) * (1 + rng.normal(0, 0.02))
-        executions = test_ingest.add_executions(
+        executions = add_executions(
             session,
             tmp_path,
             NAME,

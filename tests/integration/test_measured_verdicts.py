@@ -9,19 +9,15 @@ from typing import Any
 
 import numpy as np
 from redline.recording import RecordingWriter
-from redline.server.models import Detection, Execution, JobState, Regression, Revision, Series
+from redline.server.models import Detection, Execution, Regression, Revision, Series
 from redline.server.schemas.components import ComponentCreate
-from redline.server.schemas.revisions import RevisionCreate
 from redline.server.services.components import create_component
-from redline.server.services.revisions import create_revision
 from redline.worker.detection import detect_revision
 from redline.worker.ingest import ingest_execution
 from sqlalchemy import select
 
-from tests import test_ingest
-from tests.intake import api_with
-
-database_url, session = test_ingest.database_url, test_ingest.session  # the fixtures, shared
+from tests.support.api import api_with
+from tests.support.history import add_executions
 
 NAME, CASE, PHASE, PARAMS = "svc", "ask", "steady", {"rate": 50}
 QUERY = "FixedRate/Query(svc/get)"
@@ -75,30 +71,17 @@ def _record(
 
 
 def _revision(session, tmp_path: Path, number: int, **recorded: Any) -> list[Execution]:
-    """Revision r<number> with RUNS executions recorded by `_record` and ingested."""
-    title = f"r{number}"
-    revision = create_revision(
-        session, RevisionCreate(component=NAME, title=title, sort_key=str(number))
+    """Revision r<number> with RUNS executions recorded by `_record` (not yet ingested)."""
+    runs = [dict(recorded, seed=number * 10 + index) for index in range(RUNS)]
+    return add_executions(
+        session,
+        tmp_path,
+        NAME,
+        f"r{number}",
+        str(number),
+        runs,
+        record=lambda path, run, kwargs: _record(path, run, **kwargs),
     )
-    executions = []
-    for job in sorted(revision.jobs, key=lambda j: j.execution_index):
-        run = test_ingest.run_metadata(job, NAME, title, str(number))
-        name = f"{title}-{job.execution_index}"
-        path = _record(
-            tmp_path / f"{name}.mcap", run, seed=number * 10 + job.execution_index, **recorded
-        )
-        execution = Execution(
-            job_id=job.id,
-            revision_id=revision.id,
-            recording_path=str(path),
-            sha256=name.ljust(64, "0"),
-            size=path.stat().st_size,
-        )
-        job.state = JobState.uploaded
-        session.add(execution)
-        executions.append(execution)
-    session.commit()
-    return executions
 
 
 def _history(session, database_url: str, tmp_path: Path, last: dict[str, Any]) -> Revision:

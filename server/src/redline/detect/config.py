@@ -13,6 +13,7 @@ from typing import Any
 
 from redline.detect.baseline import DEFAULT_WINDOW
 from redline.detect.confirmation import DEFAULT_CONFIRM_REVISIONS
+from redline.detect.count_rate import CountRate
 from redline.detect.counters import CONTEXT_COUNTERS
 from redline.detect.methods import Detector
 from redline.detect.registry import DEFAULT_METHOD, DETECTORS
@@ -146,5 +147,6 @@ class DetectionConfig:
 
     @property
     def alarming(self) -> tuple[str, ...]:
-        """The methods whose flagged changes for the worse become regressions."""
-        return self.alarm_methods or self.methods[:1]
+        """The methods whose flagged changes for the worse become regressions; counts of rare
+        events (timeouts, losses) are judged by `CountRate` alone, which always alarms."""
+        return (*(self.alarm_methods or self.methods[:1]), CountRate.name)

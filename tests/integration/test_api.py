@@ -1,0 +1,369 @@
+"""The HTTP API through the real app, on real Postgres and Redis (the `services` fixture)."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import re
+import uuid
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+import redis
+from fastapi.testclient import TestClient
+from redline.server.app import create_app
+from redline.server.core.config import Settings
+from redline.server.core.tasks import broker_url
+from redline.server.db import session_factory
+from redline.server.models import ApiToken, Execution, Job
+from redline.worker.detection import detect_revision
+from redline.worker.ingest import ingest_execution
+from sqlalchemy import func, select, update
+
+from tests.support.api import Api, emptied_with_tokens, expire_lease, recording_for
+from tests.support.servers import Services
+
+
+@pytest.fixture
+def api(services: Services, database_url: str, tmp_path: Path) -> Iterator[Api]:
+    settings = Settings(
+        database_url=database_url,
+        redis_url=services.redis_url,
+        storage_dir=tmp_path / "storage",
+        queue=f"test-{uuid.uuid4().hex[:8]}",
+        max_upload_bytes=2_000_000,
+        lease_seconds=60,
+        max_attempts=2,
+    )
+    tokens = emptied_with_tokens(database_url)
+    with TestClient(create_app(settings)) as client:
+        client.post(
+            "/api/v1/agent/register",
+            json={"name": "perf1", "labels": ["quiet"]},
+            headers=tokens["agent"],
+        ).raise_for_status()
+        yield Api(client, settings, tokens)
+
+
+def test_healthz_answers_without_a_token(api: Api):
+    assert api.client.get("/healthz").json() == {"status": "ok", "database": "ok"}
+
+
+def test_missing_invalid_or_revoked_token_is_401(api: Api):
+    body = {"name": "x"}
+    assert api.client.post("/api/v1/components", json=body).status_code == 401
+    bad = {"Authorization": "Bearer rl_not-a-token"}
+    assert api.client.post("/api/v1/components", json=body, headers=bad).status_code == 401
+    with session_factory(api.settings.database_url)() as session:
+        session.execute(update(ApiToken).where(ApiToken.name == "admin").values(revoked=True))
+        session.commit()
+    assert api.post("/api/v1/components", "admin", body).status_code == 401
+
+
+def test_wrong_scope_is_403_and_admin_implies_every_scope(api: Api):
+    answer = api.post("/api/v1/components", "ci", {"name": "builder"})
+    assert answer.status_code == 403 and "'admin'" in answer.json()["detail"]
+    api.component()
+    revision = {"component": "builder", "title": "r1", "sort_key": "1"}
+    assert api.post("/api/v1/revisions", "agent", revision).status_code == 403
+    assert api.post("/api/v1/agent/lease", "ci", {"host": "perf1"}).status_code == 403
+    assert api.post("/api/v1/agent/lease", "read", {"host": "perf1"}).status_code == 403
+    assert api.post("/api/v1/revisions", "admin", revision).status_code == 201
+
+
+def test_unknown_component_is_404_naming_it(api: Api):
+    answer = api.post(
+        "/api/v1/revisions", "ci", {"component": "ghost", "title": "r1", "sort_key": "1"}
+    )
+    assert answer.status_code == 404 and "'ghost'" in answer.json()["detail"]
+    for tail in ("revisions", "series", "changes", "revisions/r1"):
+        answer = api.client.get(f"/api/v1/components/ghost/{tail}")
+        assert answer.status_code == 404 and "ghost" in answer.json()["detail"]
+    page = api.client.get("/components/ghost")
+    assert page.status_code == 404 and "ghost" in page.text
+
+
+def test_malformed_json_and_fields_are_422_naming_the_field(api: Api):
+    answer = api.post("/api/v1/components", "admin", {"name": "builder", "executions": "many"})
+    assert answer.status_code == 422
+    assert [e["loc"][-1] for e in answer.json()["detail"]] == ["executions"]
+    answer = api.post("/api/v1/revisions", "ci", {"component": "builder", "title": "r1"})
+    assert answer.status_code == 422
+    assert [e["loc"][-1] for e in answer.json()["detail"]] == ["sort_key"]
+    broken = api.client.post(
+        "/api/v1/components",
+        content=b"{not json",
+        headers={**api.tokens["admin"], "Content-Type": "application/json"},
+    )
+    assert broken.status_code == 422
+
+
+def test_duplicate_component_or_revision_title_is_409(api: Api):
+    api.component()
+    assert api.post("/api/v1/components", "admin", {"name": "builder"}).status_code == 409
+    api.revision("r1", "1")
+    answer = api.post(
+        "/api/v1/revisions", "ci", {"component": "builder", "title": "r1", "sort_key": "5"}
+    )
+    assert answer.status_code == 409 and "'r1'" in answer.json()["detail"]
+
+
+def test_revisions_are_listed_in_sort_key_order_with_their_state(api: Api):
+    api.component(executions=2)
+    for title, key in (("ten", "10"), ("nine", "9"), ("two", "2")):
+        created = api.revision(title, key)
+        assert len(created["job_ids"]) == 2
+    listed = api.client.get("/api/v1/components/builder/revisions").json()
+    assert [r["title"] for r in listed] == ["two", "nine", "ten"]
+    assert {r["state"] for r in listed} == {"queued"}
+    detail = api.client.get("/api/v1/components/builder/revisions/nine").json()
+    assert [(j["execution_index"], j["state"]) for j in detail["jobs"]] == [
+        (0, "queued"),
+        (1, "queued"),
+    ]
+
+
+def test_lease_hands_out_newest_revision_first_then_204(api: Api):
+    api.component()
+    first, second = api.revision("r9", "9"), api.revision("r10", "10")
+    job = api.lease()
+    assert job["id"] == second["job_ids"][0]
+    assert job["revision"] == {"title": "r10", "sort_key": "10"}
+    assert (job["component"], job["commit"], job["suite"]) == (
+        "builder",
+        "abc123",
+        "perf/redline.toml",
+    )
+    assert api.lease()["id"] == first["job_ids"][0]
+    assert api.lease() is None
+    unknown = api.post("/api/v1/agent/lease", "agent", {"host": "stranger"})
+    assert unknown.status_code == 404 and "stranger" in unknown.json()["detail"]
+
+
+def test_lease_hands_a_host_only_jobs_of_pools_it_belongs_to(api: Api):
+    api.component("plain")
+    api.component("needs_gpu", host_labels=["gpu"])
+    gpu_job = api.revision("g1", "1", component="needs_gpu")["job_ids"][0]
+    plain_job = api.revision("p1", "1", component="plain")["job_ids"][0]
+    assert api.lease()["id"] == plain_job  # perf1 has only the label "quiet"
+    assert api.lease() is None
+    api.post(
+        "/api/v1/agent/register", "agent", {"name": "perf2", "labels": ["gpu", "quiet"]}
+    ).raise_for_status()
+    assert api.lease("perf2")["id"] == gpu_job
+
+
+def test_an_agent_token_naming_its_host_acts_for_that_host_only(api: Api):
+    made = api.post(
+        "/api/v1/tokens", "admin", {"name": "perf1-token", "scopes": ["agent"], "host": "perf1"}
+    )
+    assert made.status_code == 201, made.text
+    own = {"Authorization": f"Bearer {made.json()['token']}"}
+    api.client.post(
+        "/api/v1/agent/register", json={"name": "perf9", "labels": []}, headers=api.tokens["agent"]
+    ).raise_for_status()
+    for path, body in (
+        ("/api/v1/agent/register", {"name": "perf9", "labels": []}),
+        ("/api/v1/agent/lease", {"host": "perf9"}),
+        ("/api/v1/jobs/1/heartbeat", {"host": "perf9"}),
+        ("/api/v1/jobs/1/release", {"host": "perf9"}),
+    ):
+        answer = api.client.post(path, json=body, headers=own)
+        assert answer.status_code == 403, (path, answer.text)
+        assert "perf1" in answer.json()["detail"] and "perf9" in answer.json()["detail"]
+    assert (
+        api.client.post("/api/v1/agent/lease", json={"host": "perf1"}, headers=own).status_code
+        == 204
+    )
+
+
+def test_lease_skips_a_job_another_transaction_has_locked(api: Api):
+    api.component()
+    first, second = api.revision("r1", "1"), api.revision("r2", "2")
+    with session_factory(api.settings.database_url)() as other:
+        other.scalar(select(Job).where(Job.id == second["job_ids"][0]).with_for_update())
+        assert api.lease()["id"] == first["job_ids"][0]  # not blocked, not the locked one
+        other.rollback()
+    assert api.lease()["id"] == second["job_ids"][0]
+
+
+def test_heartbeat_extends_the_lease_and_marks_the_job_running(api: Api):
+    api.component()
+    api.revision("r1", "1")
+    job = api.lease()
+    beat = api.post(f"/api/v1/jobs/{job['id']}/heartbeat", "agent", {"host": "perf1"})
+    assert beat.status_code == 200
+    assert beat.json()["lease_expires_at"] >= job["lease_expires_at"]
+    assert api.job(job["id"])["state"] == "running"
+    other = api.post(f"/api/v1/jobs/{job['id']}/heartbeat", "agent", {"host": "perf2"})
+    assert other.status_code == 409
+
+
+def test_lapsed_lease_goes_to_another_host_until_attempts_run_out(api: Api):
+    api.component()
+    api.revision("r1", "1")
+    api.post("/api/v1/agent/register", "agent", {"name": "perf2"}).raise_for_status()
+    job = api.lease("perf1")
+    expire_lease(api, job["id"])
+    again = api.lease("perf2")
+    assert again["id"] == job["id"]
+    late = api.post(f"/api/v1/jobs/{job['id']}/heartbeat", "agent", {"host": "perf1"})
+    assert late.status_code == 409
+    expire_lease(api, job["id"])  # second lapse: max_attempts (2) reached
+    assert api.lease("perf1") is None
+    failed = api.job(job["id"])
+    assert failed["state"] == "failed" and "lease expired" in failed["reason"]
+
+
+def test_fail_marks_the_job_and_revision_failed_with_the_reason(api: Api):
+    api.component()
+    api.revision("r1", "1")
+    job = api.lease()
+    answer = api.post(
+        f"/api/v1/jobs/{job['id']}/fail", "agent", {"host": "perf1", "reason": "build broke"}
+    )
+    assert answer.json() == {"id": job["id"], "state": "failed", "reason": "build broke"}
+    listed = api.client.get("/api/v1/components/builder/revisions").json()
+    assert listed[0]["state"] == "failed"
+
+
+def test_valid_upload_stores_the_execution_and_queues_ingestion(api: Api, tmp_path: Path):
+    api.component()
+    api.revision("r1", "1")
+    job = api.lease()
+    data = recording_for(job, tmp_path / "r1.mcap")
+    answer = api.upload(job["id"], data)
+    assert answer.status_code == 201, answer.text
+    assert answer.json()["ingest_queued"] is True
+    stored = api.job(job["id"])
+    assert stored["state"] == "uploaded"
+    assert stored["execution"]["sha256"] == hashlib.sha256(data).hexdigest()
+    assert (
+        api.settings.storage_dir / "recordings" / f"{stored['execution']['sha256']}.mcap"
+    ).read_bytes() == data
+    broker = redis.Redis.from_url(api.settings.redis_url)
+    assert broker.llen(api.settings.queue) == 1  # the ingest task waits in the real broker
+    assert broker_url("unix:///tmp/r.sock") == "redis+socket:///tmp/r.sock"
+
+
+def test_repeated_upload_is_idempotent(api: Api, tmp_path: Path):
+    api.component()
+    api.revision("r1", "1")
+    job = api.lease()
+    data = recording_for(job, tmp_path / "r1.mcap")
+    first, second = api.upload(job["id"], data), api.upload(job["id"], data)
+    assert (first.status_code, second.status_code) == (201, 200)
+    assert first.json()["execution_id"] == second.json()["execution_id"]
+    other = recording_for(job, tmp_path / "other.mcap", seed=7)
+    assert api.upload(job["id"], other).status_code == 409
+    assert _executions(api) == 1
+
+
+def _executions(api: Api) -> int:
+    with session_factory(api.settings.database_url)() as session:
+        return session.scalar(select(func.count()).select_from(Execution))
+
+
+def _assert_refused(api: Api, job_id: int, data: bytes, words: str) -> None:
+    answer = api.upload(job_id, data)
+    assert answer.status_code == 400, answer.text
+    assert words in answer.json()["detail"]
+    stored = api.job(job_id)
+    assert stored["state"] == "failed" and words in stored["reason"]
+    assert stored["execution"] is None and _executions(api) == 0
+    assert not list((api.settings.storage_dir / "incoming").iterdir())
+    assert not (api.settings.storage_dir / "recordings").exists()
+
+
+def test_truncated_upload_is_refused_and_fails_the_job(api: Api, tmp_path: Path):
+    api.component()
+    api.revision("r1", "1")
+    job = api.lease()
+    data = recording_for(job, tmp_path / "r1.mcap")
+    _assert_refused(api, job["id"], data[: len(data) * 2 // 3], "truncated")
+
+
+def test_non_mcap_upload_is_refused_and_fails_the_job(api: Api):
+    api.component()
+    api.revision("r1", "1")
+    job = api.lease()
+    _assert_refused(
+        api, job["id"], b"PK\x03\x04 this is a zip, not a recording" * 20, "not an MCAP file"
+    )
+
+
+def test_recording_made_for_another_job_is_refused(api: Api, tmp_path: Path):
+    api.component()
+    api.revision("r1", "1")
+    job = api.lease()
+    data = recording_for(job, tmp_path / "r1.mcap", revision_title="r0")
+    _assert_refused(api, job["id"], data, "revision_title is 'r0'")
+
+
+def test_checksum_mismatch_is_400_and_keeps_the_job_leased(api: Api, tmp_path: Path):
+    api.component()
+    api.revision("r1", "1")
+    job = api.lease()
+    data = recording_for(job, tmp_path / "r1.mcap")
+    answer = api.upload(job["id"], data, sha256="0" * 64)
+    assert answer.status_code == 400 and "X-Redline-Sha256" in answer.json()["detail"]
+    assert api.job(job["id"])["state"] == "leased"
+    assert api.upload(job["id"], data).status_code == 201
+
+
+def test_upload_over_the_size_limit_is_413(api: Api):
+    api.component()
+    api.revision("r1", "1")
+    job = api.lease()
+    answer = api.upload(job["id"], b"\0" * (api.settings.max_upload_bytes + 1))
+    assert answer.status_code == 413
+    assert _executions(api) == 0 and api.job(job["id"])["state"] == "leased"
+
+
+def _measured_history(api: Api, tmp_path: Path) -> None:
+    """r1, r2 alike; r3 triples cpu. Uploaded over the API, ingested and detected directly."""
+    api.component()
+    for number, cpu in ((1, 20.0), (2, 20.0), (3, 60.0)):
+        api.revision(f"r{number}", str(number))
+        job = api.lease()
+        data = recording_for(job, tmp_path / f"r{number}.mcap", cpu=cpu, seed=number)
+        execution_id = api.upload(job["id"], data).json()["execution_id"]
+        for revision_id in ingest_execution(api.settings.database_url, execution_id):
+            detect_revision(api.settings.database_url, revision_id)
+
+
+def test_series_and_changes_report_the_tripled_counter(api: Api, tmp_path: Path):
+    _measured_history(api, tmp_path)
+    series = {s["counter"]: s for s in api.client.get("/api/v1/components/builder/series").json()}
+    cpu = series["cpu"]
+    assert [p["revision"] for p in cpu["points"]] == ["r1", "r2", "r3"]
+    assert cpu["points"][2]["mean"] == pytest.approx(3 * cpu["points"][0]["mean"], rel=0.1)
+    assert cpu["params"] == {"rate": 10} and cpu["points"][0]["n"] == 150
+    changes = api.client.get("/api/v1/components/builder/changes?flagged=true").json()
+    assert [(c["revision"], c["series"]["counter"], c["method"]) for c in changes] == [
+        ("r3", "cpu", "ks")
+    ]
+    assert changes[0]["baseline"] == "r2" and changes[0]["effect"] > 1.5
+    assert [r["state"] for r in api.client.get("/api/v1/components/builder/revisions").json()] == [
+        "done"
+    ] * 3
+
+
+def test_trend_page_draws_the_flagged_revision_with_local_plotly(api: Api, tmp_path: Path):
+    _measured_history(api, tmp_path)
+    page = api.client.get("/components/builder")
+    assert page.status_code == 200
+    assert '<script src="/static/plotly.min.js">' in page.text and "cdn" not in page.text.lower()
+    assert page.text.count('class="chart"') == 2
+    figures = json.loads(re.search(r"const figures = (.*);", page.text).group(1))
+    marked = {
+        figure["layout"]["yaxis"]["title"]["text"]: trace["x"]
+        for figure in figures
+        for trace in figure["data"]
+        if "change" in trace["name"]
+    }
+    assert marked == {"cpu": ["r3"], "rss": []}
+    script = api.client.get("/static/plotly.min.js")
+    assert script.status_code == 200 and len(script.content) > 1_000_000
+    assert 'href="/components/builder"' in api.client.get("/").text

@@ -1,0 +1,478 @@
+"""Hostile and malformed input at every door: a clear 4xx naming what is wrong, never a 500, and
+nothing already stored is lost (real Postgres and Redis through the app)."""
+
+from __future__ import annotations
+
+import json
+import logging
+import re
+import socket
+import threading
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from urllib.parse import quote
+
+import pytest
+from fastapi.testclient import TestClient
+from redline.server.app import create_app
+from redline.server.core.config import Settings
+from redline.server.db import session_factory
+from redline.server.schemas.imports import ResultsImport
+from redline.server.services.imports import from_results, store_import
+from sqlalchemy import event, text
+from sqlalchemy.orm import Session
+
+from tests.support.api import Api, api_with
+from tests.support.servers import Services
+from tests.support.webhooks import SECRET, counts, github_push, send_github
+
+REPO = "https://github.com/org/builder.git"
+DEEP = ("[" * 1000 + "]" * 1000).encode()
+
+
+@pytest.fixture
+def api(services: Services, tmp_path: Path) -> Iterator[Api]:
+    with api_with(
+        services,
+        tmp_path,
+        webhook_secret=SECRET,
+        max_webhook_bytes=50_000,
+        max_import_bytes=200_000,
+        max_json_bytes=100_000,
+    ) as api:
+        api.post(
+            "/api/v1/components",
+            "admin",
+            {"name": "builder", "repo": REPO, "suite": "perf/redline.toml"},
+        ).raise_for_status()
+        yield api
+
+
+def _post_raw(api: Api, path: str, body: bytes, scope: str | None = "ci", **headers: str) -> object:
+    auth = api.tokens[scope] if scope else {}
+    return api.client.post(
+        path, content=body, headers={**auth, "Content-Type": "application/json", **headers}
+    )
+
+
+def _results(revision: str = "r1", host: str = "", value: float = 1.0) -> dict:
+    return {
+        "component": "builder",
+        "revision": revision,
+        "sort_key": revision,
+        "host": host,
+        "results": [{"case": "c", "counter": "t", "values": [value, value]}],
+    }
+
+
+def _revision(api: Api, **fields: object) -> object:
+    return api.post(
+        "/api/v1/revisions",
+        "ci",
+        {"component": "builder", "title": "r1", "sort_key": "1", **fields},
+    )
+
+
+# --- 5: dates --------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "when",
+    [
+        "9999-12-31T23:59:59-01:00",
+        "0001-01-01T00:00:00+01:00",
+        "3026-01-01T00:00:00Z",
+        "1900-01-01T00:00:00Z",
+    ],
+)
+def test_an_unreadable_or_absurd_commit_date_is_422_naming_the_field(api: Api, when: str):
+    answer = _revision(api, committed_at=when)
+    assert answer.status_code == 422, answer.text
+    assert "committed_at" in answer.text
+    assert api.client.get("/api/v1/components/builder/revisions").status_code == 200
+    assert api.client.get("/components/builder").status_code == 200
+
+
+def test_a_plausible_commit_date_is_stored_and_read_back(api: Api):
+    assert _revision(api, committed_at="2026-11-20T10:00:00+01:00").status_code == 201
+    shown = api.client.get("/api/v1/components/builder/revisions/r1").json()
+    assert shown["committed_at"].startswith("2026-11-20T09:00:00")
+
+
+def test_a_bad_commit_date_in_a_push_is_reported_and_the_other_commits_are_created(api: Api):
+    commits = [
+        {"id": "a" * 40, "message": "ok", "timestamp": "2026-11-20T10:00:00+01:00"},
+        {"id": "b" * 40, "message": "bad", "timestamp": "9999-12-31T23:59:59-01:00"},
+        {"id": "c" * 40, "message": "ok", "timestamp": "2026-11-20T11:00:00+01:00"},
+    ]
+    answer = send_github(api, github_push(commits=commits))
+    assert answer.status_code == 200, answer.text
+    assert [r["title"] for r in answer.json()["created"]] == ["a" * 12, "c" * 12]
+    refused = answer.json()["refused"]
+    assert [r["commit"] for r in refused] == ["b" * 40] and "timestamp" in refused[0]["reason"]
+    listed = api.client.get("/api/v1/components/builder/revisions")
+    assert listed.status_code == 200 and len(listed.json()) == 2
+
+
+def test_an_unreadable_date_stored_by_an_earlier_version_is_cleared_by_the_migration(
+    services: Services, tmp_path: Path
+):
+    from alembic import command
+    from redline.server.db import alembic_config, migrate
+
+    from tests.support.servers import fresh_database
+
+    database_url, _ = fresh_database(services.database_url)
+    command.upgrade(alembic_config(database_url), "0004")
+    with session_factory(database_url)() as session:
+        session.execute(
+            text(
+                "INSERT INTO component (name, repo, branch, suite, executions, created, repo_key, "
+                "host_labels, description) VALUES ('old', '', 'main', '', 1, now(), '', '[]', '')"
+            )
+        )
+        session.execute(
+            text(
+                "INSERT INTO revision (component_id, title, sort_key, order_key, commit, repo, "
+                "branch, message, committed_at, created) VALUES (1, 'r1', '1', '011', '', '', '', "
+                "'', '9999-12-31T23:59:59-01:00', now())"
+            )
+        )
+        session.commit()
+    migrate(database_url)
+    settings = Settings(
+        database_url=database_url, redis_url=services.redis_url, storage_dir=tmp_path / "storage"
+    )
+    with TestClient(create_app(settings)) as client:
+        listed = client.get("/api/v1/components/old/revisions")
+        assert listed.status_code == 200, listed.text
+        assert listed.json()[0]["committed_at"] is None
+
+
+# --- 6: nesting --------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "path,scope",
+    [
+        ("/api/v1/webhooks/github", None),
+        ("/api/v1/webhooks/gitlab", None),
+        ("/api/v1/import/lnt?component=builder", "ci"),
+        ("/api/v1/import/results", "ci"),
+        ("/api/v1/revisions", "ci"),
+        ("/api/v1/components", "admin"),
+    ],
+)
+def test_json_nested_too_deep_is_a_4xx_without_a_traceback(
+    api: Api, path: str, scope: str | None, caplog: pytest.LogCaptureFixture
+):
+    with caplog.at_level(logging.ERROR):
+        answer = _post_raw(api, path, DEEP, scope)
+    assert answer.status_code in (400, 401, 422), answer.text
+    assert answer.status_code == 401 or "nested" in answer.text
+    assert not [r for r in caplog.records if r.levelno >= logging.ERROR]
+
+
+def test_nesting_python_can_parse_is_refused_too(api: Api):
+    """A 200-deep parameter would be stored, and break every page that reads it back."""
+    body = _results()
+    body["results"][0]["params"] = {"p": json.loads("[" * 200 + "]" * 200)}
+    answer = _post_raw(api, "/api/v1/import/results", json.dumps(body).encode())
+    assert answer.status_code == 422 and "nested deeper than 32" in answer.text
+
+
+# --- 7: size -------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "path,limit",
+    [
+        ("/api/v1/webhooks/github", 50_000),
+        ("/api/v1/import/results", 200_000),
+        ("/api/v1/import/lnt?component=builder", 200_000),
+        ("/api/v1/revisions", 100_000),
+    ],
+)
+def test_an_oversized_body_is_413_naming_the_limit(api: Api, path: str, limit: int):
+    body = b'{"x": "' + b"a" * (limit + 10) + b'"}'
+    answer = _post_raw(api, path, body)
+    assert answer.status_code == 413, answer.text[:200]
+    assert str(limit) in answer.json()["detail"]
+
+
+def _one_response(sock: socket.socket) -> bytes:
+    """One whole HTTP response read from ``sock``: its head, then the body bytes the head
+    announces, however the server's writes were cut into segments."""
+    data = b""
+    while b"\r\n\r\n" not in data and (chunk := sock.recv(65536)):
+        data += chunk
+    head, _, body = data.partition(b"\r\n\r\n")
+    length = re.search(rb"(?im)^content-length: *(\d+)", head)
+    while length and len(body) < int(length.group(1)) and (chunk := sock.recv(65536)):
+        body += chunk
+    return head + b"\r\n\r\n" + body
+
+
+def test_an_oversized_body_without_a_length_is_413_before_it_is_all_sent(api: Api):
+    """A chunked body (no Content-Length) is counted as it arrives: the server answers 413
+    while the sender still holds most of it back."""
+    import uvicorn
+    from redline.agent.network import free_port
+
+    port = free_port()
+    server = uvicorn.Server(
+        uvicorn.Config(create_app(api.settings), host="127.0.0.1", port=port, log_config=None)
+    )
+    thread = threading.Thread(target=server.run, daemon=True)
+    thread.start()
+    try:
+        for _ in range(200):
+            if server.started:
+                break
+            thread.join(0.05)
+        with socket.create_connection(("127.0.0.1", port), timeout=20) as sock:
+            sock.sendall(
+                b"POST /api/v1/webhooks/github HTTP/1.1\r\nHost: t\r\n"
+                b"Content-Type: application/json\r\nTransfer-Encoding: chunked\r\n\r\n"
+            )
+            for _ in range(6):  # 60 kB of a body that would go on: the limit is 50 kB
+                sock.sendall(b"2710\r\n" + b"a" * 10_000 + b"\r\n")
+            answer = _one_response(sock)
+        assert answer.startswith(b"HTTP/1.1 413"), answer[:200]
+        assert b"50000" in answer
+    finally:
+        server.should_exit = True
+        thread.join(10)
+    assert counts(api) == (0, 0)
+
+
+@pytest.mark.parametrize("bad", ["x" * 50_000, 10**400])
+def test_a_422_quotes_only_a_short_excerpt_of_bad_input(api: Api, bad: object):
+    body = _results()
+    body["results"][0]["values"] = [bad]
+    answer = _post_raw(api, "/api/v1/import/results", json.dumps(body).encode())
+    assert answer.status_code == 422
+    assert len(answer.content) < 2_000 and "values" in answer.text
+    assert all(len(str(error["input"])) <= 80 for error in answer.json()["detail"]), answer.text
+
+
+# --- 8: strange strings and numbers, names that cannot be addressed ------------------------------
+
+LONE = b'"\\ud800"'
+
+
+@pytest.mark.parametrize(
+    "path,body",
+    [
+        ("/api/v1/revisions", b'{"component": "builder", "title": ' + LONE + b', "sort_key": "1"}'),
+        ("/api/v1/components", b'{"name": "x", "description": ' + LONE + b"}"),
+        ("/api/v1/import/results", json.dumps(_results()).encode().replace(b'"c"', LONE)),
+        (
+            "/api/v1/import/lnt?component=builder",
+            json.dumps(
+                {
+                    "format_version": "2",
+                    "machine": {"name": "m"},
+                    "run": {"llvm_project_revision": "1"},
+                    "tests": [{"name": "X", "t": 1.0}],
+                }
+            )
+            .encode()
+            .replace(b'"X"', LONE),
+        ),
+    ],
+)
+def test_a_lone_surrogate_is_a_4xx_naming_it(api: Api, path: str, body: bytes):
+    answer = _post_raw(api, path, body, "admin")
+    assert answer.status_code in (400, 422), answer.text
+    assert "surrogate" in answer.text
+
+
+def test_a_lone_surrogate_in_a_signed_push_is_400(api: Api):
+    body = github_push().replace(b'"first"', LONE)
+    answer = send_github(api, body)
+    assert answer.status_code == 400 and "surrogate" in answer.text
+    assert counts(api) == (0, 0)
+
+
+def test_a_surrogate_pair_is_text_like_any_other(api: Api):
+    answer = _post_raw(
+        api,
+        "/api/v1/revisions",
+        b'{"component": "builder", "title": "r\\ud83d\\ude00", "sort_key": "1"}',
+    )
+    assert answer.status_code == 201, answer.text
+    assert api.client.get(f"/api/v1/components/builder/revisions/{quote('r😀')}").status_code == 200
+
+
+def test_a_body_that_is_not_an_object_is_named_for_what_it_is(api: Api):
+    lnt = _post_raw(api, "/api/v1/import/lnt?component=builder", b"[1, 2]")
+    assert lnt.status_code == 400 and "must be a JSON object" in lnt.json()["detail"]
+    push = send_github(api, b"[1, 2]")
+    assert push.status_code == 400, push.text
+    assert push.json()["detail"].startswith("not a push event") and "http" not in push.text
+
+
+def test_an_lnt_integer_too_large_for_a_float_is_400_naming_the_metric(api: Api):
+    body = (
+        '{"format_version": "2", "machine": {"name": "m"}, "run": '
+        '{"llvm_project_revision": "1"}, "tests": [{"name": "t", "size": ' + "9" * 400 + "}]}"
+    )
+    answer = _post_raw(api, "/api/v1/import/lnt?component=builder", body.encode())
+    assert answer.status_code == 400, answer.text
+    assert "size" in answer.json()["detail"]
+
+
+@pytest.mark.parametrize("name", [".", "..", ".hidden", "-x"])
+def test_component_names_that_cannot_be_a_path_segment_are_refused(api: Api, name: str):
+    answer = api.post("/api/v1/components", "admin", {"name": name})
+    assert answer.status_code == 422 and "name" in answer.text
+
+
+@pytest.mark.parametrize("title", ["a/b", ".", "..", "tab\there"])
+def test_revision_titles_that_cannot_be_a_path_segment_are_refused(api: Api, title: str):
+    answer = _revision(api, title=title)
+    assert answer.status_code == 422 and "title" in answer.text
+    imported = _post_raw(api, "/api/v1/import/results", json.dumps(_results(title)).encode())
+    assert imported.status_code == 422 and "revision" in imported.text
+    lnt = _post_raw(
+        api,
+        "/api/v1/import/lnt?component=builder",
+        json.dumps(
+            {
+                "format_version": "2",
+                "machine": {"name": "m"},
+                "run": {"llvm_project_revision": title},
+                "tests": [{"name": "t", "time": 1.0}],
+            }
+        ).encode(),
+    )
+    assert lnt.status_code == 400 and "llvm_project_revision" in lnt.text
+
+
+def test_a_title_with_url_characters_is_reachable_url_encoded(api: Api):
+    title = "v1.2 rc?#%&+"
+    assert _revision(api, title=title).status_code == 201
+    path = f"/api/v1/components/builder/revisions/{quote(title, safe='')}"
+    assert api.client.get(path).json()["title"] == title
+    assert api.post(f"{path}/cancel", "ci", {}).status_code == 200
+
+
+# --- 9: concurrent get-or-create -----------------------------------------------------------------
+
+
+def _pause_before_commit(session: Session, reached: threading.Event, go: threading.Event) -> None:
+    def hold(held: Session) -> None:
+        held.flush()  # its writes made, its locks held: only the commit is left
+        reached.set()
+        assert go.wait(30), "never released"
+
+    event.listen(session, "before_commit", hold)
+
+
+def _waiting_on_a_lock(database_url: str) -> bool:
+    with session_factory(database_url)() as session:
+        return bool(
+            session.scalar(
+                text(
+                    "SELECT count(*) FROM pg_stat_activity WHERE wait_event_type = 'Lock' "
+                    "AND datname = current_database()"
+                )
+            )
+        )
+
+
+def interleave(
+    database_url: str, first: Callable[[Session], object], second: Callable[[Session], object]
+) -> list[object]:
+    """``first`` runs up to its commit; ``second`` then runs until it waits on a lock that
+    ``first`` holds (or ends); then ``first`` commits and both finish. What each returned or
+    raised, in that order: the interleaving that turns select-then-insert into a duplicate."""
+    results: list[object] = [None, None]
+    reached, go = threading.Event(), threading.Event()
+
+    def run(index: int, work: Callable[[Session], object], hold: bool) -> None:
+        with session_factory(database_url)() as session:
+            if hold:
+                _pause_before_commit(session, reached, go)
+            try:
+                results[index] = work(session)
+            except Exception as exc:  # the duplicate key error is the bug being shown
+                results[index] = exc
+
+    one = threading.Thread(target=run, args=(0, first, True))
+    one.start()
+    assert reached.wait(30), "the first transaction never reached its commit"
+    two = threading.Thread(target=run, args=(1, second, False))
+    two.start()
+    for _ in range(300):
+        if not two.is_alive() or _waiting_on_a_lock(database_url):
+            break
+        two.join(0.05)
+    go.set()
+    one.join(30)
+    two.join(30)
+    return results
+
+
+def test_two_imports_naming_a_new_host_and_revision_at_once_both_store(api: Api):
+    def importer(value: float) -> Callable[[Session], object]:
+        data = ResultsImport.model_validate(_results("r9", host="new-host", value=value))
+        body = data.model_dump_json().encode()
+        return lambda s: store_import(s, api.settings.storage_dir, from_results(data), body)
+
+    results = interleave(api.settings.database_url, importer(1.0), importer(2.0))
+    assert [type(r).__name__ for r in results] == ["ImportResult", "ImportResult"], results
+    detail = api.client.get("/api/v1/components/builder/revisions/r9").json()
+    assert len(detail["jobs"]) == 2 and {j["host"] for j in detail["jobs"]} == {"new-host"}
+
+
+def test_two_hosts_registering_one_name_at_once_both_succeed(api: Api):
+    from redline.server.schemas.jobs import RegisterRequest
+    from redline.server.services.jobs import register_host
+
+    def register(label: str) -> Callable[[Session], object]:
+        data = RegisterRequest(name="perf-new", labels=[label])
+        return lambda s: register_host(s, data)
+
+    results = interleave(api.settings.database_url, register("a"), register("b"))
+    assert [type(r).__name__ for r in results] == ["Host", "Host"], results
+
+
+def test_two_detection_settings_at_once_both_succeed(api: Api):
+    from redline.server.schemas.regressions import DetectionConfigIn
+    from redline.server.services.detection_config import set_config
+
+    def configure(floor: float) -> Callable[[Session], object]:
+        data = DetectionConfigIn(thresholds={"ks": {"min_effect": floor}})
+        return lambda s: set_config(s, "builder", data)
+
+    results = interleave(api.settings.database_url, configure(0.2), configure(0.3))
+    assert not [r for r in results if isinstance(r, Exception)], results
+
+
+def test_two_tokens_of_one_name_issued_at_once_leave_one_live(api: Api):
+    from redline.server.services.errors import Conflict
+    from redline.server.services.tokens import issue_token
+
+    results = interleave(
+        api.settings.database_url,
+        lambda s: issue_token(s, "twin", "ci"),
+        lambda s: issue_token(s, "twin", "ci"),
+    )
+    assert isinstance(results[0], tuple) and isinstance(results[1], Conflict), results
+
+
+def test_concurrent_imports_over_http_lose_nothing(api: Api):
+    answers: list[int] = []
+
+    def send(index: int) -> None:
+        body = json.dumps(_results(f"c{index // 2}", host=f"h{index // 4}", value=index))
+        answers.append(_post_raw(api, "/api/v1/import/results", body.encode()).status_code)
+
+    threads = [threading.Thread(target=send, args=(i,)) for i in range(16)]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join(60)
+    assert sorted(answers) == [201] * 16

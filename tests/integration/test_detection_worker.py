@@ -1,0 +1,481 @@
+"""The worker's detection on real Postgres: every configured method per series, baselines,
+bad input as stored "not enough data", regressions grouped, re-analysis."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from redline.detect.config import DetectionConfig
+from redline.server.models import (
+    Component,
+    Detection,
+    DetectionConfigRow,
+    Execution,
+    Reanalysis,
+    Regression,
+    Revision,
+    Series,
+    Summary,
+)
+from redline.server.schemas.components import ComponentCreate
+from redline.server.services.components import create_component
+from redline.server.storage import samples_path
+from redline.worker.detection import detect_revision
+from redline.worker.ingest import ingest_execution
+from redline.worker.reanalysis import reanalyze_component
+from sqlalchemy import func, select
+
+from tests.support.history import COMPONENT as NAME
+from tests.support.history import (
+    add_execution,
+    add_executions,
+    cpu_history,
+    ingest_and_detect,
+)
+
+
+def _verdicts(session) -> dict[tuple[str, str], Detection]:
+    session.expire_all()
+    rows = session.execute(
+        select(Detection, Revision.title).join(Revision, Revision.id == Detection.revision_id)
+    )
+    return {(title, d.method): d for d, title in rows}
+
+
+def test_default_methods_judge_every_series_and_flag_the_tripled_one(
+    session, database_url, tmp_path
+):
+    # one execution per revision: execution_shift needs 6 earlier ones, r7 has them
+    ingest_and_detect(database_url, cpu_history(session, tmp_path, [20.0] * 7 + [60.0]))
+    found = _verdicts(session)
+    assert {method for _, method in found} == set(DetectionConfig().methods)
+    assert DetectionConfig().methods == ("execution_shift", "ks")
+    for method in DetectionConfig().methods:
+        assert found[("r8", method)].flagged and found[("r8", method)].direction == "increase"
+        assert found[("r8", method)].verdict == "change"
+        assert not found[("r7", method)].flagged
+        assert found[("r7", method)].verdict == "no change"
+    assert found[("r8", "ks")].p_value < 1e-6 and found[("r8", "ks")].effect > 1.5
+    assert found[("r8", "execution_shift")].baseline_revisions == 7
+    assert found[("r6", "execution_shift")].verdict == "not enough data"
+    assert "baseline has 5, needs at least 6" in found[("r6", "execution_shift")].reason
+    (regression,) = session.scalars(select(Regression))
+    assert regression.state == "new"
+    # execution_shift's flag raises it; KS's is stored and charted, not an alarm by default
+    assert found[("r8", "execution_shift")].regression_id == regression.id
+    assert found[("r8", "ks")].regression_id is None
+
+
+def _runs_history(
+    session, tmp_path: Path, levels: list[float], runs: int = 3, config: dict | None = None
+) -> list[Execution]:
+    """Revisions of ``runs`` executions each; every execution's 'cpu' has its own level (3 %
+    run-to-run noise around the revision's) and 40 samples."""
+    component = create_component(session, ComponentCreate(name=NAME, executions=runs))
+    if config is not None:
+        session.add(DetectionConfigRow(component_id=component.id, config=config))
+        session.commit()
+    rng = np.random.default_rng(4)
+    executions = []
+    for number, level in enumerate(levels, start=1):
+        counters = [
+            {"cpu": rng.normal(level * (1 + rng.normal(0, 0.03)), level * 0.1, 40)}
+            for _ in range(runs)
+        ]
+        executions += add_executions(session, tmp_path, NAME, f"r{number}", str(number), counters)
+    return executions
+
+
+def test_execution_shift_judges_executions_and_restarts_its_baseline_after_a_change(
+    session, database_url, tmp_path
+):
+    executions = _runs_history(
+        session, tmp_path, [15.0] * 6 + [19.5] * 4, config={"methods": ["execution_shift"]}
+    )
+    ingest_and_detect(database_url, executions)
+    found = {title: d for (title, _), d in _verdicts(session).items()}
+    assert "too few samples: baseline has 3, needs at least 6" in found["r2"].reason
+    assert [t for t, d in sorted(found.items(), key=lambda i: int(i[0][1:])) if d.flagged] == ["r7"]
+    assert found["r6"].baseline_revisions == 5  # 15 execution values: r1..r5
+    r7 = found["r7"].revision_id
+    # after the change the baseline restarts at r7: r8 is judged against the new level only
+    assert (found["r8"].baseline_revisions, found["r8"].baseline_revision_id) == (1, r7)
+    assert found["r8"].verdict == "not enough data"  # r7's 3 values are fewer than 6
+    assert found["r9"].baseline_revisions == 2 and found["r9"].verdict == "no change"
+    assert 0.2 < found["r7"].effect < 0.4
+
+
+def test_reanalysis_reproduces_the_verdicts_of_detection_revision_by_revision(
+    session, database_url, tmp_path
+):
+    executions = _runs_history(session, tmp_path, [15.0] * 5 + [19.5] * 3 + [15.0] * 3)
+    ingest_and_detect(database_url, executions)
+
+    def keyed():
+        return {
+            key: (d.verdict, d.score, d.baseline_revisions, d.baseline_revision_id)
+            for key, d in _verdicts(session).items()
+        }
+
+    incremental = keyed()
+    assert any(d[0] == "change" for d in incremental.values())
+    component = session.scalar(select(Component))
+    assert reanalyze_component(database_url, component.id) == 11
+    assert keyed() == incremental
+
+
+def test_first_revision_says_missing_baseline_for_every_method(session, database_url, tmp_path):
+    ingest_and_detect(database_url, cpu_history(session, tmp_path, [20.0]))
+    found = _verdicts(session)
+    assert found and all(
+        d.verdict == "not enough data"
+        and "missing baseline" in d.reason
+        and not d.flagged
+        and d.baseline_revision_id is None
+        for d in found.values()
+    )
+
+
+@pytest.mark.parametrize(
+    ("candidate", "reason"),
+    [
+        (np.array([25.0]), "too few samples: candidate has 1"),
+        (np.full(60, 20.0), "constant series"),
+    ],
+)
+def test_bad_candidate_is_stored_as_not_enough_data_with_what_is_missing(
+    session, database_url, tmp_path, candidate, reason
+):
+    baseline = np.full(60, 20.0) if reason == "constant series" else None
+    first = baseline if baseline is not None else 20.0
+    ingest_and_detect(database_url, cpu_history(session, tmp_path, [first, candidate]))
+    found = _verdicts(session)
+    for method in DetectionConfig().methods:
+        verdict = found[("r2", method)]
+        expected = reason
+        if method == "execution_shift":  # one value per execution: r1 gives 1 of the 6 needed
+            expected = "too few samples: baseline has 1"
+        assert verdict.verdict == "not enough data", (method, verdict.reason)
+        assert expected in verdict.reason and not verdict.flagged
+
+
+def test_baseline_samples_gone_is_missing_baseline_not_an_exception(
+    session, database_url, tmp_path
+):
+    executions = cpu_history(session, tmp_path, [20.0, 60.0])
+    for execution in executions:
+        ingest_execution(database_url, execution.id)
+    samples_path(executions[0].recording_path).unlink()  # pruned
+    detect_revision(database_url, executions[1].revision_id)
+    verdict = _verdicts(session)[("r2", "ks")]
+    assert verdict.verdict == "not enough data" and "missing baseline" in verdict.reason
+
+
+def test_window_baseline_pools_the_previous_revisions(session, database_url, tmp_path):
+    config = {"methods": ["ks"], "baseline": "window", "window": 3}
+    ingest_and_detect(
+        database_url, cpu_history(session, tmp_path, [20.0] * 4 + [60.0], config=config)
+    )
+    found = _verdicts(session)
+    assert [found[(f"r{n}", "ks")].baseline_revisions for n in range(2, 6)] == [1, 2, 3, 3]
+    assert found[("r5", "ks")].flagged
+    assert found[("r5", "ks")].baseline_revision_id == found[("r4", "ks")].revision_id
+
+
+def test_pinned_baseline_compares_with_that_revision_or_says_it_is_missing(
+    session, database_url, tmp_path
+):
+    config = {"methods": ["welch_t"], "baseline": "pinned", "pinned": "r2"}
+    executions = cpu_history(session, tmp_path, [20.0, 20.0, 20.0, 60.0], config=config)
+    ingest_and_detect(database_url, executions)
+    found = _verdicts(session)
+    assert "pinned revision 'r2'" in found[("r1", "welch_t")].reason
+    assert "pinned revision 'r2'" in found[("r2", "welch_t")].reason
+    assert found[("r4", "welch_t")].baseline_revision_id == executions[1].revision_id
+    assert found[("r4", "welch_t")].flagged and not found[("r3", "welch_t")].flagged
+
+
+def test_thresholds_in_the_configuration_change_the_verdict(session, database_url, tmp_path):
+    config = {"methods": ["ks"], "thresholds": {"ks": {"min_effect": 5.0}}}
+    ingest_and_detect(database_url, cpu_history(session, tmp_path, [20.0, 60.0], config=config))
+    verdict = _verdicts(session)[("r2", "ks")]
+    assert verdict.verdict == "no change" and "below the floor" in verdict.reason
+    assert session.scalar(select(func.count()).select_from(Regression)) == 0
+
+
+def test_reanalysis_after_a_configuration_change_is_idempotent_with_progress(
+    session, database_url, tmp_path
+):
+    executions = cpu_history(session, tmp_path, [20.0, 20.0, 60.0])
+    ingest_and_detect(database_url, executions)
+    component = session.scalar(select(Component))
+    session.add(
+        DetectionConfigRow(component_id=component.id, config={"methods": ["mann_whitney", "ks"]})
+    )
+    session.commit()
+    assert reanalyze_component(database_url, component.id) == 3
+    first = {key: (d.verdict, d.score) for key, d in _verdicts(session).items()}
+    assert {method for _, method in first} == {"mann_whitney", "ks"}
+    assert reanalyze_component(database_url, component.id) == 3
+    assert {key: (d.verdict, d.score) for key, d in _verdicts(session).items()} == first
+    session.expire_all()
+    progress = session.get(Reanalysis, component.id)
+    assert (progress.state, progress.done, progress.total) == ("done", 3, 3)
+    assert session.scalar(select(func.count()).select_from(Regression)) == 1
+
+
+def test_host_series_get_no_verdict(session, database_url, tmp_path):
+    create_component(session, ComponentCreate(name=NAME))
+    executions = [
+        add_execution(
+            session,
+            tmp_path,
+            NAME,
+            f"r{n}",
+            str(n),
+            {"cpu_percent": np.full(60, 10.0 * n) + np.arange(60) % 3},
+            process="host",
+        )
+        for n in (1, 2)
+    ]
+    ingest_and_detect(database_url, executions)
+    assert session.scalar(select(func.count()).select_from(Series)) == 1
+    assert _verdicts(session) == {}
+
+
+def test_recorded_nan_and_inf_are_ingested_and_judged_not_enough_data(
+    session, database_url, tmp_path
+):
+    rng = np.random.default_rng(5)
+    damaged = rng.normal(20.0, 1.0, 60)
+    damaged[::3], damaged[1] = np.nan, np.inf
+    executions = cpu_history(session, tmp_path, [20.0, damaged])
+    ingest_and_detect(database_url, executions)
+    summary = session.scalar(select(Summary).where(Summary.execution_id == executions[1].id))
+    assert summary.n == 60 - 20 - 1  # the finite samples only
+    assert np.isfinite([summary.mean, summary.std, summary.p50, *summary.sketch]).all()
+    verdict = _verdicts(session)[("r2", "ks")]
+    assert verdict.verdict == "not enough data" and "NaN/inf" in verdict.reason
+
+
+def test_a_series_with_no_finite_sample_gets_no_summary_but_a_verdict(
+    session, database_url, tmp_path
+):
+    executions = cpu_history(session, tmp_path, [20.0, np.full(60, np.nan)])
+    ingest_and_detect(database_url, executions)
+    assert session.scalar(select(Summary).where(Summary.execution_id == executions[1].id)) is None
+    verdict = _verdicts(session)[("r2", "ks")]
+    assert verdict.verdict == "not enough data" and "NaN/inf" in verdict.reason
+
+
+def test_a_series_missing_from_recent_revisions_reaches_back_to_where_it_was(
+    session, database_url, tmp_path
+):
+    create_component(session, ComponentCreate(name=NAME))
+    session.add(
+        DetectionConfigRow(
+            component_id=session.scalar(select(Component.id)),
+            config={"methods": ["ks"], "baseline": "window", "window": 3},
+        )
+    )
+    session.commit()
+    rng = np.random.default_rng(3)
+    executions = []
+    for number in range(1, 7):
+        counters = {"cpu": rng.normal(20, 1, 60)}
+        if number in (1, 2, 6):  # 'rare' is recorded by r1, r2 and r6 only
+            counters["rare"] = rng.normal(60 if number == 6 else 20, 1, 60)
+        executions.append(
+            add_execution(session, tmp_path, NAME, f"r{number}", str(number), counters)
+        )
+    ingest_and_detect(database_url, executions)
+    session.expire_all()
+    rows = session.execute(
+        select(Detection, Series.counter, Revision.title)
+        .join(Series, Series.id == Detection.series_id)
+        .join(Revision, Revision.id == Detection.revision_id)
+    )
+    found = {(counter, title): d for d, counter, title in rows}
+    rare = found[("rare", "r6")]
+    assert (rare.baseline_revisions, rare.baseline_revision_id) == (2, executions[1].revision_id)
+    assert rare.flagged
+    assert found[("cpu", "r6")].baseline_revisions == 3
+
+
+def test_reanalysis_with_a_pruned_revision_keeps_its_verdicts_and_matches_detection(
+    session, database_url, tmp_path
+):
+    """The walk keeps flagged verdicts in memory; a revision whose samples are gone keeps its
+    stored ones, which must count for the baselines after it exactly as detection reads them."""
+    executions = _runs_history(session, tmp_path, [15.0] * 6 + [19.5] * 5)
+    ingest_and_detect(database_url, executions)
+    pruned = [e for e in executions if e.revision_id == executions[18].revision_id]  # r7
+    for execution in pruned:
+        samples_path(execution.recording_path).unlink()
+
+    def keyed():
+        return {
+            key: (d.verdict, d.score, d.baseline_revisions, d.baseline_revision_id)
+            for key, d in _verdicts(session).items()
+        }
+
+    before = keyed()
+    for revision_id in dict.fromkeys(e.revision_id for e in executions):
+        detect_revision(database_url, revision_id)  # one by one, flags read from the database
+    by_detection = keyed()
+    assert {k: v for k, v in by_detection.items() if k[0] == "r7"} == {
+        k: v for k, v in before.items() if k[0] == "r7"
+    }  # the pruned revision's verdicts stand
+    component = session.scalar(select(Component))
+    assert reanalyze_component(database_url, component.id) == 11
+    assert keyed() == by_detection
+
+
+def test_a_failure_while_storing_fails_the_reanalysis_with_the_error(
+    session, database_url, tmp_path, monkeypatch
+):
+    from redline.worker import reanalysis
+
+    executions = _runs_history(session, tmp_path, [15.0] * 8)
+    ingest_and_detect(database_url, executions)
+    stored, store = [], reanalysis.store_judged
+
+    def failing_store(url, judged, durable=True):  # the fourth write fails
+        if len(stored) == 3:
+            raise RuntimeError("disk full")
+        stored.append(judged.revision_id)
+        store(url, judged, durable)
+
+    monkeypatch.setattr(reanalysis, "store_judged", failing_store)
+    component = session.scalar(select(Component))
+    with pytest.raises(RuntimeError, match="disk full"):
+        reanalyze_component(database_url, component.id)
+    session.expire_all()
+    progress = session.get(Reanalysis, component.id)
+    assert progress.state == "failed" and "RuntimeError: disk full" in progress.error
+    assert len(stored) == 3
+
+
+def test_reanalysis_skips_an_all_nan_revision_in_baselines_as_detection_does(
+    session, database_url, tmp_path
+):
+    """A revision whose samples are all NaN has no summaries: it is no earlier revision "with
+    samples" of the series, for the walk's memory as for the database's answer."""
+    cpus = [20.0, 20.0, 20.0, np.full(60, np.nan), 20.0, 20.0, 20.0, 20.0, 60.0]
+    executions = cpu_history(session, tmp_path, cpus)
+    ingest_and_detect(database_url, executions)
+
+    def keyed():
+        return {
+            key: (
+                d.verdict,
+                d.reason,
+                d.score,
+                d.baseline_revisions,
+                d.baseline_revision_id,
+            )
+            for key, d in _verdicts(session).items()
+        }
+
+    by_detection = keyed()
+    assert "NaN" in by_detection[("r4", "ks")][1]
+    assert by_detection[("r5", "ks")][4] == executions[2].revision_id  # r3, past r4
+    component = session.scalar(select(Component))
+    assert reanalyze_component(database_url, component.id) == 9
+    assert keyed() == by_detection
+
+
+def _second_run_later(session, tmp_path: Path, database_url: str):
+    """r1..r6 with one run each at 20 % CPU, then r7 whose first run (20 %) is ingested now and
+    whose second run (60 %) only later; returns r7's revision id and a function ingesting it."""
+    from redline.server.schemas.revisions import RevisionCreate
+    from redline.server.services.revisions import create_revision
+
+    from tests.support.recordings import run_metadata, write_recording
+
+    create_component(session, ComponentCreate(name=NAME, executions=2))
+    rng = np.random.default_rng(6)
+    revisions = []
+    for number in range(1, 8):
+        revision = create_revision(
+            session, RevisionCreate(component=NAME, title=f"r{number}", sort_key=str(number))
+        )
+        revisions.append(revision)
+    session.commit()
+
+    def ingest(revision, job, level: float) -> None:
+        name = f"{revision.title}-{job.execution_index}"
+        path = write_recording(
+            tmp_path / f"{name}.mcap",
+            run_metadata(job, NAME, revision.title, revision.sort_key),
+            {"cpu": rng.normal(level, 1, 60)},
+        )
+        execution = Execution(
+            job_id=job.id,
+            revision_id=revision.id,
+            recording_path=str(path),
+            sha256=name.ljust(64, "0"),
+            size=path.stat().st_size,
+        )
+        job.state = "uploaded"
+        session.add(execution)
+        session.commit()
+        ingest_execution(database_url, execution.id)
+
+    for revision in revisions:
+        ingest(revision, revision.jobs[0], 20.0)
+    last = revisions[-1]
+    return last.id, lambda: ingest(last, last.jobs[1], 60.0)
+
+
+def test_verdicts_judged_before_an_execution_was_ingested_are_judged_again_when_stored(
+    session, database_url, tmp_path
+):
+    from redline.server.db import session_factory
+    from redline.worker.detection import judge_revision, store_judged
+
+    revision_id, ingest_second_run = _second_run_later(session, tmp_path, database_url)
+    with session_factory(database_url)() as reading:
+        stale = judge_revision(reading, revision_id)  # only the first run (20 %) is in
+    assert not any(row["flagged"] for row in stale.rows)
+    ingest_second_run()  # 60 %: with it, r7 has moved
+    store_judged(database_url, stale)
+    stored = _verdicts(session)[("r7", "ks")]
+    assert stored.flagged and stored.direction == "increase"  # the fresh judgement, not stale
+
+
+def test_the_walk_stops_using_its_memory_once_an_execution_is_ingested_under_it(
+    session, database_url, tmp_path
+):
+    from redline.server.db import session_factory
+    from redline.worker.history import ingested_fingerprint
+    from redline.worker.reanalysis import Walk
+
+    revision_id, ingest_second_run = _second_run_later(session, tmp_path, database_url)
+    component_id = session.scalar(select(Component.id))
+    drained = []
+    with session_factory(database_url)() as reading:
+        walk = Walk.over(10, ingested_fingerprint(reading, component_id))
+        walk.on_disable = lambda: drained.append(True)
+        walk.check(reading, component_id)
+        assert walk.usable and not drained
+        ingest_second_run()
+        walk.check(reading, component_id)
+    assert not walk.usable and drained == [True]
+
+
+def test_bulk_insert_refuses_an_over_long_string_rather_than_cutting_it(
+    session, database_url, tmp_path
+):
+    from redline.server.db import bulk_insert
+    from sqlalchemy.exc import DataError
+
+    ingest_and_detect(database_url, cpu_history(session, tmp_path, [20.0, 20.0]))
+    row = session.scalars(select(Detection)).first()
+    values = {c.name: getattr(row, c.name) for c in Detection.__table__.columns if c.name != "id"}
+    values["method"] = "m" * 60  # the column holds 50
+    with pytest.raises(DataError, match="too long"):
+        bulk_insert(session, Detection.__table__, [values])
+    session.rollback()

@@ -1,0 +1,181 @@
+"""Imports: LNT's JSON report (format 2) and Redline's generic results, on real Postgres."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+import redis
+from redline.recording import SeriesKey, canonical_params
+from redline.server.core.tasks import DETECT_TASK
+from redline.server.db import session_factory
+from redline.server.services.imports import ImportedRun, store_import
+
+from tests.support.api import Api, api_with
+from tests.support.servers import Services
+
+
+@pytest.fixture
+def api(services: Services, tmp_path: Path) -> Iterator[Api]:
+    with api_with(services, tmp_path) as api:
+        api.post("/api/v1/components", "admin", {"name": "clang"}).raise_for_status()
+        yield api
+
+
+def lnt_report(order: str = "1234", scale: float = 1.0) -> dict:
+    return {
+        "format_version": "2",
+        "machine": {"name": "bench-box", "os": "linux"},
+        "run": {
+            "start_time": "2026-11-20T10:00:00",
+            "end_time": "2026-11-20T10:05:00",
+            "llvm_project_revision": order,
+        },
+        "tests": [
+            {
+                "name": "nts.SingleSource/fib",
+                "execution_time": [scale * v for v in (1.0, 1.1, 0.9, 1.05)],
+                "compile_time": 2.5 * scale,
+                "hash": "abc",
+            },
+            {"name": "nts.SingleSource/sort", "execution_time": 3.0 * scale},
+        ],
+    }
+
+
+def send_lnt(api: Api, report: dict, scope: str = "ci", component: str = "clang") -> object:
+    return api.client.post(
+        f"/api/v1/import/lnt?component={component}",
+        content=json.dumps(report).encode(),
+        headers={**api.tokens[scope], "Content-Type": "application/json"},
+    )
+
+
+def test_lnt_report_becomes_a_revision_with_a_series_per_test_and_metric(api: Api):
+    answer = send_lnt(api, lnt_report())
+    assert answer.status_code == 201, answer.text
+    assert (answer.json()["revision"], answer.json()["series"]) == ("1234", 3)
+    series = api.client.get("/api/v1/components/clang/series").json()
+    named = {(s["case"], s["counter"]): s for s in series}
+    assert set(named) == {
+        ("nts.SingleSource/fib", "execution_time"),
+        ("nts.SingleSource/fib", "compile_time"),
+        ("nts.SingleSource/sort", "execution_time"),
+    }
+    fib = named[("nts.SingleSource/fib", "execution_time")]
+    assert fib["points"][0]["n"] == 4 and fib["points"][0]["mean"] == pytest.approx(1.0125)
+    execution = api.client.get(f"/api/v1/executions/{answer.json()['execution_id']}").json()
+    assert execution["host"] == "bench-box" and execution["metadata"] == {"imported": "json"}
+
+
+def test_same_report_twice_stores_it_once(api: Api):
+    first = send_lnt(api, lnt_report())
+    again = send_lnt(api, lnt_report())
+    assert again.status_code == 200 and again.json()["created"] is False
+    assert again.json()["execution_id"] == first.json()["execution_id"]
+    assert len(api.client.get("/api/v1/components/clang/revisions").json()) == 1
+
+
+def test_malformed_lnt_reports_are_400_naming_the_fault(api: Api):
+    version_one = {**lnt_report(), "format_version": "1"}
+    assert "format_version" in send_lnt(api, version_one).json()["detail"]
+    no_order = lnt_report()
+    del no_order["run"]["llvm_project_revision"]
+    answer = send_lnt(api, no_order)
+    assert answer.status_code == 400 and "llvm_project_revision" in answer.json()["detail"]
+    nameless = {**lnt_report(), "tests": [{"execution_time": 1.0}]}
+    assert "tests[0]" in send_lnt(api, nameless).json()["detail"]
+    assert send_lnt(api, lnt_report(), component="ghost").status_code == 404
+    assert send_lnt(api, lnt_report(), scope="agent").status_code == 403
+    assert api.client.get("/api/v1/components/clang/revisions").json() == []
+
+
+def test_generic_results_import_and_compare_two_revisions(api: Api):
+    def results(revision: str, key: str, cpu: list[float]) -> dict:
+        return {
+            "component": "clang",
+            "revision": revision,
+            "sort_key": key,
+            "host": "perf1",
+            "results": [
+                {"case": "parse", "params": {"legs": 8}, "counter": "cpu", "values": cpu},
+                {"case": "parse", "params": {"legs": 4}, "counter": "cpu", "values": [1.0, 1.0]},
+            ],
+        }
+
+    base = api.post(
+        "/api/v1/import/results", "ci", results("r1", "1", [10.0 + i % 3 for i in range(30)])
+    )
+    assert base.status_code == 201, base.text
+    cand = api.post(
+        "/api/v1/import/results", "ci", results("r2", "2", [20.0 + i % 3 for i in range(30)])
+    )
+    assert cand.status_code == 201
+    compared = api.client.get("/api/v1/components/clang/compare?base=r1&candidate=r2").json()
+    legs8 = next(row for row in compared["series"] if row["series"]["params"] == {"legs": 8})
+    assert legs8["change"] == pytest.approx(10 / 11) and legs8["ks_statistic"] == 1.0
+    assert legs8["exact"] is True and legs8["baseline"]["n"] == 30
+    missing = api.client.get("/api/v1/components/clang/compare?base=r1&candidate=r9")
+    assert missing.status_code == 404 and "'r9'" in missing.json()["detail"]
+    empty = api.post("/api/v1/import/results", "ci", {**results("r3", "3", [1.0]), "results": []})
+    assert empty.status_code == 422
+
+
+@pytest.mark.parametrize("value", ["NaN", "Infinity", "-Infinity", "1e400"])
+def test_non_finite_generic_values_are_422_naming_the_field(api: Api, value: str):
+    body = (
+        '{"component": "clang", "revision": "r1", "sort_key": "1", "results": '
+        f'[{{"case": "parse", "counter": "cpu", "values": [1.0, {value}]}}]}}'
+    )
+    answer = api.client.post(
+        "/api/v1/import/results",
+        content=body.encode(),
+        headers={**api.tokens["ci"], "Content-Type": "application/json"},
+    )
+    assert answer.status_code == 422, answer.text
+    assert [e["loc"] for e in answer.json()["detail"]] == [["body", "results", 0, "values", 1]]
+    assert api.client.get("/api/v1/components/clang/revisions").json() == []
+
+
+def test_a_series_without_a_finite_value_gets_no_summary(api: Api):
+    params = canonical_params({})
+    run = ImportedRun(
+        "clang",
+        "r1",
+        "1",
+        "",
+        "",
+        {
+            SeriesKey("parse", "main", params, "benchmark", "cpu"): [float("nan"), float("inf")],
+            SeriesKey("parse", "main", params, "benchmark", "rss"): [1.0, 2.0],
+        },
+    )
+    with session_factory(api.settings.database_url)() as session:
+        result = store_import(session, api.settings.storage_dir, run, b"one finite series")
+    assert result.created and result.series == 1
+
+
+def _queued_tasks(api: Api) -> list[tuple[str, str]]:
+    broker = redis.Redis.from_url(api.settings.redis_url)
+    messages = [json.loads(raw) for raw in broker.lrange(api.settings.queue, 0, -1)]
+    return [(m["headers"]["task"], m["headers"]["argsrepr"]) for m in messages]
+
+
+def test_an_import_queues_detection_of_its_revision_once(api: Api):
+    first = send_lnt(api, lnt_report())
+    assert first.status_code == 201
+    queued = [(DETECT_TASK, f"[{first.json()['revision_id']}]")]
+    assert _queued_tasks(api) == queued  # the task waits in the real broker
+    assert send_lnt(api, lnt_report()).status_code == 200  # imported before: nothing new
+    results = {
+        "component": "clang",
+        "revision": "r2",
+        "sort_key": "2",
+        "results": [{"case": "parse", "counter": "cpu", "values": [1.0, 2.0]}],
+    }
+    second = api.post("/api/v1/import/results", "ci", results)
+    assert second.status_code == 201
+    queued.append((DETECT_TASK, f"[{second.json()['revision_id']}]"))
+    assert sorted(_queued_tasks(api)) == sorted(queued)

@@ -1,0 +1,98 @@
+"""Only the host holding a job may fail it or upload its recording; a host-bound token acts for
+its own host only (real Postgres and Redis, through the app)."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from tests.support.api import Api, api_with, expire_lease, recording_for
+from tests.support.servers import Services
+
+
+@pytest.fixture
+def api(services: Services, tmp_path: Path) -> Iterator[Api]:
+    with api_with(services, tmp_path, lease_seconds=60, max_attempts=3) as api:
+        for name in ("perf1", "perf2"):
+            api.post("/api/v1/agent/register", "agent", {"name": name}).raise_for_status()
+        api.component()
+        api.revision("r1", "1")
+        yield api
+
+
+def _fail(api: Api, job_id: int, host: str, scope: str = "agent") -> object:
+    return api.post(f"/api/v1/jobs/{job_id}/fail", scope, {"host": host, "reason": "broke"})
+
+
+def test_a_host_not_holding_the_job_can_neither_fail_nor_upload_it(api: Api, tmp_path: Path):
+    job = api.lease("perf1")
+    data = recording_for(job, tmp_path / "r1.mcap")
+    failed = _fail(api, job["id"], "perf2")
+    assert failed.status_code == 409 and "perf2" in failed.json()["detail"]
+    uploaded = api.upload(job["id"], data, host="perf2")
+    assert uploaded.status_code == 409 and "perf2" in uploaded.json()["detail"]
+    assert api.job(job["id"])["state"] == "leased"
+    assert api.upload(job["id"], data).status_code == 201  # perf1 holds it
+    assert api.upload(job["id"], data).status_code == 200  # its resend is idempotent
+    assert api.upload(job["id"], data, host="perf2").status_code == 409
+    assert _fail(api, job["id"], "perf1").status_code == 409  # uploaded: no longer held
+
+
+def test_a_lapsed_host_cannot_fail_or_upload_a_job_re_leased_to_another(api: Api, tmp_path: Path):
+    job = api.lease("perf1")
+    data = recording_for(job, tmp_path / "r1.mcap")
+    expire_lease(api, job["id"])
+    assert api.lease("perf2")["id"] == job["id"]
+    assert _fail(api, job["id"], "perf1").status_code == 409
+    assert api.upload(job["id"], data, host="perf1").status_code == 409
+    assert api.job(job["id"])["state"] == "leased"
+    assert _fail(api, job["id"], "perf2").json()["state"] == "failed"
+    assert _fail(api, job["id"], "perf2").status_code == 200  # failing again changes nothing
+
+
+def test_a_token_bound_to_one_host_cannot_fail_or_upload_for_another(api: Api, tmp_path: Path):
+    made = api.post(
+        "/api/v1/tokens", "admin", {"name": "perf1-token", "scopes": ["agent"], "host": "perf1"}
+    )
+    assert made.status_code == 201, made.text
+    api.tokens["perf1-token"] = {"Authorization": f"Bearer {made.json()['token']}"}
+    job = api.lease("perf2")
+    data = recording_for(job, tmp_path / "r1.mcap")
+    for answer in (
+        _fail(api, job["id"], "perf2", scope="perf1-token"),
+        api.upload(job["id"], data, host="perf2", scope="perf1-token"),
+    ):
+        assert answer.status_code == 403, answer.text
+        assert "perf1" in answer.json()["detail"] and "perf2" in answer.json()["detail"]
+    assert api.job(job["id"])["state"] == "leased"
+
+
+def test_an_upload_must_name_its_host(api: Api, tmp_path: Path):
+    job = api.lease("perf1")
+    data = recording_for(job, tmp_path / "r1.mcap")
+    answer = api.client.put(
+        f"/api/v1/jobs/{job['id']}/recording",
+        content=data,
+        headers={**api.tokens["agent"], "X-Redline-Sha256": "0" * 64},
+    )
+    assert answer.status_code == 422 and "x-redline-host" in answer.text.lower()
+
+
+def test_cancelling_a_revision_stops_its_jobs_and_its_agent_learns_at_the_next_heartbeat(api: Api):
+    api.component("cancellable", executions=2)
+    created = api.revision("c1", "1", component="cancellable")
+    running = api.lease()  # newest revision first: one of c1's two jobs
+    assert running["id"] in created["job_ids"]
+    cancel = "/api/v1/components/cancellable/revisions/c1/cancel"
+    assert api.post(cancel, "agent", {}).status_code == 403  # an agent token may not cancel
+    answer = api.post(cancel, "ci", {})
+    assert answer.status_code == 200, answer.text
+    assert {job["state"] for job in answer.json()["jobs"]} == {"cancelled"}
+    assert answer.json()["state"] == "cancelled"
+    assert api.lease()["id"] not in created["job_ids"]  # c1's queued job is not handed out
+    beat = api.post(f"/api/v1/jobs/{running['id']}/heartbeat", "agent", {"host": "perf1"})
+    assert beat.status_code == 409
+    missing = api.post("/api/v1/components/cancellable/revisions/nope/cancel", "ci", {})
+    assert missing.status_code == 404 and "nope" in missing.json()["detail"]

@@ -1,0 +1,127 @@
+"""The read API: paged revisions, series filters and points, executions, OpenAPI, /metrics."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from tests.support.api import Api, api_with
+from tests.support.servers import Services
+
+
+@pytest.fixture
+def api(services: Services, tmp_path: Path) -> Iterator[Api]:
+    with api_with(services, tmp_path) as api:
+        api.post("/api/v1/components", "admin", {"name": "builder"}).raise_for_status()
+        yield api
+
+
+def imported(api: Api, revision: str, key: str) -> dict:
+    body = {
+        "component": "builder",
+        "revision": revision,
+        "sort_key": key,
+        "results": [
+            {
+                "case": "build",
+                "phase": "steady",
+                "params": {"legs": legs},
+                "process": proc,
+                "counter": counter,
+                "values": [float(legs), float(legs) + 1],
+            }
+            for legs in (4, 8)
+            for proc in ("builder", "host")
+            for counter in ("cpu", "rss")
+        ],
+    }
+    answer = api.post("/api/v1/import/results", "ci", body)
+    assert answer.status_code == 201, answer.text
+    return answer.json()
+
+
+def test_revisions_page_in_sort_key_order_with_a_cursor(api: Api):
+    for title, key in (("r10", "10"), ("r9", "9"), ("r2", "2"), ("r11", "11"), ("r1", "1")):
+        api.post(
+            "/api/v1/revisions", "ci", {"component": "builder", "title": title, "sort_key": key}
+        ).raise_for_status()
+    seen, cursor, pages = [], None, 0
+    while True:
+        query = "?limit=2" + (f"&cursor={cursor}" if cursor else "")
+        page = api.client.get(f"/api/v1/components/builder/revisions{query}")
+        seen += [r["title"] for r in page.json()]
+        pages += 1
+        cursor = page.headers.get("x-next-cursor")
+        if cursor is None:
+            break
+    assert seen == ["r1", "r2", "r9", "r10", "r11"] and pages == 3
+    bad = api.client.get("/api/v1/components/builder/revisions?limit=2&cursor=@@@")
+    assert bad.status_code == 400 and "cursor" in bad.json()["detail"]
+
+
+def test_series_filter_by_case_phase_parameter_process_and_counter(api: Api):
+    imported(api, "r1", "1")
+    url = "/api/v1/components/builder/series"
+    assert len(api.client.get(url).json()) == 8
+    chosen = api.client.get(
+        f"{url}?param.legs=8&process=builder&counter=cpu&phase=steady&case=build"
+    ).json()
+    assert [(s["params"], s["process"], s["counter"]) for s in chosen] == [
+        ({"legs": 8}, "builder", "cpu")
+    ]
+    assert api.client.get(f"{url}?param.legs=3").json() == []
+    assert api.client.get(f"{url}?case=other").json() == []
+
+
+def test_series_points_carry_each_executions_quantiles_and_sketch(api: Api):
+    imported(api, "r1", "1")
+    imported(api, "r2", "2")
+    series = api.client.get(
+        "/api/v1/components/builder/series?param.legs=4&process=builder&counter=rss"
+    ).json()[0]
+    detail = api.client.get(f"/api/v1/series/{series['id']}").json()
+    assert [s["revision"] for s in detail["summaries"]] == ["r1", "r2"]
+    first = detail["summaries"][0]
+    assert (first["min"], first["p50"], first["max"]) == (4.0, 4.5, 5.0)
+    assert len(first["sketch"]) == 32 and first["sketch"] == sorted(first["sketch"])
+    assert api.client.get("/api/v1/series/999999").status_code == 404
+
+
+def test_execution_details_and_unknown_execution(api: Api):
+    execution_id = imported(api, "r1", "1")["execution_id"]
+    detail = api.client.get(f"/api/v1/executions/{execution_id}").json()
+    assert (detail["component"], detail["revision"], detail["series"]) == ("builder", "r1", 8)
+    assert detail["recording_pruned_at"] is None
+    assert api.client.get("/api/v1/executions/999999").status_code == 404
+
+
+def test_openapi_gives_every_route_a_response_model(api: Api):
+    document = api.client.get("/openapi.json").json()
+    missing = []
+    for path, operations in document["paths"].items():
+        for method, operation in operations.items():
+            ok = [code for code in operation["responses"] if code.startswith("2")]
+            if not any("content" in operation["responses"][code] or code == "204" for code in ok):
+                missing.append(f"{method.upper()} {path}")
+    assert missing == []
+    for path in (
+        "/api/v1/webhooks/github",
+        "/api/v1/import/lnt",
+        "/api/v1/tokens",
+        "/api/v1/components/{name}/compare",
+        "/api/v1/series/{series_id}",
+    ):
+        assert path in document["paths"]
+
+
+def test_metrics_count_requests_and_jobs_by_state(api: Api):
+    api.post(
+        "/api/v1/revisions", "ci", {"component": "builder", "title": "r1", "sort_key": "1"}
+    ).raise_for_status()
+    api.client.get("/api/v1/components")
+    text = api.client.get("/metrics").text
+    assert 'redline_jobs{state="queued"} 1.0' in text
+    assert 'route="/api/v1/components",status="200"' in text
+    assert "redline_http_request_seconds_bucket" in text

@@ -1,0 +1,187 @@
+"""Regressions through the HTTP API on real Postgres: grouping, triage with history and scopes,
+precision per method from triage labels, detections, configuration and re-analysis progress."""
+
+from __future__ import annotations
+
+import uuid
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+import pytest
+from fastapi.testclient import TestClient
+from redline.server.app import create_app
+from redline.server.core.config import Settings
+from redline.server.db import session_factory
+from redline.server.models import DetectionConfigRow
+from redline.server.schemas.components import ComponentCreate
+from redline.server.services.components import create_component
+from redline.worker.detection import detect_revision
+from redline.worker.ingest import ingest_execution
+from redline.worker.reanalysis import reanalyze_component
+from sqlalchemy import text
+
+from tests.support.api import emptied_with_tokens
+from tests.support.history import add_execution
+from tests.support.servers import Services
+
+BASE = "/api/v1/components/builder"
+
+
+class Client:
+    def __init__(self, client: TestClient, tokens: dict[str, dict[str, str]]) -> None:
+        self.client, self.tokens = client, tokens
+
+    def get(self, path: str) -> object:
+        return self.client.get(BASE + path)
+
+    def patch(self, path: str, scope: str, body: dict) -> object:
+        return self.client.patch(BASE + path, json=body, headers=self.tokens[scope])
+
+    def put(self, path: str, scope: str, body: dict) -> object:
+        return self.client.put(BASE + path, json=body, headers=self.tokens[scope])
+
+
+@pytest.fixture
+def api(services: Services, database_url: str, tmp_path: Path) -> Iterator[Client]:
+    settings = Settings(
+        database_url=database_url,
+        redis_url=services.redis_url,
+        storage_dir=tmp_path / "storage",
+        queue=f"test-{uuid.uuid4().hex[:8]}",
+    )
+    tokens = emptied_with_tokens(database_url)
+    with TestClient(create_app(settings)) as client:
+        yield Client(client, tokens)
+
+
+def history(database_url: str, tmp_path: Path, cpus: list[float], seed: int = 5) -> None:
+    """Revisions r1.. of 'builder' with a cpu series of the given means, ingested and detected.
+    KS alone judges and raises regressions (one execution per revision: the default,
+    execution_shift, would wait for 6), so the regressions' own workings show in a few."""
+    rng = np.random.default_rng(seed)
+    with session_factory(database_url)() as session:
+        component = create_component(session, ComponentCreate(name="builder"))
+        session.add(DetectionConfigRow(component_id=component.id, config={"methods": ["ks"]}))
+        session.commit()
+        executions = [
+            add_execution(
+                session,
+                tmp_path,
+                "builder",
+                f"r{n}",
+                str(n),
+                {"cpu": rng.normal(cpu, cpu / 20, 60)},
+            )
+            for n, cpu in enumerate(cpus, start=1)
+        ]
+    for execution in executions:
+        ingest_execution(database_url, execution.id)
+        detect_revision(database_url, execution.revision_id)
+
+
+def test_two_separate_changes_make_two_regressions_with_their_ranges(api, database_url, tmp_path):
+    history(database_url, tmp_path, [20.0, 20.0, 60.0, 60.0, 200.0])
+    regressions = api.get("/regressions").json()
+    assert [(r["good_revision"], r["bad_revision"], r["state"]) for r in regressions] == [
+        ("r4", "r5", "new"),
+        ("r2", "r3", "new"),
+    ]
+    assert "ks" in regressions[0]["methods"] and regressions[0]["detections"] >= 1
+    detail = api.get(f"/regressions/{regressions[1]['id']}").json()
+    assert {d["revision"] for d in detail["flagged"]} == {"r3"}
+    assert all(d["flagged"] and d["regression_id"] == detail["id"] for d in detail["flagged"])
+    assert detail["history"] == []
+
+
+def test_triage_records_who_when_from_to_and_why_and_needs_ci_or_admin(api, database_url, tmp_path):
+    history(database_url, tmp_path, [20.0, 60.0])
+    (regression,) = api.get("/regressions").json()
+    path = f"/regressions/{regression['id']}"
+    assert api.patch(path, "read", {"state": "confirmed"}).status_code == 403
+    assert api.client.patch(BASE + path, json={"state": "confirmed"}).status_code == 401
+    assert api.patch(path, "ci", {"state": "acknowledged"}).status_code == 200
+    answer = api.patch(path, "admin", {"state": "confirmed", "comment": "bisected to r2"})
+    assert answer.status_code == 200 and answer.json()["state"] == "confirmed"
+    steps = api.get(path + "/history").json()
+    assert [(s["who"], s["from_state"], s["to_state"], s["comment"]) for s in steps] == [
+        ("ci", "new", "acknowledged", ""),
+        ("admin", "acknowledged", "confirmed", "bisected to r2"),
+    ]
+    assert steps[0]["at"] <= steps[1]["at"]
+    assert api.patch(path, "ci", {"state": "confirmed"}).status_code == 400  # already
+    assert api.patch(path, "ci", {"state": "closed"}).status_code == 422
+    assert api.patch("/regressions/999", "ci", {"state": "fixed"}).status_code == 404
+    assert [r["id"] for r in api.get("/regressions?state=confirmed").json()] == [regression["id"]]
+    assert api.get("/regressions?state=new").json() == []
+
+
+def test_precision_per_method_counts_labels_and_leaves_out_ignored(api, database_url, tmp_path):
+    history(database_url, tmp_path, [20.0, 60.0, 60.0, 200.0, 200.0, 600.0])
+    first, second, third = sorted(api.get("/regressions").json(), key=lambda r: r["id"])
+    assert api.get("/accuracy").json()["labelled_regressions"] == 0
+    for regression, state in ((first, "confirmed"), (second, "false_positive"), (third, "ignored")):
+        api.patch(f"/regressions/{regression['id']}", "ci", {"state": state}).raise_for_status()
+    report = api.get("/accuracy").json()
+    assert report["labelled_regressions"] == 2
+    ks = next(m for m in report["methods"] if m["method"] == "ks")
+    assert (ks["true_positives"], ks["false_positives"], ks["unlabelled"]) == (1, 1, 1)
+    assert ks["precision"] == pytest.approx(0.5)
+
+
+def test_triaged_regression_survives_reanalysis_that_no_longer_flags_it(
+    api, database_url, tmp_path
+):
+    history(database_url, tmp_path, [20.0, 60.0])
+    (regression,) = api.get("/regressions").json()
+    api.patch(f"/regressions/{regression['id']}", "ci", {"state": "false_positive"})
+    config = {"methods": ["ks"], "thresholds": {"ks": {"min_effect": 5.0}}, "reanalyze": False}
+    assert api.put("/detection-config", "admin", config).status_code == 200
+    with session_factory(database_url)() as session:
+        component_id = session.execute(text("SELECT id FROM component")).scalar_one()
+    reanalyze_component(database_url, component_id)
+    (kept,) = api.get("/regressions").json()
+    assert kept["state"] == "false_positive" and kept["detections"] == 0
+
+
+def test_detections_list_every_verdict_with_the_reason(api, database_url, tmp_path):
+    history(database_url, tmp_path, [20.0, 60.0])
+    first = api.get("/detections?revision=r1").json()
+    assert first and all(
+        d["verdict"] == "not enough data"
+        and d["baseline"] is None
+        and "missing baseline" in d["reason"]
+        for d in first
+    )
+    ks = api.get("/detections?revision=r2&method=ks").json()
+    assert [(d["verdict"], d["baseline"]) for d in ks] == [("change", "r1")]
+    assert api.get("/changes?flagged=true").json()[0]["method"] == "ks"
+
+
+def test_configuration_is_validated_stored_and_queues_a_reanalysis(api, database_url, tmp_path):
+    history(database_url, tmp_path, [20.0, 20.0])
+    assert api.get("/reanalysis").json()["state"] == "none"
+    bad = api.put("/detection-config", "admin", {"methods": ["nope"]})
+    assert bad.status_code == 400 and "methods" in bad.json()["detail"]
+    assert api.put("/detection-config", "ci", {"methods": ["ks"]}).status_code == 403
+    body = {"methods": ["ks", "mann_whitney"], "baseline": "window", "window": 3}
+    answer = api.put("/detection-config", "admin", body)
+    assert answer.status_code == 200, answer.text
+    assert api.get("/detection-config").json()["methods"] == ["ks", "mann_whitney"]
+    assert api.get("/reanalysis").json()["state"] == "queued"
+    with session_factory(database_url)() as session:
+        component_id = session.execute(text("SELECT id FROM component")).scalar_one()
+    reanalyze_component(database_url, component_id)  # what the queued task runs
+    progress = api.get("/reanalysis").json()
+    assert (progress["state"], progress["done"], progress["total"]) == ("done", 2, 2)
+    methods = {d["method"] for d in api.get("/detections").json()}
+    assert methods == {"ks", "mann_whitney"}
+
+
+def test_component_page_lists_regressions_with_their_state(api, database_url, tmp_path):
+    history(database_url, tmp_path, [20.0, 60.0])
+    page = api.client.get("/components/builder").text
+    table = page.split('id="regressions"', 1)[1].split("</table>", 1)[0]
+    assert "<td>r1</td><td>r2</td>" in table and "state-new" in table
+    # r2 is the newest revision: its change waits for two later ones to confirm it
+    assert "confirmation-suspected" in table and "waiting for 2 later revision(s)" in table

@@ -1,0 +1,168 @@
+"""Least privilege at the edges: where a performance host's code comes from, which repository a
+push names (real Postgres and Redis through the app, real git). The rules themselves, the
+checkout and what charts and logs show are in tests/unit/test_security.py."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+from redline.server.db import session_factory
+from redline.server.models import Revision
+from sqlalchemy import update
+
+from tests.support.api import Api, api_with
+from tests.support.servers import Services
+from tests.support.webhooks import SECRET, counts, send_github
+
+REPO = "https://github.com/org/builder.git"
+
+
+@pytest.fixture
+def api(services: Services, tmp_path: Path) -> Iterator[Api]:
+    with api_with(services, tmp_path, webhook_secret=SECRET) as api:
+        api.post(
+            "/api/v1/components",
+            "admin",
+            {"name": "builder", "repo": REPO, "suite": "perf/redline.toml"},
+        ).raise_for_status()
+        api.post("/api/v1/agent/register", "agent", {"name": "perf1"}).raise_for_status()
+        yield api
+
+
+def _revision(api: Api, scope: str = "ci", **extra: str) -> object:
+    return api.post(
+        "/api/v1/revisions",
+        scope,
+        {"component": "builder", "title": "r1", "sort_key": "1", "commit": "a" * 40, **extra},
+    )
+
+
+def test_a_ci_token_cannot_make_a_revision_run_another_repository(api: Api):
+    for scope in ("ci", "admin"):  # a revision never moves a component: that is a setting
+        answer = _revision(api, scope, repo="https://evil.example/payload.git")
+        assert answer.status_code == 403, answer.text
+        assert "builder" in answer.json()["detail"] and "PATCH" in answer.json()["detail"]
+    assert counts(api) == (0, 0)
+    same = _revision(api, repo="git@github.com:Org/Builder")  # the component's own, respelt
+    assert same.status_code == 201, same.text
+    job = api.post("/api/v1/agent/lease", "agent", {"host": "perf1"}).json()
+    assert job["repo"] == REPO
+
+
+def test_a_leased_job_carries_the_components_repository_not_a_stored_override(api: Api):
+    assert _revision(api).status_code == 201
+    with session_factory(api.settings.database_url)() as session:  # as an older version stored
+        session.execute(update(Revision).values(repo="https://evil.example/payload.git"))
+        session.commit()
+    job = api.post("/api/v1/agent/lease", "agent", {"host": "perf1"}).json()
+    assert job["repo"] == REPO
+
+
+@pytest.mark.parametrize(
+    "repo",
+    [
+        "--upload-pack=touch /tmp/pwned",
+        "-uevil",
+        "ext::sh -c touch% /tmp/pwned",
+        "fd::17",
+        "http://git.example/x.git",
+        "ftp://git.example/x.git",
+        "relative/path.git",
+        "/srv/git/builder.git",
+        "file:///srv/git/builder.git",
+        "https://git.example/x\n.git",
+        "ssh://-oProxyCommand=touch% /tmp/pwned/repo",
+        "ssh://git@-oProxyCommand=x/repo",
+        "git@-oProxyCommand=x:repo",
+    ],
+)
+def test_component_repositories_are_refused_outside_the_allowed_schemes(api: Api, repo: str):
+    created = api.post("/api/v1/components", "admin", {"name": "other", "repo": repo})
+    assert created.status_code == 422, created.text
+    assert "repo" in created.text
+    patched = api.client.patch(
+        "/api/v1/components/builder", json={"repo": repo}, headers=api.tokens["admin"]
+    )
+    assert patched.status_code == 422, patched.text
+    assert api.client.get("/api/v1/components/builder").json()["repo"] == REPO
+
+
+@pytest.mark.parametrize(
+    "repo",
+    [
+        "https://github.com/org/x.git",
+        "ssh://git@github.com:22/org/x.git",
+        "git://host/x.git",
+        "git@github.com:org/x.git",
+        "",
+    ],
+)
+def test_component_repositories_in_the_allowed_schemes_are_kept(api: Api, repo: str):
+    created = api.post("/api/v1/components", "admin", {"name": "other", "repo": repo})
+    assert created.status_code == 201, created.text
+
+
+def test_local_repositories_only_when_the_server_allows_them(services: Services, tmp_path: Path):
+    with api_with(services, tmp_path, allow_file_repos=True) as api:
+        for repo in ("/srv/git/builder.git", "file:///srv/git/builder.git"):
+            answer = api.post(
+                "/api/v1/components", "admin", {"name": f"c{len(repo)}", "repo": repo}
+            )
+            assert answer.status_code == 201, answer.text
+        assert (
+            api.post(
+                "/api/v1/components", "admin", {"name": "rel", "repo": "relative/path.git"}
+            ).status_code
+            == 422
+        )
+
+
+# --- which components a push is for -----------------------------------------------------------
+
+
+def test_a_push_is_matched_by_its_clone_urls_never_its_homepage(api: Api):
+    """Any repository admin sets ``homepage``; only the URLs the forge derives name it."""
+    body = json.dumps(
+        {
+            "ref": "refs/heads/main",
+            "commits": [{"id": "c" * 40, "message": "x", "timestamp": "2026-11-20T10:00:00Z"}],
+            "repository": {
+                "clone_url": "https://github.com/mallory/tool.git",
+                "html_url": "https://github.com/mallory/tool",
+                "homepage": "https://github.com/org/builder",
+            },
+        }
+    ).encode()
+    answer = send_github(api, body)
+    assert answer.status_code == 202, answer.text
+    assert counts(api) == (0, 0)
+
+
+def test_a_ping_is_authenticated_by_a_components_own_secret(services: Services, tmp_path: Path):
+    """With no server-wide secret, a component's own secret authenticates every event of its
+    repository, a ping included (acknowledged, nothing recorded)."""
+    with api_with(services, tmp_path) as api:
+        api.post(
+            "/api/v1/components",
+            "admin",
+            {"name": "builder", "repo": REPO, "webhook_secret": "own"},
+        ).raise_for_status()
+        body = json.dumps(
+            {
+                "zen": "Design for failure.",
+                "hook_id": 1,
+                "repository": {"clone_url": REPO, "html_url": "https://github.com/org/builder"},
+            }
+        ).encode()
+        assert send_github(api, body, secret="own", event="ping").status_code == 202
+        assert send_github(api, body, secret="wrong", event="ping").status_code == 401
+        assert counts(api) == (0, 0)
+
+
+# --- what a page shows as text -----------------------------------------------------------------
+
+
+# --- secrets stay out of logs --------------------------------------------------------------

@@ -1,0 +1,109 @@
+"""`redline up`'s supervisor: stopping it mid-run leaves no process behind and loses no job."""
+
+from __future__ import annotations
+
+import os
+import time
+import uuid
+from pathlib import Path
+
+import httpx
+import psutil
+import pytest
+from redline.agent.network import free_port
+from redline.commands import demo
+from redline.commands.stack import Stack
+
+from tests.support.servers import Services, fresh_database
+
+
+def _started_under(folder: Path) -> list[psutil.Process]:
+    """Live processes working in ``folder`` or naming a file in it: the run's component (its
+    work tree is there), recorder (its recording is there) and the stack's own children."""
+    found = []
+    for process in psutil.process_iter(["cwd", "cmdline"]):
+        try:
+            words = [process.info["cwd"] or "", *(process.info["cmdline"] or [])]
+        except (psutil.NoSuchProcess, psutil.AccessDenied):
+            continue
+        if process.pid != os.getpid() and any(str(folder) in word for word in words):
+            found.append(process)
+    return found
+
+
+def _wait_for(condition, timeout: float, what: str) -> None:  # noqa: ANN001
+    deadline = time.monotonic() + timeout
+    while not condition():
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out waiting for {what}")
+        time.sleep(0.3)
+
+
+@pytest.fixture
+def stack(services: Services, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Stack:
+    """A stack, not yet started, on a database and a queue of its own."""
+    database_url, _ = fresh_database(services.database_url)
+    monkeypatch.setenv("REDLINE_DATABASE_URL", database_url)
+    monkeypatch.setenv("REDLINE_REDIS_URL", services.redis_url)
+    monkeypatch.setenv("REDLINE_QUEUE", f"stack-{uuid.uuid4().hex[:8]}")
+    return Stack(tmp_path / "data", free_port())
+
+
+def test_stopping_mid_run_leaves_no_process_and_releases_the_job(stack: Stack, tmp_path: Path):
+    try:
+        stack.start()
+        repo = tmp_path / "repo"
+        first = demo.make_history(repo)[0]
+        demo.submit(stack.url, stack.admin_token, stack.token("ci", "ci"), repo, [first])
+        children = {child.process.pid for child in stack.children}
+        _wait_for(
+            lambda: len({p.pid for p in _started_under(stack.data)} - children) >= 2,
+            120,
+            "the run's component and recorder",
+        )
+    finally:
+        stack.stop()
+    assert [p.cmdline() for p in _started_under(stack.data) if p.is_running()] == []
+
+    restarted = Stack(tmp_path / "data", free_port())
+    try:
+        restarted.start()
+        detail = httpx.get(
+            f"{restarted.url}/api/v1/components/objectbuilder/revisions/{first.title}"
+        ).json()
+        assert [job["state"] for job in detail["jobs"]] in (
+            ["queued"],
+            ["leased"],
+            ["running"],
+            ["uploaded"],
+            ["done"],
+        ), detail
+    finally:
+        restarted.stop()
+
+
+def test_secrets_stay_out_of_process_lists_and_logs(stack: Stack):
+    """No token in any child's command line (every user reads those in ps), none in the logs,
+    and the logs readable by their owner only."""
+    try:
+        stack.start()
+        secrets = [stack.admin_token, stack.token("agent", "agent")]
+        commands = [" ".join(psutil.Process(c.process.pid).cmdline()) for c in stack.children]
+        assert len(commands) == 3 and "agent" in commands[-1]
+        assert not [c for c in commands if any(secret in c for secret in secrets)]
+        page = httpx.get(f"{stack.url}/components/nothing?token={stack.admin_token}")
+        assert page.status_code == 404
+        _wait_for(
+            lambda: "/components/nothing" in (stack.data / "logs" / "server.log").read_text(),
+            20,
+            "the request in the access log",
+        )
+    finally:
+        stack.stop()
+    logs = stack.data / "logs"
+    assert stack.data.stat().st_mode & 0o777 == 0o700  # made by the stack: its owner's only
+    assert logs.stat().st_mode & 0o777 == 0o700
+    for log in logs.iterdir():
+        assert log.stat().st_mode & 0o777 == 0o600, log
+        assert not [s for s in secrets if s in log.read_text()], log
+    assert "token=***" in (logs / "server.log").read_text()

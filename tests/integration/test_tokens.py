@@ -1,0 +1,157 @@
+"""Tokens: issued hashed, scoped, listed, revoked (API and CLI); read access open or by token."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+from redline.server.db import session_factory
+from redline.server.models import ApiToken
+from sqlalchemy import select
+
+from tests.support import ROOT
+from tests.support.api import Api, api_with
+from tests.support.servers import Services
+
+
+@pytest.fixture
+def api(services: Services, tmp_path: Path) -> Iterator[Api]:
+    with api_with(services, tmp_path) as api:
+        yield api
+
+
+def test_admin_issues_a_token_stored_only_as_its_hash(api: Api):
+    answer = api.client.post(
+        "/api/v1/tokens",
+        headers=api.tokens["admin"],
+        json={"name": "perf2", "scopes": ["agent"], "host": "perf2"},
+    )
+    assert answer.status_code == 201, answer.text
+    secret = answer.json()["token"]
+    with session_factory(api.settings.database_url)() as session:
+        stored = session.scalar(select(ApiToken).where(ApiToken.name == "perf2"))
+        assert stored is not None and secret not in stored.token_hash and stored.host == "perf2"
+    listed = api.client.get("/api/v1/tokens", headers=api.tokens["admin"]).json()
+    assert "token" not in listed[-1] and listed[-1]["name"] == "perf2"
+    again = api.client.post(
+        "/api/v1/tokens", headers=api.tokens["admin"], json={"name": "perf2", "scopes": ["agent"]}
+    )
+    assert again.status_code == 409
+    bad = api.client.post(
+        "/api/v1/tokens", headers=api.tokens["admin"], json={"name": "x", "scopes": ["root"]}
+    )
+    assert bad.status_code == 400 and "'root'" in bad.json()["detail"]
+    assert api.client.get("/api/v1/tokens", headers=api.tokens["ci"]).status_code == 403
+
+
+def test_use_is_recorded_and_revocation_is_immediate(api: Api):
+    created = api.client.post(
+        "/api/v1/tokens", headers=api.tokens["admin"], json={"name": "jenkins", "scopes": ["ci"]}
+    ).json()
+    assert created["last_used"] is None
+    headers = {"Authorization": f"Bearer {created['token']}"}
+    body = {"component": "ghost", "title": "r1", "sort_key": "1"}
+    assert api.client.post("/api/v1/revisions", json=body, headers=headers).status_code == 404
+    listed = {
+        t["name"]: t for t in api.client.get("/api/v1/tokens", headers=api.tokens["admin"]).json()
+    }
+    assert listed["jenkins"]["last_used"] is not None
+    revoked = api.client.delete("/api/v1/tokens/jenkins", headers=api.tokens["admin"])
+    assert revoked.status_code == 200 and revoked.json()[0]["revoked"] is True
+    assert api.client.post("/api/v1/revisions", json=body, headers=headers).status_code == 401
+    assert (
+        api.client.delete("/api/v1/tokens/jenkins", headers=api.tokens["admin"]).status_code == 404
+    )
+
+
+def test_read_access_token_mode_needs_a_read_token(services: Services, tmp_path: Path):
+    with api_with(services, tmp_path, read_access="token") as api:
+        assert api.client.get("/api/v1/components").status_code == 401
+        assert api.client.get("/").status_code == 401
+        read = api.tokens["read"]
+        assert api.client.get("/api/v1/components", headers=read).status_code == 200
+        secret = read["Authorization"].removeprefix("Bearer ")
+        assert api.client.get(f"/?token={secret}").status_code == 200
+        api.client.cookies.set("redline_token", secret)
+        assert api.client.get("/api/v1/components").status_code == 200
+        api.client.cookies.clear()
+        assert api.client.get("/api/v1/components", headers=api.tokens["agent"]).status_code == 403
+
+
+def test_read_access_open_by_default(api: Api):
+    assert api.client.get("/api/v1/components").status_code == 200
+    assert api.client.get("/").status_code == 200
+
+
+def test_cli_lists_and_revokes_tokens(api: Api):
+    env = {**os.environ, "REDLINE_DATABASE_URL": api.settings.database_url}
+    command = [str(Path(sys.executable).parent / "redline"), "token"]
+    listed = subprocess.run(
+        [*command, "list"], env=env, capture_output=True, text=True, cwd=ROOT, check=True
+    ).stdout
+    assert "\tci\tci\t" in listed and "never" in listed
+    done = subprocess.run(
+        [*command, "revoke", "ci"], env=env, capture_output=True, text=True, cwd=ROOT
+    )
+    assert done.returncode == 0 and "revoked" in done.stdout
+    body = {"component": "ghost", "title": "r1", "sort_key": "1"}
+    assert (
+        api.client.post("/api/v1/revisions", json=body, headers=api.tokens["ci"]).status_code == 401
+    )
+    missing = subprocess.run(
+        [*command, "revoke", "nobody"], env=env, capture_output=True, text=True, cwd=ROOT
+    )
+    assert missing.returncode == 1 and "nobody" in missing.stderr
+
+
+def test_cli_creates_a_host_bound_token_one_live_per_name(api: Api):
+    env = {**os.environ, "REDLINE_DATABASE_URL": api.settings.database_url}
+    command = [str(Path(sys.executable).parent / "redline"), "token", "create", "perf-1"]
+    made = subprocess.run(
+        [*command, "--scopes", "agent", "--host", "perf-1"],
+        env=env,
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+    )
+    assert made.returncode == 0, made.stderr
+    secret = made.stdout.strip()
+    with session_factory(api.settings.database_url)() as session:
+        stored = session.scalar(select(ApiToken).where(ApiToken.name == "perf-1"))
+        assert stored is not None and stored.host == "perf-1" and stored.scopes == ["agent"]
+    own = {"Authorization": f"Bearer {secret}"}
+    answer = api.client.post("/api/v1/agent/lease", json={"host": "perf-9"}, headers=own)
+    assert answer.status_code == 403 and "perf-1" in answer.json()["detail"]
+    again = subprocess.run(
+        [*command, "--scopes", "agent"], env=env, capture_output=True, text=True, cwd=ROOT
+    )
+    assert again.returncode == 1 and "'perf-1'" in again.stderr and not again.stdout
+    bad = subprocess.run(
+        [*command[:-1], "other", "--scopes", "root"],
+        env=env,
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+    )
+    assert bad.returncode == 1 and "'root'" in bad.stderr
+
+
+def test_a_database_command_without_a_database_says_so_without_a_traceback(tmp_path: Path) -> None:
+    from redline.agent.network import free_port
+
+    unreachable = f"postgresql+psycopg://postgres@127.0.0.1:{free_port()}/none"
+    redline = str(Path(sys.executable).with_name("redline"))
+    done = subprocess.run(
+        [redline, "token", "list"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        env={**os.environ, "REDLINE_DATABASE_URL": unreachable},
+    )
+    assert done.returncode == 1
+    assert "cannot reach the database" in done.stderr and "REDLINE_DATABASE_URL" in done.stderr
+    assert "Traceback" not in done.stderr

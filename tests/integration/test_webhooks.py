@@ -1,0 +1,132 @@
+"""Push webhooks (GitHub, GitLab) through the real app on real Postgres."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+from redline.server.db import session_factory
+from redline.server.models import Job
+from sqlalchemy import select
+
+from tests.support.api import Api, api_with
+from tests.support.servers import Services
+from tests.support.webhooks import COMMITS, SECRET, counts, github_push, send_github
+
+
+@pytest.fixture
+def api(services: Services, tmp_path: Path) -> Iterator[Api]:
+    with api_with(services, tmp_path, webhook_secret=SECRET) as api:
+        api.post(
+            "/api/v1/components",
+            "admin",
+            {
+                "name": "builder",
+                "repo": "https://github.com/Org/Builder.git",
+                "branch": "main",
+                "suite": "perf/redline.toml",
+                "executions": 2,
+                "host_labels": ["quiet"],
+            },
+        ).raise_for_status()
+        yield api
+
+
+def test_github_push_creates_a_revision_per_commit_with_jobs_per_execution(api: Api):
+    answer = send_github(api, github_push())
+    assert answer.status_code == 200, answer.text
+    created = answer.json()["created"]
+    assert [r["title"] for r in created] == ["a" * 12, "b" * 12]
+    assert all(len(r["job_ids"]) == 2 for r in created)
+    # same commit time: the order in the push decides
+    assert created[0]["sort_key"] == "20261120T090000Z.0000" < created[1]["sort_key"]
+    listed = api.client.get("/api/v1/components/builder/revisions").json()
+    assert [(r["commit"], r["branch"]) for r in listed] == [("a" * 40, "main"), ("b" * 40, "main")]
+    with session_factory(api.settings.database_url)() as session:
+        assert {tuple(job.labels) for job in session.scalars(select(Job))} == {("quiet",)}
+
+
+def test_repeated_delivery_creates_nothing_twice(api: Api):
+    assert send_github(api, github_push()).status_code == 200
+    again = send_github(api, github_push())
+    assert again.status_code == 200 and again.json()["created"] == []
+    assert again.json()["existing"] == 2
+    assert counts(api) == (2, 4)
+
+
+def test_forged_signature_is_401_and_creates_nothing(api: Api):
+    answer = send_github(api, github_push(), secret="guessed")
+    assert answer.status_code == 401 and "signature" in answer.json()["detail"]
+    unsigned = api.client.post("/api/v1/webhooks/github", content=github_push())
+    assert unsigned.status_code == 401
+    assert counts(api) == (0, 0)
+
+
+def test_unknown_repository_or_other_branch_is_202_and_creates_nothing(api: Api):
+    answer = send_github(api, github_push(repo="https://github.com/org/ghost"))
+    assert answer.status_code == 202
+    assert answer.json()["detail"].startswith("no component matches")
+    other = send_github(api, github_push(ref="refs/heads/feature"))
+    assert other.status_code == 202 and "feature" in other.json()["detail"]
+    tag = send_github(api, github_push(ref="refs/tags/v1"))
+    assert tag.status_code == 202
+    assert counts(api) == (0, 0)
+
+
+def test_ping_is_acknowledged_and_ignored(api: Api):
+    answer = send_github(api, github_push(), event="ping")
+    assert answer.status_code == 202 and counts(api) == (0, 0)
+
+
+def test_component_secret_overrides_the_setting(api: Api):
+    api.client.patch(
+        "/api/v1/components/builder", json={"webhook_secret": "own"}, headers=api.tokens["admin"]
+    ).raise_for_status()
+    assert send_github(api, github_push()).status_code == 401
+    assert send_github(api, github_push(), secret="own").status_code == 200
+    shown = api.client.get("/api/v1/components/builder").json()
+    assert shown["has_webhook_secret"] is True and "webhook_secret" not in shown
+
+
+def test_gitlab_push_with_its_token_creates_revisions(api: Api):
+    body = json.dumps(
+        {
+            "object_kind": "push",
+            "ref": "refs/heads/main",
+            "commits": COMMITS[:1],
+            "project": {"git_ssh_url": "git@github.com:org/builder.git"},
+        }
+    )
+    headers = {"X-Gitlab-Event": "Push Hook", "Content-Type": "application/json"}
+    wrong = api.client.post(
+        "/api/v1/webhooks/gitlab", content=body, headers={**headers, "X-Gitlab-Token": "nope"}
+    )
+    assert wrong.status_code == 401 and counts(api) == (0, 0)
+    answer = api.client.post(
+        "/api/v1/webhooks/gitlab", content=body, headers={**headers, "X-Gitlab-Token": SECRET}
+    )
+    assert answer.status_code == 200 and len(answer.json()["created"]) == 1
+    assert counts(api) == (1, 2)
+
+
+def test_component_settings_are_created_patched_and_shown(api: Api):
+    shown = api.client.get("/api/v1/components/builder").json()
+    assert (shown["host_labels"], shown["executions"], shown["has_webhook_secret"]) == (
+        ["quiet"],
+        2,
+        False,
+    )
+    patched = api.client.patch(
+        "/api/v1/components/builder",
+        headers=api.tokens["admin"],
+        json={"branch": "develop", "executions": 3},
+    )
+    assert patched.status_code == 200
+    assert (patched.json()["branch"], patched.json()["suite"]) == ("develop", "perf/redline.toml")
+    denied = api.client.patch(
+        "/api/v1/components/builder", headers=api.tokens["ci"], json={"branch": "x"}
+    )
+    assert denied.status_code == 403
+    assert send_github(api, github_push()).status_code == 202  # main no longer matches

@@ -1,0 +1,129 @@
+"""The worker under trouble, on real Postgres: passing database outages are retried rather than
+failing the job, lost ingestions are queued again, concurrent detections of one revision take
+turns, and a revision whose samples were pruned keeps its stored results."""
+
+from __future__ import annotations
+
+import threading
+from datetime import timedelta
+
+import pytest
+from redline.server.core.tasks import REQUEUE_TASK
+from redline.server.models import Detection, Job, JobState, Regression, utcnow
+from redline.server.storage import samples_path
+from redline.worker import ingest as ingest_module
+from redline.worker.app import celery_app
+from redline.worker.detection import detect_revision
+from redline.worker.ingest import ingest_execution, stale_uploads
+from sqlalchemy import func, select, update
+from sqlalchemy.exc import OperationalError
+
+from tests.support.history import cpu_history, ingest_and_detect
+
+
+def _job(session, execution) -> Job:
+    session.expire_all()
+    return session.get(Job, execution.job_id)
+
+
+def test_a_passing_database_outage_leaves_the_job_uploaded_for_a_retry(
+    session, database_url, tmp_path, monkeypatch
+):
+    (execution,) = cpu_history(session, tmp_path, [20.0])
+
+    def outage(*_args):
+        raise OperationalError("SELECT 1", {}, Exception("server closed the connection"))
+
+    monkeypatch.setattr(ingest_module, "successor_with_data", outage)
+    with pytest.raises(OperationalError):
+        ingest_execution(database_url, execution.id)
+    job = _job(session, execution)
+    assert (job.state, job.reason) == (JobState.uploaded, "")
+    monkeypatch.undo()
+    assert ingest_execution(database_url, execution.id) == [execution.revision_id]
+    assert _job(session, execution).state == JobState.done
+
+
+def test_stale_uploads_are_requeued_periodically(session, database_url, tmp_path):
+    stuck, fresh, done = cpu_history(session, tmp_path, [20.0, 20.0, 20.0])
+    ingest_execution(database_url, done.id)
+    old = utcnow() - timedelta(hours=1)
+    session.execute(update(Job).where(Job.id.in_([stuck.job_id, done.job_id])).values(updated=old))
+    session.commit()
+    assert stale_uploads(session) == [stuck.id]
+    assert stale_uploads(session, older_than=timedelta(0)) == [stuck.id, fresh.id]
+    scheduled = {entry["task"] for entry in celery_app.conf.beat_schedule.values()}
+    celery_app.loader.import_default_modules()  # what a worker does as it starts (`include`)
+    assert REQUEUE_TASK in scheduled and scheduled <= set(celery_app.tasks)  # all known to it
+
+
+def _detections(session) -> list[tuple]:
+    session.expire_all()
+    return sorted(
+        session.execute(
+            select(
+                Detection.series_id,
+                Detection.revision_id,
+                Detection.method,
+                Detection.verdict,
+                Detection.score,
+                Detection.flagged,
+                Detection.baseline_revision_id,
+            )
+        ).all()
+    )
+
+
+def _counts(session) -> tuple[int, int]:
+    return (
+        session.scalar(
+            select(func.count())
+            .select_from(Detection)
+            .where(Detection.method == "ks", Detection.p_value.is_not(None))
+        ),
+        session.scalar(select(func.count()).select_from(Regression)),
+    )
+
+
+def _detect_at_once(
+    database_url: str, revision_id: int, barrier: threading.Barrier, errors: list[Exception]
+) -> None:
+    barrier.wait()
+    try:
+        detect_revision(database_url, revision_id)
+    except Exception as exc:  # noqa: BLE001 - reported by the test's assertion
+        errors.append(exc)
+
+
+def test_concurrent_detections_of_one_revision_both_succeed_as_one_would(
+    session, database_url, tmp_path
+):
+    executions = cpu_history(session, tmp_path, [20.0, 60.0], config={"methods": ["ks"]})
+    ingest_and_detect(database_url, executions)
+    single, counts = _detections(session), _counts(session)
+    revision_id = executions[1].revision_id
+    for _ in range(3):
+        barrier, errors = threading.Barrier(2), []
+        threads = [
+            threading.Thread(
+                target=_detect_at_once, args=(database_url, revision_id, barrier, errors)
+            )
+            for _ in range(2)
+        ]
+        for thread in threads:
+            thread.start()
+        for thread in threads:
+            thread.join()
+        assert errors == []
+        assert _detections(session) == single and _counts(session) == counts
+
+
+def test_revision_whose_samples_are_pruned_keeps_its_results(session, database_url, tmp_path):
+    executions = cpu_history(session, tmp_path, [20.0, 60.0], config={"methods": ["ks"]})
+    ingest_and_detect(database_url, executions)
+    before, counts = _detections(session), _counts(session)
+    assert any(row[5] for row in before) and counts[1] == 1  # r2 flagged, one regression
+    for execution in executions:
+        samples_path(execution.recording_path).unlink()  # retention
+    detect_revision(database_url, executions[1].revision_id)
+    assert _detections(session) == before and _counts(session) == counts

@@ -1,0 +1,147 @@
+"""A driver for the HTTP API through the real app, with settings of the test's choosing."""
+
+from __future__ import annotations
+
+import hashlib
+import uuid
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+from datetime import timedelta
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from fastapi.testclient import TestClient
+from redline.server.app import create_app
+from redline.server.core.config import Settings
+from redline.server.db import migrate, session_factory
+from redline.server.models import Job, utcnow
+from redline.server.services.tokens import issue_token
+from sqlalchemy import text, update
+
+from tests.support.history import TABLES
+from tests.support.recordings import write_recording
+from tests.support.servers import Services
+
+SCOPES = ("admin", "ci", "agent", "read")
+
+
+@dataclass
+class Api:
+    client: TestClient
+    settings: Settings
+    tokens: dict[str, dict[str, str]]  # scope -> Authorization header
+
+    def post(self, path: str, scope: str, body: dict) -> object:
+        return self.client.post(path, json=body, headers=self.tokens[scope])
+
+    def component(
+        self, name: str = "builder", executions: int = 1, host_labels: list[str] | None = None
+    ) -> None:
+        answer = self.post(
+            "/api/v1/components",
+            "admin",
+            {
+                "name": name,
+                "repo": f"https://git.example/{name}.git",
+                "suite": "perf/redline.toml",
+                "executions": executions,
+                "host_labels": host_labels or [],
+            },
+        )
+        assert answer.status_code == 201, answer.text
+
+    def revision(self, title: str, sort_key: str, component: str = "builder") -> dict:
+        answer = self.post(
+            "/api/v1/revisions",
+            "ci",
+            {"component": component, "title": title, "sort_key": sort_key, "commit": "abc123"},
+        )
+        assert answer.status_code == 201, answer.text
+        return answer.json()
+
+    def lease(self, host: str = "perf1") -> dict | None:
+        answer = self.post("/api/v1/agent/lease", "agent", {"host": host})
+        assert answer.status_code in (200, 204), answer.text
+        return answer.json() if answer.status_code == 200 else None
+
+    def upload(
+        self,
+        job_id: int,
+        data: bytes,
+        sha256: str | None = None,
+        host: str = "perf1",
+        scope: str = "agent",
+    ) -> object:
+        headers = {
+            **self.tokens[scope],
+            "X-Redline-Host": host,
+            "X-Redline-Sha256": sha256 or hashlib.sha256(data).hexdigest(),
+        }
+        return self.client.put(f"/api/v1/jobs/{job_id}/recording", content=data, headers=headers)
+
+    def job(self, job_id: int) -> dict:
+        with session_factory(self.settings.database_url)() as session:
+            title = session.get_one(Job, job_id).revision.title
+        detail = self.client.get(f"/api/v1/components/builder/revisions/{title}").json()
+        return next(job for job in detail["jobs"] if job["id"] == job_id)
+
+
+_MIGRATED: set[str] = set()
+
+
+def emptied_with_tokens(database_url: str) -> dict[str, dict[str, str]]:
+    """Empty the (migrated) database and issue one token per scope, named after it."""
+    with session_factory(database_url)() as session:
+        session.execute(text(f"TRUNCATE {TABLES} RESTART IDENTITY CASCADE"))
+        session.commit()
+        return {
+            scope: {"Authorization": f"Bearer {issue_token(session, scope, scope)[1]}"}
+            for scope in SCOPES
+        }
+
+
+@contextmanager
+def api_with(services: Services, tmp_path: Path, **settings: Any) -> Iterator[Api]:
+    """An app on an emptied, migrated database with one token per scope (named after it)."""
+    if services.database_url not in _MIGRATED:
+        migrate(services.database_url)
+        _MIGRATED.add(services.database_url)
+    config = Settings(
+        database_url=services.database_url,
+        redis_url=services.redis_url,
+        storage_dir=tmp_path / "storage",
+        queue=f"test-{uuid.uuid4().hex[:8]}",
+        **settings,
+    )
+    tokens = emptied_with_tokens(config.database_url)
+    with TestClient(create_app(config)) as client:
+        yield Api(client, config, tokens)
+
+
+def recording_for(job: dict, path: Path, cpu: float = 20.0, seed: int = 0, **run: str) -> bytes:
+    """A finished recording made for the leased ``job``; ``run`` overrides metadata fields."""
+    rng = np.random.default_rng(seed)
+    metadata = {
+        "job_id": str(job["id"]),
+        "component": job["component"],
+        "revision_title": job["revision"]["title"],
+        "revision_sort_key": job["revision"]["sort_key"],
+        "commit": job["commit"],
+        "execution_index": str(job["execution_index"]),
+        **run,
+    }
+    counters = {"cpu": rng.normal(cpu, cpu / 10, 150), "rss": rng.normal(5e7, 1e5, 150)}
+    return write_recording(path, metadata, counters).read_bytes()
+
+
+def expire_lease(api: Api, job_id: int) -> None:
+    """Make the job's lease lapse now, as if its host had gone quiet."""
+    with session_factory(api.settings.database_url)() as session:
+        session.execute(
+            update(Job)
+            .where(Job.id == job_id)
+            .values(lease_expires_at=utcnow() - timedelta(seconds=1))
+        )
+        session.commit()

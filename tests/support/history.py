@@ -1,0 +1,107 @@
+"""Revision histories stored as uploads would store them, on a test's database."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from redline.server.models import DetectionConfigRow, Execution, JobState
+from redline.server.schemas.components import ComponentCreate
+from redline.server.schemas.revisions import RevisionCreate
+from redline.server.services.components import create_component
+from redline.server.services.revisions import create_revision
+from redline.worker.detection import detect_revision
+from redline.worker.ingest import ingest_execution
+
+from tests.support.recordings import run_metadata, write_recording
+
+#: every table a test empties before it starts (detections and regressions go with CASCADE)
+TABLES = "summary, series, execution, job, revision, component, host, api_token"
+COMPONENT = "builder"
+
+
+def add_execution(
+    session,
+    tmp_path: Path,
+    component: str,
+    title: str,
+    sort_key: str,
+    counters: dict[str, np.ndarray],
+    **extra,
+) -> Execution:
+    """Report a revision and store a recording for its job, as an upload would."""
+    return add_executions(session, tmp_path, component, title, sort_key, [counters], **extra)[0]
+
+
+def add_executions(
+    session,
+    tmp_path: Path,
+    component: str,
+    title: str,
+    sort_key: str,
+    runs: list[Any],
+    record: Callable[..., Path] = write_recording,
+    **extra,
+) -> list[Execution]:
+    """Report a revision and store one recording per job (the component's ``executions``):
+    ``record(path, run_metadata, run, **extra)`` writes each, by default `write_recording`
+    with ``run`` the counters' samples."""
+    revision = create_revision(
+        session, RevisionCreate(component=component, title=title, sort_key=sort_key)
+    )
+    assert len(revision.jobs) == len(runs), "the component's executions per revision"
+    executions = []
+    for job, counters in zip(
+        sorted(revision.jobs, key=lambda j: j.execution_index), runs, strict=True
+    ):
+        name = f"{component}-{title}-{job.execution_index}"
+        path = record(
+            tmp_path / f"{name}.mcap",
+            run_metadata(job, component, title, sort_key),
+            counters,
+            **extra,
+        )
+        execution = Execution(
+            job_id=job.id,
+            revision_id=revision.id,
+            recording_path=str(path),
+            sha256=name.ljust(64, "0"),
+            size=path.stat().st_size,
+        )
+        job.state = JobState.uploaded
+        session.add(execution)
+        executions.append(execution)
+    session.commit()
+    return executions
+
+
+def cpu_history(
+    session,
+    tmp_path: Path,
+    cpus: list[np.ndarray | float],
+    seed: int = 7,
+    config: dict | None = None,
+) -> list[Execution]:
+    """Revisions r1.. of one component with a 'cpu' series; floats are means of 60 samples."""
+    component = create_component(session, ComponentCreate(name=COMPONENT))
+    if config is not None:
+        session.add(DetectionConfigRow(component_id=component.id, config=config))
+        session.commit()
+    rng = np.random.default_rng(seed)
+    executions = []
+    for number, cpu in enumerate(cpus, start=1):
+        values = rng.normal(cpu, cpu / 20, 60) if isinstance(cpu, float) else cpu
+        executions.append(
+            add_execution(session, tmp_path, COMPONENT, f"r{number}", str(number), {"cpu": values})
+        )
+    return executions
+
+
+def ingest_and_detect(database_url: str, executions: list[Execution]) -> None:
+    """Ingest every execution, then detect every revision, in that order."""
+    for execution in executions:
+        ingest_execution(database_url, execution.id)
+    for execution in executions:
+        detect_revision(database_url, execution.revision_id)

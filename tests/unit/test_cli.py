@@ -1,0 +1,156 @@
+"""The one `redline` command: agent commands always, the server's when redline-server is there."""
+
+from __future__ import annotations
+
+import os
+import re
+import subprocess
+import sys
+from collections.abc import Iterator
+from importlib import metadata
+from pathlib import Path
+
+import pytest
+import typer
+from redline.cli import main as cli
+from typer.core import TyperCommand, TyperGroup
+from typer.testing import CliRunner
+
+from tests.support import ROOT
+
+AGENT_ONLY = """
+import importlib.metadata as md, sys
+real = md.distribution
+def distribution(name):
+    if name == "redline-server":
+        raise md.PackageNotFoundError(name)
+    return real(name)
+md.distribution = distribution
+for blocked in ("redline.server", "redline.detect", "redline.worker", "scipy", "fastapi"):
+    sys.modules[blocked] = None  # as if only redline-agent were installed
+from redline.cli.main import main
+sys.argv = ["redline", "--help"]
+main()
+"""
+
+
+def test_without_the_server_distribution_only_agent_commands_are_offered():
+    done = subprocess.run([sys.executable, "-c", AGENT_ONLY], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    assert " run " in done.stdout and " agent " in done.stdout
+    assert " server " not in done.stdout and " compare " not in done.stdout
+
+
+def test_with_the_server_distribution_every_command_is_offered(monkeypatch: pytest.MonkeyPatch):
+    assert cli.server_installed()
+    assert set(cli._SERVER_COMMANDS) <= set(cli.command_modules())
+    monkeypatch.setattr(metadata, "distribution", _missing)
+    assert cli.command_modules() == cli._AGENT_COMMANDS
+
+
+def _missing(name: str) -> None:
+    raise metadata.PackageNotFoundError(name)
+
+
+# Libraries that only some commands' bodies need; building the CLI must not load them.
+HEAVY = (
+    "scipy",
+    "pandas",
+    "numpy",
+    "sqlalchemy",
+    "fastapi",
+    "celery",
+    "plotly",
+    "pyarrow",
+    "pydantic_settings",
+    "sklearn",
+)
+LOADED = """
+import sys
+from redline.cli.main import main
+sys.argv = ["redline", *sys.argv[1:]]
+try:
+    main()
+except SystemExit:
+    pass
+print("loaded:", *sorted({name.partition(".")[0] for name in sys.modules}), file=sys.stderr)
+"""
+ECHO_SUITE = ROOT / "examples" / "echo" / "perf" / "redline.toml"
+
+
+def _loaded(*args: str) -> tuple[list[str], subprocess.CompletedProcess[str]]:
+    """Run `redline ARGS` in a fresh interpreter; which of HEAVY and zenoh it had imported."""
+    done = subprocess.run(
+        [sys.executable, "-c", LOADED, *args],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env={**os.environ, "COLUMNS": "1000"},  # a long path in a message stays on one line
+    )
+    marker = [line for line in done.stderr.splitlines() if line.startswith("loaded:")]
+    assert marker, done.stderr
+    loaded = set(marker[-1].split()[1:])
+    return sorted(loaded & {*HEAVY, "zenoh"}), done
+
+
+@pytest.mark.parametrize("args", [["--help"], ["run", "--help"], ["compare", "--help"]])
+def test_help_loads_none_of_the_service_libraries(args: list[str]) -> None:
+    loaded, done = _loaded(*args)
+    assert "Usage" in done.stdout
+    assert loaded == [], f"`redline {' '.join(args)}` imported {loaded}"
+
+
+def test_a_bad_suite_is_reported_with_its_line_before_any_service_library_loads(
+    tmp_path: Path,
+) -> None:
+    suite = tmp_path / "redline.toml"  # the echo example's, with a misspelt field
+    suite.write_text(ECHO_SUITE.read_text().replace("sampling_hz", "sampling_rate"))
+    loaded, done = _loaded("run", str(suite), "--out", str(tmp_path / "x.mcap"))
+    error = " ".join(done.stderr.split())
+    assert re.search(rf"{re.escape(str(suite))}:\d+: unknown field 'sampling_rate'", error), error
+    assert set(loaded) <= {"zenoh"}, f"a bad suite file imported {loaded}"
+
+
+Command = TyperCommand | TyperGroup
+
+
+def _commands(
+    command: Command, path: tuple[str, ...] = ()
+) -> Iterator[tuple[tuple[str, ...], Command]]:
+    """Every command of the tree under ``command``, with the words that reach it."""
+    if isinstance(command, TyperGroup):
+        for name, sub in command.commands.items():
+            yield from _commands(sub, (*path, name))
+    else:
+        yield path, command
+
+
+def test_every_command_declares_its_options_and_its_help_lists_each() -> None:
+    cli._register_all()
+    commands = list(_commands(typer.main.get_command(cli.app)))
+    assert {path[0] for path, _ in commands} >= {"run", "agent", "compare", "evaluate", "up"}
+    for path, command in commands:
+        # An option Click does not know of can be neither listed nor named when it is missing.
+        assert not command.context_settings.get("ignore_unknown_options"), path
+        shown = CliRunner().invoke(cli.app, [*path, "--help"], env={"COLUMNS": "200"})
+        assert shown.exit_code == 0, (path, shown.output)
+        for param in command.params:
+            option = param.param_type_name == "option"
+            names = [*param.opts, *param.secondary_opts] if option else [param.name]
+            for name in names:
+                assert name in shown.output, f"`redline {' '.join(path)} --help` omits {name}"
+
+
+def test_a_run_stopped_before_anything_was_recorded_says_so(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    import signal
+    import time
+
+    from redline.cli import run_cmd
+
+    with pytest.raises(typer.Exit) as stopped:
+        run_cmd._stopped_by(signal.SIGTERM, tmp_path / "run.mcap", time.time())
+    assert stopped.value.exit_code == 143
+    said = " ".join(capsys.readouterr().err.split())
+    assert "terminated by SIGTERM" in said and "before anything was recorded" in said

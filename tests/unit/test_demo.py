@@ -1,0 +1,25 @@
+"""What the demo prints and how its wait ends, without a stack."""
+
+from __future__ import annotations
+
+import threading
+
+from redline.commands import demo
+
+
+def test_the_demo_prints_a_change_whose_effect_is_undefined():
+    change = {
+        "revision": "r3",
+        "series": {"label": "case/main [legs=8] p.cpu_system_percent"},
+        "effect": None,
+        "score": 0.95,
+    }
+    assert demo.change_line(change) == (
+        "r3: case/main [legs=8] p.cpu_system_percent effect n/a (KS D=0.95)"
+    )
+
+
+def test_the_demos_wait_ends_at_once_when_stopped():
+    stop = threading.Event()
+    stop.set()  # Ctrl-C while the revisions run: the demo must stop waiting, not finish them
+    assert demo.wait_for_results("http://127.0.0.1:9", print, stop=stop) == []

@@ -1,0 +1,187 @@
+"""The execution-level default detector, the ``recent`` baseline policy, and the evaluation
+walking a history as the service does (pure: synthetic arrays, milliseconds)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pandas as pd
+import pytest
+from redline.detect.baseline import recent_depth
+from redline.detect.corpus import Corpus, SeriesLabel, first_executions
+from redline.detect.evaluate import walk
+from redline.detect.execution_shift import BuildShift, ExecutionShift, execution_values, values_for
+from redline.detect.methods import WelchT
+from redline.detect.result import CHANGE, NO_CHANGE, NOT_ENOUGH_DATA
+
+
+def _executions(
+    rng: np.random.Generator, level: float, count: int, between: float = 0.05, samples: int = 20
+) -> list[np.ndarray]:
+    """``count`` executions: each has its own level (5 % run-to-run noise) and noisy samples."""
+    return [
+        rng.normal(level * (1 + rng.normal(0, between)), level * 0.15, samples)
+        for _ in range(count)
+    ]
+
+
+def test_execution_values_are_medians_so_one_spike_does_not_move_them() -> None:
+    spiky = np.array([15.0] * 19 + [375.0])  # a descheduled sampler's one spike
+    assert execution_values([spiky, np.array([1.0, 2.0, 30.0])]).tolist() == [15.0, 2.0]
+    assert math.isnan(execution_values([np.array([])])[0])
+
+
+def test_flags_a_30_percent_shift_of_executions_but_not_run_to_run_noise() -> None:
+    rng = np.random.default_rng(3)
+    baseline = execution_values(_executions(rng, 15.0, 15))
+    raised = ExecutionShift().compare(baseline, execution_values(_executions(rng, 19.5, 5)))
+    same = ExecutionShift().compare(baseline, execution_values(_executions(rng, 15.0, 5)))
+    assert raised.verdict == CHANGE and raised.direction == "increase"
+    assert raised.effect == pytest.approx(0.3, abs=0.08)
+    assert same.verdict == NO_CHANGE and same.score < 1 <= raised.score
+
+
+def test_pooled_samples_call_a_busier_run_significant_where_executions_do_not() -> None:
+    """Why the default judges executions: one candidate execution 8 % busier than the rest is
+    run-to-run noise; welch_t on pooled samples sees 20 tightly spread samples and flags it."""
+    rng = np.random.default_rng(11)
+    base_runs = [rng.normal(level, 0.3, 20) for level in (15.0, 15.6, 14.5, 15.2, 14.8, 15.4)]
+    busier = [rng.normal(16.3, 0.3, 20)]
+    assert WelchT().compare(np.concatenate(base_runs), busier[0]).flagged
+    found = ExecutionShift().compare(execution_values(base_runs), execution_values(busier))
+    assert found.verdict == NO_CHANGE, found
+
+
+def test_score_is_one_exactly_where_both_margins_are_met() -> None:
+    baseline = np.array([100.0, 100.2, 99.8, 100.1, 99.9, 100.0, 100.2, 99.8, 100.1])
+    # spread = max(MAD, 1 % of 100) = 1: +3 gives z = 4.5, above the threshold
+    detector = ExecutionShift(threshold=4.0, min_effect=0.05)
+    tiny = detector.compare(baseline, np.array([103.0, 103, 103]))  # z large, effect 3 %
+    assert tiny.verdict == NO_CHANGE and "below the floor 0.05" in tiny.reason
+    assert tiny.score == pytest.approx(0.03 / 0.05)
+    big = detector.compare(baseline, np.array([120.0, 121, 119]))
+    assert big.verdict == CHANGE and big.score >= 1
+
+
+def test_a_constant_count_that_moves_by_one_is_a_change() -> None:
+    found = ExecutionShift().compare(np.full(15, 12.0), np.full(5, 13.0))  # one more thread
+    assert found.verdict == CHANGE and found.effect == pytest.approx(1 / 12)
+
+
+@pytest.mark.parametrize(
+    ("baseline", "candidate", "reason"),
+    [
+        (None, [1.0], "missing baseline"),
+        ([15.0, 15.2, 14.9], [20.0], "baseline has 3, needs at least 6 (3 more to come)"),
+        ([15.0] * 8, [15.0], "constant series"),
+        ([15.0, 15.2, 14.9, 15.1, 15.3, math.inf], [20.0], "baseline contains NaN/inf"),
+        ([15.0, 15.2, 14.9, 15.1, 15.3, 15.0], [math.nan], "candidate contains NaN/inf"),
+    ],
+)
+def test_bad_input_is_not_enough_data_naming_what_is_missing(baseline, candidate, reason):
+    found = ExecutionShift().compare(baseline, candidate)
+    assert found.verdict == NOT_ENOUGH_DATA and reason in found.reason
+    assert found.score == 0 and not found.flagged
+
+
+def test_values_for_pools_samples_or_reduces_executions_by_the_detector_level() -> None:
+    runs = [np.array([1.0, 2.0, 9.0]), np.array([4.0, 5.0]), np.array([7.0])]
+    assert values_for(WelchT(), runs).tolist() == [1.0, 2.0, 9.0, 4.0, 5.0, 7.0]
+    assert values_for(ExecutionShift(), runs).tolist() == [2.0, 4.5, 7.0]
+    assert values_for(BuildShift(), runs).tolist() == [4.5]
+
+
+def test_build_shift_judges_revisions_so_noise_shared_by_a_revision_is_not_a_change() -> None:
+    """Executions of one revision share the host's state: this candidate's five agree with each
+    other but sit 8 % above; revisions before it moved as much. Judged per execution the
+    agreement looks significant; judged per revision it is one more ordinary revision."""
+    rng = np.random.default_rng(8)
+    levels = [15.0, 16.1, 14.6, 15.5, 14.3, 15.9, 14.8, 16.0, 15.2, 14.7]
+    history = [[rng.normal(level, 0.1, 20) for _ in range(5)] for level in levels]
+    candidate = [rng.normal(16.4, 0.1, 20) for _ in range(5)]
+    for detector, verdict in (
+        (ExecutionShift(threshold=3), CHANGE),
+        (BuildShift(threshold=3), NO_CHANGE),
+    ):
+        baseline = np.concatenate(
+            [values_for(detector, runs) for runs in history[-5:]]
+            if detector.level == "execution"
+            else [values_for(detector, runs) for runs in history]
+        )
+        assert detector.compare(baseline, values_for(detector, candidate)).verdict == verdict
+
+
+@pytest.mark.parametrize(
+    ("sizes", "need", "window", "flagged_at", "depth"),
+    [
+        ([3, 3, 3, 3, 3, 3], 15, 10, None, 5),  # pooled until 15 values
+        ([3, 3, 3, 3, 3, 3], 15, 4, None, 4),  # at most `window` revisions
+        ([3, 3, 3, 3, 3, 3], 15, 10, 1, 2),  # restarts at the flagged revision, which it keeps
+        ([3, 3], 15, 10, None, 2),  # the history runs out
+        ([60, 60], 12, 10, None, 1),  # one revision of samples is enough for a sample method
+        ([], 12, 10, None, 0),
+    ],
+)
+def test_recent_baseline_depth(sizes, need, window, flagged_at, depth) -> None:
+    assert recent_depth(sizes, need, window, flagged_at) == depth
+
+
+def _step_corpus(executions: int = 5) -> Corpus:
+    """One series of 16 builds, 15 % CPU stepping to 19.5 % (+30 %) at build 8."""
+    rng = np.random.default_rng(5)
+    rows = []
+    for build in range(16):
+        level = 19.5 if build >= 8 else 15.0
+        for number, values in enumerate(_executions(rng, level, executions, between=0.03)):
+            rows += [("cpu", build, number, float(v)) for v in values]
+    frame = pd.DataFrame(rows, columns=["series", "build", "execution", "value"])
+    return Corpus("step", frame, {"cpu": SeriesLabel("regression", 8)})
+
+
+def test_evaluation_restarts_the_baseline_after_a_flag_so_later_builds_are_not_flagged() -> None:
+    judged = list(walk(ExecutionShift(), _step_corpus()))
+    flagged = [unit.build for unit, found in judged if found.flagged]
+    assert flagged == [8]
+    after = {unit.build: unit for unit, _ in judged}
+    assert len(after[9].baseline) == 5  # build 8's five executions only
+    assert len(after[10].baseline) == 10  # builds 8 and 9: it stops at the flagged build
+    assert len(after[12].baseline) == 15  # builds 9..11 hold the 15 values it needs
+    assert len(after[7].baseline) == 15  # before the change: 3 builds x 5 executions
+
+
+def test_without_a_restart_the_build_after_a_change_would_be_flagged_again() -> None:
+    """The reason for the restart: judged against the old level, build 9 also 'changed'."""
+    corpus = _step_corpus()
+    judged = {unit.build: unit for unit, _ in walk(ExecutionShift(), corpus)}
+    old_level = judged[8].baseline  # builds 5..7, before the change
+    nine = execution_values(
+        [
+            g["value"].to_numpy()
+            for _, g in corpus.measurements.query("build == 9").groupby("execution")
+        ]
+    )
+    assert ExecutionShift().compare(old_level, nine).flagged
+
+
+def test_first_executions_keeps_that_many_per_build() -> None:
+    cut = first_executions(_step_corpus(), 3)
+    assert set(cut.measurements.groupby("build")["execution"].nunique()) == {3}
+    assert set(cut.measurements["execution"]) == {0, 1, 2}
+
+
+@pytest.mark.parametrize("bad", [math.nan, math.inf, -math.inf])
+def test_an_execution_with_a_non_finite_sample_is_named_not_hidden_by_its_median(bad) -> None:
+    runs = [np.array([15.0, 15.2, bad, 14.9, 15.1])]
+    assert math.isnan(execution_values(runs)[0])
+    found = ExecutionShift().compare(np.linspace(14, 16, 15), execution_values(runs))
+    assert found.verdict == NOT_ENOUGH_DATA and "candidate contains NaN/inf" in found.reason
+
+
+def test_the_fast_median_equals_numpys() -> None:
+    from redline.detect.median_shift import median
+
+    rng = np.random.default_rng(0)
+    for size in (1, 2, 3, 10, 11, 60):
+        values = rng.normal(0, 1, size)
+        assert median(values) == pytest.approx(float(np.median(values)), abs=0)

@@ -1,0 +1,67 @@
+"""The signal guard of a run: a signal becomes an exception in the main thread, never inside a
+held section, and the handlers the caller had are given back (in this process, no run)."""
+
+from __future__ import annotations
+
+import signal
+
+import pytest
+from redline.agent.interrupts import Terminated, signals_as_exceptions
+
+
+def test_the_guard_raises_in_the_main_thread_and_restores_the_handlers() -> None:
+    before = signal.getsignal(signal.SIGTERM)
+    with pytest.raises(Terminated) as caught, signals_as_exceptions():
+        signal.raise_signal(signal.SIGTERM)  # delivered to this thread before it returns
+        pytest.fail("the signal did not interrupt")
+    assert caught.value.signal_name == "SIGTERM"
+    assert signal.getsignal(signal.SIGTERM) is before
+
+
+def test_a_signal_in_a_held_section_is_raised_when_the_section_ends() -> None:
+    finished = []
+    with pytest.raises(Terminated), signals_as_exceptions() as guard:
+        with guard.held():
+            signal.raise_signal(signal.SIGHUP)
+            finished.append("held section")
+        finished.append("after it")
+    assert finished == ["held section"]
+
+
+def test_a_signal_while_stopping_is_raised_once_everything_is_stopped() -> None:
+    finished = []
+    with pytest.raises(KeyboardInterrupt), signals_as_exceptions() as guard:
+        guard.stopping()
+        signal.raise_signal(signal.SIGINT)
+        finished.append("shut down")
+    assert finished == ["shut down"]
+
+
+def test_a_callers_own_handler_runs_but_never_inside_a_held_section() -> None:
+    caught: list[int] = []
+
+    def own(signum: int, _frame: object) -> None:
+        caught.append(signum)
+
+    previous = signal.signal(signal.SIGTERM, own)
+    try:
+        with signals_as_exceptions() as guard:
+            signal.raise_signal(signal.SIGTERM)
+            assert caught == [signal.SIGTERM]  # at once, and the run goes on
+            with guard.held():
+                signal.raise_signal(signal.SIGTERM)
+                assert caught == [signal.SIGTERM]
+            assert caught == [signal.SIGTERM] * 2
+        assert signal.getsignal(signal.SIGTERM) is own
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def test_an_ignored_signal_stays_ignored() -> None:
+    previous = signal.signal(signal.SIGHUP, signal.SIG_IGN)
+    try:
+        with signals_as_exceptions():
+            assert signal.getsignal(signal.SIGHUP) is signal.SIG_IGN
+            signal.raise_signal(signal.SIGHUP)
+    finally:
+        signal.signal(signal.SIGHUP, previous)

@@ -1,0 +1,77 @@
+"""Choosing what a run executes (--only, --param) and how the recordings of several executions
+are named (running them: tests/integration/test_runner.py)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+from redline.agent.runner import execution_paths
+from redline.agent.selection import parse_overrides, select_cases
+from redline.testing import Cartesian, Param, Phase, Static, TestCase, ValidationError
+
+from tests.support import ROOT
+
+ECHO = ROOT / "examples" / "echo" / "perf" / "redline.toml"
+
+LOAD = TestCase("load", [Phase("p", Param("rate"))], Cartesian(legs=[2, 8], rate=[10, 40]))
+IDLE = TestCase("idle", [Phase("p", Static(1))])
+
+
+def test_parse_overrides_reads_json_values_and_falls_back_to_text() -> None:
+    assert parse_overrides(["rate=40", "mode=fast", "scale=0.5", "on=true"]) == {
+        "rate": 40,
+        "mode": "fast",
+        "scale": 0.5,
+        "on": True,
+    }
+    with pytest.raises(ValidationError, match="expected NAME=VALUE"):
+        parse_overrides(["rate"])
+
+
+def test_only_keeps_the_named_cases_in_suite_order() -> None:
+    assert [c.name for c in select_cases([LOAD, IDLE], ["idle"])] == ["idle"]
+    assert [c.name for c in select_cases([LOAD, IDLE])] == ["load", "idle"]
+
+
+def test_unknown_case_and_unused_parameter_are_all_named() -> None:
+    with pytest.raises(ValidationError) as caught:
+        select_cases([LOAD, IDLE], ["lod"], {"rat": 1})
+    assert len(caught.value.problems) == 2
+    assert "--only 'lod': no such test case (the suite has: load, idle)" in str(caught.value)
+    assert "--param 'rat': no chosen test case uses this parameter" in str(caught.value)
+
+
+def test_override_replaces_a_value_in_every_set_and_runs_equal_sets_once() -> None:
+    load, idle = select_cases([LOAD, IDLE], overrides={"rate": 25})
+    assert [s.name for s in load.parameter_sets()] == ["legs=2,rate=25", "legs=8,rate=25"]
+    assert idle is IDLE  # it does not use 'rate', so it is left as it is
+
+
+def test_execution_paths_number_the_recordings_when_there_are_several() -> None:
+    assert execution_paths(Path("out.mcap"), 1) == [Path("out.mcap")]
+    assert execution_paths(Path("d/out.mcap"), 2) == [Path("d/out-1.mcap"), Path("d/out-2.mcap")]
+
+
+def test_redline_run_names_an_unknown_case_and_parameter_and_starts_nothing(tmp_path: Path) -> None:
+    from redline.cli.main import _register_all, app
+    from typer.testing import CliRunner
+
+    _register_all()
+    result = CliRunner().invoke(
+        app,
+        [
+            "run",
+            str(ECHO),
+            "--out",
+            str(tmp_path / "x.mcap"),
+            "--only",
+            "pong",
+            "--param",
+            "sped=2",
+        ],
+    )
+    assert result.exit_code == 1
+    assert "--only 'pong': no such test case (the suite has: ping, relay, replay)" in result.output
+    assert "--param 'sped'" in result.output
+    assert not (tmp_path / "x.mcap").exists()

@@ -1,0 +1,69 @@
+"""Judging one series, the detection configuration and the worker's sample cache, without a
+database: arrays in, verdicts out."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from redline.detect.config import ConfigError, DetectionConfig
+from redline.detect.methods import KolmogorovSmirnov
+from redline.detect.verdict import judge_series
+from redline.worker.samples import SampleCache
+
+
+class _Broken(KolmogorovSmirnov):
+    def _detect(self, base: np.ndarray, cand: np.ndarray):  # noqa: ANN202
+        raise RuntimeError("boom")
+
+
+def test_a_failing_method_is_a_verdict_naming_the_error_not_an_exception():
+    verdict = judge_series(_Broken(), "cpu", np.arange(10.0), np.arange(10.0) + 5)
+    assert verdict.verdict == "not enough data" and "RuntimeError: boom" in verdict.reason
+
+
+def test_the_absolute_floor_keeps_a_tiny_significant_change_quiet():
+    rng = np.random.default_rng(1)
+    base, cand = rng.normal(4.0, 0.05, 200), rng.normal(4.6, 0.05, 200)
+    assert judge_series(KolmogorovSmirnov(), "x", base, cand).flagged
+    quiet = judge_series(KolmogorovSmirnov(), "small_cpu_percent", base, cand)
+    assert quiet.verdict == "no change" and "absolute floor" in quiet.reason
+
+
+@pytest.mark.parametrize(
+    ("config", "field"),
+    [
+        ({"methods": ["e_divisive"]}, "methods"),
+        ({"baseline": "last"}, "baseline"),
+        ({"baseline": "pinned"}, "pinned"),
+        ({"thresholds": {"ks": {"beta": 1}}}, "thresholds.ks"),
+        ({"window": 0}, "window"),
+    ],
+)
+def test_bad_configuration_names_the_field(config, field):
+    with pytest.raises(ConfigError, match=field):
+        DetectionConfig.parse(config)
+
+
+def test_median_shift_ignores_a_few_huge_outliers_that_move_the_mean():
+    from redline.detect.median_shift import MedianShift
+    from redline.detect.methods import WelchT
+
+    rng = np.random.default_rng(2)
+    base = rng.normal(15.0, 0.5, 60)
+    cand = rng.normal(15.0, 0.5, 60)
+    cand[:2] = 375.0  # a descheduled sampler's spike, as seen in corpus 2
+    assert MedianShift().compare(base, cand).verdict == "no change"
+    assert WelchT().compare(np.r_[base, base], cand).effect > 0.5  # the mean moved 80 %
+    shifted = MedianShift().compare(base, base * 1.2)
+    assert shifted.flagged and shifted.effect == pytest.approx(0.2, abs=0.01)
+    assert MedianShift().compare(base, cand[:3]).verdict == "not enough data"
+
+
+def test_sample_cache_keeps_only_the_newest_revisions_it_is_sized_for():
+    cache = SampleCache(3)
+    for revision_id in range(1, 7):
+        cache.put(revision_id, {1: [np.full(2, float(revision_id))]})
+    assert list(cache.entries) == [4, 5, 6]
+    assert cache.get(None, 5)[1][0].tolist() == [5.0, 5.0]  # a hit reads nothing
+    cache.put(5, {1: [np.zeros(1)]})  # replacing keeps the bound
+    assert len(cache.entries) == 3 and cache.get(None, 5)[1][0].tolist() == [0.0]
