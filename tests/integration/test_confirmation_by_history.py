@@ -60,7 +60,7 @@ def test_a_change_is_suspected_then_confirmed_when_the_next_revisions_keep_it(
     _judge(session, database_url, tmp_path, [20.0] * 4 + [30.0])
     (regression,) = session.scalars(select(Regression))
     assert regression.confirmation == "suspected"
-    assert "waiting for 2 later revision(s)" in regression.confirmation_reason
+    assert "still suspected: waiting for 2 more revision(s)" in regression.confirmation_reason
     assert _flagged(session)["r5"].confirmation == "suspected"
     _judge(session, database_url, tmp_path, [30.0], start=6)
     assert session.scalars(select(Regression)).one().confirmation == "suspected"  # 1 of 2

@@ -5,7 +5,7 @@ ingest → KS detection → API and trend page. The example's history has a base
 that leaves the code's work alone, and one doing three times the work per leg pair. The demo
 configures KS's floor at 50 % (`demo.DEMO_KS_FLOOR`): with one execution per revision, the same
 code's CPU is bimodal on these VMs (-18.6 % once flagged the unchanged revision at the 10 %
-default), while the tripled work must move it by more than 80 %.
+default), while the tripled work moves it by +60 % or more (+69 % to +113 % seen).
 
 Serial: it judges the component's CPU, which other tests' load would move.
 """
@@ -100,7 +100,12 @@ def test_tripled_work_is_flagged_by_ks_and_unchanged_code_is_not(history: Histor
     # every rate; at 2 legs fixed per-message overhead hides much of it.
     heavy = [c for c in regressed if c["series"]["params"].get("legs") == 8]
     assert len(heavy) == 2, json.dumps(regressed, indent=1)
-    assert all(c["flagged"] and c["effect"] > 0.8 for c in heavy), json.dumps(heavy, indent=1)
+    # One execution a revision: the same code's CPU moves 8-20 % between executions on these
+    # VMs (docs/detection.md, "A quiet host"), so the tripled work's +100 % or so shows anywhere
+    # from about +60 %; what must hold is that it clears the demo's 50 % floor and is flagged.
+    assert all(c["flagged"] and c["effect"] > demo.DEMO_KS_FLOOR for c in heavy), json.dumps(
+        heavy, indent=1
+    )
     unchanged = _cpu_changes(history.changes, history.unchanged.title)
     assert unchanged, "the unchanged revision was compared with its baseline"
     assert not [c for c in unchanged if c["flagged"]], json.dumps(unchanged, indent=1)

@@ -184,4 +184,4 @@ def test_component_page_lists_regressions_with_their_state(api, database_url, tm
     table = page.split('id="regressions"', 1)[1].split("</table>", 1)[0]
     assert "<td>r1</td><td>r2</td>" in table and "state-new" in table
     # r2 is the newest revision: its change waits for two later ones to confirm it
-    assert "confirmation-suspected" in table and "waiting for 2 later revision(s)" in table
+    assert "confirmation-suspected" in table and "waiting for 2 more revision(s) after it" in table

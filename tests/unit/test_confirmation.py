@@ -62,3 +62,20 @@ def test_the_wait_is_part_of_a_components_configuration() -> None:
         DetectionConfig.parse({"confirm_revisions": 11})
     with pytest.raises(ConfigError, match="confirm_revisions: must be a whole number"):
         DetectionConfig.parse({"confirm_revisions": "2"})
+
+
+def test_pairs_confirm_a_change_most_of_them_show_and_name_what_did_not_run() -> None:
+    from redline.detect.confirmation import pairs_hold
+
+    shown = pairs_hold([(100.0, 131.0), (101.0, 128.0), (99.0, 100.0)], "increase", 0.3, 3)
+    assert shown.state == HELD and "confirmed by 2 of 3 pairs" in shown.reason
+    assert "+31.0 %" in shown.reason and "flagged +30.0 %" in shown.reason
+    spike = pairs_hold([(100.0, 101.0), (100.0, 131.0)], "increase", 0.3, 2)
+    assert spike.state == DROPPED and "showed in 1 of 2 pairs" in spike.reason
+    fall = pairs_hold([(100.0, 80.0), (100.0, 82.0)], "decrease", -0.2, 2)
+    assert fall.state == HELD
+    assert pairs_hold([(100.0, 80.0)], "increase", 0.2, 1).state == DROPPED  # the other way
+    partial = pairs_hold([(100.0, 130.0), (math.nan, 129.0)], "increase", 0.3, 2)
+    assert partial.state == HELD and "1 pair(s) did not run" in partial.reason
+    none = pairs_hold([], "increase", 0.3, 2)
+    assert none.state == DROPPED and "none of the 2 confirmation pair(s) ran" in none.reason

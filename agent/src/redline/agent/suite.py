@@ -51,6 +51,7 @@ from typing import Any
 
 from redline.agent.affinity import Affinity, parse_affinity, parse_cores
 from redline.agent.network import TRANSPORTS
+from redline.agent.placeholders import PLACEHOLDERS, substitute, unknown_placeholders
 from redline.recording.driver import DRIVER_PROCESS, RECORDER_PROCESS
 from redline.recording.format import HOST_PROCESS, OWN_PROCESS
 
@@ -67,10 +68,6 @@ _TOP = {
 }
 _PROCESS = {"name", "command", "env", "cwd", "ready", "start_timeout", "stop_timeout", "cpus"}
 _READY = {"log", "delay", "key", "liveliness"}
-#: The placeholders a command may hold, and what each stands for (see the module docstring).
-PLACEHOLDERS = {"zenoh_config": "the path of the run's zenoh configuration file"}
-# {{name}} (a literal {name}) or {name} not preceded by '$' (that is the shell's ${NAME})
-_PLACEHOLDER = re.compile(r"\{\{([A-Za-z_]\w*)\}\}|(?<!\$)\{([A-Za-z_]\w*)\}")
 
 
 #: process names Redline records its own series under: the host, its own processes, the driver
@@ -105,23 +102,7 @@ class ProcessSpec:
 
     def expanded(self, values: Mapping[str, str]) -> ProcessSpec:
         """This process with the placeholders of its command replaced by ``values``."""
-        return replace(
-            self,
-            command=tuple(
-                _PLACEHOLDER.sub(lambda m: f"{{{m[1]}}}" if m[1] else values[m[2]], arg)
-                for arg in self.command
-            ),
-        )
-
-
-def unknown_placeholders(command: tuple[str, ...]) -> list[str]:
-    """The ``{name}``s in a command that are not known placeholders."""
-    return [
-        m[2]
-        for arg in command
-        for m in _PLACEHOLDER.finditer(arg)
-        if m[2] and m[2] not in PLACEHOLDERS
-    ]
+        return replace(self, command=substitute(self.command, values))
 
 
 @dataclass(frozen=True)

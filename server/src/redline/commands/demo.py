@@ -122,7 +122,7 @@ def submit(
     # One execution per revision on whatever host runs the demo: on the 2-core VMs Redline is
     # built on, one execution's CPU is bimodal for the same code (about 12-15 % or 19 %; see
     # docs/detection.md, corpus 2), far over KS's 10 % floor. The demo's regression triples the
-    # work (the e2e test asserts +80 % and more), so a 50 % floor keeps most of the noise out
+    # work (+69 % to +113 % measured at 8 legs), so a 50 % floor keeps most of the noise out
     # and the regression in.
     answer = httpx.put(
         f"{url}/api/v1/components/{COMPONENT}/detection-config",

@@ -25,6 +25,7 @@ DEFAULT_METHODS: tuple[str, ...] = tuple(dict.fromkeys((DEFAULT_METHOD, CHARTED_
 BASELINES = ("recent", "previous", "window", "pinned")
 MAX_WINDOW = 50
 MAX_CONFIRM_REVISIONS = 10
+MAX_CONFIRM_PAIRS = 10
 
 
 class ConfigError(ValueError):
@@ -52,6 +53,9 @@ class DetectionConfig:
     unchanged code: docs/detection.md).
     ``confirm_revisions``: later revisions a flagged change must hold over before its
     regression is confirmed (`redline.detect.confirmation`; 0: confirmed when flagged).
+    ``confirm_pairs``: when a revision's change is flagged, run it and its baseline revision
+    again this many times each, interleaved on one host, and judge the pairs
+    (`redline.worker.confirm_runs`; 0: off, the history confirms).
     """
 
     methods: tuple[str, ...] = DEFAULT_METHODS
@@ -62,6 +66,7 @@ class DetectionConfig:
     context_counters: tuple[str, ...] = CONTEXT_COUNTERS
     confirm_revisions: int = DEFAULT_CONFIRM_REVISIONS
     alarm_methods: tuple[str, ...] = ()
+    confirm_pairs: int = 0
 
     @classmethod
     def parse(cls, data: Mapping[str, Any] | None) -> DetectionConfig:
@@ -76,6 +81,7 @@ class DetectionConfig:
             "context_counters",
             "confirm_revisions",
             "alarm_methods",
+            "confirm_pairs",
         }
         if unknown:
             raise ConfigError(f"unknown field(s) {sorted(unknown)}")
@@ -88,6 +94,7 @@ class DetectionConfig:
             thresholds={str(k): dict(v) for k, v in thresholds.items()},
             context_counters=tuple(str(c) for c in data.get("context_counters", CONTEXT_COUNTERS)),
             alarm_methods=tuple(str(m) for m in data.get("alarm_methods") or ()),
+            confirm_pairs=_integer(data.get("confirm_pairs", 0), "confirm_pairs"),
             confirm_revisions=_integer(
                 data.get("confirm_revisions", DEFAULT_CONFIRM_REVISIONS), "confirm_revisions"
             ),
@@ -112,6 +119,10 @@ class DetectionConfig:
         for name in self.alarm_methods:
             if name not in self.methods:
                 raise ConfigError(f"alarm_methods: {name!r} is not among the methods")
+        if not 0 <= self.confirm_pairs <= MAX_CONFIRM_PAIRS:
+            raise ConfigError(
+                f"confirm_pairs: must be 0..{MAX_CONFIRM_PAIRS}, not {self.confirm_pairs}"
+            )
         if not 0 <= self.confirm_revisions <= MAX_CONFIRM_REVISIONS:
             raise ConfigError(
                 f"confirm_revisions: must be 0..{MAX_CONFIRM_REVISIONS}, "
@@ -143,6 +154,7 @@ class DetectionConfig:
             "context_counters": list(self.context_counters),
             "confirm_revisions": self.confirm_revisions,
             "alarm_methods": list(self.alarm_methods),
+            "confirm_pairs": self.confirm_pairs,
         }
 
     @property

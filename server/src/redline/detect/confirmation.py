@@ -85,3 +85,34 @@ def hold(
     if kept >= HOLD_SHARE:
         return Hold(HELD, f"held: {figures}", kept)
     return Hold(DROPPED, f"not confirmed, returned towards the old level: {figures}", kept)
+
+
+#: The share of complete pairs that must show the change for it to be confirmed by re-runs.
+PAIRS_SHARE = 2 / 3
+
+
+def pairs_hold(
+    pairs: Sequence[tuple[float, float]], direction: str, effect: float, wanted: int
+) -> Hold:
+    """Confirmation by re-running: ``pairs`` of (baseline, candidate) values, each pair run
+    back to back on one host, against a change flagged ``direction`` by ``effect`` (relative).
+    A pair shows the change when the candidate moved the flagged way by at least `HOLD_SHARE`
+    of the effect; the change holds when at least `PAIRS_SHARE` of the complete pairs show it.
+    ``wanted``: the pairs that were queued (a missing one is named in the reason)."""
+    complete = [(b, c) for b, c in pairs if math.isfinite(b) and math.isfinite(c) and b != 0]
+    if not complete:
+        return Hold(DROPPED, f"not confirmed: none of the {wanted} confirmation pair(s) ran", 0.0)
+    sign = 1.0 if direction == "increase" else -1.0
+    least = HOLD_SHARE * abs(effect)
+    moves = [(c - b) / abs(b) for b, c in complete]
+    shown = sum(sign * move >= least for move in moves)
+    needed = max(1, math.ceil(PAIRS_SHARE * len(complete)))
+    moved = ", ".join(f"{100 * move:+.1f} %" for move in moves)
+    missing = f"; {wanted - len(complete)} pair(s) did not run" if len(complete) < wanted else ""
+    figures = (
+        f"{shown} of {len(complete)} pairs (candidate against baseline, back to back on one "
+        f"host: {moved}; flagged {100 * sign * abs(effect):+.1f} %){missing}"
+    )
+    if shown >= needed:
+        return Hold(HELD, f"confirmed by {figures}", shown / len(complete))
+    return Hold(DROPPED, f"not confirmed: the change showed in {figures}", shown / len(complete))

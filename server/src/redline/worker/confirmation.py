@@ -17,9 +17,17 @@ from collections import defaultdict
 import numpy as np
 from redline.detect.confirmation import DROPPED, HELD, SUSPECTED, hold
 from redline.detect.counters import is_count
-from redline.server.models import Detection, Execution, Regression, Revision, Series, Summary
+from redline.server.models import (
+    Detection,
+    Execution,
+    Job,
+    Regression,
+    Revision,
+    Series,
+    Summary,
+)
 from redline.worker.samples import ingested_executions
-from sqlalchemy import func, select
+from sqlalchemy import exists, func, select
 from sqlalchemy.orm import Session
 
 CONFIRMED, NOT_CONFIRMED = "confirmed", "not_confirmed"
@@ -61,7 +69,7 @@ def settle(session: Session, detection: Detection, process: str, counter: str, w
     detection.confirmation, detection.confirmation_reason = found.state, found.reason
 
 
-def _summarize_regressions(session: Session, component_id: int, wait: int) -> None:
+def _summarize_regressions(session: Session, component_id: int) -> None:
     """Each regression of the component: confirmed, not confirmed or suspected, and why."""
     states: dict[int, dict[str, int]] = defaultdict(dict)
     for regression_id, state, number in session.execute(
@@ -88,24 +96,34 @@ def _summarize_regressions(session: Session, component_id: int, wait: int) -> No
             reason = f"all {total} flagged change(s) returned to the old level (a spike)"
         else:
             confirmation = SUSPECTED
-            waiting = total - dropped
-            reason = (
-                f"{waiting} flagged change(s) waiting for {wait} later revision(s) to measure "
-                "their series"
+            example = session.scalar(
+                select(Detection.confirmation_reason)
+                .where(
+                    Detection.regression_id == regression.id,
+                    Detection.confirmation == SUSPECTED,
+                )
+                .order_by(Detection.id.desc())
+                .limit(1)
             )
+            reason = f"{total - dropped} flagged change(s) still suspected: {example}"
         if (regression.confirmation, regression.confirmation_reason) != (confirmation, reason):
             regression.confirmation, regression.confirmation_reason = confirmation, reason
 
 
 def confirm_by_history(session: Session, component_id: int, wait: int) -> None:
     """Settle what the component's stored revisions can settle, then summarize regressions."""
+    rerun = exists().where(Job.confirms_revision_id == Detection.revision_id)
     suspected = session.execute(
         select(Detection, Series.process, Series.counter)
         .join(Series, Series.id == Detection.series_id)
-        .where(Series.component_id == component_id, Detection.confirmation == SUSPECTED)
+        .where(
+            Series.component_id == component_id,
+            Detection.confirmation == SUSPECTED,
+            ~rerun,  # confirmed by its re-runs instead (`redline.worker.confirm_runs`)
+        )
         .order_by(Detection.id)
     ).all()
     for detection, process, counter in suspected:
         settle(session, detection, process, counter, wait)
     session.flush()
-    _summarize_regressions(session, component_id, wait)
+    _summarize_regressions(session, component_id)

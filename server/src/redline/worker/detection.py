@@ -32,6 +32,7 @@ from redline.detect.verdict import judge_series
 from redline.server.db import bulk_insert, session_scope
 from redline.server.models import Detection, Revision, utcnow
 from redline.worker.baselines import Baseline, Baselines
+from redline.worker.confirm_runs import queue_confirmations, settle_pairs
 from redline.worker.confirmation import confirm_by_history
 from redline.worker.grouping import group_revision
 from redline.worker.history import (
@@ -150,8 +151,9 @@ def _judge_count(
 
 
 def store(session: Session, revision: Revision, rows: list[dict[str, Any]]) -> None:
-    """Replace the revision's detections, regroup its regressions, and settle what the later
-    revisions can confirm (`redline.worker.confirmation`).
+    """Replace the revision's detections, regroup its regressions, queue or judge its
+    confirmation runs (`redline.worker.confirm_runs`), and settle what the later revisions can
+    confirm (`redline.worker.confirmation`).
 
     One statement (`bulk_insert`): 500 series x 2 methods would otherwise spend more time in
     the ORM and in round trips than in the detectors.
@@ -160,6 +162,8 @@ def store(session: Session, revision: Revision, rows: list[dict[str, Any]]) -> N
     bulk_insert(session, cast(Table, Detection.__table__), rows)
     config = component_config(session, revision.component_id)
     group_revision(session, revision, config.alarming)
+    queue_confirmations(session, revision, config)
+    settle_pairs(session, revision)
     confirm_by_history(session, revision.component_id, config.confirm_revisions)
     revision.analyzed_at = utcnow()
 

@@ -26,7 +26,7 @@ log = logging.getLogger(__name__)
 STALE_UPLOAD = timedelta(minutes=10)
 
 
-def _ingest(session: Session, execution: Execution) -> None:
+def _ingest(session: Session, execution: Execution) -> Job:
     job = session.get_one(Job, execution.job_id, with_for_update=True)  # one run at a time
     recording = read_recording(execution.recording_path, strict=True)
     revision = session.get_one(Revision, execution.revision_id)
@@ -38,6 +38,7 @@ def _ingest(session: Session, execution: Execution) -> None:
     disturbed = recording_disturbances(samples, threshold())
     store_samples(session, execution, revision.component_id, samples, reason, disturbed)
     job.state, job.reason = JobState.done, reason or ""
+    return job
 
 
 def _fail(database_url: str, execution_id: int, reason: str) -> None:
@@ -52,7 +53,8 @@ def ingest_execution(database_url: str, execution_id: int) -> list[int]:
     """Ingest one execution in one transaction and mark its job done.
 
     Returns the revisions whose changes should be detected now: the execution's own, and the
-    next revision (by sort key) that already has data, whose baseline this one may have become.
+    next revision (by sort key) that already has data, whose baseline this one may have become;
+    for a confirmation run, the revision it confirms (`redline.worker.confirm_runs`).
     A bad recording (`RecordingError`, or another ValueError from its data) marks the job
     failed with the reason and is raised again. Any other error (a database or broker outage,
     storage) is raised leaving the job `uploaded`, for the task's retries or the periodic
@@ -64,9 +66,13 @@ def ingest_execution(database_url: str, execution_id: int) -> list[int]:
             if execution is None:
                 log.warning("execution %s no longer exists; nothing to ingest", execution_id)
                 return []
-            _ingest(session, execution)
-            later = successor_with_data(session, execution.revision_id)
-            revisions = [execution.revision_id] + ([later] if later is not None else [])
+            job = _ingest(session, execution)
+            if job.confirms_revision_id is not None:
+                # a confirmation run: the revision it confirms judges its pairs again
+                revisions = [job.confirms_revision_id]
+            else:
+                later = successor_with_data(session, execution.revision_id)
+                revisions = [execution.revision_id] + ([later] if later is not None else [])
             session.execute(
                 update(Revision).where(Revision.id.in_(revisions)).values(analyzed_at=None)
             )

@@ -23,10 +23,13 @@ log = logging.getLogger(__name__)
 
 
 def ingested_executions() -> Select[int]:
-    """Executions whose ingestion finished (their job is done), whatever series they hold: a
-    recording whose every sample was NaN has no summary rows but must still be judged."""
+    """A revision's own executions whose ingestion finished (their job is done), whatever
+    series they hold: a recording whose every sample was NaN has no summary rows but must still
+    be judged. Confirmation runs (`redline.worker.confirm_runs`) are judged apart, in pairs."""
     return (
-        select(Execution.id).join(Job, Job.id == Execution.job_id).where(Job.state == JobState.done)
+        select(Execution.id)
+        .join(Job, Job.id == Execution.job_id)
+        .where(Job.state == JobState.done, Job.pair == 0)
     )
 
 

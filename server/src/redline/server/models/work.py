@@ -66,7 +66,7 @@ class Revision(Base):
     analyzed_at: Mapped[datetime | None] = mapped_column(default=None)
     component: Mapped[Component] = relationship()
     jobs: Mapped[list[Job]] = relationship(
-        back_populates="revision", order_by="Job.execution_index"
+        back_populates="revision", order_by="Job.execution_index", foreign_keys="Job.revision_id"
     )
 
 
@@ -86,10 +86,18 @@ class Job(Base):
     host_id: Mapped[int | None] = mapped_column(ForeignKey("host.id"), default=None)
     reason: Mapped[str] = mapped_column(Text, default="")
     labels: Mapped[list[str]] = mapped_column(JSON, default=list)  # the host pool: all required
+    #: a confirmation run (`redline.worker.confirm_runs`): its pair (1..n; 0 for a revision's
+    #: own executions), the flagged revision it confirms, and the host it must run on
+    pair: Mapped[int] = mapped_column(Integer, default=0)
+    confirms_revision_id: Mapped[int | None] = mapped_column(
+        ForeignKey("revision.id"), default=None, index=True
+    )
+    pinned_host_id: Mapped[int | None] = mapped_column(ForeignKey("host.id"), default=None)
     created: Mapped[datetime] = mapped_column(default=utcnow)
     updated: Mapped[datetime] = mapped_column(default=utcnow, onupdate=utcnow)
-    revision: Mapped[Revision] = relationship(back_populates="jobs")
-    host: Mapped[Host | None] = relationship()
+    revision: Mapped[Revision] = relationship(back_populates="jobs", foreign_keys=[revision_id])
+    host: Mapped[Host | None] = relationship(foreign_keys=[host_id])
+    confirms_revision: Mapped[Revision | None] = relationship(foreign_keys=[confirms_revision_id])
     execution: Mapped[Execution | None] = relationship(back_populates="job")
 
 

@@ -7,7 +7,7 @@ from typing import Literal
 
 from pydantic import BaseModel, Field
 from redline.detect.baseline import DEFAULT_WINDOW
-from redline.detect.config import MAX_CONFIRM_REVISIONS, MAX_WINDOW
+from redline.detect.config import MAX_CONFIRM_PAIRS, MAX_CONFIRM_REVISIONS, MAX_WINDOW
 from redline.detect.confirmation import DEFAULT_CONFIRM_REVISIONS
 from redline.detect.counters import CONTEXT_COUNTERS
 from redline.server.models import RegressionState
@@ -108,6 +108,13 @@ class DetectionConfigIn(BaseModel):
         description="methods whose flagged changes for the worse become regressions (the "
         "others are stored and charted); [] : the first method (execution_shift by default)",
     )
+    confirm_pairs: int = Field(
+        default=0,
+        ge=0,
+        le=MAX_CONFIRM_PAIRS,
+        description="on a flagged change, run the revision and its baseline again this many "
+        "times each, interleaved on one host, and confirm by the pairs (0: off)",
+    )
     confirm_revisions: int = Field(
         default=DEFAULT_CONFIRM_REVISIONS,
         ge=0,
@@ -127,6 +134,7 @@ class DetectionConfigOut(BaseModel):
     context_counters: list[str]
     confirm_revisions: int
     alarm_methods: list[str]
+    confirm_pairs: int
 
 
 class ReanalysisOut(BaseModel):

@@ -47,6 +47,12 @@ class JobOut(BaseModel):
     host: str | None
     lease_expires_at: datetime | None
     execution: ExecutionOut | None
+    pair: int = Field(
+        default=0, description="a confirmation run's pair (1..n); 0 for the revision's own"
+    )
+    confirms: str | None = Field(
+        default=None, description="the revision a confirmation run confirms (its title)"
+    )
 
 
 class RevisionOut(BaseModel):

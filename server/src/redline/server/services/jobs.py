@@ -7,7 +7,7 @@ from datetime import datetime, timedelta
 from redline.server.models import Host, Job, JobState, Revision, utcnow
 from redline.server.schemas.jobs import LeasedJob, LeasedRevision, RegisterRequest
 from redline.server.services.errors import Conflict, NotFound
-from sqlalchemy import and_, cast, or_, select, update
+from sqlalchemy import and_, case, cast, or_, select, update
 from sqlalchemy.dialects.postgresql import JSONB, insert
 from sqlalchemy.orm import Session
 
@@ -66,11 +66,20 @@ def lease_job(
         and_(Job.state.in_(HELD), Job.lease_expires_at < now),
     )
     in_pool = cast(Job.labels, JSONB).contained_by(list(host.labels or []))  # has every label
+    # a confirmation run goes to the host that measured the revision it confirms, and its pairs
+    # go in the order they were queued (baseline, candidate, baseline, ...) before other work
+    pinned = or_(Job.pinned_host_id.is_(None), Job.pinned_host_id == host.id)
+    confirming = Job.confirms_revision_id.is_not(None)
     job = session.scalar(
         select(Job)
-        .join(Revision)
-        .where(available, in_pool)
-        .order_by(Revision.id.desc(), Job.execution_index)
+        .join(Revision, Revision.id == Job.revision_id)
+        .where(available, in_pool, pinned)
+        .order_by(
+            case((confirming, 0), else_=1),
+            case((confirming, Job.id), else_=0),
+            Revision.id.desc(),
+            Job.execution_index,
+        )
         .limit(1)
         .with_for_update(skip_locked=True, of=Job)
     )

@@ -178,6 +178,8 @@ def job_out(job: Job) -> JobOut:
         host=job.host.name if job.host else None,
         lease_expires_at=job.lease_expires_at,
         execution=execution,
+        pair=job.pair,
+        confirms=job.confirms_revision.title if job.confirms_revision else None,
     )
 
 

@@ -1,0 +1,140 @@
+"""Confirmation by re-running: a flagged revision and its baseline run again, in interleaved pairs.
+
+What no peer does on its own (Perfherder waits for a person to retrigger; Pinpoint bisects on
+request): when a revision's change is flagged and the component asks for ``confirm_pairs``, the
+worker queues that many pairs of jobs, the baseline revision's then the candidate's, pinned to
+the host that measured the candidate, which leases them in that order (`services.jobs`). Their
+executions are not the revisions' own (they never enter the revisions' verdicts or baselines);
+once every pair has run, each suspected change of the candidate is judged on the pairs
+(`redline.detect.confirmation.pairs_hold`): "confirmed by k of n pairs", or not confirmed with
+the figures. A pair that could not run (the baseline's commit is gone, the host went away and
+the lease ran out) is named in the reason. Machine time is spent only on flagged revisions, once
+per revision, and only where an agent measured it (imported results are confirmed by history).
+"""
+
+from __future__ import annotations
+
+from collections import defaultdict
+
+from redline.detect.config import DetectionConfig
+from redline.detect.confirmation import SUSPECTED, pairs_hold
+from redline.detect.counters import is_count
+from redline.server.models import Detection, Execution, Job, JobState, Revision, Series, Summary
+from sqlalchemy import func, select
+from sqlalchemy.orm import Session
+
+#: confirmation jobs take execution indices from here up, apart from a revision's own
+FIRST_INDEX = 1000
+FINISHED = (JobState.done, JobState.failed)
+
+
+def _suspected(session: Session, revision_id: int) -> list[tuple[Detection, str, str]]:
+    return [
+        (d, process, counter)
+        for d, process, counter in session.execute(
+            select(Detection, Series.process, Series.counter)
+            .join(Series, Series.id == Detection.series_id)
+            .where(Detection.revision_id == revision_id, Detection.confirmation == SUSPECTED)
+            .order_by(Detection.id)
+        )
+    ]
+
+
+def queue_confirmations(session: Session, revision: Revision, config: DetectionConfig) -> int:
+    """Queue the pairs for a revision with suspected changes, once; returns the jobs queued."""
+    if config.confirm_pairs <= 0:
+        return 0
+    if session.scalar(select(func.count()).where(Job.confirms_revision_id == revision.id)):
+        return 0
+    suspected = [d for d, _, _ in _suspected(session, revision.id) if d.baseline_revision_id]
+    if not suspected:
+        return 0
+    host_id = session.scalar(
+        select(Job.host_id)
+        .where(Job.revision_id == revision.id, Job.pair == 0, Job.host_id.is_not(None))
+        .order_by(Job.execution_index)
+        .limit(1)
+    )
+    if host_id is None:
+        return 0  # imported results: no agent measured them, the history confirms them
+    counts: dict[int, int] = defaultdict(int)
+    for detection in suspected:
+        counts[detection.baseline_revision_id or 0] += 1
+    baseline = max(counts, key=counts.__getitem__)  # the newest baseline most changes share
+    labels = list(revision.component.host_labels or [])
+    queued = 0
+    for pair in range(1, config.confirm_pairs + 1):
+        for revision_id in (baseline, revision.id):  # baseline first, then the candidate
+            index = session.scalar(
+                select(func.coalesce(func.max(Job.execution_index) + 1, FIRST_INDEX)).where(
+                    Job.revision_id == revision_id, Job.execution_index >= FIRST_INDEX
+                )
+            )
+            session.add(
+                Job(
+                    revision_id=revision_id,
+                    execution_index=index,
+                    pair=pair,
+                    confirms_revision_id=revision.id,
+                    pinned_host_id=host_id,
+                    labels=labels,
+                )
+            )
+            session.flush()
+            queued += 1
+    return queued
+
+
+def _values(session: Session, jobs: list[Job]) -> dict[tuple[int, int, int], tuple[float, float]]:
+    """(series, pair, revision) -> (median, mean) of each confirmation execution that ran."""
+    rows = session.execute(
+        select(Summary.series_id, Job.pair, Job.revision_id, Summary.p50, Summary.mean)
+        .join(Execution, Execution.id == Summary.execution_id)
+        .join(Job, Job.id == Execution.job_id)
+        .where(Job.id.in_([job.id for job in jobs]), Job.state == JobState.done)
+    )
+    return {(s, pair, rid): (p50, mean) for s, pair, rid, p50, mean in rows}
+
+
+def settle_pairs(session: Session, revision: Revision) -> bool:
+    """Judge the revision's suspected changes on its confirmation pairs once they all ran;
+    False (nothing settled) when it has none. While they run, the reason says how far."""
+    jobs = list(session.scalars(select(Job).where(Job.confirms_revision_id == revision.id)))
+    if not jobs:
+        return False
+    suspected = _suspected(session, revision.id)
+    running = [job for job in jobs if job.state not in FINISHED]
+    if running:
+        for detection, _, _ in suspected:
+            detection.confirmation_reason = (
+                f"confirmation runs: {len(jobs) - len(running)} of {len(jobs)} finished"
+            )
+        return True
+    failed = sorted(
+        {
+            f"{job.revision.title}: {job.reason or 'failed'}"
+            for job in jobs
+            if job.state == JobState.failed
+        }
+    )
+    values = _values(session, jobs)
+    pairs = sorted({job.pair for job in jobs})
+    baseline = next(job.revision_id for job in jobs if job.revision_id != revision.id)
+    for detection, process, counter in suspected:
+        column = 1 if is_count(process, counter) else 0
+        nan = (float("nan"),) * 2
+        found = pairs_hold(
+            [
+                (
+                    values.get((detection.series_id, pair, baseline), nan)[column],
+                    values.get((detection.series_id, pair, revision.id), nan)[column],
+                )
+                for pair in pairs
+            ],
+            detection.direction,
+            detection.effect or 0.0,
+            len(pairs),
+        )
+        reason = found.reason + (f" (failed: {'; '.join(failed)})" if failed else "")
+        detection.confirmation, detection.confirmation_reason = found.state, reason
+    return True

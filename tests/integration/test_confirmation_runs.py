@@ -1,0 +1,179 @@
+"""Confirmation by re-running, on real Postgres: a flagged revision and its baseline run again in
+interleaved pairs on the host that measured it; the pairs confirm the change or not, a pair that
+could not run is named, and the runs never enter the revisions' own verdicts."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+from redline.server.models import (
+    Detection,
+    DetectionConfigRow,
+    Execution,
+    Job,
+    JobState,
+    Regression,
+    Revision,
+)
+from redline.server.schemas.components import ComponentCreate
+from redline.server.schemas.jobs import RegisterRequest
+from redline.server.services.components import create_component
+from redline.server.services.jobs import lease_job, register_host
+from redline.server.services.revisions import revision_detail
+from redline.worker.detection import detect_revision
+from redline.worker.ingest import ingest_execution
+from sqlalchemy import select
+
+from tests.support.history import add_executions
+from tests.support.recordings import run_metadata, write_recording
+
+NAME, RUNS, PAIRS = "builder", 3, 2
+
+
+def _cpu(level: float, seed: int) -> dict[str, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    return {"cpu": rng.normal(level * (1 + rng.normal(0, 0.01)), level * 0.02, 40)}
+
+
+def _measured(session, database_url: str, tmp_path: Path, levels: list[float], host) -> None:
+    """Revisions r1.. measured on ``host`` (as an agent's uploads), ingested and judged."""
+    for number, level in enumerate(levels, start=1):
+        runs = [_cpu(level, number * 10 + i) for i in range(RUNS)]
+        executions = add_executions(session, tmp_path, NAME, f"r{number}", str(number), runs)
+        for execution in executions:
+            session.get_one(Job, execution.job_id).host_id = host.id
+        session.commit()
+        for execution in executions:
+            ingest_execution(database_url, execution.id)
+        detect_revision(database_url, executions[0].revision_id)
+    session.expire_all()
+
+
+def _flagged_history(session, database_url, tmp_path, pairs: int = PAIRS):
+    """r1-r4 at 20 % CPU, r5 at 30 %: r5 flagged against r4, its pairs queued."""
+    component = create_component(session, ComponentCreate(name=NAME, executions=RUNS))
+    session.add(DetectionConfigRow(component_id=component.id, config={"confirm_pairs": pairs}))
+    session.commit()
+    host = register_host(session, RegisterRequest(name="perf-1"))
+    _measured(session, database_url, tmp_path, [20.0] * 4 + [30.0], host)
+    return host
+
+
+def _run(session, database_url: str, tmp_path: Path, job: Job, level: float) -> None:
+    """What the host's agent does with a leased job: record, upload; then the worker ingests
+    and judges the revision ingestion names (the one confirmed, for a confirmation run)."""
+    revision = job.revision
+    run = run_metadata(job, NAME, revision.title, revision.sort_key)
+    path = write_recording(tmp_path / f"confirm-{job.id}.mcap", run, _cpu(level, 1000 + job.id))
+    session.add(
+        Execution(
+            job_id=job.id,
+            revision_id=revision.id,
+            recording_path=str(path),
+            sha256=f"confirm-{job.id}".ljust(64, "0"),
+            size=path.stat().st_size,
+        )
+    )
+    job.state = JobState.uploaded
+    session.commit()
+    execution_id = session.scalar(select(Execution.id).where(Execution.job_id == job.id))
+    for revision_id in ingest_execution(database_url, execution_id):
+        detect_revision(database_url, revision_id)
+    session.expire_all()
+
+
+def _r5_detection(session) -> Detection:
+    return session.scalars(
+        select(Detection)
+        .join(Revision, Revision.id == Detection.revision_id)
+        .where(Revision.title == "r5", Detection.method == "execution_shift")
+    ).one()
+
+
+def test_pairs_are_queued_interleaved_and_pinned_to_the_host_that_measured_the_revision(
+    session, database_url, tmp_path
+):
+    host = _flagged_history(session, database_url, tmp_path)
+    jobs = session.scalars(
+        select(Job).where(Job.confirms_revision_id.is_not(None)).order_by(Job.id)
+    ).all()
+    assert [(j.revision.title, j.pair) for j in jobs] == [
+        ("r4", 1),
+        ("r5", 1),
+        ("r4", 2),
+        ("r5", 2),
+    ]
+    assert {j.pinned_host_id for j in jobs} == {host.id}
+    assert all(j.execution_index >= 1000 for j in jobs)
+    shown = revision_detail(session, NAME, "r4").jobs  # as the API shows the baseline's jobs
+    assert [(j.pair, j.confirms) for j in shown] == [(0, None)] * RUNS + [(1, "r5"), (2, "r5")]
+    detection = _r5_detection(session)
+    assert detection.confirmation == "suspected"
+    assert detection.confirmation_reason == "confirmation runs: 0 of 4 finished"
+    register_host(session, RegisterRequest(name="perf-2"))
+    assert lease_job(session, "perf-2", 60, 3) is None  # pinned to perf-1
+    leased = [lease_job(session, "perf-1", 60, 3) for _ in range(4)]
+    assert [(j.revision.title, j.pair) for j in leased] == [
+        ("r4", 1),
+        ("r5", 1),
+        ("r4", 2),
+        ("r5", 2),
+    ]
+
+
+def test_pairs_that_show_the_change_confirm_it_and_stay_out_of_the_verdicts(
+    session, database_url, tmp_path
+):
+    _flagged_history(session, database_url, tmp_path)
+    before = _r5_detection(session)
+    effect, own = before.effect, before.baseline_revisions
+    while (job := lease_job(session, "perf-1", 60, 3)) is not None:
+        _run(session, database_url, tmp_path, job, 30.0 if job.revision.title == "r5" else 20.0)
+    detection = _r5_detection(session)
+    assert detection.confirmation == "held", detection.confirmation_reason
+    assert detection.confirmation_reason.startswith("confirmed by 2 of 2 pairs")
+    # the confirmation runs are not r5's or r4's own executions: the verdict is unchanged
+    assert (detection.effect, detection.baseline_revisions) == (effect, own)
+    regression = session.scalars(select(Regression)).one()
+    assert regression.confirmation == "confirmed"
+
+
+def test_pairs_that_do_not_show_it_leave_the_regression_not_confirmed(
+    session, database_url, tmp_path
+):
+    _flagged_history(session, database_url, tmp_path)
+    while (job := lease_job(session, "perf-1", 60, 3)) is not None:
+        _run(session, database_url, tmp_path, job, 20.0)  # r5 again at r4's level: a fluke
+    detection = _r5_detection(session)
+    assert detection.confirmation == "dropped"
+    assert "not confirmed: the change showed in 0 of 2 pairs" in detection.confirmation_reason
+    assert session.scalars(select(Regression)).one().confirmation == "not_confirmed"
+
+
+def test_a_baseline_that_can_no_longer_run_is_named_and_nothing_is_confirmed_by_it(
+    session, database_url, tmp_path
+):
+    _flagged_history(session, database_url, tmp_path)
+    while (job := lease_job(session, "perf-1", 60, 3)) is not None:
+        if job.revision.title == "r4":  # what the agent reports when the commit is gone
+            job.state, job.reason = JobState.failed, "checkout failed: commit abc123 not found"
+            session.commit()
+            detect_revision(database_url, job.confirms_revision_id)
+            session.expire_all()
+        else:
+            _run(session, database_url, tmp_path, job, 30.0)
+    detection = _r5_detection(session)
+    assert detection.confirmation == "dropped"
+    assert "none of the 2 confirmation pair(s) ran" in detection.confirmation_reason
+    assert "r4: checkout failed: commit abc123 not found" in detection.confirmation_reason
+
+
+def test_no_pairs_are_queued_without_the_setting_or_for_results_no_agent_measured(
+    session, database_url, tmp_path
+):
+    create_component(session, ComponentCreate(name=NAME, executions=RUNS))
+    host = register_host(session, RegisterRequest(name="perf-1"))
+    _measured(session, database_url, tmp_path, [20.0] * 4 + [30.0], host)
+    assert _r5_detection(session).flagged
+    assert session.scalars(select(Job).where(Job.confirms_revision_id.is_not(None))).all() == []
