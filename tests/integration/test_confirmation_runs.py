@@ -20,7 +20,7 @@ from redline.server.schemas.components import ComponentCreate
 from redline.server.schemas.jobs import RegisterRequest
 from redline.server.services.components import create_component
 from redline.server.services.jobs import lease_job, register_host
-from redline.server.services.revisions import revision_detail
+from redline.server.services.revisions import cancel_revision, revision_detail
 from redline.worker.detection import detect_revision
 from redline.worker.ingest import ingest_execution
 from sqlalchemy import select
@@ -151,10 +151,10 @@ def test_pairs_that_do_not_show_it_leave_the_regression_not_confirmed(
     assert session.scalars(select(Regression)).one().confirmation == "not_confirmed"
 
 
-def test_a_baseline_that_can_no_longer_run_is_named_and_nothing_is_confirmed_by_it(
+def test_a_baseline_that_can_no_longer_run_is_named_and_the_history_decides_instead(
     session, database_url, tmp_path
 ):
-    _flagged_history(session, database_url, tmp_path)
+    host = _flagged_history(session, database_url, tmp_path)
     while (job := lease_job(session, "perf-1", 60, 3)) is not None:
         if job.revision.title == "r4":  # what the agent reports when the commit is gone
             job.state, job.reason = JobState.failed, "checkout failed: commit abc123 not found"
@@ -164,9 +164,42 @@ def test_a_baseline_that_can_no_longer_run_is_named_and_nothing_is_confirmed_by_
         else:
             _run(session, database_url, tmp_path, job, 30.0)
     detection = _r5_detection(session)
-    assert detection.confirmation == "dropped"
-    assert "none of the 2 confirmation pair(s) ran" in detection.confirmation_reason
-    assert "r4: checkout failed: commit abc123 not found" in detection.confirmation_reason
+    assert detection.confirmation == "suspected"
+    assert detection.confirmation_reason == (
+        "no confirmation pair could run (r4: checkout failed: commit abc123 not found); "
+        "the later revisions will confirm it instead"
+    )
+    _measured(session, database_url, tmp_path, [], host)  # nothing new: still suspected
+    assert _r5_detection(session).confirmation == "suspected"
+    for number in (6, 7):  # two later revisions keep the new level
+        runs = [_cpu(30.0, number * 10 + i) for i in range(RUNS)]
+        executions = add_executions(session, tmp_path, NAME, f"r{number}", str(number), runs)
+        for execution in executions:
+            ingest_execution(database_url, execution.id)
+        detect_revision(database_url, executions[0].revision_id)
+    session.expire_all()
+    assert _r5_detection(session).confirmation == "held"
+    assert session.scalars(select(Regression)).one().confirmation == "confirmed"
+
+
+def test_a_superseded_revision_cancels_its_pairs_and_says_so(session, database_url, tmp_path):
+    _flagged_history(session, database_url, tmp_path)
+    first = lease_job(session, "perf-1", 60, 3)
+    _run(session, database_url, tmp_path, first, 20.0)  # the baseline's first run came back
+    cancel_revision(session, NAME, "r5")  # a newer commit supersedes r5
+    statuses = session.scalars(
+        select(Job.state).where(Job.confirms_revision_id.is_not(None)).order_by(Job.id)
+    ).all()
+    assert statuses == ["done", "cancelled", "cancelled", "cancelled"]  # r4's included
+    assert lease_job(session, "perf-1", 60, 3) is None
+    r5 = session.scalars(select(Revision).where(Revision.title == "r5")).one()
+    detect_revision(database_url, r5.id)
+    session.expire_all()
+    detection = _r5_detection(session)
+    assert detection.confirmation == "suspected"
+    assert "no confirmation pair could run (r4: cancelled; r5: cancelled)" in (
+        detection.confirmation_reason
+    )
 
 
 def test_no_pairs_are_queued_without_the_setting_or_for_results_no_agent_measured(

@@ -185,3 +185,7 @@ def test_component_page_lists_regressions_with_their_state(api, database_url, tm
     assert "<td>r1</td><td>r2</td>" in table and "state-new" in table
     # r2 is the newest revision: its change waits for two later ones to confirm it
     assert "confirmation-suspected" in table and "waiting for 2 more revision(s) after it" in table
+    # each revision says what its alarm method found, or why it has no verdict yet
+    rows = page.split('id="revisions"', 1)[1].split("</table>", 1)[0]
+    assert "ks: not enough data yet (missing baseline" in rows
+    assert "ks: 1 change(s), 0 series unchanged" in rows

@@ -8,8 +8,10 @@ executions are not the revisions' own (they never enter the revisions' verdicts 
 once every pair has run, each suspected change of the candidate is judged on the pairs
 (`redline.detect.confirmation.pairs_hold`): "confirmed by k of n pairs", or not confirmed with
 the figures. A pair that could not run (the baseline's commit is gone, the host went away and
-the lease ran out) is named in the reason. Machine time is spent only on flagged revisions, once
-per revision, and only where an agent measured it (imported results are confirmed by history).
+the lease ran out, the revision was cancelled as superseded) is named in the reason; when no
+pair could run, the later revisions confirm the change instead (`redline.worker.confirmation`).
+Machine time is spent only on flagged revisions, once per revision, and only where an agent
+measured it (imported results are confirmed by history).
 """
 
 from __future__ import annotations
@@ -20,12 +22,15 @@ from redline.detect.config import DetectionConfig
 from redline.detect.confirmation import SUSPECTED, pairs_hold
 from redline.detect.counters import is_count
 from redline.server.models import Detection, Execution, Job, JobState, Revision, Series, Summary
+from redline.worker.confirmation import NO_PAIR
 from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
 #: confirmation jobs take execution indices from here up, apart from a revision's own
 FIRST_INDEX = 1000
-FINISHED = (JobState.done, JobState.failed)
+FINISHED = (JobState.done, JobState.failed, JobState.cancelled)
+#: confirmation jobs that will never give a value: their revision falls back to the history
+DID_NOT_RUN = (JobState.failed, JobState.cancelled)
 
 
 def _suspected(session: Session, revision_id: int) -> list[tuple[Detection, str, str]]:
@@ -112,14 +117,21 @@ def settle_pairs(session: Session, revision: Revision) -> bool:
         return True
     failed = sorted(
         {
-            f"{job.revision.title}: {job.reason or 'failed'}"
+            f"{job.revision.title}: {job.reason or job.state.value}"
             for job in jobs
-            if job.state == JobState.failed
+            if job.state in DID_NOT_RUN
         }
     )
-    values = _values(session, jobs)
     pairs = sorted({job.pair for job in jobs})
     baseline = next(job.revision_id for job in jobs if job.revision_id != revision.id)
+    ran = {(job.pair, job.revision_id) for job in jobs if job.state == JobState.done}
+    if not any((pair, revision.id) in ran and (pair, baseline) in ran for pair in pairs):
+        for detection, _, _ in suspected:  # not one complete pair: the history decides
+            detection.confirmation_reason = (
+                f"{NO_PAIR} ({'; '.join(failed)}); the later revisions will confirm it instead"
+            )
+        return True
+    values = _values(session, jobs)
     for detection, process, counter in suspected:
         column = 1 if is_count(process, counter) else 0
         nan = (float("nan"),) * 2

@@ -21,6 +21,7 @@ from redline.server.models import (
     Detection,
     Execution,
     Job,
+    JobState,
     Regression,
     Revision,
     Series,
@@ -31,6 +32,8 @@ from sqlalchemy import exists, func, select
 from sqlalchemy.orm import Session
 
 CONFIRMED, NOT_CONFIRMED = "confirmed", "not_confirmed"
+#: how `redline.worker.confirm_runs` says that no pair could run (the history decides then)
+NO_PAIR = "no confirmation pair could run"
 
 
 def _levels(session: Session, series_id: int, count: bool) -> list[tuple[str, int, np.ndarray]]:
@@ -66,6 +69,8 @@ def settle(session: Session, detection: Detection, process: str, counter: str, w
     baseline = np.concatenate([values for _, _, values in levels[first : newest + 1]])
     following = [values for _, _, values in levels[at + 1 :]]
     found = hold(baseline, levels[at][2], following, wait, count=count)
+    if found.state == SUSPECTED and detection.confirmation_reason.startswith(NO_PAIR):
+        return  # what the re-runs said stands until the history decides
     detection.confirmation, detection.confirmation_reason = found.state, found.reason
 
 
@@ -112,14 +117,19 @@ def _summarize_regressions(session: Session, component_id: int) -> None:
 
 def confirm_by_history(session: Session, component_id: int, wait: int) -> None:
     """Settle what the component's stored revisions can settle, then summarize regressions."""
-    rerun = exists().where(Job.confirms_revision_id == Detection.revision_id)
+    # a revision whose confirmation runs are still under way waits for them
+    # (`redline.worker.confirm_runs`, which leaves suspected what no complete pair can settle)
+    rerun = exists().where(
+        Job.confirms_revision_id == Detection.revision_id,
+        Job.state.not_in((JobState.done, JobState.failed, JobState.cancelled)),
+    )
     suspected = session.execute(
         select(Detection, Series.process, Series.counter)
         .join(Series, Series.id == Detection.series_id)
         .where(
             Series.component_id == component_id,
             Detection.confirmation == SUSPECTED,
-            ~rerun,  # confirmed by its re-runs instead (`redline.worker.confirm_runs`)
+            ~rerun,
         )
         .order_by(Detection.id)
     ).all()

@@ -17,7 +17,7 @@ from redline.server.schemas.revisions import (
 from redline.server.services.components import get_component
 from redline.server.services.errors import BadRequest, Conflict, Forbidden, NotFound
 from redline.server.services.repos import repo_key
-from sqlalchemy import literal, select, tuple_
+from sqlalchemy import literal, or_, select, tuple_
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session, selectinload
 
@@ -187,7 +187,8 @@ UNFINISHED = (JobState.queued, JobState.leased, JobState.running)
 
 
 def cancel_revision(session: Session, component_name: str, title: str) -> RevisionDetail:
-    """Cancel the revision's unfinished jobs (a superseded commit, say): none is leased again,
+    """Cancel the revision's unfinished jobs, its confirmation runs' too (the baseline's runs
+    beside it included), for a superseded commit, say: none is leased again,
     and an agent running one learns it at its next heartbeat (409) and abandons it. Jobs
     already uploaded or finished keep their results."""
     component = get_component(session, component_name)
@@ -198,7 +199,10 @@ def cancel_revision(session: Session, component_name: str, title: str) -> Revisi
         raise NotFound(f"component {component_name!r} has no revision {title!r}")
     jobs = session.scalars(
         select(Job)
-        .where(Job.revision_id == revision.id, Job.state.in_(UNFINISHED))
+        .where(
+            or_(Job.revision_id == revision.id, Job.confirms_revision_id == revision.id),
+            Job.state.in_(UNFINISHED),
+        )
         .with_for_update()
     )
     for job in jobs:
