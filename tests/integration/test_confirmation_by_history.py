@@ -155,3 +155,24 @@ def test_the_defaults_make_no_regression_of_unchanged_code_run_once_per_revision
         .where(Revision.title == "r3", Detection.method == "execution_shift")
     ).one()
     assert r3.verdict == "not enough data" and "(4 more to come)" in r3.reason
+
+
+def test_a_change_whose_series_is_no_longer_measured_is_dropped_not_left_waiting(
+    session, database_url, tmp_path
+):
+    _component(session)
+    _judge(session, database_url, tmp_path, [20.0] * 4 + [30.0])
+    rng = np.random.default_rng(3)
+    for number in range(6, 12):  # the test was renamed: its series is gone from r6 on
+        runs = [{"renamed": rng.normal(20.0, 0.4, 40)} for _ in range(RUNS)]
+        executions = add_executions(session, tmp_path, NAME, f"r{number}", str(number), runs)
+        for execution in executions:
+            ingest_execution(database_url, execution.id)
+        detect_revision(database_url, executions[0].revision_id)
+    session.expire_all()
+    r5 = _flagged(session)["r5"]
+    assert r5.confirmation == "dropped"
+    assert (
+        r5.confirmation_reason
+        == "not confirmed: of the 6 revisions after it, 0 measured the series"
+    )

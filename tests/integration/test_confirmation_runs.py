@@ -4,6 +4,7 @@ could not run is named, and the runs never enter the revisions' own verdicts."""
 
 from __future__ import annotations
 
+from datetime import timedelta
 from pathlib import Path
 
 import numpy as np
@@ -11,6 +12,7 @@ from redline.server.models import (
     Detection,
     DetectionConfigRow,
     Execution,
+    Host,
     Job,
     JobState,
     Regression,
@@ -36,13 +38,23 @@ def _cpu(level: float, seed: int) -> dict[str, np.ndarray]:
     return {"cpu": rng.normal(level * (1 + rng.normal(0, 0.01)), level * 0.02, 40)}
 
 
-def _measured(session, database_url: str, tmp_path: Path, levels: list[float], host) -> None:
-    """Revisions r1.. measured on ``host`` (as an agent's uploads), ingested and judged."""
-    for number, level in enumerate(levels, start=1):
+def _measured(
+    session,
+    database_url: str,
+    tmp_path: Path,
+    levels: list[float],
+    host: Host,
+    start: int = 1,
+    leased: bool = True,
+) -> None:
+    """Revisions r<start>.. measured on ``host`` (as an agent's uploads, or an import's when
+    not ``leased``), ingested and judged."""
+    for number, level in enumerate(levels, start=start):
         runs = [_cpu(level, number * 10 + i) for i in range(RUNS)]
         executions = add_executions(session, tmp_path, NAME, f"r{number}", str(number), runs)
         for execution in executions:
-            session.get_one(Job, execution.job_id).host_id = host.id
+            job = session.get_one(Job, execution.job_id)
+            job.host_id, job.attempts = host.id, 1 if leased else 0
         session.commit()
         for execution in executions:
             ingest_execution(database_url, execution.id)
@@ -154,7 +166,7 @@ def test_pairs_that_do_not_show_it_leave_the_regression_not_confirmed(
 def test_a_baseline_that_can_no_longer_run_is_named_and_the_history_decides_instead(
     session, database_url, tmp_path
 ):
-    host = _flagged_history(session, database_url, tmp_path)
+    _flagged_history(session, database_url, tmp_path)
     while (job := lease_job(session, "perf-1", 60, 3)) is not None:
         if job.revision.title == "r4":  # what the agent reports when the commit is gone
             job.state, job.reason = JobState.failed, "checkout failed: commit abc123 not found"
@@ -166,11 +178,9 @@ def test_a_baseline_that_can_no_longer_run_is_named_and_the_history_decides_inst
     detection = _r5_detection(session)
     assert detection.confirmation == "suspected"
     assert detection.confirmation_reason == (
-        "no confirmation pair could run (r4: checkout failed: commit abc123 not found); "
-        "the later revisions will confirm it instead"
+        "re-runs could not decide: no confirmation pair could run (r4: checkout failed: commit "
+        "abc123 not found); the later revisions will confirm it instead"
     )
-    _measured(session, database_url, tmp_path, [], host)  # nothing new: still suspected
-    assert _r5_detection(session).confirmation == "suspected"
     for number in (6, 7):  # two later revisions keep the new level
         runs = [_cpu(30.0, number * 10 + i) for i in range(RUNS)]
         executions = add_executions(session, tmp_path, NAME, f"r{number}", str(number), runs)
@@ -200,6 +210,8 @@ def test_a_superseded_revision_cancels_its_pairs_and_says_so(session, database_u
     assert "no confirmation pair could run (r4: cancelled; r5: cancelled)" in (
         detection.confirmation_reason
     )
+    # no revision is left running because of its confirmation runs
+    assert revision_detail(session, NAME, "r4").state == "done"
 
 
 def test_no_pairs_are_queued_without_the_setting_or_for_results_no_agent_measured(
@@ -210,3 +222,28 @@ def test_no_pairs_are_queued_without_the_setting_or_for_results_no_agent_measure
     _measured(session, database_url, tmp_path, [20.0] * 4 + [30.0], host)
     assert _r5_detection(session).flagged
     assert session.scalars(select(Job).where(Job.confirms_revision_id.is_not(None))).all() == []
+
+
+def test_imported_results_naming_a_host_are_confirmed_by_history_not_rerun(
+    session, database_url, tmp_path
+):
+    component = create_component(session, ComponentCreate(name=NAME, executions=RUNS))
+    session.add(DetectionConfigRow(component_id=component.id, config={"confirm_pairs": 2}))
+    session.commit()
+    ci = register_host(session, RegisterRequest(name="ci-7"))  # as an import names its host
+    _measured(session, database_url, tmp_path, [20.0] * 4 + [30.0], ci, leased=False)
+    assert _r5_detection(session).flagged
+    assert session.scalars(select(Job).where(Job.confirms_revision_id.is_not(None))).all() == []
+    assert "waiting for 2 more revision(s)" in _r5_detection(session).confirmation_reason
+
+
+def test_a_confirmation_run_whose_host_is_gone_fails_and_the_history_decides(
+    session, database_url, tmp_path
+):
+    host = _flagged_history(session, database_url, tmp_path)
+    host.last_seen = host.last_seen - timedelta(hours=1)  # perf-1 stopped answering
+    session.commit()
+    _measured(session, database_url, tmp_path, [30.0, 30.0], host, start=6)
+    reasons = session.scalars(select(Job.reason).where(Job.confirms_revision_id.is_not(None)))
+    assert set(reasons) == {"its host perf-1 was not seen for 0:30:00 (confirmation run)"}
+    assert _r5_detection(session).confirmation == "held"  # r6 and r7 kept the new level

@@ -210,3 +210,29 @@ def test_the_default_meets_the_issue_goals_on_corpus_2() -> None:
     assert scores.roc_auc >= 0.95, scores
     assert scores.false_alarms_per_100 <= 1.0, scores
     assert scores.large == 5 and scores.recall_large >= 0.9, scores
+
+
+def test_an_unwritable_units_file_is_refused_before_the_run(tmp_path: Path) -> None:
+    corpus = str(_corpus(tmp_path))
+    result = runner.invoke(
+        app, ["evaluate", corpus, "--units", str(tmp_path / "no" / "such" / "dir" / "u.csv")]
+    )
+    assert result.exit_code == 2
+    assert "cannot write --units" in result.stderr and "No such file" in result.stderr
+    assert result.stdout == ""  # nothing was evaluated
+
+
+def test_a_change_labelled_at_a_build_the_series_skipped_counts_at_the_next_one(tmp_path: Path):
+    from redline.detect.corpus import load_corpus
+    from redline.detect.evaluate import change_point_f1, evaluate_corpus
+
+    path = _corpus(tmp_path)
+    frame = pd.read_parquet(path / "measurements.parquet")
+    frame[frame["build"] != 8].to_parquet(path / "measurements.parquet")  # build 8 is gone
+    corpus = load_corpus(str(path))
+    kept: dict = {}
+    scores = evaluate_corpus(
+        corpus, ["execution_shift"], finished=lambda n, s, o: kept.update({n: o})
+    )["execution_shift"]
+    assert scores.tp == 1  # the step, labelled at 8, is found at 9
+    assert change_point_f1(corpus, kept)["execution_shift"] == 1.0

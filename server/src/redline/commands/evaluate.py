@@ -158,6 +158,12 @@ def evaluate_cmd(
             err=True,
         )
         raise typer.Exit(2)
+    if units is not None:
+        try:  # before a run that may take minutes, not after it
+            units.open("w").close()
+        except OSError as exc:
+            typer.echo(f"evaluate: cannot write --units {units}: {exc.strerror}", err=True)
+            raise typer.Exit(2) from exc
     try:
         loaded = load_corpus(corpus)
     except (CorpusError, OSError, KeyError, ValueError) as exc:

@@ -10,6 +10,7 @@ and effect-size floor, is "change". Pure computation over a loaded `Corpus`.
 
 from __future__ import annotations
 
+import bisect
 import math
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import asdict, dataclass
@@ -137,6 +138,18 @@ def change_sizes(corpus: Corpus) -> dict[tuple[str, int], float]:
     return sizes
 
 
+def snapped(changes: Sequence[int], builds: Sequence[int]) -> set[int]:
+    """Each labelled change at the first build the series has at or after it (a label may name
+    a build the series skipped); one past the series' end is dropped."""
+    ordered = sorted(builds)
+    found = set()
+    for change in changes:
+        index = bisect.bisect_left(ordered, change)
+        if index < len(ordered):
+            found.add(ordered[index])
+    return found
+
+
 def counter_of(series: str) -> str:
     """The counter a series id names: its last ``/``-separated part (the whole id if none)."""
     return series.rsplit("/", 1)[-1]
@@ -154,7 +167,7 @@ def walk(
     total = int(corpus.measurements["series"].nunique())
     for done, (series, label, builds) in enumerate(series_builds(corpus), start=1):
         values = [values_for(detector, executions) for _, executions in builds]
-        changes = set(label.change_builds)
+        changes = snapped(label.change_builds, [build for build, _ in builds])
         last_flagged: int | None = None
         for k in range(1, len(builds)):
             sizes = [len(values[j]) for j in range(k - 1, -1, -1)]
@@ -309,7 +322,8 @@ def change_point_f1(
     levels: dict[str, list[float]] = {}
     for series, label, builds in series_builds(corpus):
         positions[series] = {build: i for i, (build, _) in enumerate(builds)}
-        truth[series] = [positions[series][b] for b in label.change_builds]
+        changes = snapped(label.change_builds, list(positions[series]))
+        truth[series] = sorted(positions[series][b] for b in changes)
         levels[series] = [float(np.median(np.concatenate(runs))) for _, runs in builds]
     predicted: dict[str, dict[str, list[int]]] = {}
     for name, found in outcomes.items():

@@ -16,19 +16,33 @@ measured it (imported results are confirmed by history).
 
 from __future__ import annotations
 
+import math
 from collections import defaultdict
+from datetime import timedelta
 
 from redline.detect.config import DetectionConfig
 from redline.detect.confirmation import SUSPECTED, pairs_hold
 from redline.detect.counters import is_count
-from redline.server.models import Detection, Execution, Job, JobState, Revision, Series, Summary
-from redline.worker.confirmation import NO_PAIR
-from sqlalchemy import func, select
+from redline.server.models import (
+    Detection,
+    Execution,
+    Host,
+    Job,
+    JobState,
+    Revision,
+    Series,
+    Summary,
+    utcnow,
+)
+from redline.worker.confirmation import UNDECIDED
+from sqlalchemy import exists, func, select
 from sqlalchemy.orm import Session
 
 #: confirmation jobs take execution indices from here up, apart from a revision's own
 FIRST_INDEX = 1000
 FINISHED = (JobState.done, JobState.failed, JobState.cancelled)
+#: a pinned host silent this long is taken for gone: its confirmation runs fail with the reason
+HOST_GONE = timedelta(minutes=30)
 #: confirmation jobs that will never give a value: their revision falls back to the history
 DID_NOT_RUN = (JobState.failed, JobState.cancelled)
 
@@ -54,9 +68,17 @@ def queue_confirmations(session: Session, revision: Revision, config: DetectionC
     suspected = [d for d, _, _ in _suspected(session, revision.id) if d.baseline_revision_id]
     if not suspected:
         return 0
+    own = select(Job).where(Job.revision_id == revision.id, Job.pair == 0)
+    if session.scalar(own.where(Job.state.not_in(FINISHED)).limit(1)) is not None:
+        return 0  # its own executions first: a flag on part of them may not stand
     host_id = session.scalar(
         select(Job.host_id)
-        .where(Job.revision_id == revision.id, Job.pair == 0, Job.host_id.is_not(None))
+        .where(
+            Job.revision_id == revision.id,
+            Job.pair == 0,
+            Job.host_id.is_not(None),
+            Job.attempts > 0,  # leased by an agent: an import names hosts no agent serves
+        )
         .order_by(Job.execution_index)
         .limit(1)
     )
@@ -65,7 +87,7 @@ def queue_confirmations(session: Session, revision: Revision, config: DetectionC
     counts: dict[int, int] = defaultdict(int)
     for detection in suspected:
         counts[detection.baseline_revision_id or 0] += 1
-    baseline = max(counts, key=counts.__getitem__)  # the newest baseline most changes share
+    baseline = max(counts, key=counts.__getitem__)  # the baseline most changes share
     labels = list(revision.component.host_labels or [])
     queued = 0
     for pair in range(1, config.confirm_pairs + 1):
@@ -128,25 +150,70 @@ def settle_pairs(session: Session, revision: Revision) -> bool:
     if not any((pair, revision.id) in ran and (pair, baseline) in ran for pair in pairs):
         for detection, _, _ in suspected:  # not one complete pair: the history decides
             detection.confirmation_reason = (
-                f"{NO_PAIR} ({'; '.join(failed)}); the later revisions will confirm it instead"
+                f"{UNDECIDED}: no confirmation pair could run ({'; '.join(failed)}); the later "
+                "revisions will confirm it instead"
             )
         return True
     values = _values(session, jobs)
+    nan = (float("nan"),) * 2
     for detection, process, counter in suspected:
-        column = 1 if is_count(process, counter) else 0
-        nan = (float("nan"),) * 2
-        found = pairs_hold(
-            [
-                (
-                    values.get((detection.series_id, pair, baseline), nan)[column],
-                    values.get((detection.series_id, pair, revision.id), nan)[column],
-                )
-                for pair in pairs
-            ],
-            detection.direction,
-            detection.effect or 0.0,
-            len(pairs),
-        )
+        if is_count(process, counter):
+            detection.confirmation_reason = (
+                f"{UNDECIDED}: a count of rare events (0 in most runs) is confirmed by the "
+                "later revisions, not by a few pairs"
+            )
+            continue
+        measured = [
+            (
+                values.get((detection.series_id, pair, baseline), nan)[0],
+                values.get((detection.series_id, pair, revision.id), nan)[0],
+            )
+            for pair in pairs
+        ]
+        if detection.baseline_revision_id != baseline or not any(
+            math.isfinite(b) and math.isfinite(c) for b, c in measured
+        ):
+            detection.confirmation_reason = (
+                f"{UNDECIDED}: the pairs did not measure this series against its baseline; the "
+                "later revisions will confirm it instead"
+            )
+            continue
+        found = pairs_hold(measured, detection.direction, detection.effect or 0.0, len(pairs))
         reason = found.reason + (f" (failed: {'; '.join(failed)})" if failed else "")
         detection.confirmation, detection.confirmation_reason = found.state, reason
     return True
+
+
+def settle_pending_pairs(session: Session, component_id: int) -> None:
+    """Fail the confirmation runs whose host has gone, then judge the pairs of every revision of
+    the component whose runs have all finished and whose changes still wait for them, whatever
+    finished last (an ingested run, a failure, a cancellation): the outcome depends on stored
+    data only, as a re-analysis needs."""
+    gone = utcnow() - HOST_GONE
+    for job, host in session.execute(
+        select(Job, Host)
+        .join(Host, Host.id == Job.pinned_host_id)
+        .join(Revision, Revision.id == Job.revision_id)
+        .where(
+            Revision.component_id == component_id,
+            Job.state.in_((JobState.queued, JobState.leased, JobState.running)),
+            Host.last_seen < gone,
+        )
+    ):
+        job.state = JobState.failed
+        job.reason = f"its host {host.name} was not seen for {HOST_GONE} (confirmation run)"
+    waiting = session.scalars(
+        select(Revision)
+        .where(
+            Revision.component_id == component_id,
+            exists().where(Job.confirms_revision_id == Revision.id),
+            exists().where(
+                Detection.revision_id == Revision.id,
+                Detection.confirmation == SUSPECTED,
+                ~Detection.confirmation_reason.startswith(UNDECIDED),
+            ),
+        )
+        .order_by(Revision.id)
+    )
+    for revision in waiting:
+        settle_pairs(session, revision)

@@ -15,7 +15,7 @@ from __future__ import annotations
 from collections import defaultdict
 
 import numpy as np
-from redline.detect.confirmation import DROPPED, HELD, SUSPECTED, hold
+from redline.detect.confirmation import DROPPED, HELD, SUSPECTED, Hold, hold
 from redline.detect.counters import is_count
 from redline.server.models import (
     Detection,
@@ -32,8 +32,12 @@ from sqlalchemy import exists, func, select
 from sqlalchemy.orm import Session
 
 CONFIRMED, NOT_CONFIRMED = "confirmed", "not_confirmed"
-#: how `redline.worker.confirm_runs` says that no pair could run (the history decides then)
-NO_PAIR = "no confirmation pair could run"
+#: later revisions with results, in multiples of the wait, after which a change whose series
+#: they did not measure enough is dropped instead of waiting for ever
+GONE_AFTER = 3
+#: how `redline.worker.confirm_runs` begins the reason of a change its pairs could not decide
+#: (none ran, a count, a series they did not measure): the history decides then
+UNDECIDED = "re-runs could not decide"
 
 
 def _levels(session: Session, series_id: int, count: bool) -> list[tuple[str, int, np.ndarray]]:
@@ -50,6 +54,23 @@ def _levels(session: Session, series_id: int, count: bool) -> list[tuple[str, in
     for key, revision_id, number in rows:
         grouped[(key, revision_id)].append(number)
     return [(key, rid, np.asarray(v, dtype=float)) for (key, rid), v in grouped.items()]
+
+
+def _later_revisions(session: Session, order_key: str, detection: Detection) -> int:
+    """How many revisions of the detection's component after ``order_key`` have results."""
+    return int(
+        session.scalar(
+            select(func.count(func.distinct(Execution.revision_id)))
+            .join(Revision, Revision.id == Execution.revision_id)
+            .join(Series, Series.component_id == Revision.component_id)
+            .where(
+                Series.id == detection.series_id,
+                Revision.order_key > order_key,
+                Execution.id.in_(ingested_executions()),
+            )
+        )
+        or 0
+    )
 
 
 def settle(session: Session, detection: Detection, process: str, counter: str, wait: int) -> None:
@@ -69,7 +90,16 @@ def settle(session: Session, detection: Detection, process: str, counter: str, w
     baseline = np.concatenate([values for _, _, values in levels[first : newest + 1]])
     following = [values for _, _, values in levels[at + 1 :]]
     found = hold(baseline, levels[at][2], following, wait, count=count)
-    if found.state == SUSPECTED and detection.confirmation_reason.startswith(NO_PAIR):
+    later = _later_revisions(session, levels[at][0], detection) if found.state == SUSPECTED else 0
+    if found.state == SUSPECTED and later >= GONE_AFTER * wait:
+        # the component went on without measuring it (a test renamed or removed): it cannot hold
+        found = Hold(
+            DROPPED,
+            f"not confirmed: of the {later} revisions after it, {len(following)} measured the "
+            "series",
+            0.0,
+        )
+    if found.state == SUSPECTED and detection.confirmation_reason.startswith(UNDECIDED):
         return  # what the re-runs said stands until the history decides
     detection.confirmation, detection.confirmation_reason = found.state, found.reason
 

@@ -30,9 +30,9 @@ from redline.detect.result import Detection as Verdict
 from redline.detect.result import not_enough
 from redline.detect.verdict import judge_series
 from redline.server.db import bulk_insert, session_scope
-from redline.server.models import Detection, Revision, utcnow
+from redline.server.models import Component, Detection, Revision, utcnow
 from redline.worker.baselines import Baseline, Baselines
-from redline.worker.confirm_runs import queue_confirmations, settle_pairs
+from redline.worker.confirm_runs import queue_confirmations, settle_pending_pairs
 from redline.worker.confirmation import confirm_by_history
 from redline.worker.grouping import group_revision
 from redline.worker.history import (
@@ -150,7 +150,9 @@ def _judge_count(
     return Baseline(None, newest=found[0], revisions=len(found)), verdict
 
 
-def store(session: Session, revision: Revision, rows: list[dict[str, Any]]) -> None:
+def store(
+    session: Session, revision: Revision, rows: list[dict[str, Any]], rerun: bool = False
+) -> None:
     """Replace the revision's detections, regroup its regressions, queue or judge its
     confirmation runs (`redline.worker.confirm_runs`), and settle what the later revisions can
     confirm (`redline.worker.confirmation`).
@@ -158,12 +160,18 @@ def store(session: Session, revision: Revision, rows: list[dict[str, Any]]) -> N
     One statement (`bulk_insert`): 500 series x 2 methods would otherwise spend more time in
     the ORM and in round trips than in the detectors.
     """
+    # the component's row first: grouping and confirmation update other revisions' rows, and
+    # two stores of one component taking their locks in different orders would deadlock
+    session.execute(
+        select(Component.id).where(Component.id == revision.component_id).with_for_update()
+    )
     session.execute(delete(Detection).where(Detection.revision_id == revision.id))
     bulk_insert(session, cast(Table, Detection.__table__), rows)
     config = component_config(session, revision.component_id)
     group_revision(session, revision, config.alarming)
-    queue_confirmations(session, revision, config)
-    settle_pairs(session, revision)
+    if rerun:  # new results only: a re-analysis never queues machine time for old revisions
+        queue_confirmations(session, revision, config)
+    settle_pending_pairs(session, revision.component_id)
     confirm_by_history(session, revision.component_id, config.confirm_revisions)
     revision.analyzed_at = utcnow()
 
@@ -244,5 +252,5 @@ def detect_revision(database_url: str, revision_id: int) -> list[KsChange]:
         judged = judge_revision(session, revision_id)
         if judged is None:
             return []
-        store(session, session.get_one(Revision, revision_id), judged.rows)
+        store(session, session.get_one(Revision, revision_id), judged.rows, rerun=True)
         return judged.changes

@@ -14,10 +14,12 @@ from sqlalchemy import (
     Enum,
     Float,
     ForeignKey,
+    Index,
     Integer,
     String,
     Text,
     UniqueConstraint,
+    text,
 )
 from sqlalchemy.orm import Mapped, mapped_column, relationship
 
@@ -104,7 +106,15 @@ class Detection(Base):
     """
 
     __tablename__ = "detection"
-    __table_args__ = (UniqueConstraint("series_id", "revision_id", "method"),)
+    __table_args__ = (
+        UniqueConstraint("series_id", "revision_id", "method"),
+        # every store looks for the component's suspected changes: few rows among many
+        Index(
+            "ix_detection_suspected",
+            "series_id",
+            postgresql_where=text("confirmation = 'suspected'"),
+        ),
+    )
     id: Mapped[int] = mapped_column(primary_key=True)
     series_id: Mapped[int] = mapped_column(ForeignKey("series.id"), index=True)
     revision_id: Mapped[int] = mapped_column(ForeignKey("revision.id"), index=True)

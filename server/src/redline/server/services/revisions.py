@@ -114,8 +114,9 @@ def _revision_out(revision: Revision) -> dict:
         committed_at=revision.committed_at,
         created=revision.created,
         analyzed_at=revision.analyzed_at,
-        state=revision_state(
-            [job.state for job in revision.jobs], analyzed=revision.analyzed_at is not None
+        state=revision_state(  # its own jobs: confirmation runs do not make it running
+            [job.state for job in revision.jobs if job.pair == 0],
+            analyzed=revision.analyzed_at is not None,
         ),
     )
 

@@ -30,6 +30,12 @@ def upgrade() -> None:
         op.alter_column(table, "confirmation", server_default=None)
         op.alter_column(table, "confirmation_reason", server_default=None)
     op.create_index("ix_regression_confirmation", "regression", ["confirmation"])
+    op.create_index(
+        "ix_detection_suspected",
+        "detection",
+        ["series_id"],
+        postgresql_where=sa.text("confirmation = 'suspected'"),
+    )
     # regressions found before: confirmed as they were (they were alarms already), and their
     # detections held, so nothing already reported goes quiet
     op.execute("UPDATE regression SET confirmation = 'confirmed'")
@@ -40,6 +46,7 @@ def upgrade() -> None:
 
 
 def downgrade() -> None:
+    op.drop_index("ix_detection_suspected", "detection")
     op.drop_index("ix_regression_confirmation", "regression")
     for table in ("regression", "detection"):
         op.drop_column(table, "confirmation_reason")
