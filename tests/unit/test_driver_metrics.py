@@ -194,22 +194,54 @@ def test_counts_of_rare_events_are_judged_as_rates() -> None:
     assert judge.compare(0, 4217, 6, 6).score >= 1 > judge.compare(0, 1000, 1, 1000).score
 
 
-def test_one_value_a_side_is_judged_by_the_change_of_its_median() -> None:
+def test_a_driver_metric_needs_three_executions_a_side_that_do_not_overlap() -> None:
     judge = RelativeChange()
-    assert judge.compare([500.0], [600.0]).flagged  # +20 %
-    assert not judge.compare([500.0], [520.0]).flagged  # +4 %
-    assert judge.compare([500.0], [500.0]).verdict == "no change"  # not "not enough data"
-    assert math.isinf(judge.compare([0.0], [1.0]).effect)
+    one = judge.compare([500.0], [600.0])  # a trial's unchanged code moved p90 by -34 %
+    assert one.verdict == "not enough data" and "needs at least 3" in one.reason
+    assert judge.compare([500.0, 510.0, 490.0], [600.0, 610.0, 590.0]).flagged  # +20 %, apart
+    overlap = judge.compare([500.0, 700.0, 480.0], [600.0, 610.0, 590.0])
+    assert overlap.verdict == "no change" and "within the baseline's range" in overlap.reason
+    assert not judge.compare([500.0, 510.0, 490.0], [520.0, 530.0, 515.0]).flagged  # +4 %
+    assert judge.compare([500.0] * 3, [500.0] * 3).verdict == "no change"
+    assert math.isinf(judge.compare([0.0] * 3, [1.0] * 3).effect)
+
+
+def test_extremes_of_a_few_hundred_samples_are_charted_not_judged() -> None:
+    assert not judged(DRIVER_PROCESS, "FixedRate:lateness_max_us")
+    assert not judged(DRIVER_PROCESS, "FixedRate/Query(a):rtt_p99_us")
+    assert judged(DRIVER_PROCESS, "FixedRate/Query(a):rtt_p90_us")
+    assert judged(DRIVER_PROCESS, "FixedRate/Query(a):rtt_p50_us")
 
 
 def test_compare_judges_a_round_trip_and_a_timeout_change(tmp_path: Path) -> None:
-    base = [record(tmp_path / f"b{i}.mcap", rtt_p50=500.0) for i in range(2)]
-    slower = [record(tmp_path / f"s{i}.mcap", rtt_p50=600.0) for i in range(2)]
-    lost = [record(tmp_path / f"t{i}.mcap", answered=0, timeouts=100) for i in range(2)]
+    base = [record(tmp_path / f"b{i}.mcap", rtt_p50=500.0 + i) for i in range(3)]
+    slower = [record(tmp_path / f"s{i}.mcap", rtt_p50=600.0 + i) for i in range(3)]
+    lost = [record(tmp_path / f"t{i}.mcap", answered=0, timeouts=100) for i in range(3)]
     flagged = {v.key.counter: v for v in compare_files(base, slower).changed}
     assert "FixedRate/Query(svc/get):rtt_p50_us" in flagged
     assert "FixedRate/Query(svc/get):timeouts" not in flagged
     timed_out = {v.key.counter: v for v in compare_files(base, lost).changed}
     assert timed_out["FixedRate/Query(svc/get):timeouts"].result.method == "count_rate"
-    unchanged = compare_files(base, [record(tmp_path / "u.mcap", rtt_p50=505.0)])
-    assert not [v for v in unchanged.changed if v.key.process == DRIVER_PROCESS]
+    same = [record(tmp_path / f"u{i}.mcap", rtt_p50=505.0 - i) for i in range(3)]
+    assert not [v for v in compare_files(base, same).changed if v.key.process == DRIVER_PROCESS]
+
+
+def test_a_faster_round_trip_is_reported_but_is_no_failure(tmp_path: Path) -> None:
+    base = [record(tmp_path / f"b{i}.mcap", rtt_p50=600.0 + i) for i in range(3)]
+    faster = [record(tmp_path / f"f{i}.mcap", rtt_p50=500.0 + i) for i in range(3)]
+    comparison = compare_files(base, faster)
+    assert not [v for v in comparison.changed if v.key.process == DRIVER_PROCESS]
+    (better,) = [v for v in comparison.improved if v.key.counter.endswith(":rtt_p50_us")]
+    assert better.result.direction == "decrease"
+
+
+def test_compare_does_not_judge_a_phase_the_host_was_busy_in(tmp_path: Path) -> None:
+    """A trial saw `compare` warn that the candidate's phase was disturbed, then judge it:
+    cpu_percent -23.1 %, CHANGED. A busy phase is left out, saying why."""
+    base = [record(tmp_path / f"b{i}.mcap", cpu=20.0 + i / 10) for i in range(3)]
+    busy = [record(tmp_path / f"h{i}.mcap", cpu=15.0, host=95.0) for i in range(3)]
+    comparison = compare_files(base, busy)
+    assert comparison.changed == []
+    (segment,) = [s for s in comparison.segments if s.phase == "steady"]
+    assert segment.series == () and "not judged: the host was busy" in segment.note
+    assert "other load" in segment.note and "h0.mcap" in segment.note

@@ -115,15 +115,18 @@ def compare_cmd(
         for (case, phase, params), why in recorded.disturbed.items():
             typer.echo(
                 f"warning: {recorded.label}: {case}/{phase} {params}: {why} (its "
-                "measurements may not be the component's own)",
+                "measurements are not judged)",
                 err=True,
             )
     changed = comparison.changed
     for segment in comparison.segments:
-        mark = f"CHANGED ({len(segment.changed)})" if segment.changed else segment.note or "ok"
-        typer.echo(f"{segment.name}: {mark}")
+        marks = [f"CHANGED ({len(segment.changed)})"] if segment.changed else []
+        marks += [f"improved ({len(segment.improved)})"] if segment.improved else []
+        typer.echo(f"{segment.name}: {', '.join(marks) or segment.note or 'ok'}")
+    worse = sum(1 for segment in comparison.segments if segment.changed)
     typer.echo(
-        f"{len(changed)} counter(s) changed in {len(comparison.segments)} segment(s); "
+        f"{len(changed)} counter(s) changed for the worse in {worse} of "
+        f"{len(comparison.segments)} segment(s), {len(comparison.improved)} improved; "
         f"JUnit: {args.junit}" + (f"; HTML: {args.html}" if args.html else "")
     )
     if changed:

@@ -25,6 +25,7 @@ from redline.detect.counters import (
     is_load,
     judged,
     kind,
+    worse,
 )
 from redline.detect.methods import KolmogorovSmirnov
 from redline.detect.relative_change import RelativeChange
@@ -84,7 +85,13 @@ class SegmentVerdict:
 
     @property
     def changed(self) -> list[SeriesVerdict]:
-        return [verdict for verdict in self.series if verdict.result.flagged]
+        """The changes for the worse (what fails a comparison)."""
+        return [verdict for verdict in self.series if _for_the_worse(verdict)]
+
+    @property
+    def improved(self) -> list[SeriesVerdict]:
+        """The changes for the better: reported, never a failure."""
+        return [v for v in self.series if v.result.flagged and not _for_the_worse(v)]
 
 
 @dataclass(frozen=True)
@@ -96,6 +103,15 @@ class Comparison:
     @property
     def changed(self) -> list[SeriesVerdict]:
         return [verdict for segment in self.segments for verdict in segment.changed]
+
+    @property
+    def improved(self) -> list[SeriesVerdict]:
+        return [verdict for segment in self.segments for verdict in segment.improved]
+
+
+def _for_the_worse(verdict: SeriesVerdict) -> bool:
+    key = verdict.key
+    return verdict.result.flagged and verdict.result.direction == worse(key.process, key.counter)
 
 
 def params_name_of(canonical: str) -> str:
@@ -134,11 +150,13 @@ def load_side(
         busy = recording_disturbances(
             {key: [value for _, value in points] for key, points in everything.items()}, busy_limit
         )
-        # the judged series, and the driver's loads that its counts are rated out of
+        # the judged series, and the driver's loads that its counts are rated out of; not a
+        # segment the host was busy in: its values are not the component's own
         timeline = {
             key: points
             for key, points in everything.items()
-            if judged(key.process, key.counter, context) or is_load(key.process, key.counter)
+            if (judged(key.process, key.counter, context) or is_load(key.process, key.counter))
+            and _segment(key) not in busy
         }
         loaded.append(
             RecordedSeries(path=path, label=_label(recording), timeline=timeline, disturbed=busy)
@@ -198,6 +216,16 @@ def _verdict(
     )
 
 
+def _busy(recorded: Sequence[RecordedSeries], judged_segments: set[Segment]) -> dict[Segment, str]:
+    """The segments left unjudged because the host was busy, with which recording said so."""
+    found: dict[Segment, str] = {}
+    for side in recorded:
+        for ident, why in side.disturbed.items():
+            if ident not in judged_segments and ident not in found:
+                found[ident] = f"{side.path.name}: {why}"
+    return found
+
+
 def compare_sides(
     baseline: tuple[RecordedSeries, ...], candidate: tuple[RecordedSeries, ...]
 ) -> Comparison:
@@ -214,8 +242,11 @@ def compare_sides(
     for key in common:
         by_segment.setdefault(_segment(key), []).append(_verdict(key, base, cand))
     segments = [SegmentVerdict(*ident, series=tuple(found)) for ident, found in by_segment.items()]
+    busy = _busy(baseline + candidate, set(by_segment))
+    for ident, why in sorted(busy.items()):
+        segments.append(SegmentVerdict(*ident, note=f"not judged: the host was busy ({why})"))
     for side, only in (("baseline", base), ("candidate", cand)):
-        for ident in sorted({_segment(key) for key in only} - set(by_segment)):
+        for ident in sorted({_segment(key) for key in only} - set(by_segment) - set(busy)):
             segments.append(SegmentVerdict(*ident, note=f"recorded only in the {side}"))
     segments.sort(key=lambda s: (s.case, s.phase, s.params))
     return Comparison(baseline=baseline, candidate=candidate, segments=tuple(segments))

@@ -63,10 +63,15 @@ def is_load(process: str, counter: str) -> bool:
     return kind(process) in ("driver", "recorder") and metric_of(counter) is None
 
 
+#: A driver's extremes (the largest and the 99th percentile of a phase's few hundred round trips
+#: or lateness samples): one outlier decides them, so they are charted, not judged.
+EXTREMES = ("_max_us", "_p99_us")
+
+
 def judged(process: str, counter: str, context: Collection[str] = CONTEXT_COUNTERS) -> bool:
     """Whether a verdict is asked of this series: not the host's, not a context counter, not a
-    load the driver delivered."""
+    load the driver delivered, not a driver's extreme (`EXTREMES`)."""
     series_kind = kind(process)
     if series_kind in ("driver", "recorder"):
-        return metric_of(counter) is not None
+        return metric_of(counter) is not None and not counter.endswith(EXTREMES)
     return series_kind == "counter" and counter not in context

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import inspect
 import math
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -20,6 +21,11 @@ DEFAULT_MIN_EFFECT = 0.10
 #: function as ``__wrapped__``): 6.5x faster on the 1-D finite arrays this module passes, the
 #: same statistic and p-value (tests/test_detect_ks.py compares it with the public function).
 _ks_2samp = inspect.unwrap(stats.ks_2samp)
+# scipy falls back from the exact p-value to the asymptotic one on large or tied samples, and
+# says so on every such call: a user's console filled with it (the p-value stays right)
+warnings.filterwarnings(
+    "ignore", message="ks_2samp: Exact calculation unsuccessful", category=RuntimeWarning
+)
 
 
 @dataclass(frozen=True)

@@ -1,12 +1,15 @@
 """A change of the median past a relative threshold, for series with one value per recording.
 
-A driver's quantiles (a round trip's p99, FixedRate's achieved rate) are one value per segment
-and recording; comparing one recording with another, no test has the values to judge by. This
-detector judges them as pytest-benchmark's ``--benchmark-compare-fail=median:10%`` does: a
+A driver's quantiles (a round trip's p50, FixedRate's achieved rate) are one value per segment
+and recording: comparing a few recordings with a few others, no test has the values to judge by.
+This detector judges them as pytest-benchmark's ``--benchmark-compare-fail=median:10%`` does, a
 change when the median moved by ``min_effect`` of the baseline's median or more (the counter's
-absolute floor applies on top, in `redline.detect.verdict`). ``min_effect = 0.10``: ours,
-pytest-benchmark's example threshold. Where there are enough executions, the service judges
-the same series with its configured methods.
+absolute floor applies on top, in `redline.detect.verdict`), and asks two things more, because a
+new user's unchanged code moved a round trip's p90 by -34 % from one run to the next: at least
+``min_baseline`` and ``min_candidate`` values (3: one value a side cannot tell a change from
+noise), and no overlap, every candidate value beyond the baseline's range in the direction of
+the change. ``min_effect = 0.10``: ours, pytest-benchmark's example threshold. Where there are
+enough executions, the service judges the same series with its configured methods.
 """
 
 from __future__ import annotations
@@ -28,7 +31,7 @@ class RelativeChange(Detector):
     baseline_values = 1
 
     def __init__(
-        self, min_effect: float = 0.10, min_baseline: int = 1, min_candidate: int = 1
+        self, min_effect: float = 0.10, min_baseline: int = 3, min_candidate: int = 3
     ) -> None:
         self.min_effect = min_effect
         self.min_baseline = min_baseline
@@ -42,8 +45,10 @@ class RelativeChange(Detector):
             min_candidate=self.min_candidate,
         )
         if isinstance(checked, str):
-            if checked.startswith("constant series"):  # one value a side, the same: no change
+            if checked.startswith("constant series"):  # the same value throughout: no change
                 return Detection(method=self.name, verdict=NO_CHANGE, reason=checked)
+            if checked.startswith("too few samples"):
+                checked += " (one value per execution: run each side with --executions 3 or more)"
             return abstain(self.name, checked)
         return self._detect(*checked)
 
@@ -54,11 +59,16 @@ class RelativeChange(Detector):
         else:
             effect = (after - before) / abs(before)
         score = abs(effect) / self.min_effect
+        apart = cand.min() > base.max() if effect > 0 else cand.max() < base.min()
+        reason = f"median {before:.4g} -> {after:.4g}"
+        if score >= 1 and not apart:
+            reason += " (within the baseline's range: not told from noise)"
+            score = min(score, 0.99)
         return Detection(
             method=self.name,
             verdict=CHANGE if score >= 1 else NO_CHANGE,
             score=score,
             effect=effect,
             direction=direction_of(effect),
-            reason=f"median {before:.4g} -> {after:.4g}",
+            reason=reason,
         )
