@@ -189,3 +189,7 @@ def test_component_page_lists_regressions_with_their_state(api, database_url, tm
     rows = page.split('id="revisions"', 1)[1].split("</table>", 1)[0]
     assert "ks: not enough data yet (missing baseline" in rows
     assert "ks: 1 change(s), 0 series unchanged" in rows
+    # and the API says the same of one revision
+    first = api.get("/revisions/r1").json()
+    assert first["verdict"].startswith("ks: not enough data yet (missing baseline")
+    assert api.get("/revisions/r2").json()["verdict"] == "ks: 1 change(s), 0 series unchanged"

@@ -52,7 +52,7 @@ def component_page(name: str, request: Request, session: SessionDep) -> HTMLResp
             "revisions": revisions.list_revisions(session, name),
             "flagged": [change for change in changes if change.flagged],
             "regressions": regressions.list_regressions(session, name),
-            "verdicts": regressions.revision_verdicts(session, name),
+            "verdicts": revisions.revision_verdicts(session, name),
         },
     )
 

@@ -71,3 +71,8 @@ class RevisionOut(BaseModel):
 class RevisionDetail(RevisionOut):
     component: str
     jobs: list[JobOut]
+    verdict: str = Field(
+        default="",
+        description="what the alarm method found, in a few words, or why there is no verdict "
+        "yet (e.g. how many more baseline executions it waits for)",
+    )

@@ -5,13 +5,11 @@ from __future__ import annotations
 
 from collections import defaultdict
 
-from redline.detect.config import ConfigError, DetectionConfig
 from redline.server.models import (
     FALSE_POSITIVE_STATES,
     TRUE_POSITIVE_STATES,
     ApiToken,
     Detection,
-    DetectionConfigRow,
     Regression,
     RegressionEvent,
     RegressionState,
@@ -30,7 +28,7 @@ from redline.server.schemas.regressions import (
 from redline.server.services.components import get_component
 from redline.server.services.errors import BadRequest, NotFound
 from redline.server.services.results import series_ref
-from sqlalchemy import Select, func, select
+from sqlalchemy import Select, select
 from sqlalchemy.orm import Session, aliased
 
 
@@ -225,41 +223,3 @@ def list_detections(
         Revision.order_key.desc(), Detection.flagged.desc(), Series.id, Detection.method
     ).limit(limit)
     return [_detection_out(row) for row in session.execute(query)]
-
-
-def revision_verdicts(session: Session, component_name: str) -> dict[str, str]:
-    """Per revision title, what its alarm method said in a few words: its changes, no change,
-    or why there is no verdict yet (the baseline it still waits for)."""
-    component = get_component(session, component_name)
-    row = session.get(DetectionConfigRow, component.id)
-    try:
-        method = DetectionConfig.parse(row.config if row else None).alarming[0]
-    except ConfigError:
-        method = DetectionConfig().alarming[0]
-    counts: dict[str, dict[str, int]] = defaultdict(dict)
-    why: dict[str, str] = {}
-    for title, verdict, number, reason in session.execute(
-        select(Revision.title, Detection.verdict, func.count(), func.min(Detection.reason))
-        .join(Revision, Revision.id == Detection.revision_id)
-        .where(Revision.component_id == component.id, Detection.method == method)
-        .group_by(Revision.title, Detection.verdict)
-    ):
-        counts[title][verdict] = number
-        if verdict == "not enough data":
-            why[title] = reason
-    said = {}
-    for title, by in counts.items():
-        changed, same, unknown = (
-            by.get("change", 0),
-            by.get("no change", 0),
-            by.get("not enough data", 0),
-        )
-        if changed:
-            said[title] = f"{method}: {changed} change(s), {same} series unchanged"
-        elif same:
-            said[title] = f"{method}: no change in {same} series" + (
-                f", {unknown} not judged yet" if unknown else ""
-            )
-        else:
-            said[title] = f"{method}: not enough data yet ({why.get(title, '')})"
-    return said

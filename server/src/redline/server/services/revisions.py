@@ -4,9 +4,10 @@ from __future__ import annotations
 
 import base64
 import re
-from collections import Counter
+from collections import Counter, defaultdict
 
-from redline.server.models import Component, Job, JobState, Revision
+from redline.detect.config import ConfigError, DetectionConfig
+from redline.server.models import Component, Detection, DetectionConfigRow, Job, JobState, Revision
 from redline.server.schemas.revisions import (
     ExecutionOut,
     JobOut,
@@ -17,7 +18,7 @@ from redline.server.schemas.revisions import (
 from redline.server.services.components import get_component
 from redline.server.services.errors import BadRequest, Conflict, Forbidden, NotFound
 from redline.server.services.repos import repo_key
-from sqlalchemy import literal, or_, select, tuple_
+from sqlalchemy import func, literal, or_, select, tuple_
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session, selectinload
 
@@ -228,4 +229,48 @@ def revision_detail(session: Session, component_name: str, title: str) -> Revisi
         **_revision_out(revision),
         component=component.name,
         jobs=[job_out(job) for job in revision.jobs],
+        verdict=revision_verdicts(session, component_name, title).get(title, ""),
     )
+
+
+def revision_verdicts(
+    session: Session, component_name: str, title: str | None = None
+) -> dict[str, str]:
+    """Per revision title (or only ``title``), what its alarm method said in a few words: its
+    changes, no change, or why there is no verdict yet (the baseline it still waits for)."""
+    component = get_component(session, component_name)
+    row = session.get(DetectionConfigRow, component.id)
+    try:
+        method = DetectionConfig.parse(row.config if row else None).alarming[0]
+    except ConfigError:
+        method = DetectionConfig().alarming[0]
+    counts: dict[str, dict[str, int]] = defaultdict(dict)
+    why: dict[str, str] = {}
+    query = (
+        select(Revision.title, Detection.verdict, func.count(), func.min(Detection.reason))
+        .join(Revision, Revision.id == Detection.revision_id)
+        .where(Revision.component_id == component.id, Detection.method == method)
+        .group_by(Revision.title, Detection.verdict)
+    )
+    if title is not None:
+        query = query.where(Revision.title == title)
+    for name, verdict, number, reason in session.execute(query):
+        counts[name][verdict] = number
+        if verdict == "not enough data":
+            why[name] = reason
+    said = {}
+    for title, by in counts.items():
+        changed, same, unknown = (
+            by.get("change", 0),
+            by.get("no change", 0),
+            by.get("not enough data", 0),
+        )
+        if changed:
+            said[title] = f"{method}: {changed} change(s), {same} series unchanged"
+        elif same:
+            said[title] = f"{method}: no change in {same} series" + (
+                f", {unknown} not judged yet" if unknown else ""
+            )
+        else:
+            said[title] = f"{method}: not enough data yet ({why.get(title, '')})"
+    return said
