@@ -16,24 +16,29 @@ from redline.worker.reanalysis import reanalyze_component
 from sqlalchemy import select
 
 from tests.support.api import api_with
-from tests.support.history import add_executions
+from tests.support.history import add_executions, ingest_and_detect
 
 NAME, RUNS = "builder", 3
 
 
-def _judge(session, database_url: str, tmp_path: Path, levels: list[float], start: int = 1):
-    """Revisions r<start>.. with RUNS executions each around ``levels`` (2 % noise), ingested
-    and judged one by one, as the service does."""
+def _judge(
+    session,
+    database_url: str,
+    tmp_path: Path,
+    levels: list[float],
+    start: int = 1,
+    counter: str = "cpu",
+):
+    """Revisions r<start>.. with RUNS executions each around ``levels`` (2 % noise) of
+    ``counter``, ingested and judged one by one, as the service does."""
     rng = np.random.default_rng(start)
     for number, level in enumerate(levels, start=start):
         runs = [
-            {"cpu": rng.normal(level * (1 + rng.normal(0, 0.01)), level * 0.02, 40)}
+            {counter: rng.normal(level * (1 + rng.normal(0, 0.01)), level * 0.02, 40)}
             for _ in range(RUNS)
         ]
         executions = add_executions(session, tmp_path, NAME, f"r{number}", str(number), runs)
-        for execution in executions:
-            ingest_execution(database_url, execution.id)
-        detect_revision(database_url, executions[0].revision_id)
+        ingest_and_detect(database_url, executions)
     session.expire_all()
 
 
@@ -162,14 +167,8 @@ def test_a_change_whose_series_is_no_longer_measured_is_dropped_not_left_waiting
 ):
     _component(session)
     _judge(session, database_url, tmp_path, [20.0] * 4 + [30.0])
-    rng = np.random.default_rng(3)
-    for number in range(6, 12):  # the test was renamed: its series is gone from r6 on
-        runs = [{"renamed": rng.normal(20.0, 0.4, 40)} for _ in range(RUNS)]
-        executions = add_executions(session, tmp_path, NAME, f"r{number}", str(number), runs)
-        for execution in executions:
-            ingest_execution(database_url, execution.id)
-        detect_revision(database_url, executions[0].revision_id)
-    session.expire_all()
+    # the test was renamed: its series is gone from r6 on
+    _judge(session, database_url, tmp_path, [20.0] * 6, start=6, counter="renamed")
     r5 = _flagged(session)["r5"]
     assert r5.confirmation == "dropped"
     assert (

@@ -27,7 +27,7 @@ from redline.worker.detection import detect_revision
 from redline.worker.ingest import ingest_execution
 from sqlalchemy import select
 
-from tests.support.history import add_executions
+from tests.support.history import add_executions, ingest_and_detect
 from tests.support.recordings import run_metadata, write_recording
 
 NAME, RUNS, PAIRS = "builder", 3, 2
@@ -56,9 +56,7 @@ def _measured(
             job = session.get_one(Job, execution.job_id)
             job.host_id, job.attempts = host.id, 1 if leased else 0
         session.commit()
-        for execution in executions:
-            ingest_execution(database_url, execution.id)
-        detect_revision(database_url, executions[0].revision_id)
+        ingest_and_detect(database_url, executions)
     session.expire_all()
 
 
@@ -166,7 +164,7 @@ def test_pairs_that_do_not_show_it_leave_the_regression_not_confirmed(
 def test_a_baseline_that_can_no_longer_run_is_named_and_the_history_decides_instead(
     session, database_url, tmp_path
 ):
-    _flagged_history(session, database_url, tmp_path)
+    host = _flagged_history(session, database_url, tmp_path)
     while (job := lease_job(session, "perf-1", 60, 3)) is not None:
         if job.revision.title == "r4":  # what the agent reports when the commit is gone
             job.state, job.reason = JobState.failed, "checkout failed: commit abc123 not found"
@@ -181,13 +179,7 @@ def test_a_baseline_that_can_no_longer_run_is_named_and_the_history_decides_inst
         "re-runs could not decide: no confirmation pair could run (r4: checkout failed: commit "
         "abc123 not found); the later revisions will confirm it instead"
     )
-    for number in (6, 7):  # two later revisions keep the new level
-        runs = [_cpu(30.0, number * 10 + i) for i in range(RUNS)]
-        executions = add_executions(session, tmp_path, NAME, f"r{number}", str(number), runs)
-        for execution in executions:
-            ingest_execution(database_url, execution.id)
-        detect_revision(database_url, executions[0].revision_id)
-    session.expire_all()
+    _measured(session, database_url, tmp_path, [30.0, 30.0], host, start=6)  # the new level
     assert _r5_detection(session).confirmation == "held"
     assert session.scalars(select(Regression)).one().confirmation == "confirmed"
 

@@ -16,7 +16,7 @@ from redline.worker.detection import detect_revision
 from redline.worker.ingest import ingest_execution
 from sqlalchemy import func, select
 
-from tests.support.history import add_execution
+from tests.support.history import add_execution, ingest_and_detect
 
 
 def _history(session, tmp_path: Path, factors: list[float], seed: int = 1) -> list[Execution]:
@@ -114,13 +114,6 @@ def test_tripled_counter_is_flagged_and_unchanged_one_is_not(session, database_u
     assert not changes[("rss", "r3")].flagged
 
 
-def _detect_all(database_url: str, executions: list[Execution]) -> None:
-    for execution in executions:
-        ingest_execution(database_url, execution.id)
-    for execution in executions:
-        detect_revision(database_url, execution.revision_id)
-
-
 def test_host_wide_counters_are_context_not_judged(session, database_url, tmp_path):
     create_component(session, ComponentCreate(name="builder"))
     rng = np.random.default_rng(3)
@@ -136,7 +129,7 @@ def test_host_wide_counters_are_context_not_judged(session, database_url, tmp_pa
         )
         for n, factor in ((1, 1.0), (2, 3.0))
     ]
-    _detect_all(database_url, executions)
+    ingest_and_detect(database_url, executions)
     assert session.scalar(select(func.count()).select_from(Summary)) == 2  # still charted
     assert _changes(session) == {}
 
@@ -160,7 +153,7 @@ def test_change_below_the_counters_absolute_floor_is_not_flagged(session, databa
         )
         for n, factor in ((1, 1.0), (2, 1.15))
     ]
-    _detect_all(database_url, executions)
+    ingest_and_detect(database_url, executions)
     changes = _changes(session)
     small, large = changes[("small_cpu_percent", "r2")], changes[("large_cpu_percent", "r2")]
     assert small.p_value < 1e-6 and small.effect == pytest.approx(0.15, abs=0.02)

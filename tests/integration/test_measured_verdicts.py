@@ -12,12 +12,10 @@ from redline.recording import RecordingWriter
 from redline.server.models import Detection, Execution, Regression, Revision, Series
 from redline.server.schemas.components import ComponentCreate
 from redline.server.services.components import create_component
-from redline.worker.detection import detect_revision
-from redline.worker.ingest import ingest_execution
 from sqlalchemy import select
 
 from tests.support.api import api_with
-from tests.support.history import add_executions
+from tests.support.history import add_executions, ingest_and_detect
 
 NAME, CASE, PHASE, PARAMS = "svc", "ask", "steady", {"rate": 50}
 QUERY = "FixedRate/Query(svc/get)"
@@ -90,9 +88,7 @@ def _history(session, database_url: str, tmp_path: Path, last: dict[str, Any]) -
     create_component(session, ComponentCreate(name=NAME, executions=RUNS))
     for number in range(1, 5):
         executions = _revision(session, tmp_path, number, **(last if number == 4 else {}))
-        for execution in executions:
-            ingest_execution(database_url, execution.id)
-        detect_revision(database_url, executions[0].revision_id)
+        ingest_and_detect(database_url, executions)
     session.expire_all()
     return session.scalars(select(Revision).where(Revision.title == "r4")).one()
 

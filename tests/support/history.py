@@ -100,8 +100,8 @@ def cpu_history(
 
 
 def ingest_and_detect(database_url: str, executions: list[Execution]) -> None:
-    """Ingest every execution, then detect every revision, in that order."""
+    """Ingest every execution, then detect each of their revisions once, in order."""
     for execution in executions:
         ingest_execution(database_url, execution.id)
-    for execution in executions:
-        detect_revision(database_url, execution.revision_id)
+    for revision_id in dict.fromkeys(execution.revision_id for execution in executions):
+        detect_revision(database_url, revision_id)

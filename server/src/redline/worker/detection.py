@@ -31,12 +31,12 @@ from redline.detect.result import not_enough
 from redline.detect.verdict import judge_series
 from redline.server.db import bulk_insert, session_scope
 from redline.server.models import Component, Detection, Revision, utcnow
+from redline.server.services.detection_config import component_config
 from redline.worker.baselines import Baseline, Baselines
 from redline.worker.confirm_runs import queue_confirmations, settle_pending_pairs
 from redline.worker.confirmation import confirm_by_history
 from redline.worker.grouping import group_revision
 from redline.worker.history import (
-    component_config,
     count_totals,
     judged_counters,
     no_longer_measured,

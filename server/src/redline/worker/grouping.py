@@ -17,7 +17,6 @@ from collections.abc import Collection
 from redline.detect.confirmation import SUSPECTED
 from redline.detect.counters import worse
 from redline.server.models import (
-    Component,
     Detection,
     Regression,
     RegressionEvent,
@@ -79,11 +78,9 @@ def group_revision(session: Session, revision: Revision, alarming: Collection[st
     """Attach the revision's flagged detections of the ``alarming`` methods to regressions; drop
     emptied untriaged ones.
 
-    The component's row is locked first, so two workers never open overlapping regressions.
+    The caller holds the component's row lock (`redline.worker.detection.store`), so two
+    workers never open overlapping regressions.
     """
-    session.execute(
-        select(Component.id).where(Component.id == revision.component_id).with_for_update()
-    )
     flagged = session.execute(
         select(Detection, Series.process, Series.counter)
         .join(Series, Series.id == Detection.series_id)

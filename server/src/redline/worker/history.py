@@ -3,15 +3,12 @@ series, the next revision with data, the verdicts flagged so far, the configurat
 
 from __future__ import annotations
 
-import logging
 from collections import defaultdict
 from collections.abc import Collection, Sequence
 
-from redline.detect.config import ConfigError, DetectionConfig
 from redline.detect.counters import CONTEXT_COUNTERS, driver_metric, is_count, judged
 from redline.server.models import (
     Detection,
-    DetectionConfigRow,
     Execution,
     Revision,
     Series,
@@ -20,8 +17,6 @@ from redline.server.models import (
 from redline.worker.samples import ingested_executions
 from sqlalchemy import func, select, tuple_
 from sqlalchemy.orm import Session
-
-log = logging.getLogger(__name__)
 
 
 def ingested_fingerprint(session: Session, component_id: int) -> tuple[int, int]:
@@ -65,20 +60,6 @@ def successor_with_data(session: Session, revision_id: int) -> int | None:
         .order_by(Revision.order_key, Revision.id)
         .limit(1)
     )
-
-
-def component_config(session: Session, component_id: int) -> DetectionConfig:
-    """The stored configuration, or the defaults (also when the stored one no longer parses)."""
-    row = session.get(DetectionConfigRow, component_id)
-    try:
-        return DetectionConfig.parse(row.config if row else None)
-    except ConfigError as exc:
-        log.error(
-            "component %s: stored detection configuration unusable (%s); defaults used",
-            component_id,
-            exc,
-        )
-        return DetectionConfig()
 
 
 def judged_counters(

@@ -20,9 +20,9 @@ from typing import Any
 import numpy as np
 from redline.server.db import session_scope
 from redline.server.models import Execution, Reanalysis, Revision, utcnow
+from redline.server.services.detection_config import component_config
 from redline.worker.detection import judge_revision, store_judged
 from redline.worker.history import (
-    component_config,
     flagged_verdicts,
     ingested_fingerprint,
     summarized_series,

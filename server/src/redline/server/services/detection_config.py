@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import logging
+
 from redline.detect.config import ConfigError, DetectionConfig
 from redline.server.models import Component, DetectionConfigRow, Reanalysis, utcnow
 from redline.server.schemas.regressions import DetectionConfigIn, DetectionConfigOut, ReanalysisOut
@@ -10,15 +12,27 @@ from redline.server.services.errors import BadRequest
 from sqlalchemy.dialects.postgresql import insert
 from sqlalchemy.orm import Session
 
+log = logging.getLogger(__name__)
+
+
+def component_config(session: Session, component_id: int) -> DetectionConfig:
+    """The stored configuration, or the defaults (also when the stored one no longer parses,
+    which is logged): what the worker judges by and the pages and API say."""
+    row = session.get(DetectionConfigRow, component_id)
+    try:
+        return DetectionConfig.parse(row.config if row else None)
+    except ConfigError as exc:
+        log.error(
+            "component %s: stored detection configuration unusable (%s); defaults used",
+            component_id,
+            exc,
+        )
+        return DetectionConfig()
+
 
 def get_config(session: Session, component_name: str) -> DetectionConfigOut:
     component = get_component(session, component_name)
-    row = session.get(DetectionConfigRow, component.id)
-    try:
-        config = DetectionConfig.parse(row.config if row else None)
-    except ConfigError:
-        config = DetectionConfig()  # the worker falls back the same way
-    return DetectionConfigOut(**config.as_dict())
+    return DetectionConfigOut(**component_config(session, component.id).as_dict())
 
 
 def set_config(session: Session, component_name: str, data: DetectionConfigIn) -> Component:

@@ -6,8 +6,7 @@ import base64
 import re
 from collections import Counter, defaultdict
 
-from redline.detect.config import ConfigError, DetectionConfig
-from redline.server.models import Component, Detection, DetectionConfigRow, Job, JobState, Revision
+from redline.server.models import Component, Detection, Job, JobState, Revision
 from redline.server.schemas.revisions import (
     ExecutionOut,
     JobOut,
@@ -16,6 +15,7 @@ from redline.server.schemas.revisions import (
     RevisionOut,
 )
 from redline.server.services.components import get_component
+from redline.server.services.detection_config import component_config
 from redline.server.services.errors import BadRequest, Conflict, Forbidden, NotFound
 from redline.server.services.repos import repo_key
 from sqlalchemy import func, literal, or_, select, tuple_
@@ -239,11 +239,7 @@ def revision_verdicts(
     """Per revision title (or only ``title``), what its alarm method said in a few words: its
     changes, no change, or why there is no verdict yet (the baseline it still waits for)."""
     component = get_component(session, component_name)
-    row = session.get(DetectionConfigRow, component.id)
-    try:
-        method = DetectionConfig.parse(row.config if row else None).alarming[0]
-    except ConfigError:
-        method = DetectionConfig().alarming[0]
+    method = component_config(session, component.id).alarming[0]
     counts: dict[str, dict[str, int]] = defaultdict(dict)
     why: dict[str, str] = {}
     query = (
