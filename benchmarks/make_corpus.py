@@ -54,6 +54,8 @@ class Knobs:
     leak_kib_per_tick: int = 0  # allocated and kept every 50 ms by a background thread
     extra_threads: int = 0  # idle threads
     io_kib_per_tick: int = 0  # written to /dev/null every 50 ms (wchar counts it)
+    reply_delay_us: int = 0  # waited before each reply to objectbuilder/locate
+    drop_every: int = 0  # every Nth locate query left unanswered (the caller times out)
 
 
 @dataclass(frozen=True)
@@ -87,6 +89,8 @@ WORK_PER_PAIR = {work}
 LEAK_KIB_PER_TICK = {leak}
 EXTRA_THREADS = {threads}
 IO_KIB_PER_TICK = {io}
+REPLY_DELAY_US = {delay}
+DROP_EVERY = {drop}
 _kept = []
 
 
@@ -121,11 +125,11 @@ def git(repo: Path, *args: str) -> str:
     ).stdout.strip()
 
 
-def plan(stretch: int) -> tuple[list[Knobs], dict[int, Event]]:
+def plan(stretch: int, events: list[Event] = EVENTS) -> tuple[list[Knobs], dict[int, Event]]:
     """Knobs per revision, and which revision each event starts at."""
     knobs, starts, current = [], {}, Knobs()
     knobs += [current] * stretch
-    for event in EVENTS:
+    for event in events:
         starts[len(knobs)] = event
         current = replace(current, **event.apply)
         knobs += [current] * stretch
@@ -149,6 +153,8 @@ def make_repo(repo: Path, knobs: list[Knobs], starts: dict[int, Event]) -> list[
                 leak=knob.leak_kib_per_tick,
                 threads=knob.extra_threads,
                 io=knob.io_kib_per_tick,
+                delay=knob.reply_delay_us,
+                drop=knob.drop_every,
             )
         )
         git(repo, "add", "-A")

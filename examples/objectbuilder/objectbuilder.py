@@ -6,6 +6,10 @@ hypotheses in world coordinates, and publishes them on ``objectbuilder/persons``
 message grows with the square of the number of legs (every pair is scored, `tuning.WORK_PER_PAIR`
 steps each). Leg messages are processed by a thread pool (``--threads``), poses by one thread.
 
+Queryable ``objectbuilder/locate``: the same fusion on request (a leg message as the query's
+payload, the persons as the reply), after `tuning.REPLY_DELAY_US` of waiting; with
+`tuning.DROP_EVERY` = N, every Nth query is left unanswered until the caller has timed out.
+
 Opens zenoh with ``zenoh.Config.from_env()`` (``ZENOH_CONFIG``), prints ``objectbuilder ready``
 once its subscribers and publisher are declared, and exits cleanly on SIGTERM or SIGINT.
 """
@@ -18,15 +22,21 @@ import math
 import signal
 import sys
 import threading
+import time
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
+import tuning
 import zenoh
 from tuning import WORK_PER_PAIR
 
 LEGS_KEY = "objectbuilder/legs"
 POSE_KEY = "objectbuilder/pose"
 PERSONS_KEY = "objectbuilder/persons"
+LOCATE_KEY = "objectbuilder/locate"
+REPLY_DELAY_S = getattr(tuning, "REPLY_DELAY_US", 0) / 1e6
+DROP_EVERY = getattr(tuning, "DROP_EVERY", 0)
+DROPPED_HELD_S = 0.5  # a dropped query is finished only after this (the caller times out first)
 MAX_LEG_GAP = 0.8  # metres: two legs further apart than this are not one person
 
 
@@ -54,7 +64,8 @@ class ObjectBuilder:
         with self._lock:
             self._pose = (float(pose["x"]), float(pose["y"]), float(pose["theta"]))
 
-    def on_legs(self, data: bytes) -> None:
+    def fuse(self, data: bytes) -> str:
+        """The persons in a leg message, as the JSON text published or replied."""
         message = json.loads(data)
         legs: list[dict[str, float]] = message["legs"]
         with self._lock:
@@ -65,8 +76,40 @@ class ObjectBuilder:
                 score = pair_score(a, b)
                 if math.hypot(a["x"] - b["x"], a["y"] - b["y"]) <= MAX_LEG_GAP:
                     persons.append(_person(a, b, score, px, py, theta))
-        reply = {"stamp": message.get("stamp"), "persons": persons}
-        self._publisher.put(json.dumps(reply), encoding="application/json")
+        return json.dumps({"stamp": message.get("stamp"), "persons": persons})
+
+    def on_legs(self, data: bytes) -> None:
+        self._publisher.put(self.fuse(data), encoding="application/json")
+
+
+class Locator:
+    """Answers ``objectbuilder/locate`` queries (on zenoh's callback thread, one at a time)."""
+
+    def __init__(self, builder: ObjectBuilder, key: str) -> None:
+        self._builder = builder
+        self._key = key
+        self._received = 0
+
+    def on_query(self, query: zenoh.Query) -> None:
+        self._received += 1
+        if DROP_EVERY and self._received % DROP_EVERY == 0:
+            threading.Timer(DROPPED_HELD_S, _finish, args=(query,)).start()
+            return
+        with query:  # a query must be finished, or the caller waits for its timeout
+            try:
+                data = query.payload.to_bytes() if query.payload is not None else b""
+                persons = self._builder.fuse(data)
+            except (ValueError, KeyError, TypeError) as exc:
+                query.reply_err(f"malformed leg message: {exc!r}")
+                return
+            if REPLY_DELAY_S:
+                time.sleep(REPLY_DELAY_S)
+            query.reply(self._key, persons, encoding="application/json")
+
+
+def _finish(query: zenoh.Query) -> None:
+    with query:
+        pass
 
 
 def _person(
@@ -101,7 +144,7 @@ def main(argv: list[str] | None = None) -> int:
     with zenoh.open(zenoh.Config.from_env()) as session:
         keys = {
             key: key.replace("objectbuilder", args.prefix, 1)
-            for key in (LEGS_KEY, POSE_KEY, PERSONS_KEY)
+            for key in (LEGS_KEY, POSE_KEY, PERSONS_KEY, LOCATE_KEY)
         }
         builder = ObjectBuilder(session.declare_publisher(keys[PERSONS_KEY]))
         session.declare_subscriber(
@@ -112,6 +155,8 @@ def main(argv: list[str] | None = None) -> int:
             keys[POSE_KEY],
             lambda s: pose_pool.submit(_guarded, builder.on_pose, s.payload.to_bytes()),
         )
+        locator = Locator(builder, keys[LOCATE_KEY])
+        session.declare_queryable(keys[LOCATE_KEY], locator.on_query)
         print(
             f"objectbuilder ready (threads={args.threads}, work per pair={WORK_PER_PAIR})",
             flush=True,

@@ -8,6 +8,7 @@ from datetime import timedelta
 from pathlib import Path
 
 import numpy as np
+from redline.detect.config import DetectionConfig
 from redline.server.models import (
     Detection,
     DetectionConfigRow,
@@ -17,12 +18,15 @@ from redline.server.models import (
     JobState,
     Regression,
     Revision,
+    Series,
+    utcnow,
 )
 from redline.server.schemas.components import ComponentCreate
 from redline.server.schemas.jobs import RegisterRequest
 from redline.server.services.components import create_component
-from redline.server.services.jobs import lease_job, register_host
+from redline.server.services.jobs import lease_job, leased_job, register_host
 from redline.server.services.revisions import cancel_revision, revision_detail
+from redline.worker.confirm_runs import queue_confirmations
 from redline.worker.detection import detect_revision
 from redline.worker.ingest import ingest_execution
 from sqlalchemy import select
@@ -116,6 +120,12 @@ def test_pairs_are_queued_interleaved_and_pinned_to_the_host_that_measured_the_r
     ]
     assert {j.pinned_host_id for j in jobs} == {host.id}
     assert all(j.execution_index >= 1000 for j in jobs)
+    # only the test case with the suspected change runs again, and the agent is told so
+    assert {tuple(j.cases) for j in jobs} == {("throughput",)}
+    first = jobs[0]
+    first.lease_expires_at = utcnow()  # as leased: what the agent is told
+    assert leased_job(first).cases == ["throughput"]
+    first.lease_expires_at = None
     shown = revision_detail(session, NAME, "r4").jobs  # as the API shows the baseline's jobs
     assert [(j.pair, j.confirms) for j in shown] == [(0, None)] * RUNS + [(1, "r5"), (2, "r5")]
     detection = _r5_detection(session)
@@ -239,3 +249,48 @@ def test_a_confirmation_run_whose_host_is_gone_fails_and_the_history_decides(
     reasons = session.scalars(select(Job.reason).where(Job.confirms_revision_id.is_not(None)))
     assert set(reasons) == {"its host perf-1 was not seen for 0:30:00 (confirmation run)"}
     assert _r5_detection(session).confirmation == "held"  # r6 and r7 kept the new level
+
+
+def test_a_revision_whose_only_suspect_is_a_count_of_timeouts_runs_nothing_again(
+    session, database_url, tmp_path
+):
+    """Counts of rare events are confirmed by the later revisions (a few pairs would say
+    nothing of one timeout in a thousand): pairs for them would be machine time spent for no
+    verdict."""
+    component = create_component(session, ComponentCreate(name=NAME, executions=RUNS))
+    session.add(DetectionConfigRow(component_id=component.id, config={"confirm_pairs": PAIRS}))
+    session.commit()
+    host = register_host(session, RegisterRequest(name="perf-1"))
+    _measured(session, database_url, tmp_path, [20.0] * 5, host)
+    detection = session.scalars(
+        select(Detection)
+        .join(Revision, Revision.id == Detection.revision_id)
+        .where(Revision.title == "r5", Detection.method == "execution_shift")
+    ).one()
+    series = detection.series
+    count = Series(
+        component_id=series.component_id,
+        case=series.case,
+        phase=series.phase,
+        params=series.params,
+        process="driver",
+        counter="FixedRate/Query(builder/get):timeouts",
+    )
+    session.add(count)
+    session.flush()
+    session.add(
+        Detection(
+            series_id=count.id,
+            revision_id=detection.revision_id,
+            baseline_revision_id=detection.baseline_revision_id,
+            method="count_rate",
+            verdict="change",
+            flagged=True,
+            direction="increase",
+            confirmation="suspected",
+        )
+    )
+    session.commit()
+    revision = session.get_one(Revision, detection.revision_id)
+    assert queue_confirmations(session, revision, DetectionConfig(confirm_pairs=PAIRS)) == 0
+    assert session.scalar(select(Job).where(Job.confirms_revision_id.is_not(None))) is None

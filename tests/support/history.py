@@ -18,7 +18,9 @@ from redline.worker.ingest import ingest_execution
 from tests.support.recordings import run_metadata, write_recording
 
 #: every table a test empties before it starts (detections and regressions go with CASCADE)
-TABLES = "summary, series, execution, job, revision, component, host, api_token"
+TABLES = (
+    "summary, series, execution, job, revision, component, host, api_token, web_user, web_session"
+)
 COMPONENT = "builder"
 
 

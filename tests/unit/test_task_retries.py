@@ -35,16 +35,30 @@ def no_measurement_lock(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.delenv(quiet.LOCK_VARIABLE, raising=False)
 
 
+@pytest.fixture(autouse=True)
+def renders(monkeypatch: pytest.MonkeyPatch) -> list[int]:
+    """The trend renderings a detection queued (no broker here: the sending is recorded)."""
+    queued: list[int] = []
+    monkeypatch.setattr(tasks.render_trends, "delay", queued.append)
+    return queued
+
+
 @pytest.mark.parametrize("kind", [OperationalError, InterfaceError])
 @pytest.mark.parametrize(("task", "work"), TASKS)
 def test_a_passing_database_outage_is_retried_until_the_task_succeeds(
-    monkeypatch: pytest.MonkeyPatch, task, work: str, kind: type[OperationalError]
+    monkeypatch: pytest.MonkeyPatch,
+    task,
+    work: str,
+    kind: type[OperationalError],
+    renders: list[int],
 ) -> None:
     failing, calls = _failing(2, _outage(kind))
     monkeypatch.setattr(tasks, work, failing)
     result = task.apply(args=(7,))
     assert result.successful(), result.traceback
     assert calls == [7, 7, 7]
+    if task is tasks.detect_revision:  # once done, its component's trend charts are rendered
+        assert renders == [7]
 
 
 @pytest.mark.parametrize(("task", "work"), TASKS)

@@ -181,7 +181,12 @@ class AgentDaemon:
         retried: dict[str, str] = {}
         for attempt in range(self.disturbed_retries + 1):
             with measuring():  # on a shared machine, the worker's analysis waits meanwhile
-                result = run_suite(suite_path, out, run_metadata={**_run_metadata(job), **retried})
+                result = run_suite(
+                    suite_path,
+                    out,
+                    run_metadata={**_run_metadata(job), **retried},
+                    only=job.get("cases") or (),  # a confirmation run: the flagged cases
+                )
             busy = recording_disturbances(
                 read_recording(out, strict=False).series_samples(), threshold()
             )

@@ -1,4 +1,4 @@
-"""The server's `redline` commands: server, worker, migrate, token create.
+"""The server's `redline` commands: server, worker, migrate, token, user, retention.
 
 All read their configuration from ``REDLINE_*`` environment variables (see core/config.py).
 Everything beyond typer is imported inside the commands: every `redline` command line imports
@@ -18,6 +18,7 @@ if TYPE_CHECKING:
 
 token_app = typer.Typer(help="Manage API tokens.", no_args_is_help=True)
 retention_app = typer.Typer(help="Raw recordings' retention.", no_args_is_help=True)
+user_app = typer.Typer(help="People who sign in to the pages.", no_args_is_help=True)
 
 
 def _settings() -> Settings:
@@ -182,6 +183,42 @@ def token_revoke(
             typer.echo(f"revoked {token.id} {token.name}")
 
 
+@user_app.command("create")
+@needs_database
+def user_create(
+    name: Annotated[str, typer.Argument(help="the name they sign in with")],
+    scopes: Annotated[
+        str, typer.Option(help="comma-separated: read (look), ci (also triage), admin (all)")
+    ],
+    password_stdin: Annotated[
+        bool, typer.Option("--password-stdin", help="read the password from standard input")
+    ] = False,
+) -> None:
+    """Create a user who signs in with a password (asked for, or read from standard input;
+    never an argument, which every user of the machine can see in the process list)."""
+    import getpass
+    import sys
+
+    from redline.server.db import session_factory
+    from redline.server.services.errors import ServiceError
+    from redline.server.services.signin import create_user
+
+    if password_stdin:
+        password = sys.stdin.readline().rstrip("\n")
+    else:
+        password = getpass.getpass("password: ")
+        if getpass.getpass("again: ") != password:
+            typer.echo("the two passwords differ", err=True)
+            raise typer.Exit(1)
+    with session_factory(_settings().database_url)() as session:
+        try:
+            user = create_user(session, name, password, scopes)
+        except ServiceError as exc:  # a short password, an unknown scope, a taken name
+            typer.echo(exc.detail, err=True)
+            raise typer.Exit(1) from None
+    typer.echo(f"created user {user.name} ({','.join(user.scopes)})")
+
+
 retention_app.command("run")(retention_run)
 
 
@@ -190,4 +227,5 @@ def register(app: typer.Typer) -> None:
     app.command("worker")(worker_cmd)
     app.command("migrate")(migrate_cmd)
     app.add_typer(token_app, name="token")
+    app.add_typer(user_app, name="user")
     app.add_typer(retention_app, name="retention")

@@ -3,7 +3,8 @@
 What no peer does on its own (Perfherder waits for a person to retrigger; Pinpoint bisects on
 request): when a revision's change is flagged and the component asks for ``confirm_pairs``, the
 worker queues that many pairs of jobs, the baseline revision's then the candidate's, pinned to
-the host that measured the candidate, which leases them in that order (`services.jobs`). Their
+the host that measured the candidate, which leases them in that order (`services.jobs`) and runs
+only the test cases with a suspected change. Their
 executions are not the revisions' own (they never enter the revisions' verdicts or baselines);
 once every pair has run, each suspected change of the candidate is judged on the pairs
 (`redline.detect.confirmation.pairs_hold`): "confirmed by k of n pairs", or not confirmed with
@@ -65,7 +66,13 @@ def queue_confirmations(session: Session, revision: Revision, config: DetectionC
         return 0
     if session.scalar(select(func.count()).where(Job.confirms_revision_id == revision.id)):
         return 0
-    suspected = [d for d, _, _ in _suspected(session, revision.id) if d.baseline_revision_id]
+    # counts of rare events (timeouts) are confirmed by the later revisions, not by a few
+    # pairs (`settle_pairs`): a revision whose only suspects are counts runs nothing again
+    suspected = [
+        d
+        for d, process, counter in _suspected(session, revision.id)
+        if d.baseline_revision_id and not is_count(process, counter)
+    ]
     if not suspected:
         return 0
     own = select(Job).where(Job.revision_id == revision.id, Job.pair == 0)
@@ -89,6 +96,10 @@ def queue_confirmations(session: Session, revision: Revision, config: DetectionC
         counts[detection.baseline_revision_id or 0] += 1
     baseline = max(counts, key=counts.__getitem__)  # the baseline most changes share
     labels = list(revision.component.host_labels or [])
+    # only the test cases with a suspected change run again: the rest would cost machine time
+    # and confirm nothing
+    series = [detection.series_id for detection in suspected]
+    cases = sorted(set(session.scalars(select(Series.case).where(Series.id.in_(series)))))
     queued = 0
     for pair in range(1, config.confirm_pairs + 1):
         for revision_id in (baseline, revision.id):  # baseline first, then the candidate
@@ -105,6 +116,7 @@ def queue_confirmations(session: Session, revision: Revision, config: DetectionC
                     confirms_revision_id=revision.id,
                     pinned_host_id=host_id,
                     labels=labels,
+                    cases=cases,
                 )
             )
             session.flush()

@@ -9,13 +9,20 @@ from typing import Any
 from celery.signals import worker_init
 from redline.agent.quiet import analysing
 from redline.server.core.config import Settings
-from redline.server.core.tasks import DETECT_TASK, INGEST_TASK, REANALYZE_TASK, REQUEUE_TASK
+from redline.server.core.tasks import (
+    DETECT_TASK,
+    INGEST_TASK,
+    REANALYZE_TASK,
+    RENDER_TASK,
+    REQUEUE_TASK,
+)
 from redline.server.db import session_scope
 from redline.worker.app import celery_app
 from redline.worker.detection import detect_revision as run_detection
 from redline.worker.ingest import ingest_execution as run_ingest
 from redline.worker.ingest import stale_uploads
 from redline.worker.reanalysis import reanalyze_component as run_reanalysis
+from redline.worker.trends import render_component_trends, render_revision_trends
 from sqlalchemy.exc import InterfaceError, OperationalError
 
 log = logging.getLogger(__name__)
@@ -57,6 +64,14 @@ def detect_revision(revision_id: int) -> None:
         len(changes),
         sum(change.flagged for change in changes),
     )
+    render_trends.delay(revision_id)
+
+
+@celery_app.task(name=RENDER_TASK, acks_late=True, **RETRY)
+def render_trends(revision_id: int) -> None:
+    """Render the default trend view of the revision's component into the page cache."""
+    with analysing():
+        render_revision_trends(_settings().database_url, revision_id)
 
 
 @celery_app.task(name=REQUEUE_TASK, acks_late=True)
@@ -80,3 +95,4 @@ def reanalyze_component(component_id: int) -> None:
     """Detect every revision of the component again (after a configuration change)."""
     with analysing():
         run_reanalysis(_settings().database_url, component_id)
+        render_component_trends(_settings().database_url, component_id)

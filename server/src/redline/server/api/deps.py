@@ -11,6 +11,7 @@ from redline.server.core.config import Settings
 from redline.server.core.security import grants
 from redline.server.db import session_factory
 from redline.server.models import ApiToken
+from redline.server.services.signin import SESSION_COOKIE, current
 from redline.server.services.tokens import authenticate
 from sqlalchemy.orm import Session
 
@@ -92,8 +93,12 @@ def require_read(
     credentials: Annotated[HTTPAuthorizationCredentials | None, Depends(_bearer)],
 ) -> None:
     """Reading is open unless ``REDLINE_READ_ACCESS=token``; then a ``read`` token is needed,
-    as a bearer header, the ``redline_token`` cookie or ``?token=`` (for the browser UI)."""
+    as a bearer header, the ``redline_token`` cookie or ``?token=`` (for the browser UI), or a
+    signed-in session of the pages."""
     if settings.read_access != "token":
+        return
+    signed_in = current(session, request.cookies.get(SESSION_COOKIE))
+    if signed_in is not None and any(grants(signed_in.scopes, s) for s in ("read", "ci")):
         return
     secret = (
         _bearer_secret(credentials)

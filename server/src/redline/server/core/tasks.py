@@ -21,6 +21,7 @@ DETECT_TASK = "redline.detect_revision"
 REANALYZE_TASK = "redline.reanalyze_component"
 RETENTION_TASK = "redline.prune_old_recordings"
 REQUEUE_TASK = "redline.requeue_stale_uploads"
+RENDER_TASK = "redline.render_trends"
 
 
 def broker_url(redis_url: str) -> str:

@@ -13,8 +13,8 @@ from redline.server.models.detection import (
     RegressionEvent,
     RegressionState,
 )
-from redline.server.models.results import Series, Summary
-from redline.server.models.tokens import ApiToken
+from redline.server.models.results import FigureCache, Series, Summary
+from redline.server.models.tokens import ApiToken, User, WebSession
 from redline.server.models.work import Component, Execution, Host, Job, JobState, Revision
 
 __all__ = [
@@ -26,6 +26,7 @@ __all__ = [
     "Detection",
     "DetectionConfigRow",
     "Execution",
+    "FigureCache",
     "Host",
     "Job",
     "JobState",
@@ -36,5 +37,7 @@ __all__ = [
     "Revision",
     "Series",
     "Summary",
+    "User",
+    "WebSession",
     "utcnow",
 ]

@@ -1,9 +1,11 @@
 """What was measured: named series, and a summary per execution and series (the raw samples stay
-in Parquet beside each recording)."""
+in Parquet beside each recording); and the trend charts rendered from them, cached per view."""
 
 from __future__ import annotations
 
-from redline.server.models.base import Base
+from datetime import datetime
+
+from redline.server.models.base import Base, utcnow
 from sqlalchemy import (
     JSON,
     Float,
@@ -48,3 +50,18 @@ class Summary(Base):
     max: Mapped[float] = mapped_column(Float)
     # quantiles at SKETCH_LEVELS (redline.detect.summary): the distribution in 32 numbers
     sketch: Mapped[list[float] | None] = mapped_column(JSON, default=None)
+
+
+class FigureCache(Base):
+    """A trend view's charts (`redline.server.services.dashboard`), valid while the component's
+    data version is ``version``; ``view`` is the view's query string."""
+
+    __tablename__ = "figure_cache"
+    __table_args__ = (UniqueConstraint("component_id", "view"),)
+    id: Mapped[int] = mapped_column(primary_key=True)
+    component_id: Mapped[int] = mapped_column(ForeignKey("component.id"), index=True)
+    view: Mapped[str] = mapped_column(Text)
+    version: Mapped[str] = mapped_column(Text)
+    figures: Mapped[str] = mapped_column(Text)  # JSON, safe inside <script>: served as it is
+    earlier: Mapped[str | None] = mapped_column(Text, default=None)
+    created: Mapped[datetime] = mapped_column(default=utcnow)

@@ -1,4 +1,5 @@
-"""API tokens: stored only as their hash."""
+"""API tokens, people who sign in to the pages, and their sessions: secrets stored only as
+hashes."""
 
 from __future__ import annotations
 
@@ -9,6 +10,7 @@ from sqlalchemy import (
     JSON,
     Boolean,
     String,
+    Text,
 )
 from sqlalchemy.orm import Mapped, mapped_column
 
@@ -23,3 +25,29 @@ class ApiToken(Base):
     last_used: Mapped[datetime | None] = mapped_column(default=None)
     revoked: Mapped[bool] = mapped_column(Boolean, default=False)
     host: Mapped[str | None] = mapped_column(String(200), default=None)  # an agent token's host
+
+
+class User(Base):
+    """Someone who signs in to the pages with a password (`redline user create`)."""
+
+    __tablename__ = "web_user"
+    id: Mapped[int] = mapped_column(primary_key=True)
+    name: Mapped[str] = mapped_column(String(200), unique=True)
+    password_hash: Mapped[str] = mapped_column(Text)  # scrypt, with its salt and parameters
+    scopes: Mapped[list[str]] = mapped_column(JSON)
+    created: Mapped[datetime] = mapped_column(default=utcnow)
+    disabled: Mapped[bool] = mapped_column(Boolean, default=False)
+
+
+class WebSession(Base):
+    """A signed-in browser: the cookie holds the secret, stored here as its hash, with the
+    form token (CSRF) every form of the session must carry."""
+
+    __tablename__ = "web_session"
+    id: Mapped[int] = mapped_column(primary_key=True)
+    secret_hash: Mapped[str] = mapped_column(String(64), unique=True)
+    who: Mapped[str] = mapped_column(String(200))  # a user's name, or "token <name>"
+    scopes: Mapped[list[str]] = mapped_column(JSON)
+    csrf: Mapped[str] = mapped_column(String(64))
+    created: Mapped[datetime] = mapped_column(default=utcnow)
+    expires: Mapped[datetime] = mapped_column()

@@ -93,6 +93,8 @@ class Job(Base):
         ForeignKey("revision.id"), default=None, index=True
     )
     pinned_host_id: Mapped[int | None] = mapped_column(ForeignKey("host.id"), default=None)
+    #: the test cases to run (a confirmation run's: those with a suspected change); []: all
+    cases: Mapped[list[str]] = mapped_column(JSON, default=list)
     created: Mapped[datetime] = mapped_column(default=utcnow)
     updated: Mapped[datetime] = mapped_column(default=utcnow, onupdate=utcnow)
     revision: Mapped[Revision] = relationship(back_populates="jobs", foreign_keys=[revision_id])

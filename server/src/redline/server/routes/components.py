@@ -2,10 +2,9 @@
 
 from __future__ import annotations
 
-from typing import Annotated
-
-from fastapi import APIRouter, Depends, Query, Request, Response, status
+from fastapi import APIRouter, Depends, Request, Response, status
 from redline.server.api.deps import READ, SessionDep, SettingsDep, require
+from redline.server.api.paging import Cursor, PageSize, next_page
 from redline.server.core.bodies import JsonRoute
 from redline.server.schemas.common import Problem, problems
 from redline.server.schemas.components import ComponentCreate, ComponentOut, ComponentSettings
@@ -57,8 +56,8 @@ def list_revisions(
     name: str,
     session: SessionDep,
     response: Response,
-    limit: Annotated[int | None, Query(ge=1, le=1000, description="page size")] = None,
-    cursor: Annotated[str | None, Query(description="X-Next-Cursor of the previous page")] = None,
+    limit: PageSize = None,
+    cursor: Cursor = None,
 ) -> list[RevisionOut]:
     """The component's revisions in sort-key order, each with a state derived from its jobs.
 
@@ -112,6 +111,17 @@ def compare_revisions(name: str, base: str, candidate: str, session: SessionDep)
 
 
 @router.get("/{name}/changes", responses=NOT_FOUND, dependencies=READ)
-def list_changes(name: str, session: SessionDep, flagged: bool = False) -> list[ChangeOut]:
-    """Detected changes; ``?flagged=true`` keeps only those the detector flagged."""
-    return results.component_changes(session, name, flagged_only=flagged)
+def list_changes(
+    name: str,
+    session: SessionDep,
+    response: Response,
+    flagged: bool = False,
+    limit: PageSize = None,
+    cursor: Cursor = None,
+) -> list[ChangeOut]:
+    """KS's verdicts, newest revision first, flagged first within it; ``?flagged=true`` keeps
+    only those it flagged. Paged with ``limit``: a full page carries ``X-Next-Cursor``, passed
+    back as ``cursor`` for the next; without ``limit``, all."""
+    found, following = results.component_changes(session, name, flagged, limit, cursor)
+    next_page(response, following)
+    return found

@@ -5,8 +5,9 @@ from __future__ import annotations
 
 from typing import Annotated, Literal
 
-from fastapi import APIRouter, Depends, Query, Request, status
+from fastapi import APIRouter, Depends, Query, Request, Response, status
 from redline.server.api.deps import READ, SessionDep, require
+from redline.server.api.paging import Cursor, PageSize, next_page
 from redline.server.core.bodies import JsonRoute
 from redline.server.models import ApiToken, RegressionState
 from redline.server.schemas.common import Responses, problems
@@ -29,17 +30,25 @@ NOT_FOUND = problems(404, description="unknown component or regression")
 BAD: Responses = {**problems(400), **NOT_FOUND}
 
 
-@router.get("/{name}/regressions", responses=NOT_FOUND, dependencies=READ)
+@router.get("/{name}/regressions", responses=BAD, dependencies=READ)
 def list_regressions(
     name: str,
     session: SessionDep,
+    response: Response,
     state: RegressionState | None = None,
     confirmation: Literal["suspected", "confirmed", "not_confirmed"] | None = None,
+    limit: PageSize = None,
+    cursor: Cursor = None,
 ) -> list[RegressionOut]:
-    """Flagged changes for the worse grouped by overlapping revision ranges; ``?state=``
-    (triage) and ``?confirmation=`` (suspected until the later revisions confirm it or not)
-    filter."""
-    return regressions.list_regressions(session, name, state, confirmation)
+    """Flagged changes for the worse grouped by overlapping revision ranges, newest first;
+    ``?state=`` (triage) and ``?confirmation=`` (suspected until the later revisions confirm it
+    or not) filter. Paged with ``limit``: a full page carries ``X-Next-Cursor``, passed back as
+    ``cursor`` for the next; without ``limit``, all."""
+    found, following = regressions.list_regressions(
+        session, name, state, confirmation, limit, cursor
+    )
+    next_page(response, following)
+    return found
 
 
 @router.get("/{name}/regressions/{regression_id}", responses=NOT_FOUND, dependencies=READ)
@@ -56,7 +65,7 @@ def triage_regression(
     token: Annotated[ApiToken, Depends(require("ci"))],
 ) -> RegressionDetail:
     """Set the triage state (``ci`` or ``admin`` scope); recorded in the history."""
-    return regressions.triage(session, name, regression_id, change, token)
+    return regressions.triage(session, name, regression_id, change, token.name)
 
 
 @router.get("/{name}/regressions/{regression_id}/history", responses=NOT_FOUND, dependencies=READ)
@@ -72,16 +81,22 @@ def method_accuracy(name: str, session: SessionDep) -> AccuracyOut:
     return regressions.accuracy(session, name)
 
 
-@router.get("/{name}/detections", responses=NOT_FOUND, dependencies=READ)
+@router.get("/{name}/detections", responses=BAD, dependencies=READ)
 def list_detections(
     name: str,
     session: SessionDep,
+    response: Response,
     revision: str | None = None,
     method: str | None = None,
     limit: Annotated[int, Query(ge=1, le=10_000)] = 1000,
+    cursor: Cursor = None,
 ) -> list[DetectionOut]:
-    """Every method's verdict per series, "not enough data" with its reason included."""
-    return regressions.list_detections(session, name, revision, method, limit)
+    """Every method's verdict per series, "not enough data" with its reason included; newest
+    revision first, flagged first within it. Paged: a full page carries ``X-Next-Cursor``,
+    passed back as ``cursor`` for the next."""
+    found, following = regressions.list_detections(session, name, revision, method, limit, cursor)
+    next_page(response, following)
+    return found
 
 
 @router.get("/{name}/detection-config", responses=NOT_FOUND, dependencies=READ)

@@ -36,6 +36,11 @@ class LeasedJob(BaseModel):
     revision: LeasedRevision
     execution_index: int
     lease_expires_at: datetime
+    cases: list[str] = Field(
+        default_factory=list,
+        description="run only these test cases of the suite (a confirmation run: those with a "
+        "suspected change); empty: every case",
+    )
 
 
 class HeartbeatResponse(BaseModel):

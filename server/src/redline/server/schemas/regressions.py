@@ -15,6 +15,7 @@ from redline.server.schemas.results import SeriesRef
 
 
 class DetectionOut(BaseModel):
+    id: int
     series: SeriesRef
     revision: str
     baseline: str | None = Field(description="the newest baseline revision; null when missing")

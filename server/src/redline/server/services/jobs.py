@@ -106,6 +106,7 @@ def leased_job(job: Job) -> LeasedJob:
         revision=LeasedRevision(title=revision.title, sort_key=revision.sort_key),
         execution_index=job.execution_index,
         lease_expires_at=job.lease_expires_at,
+        cases=list(job.cases or []),
     )
 
 

@@ -25,12 +25,13 @@ def matches(series: SeriesRef, fields: dict[str, str | None], params: dict[str, 
     if any(value is not None and getattr(series, name) != value for name, value in fields.items()):
         return False
     return all(
-        name in series.params and _text(series.params[name]) == value
+        name in series.params and param_text(series.params[name]) == value
         for name, value in params.items()
     )
 
 
-def _text(value: object) -> str:
+def param_text(value: object) -> str:
+    """A parameter value as the filters compare it: text as is, anything else as JSON."""
     return value if isinstance(value, str) else json.dumps(value)
 
 

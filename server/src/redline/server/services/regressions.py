@@ -8,7 +8,7 @@ from collections import defaultdict
 from redline.server.models import (
     FALSE_POSITIVE_STATES,
     TRUE_POSITIVE_STATES,
-    ApiToken,
+    Component,
     Detection,
     Regression,
     RegressionEvent,
@@ -27,8 +27,9 @@ from redline.server.schemas.regressions import (
 )
 from redline.server.services.components import get_component
 from redline.server.services.errors import BadRequest, NotFound
+from redline.server.services.paging import after_newest_first, decode_cursor, encode_cursor
 from redline.server.services.results import series_ref
-from sqlalchemy import Select, select
+from sqlalchemy import Select, literal, select, tuple_
 from sqlalchemy.orm import Session, aliased
 
 
@@ -62,25 +63,72 @@ def _out(regression: Regression, component: str, methods: list[str], count: int)
 
 def list_regressions(
     session: Session,
-    component_name: str,
+    component_name: str | None,
     state: str | None = None,
     confirmation: str | None = None,
-) -> list[RegressionOut]:
-    """The component's regressions, newest range first; ``state`` (triage) and
-    ``confirmation`` (suspected, confirmed, not_confirmed) filter."""
-    component = get_component(session, component_name)
-    query = (
-        select(Regression)
-        .where(Regression.component_id == component.id)
-        .order_by(Regression.bad_key.desc(), Regression.id.desc())
+    limit: int | None = None,
+    cursor: str | None = None,
+) -> tuple[list[RegressionOut], str | None]:
+    """The component's regressions, newest range first (every component's when None, newest
+    first); ``state`` (triage) and ``confirmation`` (suspected, confirmed, not_confirmed)
+    filter; ``limit`` of them after ``cursor``, and the next page's cursor (None after the
+    last)."""
+    query = select(Regression, Component.name).join(
+        Component, Component.id == Regression.component_id
     )
+    if component_name is not None:
+        component = get_component(session, component_name)
+        query = query.where(Regression.component_id == component.id).order_by(
+            Regression.bad_key.desc(), Regression.id.desc()
+        )
+        if cursor:
+            key, last = decode_cursor(cursor, str, int)
+            query = query.where(
+                tuple_(Regression.bad_key, Regression.id)
+                < tuple_(literal(key, Regression.bad_key.type), literal(last))
+            )
+    else:
+        query = query.order_by(Regression.id.desc())
+        if cursor:
+            (last,) = decode_cursor(cursor, int)
+            query = query.where(Regression.id < last)
     if state is not None:
         query = query.where(Regression.state == RegressionState(state))
     if confirmation is not None:
         query = query.where(Regression.confirmation == confirmation)
-    regressions = list(session.scalars(query))
-    methods = _methods(session, [r.id for r in regressions])
-    return [RegressionOut(**_out(r, component.name, *methods[r.id])) for r in regressions]
+    found = [(regression, name) for regression, name in session.execute(query.limit(limit))]
+    following = None
+    if limit is not None and len(found) == limit:
+        end = found[-1][0]
+        following = (
+            encode_cursor(end.bad_key, end.id)
+            if component_name is not None
+            else encode_cursor(end.id)
+        )
+    methods = _methods(session, [regression.id for regression, _ in found])
+    return [RegressionOut(**_out(r, name, *methods[r.id])) for r, name in found], following
+
+
+def detection_by_id(session: Session, detection_id: int) -> tuple[Detection, DetectionOut]:
+    """A stored verdict by its id, as stored and as the API shows it; NotFound naming it."""
+    detection = session.get(Detection, detection_id)
+    if detection is None:
+        raise NotFound(f"no detection {detection_id}")
+    component_id = session.get_one(Series, detection.series_id).component_id
+    row = session.execute(_detections_query(component_id).where(Detection.id == detection_id)).one()
+    return detection, _detection_out(tuple(row))
+
+
+def component_of(session: Session, regression_id: int) -> str:
+    """The name of the component a regression belongs to; NotFound naming the id otherwise."""
+    name = session.scalar(
+        select(Component.name)
+        .join(Regression, Regression.component_id == Component.id)
+        .where(Regression.id == regression_id)
+    )
+    if name is None:
+        raise NotFound(f"no regression {regression_id}")
+    return name
 
 
 def _get(session: Session, component_name: str, regression_id: int) -> Regression:
@@ -105,6 +153,7 @@ def _detections_query(component_id: int) -> Select:
 def _detection_out(row: tuple) -> DetectionOut:
     detection, series, title, base = row
     return DetectionOut(
+        id=detection.id,
         series=series_ref(series),
         revision=title,
         baseline=base,
@@ -150,16 +199,17 @@ def triage(
     component_name: str,
     regression_id: int,
     change: TriageRequest,
-    token: ApiToken,
+    who: str,
 ) -> RegressionDetail:
-    """Move the regression to a new state and record who, when, from, to and why."""
+    """Move the regression to a new state and record who (a token's or a signed-in person's
+    name), when, from, to and why."""
     regression = _get(session, component_name, regression_id)
     new = RegressionState(change.state)
     if new == regression.state:
         raise BadRequest(f"regression {regression_id} is already {new.value!r}")
     regression.events.append(
         RegressionEvent(
-            who=token.name,
+            who=who,
             from_state=regression.state.value,
             to_state=new.value,
             comment=change.comment,
@@ -211,15 +261,26 @@ def list_detections(
     revision: str | None = None,
     method: str | None = None,
     limit: int = 1000,
-) -> list[DetectionOut]:
-    """Stored verdicts, newest revision first; filtered by revision title and method."""
+    cursor: str | None = None,
+) -> tuple[list[DetectionOut], str | None]:
+    """Stored verdicts, newest revision first, flagged first within it; filtered by revision
+    title and method; ``limit`` of them after ``cursor``, and the next page's cursor (None
+    after the last)."""
     component = get_component(session, component_name)
-    query = _detections_query(component.id)
+    query = _detections_query(component.id).add_columns(Revision.order_key)
     if revision is not None:
         query = query.where(Revision.title == revision)
     if method is not None:
         query = query.where(Detection.method == method)
-    query = query.order_by(
-        Revision.order_key.desc(), Detection.flagged.desc(), Series.id, Detection.method
-    ).limit(limit)
-    return [_detection_out(row) for row in session.execute(query)]
+    after = after_newest_first(cursor, Revision.order_key, Detection.flagged, Detection.id)
+    if after is not None:
+        query = query.where(after)
+    query = query.order_by(Revision.order_key.desc(), Detection.flagged.desc(), Detection.id).limit(
+        limit
+    )
+    rows = list(session.execute(query))
+    following = None
+    if len(rows) == limit:
+        last, *_, key = rows[-1]
+        following = encode_cursor(key, last.flagged, last.id)
+    return [_detection_out(tuple(row)[:4]) for row in rows], following

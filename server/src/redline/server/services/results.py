@@ -15,6 +15,7 @@ from redline.recording.format import HOST_PROCESS
 from redline.server.models import Detection, Execution, Revision, Series, Summary
 from redline.server.schemas.results import ChangeOut, SeriesOut, SeriesPoint, SeriesRef
 from redline.server.services.components import get_component
+from redline.server.services.paging import after_newest_first, encode_cursor
 from sqlalchemy import select
 from sqlalchemy.orm import Session, aliased
 
@@ -79,10 +80,15 @@ def component_series(session: Session, component_name: str) -> list[SeriesOut]:
 
 
 def component_changes(
-    session: Session, component_name: str, flagged_only: bool = False
-) -> list[ChangeOut]:
-    """KS's decided verdicts on the component's series (what the trend charts draw), newest
-    revision first, flagged ones first within it."""
+    session: Session,
+    component_name: str,
+    flagged_only: bool = False,
+    limit: int | None = None,
+    cursor: str | None = None,
+) -> tuple[list[ChangeOut], str | None]:
+    """KS's decided verdicts on the component's series, newest revision first, flagged ones
+    first within it; ``limit`` of them after ``cursor``, and the cursor of the next page (None
+    after the last)."""
     component = get_component(session, component_name)
     baseline = aliased(Revision)
     query = (
@@ -96,10 +102,18 @@ def component_changes(
             Detection.verdict != NOT_ENOUGH_DATA,
             Detection.p_value.is_not(None),
         )
-        .order_by(Revision.order_key.desc(), Detection.flagged.desc(), Detection.p_value, Series.id)
+        .order_by(Revision.order_key.desc(), Detection.flagged.desc(), Detection.id)
     )
     if flagged_only:
         query = query.where(Detection.flagged)
+    after = after_newest_first(cursor, Revision.order_key, Detection.flagged, Detection.id)
+    if after is not None:
+        query = query.where(after)
+    rows = list(session.execute(query.add_columns(Revision.order_key).limit(limit)))
+    following = None
+    if limit is not None and len(rows) == limit:
+        found, _, _, _, key = rows[-1]
+        following = encode_cursor(key, found.flagged, found.id)
     return [
         ChangeOut(
             series=series_ref(series),
@@ -114,5 +128,5 @@ def component_changes(
             flagged=found.flagged,
             created=found.created,
         )
-        for found, series, title, base in session.execute(query)
-    ]
+        for found, series, title, base, _ in rows
+    ], following

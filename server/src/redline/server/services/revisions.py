@@ -5,8 +5,10 @@ from __future__ import annotations
 import base64
 import re
 from collections import Counter, defaultdict
+from collections.abc import Collection
 
-from redline.server.models import Component, Detection, Job, JobState, Revision
+from redline.recording.format import META_RUN
+from redline.server.models import Component, Detection, Execution, Job, JobState, Revision
 from redline.server.schemas.revisions import (
     ExecutionOut,
     JobOut,
@@ -144,6 +146,19 @@ def list_revisions(
     return [revision_out(r) for r in page_revisions(session, component_name, limit, cursor)]
 
 
+def newest_revisions(session: Session, component_name: str, limit: int) -> list[RevisionOut]:
+    """The component's ``limit`` last revisions in sort-key order, the last first."""
+    component = get_component(session, component_name)
+    query = (
+        select(Revision)
+        .where(Revision.component_id == component.id)
+        .order_by(Revision.order_key.desc(), Revision.id.desc())
+        .options(selectinload(Revision.jobs))
+        .limit(limit)
+    )
+    return [revision_out(revision) for revision in session.scalars(query)]
+
+
 def revision_out(revision: Revision) -> RevisionOut:
     return RevisionOut(**_revision_out(revision))
 
@@ -229,15 +244,37 @@ def revision_detail(session: Session, component_name: str, title: str) -> Revisi
         **_revision_out(revision),
         component=component.name,
         jobs=[job_out(job) for job in revision.jobs],
-        verdict=revision_verdicts(session, component_name, title).get(title, ""),
+        verdict=revision_verdicts(session, component_name, [title]).get(title, ""),
     )
 
 
+def execution_notes(session: Session, revision_id: int) -> dict[int, str]:
+    """Per execution of the revision, what its run's metadata says went unusually: runs the
+    agent repeated because another load disturbed them, a run the component took no part in."""
+    notes = {}
+    for ident, meta in session.execute(
+        select(Execution.id, Execution.meta).where(Execution.revision_id == revision_id)
+    ):
+        run = (meta or {}).get(META_RUN) or {}
+        said = []
+        if run.get("disturbed_runs"):
+            said.append(
+                f"run again {run['disturbed_runs']} time(s), the host being busy "
+                f"({run.get('disturbed_reason', '')})"
+            )
+        if run.get("status"):
+            said.append(f"{run['status']}: {run.get('warning', '')}")
+        if said:
+            notes[ident] = "; ".join(said)
+    return notes
+
+
 def revision_verdicts(
-    session: Session, component_name: str, title: str | None = None
+    session: Session, component_name: str, titles: Collection[str] | None = None
 ) -> dict[str, str]:
-    """Per revision title (or only ``title``), what its alarm method said in a few words: its
-    changes, no change, or why there is no verdict yet (the baseline it still waits for)."""
+    """Per revision title (of every revision, or of ``titles``), what its alarm method said in a
+    few words: its changes, no change, or why there is no verdict yet (the baseline it still
+    waits for)."""
     component = get_component(session, component_name)
     method = component_config(session, component.id).alarming[0]
     counts: dict[str, dict[str, int]] = defaultdict(dict)
@@ -248,8 +285,8 @@ def revision_verdicts(
         .where(Revision.component_id == component.id, Detection.method == method)
         .group_by(Revision.title, Detection.verdict)
     )
-    if title is not None:
-        query = query.where(Revision.title == title)
+    if titles is not None:
+        query = query.where(Revision.title.in_(list(titles)))
     for name, verdict, number, reason in session.execute(query):
         counts[name][verdict] = number
         if verdict == "not enough data":

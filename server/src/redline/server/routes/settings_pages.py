@@ -1,0 +1,134 @@
+"""The settings pages, for administrators: a component's settings and detection configuration,
+API tokens (created, shown once, revoked) and the performance hosts.
+
+Reading them needs an ``admin`` sign-in (they show where code comes from and who holds tokens);
+every change posts the session's form token and needs ``admin``, as the API does.
+"""
+
+from __future__ import annotations
+
+import json
+
+from fastapi import Request, Response
+from fastapi.responses import HTMLResponse, RedirectResponse
+from pydantic import ValidationError
+from redline.server.api.deps import SessionDep, SettingsDep
+from redline.server.core.security import grants
+from redline.server.schemas.components import ComponentSettings
+from redline.server.schemas.regressions import DetectionConfigIn
+from redline.server.services import components, detection_config, home, signin, tokens
+from redline.server.services.errors import BadRequest, Conflict, Forbidden, NotFound
+from redline.server.ui.pages import form_fields, page, page_router, problem, signed_in
+
+ADMIN = "admin"
+router = page_router()
+
+
+def _admin(request: Request) -> None:
+    """A signed-in administrator may read the settings; Forbidden naming what is missing."""
+    row = signed_in(request)
+    if row is None:
+        raise Forbidden("sign in as an administrator to see the settings")
+    if not grants(list(row.scopes), ADMIN):
+        raise Forbidden(f"{row.who} lacks the 'admin' scope")
+
+
+def _errors(exc: ValidationError) -> str:
+    return "; ".join(
+        f"{'.'.join(str(p) for p in error['loc'])}: {error['msg']}" for error in exc.errors()
+    )
+
+
+def _settings(request: Request, session: SessionDep, created: str | None) -> HTMLResponse:
+    """The settings page; ``created``: a token just made, shown this once."""
+    context = {
+        "components": components.list_components(session),
+        "tokens": tokens.list_tokens(session),
+        "hosts": home.list_hosts(session),
+        "created": created,
+    }
+    return page(request, "settings.html", context)
+
+
+@router.get("/settings", response_class=HTMLResponse)
+def settings_page(request: Request, session: SessionDep) -> HTMLResponse:
+    try:
+        _admin(request)
+    except Forbidden as exc:
+        return problem(request, exc)
+    return _settings(request, session, created=None)
+
+
+@router.get("/settings/components/{name}", response_class=HTMLResponse)
+def component_settings_page(name: str, request: Request, session: SessionDep) -> HTMLResponse:
+    try:
+        _admin(request)
+        component = components.get_component(session, name)
+    except (Forbidden, NotFound) as exc:
+        return problem(request, exc)
+    config = detection_config.get_config(session, name).model_dump()
+    return page(
+        request,
+        "component_settings.html",
+        {"component": component, "config": json.dumps(config, indent=2), "message": ""},
+    )
+
+
+@router.post("/settings/components/{name}", response_class=HTMLResponse)
+async def component_settings_form(
+    name: str, request: Request, session: SessionDep, settings: SettingsDep
+) -> Response:
+    """Store a component's settings and detection configuration; a configuration change
+    queues a re-analysis of its history, as the API's does."""
+    form = await form_fields(request)
+    try:
+        signin.authorize(signed_in(request), form.get("csrf", ""), ADMIN)
+        component = components.get_component(session, name)
+        try:
+            changed = ComponentSettings(
+                repo=form.get("repo") or None,
+                branch=form.get("branch") or None,
+                suite=form.get("suite") or None,
+                executions=int(form["executions"]) if form.get("executions") else None,
+            )
+            config = DetectionConfigIn.model_validate(json.loads(form.get("config") or "{}"))
+        except json.JSONDecodeError as exc:
+            raise BadRequest(f"detection configuration: not JSON ({exc})") from None
+        except ValidationError as exc:
+            raise BadRequest(_errors(exc)) from None
+        except ValueError as exc:
+            raise BadRequest(f"executions: a whole number ({exc})") from None
+        components.update_component(session, name, changed, settings.allow_file_repos)
+        before = detection_config.get_config(session, name)
+        detection_config.set_config(session, name, config)
+        if detection_config.get_config(session, name) != before and config.reanalyze:
+            detection_config.request_reanalysis(session, component)
+            request.app.state.tasks.reanalyze(component.id)
+    except (Forbidden, NotFound, BadRequest, Conflict) as exc:
+        return problem(request, exc)
+    return RedirectResponse(f"/settings/components/{name}", status_code=303)
+
+
+@router.post("/settings/tokens", response_class=HTMLResponse)
+async def create_token_form(request: Request, session: SessionDep) -> HTMLResponse:
+    """A new API token, shown once on the page that answers."""
+    form = await form_fields(request)
+    try:
+        signin.authorize(signed_in(request), form.get("csrf", ""), ADMIN)
+        _, secret = tokens.issue_token(
+            session, form.get("name", "").strip(), form.get("scopes", ""), form.get("host") or None
+        )
+    except (Forbidden, BadRequest, Conflict) as exc:
+        return problem(request, exc)
+    return _settings(request, session, created=secret)
+
+
+@router.post("/settings/tokens/{token_id}/revoke", response_class=HTMLResponse)
+async def revoke_token_form(token_id: int, request: Request, session: SessionDep) -> Response:
+    form = await form_fields(request)
+    try:
+        signin.authorize(signed_in(request), form.get("csrf", ""), ADMIN)
+        tokens.revoke_token(session, str(token_id))
+    except (Forbidden, NotFound) as exc:
+        return problem(request, exc)
+    return RedirectResponse("/settings", status_code=303)

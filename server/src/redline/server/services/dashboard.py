@@ -1,0 +1,326 @@
+"""The component page's trend view: which series, which revisions, their points and their marks.
+
+A view is what the page's address says (`TrendView.from_query`): filters by case, phase,
+process, counter and parameter (``param.legs=8``), how many of the newest revisions (100 by
+default), where the history ends (``before``, to page back), log scale and a moving median. Only
+those revisions are read, so a page costs the same at 100 and at 10,000 revisions, and only the
+revisions' own executions: confirmation runs are not part of a trend.
+
+The figures of a view are cached in ``figure_cache`` under the component's data version (its
+newest analysis and its newest regression update), rendered by the worker after each analysis
+for the default view (`warm`), and by the page on a miss.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field, replace
+from datetime import datetime
+from typing import Any
+from urllib.parse import urlencode
+
+from redline.detect.summary import Pooled
+from redline.server.models import (
+    Component,
+    Detection,
+    Execution,
+    FigureCache,
+    Job,
+    Regression,
+    Revision,
+    Series,
+    Summary,
+    utcnow,
+)
+from redline.server.schemas.results import SeriesRef
+from redline.server.services.errors import BadRequest
+from redline.server.services.read import FIELDS, matches, param_text
+from redline.server.services.results import series_ref
+from sqlalchemy import delete, exists, func, select
+from sqlalchemy.dialects.postgresql import insert
+from sqlalchemy.orm import Session
+
+DEFAULT_REVISIONS = 100
+MAX_REVISIONS = 2000
+MAX_FILTER_LENGTH = 200
+
+
+@dataclass(frozen=True)
+class TrendView:
+    """What a trend page shows; ``query()`` gives the address that shows it again."""
+
+    case: str = ""
+    phase: str = ""
+    process: str = ""
+    counter: str = ""
+    params: tuple[tuple[str, str], ...] = ()
+    revisions: int = DEFAULT_REVISIONS
+    before: str = ""  # a revision's title: the history up to, not including, it
+    log: bool = False
+    median: bool = False
+
+    @classmethod
+    def from_query(cls, query: Mapping[str, str]) -> TrendView:
+        """The view an address asks for; a clear `BadRequest` naming a bad value."""
+        for key, value in query.items():
+            if len(value) > MAX_FILTER_LENGTH:
+                raise BadRequest(f"{key}: at most {MAX_FILTER_LENGTH} characters")
+        raw = query.get("revisions", str(DEFAULT_REVISIONS)) or str(DEFAULT_REVISIONS)
+        if not raw.isdigit() or not 1 <= int(raw) <= MAX_REVISIONS:
+            raise BadRequest(f"revisions: a whole number from 1 to {MAX_REVISIONS}, not {raw!r}")
+        params = tuple(
+            sorted(
+                (key.removeprefix("param."), value)
+                for key, value in query.items()
+                if key.startswith("param.") and value
+            )
+        )
+        return cls(
+            **{name: query.get(name, "") for name in FIELDS},
+            params=params,
+            revisions=int(raw),
+            before=query.get("before", ""),
+            log=query.get("log", "") in ("1", "on", "true"),
+            median=query.get("median", "") in ("1", "on", "true"),
+        )
+
+    def query(self, **changes: Any) -> str:
+        """The query string of this view with ``changes`` (defaults left out): shareable."""
+        view = replace(self, **changes)
+        pairs: list[tuple[str, str]] = [(n, getattr(view, n)) for n in FIELDS if getattr(view, n)]
+        pairs += [(f"param.{name}", value) for name, value in view.params]
+        if view.revisions != DEFAULT_REVISIONS:
+            pairs.append(("revisions", str(view.revisions)))
+        if view.before:
+            pairs.append(("before", view.before))
+        pairs += [(name, "1") for name in ("log", "median") if getattr(view, name)]
+        return urlencode(pairs)
+
+    def selects(self, series: SeriesRef) -> bool:
+        fields: dict[str, str | None] = {name: getattr(self, name) or None for name in FIELDS}
+        return matches(series, fields, dict(self.params))
+
+
+@dataclass(frozen=True)
+class TrendRevision:
+    id: int
+    title: str
+    commit: str
+    when: datetime | None
+
+
+@dataclass(frozen=True)
+class Mark:
+    """A flagged change, drawn on the revision it was flagged at: in a regression (its
+    confirmation then: suspected, confirmed, not_confirmed), or flagged by a method that does not
+    alarm (``regression_id`` None, confirmation ``flagged``)."""
+
+    regression_id: int | None
+    confirmation: str
+    method: str
+    effect: float | None
+
+
+@dataclass
+class TrendSeries:
+    ref: SeriesRef
+    points: dict[int, Pooled] = field(default_factory=dict)  # by revision id
+    marks: dict[int, Mark] = field(default_factory=dict)
+
+
+@dataclass
+class TrendData:
+    revisions: list[TrendRevision]  # oldest first
+    series: list[TrendSeries]
+    earlier: str | None  # the oldest revision shown, when there are older ones
+
+
+def _choices(refs: list[SeriesRef]) -> dict[str, list[str]]:
+    """filter -> the values it can take; ``param.NAME`` -> the parameter's values."""
+    found: dict[str, set[str]] = {name: set() for name in FIELDS}
+    for ref in refs:
+        for name in FIELDS:
+            found[name].add(getattr(ref, name))
+        for name, value in ref.params.items():
+            found.setdefault(f"param.{name}", set()).add(param_text(value))
+    return {name: sorted(values) for name, values in found.items()}
+
+
+def trend_data(session: Session, component: Component, view: TrendView) -> TrendData:
+    """The series the view selects, with a point per revision among the newest it shows."""
+    every = list(session.scalars(select(Series).where(Series.component_id == component.id)))
+    refs = {series.id: series_ref(series) for series in every}
+    chosen = {sid: TrendSeries(ref) for sid, ref in refs.items() if view.selects(ref)}
+    own = exists().where(
+        Execution.revision_id == Revision.id, Job.id == Execution.job_id, Job.pair == 0
+    )
+    query = select(Revision).where(Revision.component_id == component.id, own)
+    if view.before:
+        end = session.scalar(
+            select(Revision.order_key).where(
+                Revision.component_id == component.id, Revision.title == view.before
+            )
+        )
+        if end is None:
+            raise BadRequest(f"before: {component.name} has no revision {view.before!r}")
+        query = query.where(Revision.order_key < end)
+    newest = list(
+        session.scalars(
+            query.order_by(Revision.order_key.desc(), Revision.id.desc()).limit(view.revisions + 1)
+        )
+    )
+    earlier = newest[view.revisions - 1].title if len(newest) > view.revisions else None
+    shown = newest[: view.revisions][::-1]
+    ids = [revision.id for revision in shown]
+    if ids and chosen:
+        rows = session.execute(
+            select(Summary.series_id, Execution.revision_id, Summary.n, Summary.mean, Summary.std)
+            .join(Execution, Execution.id == Summary.execution_id)
+            .join(Job, Job.id == Execution.job_id)
+            .where(
+                Execution.revision_id.in_(ids),
+                Job.pair == 0,
+                Summary.series_id.in_(list(chosen)),
+            )
+        )
+        for series_id, revision_id, n, mean, std in rows:
+            chosen[series_id].points.setdefault(revision_id, Pooled()).add(n, mean, std)
+        marks = session.execute(
+            select(
+                Detection.series_id,
+                Detection.revision_id,
+                Regression.id,
+                Regression.confirmation,
+                Detection.method,
+                Detection.effect,
+            )
+            .outerjoin(Regression, Regression.id == Detection.regression_id)
+            .where(
+                Detection.flagged,
+                Detection.revision_id.in_(ids),
+                Detection.series_id.in_(list(chosen)),
+            )
+            .order_by(Detection.regression_id.is_(None), Detection.id)  # regressions first
+        )
+        for series_id, revision_id, regression_id, confirmation, method, effect in marks:
+            chosen[series_id].marks.setdefault(
+                revision_id, Mark(regression_id, confirmation or "flagged", method, effect)
+            )
+    return TrendData(
+        revisions=[
+            TrendRevision(r.id, r.title, r.commit, r.committed_at or r.created) for r in shown
+        ],
+        series=[s for s in chosen.values() if s.points],
+        earlier=earlier,
+    )
+
+
+def data_version(session: Session, component_id: int) -> str:
+    """Changes whenever what a trend page shows may have: an execution stored, a revision
+    analysed (after every ingest and re-analysis), a regression updated (its confirmation)."""
+    stored = session.scalar(
+        select(func.max(Execution.id))
+        .join(Revision, Revision.id == Execution.revision_id)
+        .where(Revision.component_id == component_id)
+    )
+    analysed = session.scalar(
+        select(func.max(Revision.analyzed_at)).where(Revision.component_id == component_id)
+    )
+    updated = session.scalar(
+        select(func.max(Regression.updated)).where(Regression.component_id == component_id)
+    )
+    return f"{stored}|{analysed}|{updated}"
+
+
+#: renders a view's charts: `redline.server.ui.figures.trend_charts`
+Render = Callable[[TrendData, TrendView], list[dict[str, Any]]]
+#: what may not appear as such in JSON inside an HTML <script> element
+SCRIPT_SAFE = str.maketrans({"<": "\\u003c", ">": "\\u003e", "&": "\\u0026", "'": "\\u0027"})
+
+
+@dataclass(frozen=True)
+class TrendPage:
+    """A view's charts as JSON text safe inside ``<script>`` (``{"charts", "revisions"}``: each
+    revision's title, commit and time, shown on hover), and where the earlier history starts."""
+
+    data: str
+    earlier: str | None
+
+
+def render_page(data: TrendData, view: TrendView, render: Render) -> TrendPage:
+    content = {
+        "charts": render(data, view),
+        "revisions": [
+            [r.title, r.commit[:12], r.when.strftime("%Y-%m-%d %H:%M") if r.when else ""]
+            for r in data.revisions
+        ],
+    }
+    text = json.dumps(content, separators=(",", ":"), allow_nan=False).translate(SCRIPT_SAFE)
+    return TrendPage(text, data.earlier)
+
+
+def cached_page(
+    session: Session, component: Component, view: TrendView, render: Render
+) -> TrendPage:
+    """The view's page from the cache when it is current, else rendered now and stored."""
+    key, version = view.query(), data_version(session, component.id)
+    row = session.scalar(
+        select(FigureCache).where(FigureCache.component_id == component.id, FigureCache.view == key)
+    )
+    if row is not None and row.version == version:
+        return TrendPage(row.figures, row.earlier)
+    rendered = render_page(trend_data(session, component, view), view, render)
+    store(session, component.id, key, version, rendered)
+    session.commit()
+    return rendered
+
+
+def warm(session: Session, component_id: int, render: Render) -> None:
+    """Render the default view of the component into the cache (the worker, after analysis)."""
+    component = session.get(Component, component_id)
+    if component is not None:
+        cached_page(session, component, TrendView(), render)
+
+
+def choices(session: Session, component: Component) -> dict[str, list[str]]:
+    """The values each filter can take: every case, phase, process, counter, parameter."""
+    every = session.scalars(select(Series).where(Series.component_id == component.id))
+    return _choices([series_ref(series) for series in every])
+
+
+#: views kept per component (each address is a view: the least recently rendered go first)
+MAX_CACHED_VIEWS = 50
+
+
+def store(session: Session, component_id: int, key: str, version: str, rendered: TrendPage) -> None:
+    """Keep a view's page; two requests rendering the same view at once both succeed."""
+    values = {
+        "component_id": component_id,
+        "view": key,
+        "version": version,
+        "figures": rendered.data,
+        "earlier": rendered.earlier,
+        "created": utcnow(),
+    }
+    statement = insert(FigureCache).values(**values)
+    session.execute(
+        statement.on_conflict_do_update(
+            index_elements=[FigureCache.component_id, FigureCache.view],
+            set_={
+                name: statement.excluded[name]
+                for name in ("version", "figures", "earlier", "created")
+            },
+        )
+    )
+    kept = (
+        select(FigureCache.id)
+        .where(FigureCache.component_id == component_id)
+        .order_by(FigureCache.created.desc())
+        .limit(MAX_CACHED_VIEWS)
+    )
+    session.execute(
+        delete(FigureCache).where(
+            FigureCache.component_id == component_id, FigureCache.id.not_in(kept.scalar_subquery())
+        )
+    )

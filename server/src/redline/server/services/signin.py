@@ -1,0 +1,154 @@
+"""Signing in to the pages: people with passwords, or an API token pasted once; sessions.
+
+Passwords are hashed with scrypt (n=2^15, r=8, p=1: about 32 MiB and 50-100 ms a check, OWASP's
+recommended floor), with a random salt, stored as ``scrypt$n$r$p$salt$hash``. A session is a
+random secret in an HttpOnly, SameSite=Strict cookie, stored only as its sha256, valid for
+`SESSION_DAYS`; each session has its own form token (CSRF), which every form posts back.
+A session has the scopes of the user or of the token it was opened with, no more.
+"""
+
+from __future__ import annotations
+
+import base64
+import hashlib
+import hmac
+import secrets
+from dataclasses import dataclass
+from datetime import timedelta
+from functools import cache
+
+from redline.server.core.security import grants, hash_token, parse_scopes
+from redline.server.models import User, WebSession, utcnow
+from redline.server.services.errors import BadRequest, Conflict, Forbidden
+from redline.server.services.tokens import authenticate
+from sqlalchemy import delete, select
+from sqlalchemy.exc import IntegrityError
+from sqlalchemy.orm import Session
+
+SCRYPT_N, SCRYPT_R, SCRYPT_P = 2**15, 8, 1
+SCRYPT_MEMORY = 64 * 1024 * 1024  # above the 32 MiB these parameters need
+MIN_PASSWORD = 12
+SESSION_DAYS = 7
+SESSION_COOKIE = "redline_session"
+
+
+@cache
+def _unknown() -> str:
+    """Checked against when a name is unknown: a wrong name costs as long as a wrong password."""
+    return hash_password(secrets.token_urlsafe(16))
+
+
+def _b64(raw: bytes) -> str:
+    return base64.b64encode(raw).decode()
+
+
+def hash_password(password: str) -> str:
+    salt = secrets.token_bytes(16)
+    digest = hashlib.scrypt(
+        password.encode(), salt=salt, n=SCRYPT_N, r=SCRYPT_R, p=SCRYPT_P, maxmem=SCRYPT_MEMORY
+    )
+    return f"scrypt${SCRYPT_N}${SCRYPT_R}${SCRYPT_P}${_b64(salt)}${_b64(digest)}"
+
+
+def check_password(password: str, stored: str) -> bool:
+    try:
+        kind, n, r, p, salt, digest = stored.split("$")
+        expected = base64.b64decode(digest)
+        found = hashlib.scrypt(
+            password.encode(),
+            salt=base64.b64decode(salt),
+            n=int(n),
+            r=int(r),
+            p=int(p),
+            maxmem=SCRYPT_MEMORY,
+        )
+    except ValueError:
+        return False
+    return kind == "scrypt" and hmac.compare_digest(found, expected)
+
+
+def create_user(session: Session, name: str, password: str, scopes: str | list[str]) -> User:
+    """A new user; the password must have `MIN_PASSWORD` characters at least."""
+    if not name.strip() or len(name) > 200:
+        raise BadRequest("a user's name: 1 to 200 characters")
+    if len(password) < MIN_PASSWORD:
+        raise BadRequest(f"a password needs {MIN_PASSWORD} characters at least")
+    try:
+        parsed = parse_scopes(scopes)
+    except ValueError as exc:
+        raise BadRequest(str(exc)) from None
+    user = User(name=name, password_hash=hash_password(password), scopes=parsed)
+    session.add(user)
+    try:
+        session.commit()
+    except IntegrityError:
+        session.rollback()
+        raise Conflict(f"a user named {name!r} exists") from None
+    return user
+
+
+@dataclass(frozen=True)
+class Opened:
+    """A new session: the cookie's secret (shown to the browser once) and the session."""
+
+    secret: str
+    session: WebSession
+
+
+def _open(session: Session, who: str, scopes: list[str]) -> Opened:
+    secret = secrets.token_urlsafe(32)
+    row = WebSession(
+        secret_hash=hash_token(secret),
+        who=who,
+        scopes=scopes,
+        csrf=secrets.token_urlsafe(32),
+        expires=utcnow() + timedelta(days=SESSION_DAYS),
+    )
+    session.add(row)
+    session.execute(delete(WebSession).where(WebSession.expires < utcnow()))
+    session.commit()
+    return Opened(secret, row)
+
+
+def sign_in(session: Session, name: str, password: str, token: str) -> Opened:
+    """A session for the user with this name and password, or for the API token; a
+    `Forbidden` that does not say which part was wrong otherwise."""
+    if token:
+        found = authenticate(session, token.strip())
+        if found is None:
+            raise Forbidden("that token is not a live API token")
+        if not any(grants(list(found.scopes), scope) for scope in ("read", "ci")):
+            raise Forbidden(f"token {found.name!r} is for performance hosts, not for people")
+        return _open(session, f"token {found.name}", list(found.scopes))
+    user = session.scalar(select(User).where(User.name == name, ~User.disabled))
+    if not check_password(password, user.password_hash if user else _unknown()) or user is None:
+        raise Forbidden("wrong name or password")
+    return _open(session, user.name, list(user.scopes))
+
+
+def current(session: Session, secret: str | None) -> WebSession | None:
+    """The live session a cookie's secret opens; None when none (or expired)."""
+    if not secret:
+        return None
+    row = session.scalar(select(WebSession).where(WebSession.secret_hash == hash_token(secret)))
+    if row is None or row.expires < utcnow():
+        return None
+    return row
+
+
+def sign_out(session: Session, secret: str | None) -> None:
+    if secret:
+        session.execute(delete(WebSession).where(WebSession.secret_hash == hash_token(secret)))
+        session.commit()
+
+
+def authorize(row: WebSession | None, form_token: str, scope: str) -> str:
+    """Who may do what a form asks: the session's name when it is signed in, carries the
+    session's form token and grants ``scope``; `Forbidden` naming what is missing otherwise."""
+    if row is None:
+        raise Forbidden("sign in first")
+    if not hmac.compare_digest(form_token.encode(), row.csrf.encode()):
+        raise Forbidden("the form's token does not match this session: reload the page")
+    if not grants(list(row.scopes), scope):
+        raise Forbidden(f"{row.who} lacks the {scope!r} scope")
+    return row.who

@@ -1,0 +1,139 @@
+"""Why a change was flagged: what a detection compared, laid out for the "why flagged" page.
+
+A detection stores its verdict, score, effect, newest baseline revision and how many revisions
+its baseline pooled. This gathers what it judged from the stored summaries: each execution's
+value (the median of its samples, what `execution_shift` judges) and its distribution (the
+32-quantile sketch, from which a sample-level method's two sides are drawn as ECDFs), for the
+candidate revision and the baseline's revisions (the newest ``baseline_revisions`` revisions up
+to the newest baseline revision that measured the series); the thresholds of the method as the
+component configures them, the counter's absolute floor, and the confirmation pairs' values when
+the change was re-run. Only the revisions' own executions count, as for the detection itself.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+from redline.detect.floors import absolute_floor
+from redline.detect.registry import DETECTORS
+from redline.server.models import Detection, Execution, Job, JobState, Revision, Series, Summary
+from redline.server.schemas.regressions import DetectionOut
+from redline.server.services.detection_config import component_config
+from redline.server.services.regressions import detection_by_id
+from sqlalchemy import select
+from sqlalchemy.orm import Session
+
+
+@dataclass(frozen=True)
+class ExecutionValue:
+    revision: str
+    execution: int  # the execution's id
+    median: float
+    mean: float
+    n: int
+    sketch: list[float]
+
+
+@dataclass
+class WhyFlagged:
+    component: str
+    detection: DetectionOut
+    candidate: list[ExecutionValue]
+    baseline: list[ExecutionValue]
+    baseline_titles: list[str]  # oldest first
+    thresholds: dict[str, Any]
+    floor: float
+    pairs: list[tuple[int, float | None, float | None]] = field(default_factory=list)
+
+
+def _values(session: Session, series_id: int, revision_ids: list[int]) -> list[ExecutionValue]:
+    rows = session.execute(
+        select(Revision.title, Execution.id, Summary.p50, Summary.mean, Summary.n, Summary.sketch)
+        .join(Execution, Execution.id == Summary.execution_id)
+        .join(Job, Job.id == Execution.job_id)
+        .join(Revision, Revision.id == Execution.revision_id)
+        .where(
+            Summary.series_id == series_id,
+            Execution.revision_id.in_(revision_ids),
+            Job.pair == 0,
+        )
+        .order_by(Revision.order_key, Execution.id)
+    )
+    return [
+        ExecutionValue(title, ident, p50, mean, n, list(sketch or []))
+        for title, ident, p50, mean, n, sketch in rows
+    ]
+
+
+def _baseline_revisions(
+    session: Session, series_id: int, newest_id: int | None, count: int
+) -> list[Revision]:
+    """The ``count`` newest revisions up to ``newest_id`` with the series: the detection's
+    baseline as it pooled it (a ``recent`` or ``window`` baseline; one for ``previous``)."""
+    if newest_id is None or count <= 0:
+        return []
+    newest = session.get(Revision, newest_id)
+    if newest is None:
+        return []
+    measured = (
+        select(Execution.revision_id)
+        .join(Summary, Summary.execution_id == Execution.id)
+        .join(Job, Job.id == Execution.job_id)
+        .where(Summary.series_id == series_id, Job.pair == 0)
+    )
+    rows = session.scalars(
+        select(Revision)
+        .where(
+            Revision.component_id == newest.component_id,
+            Revision.order_key <= newest.order_key,
+            Revision.id.in_(measured),
+        )
+        .order_by(Revision.order_key.desc(), Revision.id.desc())
+        .limit(count)
+    )
+    return list(rows)[::-1]
+
+
+def _pairs(session: Session, detection: Detection) -> list[tuple[int, float | None, float | None]]:
+    """(pair, baseline's median, candidate's median) of each confirmation pair that ran."""
+    rows = session.execute(
+        select(Job.pair, Job.revision_id, Summary.p50)
+        .join(Execution, Execution.job_id == Job.id)
+        .join(Summary, Summary.execution_id == Execution.id)
+        .where(
+            Job.confirms_revision_id == detection.revision_id,
+            Job.state == JobState.done,
+            Summary.series_id == detection.series_id,
+        )
+    )
+    found: dict[int, list[float | None]] = {}
+    for pair, revision_id, value in rows:
+        side = 1 if revision_id == detection.revision_id else 0
+        found.setdefault(pair, [None, None])[side] = value
+    return [(pair, values[0], values[1]) for pair, values in sorted(found.items())]
+
+
+def why_flagged(session: Session, detection_id: int) -> WhyFlagged:
+    detection, out = detection_by_id(session, detection_id)
+    series = session.get_one(Series, detection.series_id)
+    revision = session.get_one(Revision, detection.revision_id)
+    baseline = _baseline_revisions(
+        session, series.id, detection.baseline_revision_id, detection.baseline_revisions
+    )
+    config = component_config(session, revision.component_id)
+    if detection.method in DETECTORS:
+        defaults = DETECTORS[detection.method]().get_params()
+        thresholds = {**defaults, **config.thresholds.get(detection.method, {})}
+    else:
+        thresholds = dict(config.thresholds.get(detection.method, {}))
+    return WhyFlagged(
+        component=revision.component.name,
+        detection=out,
+        candidate=_values(session, series.id, [revision.id]),
+        baseline=_values(session, series.id, [r.id for r in baseline]),
+        baseline_titles=[r.title for r in baseline],
+        thresholds=thresholds,
+        floor=absolute_floor(series.counter),
+        pairs=_pairs(session, detection),
+    )

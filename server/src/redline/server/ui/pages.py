@@ -1,0 +1,55 @@
+"""What every page shares: the signed-in session, rendering, the 404/400/403 page, forms, and
+the routers the pages hang on (reading follows `REDLINE_READ_ACCESS`; signing in needs none)."""
+
+from __future__ import annotations
+
+from typing import Any
+from urllib.parse import parse_qs
+
+from fastapi import APIRouter, Depends, Request
+from fastapi.responses import HTMLResponse
+from fastapi.templating import Jinja2Templates
+from redline.server.api.deps import READ, SessionDep
+from redline.server.core.bodies import JsonRoute
+from redline.server.models import WebSession
+from redline.server.services import signin
+from redline.server.services.errors import BadRequest, Conflict, Forbidden, NotFound
+
+
+def _web_session(request: Request, session: SessionDep) -> None:
+    """The signed-in session of the request's cookie, if any, for the pages to show and check."""
+    request.state.web_session = signin.current(session, request.cookies.get(signin.SESSION_COOKIE))
+
+
+SIGNED_IN = [Depends(_web_session)]
+
+
+def page_router(read: bool = True) -> APIRouter:
+    """A router of pages: each knows the signed-in session; with ``read``, under
+    REDLINE_READ_ACCESS=token, it needs a read token (cookie redline_token or ?token=) or a
+    signed-in session (signing in itself needs neither)."""
+    dependencies = [*SIGNED_IN, *READ] if read else SIGNED_IN
+    return APIRouter(include_in_schema=False, dependencies=dependencies, route_class=JsonRoute)
+
+
+def signed_in(request: Request) -> WebSession | None:
+    return getattr(request.state, "web_session", None)
+
+
+def page(
+    request: Request, template: str, context: dict[str, Any], status_code: int = 200
+) -> HTMLResponse:
+    templates: Jinja2Templates = request.app.state.templates
+    context = {"signed_in": signed_in(request), **context}
+    return templates.TemplateResponse(request, template, context, status_code=status_code)
+
+
+def problem(request: Request, exc: NotFound | BadRequest | Forbidden | Conflict) -> HTMLResponse:
+    code = exc.status_code
+    return page(request, "not_found.html", {"message": exc.detail, "code": code}, code)
+
+
+async def form_fields(request: Request) -> dict[str, str]:
+    """An urlencoded form's fields (the last value of each); its size is bounded like any body."""
+    fields = parse_qs((await request.body()).decode(errors="replace"), keep_blank_values=True)
+    return {name: values[-1] for name, values in fields.items()}

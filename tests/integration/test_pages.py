@@ -1,0 +1,357 @@
+"""The browser pages on real Postgres through the real app: the component page's grouped charts,
+filters kept in the address, the figure cache, the revision and regression pages, 404 and 400
+pages that name what is wrong, and paged lists in the API."""
+
+from __future__ import annotations
+
+import json
+import re
+import uuid
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+from fastapi.testclient import TestClient
+from redline.server.app import create_app
+from redline.server.core.config import Settings
+from redline.server.db import session_factory
+from redline.server.models import FigureCache
+from redline.server.services.errors import BadRequest, Conflict
+from redline.server.services.signin import check_password, create_user
+from redline.server.services.tokens import issue_token
+from sqlalchemy import func, select
+
+from tests.support.api import emptied_with_tokens
+from tests.support.pages import form_token, history, trend_data
+from tests.support.servers import Services
+
+EVIL = '<a href="https://evil.example/phish">x</a>'
+
+
+@pytest.fixture
+def client(services: Services, database_url: str, tmp_path: Path) -> Iterator[TestClient]:
+    settings = Settings(
+        database_url=database_url,
+        redis_url=services.redis_url,
+        storage_dir=tmp_path / "storage",
+        queue=f"test-{uuid.uuid4().hex[:8]}",
+    )
+    emptied_with_tokens(database_url)
+    with TestClient(create_app(settings)) as client:
+        yield client
+
+
+def test_component_page_groups_charts_one_line_per_parameter_set(client, database_url, tmp_path):
+    history(database_url, tmp_path, [20.0, 20.0, 60.0])
+    answer = client.get("/components/builder")
+    assert answer.status_code == 200, answer.text
+    data = trend_data(answer.text)
+    titles = [c["title"] for c in data["charts"]]
+    assert any(t.endswith("builder.cpu") for t in titles), titles
+    assert [r[0] for r in data["revisions"]] == ["r1", "r2", "r3"]  # oldest first
+    (cpu,) = [c for c in data["charts"] if c["title"] == "build/steady builder.cpu"]
+    lines = [t["name"] for t in cpu["figure"]["data"] if t.get("mode") == "lines+markers"]
+    assert lines == ["legs=2", "legs=8"]  # one line per parameter set, each with its band
+    assert sum(t.get("fill") == "tonexty" for t in cpu["figure"]["data"]) == 2
+    marks = [t for t in cpu["figure"]["data"] if t.get("name", "").startswith("change")]
+    assert marks and all(set(t["x"]) == {"r3"} for t in marks), marks
+    assert all(isinstance(i, int) for t in marks for i in t["customdata"])
+    assert all(len(r) == 3 for r in data["revisions"])  # title, commit, time for the hover
+
+
+def test_filters_are_kept_in_the_address_and_choose_the_charts(client, database_url, tmp_path):
+    history(database_url, tmp_path, [20.0, 20.0])
+    everything = trend_data(client.get("/components/builder").text)["charts"]
+    chosen = client.get("/components/builder?counter=cpu&log=1&median=1&revisions=1")
+    assert chosen.status_code == 200
+    charts = trend_data(chosen.text)["charts"]
+    assert 0 < len(charts) < len(everything)
+    assert all(c["title"].endswith(".cpu") for c in charts)
+    assert all(c["figure"]["layout"]["yaxis"]["type"] == "log" for c in charts)
+    assert any("moving median" in t.get("name", "") for c in charts for t in c["figure"]["data"])
+    assert [r[0] for r in trend_data(chosen.text)["revisions"]] == ["r2"]  # the newest
+    # the form shows the choice made, so the address and the page agree
+    assert re.search(r'<option value="cpu" selected>', chosen.text)
+    assert 'name="log" value="1" checked' in chosen.text
+
+
+def test_earlier_history_is_a_link_away(client, database_url, tmp_path):
+    history(database_url, tmp_path, [20.0, 20.0, 20.0])
+    newest = client.get("/components/builder?revisions=2")
+    link = re.search(r'id="earlier" href="\?([^"]+)"', newest.text)
+    assert link, "a page that does not show the whole history links the earlier part"
+    earlier = client.get("/components/builder?" + link.group(1).replace("&amp;", "&"))
+    shown = [r[0] for r in trend_data(earlier.text)["revisions"]]
+    assert shown == ["r1"], shown
+
+
+def test_bad_filters_and_unknown_things_are_pages_naming_them(client, database_url, tmp_path):
+    history(database_url, tmp_path, [20.0])
+    bad = client.get("/components/builder?revisions=0")
+    assert bad.status_code == 400 and "revisions" in bad.text
+    assert client.get("/components/builder?before=nope").status_code == 400
+    missing = client.get("/components/nope")
+    assert missing.status_code == 404 and "nope" in missing.text
+    assert client.get("/components/builder/revisions/r99").status_code == 404
+    assert client.get("/regressions/999999").status_code == 404
+    assert client.get("/regressions?state=closed").status_code == 400
+
+
+def test_the_page_is_served_from_the_cache_until_the_data_changes(client, database_url, tmp_path):
+    history(database_url, tmp_path, [20.0, 20.0])
+    first = client.get("/components/builder").text
+    with session_factory(database_url)() as session:
+        (row,) = session.scalars(select(FigureCache)).all()
+        version = row.version
+    assert trend_data(client.get("/components/builder").text) == trend_data(first)
+    history(database_url, tmp_path, [20.0], start=3)  # a new revision: a new data version
+    shown = [r[0] for r in trend_data(client.get("/components/builder").text)["revisions"]]
+    assert "r3" in shown
+    with session_factory(database_url)() as session:
+        assert session.scalar(select(func.count()).select_from(FigureCache)) == 1
+        assert session.scalar(select(FigureCache.version)) != version
+
+
+def test_untrusted_names_are_text_in_the_page_and_in_the_charts(client, database_url, tmp_path):
+    history(database_url, tmp_path, [20.0], case=EVIL)
+    page = client.get("/components/builder").text
+    assert EVIL not in page and '<a href="https://evil' not in page
+    titles = [c["figure"]["layout"]["title"]["text"] for c in trend_data(page)["charts"]]
+    assert any("&lt;a href" in t for t in titles), titles  # plotly shows the markup as text
+
+
+def test_revision_and_regression_pages_link_each_other(client, database_url, tmp_path):
+    history(database_url, tmp_path, [20.0, 20.0, 200.0])
+    regressions = client.get("/api/v1/components/builder/regressions").json()
+    assert regressions, "the tripled CPU makes a regression"
+    number = regressions[0]["id"]
+    component = client.get("/components/builder").text
+    assert f'href="/regressions/{number}"' in component
+    page = client.get(f"/regressions/{number}")
+    assert page.status_code == 200 and f"Regression #{number}" in page.text
+    bad = regressions[0]["bad_revision"]
+    assert f'href="/components/builder/revisions/{bad}"' in page.text
+    revision = client.get(f"/components/builder/revisions/{bad}")
+    assert revision.status_code == 200
+    assert f'href="/regressions/{number}"' in revision.text and "builder.cpu" in revision.text
+    listed = client.get("/regressions?component=builder&confirmation=suspected")
+    assert listed.status_code == 200
+
+
+def test_home_page_lists_components_hosts_and_the_queue(client, database_url, tmp_path):
+    history(database_url, tmp_path, [20.0, 20.0])
+    page = client.get("/")
+    assert page.status_code == 200
+    assert 'href="/components/builder"' in page.text and "Job queue" in page.text
+    assert '<svg class="spark"' in page.text  # the headline series' sparkline
+
+
+@pytest.mark.parametrize(
+    "path",
+    [
+        "/api/v1/components/builder/changes",
+        "/api/v1/components/builder/detections",
+        "/api/v1/components/builder/regressions",
+    ],
+)
+def test_lists_that_grow_with_history_are_paged(client, database_url, tmp_path, path):
+    history(database_url, tmp_path, [20.0, 20.0, 200.0, 200.0, 800.0])
+    everything = client.get(path).json()
+    assert len(everything) >= 2, path
+    seen, cursor = [], None
+    while True:
+        query = "?limit=1" + (f"&cursor={cursor}" if cursor else "")
+        page = client.get(path + query)
+        assert page.status_code == 200, page.text
+        seen += page.json()
+        cursor = page.headers.get("x-next-cursor")
+        if cursor is None:
+            break
+    assert seen == everything
+    bad = client.get(path + "?limit=1&cursor=bm9wZQ")
+    assert bad.status_code == 400 and "cursor" in bad.json()["detail"]
+
+
+def _regression(client: TestClient, database_url: str, tmp_path: Path) -> int:
+    history(database_url, tmp_path, [20.0, 20.0, 200.0])
+    return client.get("/api/v1/components/builder/regressions").json()[0]["id"]
+
+
+def _state(client: TestClient, number: int) -> str:
+    return client.get(f"/api/v1/components/builder/regressions/{number}").json()["state"]
+
+
+def test_triage_in_the_page_needs_a_sign_in_and_the_form_token(client, database_url, tmp_path):
+    number = _regression(client, database_url, tmp_path)
+    with session_factory(database_url)() as session:
+        create_user(session, "ada", "correct horse battery", "ci")
+        create_user(session, "reader", "correct horse battery", "read")
+    triage = f"/regressions/{number}/triage"
+    refused = client.post(triage, data={"state": "confirmed", "csrf": "x"})
+    assert refused.status_code == 403 and "sign in" in refused.text
+    assert "Sign in</a> to triage" in client.get(f"/regressions/{number}").text
+    wrong = client.post("/signin", data={"name": "ada", "password": "wrong password!!"})
+    assert wrong.status_code == 403 and "wrong name or password" in wrong.text
+    answer = client.post(
+        "/signin",
+        data={"name": "ada", "password": "correct horse battery", "next": "//evil.example/"},
+        follow_redirects=False,
+    )
+    assert answer.status_code == 303 and answer.headers["location"] == "/"  # never off-site
+    cookie = answer.headers["set-cookie"].lower()
+    assert "httponly" in cookie and "samesite=strict" in cookie
+    page = client.get(f"/regressions/{number}").text
+    assert 'id="triage"' in page
+    forged = client.post(triage, data={"state": "confirmed", "csrf": "forged"})
+    assert forged.status_code == 403 and "token" in forged.text
+    assert _state(client, number) == "new"
+    done = client.post(
+        triage,
+        data={"state": "confirmed", "comment": "bisected", "csrf": form_token(page)},
+        follow_redirects=False,
+    )
+    assert done.status_code == 303, done.text
+    detail = client.get(f"/api/v1/components/builder/regressions/{number}").json()
+    assert detail["state"] == "confirmed"
+    assert [(e["who"], e["to_state"], e["comment"]) for e in detail["history"]] == [
+        ("ada", "confirmed", "bisected")
+    ]
+    client.post("/signout", data={"csrf": form_token(client.get("/").text)})
+    assert client.post(triage, data={"state": "fixed", "csrf": form_token(page)}).status_code == 403
+    client.post("/signin", data={"name": "reader", "password": "correct horse battery"})
+    reader = client.post(
+        triage,
+        data={"state": "fixed", "csrf": form_token(client.get(f"/regressions/{number}").text)},
+    )
+    assert reader.status_code == 403 and "lacks the &#39;ci&#39; scope" in reader.text
+    assert _state(client, number) == "confirmed"
+
+
+def test_a_pasted_token_signs_in_with_its_own_scopes_only(client, database_url, tmp_path):
+    number = _regression(client, database_url, tmp_path)
+    with session_factory(database_url)() as session:
+        _, agent = issue_token(session, "perf-host", "agent")
+        _, ci = issue_token(session, "gitlab", "ci")
+    refused = client.post("/signin", data={"token": agent})
+    assert refused.status_code == 403 and "hosts" in refused.text
+    assert client.post("/signin", data={"token": "rl_nope"}).status_code == 403
+    client.post("/signin", data={"token": ci})
+    page = client.get(f"/regressions/{number}").text
+    done = client.post(
+        f"/regressions/{number}/triage", data={"state": "acknowledged", "csrf": form_token(page)}
+    )
+    assert done.status_code == 200 and _state(client, number) == "acknowledged"
+    detail = client.get(f"/api/v1/components/builder/regressions/{number}").json()
+    assert detail["history"][0]["who"] == "token gitlab"
+
+
+def test_passwords_are_stored_as_scrypt_hashes_and_short_ones_refused(database_url):
+    with session_factory(database_url)() as session:
+        user = create_user(session, "grace", "a long enough secret", "admin")
+        assert user.password_hash.startswith("scrypt$") and "secret" not in user.password_hash
+        assert check_password("a long enough secret", user.password_hash)
+        assert not check_password("a long enough secreT", user.password_hash)
+        with pytest.raises(BadRequest, match="12 characters"):
+            create_user(session, "short", "tiny", "ci")
+        with pytest.raises(Conflict):
+            create_user(session, "grace", "another long secret", "ci")
+
+
+def test_why_flagged_shows_what_was_compared(client, database_url, tmp_path):
+    history(database_url, tmp_path, [20.0, 20.0, 20.0, 200.0])
+    (regression, *_) = client.get("/api/v1/components/builder/regressions").json()
+    detail = client.get(f"/api/v1/components/builder/regressions/{regression['id']}").json()
+    flagged = next(d for d in detail["flagged"] if d["series"]["counter"] == "cpu")
+    assert f'href="/detections/{flagged["id"]}"' in client.get(f"/regressions/{detail['id']}").text
+    page = client.get(f"/detections/{flagged['id']}")
+    assert page.status_code == 200, page.text
+    assert flagged["method"] in page.text
+    match = re.search(r'<script type="application/json" id="figure-data">(.*?)</script>', page.text)
+    levels, distributions = json.loads(match.group(1))
+    sides = {t["name"]: t for t in levels["data"]}
+    assert sides["candidate executions"]["x"] == ["r4"]
+    pooled = sides["baseline executions"]["x"]  # the baseline as the detection pooled it
+    assert pooled[-1] == "r3" and set(pooled) <= {"r1", "r2", "r3"}
+    assert min(sides["candidate executions"]["y"]) > 5 * max(sides["baseline executions"]["y"])
+    assert "largest gap 1.00" in distributions["layout"]["title"]["text"]  # apart entirely
+    assert client.get("/detections/999999").status_code == 404
+
+
+def test_execution_page_has_raw_counters_parameters_and_the_recording(
+    client, database_url, tmp_path
+):
+    history(database_url, tmp_path, [20.0])
+    (job,) = client.get("/api/v1/components/builder/revisions/r1").json()["jobs"]
+    number = job["execution"]["id"]
+    assert f'href="/executions/{number}"' in client.get("/components/builder/revisions/r1").text
+    page = client.get(f"/executions/{number}")
+    assert page.status_code == 200, page.text
+    match = re.search(r'<script type="application/json" id="figure-data">(.*?)</script>', page.text)
+    charts = {c["layout"]["title"]["text"]: c for c in json.loads(match.group(1))}
+    raw = charts["builder.cpu"]
+    assert len(raw["layout"]["shapes"]) == 2  # the two parameter sets' phases, shaded
+    assert any("legs=8" in note["text"] for note in raw["layout"]["annotations"])
+    against = charts["builder.cpu against legs"]["data"][0]
+    assert against["x"] == [2.0, 8.0] and against["y"][1] > 3 * against["y"][0]
+    recording = client.get(f"/executions/{number}/recording")
+    assert recording.status_code == 200 and recording.content.startswith(b"\x89MCAP")
+    assert client.get("/executions/999999").status_code == 404
+    assert client.get("/executions/999999/recording").status_code == 404
+
+
+def test_compare_page_tables_and_charts_any_two_revisions(client, database_url, tmp_path):
+    history(database_url, tmp_path, [20.0, 20.0, 200.0])
+    page = client.get("/components/builder/compare?base=r1&candidate=r3")
+    assert page.status_code == 200, page.text
+    assert '<option value="r1" selected>' in page.text  # the choice stays in the form
+    match = re.search(r'<script type="application/json" id="figure-data">(.*?)</script>', page.text)
+    (chart,) = json.loads(match.group(1))
+    changes = dict(zip(chart["data"][0]["y"], chart["data"][0]["x"], strict=True))
+    assert changes["build/steady[legs=2] builder.cpu"] > 500  # % : ten times the CPU
+    assert client.get("/components/builder/compare").status_code == 200  # choose in the page
+    missing = client.get("/components/builder/compare?base=r1&candidate=nope")
+    assert missing.status_code == 404 and "nope" in missing.text
+
+
+def test_settings_pages_are_for_administrators_and_change_what_the_api_does(
+    client, database_url, tmp_path
+):
+    history(database_url, tmp_path, [20.0])
+    with session_factory(database_url)() as session:
+        create_user(session, "root", "correct horse battery", "admin")
+        create_user(session, "ada", "correct horse battery", "ci")
+    assert client.get("/settings").status_code == 403  # not signed in
+    client.post("/signin", data={"name": "ada", "password": "correct horse battery"})
+    refused = client.get("/settings")
+    assert refused.status_code == 403 and "admin" in refused.text
+    client.post("/signout", data={"csrf": form_token(client.get("/").text)})
+    client.post("/signin", data={"name": "root", "password": "correct horse battery"})
+    page = client.get("/settings")
+    assert page.status_code == 200 and 'href="/settings/components/builder"' in page.text
+    csrf = form_token(page.text)
+    assert client.post("/settings/tokens", data={"name": "x", "scopes": "ci"}).status_code == 403
+    made = client.post("/settings/tokens", data={"name": "gitlab", "scopes": "ci", "csrf": csrf})
+    secret = re.search(r'<code id="new-token">([^<]+)</code>', made.text).group(1)
+    assert client.get("/settings").text.count(secret) == 0  # shown once, never again
+    headers = {"Authorization": f"Bearer {secret}"}
+    assert client.post("/api/v1/revisions", headers=headers, json={}).status_code == 422  # live
+    form = client.get("/settings/components/builder").text
+    bad = client.post("/settings/components/builder", data={"csrf": csrf, "config": "{not json"})
+    assert bad.status_code == 400 and "not JSON" in bad.text
+    unknown = client.post(
+        "/settings/components/builder", data={"csrf": csrf, "config": '{"confirm_pairs": 99}'}
+    )
+    assert unknown.status_code == 400 and "confirm_pairs" in unknown.text
+    saved = client.post(
+        "/settings/components/builder",
+        data={
+            "csrf": csrf,
+            "config": '{"confirm_pairs": 2, "reanalyze": false}',
+            "executions": "3",
+        },
+        follow_redirects=False,
+    )
+    assert saved.status_code == 303, saved.text
+    assert client.get("/api/v1/components/builder/detection-config").json()["confirm_pairs"] == 2
+    assert client.get("/api/v1/components/builder").json()["executions"] == 3
+    assert "builder" in form
