@@ -9,6 +9,11 @@
     element.className = "chart";
     element.id = `figure-${index + 1}`;
     holder.appendChild(element);
-    Plotly.newPlot(element, figure.data, figure.layout, { responsive: true, displaylogo: false });
+    Plotly.newPlot(element, figure.data, figure.layout, {
+      responsive: true,
+      displaylogo: false,
+      // nothing leaves the page for plotly's cloud; box and lasso select mean nothing on a trend
+      modeBarButtonsToRemove: ["sendDataToCloud", "select2d", "lasso2d"],
+    });
   });
 })();

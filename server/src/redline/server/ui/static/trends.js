@@ -16,7 +16,12 @@
 
   function draw(element, chart) {
     const traces = chart.figure.data.map((t) => (t.x ? t : Object.assign({}, t, { x: titles })));
-    Plotly.newPlot(element, traces, chart.figure.layout, { responsive: true, displaylogo: false });
+    Plotly.newPlot(element, traces, chart.figure.layout, {
+      responsive: true,
+      displaylogo: false,
+      // nothing leaves the page for plotly's cloud; box and lasso select mean nothing on a trend
+      modeBarButtonsToRemove: ["sendDataToCloud", "select2d", "lasso2d"],
+    });
     element.on("plotly_hover", (event) => {
       const revision = about[event.points[0].x];
       if (revision) info.textContent = `${revision[0]} · commit ${revision[1]} · ${revision[2]}`;
