@@ -89,20 +89,41 @@ def server_cmd(
 
 
 def worker_cmd(
-    concurrency: Annotated[int, typer.Option(help="worker processes")] = 1,
+    concurrency: Annotated[int, typer.Option(help="worker processes (or threads)")] = 1,
     loglevel: Annotated[str, typer.Option(help="Celery log level")] = "INFO",
     beat: Annotated[bool, typer.Option(help="also run the periodic tasks (retention)")] = True,
+    queues: Annotated[
+        str,
+        typer.Option(
+            help="all; analysis (ingestion, detection, alert scans); alerts (deliveries: give "
+            "them a worker of their own so a slow receiver never waits in front of analysis)"
+        ),
+    ] = "all",
 ) -> None:
-    """Run a Celery worker that ingests recordings and detects changes."""
+    """Run a Celery worker that ingests recordings, detects changes and sends alerts."""
+    from redline.server.core.tasks import alerts_queue
     from redline.worker.app import celery_app
 
-    schedule = celery_app.conf.redline_settings.storage_dir / "celerybeat-schedule"
+    settings = celery_app.conf.redline_settings
+    chosen = {
+        "all": [settings.queue, alerts_queue(settings)],
+        "analysis": [settings.queue],
+        "alerts": [alerts_queue(settings)],
+    }.get(queues)
+    if chosen is None:
+        raise typer.BadParameter(
+            f"{queues!r}: choose all, analysis or alerts", param_hint="--queues"
+        )
+    schedule = settings.storage_dir / "celerybeat-schedule"
     schedule.parent.mkdir(parents=True, exist_ok=True)  # beat keeps its state beside the data
     celery_app.worker_main(
         [
             "worker",
             f"--concurrency={concurrency}",
             f"--loglevel={loglevel}",
+            f"--queues={','.join(chosen)}",
+            # deliveries wait on the network: threads, not processes
+            *(["--pool=threads"] if queues == "alerts" else []),
             *(["--beat", f"--schedule={schedule}"] if beat else []),
         ]
     )

@@ -81,7 +81,19 @@ class Stack:
             nice=BACKGROUND_NICE,
         )
         self._wait_healthy()
-        self._spawn("worker", "worker", "--concurrency", "1", nice=BACKGROUND_NICE)
+        self._spawn(
+            "worker", "worker", "--concurrency", "1", "--queues", "analysis", nice=BACKGROUND_NICE
+        )
+        self._spawn(
+            "alerts",
+            "worker",
+            "--concurrency",
+            "2",
+            "--queues",
+            "alerts",
+            "--no-beat",
+            nice=BACKGROUND_NICE,
+        )
         self._spawn(
             "agent",
             "agent",

@@ -16,6 +16,7 @@ from redline.server.core.config import Settings, get_settings
 from redline.server.core.tasks import TaskSender
 from redline.server.routes import (
     agent,
+    alerts,
     components,
     executions,
     health,
@@ -103,6 +104,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         executions,
         imports,
         regressions,
+        alerts,
     ):
         app.include_router(module.router)
     web.mount(app, settings)

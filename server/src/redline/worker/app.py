@@ -8,7 +8,13 @@ from __future__ import annotations
 
 from celery import Celery
 from redline.server.core.config import Settings, get_settings
-from redline.server.core.tasks import REQUEUE_TASK, RETENTION_TASK, celery_client
+from redline.server.core.tasks import (
+    DELIVER_TASK,
+    DIGEST_TASK,
+    REQUEUE_TASK,
+    RETENTION_TASK,
+    celery_client,
+)
 
 
 def make_celery(settings: Settings) -> Celery:
@@ -22,6 +28,12 @@ def make_celery(settings: Settings) -> Celery:
         "retention": {"task": RETENTION_TASK, "schedule": 24 * 3600.0},
         # an upload whose ingestion was never queued (broker down) or got lost is not forgotten
         "requeue-uploads": {"task": REQUEUE_TASK, "schedule": 5 * 60.0},
+        # retries come due, and leases of deliveries whose worker died lapse, between scans
+        "deliver-alerts": {
+            "task": DELIVER_TASK,
+            "schedule": max(1.0, min(30.0, settings.alert_retry_s)),
+        },
+        "send-digests": {"task": DIGEST_TASK, "schedule": 15 * 60.0},
     }
     app.conf.redline_settings = settings
     return app

@@ -10,19 +10,26 @@ from celery.signals import worker_init
 from redline.agent.quiet import analysing
 from redline.server.core.config import Settings
 from redline.server.core.tasks import (
+    DELIVER_TASK,
     DETECT_TASK,
+    DIGEST_TASK,
     INGEST_TASK,
     REANALYZE_TASK,
     RENDER_TASK,
     REQUEUE_TASK,
+    SCAN_ALERTS_TASK,
 )
 from redline.server.db import session_scope
+from redline.server.models import Revision
+from redline.worker.alerts import commit_status, scan_component, send_digests
 from redline.worker.app import celery_app
+from redline.worker.deliver import deliver_due
 from redline.worker.detection import detect_revision as run_detection
 from redline.worker.ingest import ingest_execution as run_ingest
 from redline.worker.ingest import stale_uploads
 from redline.worker.reanalysis import reanalyze_component as run_reanalysis
 from redline.worker.trends import render_component_trends, render_revision_trends
+from sqlalchemy import select
 from sqlalchemy.exc import InterfaceError, OperationalError
 
 log = logging.getLogger(__name__)
@@ -65,6 +72,12 @@ def detect_revision(revision_id: int) -> None:
         sum(change.flagged for change in changes),
     )
     render_trends.delay(revision_id)
+    with session_scope(_settings().database_url) as session:
+        component_id = session.scalar(
+            select(Revision.component_id).where(Revision.id == revision_id)
+        )
+    if component_id is not None:
+        scan_alerts.delay(component_id, revision_id)
 
 
 @celery_app.task(name=RENDER_TASK, acks_late=True, **RETRY)
@@ -96,3 +109,35 @@ def reanalyze_component(component_id: int) -> None:
     with analysing():
         run_reanalysis(_settings().database_url, component_id)
         render_component_trends(_settings().database_url, component_id)
+    scan_alerts.delay(component_id)
+
+
+@celery_app.task(name=SCAN_ALERTS_TASK, acks_late=True, **RETRY)
+def scan_alerts(component_id: int, revision_id: int | None = None) -> int:
+    """Write the alerts the component's changes call for (`redline.worker.alerts`), and the
+    commit status of the revision just judged, then send."""
+    with session_scope(_settings().database_url) as session:
+        deliveries = scan_component(session, component_id)
+        if revision_id is not None:
+            deliveries += commit_status(session, revision_id)
+    if deliveries:
+        deliver_alerts.delay()
+    return len(deliveries)
+
+
+@celery_app.task(name=DIGEST_TASK, acks_late=True, **RETRY)
+def digest_alerts() -> int:
+    """The digests whose day has passed (beat schedule), then send."""
+    with session_scope(_settings().database_url) as session:
+        deliveries = send_digests(session)
+    if deliveries:
+        deliver_alerts.delay()
+    return len(deliveries)
+
+
+@celery_app.task(name=DELIVER_TASK, acks_late=True, **RETRY)
+def deliver_alerts() -> dict:
+    """Send every due delivery (`redline.worker.deliver`); retries fall due between runs and
+    the beat schedule looks for them (`redline.worker.app`)."""
+    done = deliver_due(_settings().database_url, _settings())
+    return {"sent": done["sent"], "failed": done["failed"]}

@@ -7,6 +7,7 @@ from importlib.resources import files
 from pathlib import Path
 from typing import Literal
 
+from pydantic import SecretStr
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
 #: the installed package: the UI's templates and static files, and the migrations, ship in it
@@ -36,6 +37,20 @@ class Settings(BaseSettings):
     read_access: Literal["open", "token"] = "open"  # token: reading needs a `read` token
     retention_days: int = 90  # raw recordings (MCAP, Parquet) older than this are deleted
     log_json: bool = False  # log JSON lines instead of text
+    # the address people open Redline's pages at: links in mails, webhooks and commit statuses
+    public_url: str = "http://127.0.0.1:8000"
+    # alerts by mail (docs/alerts.md); no host: mail subscriptions fail, saying so
+    smtp_host: str = ""
+    smtp_port: int = 25
+    smtp_user: str = ""
+    smtp_password: SecretStr = SecretStr("")
+    smtp_tls: Literal["none", "starttls", "tls"] = "starttls"
+    smtp_from: str = "redline@localhost"
+    smtp_ca_file: Path | None = None  # a private CA the SMTP server's certificate comes from
+    # outgoing webhooks, mails and commit statuses: one try's timeout, tries, first retry's wait
+    alert_timeout_s: float = 10.0
+    alert_max_attempts: int = 10
+    alert_retry_s: float = 30.0
 
 
 @lru_cache

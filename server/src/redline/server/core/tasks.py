@@ -22,6 +22,15 @@ REANALYZE_TASK = "redline.reanalyze_component"
 RETENTION_TASK = "redline.prune_old_recordings"
 REQUEUE_TASK = "redline.requeue_stale_uploads"
 RENDER_TASK = "redline.render_trends"
+SCAN_ALERTS_TASK = "redline.scan_alerts"
+DELIVER_TASK = "redline.deliver_alerts"
+DIGEST_TASK = "redline.send_digests"
+
+
+def alerts_queue(settings: Settings) -> str:
+    """The queue of deliveries (webhooks, mails, commit statuses): a slow receiver waits there,
+    never in front of ingestion and detection (`redline worker --queues`)."""
+    return f"{settings.queue}.alerts"
 
 
 def broker_url(redis_url: str) -> str:
@@ -39,6 +48,7 @@ def celery_client(settings: Settings, **options: object) -> Celery:
     app.conf.update(
         task_ignore_result=True,
         task_default_queue=settings.queue,
+        task_routes={DELIVER_TASK: {"queue": alerts_queue(settings)}},
         broker_connection_retry_on_startup=True,
         task_publish_retry_policy={
             "max_retries": 3,
@@ -75,3 +85,6 @@ class TaskSender:
 
     def reanalyze(self, component_id: int) -> bool:
         return self.send(REANALYZE_TASK, component_id)
+
+    def deliver(self) -> bool:
+        return self.send(DELIVER_TASK)

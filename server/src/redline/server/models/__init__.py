@@ -2,6 +2,7 @@
 registers every table on `Base.metadata`, which Alembic's autogenerate compares with the schema.
 Schema changes go through Alembic (``redline/server/migrations``)."""
 
+from redline.server.models.alerts import Alert, AlertedChange, Delivery, Subscription
 from redline.server.models.base import Base, utcnow
 from redline.server.models.detection import (
     FALSE_POSITIVE_STATES,
@@ -18,6 +19,10 @@ from redline.server.models.tokens import ApiToken, User, WebSession
 from redline.server.models.work import Component, Execution, Host, Job, JobState, Revision
 
 __all__ = [
+    "Alert",
+    "AlertedChange",
+    "Delivery",
+    "Subscription",
     "FALSE_POSITIVE_STATES",
     "TRUE_POSITIVE_STATES",
     "ApiToken",

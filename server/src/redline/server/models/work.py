@@ -45,6 +45,9 @@ class Component(Base):
     host_labels: Mapped[list[str]] = mapped_column(JSON, default=list)  # a host must have all
     webhook_secret: Mapped[str | None] = mapped_column(Text, default=None)  # else the setting
     description: Mapped[str] = mapped_column(Text, default="")
+    #: where its revisions' verdicts go as commit statuses: provider (github, gitlab), api_url,
+    #: repository (owner/name or a GitLab project id or path), token; empty: nowhere
+    commit_status: Mapped[dict[str, Any]] = mapped_column(JSON, default=dict)
 
 
 class Revision(Base):

@@ -1,0 +1,146 @@
+"""Alerts: subscriptions and their filters, the delivery log, a component's commit-status target,
+and the CI verdict of a revision."""
+
+from __future__ import annotations
+
+from datetime import datetime
+from typing import Annotated, Literal, Self
+from urllib.parse import urlsplit
+
+from pydantic import AfterValidator, BaseModel, Field, model_validator
+
+_ADDRESS = r"^[^@\s<>,;\"]+@[^@\s<>,;\"]+\.[^@\s<>,;\"]+$"
+
+
+def http_url(value: str) -> str:
+    parts = urlsplit(value)
+    if parts.scheme not in ("http", "https") or not parts.hostname:
+        raise ValueError("must be an http:// or https:// URL with a host")
+    return value
+
+
+HttpUrl = Annotated[str, Field(max_length=2000), AfterValidator(http_url)]
+
+
+class SubscriptionFilters(BaseModel):
+    counters: list[Annotated[str, Field(min_length=1, max_length=200)]] | None = Field(
+        default=None,
+        max_length=100,
+        description="counters or driver metrics to hear about (e.g. cpu, rss, rtt_p90); empty: all",
+    )
+    direction: Literal["regression", "improvement", "any"] | None = Field(
+        default=None, description="changes for the worse, for the better, or both"
+    )
+    min_effect: float | None = Field(
+        default=None, ge=0, le=100, description="smallest relative effect told (0.05: 5 %)"
+    )
+    confirmed_only: bool | None = Field(
+        default=None,
+        description="tell a regression once it is confirmed (imported results, which no agent "
+        "can re-run, are told when flagged)",
+    )
+    delivery: Literal["immediate", "digest"] | None = Field(
+        default=None, description="a message per alert, or one a day"
+    )
+
+
+class SubscriptionCreate(SubscriptionFilters):
+    kind: Literal["email", "webhook"]
+    address: str = Field(default="", max_length=320, pattern=_ADDRESS + "|^$")
+    url: Annotated[str, Field(max_length=2000)] = ""
+    secret: str = Field(default="", max_length=500, description="signs webhook bodies")
+    format: Literal["redline", "slack"] = "redline"
+
+    @model_validator(mode="after")
+    def _target(self) -> Self:
+        if self.kind == "email" and not self.address:
+            raise ValueError("an email subscription needs an address")
+        if self.kind == "webhook":
+            if not self.url:
+                raise ValueError("a webhook subscription needs a url")
+            http_url(self.url)
+        return self
+
+
+class SubscriptionUpdate(SubscriptionFilters):
+    """What PATCH may change: the filters, the target, a new secret."""
+
+    address: str | None = Field(default=None, max_length=320, pattern=_ADDRESS)
+    url: HttpUrl | None = None
+    secret: str | None = Field(default=None, max_length=500)
+    format: Literal["redline", "slack"] | None = None
+
+
+class SubscriptionOut(BaseModel):
+    id: int
+    component: str | None = Field(description="None: every component")
+    kind: str
+    address: str
+    url: str
+    format: str
+    has_secret: bool = Field(description="the secret is never shown again")
+    counters: list[str]
+    direction: str
+    min_effect: float
+    confirmed_only: bool
+    delivery: str
+    created: datetime
+
+
+class DeliveryOut(BaseModel):
+    id: int
+    uid: str = Field(description="sent as X-Redline-Delivery, and in the mail's Message-ID")
+    subscription: int | None
+    kind: str
+    event: str
+    state: Literal["pending", "sending", "delivered", "failed"]
+    attempts: int
+    last_error: str
+    next_try: datetime | None = Field(description="when it is tried again (pending only)")
+    created: datetime
+    delivered: datetime | None
+
+
+class CommitStatusTarget(BaseModel):
+    provider: Literal["github", "gitlab"]
+    api_url: HttpUrl = Field(
+        description="https://api.github.com, or https://gitlab.example.com/api/v4"
+    )
+    repository: str = Field(
+        min_length=1,
+        max_length=300,
+        pattern=r"^[A-Za-z0-9_.\-/]+$",
+        description="owner/name on GitHub; the project's id or path on GitLab",
+    )
+    token: str = Field(min_length=1, max_length=500, description="stored, never shown again")
+
+
+class CommitStatusOut(BaseModel):
+    provider: str
+    api_url: str
+    repository: str
+    has_token: bool
+
+
+class CaseVerdict(BaseModel):
+    case: str
+    phase: str
+    parameters: str
+    state: Literal["passed", "failed", "skipped"]
+    changes: list[dict] = Field(default_factory=list)
+    reason: str = ""
+
+
+class CiVerdict(BaseModel):
+    component: str
+    revision: str
+    state: Literal["pending", "done", "failed"] = Field(
+        description="pending while jobs, analysis or confirmation runs are under way; failed: "
+        "its jobs failed or were cancelled"
+    )
+    waiting_for: str = Field(default="", description="what a pending verdict waits for")
+    regressions: int = Field(description="changes for the worse, not dropped by confirmation")
+    improvements: int
+    skipped: int = Field(description="test cases without a verdict (not enough data)")
+    cases: list[CaseVerdict]
+    page: str = Field(description="the revision's page")

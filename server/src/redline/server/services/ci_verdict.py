@@ -1,0 +1,173 @@
+"""A revision's verdict for CI: whether it is settled, and per test case x phase x parameter set
+what the alarm methods found; as JSON (`redline ci wait` polls it) and as JUnit XML.
+
+Pending while the revision's own jobs run, until detection has seen them, and while confirmation
+runs of it are under way. A change for the worse that confirmation dropped is not a failure; one
+still suspected is (the later revisions may drop it, the CI run cannot wait for them), and says so.
+"""
+
+from __future__ import annotations
+
+from collections import defaultdict
+from typing import Any
+from urllib.parse import quote
+from xml.etree import ElementTree
+
+from redline.detect.confirmation import DROPPED
+from redline.detect.counters import worse
+from redline.server.models import Detection, Job, JobState, Revision, Series
+from redline.server.schemas.alerts import CaseVerdict, CiVerdict
+from redline.server.services.components import get_component
+from redline.server.services.detection_config import component_config
+from redline.server.services.errors import NotFound
+from redline.server.services.revisions import revision_state
+from sqlalchemy import select
+from sqlalchemy.orm import Session
+
+FINISHED = (JobState.done, JobState.failed, JobState.cancelled)
+
+
+def _pending(session: Session, revision: Revision) -> tuple[str, str]:
+    """The verdict's state and, while pending, what it waits for."""
+    own = [job.state for job in revision.jobs if job.pair == 0]
+    state = revision_state(own, analyzed=revision.analyzed_at is not None)
+    if state in ("failed", "cancelled"):
+        return "failed", ""
+    if state != "done":
+        waits = {
+            "empty": "jobs to be created",
+            "queued": "a performance host to take its jobs",
+            "running": "its jobs to finish",
+            "analyzing": "detection to judge its results",
+        }
+        return "pending", waits.get(state, state)
+    reruns = session.scalar(
+        select(Job.id).where(Job.confirms_revision_id == revision.id, Job.state.not_in(FINISHED))
+    )
+    if reruns is not None:
+        return "pending", "confirmation runs of it and its baseline"
+    return "done", ""
+
+
+def _change(detection: Detection, series: Series) -> dict[str, Any]:
+    return {
+        "process": series.process,
+        "counter": series.counter,
+        "method": detection.method,
+        "effect": detection.effect,
+        "p_value": detection.p_value,
+        "direction": detection.direction,
+        "worse": detection.direction == worse(series.process, series.counter),
+        "confirmation": detection.confirmation or "none",
+        "confirmation_reason": detection.confirmation_reason,
+        "regression": detection.regression_id,
+    }
+
+
+def ci_verdict(session: Session, component_name: str, title: str) -> CiVerdict:
+    component = get_component(session, component_name)
+    revision = session.scalar(
+        select(Revision).where(Revision.component_id == component.id, Revision.title == title)
+    )
+    if revision is None:
+        raise NotFound(f"component {component_name!r} has no revision {title!r}")
+    state, waiting = _pending(session, revision)
+    alarming = component_config(session, component.id).alarming
+    groups: dict[tuple[str, str, str], list[tuple[Detection, Series]]] = defaultdict(list)
+    for detection, series in session.execute(
+        select(Detection, Series)
+        .join(Series, Series.id == Detection.series_id)
+        .where(Detection.revision_id == revision.id, Detection.method.in_(alarming))
+        .order_by(Series.case, Series.phase, Series.params, Series.process, Series.counter)
+    ).tuples():
+        groups[(series.case, series.phase, series.params)].append((detection, series))
+    cases = []
+    regressions = improvements = skipped = 0
+    for (case, phase, params), found in groups.items():
+        changes = [_change(d, s) for d, s in found if d.flagged and d.confirmation != DROPPED]
+        worse_count = sum(c["worse"] for c in changes)
+        regressions += worse_count
+        improvements += len(changes) - worse_count
+        if all(d.verdict == "not enough data" for d, _ in found):
+            skipped += 1
+            verdict = CaseVerdict(
+                case=case,
+                phase=phase,
+                parameters=params,
+                state="skipped",
+                reason=f"not enough data: {found[0][0].reason}",
+            )
+        else:
+            verdict = CaseVerdict(
+                case=case,
+                phase=phase,
+                parameters=params,
+                state="failed" if worse_count else "passed",
+                changes=changes,
+            )
+        cases.append(verdict)
+    return CiVerdict(
+        component=component.name,
+        revision=revision.title,
+        state=state,
+        waiting_for=waiting,
+        regressions=regressions,
+        improvements=improvements,
+        skipped=skipped,
+        cases=cases,
+        page=f"/components/{quote(component.name)}/revisions/{quote(revision.title)}",
+    )
+
+
+def _describe(change: dict[str, Any]) -> str:
+    effect = "n/a" if change["effect"] is None else f"{change['effect'] * 100:+.1f} %"
+    p_value = "n/a" if change["p_value"] is None else f"{change['p_value']:.2g}"
+    return (
+        f"{change['process']} {change['counter']} {effect} ({change['method']}, p={p_value}, "
+        f"confirmation: {change['confirmation']}"
+        + (f": {change['confirmation_reason']}" if change["confirmation_reason"] else "")
+        + ")"
+    )
+
+
+def junit_xml(verdict: CiVerdict, fail_on: str = "regression") -> str:
+    """One testsuite, one testcase per test case x phase x parameter set: a failure per change
+    ``fail_on`` counts (regression: for the worse; any: either way; none: listed, not failed),
+    skipped with its reason where there is no verdict."""
+    suite = ElementTree.Element(
+        "testsuite", name=f"redline.{verdict.component}", tests=str(len(verdict.cases))
+    )
+    failures = skipped = 0
+    for case in verdict.cases:
+        element = ElementTree.SubElement(
+            suite,
+            "testcase",
+            classname=f"redline.{verdict.component}.{case.case}",
+            name=f"{case.phase} {case.parameters}".strip(),
+        )
+        if case.state == "skipped":
+            skipped += 1
+            ElementTree.SubElement(element, "skipped", message=case.reason)
+            continue
+        told = [
+            c
+            for c in case.changes
+            if (fail_on == "any" or (fail_on == "regression" and c["worse"]))
+        ]
+        for change in told:
+            failures += 1
+            kind = "regression" if change["worse"] else "improvement"
+            failure = ElementTree.SubElement(
+                element, "failure", message=f"{kind}: {_describe(change)}", type=kind
+            )
+            failure.text = _describe(change)
+        rest = [c for c in case.changes if c not in told]
+        if rest:
+            out = ElementTree.SubElement(element, "system-out")
+            out.text = "\n".join(
+                ("regression: " if c["worse"] else "improvement: ") + _describe(c) for c in rest
+            )
+    suite.set("failures", str(failures))
+    suite.set("skipped", str(skipped))
+    suite.set("errors", "0")
+    return ElementTree.tostring(suite, encoding="unicode", xml_declaration=True)

@@ -1,0 +1,137 @@
+"""Subscriptions to a component's alerts (or every component's), and their delivery log."""
+
+from __future__ import annotations
+
+from redline.server.models import Component, Delivery, Subscription
+from redline.server.schemas.alerts import (
+    DeliveryOut,
+    SubscriptionCreate,
+    SubscriptionOut,
+    SubscriptionUpdate,
+)
+from redline.server.services.components import get_component
+from redline.server.services.errors import NotFound
+from sqlalchemy import select
+from sqlalchemy.orm import Session
+
+#: what a subscription left unsaid gets
+DEFAULTS = {
+    "counters": [],
+    "direction": "regression",
+    "min_effect": 0.0,
+    "confirmed_only": True,
+    "delivery": "immediate",
+}
+
+
+def subscription_out(subscription: Subscription, component: str | None) -> SubscriptionOut:
+    return SubscriptionOut(
+        id=subscription.id,
+        component=component,
+        kind=subscription.kind,
+        address=subscription.address,
+        url=subscription.url,
+        format=subscription.format,
+        has_secret=bool(subscription.secret),
+        counters=list(subscription.counters or []),
+        direction=subscription.direction,
+        min_effect=subscription.min_effect,
+        confirmed_only=subscription.confirmed_only,
+        delivery=subscription.delivery,
+        created=subscription.created,
+    )
+
+
+def _scope(session: Session, component: str | None) -> int | None:
+    return None if component is None else get_component(session, component).id
+
+
+def create_subscription(
+    session: Session, component: str | None, data: SubscriptionCreate
+) -> SubscriptionOut:
+    fields = data.model_dump()
+    for key, default in DEFAULTS.items():
+        if fields[key] is None:
+            fields[key] = default
+    if data.kind == "email":
+        fields.update(url="", secret="", format="redline")
+    else:
+        fields.update(address="")
+    subscription = Subscription(component_id=_scope(session, component), **fields)
+    session.add(subscription)
+    session.commit()
+    return subscription_out(subscription, component)
+
+
+def _query(session: Session, component: str | None):
+    component_id = _scope(session, component)
+    query = select(Subscription)
+    if component_id is None:
+        return query.where(Subscription.component_id.is_(None))
+    return query.where(Subscription.component_id == component_id)
+
+
+def list_subscriptions(session: Session, component: str | None) -> list[SubscriptionOut]:
+    found = session.scalars(_query(session, component).order_by(Subscription.id))
+    return [subscription_out(s, component) for s in found]
+
+
+def get_subscription(session: Session, component: str | None, ident: int) -> Subscription:
+    found = session.scalar(_query(session, component).where(Subscription.id == ident))
+    if found is None:
+        where = f"component {component!r}" if component else "the server"
+        raise NotFound(f"{where} has no subscription {ident}")
+    return found
+
+
+def update_subscription(
+    session: Session, component: str | None, ident: int, data: SubscriptionUpdate
+) -> SubscriptionOut:
+    subscription = get_subscription(session, component, ident)
+    for field, value in data.model_dump(exclude_unset=True).items():
+        if value is not None:
+            setattr(subscription, field, value)
+    session.commit()
+    return subscription_out(subscription, component)
+
+
+def delete_subscription(session: Session, component: str | None, ident: int) -> None:
+    """Gone with its alerts and its deliveries not yet sent."""
+    session.delete(get_subscription(session, component, ident))
+    session.commit()
+
+
+def delivery_out(delivery: Delivery) -> DeliveryOut:
+    return DeliveryOut(
+        id=delivery.id,
+        uid=delivery.uid,
+        subscription=delivery.subscription_id,
+        kind=delivery.kind,
+        event=delivery.event,
+        state=delivery.state,
+        attempts=delivery.attempts,
+        last_error=delivery.last_error,
+        next_try=delivery.next_try if delivery.state == "pending" else None,
+        created=delivery.created,
+        delivered=delivery.delivered,
+    )
+
+
+def list_deliveries(
+    session: Session, component: str | None, ident: int | None, limit: int
+) -> list[DeliveryOut]:
+    """Newest first: a subscription's (``ident``), or the component's (commit statuses too)."""
+    query = select(Delivery).order_by(Delivery.id.desc()).limit(limit)
+    if ident is not None:
+        query = query.where(
+            Delivery.subscription_id == get_subscription(session, component, ident).id
+        )
+    elif component is not None:
+        query = query.where(Delivery.component_id == get_component(session, component).id)
+    return [delivery_out(d) for d in session.scalars(query)]
+
+
+def component_of(session: Session, subscription: Subscription) -> str | None:
+    if subscription.component_id is None:
+        return None
+    return session.get_one(Component, subscription.component_id).name

@@ -1,0 +1,325 @@
+"""Deciding who hears about what: a component's regressions and improvements matched against the
+subscriptions, each change told once per subscription.
+
+A scan runs after every detection and re-analysis (`redline.worker.tasks`). For each
+subscription it takes the changes its filters keep, drops those it was already told about
+(`AlertedChange`: series x revision, so re-analyses, regrouping and confirmation never tell
+twice), and writes an `Alert` for each regression with new changes: "regression" the first
+time, "regression.updated" when it grew, at most once per digest period. Immediate
+subscriptions get a `Delivery` per alert; digest ones collect their alerts until
+`send_digests`. Only revisions reported after the subscription was made are alerted (a new
+subscription does not replay the history), and a triaged regression (fixed, ignored, false
+positive) is never alerted again.
+"""
+
+from __future__ import annotations
+
+import uuid
+from collections import defaultdict
+from dataclasses import dataclass
+from datetime import datetime, timedelta
+from typing import Any
+
+from redline.detect.confirmation import DROPPED
+from redline.detect.counters import worse
+from redline.server.models import (
+    Alert,
+    AlertedChange,
+    Component,
+    Delivery,
+    Detection,
+    Execution,
+    Regression,
+    RegressionState,
+    Revision,
+    Series,
+    Subscription,
+    utcnow,
+)
+from redline.server.services.ci_verdict import ci_verdict
+from redline.server.services.detection_config import component_config
+from redline.worker import messages
+from sqlalchemy import and_, or_, select
+from sqlalchemy.orm import Session, aliased
+
+#: a regression that grows is told again at most this often (and a digest goes out this often)
+PERIOD = timedelta(days=1)
+#: triage that ends a regression's alerts: someone has looked and decided
+SILENCED = (RegressionState.fixed, RegressionState.ignored, RegressionState.false_positive)
+
+
+@dataclass(frozen=True)
+class Change:
+    """One flagged detection as an alert tells it."""
+
+    series_id: int
+    revision_id: int
+    regression_id: int | None
+    worse: bool
+    effect: float | None
+    confirmation: str
+    reported: datetime  # when its revision was reported
+    body: dict[str, Any]
+
+
+def _imported(session: Session, revision_ids: set[int]) -> set[int]:
+    """The revisions whose results were imported: no agent can re-run them, so their
+    regressions alert when flagged."""
+    rows = session.execute(
+        select(Execution.revision_id, Execution.meta).where(Execution.revision_id.in_(revision_ids))
+    )
+    return {revision for revision, meta in rows if (meta or {}).get("imported")}
+
+
+def flagged_changes(session: Session, component: Component, since: datetime) -> list[Change]:
+    """The component's flagged changes of the alarm methods, on revisions reported since
+    ``since``, not dropped by confirmation, outside silenced regressions."""
+    alarming = component_config(session, component.id).alarming
+    baseline = aliased(Revision)
+    rows = session.execute(
+        select(Detection, Series, Revision, baseline.title, Regression)
+        .join(Series, Series.id == Detection.series_id)
+        .join(Revision, Revision.id == Detection.revision_id)
+        .outerjoin(baseline, baseline.id == Detection.baseline_revision_id)
+        .outerjoin(Regression, Regression.id == Detection.regression_id)
+        .where(
+            Series.component_id == component.id,
+            Detection.flagged,
+            Detection.method.in_(alarming),
+            Revision.created >= since,
+            or_(Regression.id.is_(None), Regression.state.not_in(SILENCED)),
+        )
+        .order_by(Detection.id)
+    ).all()
+    changes = []
+    for detection, series, revision, baseline_title, _ in rows:
+        is_worse = detection.direction == worse(series.process, series.counter)
+        if is_worse and detection.regression_id is None:
+            continue  # not grouped (no span): nothing to point at yet
+        if detection.confirmation == DROPPED:
+            continue
+        body = messages.change_body(component.name, detection, series, revision, baseline_title)
+        changes.append(
+            Change(
+                series.id,
+                revision.id,
+                detection.regression_id if is_worse else None,
+                is_worse,
+                detection.effect,
+                detection.confirmation,
+                revision.created,
+                body,
+            )
+        )
+    return changes
+
+
+def wanted(subscription: Subscription, change: Change) -> bool:
+    """Whether the subscription's filters keep the change (confirmation aside)."""
+    if subscription.direction == "regression" and not change.worse:
+        return False
+    if subscription.direction == "improvement" and change.worse:
+        return False
+    if subscription.counters and change.body["counter"] not in subscription.counters:
+        return False
+    return abs(change.effect or 0.0) >= subscription.min_effect
+
+
+def _told(session: Session, subscription_id: int) -> set[tuple[int, int]]:
+    return set(
+        session.execute(
+            select(AlertedChange.series_id, AlertedChange.revision_id).where(
+                AlertedChange.subscription_id == subscription_id
+            )
+        ).tuples()
+    )
+
+
+def _last_alert(session: Session, subscription_id: int, regression_id: int) -> Alert | None:
+    return session.scalar(
+        select(Alert)
+        .where(Alert.subscription_id == subscription_id, Alert.regression_id == regression_id)
+        .order_by(Alert.id.desc())
+        .limit(1)
+    )
+
+
+def new_delivery(
+    subscription: Subscription, event: str, payload: dict[str, Any], component_id: int | None
+) -> Delivery:
+    return Delivery(
+        uid=str(uuid.uuid4()),
+        subscription_id=subscription.id,
+        component_id=component_id,
+        kind=subscription.kind,
+        event=event,
+        payload=payload,
+    )
+
+
+def _alert(
+    session: Session,
+    subscription: Subscription,
+    component: Component,
+    kind: str,
+    regression: Regression | None,
+    changes: list[Change],
+) -> Alert:
+    body = messages.alert_body(component.name, kind, regression, [c.body for c in changes])
+    alert = Alert(
+        subscription_id=subscription.id,
+        regression_id=regression.id if regression else None,
+        revision_id=changes[0].revision_id,
+        kind=kind,
+        body=body,
+    )
+    session.add(alert)
+    session.flush()
+    for change in changes:
+        session.add(
+            AlertedChange(
+                subscription_id=subscription.id,
+                series_id=change.series_id,
+                revision_id=change.revision_id,
+                alert_id=alert.id,
+            )
+        )
+    if subscription.delivery == "immediate":
+        delivery = new_delivery(subscription, kind, body, component.id)
+        session.add(delivery)
+        session.flush()
+        alert.delivery_id = delivery.id
+    return alert
+
+
+def scan_component(session: Session, component_id: int) -> list[int]:
+    """Write the alerts the component's changes call for; returns the new deliveries' ids."""
+    component = session.get_one(Component, component_id)
+    subscriptions = session.scalars(
+        select(Subscription)
+        .where(or_(Subscription.component_id == component_id, Subscription.component_id.is_(None)))
+        .order_by(Subscription.id)
+        .with_for_update()  # two scans of one component never tell the same change twice
+    ).all()
+    if not subscriptions:
+        return []
+    changes = flagged_changes(session, component, min(s.created for s in subscriptions))
+    regressions = {
+        r.id: r
+        for r in session.scalars(
+            select(Regression).where(
+                Regression.id.in_({c.regression_id for c in changes if c.regression_id})
+            )
+        )
+    }
+    imported = _imported(session, {c.revision_id for c in changes})
+    made: list[Alert] = []
+    now = utcnow()
+    for subscription in subscriptions:
+        told = _told(session, subscription.id)
+        fresh = [
+            c
+            for c in changes
+            if (c.series_id, c.revision_id) not in told
+            and wanted(subscription, c)
+            and c.reported >= subscription.created
+        ]
+        by_regression: dict[int, list[Change]] = defaultdict(list)
+        by_revision: dict[int, list[Change]] = defaultdict(list)
+        for change in fresh:
+            if change.regression_id is not None:
+                by_regression[change.regression_id].append(change)
+            else:
+                by_revision[change.revision_id].append(change)
+        for regression_id, found in by_regression.items():
+            regression = regressions[regression_id]
+            settled = regression.confirmation == "confirmed" or any(
+                c.revision_id in imported for c in found
+            )
+            if subscription.confirmed_only and not settled:
+                continue  # told once confirmed
+            last = _last_alert(session, subscription.id, regression_id)
+            if last is not None and now - last.created < PERIOD:
+                continue  # grew again within the period: told at the next one
+            kind = "regression" if last is None else "regression.updated"
+            made.append(_alert(session, subscription, component, kind, regression, found))
+        for found in by_revision.values():
+            made.append(_alert(session, subscription, component, "improvement", None, found))
+    session.flush()
+    return [alert.delivery_id for alert in made if alert.delivery_id is not None]
+
+
+def send_digests(session: Session, now: datetime | None = None) -> list[int]:
+    """One message per digest subscription whose period has passed and that has alerts not
+    sent yet; returns the new deliveries' ids."""
+    now = now or utcnow()
+    made = []
+    due = session.scalars(
+        select(Subscription)
+        .where(
+            Subscription.delivery == "digest",
+            or_(Subscription.digest_sent.is_(None), Subscription.digest_sent <= now - PERIOD),
+        )
+        .with_for_update(skip_locked=True)
+    ).all()
+    for subscription in due:
+        waiting = session.scalars(
+            select(Alert)
+            .where(and_(Alert.subscription_id == subscription.id, Alert.delivery_id.is_(None)))
+            .order_by(Alert.id)
+        ).all()
+        if not waiting:
+            continue
+        payload = messages.digest_body([alert.body for alert in waiting])
+        delivery = new_delivery(subscription, "digest", payload, subscription.component_id)
+        session.add(delivery)
+        session.flush()
+        for alert in waiting:
+            alert.delivery_id = delivery.id
+        subscription.digest_sent = now
+        made.append(delivery.id)
+    return made
+
+
+def commit_status(session: Session, revision_id: int) -> list[int]:
+    """The revision's verdict as a commit status, when its component has a target and the
+    revision a commit: once per revision and state (pending, success, failure, error)."""
+    revision = session.get(Revision, revision_id)
+    if revision is None or not revision.commit:
+        return []
+    component = session.get_one(Component, revision.component_id)
+    if not component.commit_status:
+        return []
+    verdict = ci_verdict(session, component.name, revision.title)
+    if verdict.state == "pending":
+        state, said = "pending", f"waiting for {verdict.waiting_for}"
+    elif verdict.state == "failed":
+        state, said = "error", "its performance jobs failed or were cancelled"
+    elif verdict.regressions:
+        state, said = "failure", f"{verdict.regressions} change(s) for the worse"
+    else:
+        state, said = (
+            "success",
+            "no change for the worse"
+            + (f" ({verdict.skipped} test case(s) without enough data)" if verdict.skipped else ""),
+        )
+    key = f"status:{revision.id}:{state}"
+    if session.scalar(select(Delivery.id).where(Delivery.key == key)) is not None:
+        return []
+    delivery = Delivery(
+        uid=str(uuid.uuid4()),
+        key=key,
+        component_id=component.id,
+        kind="status",
+        event=f"status.{state}",
+        payload={
+            "sha": revision.commit,
+            "state": state,
+            "description": f"Redline: {said}",
+            "context": f"redline/{component.name}",
+            "page": verdict.page,
+        },
+    )
+    session.add(delivery)
+    session.flush()
+    return [delivery.id]

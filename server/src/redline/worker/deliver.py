@@ -1,0 +1,272 @@
+"""The outbox's postman: every due delivery leased, sent (webhook, mail or commit status) and its
+outcome stored, each in its own transaction.
+
+A delivery is leased before it is sent (state ``sending`` until ``lease_until``), so a worker
+killed mid-send leaves it to be sent again once the lease lapses, with the same delivery id
+(header ``X-Redline-Delivery``, the mail's Message-ID) for the receiver to recognise. A failure
+is retried with exponential backoff and jitter until ``REDLINE_ALERT_MAX_ATTEMPTS``; a success
+is stored at once and never sent again. Sends run on a few threads with a timeout each
+(``REDLINE_ALERT_TIMEOUT_S``), so one slow receiver holds up neither the others nor ingestion
+and detection, which run in other workers' queues.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import hmac
+import json
+import logging
+import random
+import smtplib
+import ssl
+from concurrent.futures import ThreadPoolExecutor
+from datetime import datetime, timedelta
+from email.message import EmailMessage
+from email.utils import formatdate
+from typing import Any
+
+import httpx
+from redline.server.core.config import Settings
+from redline.server.db import session_scope
+from redline.server.models import Component, Delivery, Subscription, utcnow
+from redline.worker import messages
+from sqlalchemy import and_, or_, select, update
+
+log = logging.getLogger(__name__)
+#: the longest wait between two tries of one delivery
+MAX_BACKOFF = timedelta(hours=6)
+SIGNATURE_HEADER = "X-Redline-Signature-256"
+DELIVERY_HEADER = "X-Redline-Delivery"
+EVENT_HEADER = "X-Redline-Event"
+
+
+class SendError(Exception):
+    """A try that failed; the message says why (status and the start of the answer)."""
+
+
+def sign(secret: str, body: bytes) -> str:
+    return "sha256=" + hmac.new(secret.encode(), body, hashlib.sha256).hexdigest()
+
+
+def backoff(attempts: int, base: float) -> timedelta:
+    """The wait after the ``attempts``-th failed try: base x 2^(attempts-1), x 0.5..1.5."""
+    seconds = base * 2 ** max(attempts - 1, 0) * random.uniform(0.5, 1.5)
+    return min(timedelta(seconds=seconds), MAX_BACKOFF)
+
+
+def _post(url: str, body: bytes, headers: dict[str, str], timeout: float) -> None:
+    try:
+        answer = httpx.post(url, content=body, headers=headers, timeout=timeout)
+    except httpx.HTTPError as error:
+        raise SendError(f"{type(error).__name__}: {error}") from None
+    if not answer.is_success:
+        raise SendError(f"HTTP {answer.status_code}: {answer.text[:200]}")
+
+
+def _webhook(delivery: Delivery, subscription: Subscription, settings: Settings) -> None:
+    if subscription.format == "slack":
+        data = messages.slack_json(delivery.event, delivery.payload, settings.public_url)
+    else:
+        data = messages.webhook_json(
+            delivery.event, delivery.uid, delivery.payload, settings.public_url, delivery.created
+        )
+    body = json.dumps(data, separators=(",", ":")).encode()
+    headers = {
+        "Content-Type": "application/json",
+        "User-Agent": "Redline-Hookshot",
+        DELIVERY_HEADER: delivery.uid,
+        EVENT_HEADER: delivery.event,
+    }
+    if subscription.secret:
+        headers[SIGNATURE_HEADER] = sign(subscription.secret, body)
+    _post(subscription.url, body, headers, settings.alert_timeout_s)
+
+
+def _mail(delivery: Delivery, subscription: Subscription, settings: Settings) -> None:
+    if not settings.smtp_host:
+        raise SendError("no SMTP server: REDLINE_SMTP_HOST is not set")
+    subject, text, body = messages.email(delivery.event, delivery.payload, settings.public_url)
+    mail = EmailMessage()
+    mail["Subject"] = subject
+    mail["From"] = settings.smtp_from
+    mail["To"] = subscription.address
+    mail["Date"] = formatdate(localtime=False)
+    mail["Message-ID"] = f"<{delivery.uid}@redline>"
+    mail[DELIVERY_HEADER] = delivery.uid
+    mail.set_content(text)
+    mail.add_alternative(body, subtype="html")
+    context = ssl.create_default_context(
+        cafile=str(settings.smtp_ca_file) if settings.smtp_ca_file else None
+    )
+    timeout = settings.alert_timeout_s
+    try:
+        if settings.smtp_tls == "tls":
+            client: smtplib.SMTP = smtplib.SMTP_SSL(
+                settings.smtp_host, settings.smtp_port, timeout=timeout, context=context
+            )
+        else:
+            client = smtplib.SMTP(settings.smtp_host, settings.smtp_port, timeout=timeout)
+        with client:
+            if settings.smtp_tls == "starttls":
+                client.starttls(context=context)
+            if settings.smtp_user:
+                client.login(settings.smtp_user, settings.smtp_password.get_secret_value())
+            client.send_message(mail)
+    except (OSError, smtplib.SMTPException) as error:
+        raise SendError(f"SMTP: {type(error).__name__}: {error}") from None
+
+
+def _status(delivery: Delivery, component: Component, settings: Settings) -> None:
+    target = component.commit_status or {}
+    call = delivery.payload
+    token, api = target.get("token", ""), str(target.get("api_url", "")).rstrip("/")
+    link = settings.public_url.rstrip("/") + call["page"]
+    if target.get("provider") == "github":
+        url = f"{api}/repos/{target['repository']}/statuses/{call['sha']}"
+        data = {
+            "state": call["state"],
+            "target_url": link,
+            "description": call["description"][:140],
+            "context": call["context"],
+        }
+        headers = {
+            "Authorization": f"Bearer {token}",
+            "Accept": "application/vnd.github+json",
+            "X-GitHub-Api-Version": "2022-11-28",
+        }
+    elif target.get("provider") == "gitlab":
+        project = httpx.URL("", path=str(target["repository"])).raw_path.decode()
+        project = project.replace("/", "%2F")
+        url = f"{api}/projects/{project}/statuses/{call['sha']}"
+        state = {"failure": "failed", "error": "failed"}.get(call["state"], call["state"])
+        data = {
+            "state": state,
+            "name": call["context"],
+            "target_url": link,
+            "description": call["description"][:255],
+        }
+        headers = {"PRIVATE-TOKEN": token}
+    else:
+        raise SendError(f"component {component.name}: no commit status target configured")
+    headers["Content-Type"] = "application/json"
+    _post(url, json.dumps(data).encode(), headers, settings.alert_timeout_s)
+
+
+def send(
+    delivery: Delivery,
+    settings: Settings,
+    subscription: Subscription | None,
+    component: Component | None,
+) -> None:
+    """One try; raises `SendError` saying why it failed."""
+    if delivery.kind == "status":
+        if component is None:
+            raise SendError("the component is gone")
+        _status(delivery, component, settings)
+        return
+    if subscription is None:
+        raise SendError("the subscription is gone")
+    if delivery.kind == "email":
+        _mail(delivery, subscription, settings)
+    else:
+        _webhook(delivery, subscription, settings)
+
+
+def claim(database_url: str, limit: int, lease: timedelta) -> list[int]:
+    """Lease up to ``limit`` due deliveries (pending and due, or sending with a lapsed lease)."""
+    now = utcnow()
+    with session_scope(database_url) as session:
+        ids = session.scalars(
+            select(Delivery.id)
+            .where(
+                or_(
+                    and_(Delivery.state == "pending", Delivery.next_try <= now),
+                    and_(Delivery.state == "sending", Delivery.lease_until < now),
+                )
+            )
+            .order_by(Delivery.next_try)
+            .limit(limit)
+            .with_for_update(skip_locked=True)
+        ).all()
+        if ids:
+            session.execute(
+                update(Delivery)
+                .where(Delivery.id.in_(ids))
+                .values(state="sending", lease_until=now + lease, attempts=Delivery.attempts + 1)
+            )
+    return list(ids)
+
+
+def _send_one(database_url: str, settings: Settings, delivery_id: int) -> bool:
+    with session_scope(database_url) as session:
+        delivery = session.get_one(Delivery, delivery_id)
+        subscription = (
+            session.get(Subscription, delivery.subscription_id)
+            if delivery.subscription_id
+            else None
+        )
+        component = session.get(Component, delivery.component_id) if delivery.component_id else None
+        session.expunge_all()
+    error = ""
+    try:
+        send(delivery, settings, subscription, component)
+    except SendError as failure:
+        error = str(failure)
+    except Exception as failure:  # a bug in a renderer must not stop the other deliveries
+        log.exception("delivery %s", delivery.uid)
+        error = f"{type(failure).__name__}: {failure}"
+    _record(database_url, settings, delivery_id, error)
+    return not error
+
+
+def _record(database_url: str, settings: Settings, delivery_id: int, error: str) -> None:
+    now = utcnow()
+    with session_scope(database_url) as session:
+        delivery = session.get(Delivery, delivery_id, with_for_update=True)
+        if delivery is None or delivery.state != "sending":
+            return
+        delivery.lease_until = None
+        if not error:
+            delivery.state, delivery.delivered, delivery.last_error = "delivered", now, ""
+            log.info("delivery %s (%s %s) sent", delivery.uid, delivery.kind, delivery.event)
+            return
+        delivery.last_error = error
+        if delivery.attempts >= settings.alert_max_attempts:
+            delivery.state = "failed"
+            log.error(
+                "delivery %s failed for good after %d tries: %s",
+                delivery.uid,
+                delivery.attempts,
+                error,
+            )
+        else:
+            delivery.state = "pending"
+            delivery.next_try = now + backoff(delivery.attempts, settings.alert_retry_s)
+            log.warning(
+                "delivery %s try %d failed (%s); next at %s",
+                delivery.uid,
+                delivery.attempts,
+                error,
+                delivery.next_try.isoformat(),
+            )
+
+
+def deliver_due(database_url: str, settings: Settings, threads: int = 8) -> dict[str, Any]:
+    """Send what is due now, in batches, until nothing is; returns counts and the next due time."""
+    lease = timedelta(seconds=settings.alert_timeout_s * 3 + 30)
+    sent = failed = 0
+    with ThreadPoolExecutor(threads) as pool:
+        while ids := claim(database_url, threads * 4, lease):
+            for ok in pool.map(lambda i: _send_one(database_url, settings, i), ids):
+                sent, failed = sent + ok, failed + (not ok)
+    return {"sent": sent, "failed": failed, "next": next_due(database_url)}
+
+
+def next_due(database_url: str) -> datetime | None:
+    with session_scope(database_url) as session:
+        return session.scalar(
+            select(Delivery.next_try)
+            .where(Delivery.state.in_(("pending", "sending")))
+            .order_by(Delivery.next_try)
+            .limit(1)
+        )
