@@ -40,6 +40,7 @@ def renders(monkeypatch: pytest.MonkeyPatch) -> list[int]:
     """The trend renderings a detection queued (no broker here: the sending is recorded)."""
     queued: list[int] = []
     monkeypatch.setattr(tasks.render_trends, "delay", queued.append)
+    monkeypatch.setattr(tasks.scan_alerts, "delay", lambda *args: queued.append(args))
     return queued
 
 
@@ -58,7 +59,7 @@ def test_a_passing_database_outage_is_retried_until_the_task_succeeds(
     assert result.successful(), result.traceback
     assert calls == [7, 7, 7]
     if task is tasks.detect_revision:  # once done, its component's trend charts are rendered
-        assert renders == [7]
+        assert renders == [7, (None, 7)]  # and its alerts scanned
 
 
 @pytest.mark.parametrize(("task", "work"), TASKS)

@@ -131,7 +131,7 @@ def _told(session: Session, subscription_id: int) -> set[tuple[int, int]]:
             select(AlertedChange.series_id, AlertedChange.revision_id).where(
                 AlertedChange.subscription_id == subscription_id
             )
-        ).tuples()
+        )
     )
 
 

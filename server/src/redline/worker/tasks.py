@@ -72,12 +72,7 @@ def detect_revision(revision_id: int) -> None:
         sum(change.flagged for change in changes),
     )
     render_trends.delay(revision_id)
-    with session_scope(_settings().database_url) as session:
-        component_id = session.scalar(
-            select(Revision.component_id).where(Revision.id == revision_id)
-        )
-    if component_id is not None:
-        scan_alerts.delay(component_id, revision_id)
+    scan_alerts.delay(None, revision_id)
 
 
 @celery_app.task(name=RENDER_TASK, acks_late=True, **RETRY)
@@ -113,10 +108,17 @@ def reanalyze_component(component_id: int) -> None:
 
 
 @celery_app.task(name=SCAN_ALERTS_TASK, acks_late=True, **RETRY)
-def scan_alerts(component_id: int, revision_id: int | None = None) -> int:
+def scan_alerts(component_id: int | None, revision_id: int | None = None) -> int:
     """Write the alerts the component's changes call for (`redline.worker.alerts`), and the
-    commit status of the revision just judged, then send."""
+    commit status of the revision just judged (whose component it is, when none is given),
+    then send."""
     with session_scope(_settings().database_url) as session:
+        if component_id is None:
+            component_id = session.scalar(
+                select(Revision.component_id).where(Revision.id == revision_id)
+            )
+        if component_id is None:
+            return 0  # the revision is gone
         deliveries = scan_component(session, component_id)
         if revision_id is not None:
             deliveries += commit_status(session, revision_id)

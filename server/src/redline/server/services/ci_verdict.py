@@ -79,7 +79,7 @@ def ci_verdict(session: Session, component_name: str, title: str) -> CiVerdict:
         .join(Series, Series.id == Detection.series_id)
         .where(Detection.revision_id == revision.id, Detection.method.in_(alarming))
         .order_by(Series.case, Series.phase, Series.params, Series.process, Series.counter)
-    ).tuples():
+    ):
         groups[(series.case, series.phase, series.params)].append((detection, series))
     cases = []
     regressions = improvements = skipped = 0

@@ -1,0 +1,452 @@
+"""Alerts end to end on real Postgres, a real SMTP server (STARTTLS and a login) and a real HTTP
+receiver: who is told what, once; signatures, retries, slow and dead receivers, a worker killed
+mid-send, digests, commit statuses, and the API that manages it all."""
+
+from __future__ import annotations
+
+import hashlib
+import hmac
+import json
+import multiprocessing
+import time
+from datetime import timedelta
+from pathlib import Path
+
+import jsonschema
+import numpy as np
+import pytest
+from redline.server.db import session_factory
+from redline.server.models import (
+    Alert,
+    Component,
+    Delivery,
+    DetectionConfigRow,
+    RegressionState,
+    Revision,
+)
+from redline.server.schemas.regressions import TriageRequest
+from redline.server.services.regressions import triage
+from redline.worker.alerts import commit_status, scan_component, send_digests
+from redline.worker.deliver import claim, deliver_due
+from redline.worker.detection import detect_revision
+from redline.worker.ingest import ingest_execution
+from redline.worker.reanalysis import reanalyze_component
+from sqlalchemy import select, update
+
+from tests.support.api import Api, api_with
+from tests.support.history import add_execution
+from tests.support.receivers import Mailbox, Receiver, http_receiver, smtp_server
+
+SCHEMA = json.loads((Path(__file__).parents[2] / "docs" / "alerts.schema.json").read_text())
+BASE = "/api/v1/components/builder"
+SECRET = "hook-secret"
+
+
+@pytest.fixture
+def mailbox(tmp_path: Path):
+    with smtp_server(tmp_path) as box:
+        yield box
+
+
+@pytest.fixture
+def receiver():
+    with http_receiver() as found:
+        yield found
+
+
+@pytest.fixture
+def api(services, tmp_path: Path, mailbox: Mailbox):
+    with api_with(
+        services,
+        tmp_path,
+        public_url="https://redline.example",
+        smtp_host=mailbox.host,
+        smtp_port=mailbox.port,
+        smtp_user=mailbox.user,
+        smtp_password=mailbox.password,
+        smtp_tls="starttls",
+        smtp_ca_file=mailbox.ca_file,
+        alert_timeout_s=1.0,
+        alert_retry_s=0.01,
+        alert_max_attempts=5,
+    ) as driver:
+        driver.component()
+        with session_factory(driver.settings.database_url)() as session:
+            component = session.scalar(select(Component).where(Component.name == "builder"))
+            session.add(DetectionConfigRow(component_id=component.id, config={"methods": ["ks"]}))
+            session.commit()
+        yield driver
+
+
+def subscribe(api: Api, body: dict, component: str | None = "builder") -> dict:
+    path = f"/api/v1/components/{component}/subscriptions" if component else "/api/v1/subscriptions"
+    answer = api.post(path, "admin", body)
+    assert answer.status_code == 201, answer.text
+    return answer.json()
+
+
+def eager(receiver: Receiver, path: str) -> dict:
+    """A webhook subscription told of regressions as soon as they are flagged."""
+    return {"kind": "webhook", "url": receiver.url + path, "confirmed_only": False}
+
+
+def revisions(api: Api, tmp_path: Path, cpus: list[float], first: int = 1, seed: int = 5) -> None:
+    """Revisions r{first}.. of 'builder' with cpu series of these means, ingested and judged."""
+    rng = np.random.default_rng(seed + first)
+    database_url = api.settings.database_url
+    with session_factory(database_url)() as session:
+        executions = [
+            add_execution(
+                session,
+                tmp_path,
+                "builder",
+                f"r{n}",
+                f"{n:04d}",
+                {"cpu": rng.normal(cpu, cpu / 20, 60)},
+            )
+            for n, cpu in enumerate(cpus, start=first)
+        ]
+    for execution in executions:
+        ingest_execution(database_url, execution.id)
+        detect_revision(database_url, execution.revision_id)
+
+
+def alert(api: Api, rounds: int = 20) -> None:
+    """What the worker does after a detection: scan, then send until nothing is due."""
+    database_url = api.settings.database_url
+    with session_factory(database_url)() as session:
+        component = session.scalar(select(Component.id).where(Component.name == "builder"))
+        scan_component(session, component)
+        session.commit()
+    for _ in range(rounds):
+        done = deliver_due(database_url, api.settings)
+        if done["next"] is None:
+            return
+        time.sleep(0.05)
+
+
+def deliveries(api: Api, ident: int | None = None) -> list[dict]:
+    path = f"{BASE}/subscriptions/{ident}/deliveries" if ident else f"{BASE}/deliveries"
+    answer = api.client.get(path, headers=api.tokens["admin"])
+    assert answer.status_code == 200, answer.text
+    return answer.json()
+
+
+def test_a_confirmed_regression_is_told_once_by_mail_and_by_signed_webhook(
+    api, tmp_path, mailbox, receiver
+):
+    hook = subscribe(api, {"kind": "webhook", "url": receiver.url + "/hook", "secret": SECRET})
+    subscribe(api, {"kind": "email", "address": "dev@robots.example"})
+    assert hook["has_secret"] and "secret" not in hook  # never shown again
+    revisions(api, tmp_path, [10.0] * 5 + [14.0])
+    alert(api)
+    assert not receiver.requests and not mailbox.messages  # suspected: not told yet
+    revisions(api, tmp_path, [14.0, 14.0], first=7)  # two later revisions hold it
+    alert(api)
+
+    (call,) = receiver.to("/hook")
+    assert (
+        call.headers["X-Redline-Signature-256"]
+        == "sha256=" + hmac.new(SECRET.encode(), call.body, hashlib.sha256).hexdigest()
+    )
+    body = json.loads(call.body)
+    jsonschema.validate(body, SCHEMA)
+    assert body["delivery"] == call.headers["X-Redline-Delivery"]
+    assert body["event"] == "regression" == call.headers["X-Redline-Event"]
+    (told,) = body["alerts"]
+    assert told["regression"]["confirmation"] == "confirmed"
+    assert told["regression"]["page_url"].startswith("https://redline.example/regressions/")
+    (change,) = told["changes"]
+    assert (change["counter"], change["method"], change["revision"]["title"]) == ("cpu", "ks", "r6")
+    assert change["effect"] > 0.3
+
+    (mail,) = mailbox.messages
+    assert mailbox.recipients == [["dev@robots.example"]]
+    assert "builder" in mail["Subject"] and "cpu" in mail["Subject"]
+    assert mail["Message-ID"].startswith("<") and mail["Message-ID"].endswith("@redline>")
+    text = mail.get_body(("plain",)).get_content()
+    page = mail.get_body(("html",)).get_content()
+    assert "r5 and r6: confirmed" in text and told["regression"]["page_url"] in text
+    assert "https://redline.example/components/builder?" in page
+
+    # a re-analysis, more revisions and a triage never tell it again
+    reanalyze_component(api.settings.database_url, 1)
+    revisions(api, tmp_path, [14.0], first=9)
+    alert(api)
+    with session_factory(api.settings.database_url)() as session:
+        triage(
+            session,
+            "builder",
+            told["regression"]["id"],
+            TriageRequest(state=RegressionState.fixed),
+            "ada",
+        )
+    alert(api)
+    assert len(receiver.requests) == 1 and len(mailbox.messages) == 1
+    log = deliveries(api, hook["id"])
+    assert [(d["state"], d["attempts"], d["event"]) for d in log] == [
+        ("delivered", 1, "regression")
+    ]
+
+
+def test_filters_decide_who_hears_and_unconfirmed_can_be_asked_for(api, tmp_path, receiver):
+    early = subscribe(api, eager(receiver, "/eager"))
+    subscribe(api, {"kind": "webhook", "url": receiver.url + "/rss", "counters": ["rss"]})
+    subscribe(api, {"kind": "webhook", "url": receiver.url + "/big", "min_effect": 1.0})
+    subscribe(api, {"kind": "webhook", "url": receiver.url + "/better", "direction": "improvement"})
+    revisions(api, tmp_path, [10.0] * 5 + [14.0])
+    alert(api)
+    (call,) = receiver.requests
+    assert call.path == "/eager"
+    assert json.loads(call.body)["alerts"][0]["regression"]["confirmation"] == "suspected"
+    revisions(api, tmp_path, [8.0, 8.0, 8.0], first=7)  # back down: an improvement, r6 dropped
+    alert(api)
+    told = {r.path for r in receiver.requests}
+    assert told == {"/eager", "/better"}, told
+    better = json.loads(receiver.to("/better")[0].body)
+    jsonschema.validate(better, SCHEMA)
+    assert better["event"] == "improvement" and better["alerts"][0]["regression"] is None
+    assert deliveries(api, early["id"])[0]["state"] == "delivered"
+
+
+def test_a_failing_receiver_is_retried_with_the_same_delivery_id_and_told_once(
+    api, tmp_path, receiver
+):
+    receiver.answers["/flaky"] = [500, 503]
+    hook = subscribe(api, eager(receiver, "/flaky"))
+    revisions(api, tmp_path, [10.0] * 5 + [14.0])
+    alert(api)
+    calls = receiver.to("/flaky")
+    assert len(calls) == 3
+    assert len({c.headers["X-Redline-Delivery"] for c in calls}) == 1
+    assert len({c.body for c in calls}) == 1
+    (log,) = deliveries(api, hook["id"])
+    assert (log["state"], log["attempts"], log["last_error"]) == ("delivered", 3, "")
+    alert(api)
+    assert len(receiver.to("/flaky")) == 3  # after a success: never again
+
+
+def test_a_receiver_that_never_answers_in_time_fails_after_its_tries_and_holds_up_no_one(
+    api, tmp_path, receiver, mailbox
+):
+    receiver.delays["/slow"] = 3.0  # the timeout is 1 s
+    receiver.answers["/down"] = [500] * 10
+    slow = subscribe(api, eager(receiver, "/slow"))
+    down = subscribe(api, eager(receiver, "/down"))
+    fine = subscribe(api, eager(receiver, "/fine"))
+    revisions(api, tmp_path, [10.0] * 5 + [14.0])
+    alert(api, rounds=40)
+    assert deliveries(api, fine["id"])[0]["state"] == "delivered"
+    (failed,) = deliveries(api, down["id"])
+    assert (failed["state"], failed["attempts"]) == ("failed", 5)
+    assert failed["last_error"].startswith("HTTP 500")
+    (timed_out,) = deliveries(api, slow["id"])
+    assert timed_out["state"] == "failed" and "Timeout" in timed_out["last_error"]
+
+
+def test_an_smtp_server_that_is_down_is_retried_until_it_is_back(api, tmp_path, mailbox):
+    mail = subscribe(api, {"kind": "email", "address": "ops@x.example", "confirmed_only": False})
+    revisions(api, tmp_path, [10.0] * 5 + [14.0])
+    working = api.settings
+    api.settings = working.model_copy(update={"smtp_port": 1})  # nothing listens there
+    with session_factory(working.database_url)() as session:
+        scan_component(session, 1)
+        session.commit()
+    deliver_due(working.database_url, api.settings)
+    (log,) = deliveries(api, mail["id"])
+    assert log["state"] == "pending" and log["last_error"].startswith("SMTP: ")
+    assert log["next_try"] is not None
+    api.settings = working
+    alert(api)
+    assert len(mailbox.messages) == 1
+    assert deliveries(api, mail["id"])[0]["state"] == "delivered"
+
+
+def _send_and_hang(database_url: str, settings) -> None:
+    deliver_due(database_url, settings)
+
+
+def test_a_worker_killed_mid_send_leaves_it_to_be_sent_again_with_the_same_id(
+    api, tmp_path, receiver
+):
+    receiver.delays["/hook"] = 30.0  # the first try hangs until the worker is killed
+    subscribe(api, eager(receiver, "/hook"))
+    revisions(api, tmp_path, [10.0] * 5 + [14.0])
+    with session_factory(api.settings.database_url)() as session:
+        scan_component(session, 1)
+        session.commit()
+    slow = api.settings.model_copy(update={"alert_timeout_s": 60.0})
+    worker = multiprocessing.get_context("spawn").Process(
+        target=_send_and_hang, args=(api.settings.database_url, slow)
+    )
+    worker.start()
+    deadline = time.monotonic() + 30
+    while not receiver.requests and time.monotonic() < deadline:
+        time.sleep(0.05)
+    worker.kill()
+    worker.join()
+    (first,) = receiver.requests
+    assert claim(api.settings.database_url, 10, lease=timedelta(days=1)) == []  # leased
+    with session_factory(api.settings.database_url)() as session:  # its lease lapses
+        session.execute(update(Delivery).values(lease_until=Delivery.created))
+        session.commit()
+    receiver.delays["/hook"] = 0.0
+    alert(api)
+    again = receiver.requests[1:]
+    assert len(again) == 1
+    assert again[0].headers["X-Redline-Delivery"] == first.headers["X-Redline-Delivery"]
+    assert deliveries(api)[0]["state"] == "delivered"
+
+
+def test_a_digest_gathers_the_alerts_of_its_period_into_one_message(api, tmp_path, mailbox):
+    subscribe(
+        api,
+        {
+            "kind": "email",
+            "address": "lead@robots.example",
+            "delivery": "digest",
+            "confirmed_only": False,
+        },
+    )
+    revisions(api, tmp_path, [10.0] * 5 + [14.0, 14.0, 14.0, 14.0, 20.0])
+    alert(api)
+    assert not mailbox.messages  # gathered, not sent
+    with session_factory(api.settings.database_url)() as session:
+        assert len(send_digests(session)) == 1
+        assert send_digests(session) == []  # once per period
+        session.commit()
+    alert(api)
+    (mail,) = mailbox.messages
+    assert mail["Subject"] == "[Redline] digest: 2 alert(s)"
+    text = mail.get_body(("plain",)).get_content()
+    assert "at r6" in text and "at r10" in text
+
+
+def test_a_growing_regression_is_updated_once_a_period_with_its_new_series_only(
+    api, tmp_path, receiver
+):
+    database_url = api.settings.database_url
+    floor = {"methods": ["ks"], "thresholds": {"ks": {"min_effect": 0.05}}}
+    with session_factory(database_url)() as session:
+        session.execute(update(DetectionConfigRow).values(config=floor))
+        session.commit()
+    subscribe(api, eager(receiver, "/hook"))
+    rng = np.random.default_rng(3)
+    with session_factory(database_url)() as session:
+        executions = [
+            add_execution(
+                session,
+                tmp_path,
+                "builder",
+                f"r{n}",
+                f"{n:04d}",
+                {"cpu": rng.normal(cpu, 0.2, 60), "rss": rng.normal(rss, 0.05, 60)},
+            )
+            for n, (cpu, rss) in enumerate([(10.0, 100.0)] * 5 + [(14.0, 103.0)], start=1)
+        ]
+    for execution in executions:
+        ingest_execution(database_url, execution.id)
+        detect_revision(database_url, execution.revision_id)
+    alert(api)
+    (first,) = receiver.requests
+    assert [c["counter"] for c in json.loads(first.body)["alerts"][0]["changes"]] == ["cpu"]
+
+    # rss's +3 % is flagged once the floor is lowered: the same regression grew
+    with session_factory(database_url)() as session:
+        lower = {"methods": ["ks"], "thresholds": {"ks": {"min_effect": 0.01}}}
+        session.execute(update(DetectionConfigRow).values(config=lower))
+        session.commit()
+    reanalyze_component(database_url, 1)
+    alert(api)
+    assert len(receiver.requests) == 1  # within the period: told at the next one
+    with session_factory(database_url)() as session:
+        session.execute(update(Alert).values(created=Alert.created - timedelta(days=2)))
+        session.commit()
+    alert(api)
+    alert(api)
+    assert len(receiver.requests) == 2
+    update_body = json.loads(receiver.requests[1].body)
+    jsonschema.validate(update_body, SCHEMA)
+    assert update_body["event"] == "regression.updated"
+    (grown,) = update_body["alerts"]
+    assert [c["counter"] for c in grown["changes"]] == ["rss"]
+    assert grown["regression"]["id"] == json.loads(first.body)["alerts"][0]["regression"]["id"]
+
+
+@pytest.mark.parametrize("provider", ["github", "gitlab"])
+def test_the_verdict_goes_to_the_commit_status_api(api, tmp_path, receiver, provider):
+    repository = "robots/builder"
+    answer = api.client.put(
+        f"{BASE}/commit-status",
+        json={
+            "provider": provider,
+            "api_url": receiver.url + "/api",
+            "repository": repository,
+            "token": "tok-123",
+        },
+        headers=api.tokens["admin"],
+    )
+    assert answer.status_code == 200 and answer.json()["has_token"], answer.text
+    assert "tok-123" not in answer.text
+    revisions(api, tmp_path, [10.0] * 5 + [14.0])
+    database_url = api.settings.database_url
+    with session_factory(database_url)() as session:
+        session.execute(update(Revision).values(commit="a" * 40))
+        session.commit()
+        assert len(commit_status(session, 6)) == 1
+        assert commit_status(session, 6) == []  # once per revision and state
+        session.commit()
+    deliver_due(database_url, api.settings)
+    (call,) = receiver.requests
+    body = json.loads(call.body)
+    assert call.method == "POST"
+    if provider == "github":
+        assert call.path == f"/api/repos/robots/builder/statuses/{'a' * 40}"
+        assert call.headers["Authorization"] == "Bearer tok-123"
+        assert call.headers["Accept"] == "application/vnd.github+json"
+        assert body["state"] == "failure" and body["context"] == "redline/builder"
+    else:
+        assert call.path == f"/api/projects/robots%2Fbuilder/statuses/{'a' * 40}"
+        assert call.headers["Private-Token"] == "tok-123"
+        assert body["state"] == "failed" and body["name"] == "redline/builder"
+    assert body["target_url"] == "https://redline.example/components/builder/revisions/r6"
+    assert "1 change(s) for the worse" in body["description"]
+
+
+def test_subscriptions_are_admin_only_checked_and_listed_changed_and_deleted(api, receiver):
+    hook = {"kind": "webhook", "url": receiver.url + "/hook", "secret": "s"}
+    for scope in ("ci", "read", "agent"):
+        answer = api.post(f"{BASE}/subscriptions", scope, hook)
+        assert answer.status_code == 403, answer.text
+    bad = [
+        ({"kind": "webhook", "url": "file:///etc/passwd"}, "http:// or https://"),
+        ({"kind": "webhook"}, "needs a url"),
+        ({"kind": "email"}, "needs an address"),
+        ({"kind": "email", "address": "not an address"}, "address"),
+        ({"kind": "pager", "address": "x@y.z"}, "kind"),
+        ({**hook, "direction": "sideways"}, "direction"),
+        ({**hook, "min_effect": -1}, "min_effect"),
+    ]
+    for body, said in bad:
+        answer = api.post(f"{BASE}/subscriptions", "admin", body)
+        assert answer.status_code == 422 and said in answer.text, (body, answer.text)
+    assert api.post("/api/v1/components/nobody/subscriptions", "admin", hook).status_code == 404
+    made = subscribe(api, hook)
+    everywhere = subscribe(api, {"kind": "email", "address": "all@robots.example"}, None)
+    assert everywhere["component"] is None
+    listed = api.client.get(f"{BASE}/subscriptions", headers=api.tokens["admin"]).json()
+    assert [s["id"] for s in listed] == [made["id"]] and '"secret"' not in json.dumps(listed)
+    changed = api.client.patch(
+        f"{BASE}/subscriptions/{made['id']}",
+        json={"direction": "any", "delivery": "digest"},
+        headers=api.tokens["admin"],
+    ).json()
+    assert (changed["direction"], changed["delivery"], changed["has_secret"]) == (
+        "any",
+        "digest",
+        True,
+    )
+    gone = api.client.delete(f"{BASE}/subscriptions/{made['id']}", headers=api.tokens["admin"])
+    assert gone.status_code == 204
+    again = api.client.get(f"{BASE}/subscriptions/{made['id']}", headers=api.tokens["admin"])
+    assert again.status_code == 404 and "no subscription" in again.text
