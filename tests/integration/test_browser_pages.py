@@ -10,24 +10,19 @@ them: ``REDLINE_SCREENSHOTS=docs/ui python3 run.py test tests/integration/test_b
 from __future__ import annotations
 
 import os
-import threading
-import time
 import uuid
 from collections.abc import Iterator
 from pathlib import Path
 from urllib.parse import urlparse
 
 import pytest
-import uvicorn
-from redline.agent.network import free_port
-from redline.server.app import create_app
 from redline.server.core.config import Settings
 from redline.server.db import migrate, session_factory
 from redline.server.services.signin import create_user
 
 from tests.support.api import emptied_with_tokens
 from tests.support.pages import history
-from tests.support.servers import Services, fresh_database
+from tests.support.servers import Services, fresh_database, live_server
 
 CHROMIUM = "/usr/bin/chromium"
 CHROMIUM_FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking"]
@@ -51,21 +46,8 @@ def site(services: Services, tmp_path_factory: pytest.TempPathFactory) -> Iterat
     history(database_url, tmp, [20.0, 20.0, 20.0, 200.0, 200.0, 200.0])
     with session_factory(database_url)() as session:
         create_user(session, "ada", PASSWORD, "admin")
-    port = free_port()
-    server = uvicorn.Server(
-        uvicorn.Config(create_app(settings), host="127.0.0.1", port=port, log_level="warning")
-    )
-    thread = threading.Thread(target=server.run, daemon=True)
-    thread.start()
-    deadline = time.monotonic() + 30
-    while not server.started and time.monotonic() < deadline:
-        time.sleep(0.05)
-    assert server.started, "the server did not start"
-    try:
-        yield f"http://127.0.0.1:{port}", database_url
-    finally:
-        server.should_exit = True
-        thread.join(timeout=10)
+    with live_server(settings) as url:
+        yield url, database_url
 
 
 @pytest.fixture(scope="module")

@@ -8,8 +8,13 @@ servers, or its own fresh database (and Redis database number) on the configured
 
 from __future__ import annotations
 
+import threading
+import time
 import uuid
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
+from typing import Any
 from urllib.parse import urlsplit, urlunsplit
 
 
@@ -73,3 +78,27 @@ def redis_for_worker(url: str, worker: str) -> str:
     if not worker.startswith("gw") or parts.scheme not in ("redis", "rediss"):
         return url
     return urlunsplit(parts._replace(path=f"/{1 + int(worker[2:])}"))
+
+
+@contextmanager
+def live_server(settings: Any) -> Iterator[str]:
+    """The real app served by uvicorn on a free port of 127.0.0.1, in a thread; yields its URL."""
+    import uvicorn
+    from redline.agent.network import free_port
+    from redline.server.app import create_app
+
+    port = free_port()
+    server = uvicorn.Server(
+        uvicorn.Config(create_app(settings), host="127.0.0.1", port=port, log_level="warning")
+    )
+    thread = threading.Thread(target=server.run, daemon=True)
+    thread.start()
+    deadline = time.monotonic() + 30
+    while not server.started and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert server.started, "the server did not start"
+    try:
+        yield f"http://127.0.0.1:{port}"
+    finally:
+        server.should_exit = True
+        thread.join(timeout=10)

@@ -17,7 +17,7 @@ app = typer.Typer(
 )
 
 # Modules that add commands to `app` through a `register(app)` function; the server's are optional.
-_AGENT_COMMANDS = ("redline.cli.run_cmd", "redline.cli.agent_cmd")
+_AGENT_COMMANDS = ("redline.cli.run_cmd", "redline.cli.agent_cmd", "redline.cli.ci_cmd")
 _SERVER_COMMANDS = (
     "redline.commands.service",
     "redline.commands.up",

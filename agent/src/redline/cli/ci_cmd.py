@@ -1,0 +1,145 @@
+"""`redline ci wait`: what a CI job runs after reporting a revision. It waits for the revision's
+verdict (its jobs, their analysis, and confirmation runs), writes it as JUnit XML, prints a short
+table, and says by its exit code whether the revision passes.
+
+Exit codes: 0 no change (per ``--fail-on``), 1 a change, 2 bad input or timeout (unknown
+component or revision, refused token, no verdict in time), 3 the revision's jobs failed.
+Only httpx is needed, so CI machines install the light `redline-agent` distribution.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from enum import StrEnum
+from pathlib import Path
+from typing import Annotated, Any, NoReturn
+from urllib.parse import quote
+
+import httpx
+import typer
+
+PASSED, CHANGED, BAD_INPUT, JOBS_FAILED = 0, 1, 2, 3
+#: how long a revision may take to appear (its push is still being reported) before "unknown"
+APPEAR_S = 120.0
+
+ci = typer.Typer(help="For CI pipelines: wait for a revision's verdict.", no_args_is_help=True)
+
+
+class FailOn(StrEnum):
+    regression = "regression"
+    any = "any"
+    none = "none"
+
+
+def _stop(code: int, message: str) -> NoReturn:
+    typer.echo(f"redline ci wait: {message}", err=True)
+    raise typer.Exit(code)
+
+
+def _get(client: httpx.Client, path: str, **params: str) -> httpx.Response | None:
+    """The answer, or None when the server cannot be reached (tried again later)."""
+    try:
+        return client.get(path, params=params)
+    except httpx.TransportError as error:
+        typer.echo(f"server not reachable ({type(error).__name__}); trying again", err=True)
+        return None
+
+
+def _detail(answer: httpx.Response) -> str:
+    try:
+        return str(answer.json().get("detail", answer.text))
+    except ValueError:
+        return answer.text[:200]
+
+
+def _table(verdict: dict[str, Any]) -> str:
+    rows = [("test case / phase [parameters]", "verdict", "changes")]
+    for case in verdict["cases"]:
+        changes = ", ".join(
+            f"{c['process']} {c['counter']} "
+            + ("n/a" if c["effect"] is None else f"{c['effect'] * 100:+.1f} %")
+            + ("" if c["worse"] else " (better)")
+            for c in case["changes"]
+        )
+        name = f"{case['case']} / {case['phase']} {case['parameters']}".strip()
+        rows.append((name, case["state"], changes or case["reason"]))
+    width = [max(len(row[i]) for row in rows) for i in range(2)]
+    lines = [f"{a:<{width[0]}}  {b:<{width[1]}}  {c}" for a, b, c in rows]
+    lines.append(
+        f"{verdict['component']} {verdict['revision']}: {verdict['regressions']} change(s) for "
+        f"the worse, {verdict['improvements']} for the better, {verdict['skipped']} test "
+        f"case(s) without enough data"
+    )
+    return "\n".join(lines)
+
+
+def wait(
+    server: Annotated[str, typer.Option(help="URL of the Redline server", envvar="REDLINE_SERVER")],
+    component: Annotated[str, typer.Option(help="the component's name")],
+    revision: Annotated[str, typer.Option(help="the revision's title (e.g. the commit)")],
+    token: Annotated[
+        str,
+        typer.Option(
+            help="a token with the 'read' or 'ci' scope (where reading needs one); better set "
+            "REDLINE_TOKEN than pass it here, where other users of the machine see it in ps",
+            envvar="REDLINE_TOKEN",
+        ),
+    ] = "",
+    junit: Annotated[Path | None, typer.Option(help="write the verdict as JUnit XML here")] = None,
+    timeout: Annotated[float, typer.Option(min=1, help="seconds to wait for the verdict")] = 3600,
+    fail_on: Annotated[
+        FailOn,
+        typer.Option(help="what fails: a change for the worse, any change, or nothing"),
+    ] = FailOn.regression,
+    poll: Annotated[float, typer.Option(min=0.1, help="seconds between two looks")] = 10.0,
+) -> None:
+    """Wait for a revision's verdict; write JUnit XML; exit 0 (no change), 1 (change), 2 (bad
+    input or timeout), 3 (its jobs failed)."""
+    headers = {"Authorization": f"Bearer {token}"} if token else {}
+    base = f"/api/v1/components/{quote(component, safe='')}/revisions/{quote(revision, safe='')}"
+    started = time.monotonic()
+    said = ""
+    with httpx.Client(base_url=server.rstrip("/"), headers=headers, timeout=30) as client:
+        while True:
+            waited = time.monotonic() - started
+            answer = _get(client, f"{base}/verdict")
+            if answer is not None:
+                if answer.status_code in (401, 403):
+                    _stop(BAD_INPUT, f"the server refused the token: {_detail(answer)}")
+                if answer.status_code == 404:
+                    detail = _detail(answer)
+                    if "has no revision" not in detail or waited > min(APPEAR_S, timeout):
+                        _stop(BAD_INPUT, detail)
+                elif answer.status_code != 200:
+                    _stop(BAD_INPUT, f"HTTP {answer.status_code}: {_detail(answer)}")
+                else:
+                    verdict = answer.json()
+                    if verdict["state"] != "pending":
+                        break
+                    if verdict["waiting_for"] != said:
+                        said = verdict["waiting_for"]
+                        typer.echo(f"waiting for {said} ({waited:.0f} s)", err=True)
+            if waited + poll > timeout:
+                _stop(BAD_INPUT, f"no verdict within {timeout:.0f} s (last: waiting for {said})")
+            time.sleep(poll)
+        if junit is not None:
+            xml = client.get(f"{base}/junit", params={"fail_on": fail_on.value})
+            xml.raise_for_status()
+            junit.write_text(xml.text)
+    typer.echo(_table(verdict))
+    typer.echo(f"page: {server.rstrip('/')}{verdict['page']}")
+    if verdict["state"] == "failed":
+        _stop(JOBS_FAILED, "the revision's performance jobs failed or were cancelled")
+    changed = {
+        FailOn.regression: verdict["regressions"],
+        FailOn.any: verdict["regressions"] + verdict["improvements"],
+        FailOn.none: 0,
+    }[fail_on]
+    sys.stdout.flush()
+    raise typer.Exit(CHANGED if changed else PASSED)
+
+
+def register(app: typer.Typer) -> None:
+    ci.command("wait")(wait)
+    app.add_typer(ci, name="ci")

@@ -1,0 +1,97 @@
+"""`redline ci wait` (the real command, in its own process) against a live server on real Postgres:
+its exit codes, the JUnit XML it writes, and the verdict endpoints behind it."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+from xml.etree import ElementTree
+
+import pytest
+from redline.server.db import session_factory
+from redline.server.models import Job, JobState, Revision
+
+from tests.support.api import api_with
+from tests.support.history import cpu_history, ingest_and_detect
+from tests.support.servers import live_server
+
+REDLINE = str(Path(sys.executable).parent / "redline")
+#: r6 rose by 40 %: a change for the worse; r1 has no baseline; r3 is like its neighbours
+CPUS = [10.0] * 5 + [14.0, 14.0]
+
+
+@pytest.fixture(scope="module")
+def server(services, tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("ci")
+    with api_with(services, tmp, read_access="token") as api:
+        with session_factory(api.settings.database_url)() as session:
+            executions = cpu_history(session, tmp, CPUS, config={"methods": ["ks"]})
+        ingest_and_detect(api.settings.database_url, executions)
+        read = api.tokens["read"]["Authorization"].removeprefix("Bearer ")
+        with live_server(api.settings) as url:
+            yield url, read, api
+
+
+def wait(server, *args: str, token: str | None = None) -> subprocess.CompletedProcess:
+    url, read, _ = server
+    env = {"PATH": "/usr/bin:/bin", "REDLINE_TOKEN": read if token is None else token}
+    return subprocess.run(
+        [REDLINE, "ci", "wait", "--server", url, "--component", "builder", "--poll", "0.2", *args],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=120,
+    )
+
+
+def test_a_change_for_the_worse_fails_with_1_and_a_junit_failure(server, tmp_path):
+    out = tmp_path / "junit.xml"
+    done = wait(server, "--revision", "r6", "--junit", str(out))
+    assert done.returncode == 1, done.stderr
+    assert "cpu +" in done.stdout and "1 change(s) for the worse" in done.stdout
+    suite = ElementTree.parse(out).getroot()
+    assert (suite.get("tests"), suite.get("failures"), suite.get("skipped")) == ("1", "1", "0")
+    failure = suite.find("testcase/failure")
+    assert failure is not None and failure.get("type") == "regression"
+    assert "cpu" in failure.get("message", "") and "ks" in failure.get("message", "")
+    assert "confirmation: suspected" in failure.get("message", "")
+    # --fail-on none: the same verdict, reported, never failing
+    assert wait(server, "--revision", "r6", "--fail-on", "none").returncode == 0
+
+
+def test_no_change_passes_and_no_baseline_is_skipped_with_its_reason(server, tmp_path):
+    out = tmp_path / "junit.xml"
+    assert wait(server, "--revision", "r3", "--junit", str(out)).returncode == 0
+    suite = ElementTree.parse(out).getroot()
+    assert (suite.get("failures"), suite.get("skipped")) == ("0", "0")
+    first = wait(server, "--revision", "r1", "--junit", str(out))
+    assert first.returncode == 0, first.stderr
+    skipped = ElementTree.parse(out).getroot().find("testcase/skipped")
+    assert skipped is not None and "not enough data" in skipped.get("message", "")
+
+
+def test_bad_input_and_a_timeout_exit_2_naming_the_cause(server):
+    unknown = wait(server, "--revision", "r1", "--component", "nobody")
+    assert unknown.returncode == 2 and "unknown component 'nobody'" in unknown.stderr
+    refused = wait(server, "--revision", "r1", token="rl_not-a-token")
+    assert refused.returncode == 2 and "refused the token" in refused.stderr
+    bad = wait(server, "--revision", "r1", "--fail-on", "sometimes")
+    assert bad.returncode == 2 and "fail-on" in bad.stderr
+    _, _, api = server
+    api.revision("r8", "0008")  # queued, and no host to run it
+    late = wait(server, "--revision", "r8", "--timeout", "2")
+    assert late.returncode == 2
+    assert "no verdict within 2 s" in late.stderr and "performance host" in late.stderr
+
+
+def test_failed_jobs_exit_3(server):
+    _, _, api = server
+    api.revision("r9", "0009")
+    with session_factory(api.settings.database_url)() as session:
+        revision = session.query(Revision).filter_by(title="r9").one()
+        for job in session.query(Job).filter_by(revision_id=revision.id):
+            job.state, job.reason = JobState.failed, "build failed"
+        session.commit()
+    done = wait(server, "--revision", "r9")
+    assert done.returncode == 3 and "failed or were cancelled" in done.stderr
