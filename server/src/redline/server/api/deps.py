@@ -33,7 +33,8 @@ def get_session(settings: SettingsDep) -> Iterator[Session]:
 SessionDep = Annotated[Session, Depends(get_session)]
 
 
-def _checked(session: Session, secret: str | None, scope: str) -> ApiToken:
+def _checked(session: Session, secret: str | None, *scopes: str) -> ApiToken:
+    """The live token ``secret`` names, granting one of ``scopes``; 401 or 403 otherwise."""
     unauthorized = {"WWW-Authenticate": "Bearer"}
     if not secret:
         raise HTTPException(
@@ -44,9 +45,10 @@ def _checked(session: Session, secret: str | None, scope: str) -> ApiToken:
         raise HTTPException(
             status.HTTP_401_UNAUTHORIZED, "invalid or revoked token", headers=unauthorized
         )
-    if not grants(token.scopes, scope):
+    if not any(grants(token.scopes, scope) for scope in scopes):
+        wanted = " or ".join(repr(scope) for scope in scopes)
         raise HTTPException(
-            status.HTTP_403_FORBIDDEN, f"token {token.name!r} lacks the {scope!r} scope"
+            status.HTTP_403_FORBIDDEN, f"token {token.name!r} lacks the {wanted} scope"
         )
     return token
 
@@ -86,26 +88,32 @@ def ensure_own_host(token: ApiToken, host: str) -> None:
 READ_COOKIE = "redline_token"
 
 
-def require_read(
-    request: Request,
-    session: SessionDep,
-    settings: SettingsDep,
-    credentials: Annotated[HTTPAuthorizationCredentials | None, Depends(_bearer)],
-) -> None:
-    """Reading is open unless ``REDLINE_READ_ACCESS=token``; then a ``read`` token is needed,
-    as a bearer header, the ``redline_token`` cookie or ``?token=`` (for the browser UI), or a
-    signed-in session of the pages."""
-    if settings.read_access != "token":
-        return
-    signed_in = current(session, request.cookies.get(SESSION_COOKIE))
-    if signed_in is not None and any(grants(signed_in.scopes, s) for s in ("read", "ci")):
-        return
-    secret = (
-        _bearer_secret(credentials)
-        or request.cookies.get(READ_COOKIE)
-        or request.query_params.get("token")
-    )
-    _checked(session, secret, "read")
+def reader(*scopes: str) -> Callable[..., None]:
+    """A dependency for reading: open unless ``REDLINE_READ_ACCESS=token``; then a token with
+    one of ``scopes`` is needed, as a bearer header, the ``redline_token`` cookie or ``?token=``
+    (for the browser UI), or a signed-in session of the pages."""
+
+    def check(
+        request: Request,
+        session: SessionDep,
+        settings: SettingsDep,
+        credentials: Annotated[HTTPAuthorizationCredentials | None, Depends(_bearer)],
+    ) -> None:
+        if settings.read_access != "token":
+            return
+        signed_in = current(session, request.cookies.get(SESSION_COOKIE))
+        if signed_in is not None and any(grants(signed_in.scopes, s) for s in ("read", "ci")):
+            return
+        secret = (
+            _bearer_secret(credentials)
+            or request.cookies.get(READ_COOKIE)
+            or request.query_params.get("token")
+        )
+        _checked(session, secret, *scopes)
+
+    return check
 
 
-READ = [Depends(require_read)]
+READ = [Depends(reader("read"))]
+#: a revision's verdict: what a CI job, holding its `ci` token, waits for
+VERDICT_READ = [Depends(reader("read", "ci"))]

@@ -7,7 +7,7 @@ from __future__ import annotations
 from typing import Annotated, Literal
 
 from fastapi import APIRouter, Depends, Query, Response, status
-from redline.server.api.deps import READ, SessionDep, require
+from redline.server.api.deps import VERDICT_READ, SessionDep, require
 from redline.server.core.bodies import JsonRoute
 from redline.server.schemas.alerts import (
     CiVerdict,
@@ -174,7 +174,9 @@ def delete_commit_status(name: str, session: SessionDep) -> None:
     session.commit()
 
 
-@router.get("/components/{name}/revisions/{title}/verdict", responses=NOT_FOUND, dependencies=READ)
+@router.get(
+    "/components/{name}/revisions/{title}/verdict", responses=NOT_FOUND, dependencies=VERDICT_READ
+)
 def revision_verdict(name: str, title: str, session: SessionDep) -> CiVerdict:
     """Whether the revision's verdict is settled, and per test case what was found."""
     return ci_verdict.ci_verdict(session, name, title)
@@ -183,7 +185,7 @@ def revision_verdict(name: str, title: str, session: SessionDep) -> CiVerdict:
 @router.get(
     "/components/{name}/revisions/{title}/junit",
     responses={**NOT_FOUND, 200: {"content": {"application/xml": {}}}},
-    dependencies=READ,
+    dependencies=VERDICT_READ,
     response_class=Response,
 )
 def revision_junit(

@@ -1,0 +1,186 @@
+"""The CI examples of docs/ci.md, run: every shell step of the GitHub Actions, GitLab CI and
+Jenkins examples, in order, in bash, with the variables each CI system would set, against a live
+server on real Postgres. The test plays the performance host between the report and the wait
+steps (a recording stored for the revision's job, ingested and judged), and checks each wait
+step's exit code and the JUnit file it leaves. The GitHub example runs a second time as with a
+push webhook: the signed push reports the revision, the report step is left out."""
+
+from __future__ import annotations
+
+import hashlib
+import hmac
+import json
+import os
+import re
+import subprocess
+from pathlib import Path
+from xml.etree import ElementTree
+
+import httpx
+import numpy as np
+import pytest
+import yaml
+from redline.server.db import session_factory
+from redline.server.models import Component, Execution, Job, JobState, Revision
+from redline.worker.detection import detect_revision
+from redline.worker.ingest import ingest_execution
+from sqlalchemy import select
+
+from tests.support.api import api_with
+from tests.support.history import cpu_history, ingest_and_detect
+from tests.support.recordings import run_metadata, write_recording
+from tests.support.servers import live_server
+
+ROOT = Path(__file__).parents[2]
+DOC = (ROOT / "docs" / "ci.md").read_text()
+SECRET = "push-secret"
+REPORT = "/api/v1/revisions"  # what the report step calls
+
+
+def _block(heading: str) -> str:
+    """The first fenced code block after ``heading``."""
+    after = DOC[DOC.index(heading) :]
+    return re.search(r"```\w+\n(.*?)```", after, re.S).group(1)
+
+
+def github_steps() -> list[str]:
+    job = yaml.safe_load(_block("### GitHub Actions"))["jobs"]["redline"]
+    return [step["run"] for step in job["steps"] if "run" in step]
+
+
+def gitlab_steps() -> list[str]:
+    return yaml.safe_load(_block("### GitLab CI"))["redline"]["script"]
+
+
+def jenkins_steps() -> list[str]:
+    found = re.findall(r"sh '''(.*?)'''|sh '([^'\n]*)'", _block("### Jenkins"), re.S)
+    # Groovy joins a line ending in a backslash with the next, inside ''' strings
+    return [(long or short).replace("\\\n", "") for long, short in found]
+
+
+EXAMPLES = {
+    "github": (github_steps, ("GITHUB_SHA", "GITHUB_RUN_NUMBER", "GITHUB_REF_NAME")),
+    "gitlab": (gitlab_steps, ("CI_COMMIT_SHA", "CI_PIPELINE_IID", "CI_COMMIT_BRANCH")),
+    "jenkins": (jenkins_steps, ("GIT_COMMIT", "BUILD_NUMBER", "BRANCH_NAME")),
+}
+
+
+@pytest.fixture(scope="module")
+def server(services, tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("examples")
+    with api_with(services, tmp, read_access="token", webhook_secret=SECRET) as api:
+        with session_factory(api.settings.database_url)() as session:
+            executions = cpu_history(session, tmp, [10.0] * 5, config={"methods": ["ks"]})
+            session.execute(
+                Component.__table__.update().values(
+                    repo="https://github.com/robots/builder", repo_key="github.com/robots/builder"
+                )
+            )
+            session.commit()
+        ingest_and_detect(api.settings.database_url, executions)
+        with live_server(api.settings) as url:
+            yield url, api, tmp
+
+
+def play_host(api, tmp: Path, title: str, cpu: float) -> None:
+    """What a performance host and the worker do: run the job, store its recording, judge."""
+    database_url = api.settings.database_url
+    with session_factory(database_url)() as session:
+        revision = session.scalar(select(Revision).where(Revision.title == title))
+        assert revision is not None, f"the report step made no revision {title}"
+        (job,) = session.scalars(select(Job).where(Job.revision_id == revision.id))
+        values = np.random.default_rng(len(title)).normal(cpu, cpu / 20, 60)
+        path = write_recording(
+            tmp / f"{title}.mcap",
+            run_metadata(job, "builder", title, revision.sort_key),
+            {"cpu": values},
+        )
+        execution = Execution(
+            job_id=job.id,
+            revision_id=revision.id,
+            recording_path=str(path),
+            sha256=hashlib.sha256(path.read_bytes()).hexdigest(),
+            size=path.stat().st_size,
+        )
+        job.state = JobState.uploaded
+        session.add(execution)
+        session.commit()
+        ingest_execution(database_url, execution.id)
+        detect_revision(database_url, revision.id)
+
+
+def run_example(server, name: str, number: int, cpu: float, webhook: bool = False) -> int:
+    """Every step of the example in order, as its CI system would; returns the wait step's exit
+    code (the JUnit file is checked by the caller)."""
+    url, api, tmp = server
+    steps, (sha_var, number_var, branch_var) = EXAMPLES[name]
+    sha = hashlib.sha1(f"{name}{number}".encode()).hexdigest()
+    workspace = tmp / f"{name}-{number}"
+    workspace.mkdir()
+    env = {
+        "PATH": os.environ["PATH"],
+        "HOME": str(workspace),
+        "REDLINE_SERVER": url,
+        "REDLINE_TOKEN": api.tokens["ci"]["Authorization"].removeprefix("Bearer "),
+        "REDLINE_AGENT": str(ROOT / "agent"),
+        "COMPONENT": "builder",  # the examples' component is the CI system's setting
+        sha_var: sha,
+        number_var: str(number),
+        branch_var: "main",
+    }
+    if webhook:
+        push = json.dumps(
+            {
+                "ref": "refs/heads/main",
+                "commits": [{"id": sha, "message": "m", "timestamp": "2026-11-22T10:00:00Z"}],
+                "repository": {"clone_url": "https://github.com/robots/builder.git"},
+            }
+        ).encode()
+        signature = "sha256=" + hmac.new(SECRET.encode(), push, hashlib.sha256).hexdigest()
+        answer = httpx.post(
+            f"{url}/api/v1/webhooks/github",
+            content=push,
+            headers={"X-Hub-Signature-256": signature, "X-GitHub-Event": "push"},
+        )
+        assert answer.status_code == 200 and answer.json()["created"], answer.text
+        play_host(api, tmp, sha[:12], cpu)
+    waited = None
+    for script in steps():
+        if webhook and REPORT in script:
+            continue
+        done = subprocess.run(
+            ["bash", "-e", "-c", script],
+            cwd=workspace,
+            env=env,
+            capture_output=True,
+            text=True,
+            timeout=300,
+        )
+        if "ci wait" in script:
+            waited = done.returncode
+            assert done.returncode in (0, 1), done.stderr + done.stdout
+            continue
+        assert done.returncode == 0, f"{name}: {script}\n{done.stderr}"
+        if REPORT in script:
+            play_host(api, tmp, sha[:12], cpu)
+    assert waited is not None, f"{name}: no wait step"
+    return waited
+
+
+def junit(server, name: str, number: int) -> ElementTree.Element:
+    return ElementTree.parse(server[2] / f"{name}-{number}" / "redline.xml").getroot()
+
+
+@pytest.mark.slow
+def test_each_example_reports_waits_and_leaves_its_junit_report(server):
+    assert run_example(server, "github", 6, cpu=10.0) == 0
+    assert junit(server, "github", 6).get("failures") == "0"
+    assert run_example(server, "gitlab", 7, cpu=10.0) == 0
+    assert junit(server, "gitlab", 7).get("failures") == "0"
+    # a change for the worse fails the Jenkins build
+    assert run_example(server, "jenkins", 8, cpu=15.0) == 1
+    assert junit(server, "jenkins", 8).get("failures") == "1"
+    # with the push webhook instead of the report step: the same level as r8, no change
+    assert run_example(server, "github", 9, cpu=15.0, webhook=True) == 0
+    suite = junit(server, "github", 9)
+    assert (suite.get("tests"), suite.get("failures")) == ("1", "0")
