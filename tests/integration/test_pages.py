@@ -355,3 +355,54 @@ def test_settings_pages_are_for_administrators_and_change_what_the_api_does(
     assert client.get("/api/v1/components/builder/detection-config").json()["confirm_pairs"] == 2
     assert client.get("/api/v1/components/builder").json()["executions"] == 3
     assert "builder" in form
+
+
+def test_the_component_settings_page_subscribes_lists_and_deletes_alerts(
+    client, database_url, tmp_path
+):
+    history(database_url, tmp_path, [20.0])
+    with session_factory(database_url)() as session:
+        create_user(session, "root", "correct horse battery", "admin")
+    client.post("/signin", data={"name": "root", "password": "correct horse battery"})
+    page = client.get("/settings/components/builder")
+    assert "No one is subscribed yet." in page.text
+    csrf = form_token(page.text)
+    path = "/settings/components/builder/subscriptions"
+    unsigned = client.post(path, data={"kind": "email", "address": "a@robots.example"})
+    assert unsigned.status_code == 403  # no form token
+    bad = client.post(path, data={"csrf": csrf, "kind": "webhook", "url": "ftp://x.example"})
+    assert bad.status_code == 400 and "http:// or https://" in bad.text
+    made = client.post(
+        path,
+        data={
+            "csrf": csrf,
+            "kind": "webhook",
+            "url": "https://hooks.example/r",
+            "secret": "do-not-show",
+            "counters": "cpu, rss",
+            "min_effect": "5",
+            "direction": "any",
+        },
+        follow_redirects=False,
+    )
+    assert made.status_code == 303, made.text
+    page = client.get("/settings/components/builder").text
+    assert "https://hooks.example/r (signed)" in page and "do-not-show" not in page
+    assert "any of cpu, rss, at least 5 %, when flagged" in page
+    (stored,) = _subscriptions(database_url)
+    assert (stored.counters, stored.min_effect, stored.confirmed_only) == (
+        ["cpu", "rss"],
+        0.05,
+        False,
+    )
+    gone = client.post(f"{path}/{stored.id}/delete", data={"csrf": csrf}, follow_redirects=False)
+    assert gone.status_code == 303
+    assert "No one is subscribed yet." in client.get("/settings/components/builder").text
+
+
+def _subscriptions(database_url: str) -> list:
+    from redline.server.models import Subscription
+    from sqlalchemy import select
+
+    with session_factory(database_url)() as session:
+        return list(session.scalars(select(Subscription)))

@@ -14,9 +14,17 @@ from fastapi.responses import HTMLResponse, RedirectResponse
 from pydantic import ValidationError
 from redline.server.api.deps import SessionDep, SettingsDep
 from redline.server.core.security import grants
+from redline.server.schemas.alerts import SubscriptionCreate
 from redline.server.schemas.components import ComponentSettings
 from redline.server.schemas.regressions import DetectionConfigIn
-from redline.server.services import components, detection_config, home, signin, tokens
+from redline.server.services import (
+    components,
+    detection_config,
+    home,
+    signin,
+    subscriptions,
+    tokens,
+)
 from redline.server.services.errors import BadRequest, Conflict, Forbidden, NotFound
 from redline.server.ui.pages import form_fields, page, page_router, problem, signed_in
 
@@ -67,11 +75,65 @@ def component_settings_page(name: str, request: Request, session: SessionDep) ->
     except (Forbidden, NotFound) as exc:
         return problem(request, exc)
     config = detection_config.get_config(session, name).model_dump()
+    recent: dict[int, list] = {}
+    for delivery in subscriptions.list_deliveries(session, name, None, 200):
+        if delivery.subscription is not None and len(recent.get(delivery.subscription, [])) < 3:
+            recent.setdefault(delivery.subscription, []).append(delivery)
     return page(
         request,
         "component_settings.html",
-        {"component": component, "config": json.dumps(config, indent=2), "message": ""},
+        {
+            "component": component,
+            "config": json.dumps(config, indent=2),
+            "subscriptions": subscriptions.list_subscriptions(session, name),
+            "deliveries": recent,
+        },
     )
+
+
+@router.post("/settings/components/{name}/subscriptions", response_class=HTMLResponse)
+async def subscribe_form(name: str, request: Request, session: SessionDep) -> Response:
+    """A subscription to the component's alerts, as the API's POST makes it."""
+    form = await form_fields(request)
+    try:
+        signin.authorize(signed_in(request), form.get("csrf", ""), ADMIN)
+        kind = form.get("kind", "")
+        try:
+            data = SubscriptionCreate(
+                kind=kind,
+                address=form.get("address", "").strip() if kind == "email" else "",
+                url=form.get("url", "").strip() if kind == "webhook" else "",
+                secret=form.get("secret", "") if kind == "webhook" else "",
+                format=form.get("format") or "redline",
+                counters=[c.strip() for c in form.get("counters", "").split(",") if c.strip()],
+                direction=form.get("direction") or None,
+                min_effect=float(form.get("min_effect") or 0) / 100,
+                confirmed_only=form.get("confirmed_only") == "1",
+                delivery=form.get("delivery") or None,
+            )
+        except ValidationError as exc:
+            raise BadRequest(_errors(exc)) from None
+        except ValueError as exc:
+            raise BadRequest(f"minimum effect: a number ({exc})") from None
+        subscriptions.create_subscription(session, name, data)
+    except (Forbidden, NotFound, BadRequest) as exc:
+        return problem(request, exc)
+    return RedirectResponse(f"/settings/components/{name}#alerts", status_code=303)
+
+
+@router.post(
+    "/settings/components/{name}/subscriptions/{ident}/delete", response_class=HTMLResponse
+)
+async def unsubscribe_form(
+    name: str, ident: int, request: Request, session: SessionDep
+) -> Response:
+    form = await form_fields(request)
+    try:
+        signin.authorize(signed_in(request), form.get("csrf", ""), ADMIN)
+        subscriptions.delete_subscription(session, name, ident)
+    except (Forbidden, NotFound) as exc:
+        return problem(request, exc)
+    return RedirectResponse(f"/settings/components/{name}#alerts", status_code=303)
 
 
 @router.post("/settings/components/{name}", response_class=HTMLResponse)
