@@ -21,6 +21,7 @@ from redline.server.models import (
     Component,
     Delivery,
     DetectionConfigRow,
+    Execution,
     RegressionState,
     Revision,
 )
@@ -450,3 +451,21 @@ def test_subscriptions_are_admin_only_checked_and_listed_changed_and_deleted(api
     assert gone.status_code == 204
     again = api.client.get(f"{BASE}/subscriptions/{made['id']}", headers=api.tokens["admin"])
     assert again.status_code == 404 and "no subscription" in again.text
+
+
+def test_imported_results_alert_when_flagged_and_slack_gets_its_own_format(api, tmp_path, receiver):
+    """No agent can re-run imported results, so their regressions cannot wait for confirmation
+    runs: a confirmed-only subscription hears of them when flagged."""
+    subscribe(api, {"kind": "webhook", "url": receiver.url + "/slack", "format": "slack"})
+    revisions(api, tmp_path, [10.0] * 5 + [14.0])
+    alert(api)
+    assert not receiver.requests  # measured by an agent: waits for its confirmation
+    with session_factory(api.settings.database_url)() as session:
+        session.execute(update(Execution).values(meta={"imported": "results"}))
+        session.commit()
+    alert(api)
+    (call,) = receiver.requests
+    body = json.loads(call.body)
+    assert set(body) == {"text"}  # what Slack-compatible incoming webhooks take
+    assert body["text"].startswith("*Redline*\n<https://redline.example/regressions/")
+    assert "|builder: regression: " in body["text"] and "cpu +" in body["text"]

@@ -89,7 +89,8 @@ def test_secrets_stay_out_of_process_lists_and_logs(stack: Stack):
         stack.start()
         secrets = [stack.admin_token, stack.token("agent", "agent")]
         commands = [" ".join(psutil.Process(c.process.pid).cmdline()) for c in stack.children]
-        assert len(commands) == 3 and "agent" in commands[-1]
+        assert len(commands) == 4 and "agent" in commands[-1]  # server, 2 workers, agent
+        assert any("--queues alerts" in c for c in commands)  # deliveries apart from analysis
         assert not [c for c in commands if any(secret in c for secret in secrets)]
         page = httpx.get(f"{stack.url}/components/nothing?token={stack.admin_token}")
         assert page.status_code == 404
