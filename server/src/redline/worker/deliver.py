@@ -26,6 +26,7 @@ from datetime import datetime, timedelta
 from email.message import EmailMessage
 from email.utils import formatdate
 from typing import Any
+from urllib.parse import quote
 
 import httpx
 from redline.server.core.config import Settings
@@ -143,8 +144,7 @@ def _status(
             "X-GitHub-Api-Version": "2022-11-28",
         }
     elif target.get("provider") == "gitlab":
-        project = httpx.URL("", path=str(target["repository"])).raw_path.decode()
-        project = project.replace("/", "%2F")
+        project = quote(str(target["repository"]), safe="")  # a path: robots%2Fbuilder
         url = f"{api}/projects/{project}/statuses/{call['sha']}"
         state = {"failure": "failed", "error": "failed"}.get(call["state"], call["state"])
         data = {
