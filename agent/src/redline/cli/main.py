@@ -24,6 +24,7 @@ _SERVER_COMMANDS = (
     "redline.commands.evaluate",
     "redline.commands.calibrate",
     "redline.commands.compare",
+    "redline.commands.model",
 )
 
 

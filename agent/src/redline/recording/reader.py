@@ -76,6 +76,9 @@ class Recording:
     counters: list[dict[str, Any]] = field(default_factory=list)
     driver: list[dict[str, Any]] = field(default_factory=list)
     traffic: Counter[str] = field(default_factory=Counter)
+    #: with ``read_recording(..., events=True)``: every traffic sample as (key, log time in ns,
+    #: payload bytes), in file order (`redline.predict` learns from them)
+    events: list[tuple[str, int, int]] | None = None
     problem: str = ""
 
     @property
@@ -226,6 +229,7 @@ def _records(path: Path) -> Iterator[Any]:
 
 _RECORD = struct.Struct("<BQ")  # opcode, length
 _CHANNEL_ID = struct.Struct("<H")
+_LOG_TIME = struct.Struct("<Q")  # after the channel id (u16) and the sequence (u32)
 _MESSAGE_HEAD = 22  # channel id u16, sequence u32, log time u64, publish time u64
 
 
@@ -258,6 +262,9 @@ def _take_chunk(
                 counters.append(data[position + _MESSAGE_HEAD : position + length])
             elif kind == _TRAFFIC:
                 recording.traffic[topic] += 1
+                if recording.events is not None:
+                    stamp = _LOG_TIME.unpack_from(data, position + 6)[0]
+                    recording.events.append((topic, stamp, length - _MESSAGE_HEAD))
             else:
                 _take_message(
                     recording, kind, topic, data[position + _MESSAGE_HEAD : position + length]
@@ -279,6 +286,8 @@ def _take_record(
             counters.append(record.data)
         else:
             _take_message(recording, kind, topic, record.data)
+            if kind == _TRAFFIC and recording.events is not None:
+                recording.events.append((topic, record.log_time, len(record.data)))
     elif isinstance(record, Channel):
         channels[record.id] = (_kind(record.topic), record.topic)
     elif isinstance(record, Header):
@@ -289,10 +298,11 @@ def _take_record(
         recording.complete = True
 
 
-def read_recording(path: str | Path, *, strict: bool = True) -> Recording:
-    """Read a recording; with ``strict``, raise RecordingError unless it is a finished one."""
+def read_recording(path: str | Path, *, strict: bool = True, events: bool = False) -> Recording:
+    """Read a recording; with ``strict``, raise RecordingError unless it is a finished one;
+    with ``events``, keep every traffic sample's key, time and size (`Recording.events`)."""
     path = Path(path)
-    recording = Recording(path=path)
+    recording = Recording(path=path, events=[] if events else None)
     channels: dict[int, tuple[int, str]] = {}
     counters: list[bytes] = []  # decoded at the end in one call: JSON per message dominated
     try:

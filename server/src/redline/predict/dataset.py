@@ -1,0 +1,166 @@
+"""Training and test data from recordings: at each time step (1 s) of each measured segment, the
+features of the communication up to then (`redline.predict.features`) and what the component's
+process used over that step (CPU %, RSS), grouped by execution and parameter set so that
+cross-validation never splits neighbouring time steps of one run between training and test.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from redline.predict.features import NS, WINDOWS, Event, FeatureSpec, extract, spec_for
+from redline.recording.format import HOST_PROCESS, OWN_PROCESS
+from redline.recording.reader import Recording, RecordingError, read_recording
+
+#: what a model predicts: the monitor's counters of one component process
+TARGETS = ("cpu_percent", "rss_bytes")
+STEP_S = 1.0
+#: the driver's actions whose key is one the component receives (a query is answered by it)
+SENDING_ACTIONS = ("Publish", "FixedRate", "Query", "Replay")
+
+
+class DataError(ValueError):
+    """Data a model cannot be made from or applied to; the message says what is wrong."""
+
+
+@dataclass
+class Run:
+    """One recording, read for learning."""
+
+    path: Path
+    events: list[Event]
+    received: set[str]
+    segments: list[tuple[str, int, int]]  # (name, begin ns, end ns) of measured segments
+    samples: dict[str, list[tuple[int, dict[str, float]]]]  # process -> (t_ns, values)
+
+
+@dataclass
+class Dataset:
+    spec: FeatureSpec
+    process: str
+    x: np.ndarray
+    y: dict[str, np.ndarray]
+    groups: np.ndarray  # "file#segment" per row
+    times: np.ndarray
+    sources: list[str] = field(default_factory=list)
+
+
+def read_run(path: str | Path) -> Run:
+    """A recording's traffic, the keys the driver sent to the component, its measured segments
+    and its processes' counter samples; DataError when there is nothing to learn from."""
+    try:
+        recording: Recording = read_recording(path, strict=False, events=True)
+    except (OSError, RecordingError) as exc:
+        raise DataError(f"{path}: {exc}") from None
+    if recording.problem and not recording.markers:
+        raise DataError(f"{path}: not a readable recording ({recording.problem})")
+    events = recording.events or []
+    if not events:
+        raise DataError(f"{path}: the recording holds no traffic: nothing to learn from")
+    received = {
+        str(report["key"])
+        for report in recording.driver
+        if report.get("action") in SENDING_ACTIONS and report.get("key")
+    }
+    segments = [
+        (f"{s.case}/{s.phase}/{sorted(s.params.items())}", s.begin_ns, s.end_ns)
+        for s in recording.segments()
+        if not s.warmup
+    ]
+    samples: dict[str, list[tuple[int, dict[str, float]]]] = {}
+    for sample in recording.counters:
+        process = sample.get("process", "")
+        if process in (HOST_PROCESS, OWN_PROCESS) or not isinstance(sample.get("values"), dict):
+            continue
+        samples.setdefault(process, []).append((int(sample["t_ns"]), sample["values"]))
+    if not samples:
+        raise DataError(f"{path}: no component process was monitored")
+    return Run(Path(path), events, received, segments, samples)
+
+
+def component_process(runs: Sequence[Run], process: str | None) -> str:
+    """``process``, checked; or the one component process the runs have in common."""
+    common = set.intersection(*(set(run.samples) for run in runs))
+    if process is not None:
+        if process not in common:
+            raise DataError(
+                f"process {process!r} is not monitored in every recording "
+                f"(all have: {', '.join(sorted(common)) or 'none'})"
+            )
+        return process
+    if len(common) != 1:
+        raise DataError(
+            f"choose the process to model (--process): the recordings have "
+            f"{', '.join(sorted(common)) or 'no process in common'}"
+        )
+    return next(iter(common))
+
+
+def _targets(
+    samples: list[tuple[int, dict[str, float]]], times: np.ndarray
+) -> dict[str, np.ndarray]:
+    """Per target, the mean of the samples in (t - step, t]; NaN where there is none."""
+    stamps = np.array([t for t, _ in samples], dtype=np.int64)
+    order = np.argsort(stamps, kind="stable")
+    stamps = stamps[order]
+    out = {}
+    for target in TARGETS:
+        values = np.array([float(samples[i][1].get(target, np.nan)) for i in order])
+        totals = np.concatenate(([0.0], np.cumsum(np.nan_to_num(values))))
+        valid = np.concatenate(([0], np.cumsum(~np.isnan(values))))
+        hi = np.searchsorted(stamps, times, side="right")
+        lo = np.searchsorted(stamps, times - int(STEP_S * NS), side="right")
+        count = valid[hi] - valid[lo]
+        total = totals[hi] - totals[lo]
+        out[target] = np.divide(total, count, out=np.full(len(times), np.nan), where=count > 0)
+    return out
+
+
+def dataset(
+    runs: Sequence[Run],
+    process: str | None = None,
+    spec: FeatureSpec | None = None,
+    windows: Sequence[float] = WINDOWS,
+) -> Dataset:
+    """The rows of every measured segment of ``runs`` (a step each second from the segment's
+    first full second), features by ``spec`` (by default: every key the runs saw, received or
+    sent); rows without a counter sample are left out."""
+    if not runs:
+        raise DataError("no recordings given")
+    chosen = component_process(runs, process)
+    if spec is None:
+        everything = [event for run in runs for event in run.events]
+        spec = spec_for(everything, set().union(*(run.received for run in runs)), windows)
+    xs, groups, times_all = [], [], []
+    ys: dict[str, list[np.ndarray]] = {t: [] for t in TARGETS}
+    for number, run in enumerate(runs):
+        for name, begin, end in run.segments:
+            times = np.arange(begin + int(STEP_S * NS), end + 1, int(STEP_S * NS), dtype=np.int64)
+            if not len(times):
+                continue
+            targets = _targets(run.samples[chosen], times)
+            keep = ~np.isnan(targets["cpu_percent"])
+            if not keep.any():
+                continue
+            xs.append(extract(run.events, times[keep], spec))
+            for target in TARGETS:
+                ys[target].append(targets[target][keep])
+            groups += [f"{number}#{name}"] * int(keep.sum())
+            times_all.append(times[keep])
+    if not xs:
+        raise DataError(
+            "the recordings have no measured segment with counter samples of "
+            f"process {chosen!r}: nothing to learn from"
+        )
+    return Dataset(
+        spec=spec,
+        process=chosen,
+        x=np.vstack(xs),
+        y={t: np.concatenate(v) for t, v in ys.items()},
+        groups=np.array(groups),
+        times=np.concatenate(times_all),
+        sources=[str(run.path) for run in runs],
+    )

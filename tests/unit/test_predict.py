@@ -1,0 +1,94 @@
+"""Resource-usage models (`redline.predict`): features computed as defined, the same with only the
+longest window of history kept (as a live watcher keeps it), data sets from recordings written by
+the real writer, a model that learns a load-dependent CPU and is scored on segments it never saw,
+and the bad input that must be refused with its cause."""
+
+from __future__ import annotations
+
+import joblib
+import numpy as np
+import pytest
+from redline.predict.dataset import DataError, dataset, read_run
+from redline.predict.features import NS, FeatureSpec, _range_max, extract, unseen
+from redline.predict.model import ModelFile
+
+from tests.support.predict import SMALL, record
+
+
+def test_features_count_and_size_the_samples_of_each_window():
+    spec = FeatureSpec((("a", "in"), ("b", "out")), windows=(1.0, 2.0))
+    events = [("a", int(0.5 * NS), 10), ("a", int(1.5 * NS), 20), ("a", int(1.8 * NS), 30)]
+    events += [("zzz", int(1.9 * NS), 99)]  # a key the spec does not know: ignored
+    (row,) = extract(events, np.array([2 * NS]), spec)
+    # a: 1 s -> (1, 2] holds 20 and 30; 2 s -> (0, 2] holds all three; b: nothing
+    assert row.tolist() == [2, 50, 25, 30, 3, 60, 20, 30] + [0] * 8
+    assert spec.names()[:4] == ["in:a:1s:count", "in:a:1s:bytes_sum", "in:a:1s:bytes_mean",
+                                "in:a:1s:bytes_max"]  # fmt: skip
+    assert unseen(events, spec) == {"zzz"}
+
+
+def test_range_max_is_the_maximum_of_each_range():
+    rng = np.random.default_rng(1)
+    values = rng.integers(0, 1000, 300).astype(float)
+    lo = rng.integers(0, 300, 500)
+    hi = np.minimum(lo + rng.integers(0, 60, 500), 300)
+    expected = [values[a:b].max() if b > a else 0.0 for a, b in zip(lo, hi, strict=True)]
+    assert _range_max(values, lo, hi).tolist() == expected
+
+
+def test_a_watcher_keeping_only_the_longest_window_gets_the_same_vectors():
+    rng = np.random.default_rng(2)
+    stamps = np.sort(rng.integers(0, 60 * NS, 3000))
+    events = [(f"k{i % 3}", int(t), int(rng.integers(1, 500))) for i, t in enumerate(stamps)]
+    spec = FeatureSpec(tuple((f"k{i}", "in") for i in range(3)))
+    times = np.arange(11 * NS, 60 * NS, NS)
+    batch = extract(events, times, spec)
+    for index, now in enumerate(times):
+        kept = [e for e in events if now - 10 * NS < e[1] <= now]  # what a live deque holds
+        assert np.array_equal(extract(kept, np.array([now]), spec)[0], batch[index])
+
+
+def test_a_model_learns_cpu_from_the_traffic_and_predicts_segments_it_never_saw(tmp_path):
+    train = [read_run(record(tmp_path / f"t{i}.mcap", [1, 4, 7, 10, 13], seed=i)) for i in (1, 2)]
+    data = dataset(train)
+    assert data.process == "builder" and len(set(data.groups)) == 10
+    assert data.spec.keys == {"robot/legs": "in", "robot/persons": "out"}
+    model = ModelFile.fit(data, SMALL, trained_on="test")
+    test = dataset(
+        [read_run(record(tmp_path / "test.mcap", [3, 6, 9, 12], seed=9))], spec=data.spec
+    )
+    found = model.score(test)["cpu_percent"]
+    assert found["ratio"] < 0.3, found  # the paper's mean was 48 % of predicting the mean
+    path = tmp_path / "model.joblib"
+    model.save(path)
+    again = ModelFile.load(path)
+    assert again.score(test)["cpu_percent"] == found
+    assert again.provenance["trained_on"] == "test" and again.provenance["groups"] == 10
+
+
+def test_bad_input_is_refused_naming_its_cause(tmp_path):
+    silent = record(tmp_path / "silent.mcap", [1, 2], traffic=False)
+    with pytest.raises(DataError, match="holds no traffic"):
+        read_run(silent)
+    with pytest.raises(DataError, match="too little to train on"):
+        ModelFile.fit(dataset([read_run(record(tmp_path / "one.mcap", [3]))]), SMALL)
+    with pytest.raises(DataError, match="process 'nobody' is not monitored"):
+        dataset([read_run(record(tmp_path / "a.mcap", [1, 2]))], process="nobody")
+    garbage = tmp_path / "garbage.mcap"
+    garbage.write_bytes(b"not an mcap file at all")
+    with pytest.raises(DataError, match="garbage.mcap"):
+        read_run(garbage)
+    model = ModelFile.fit(
+        dataset([read_run(record(tmp_path / f"f{i}.mcap", [1, 4, 8], seed=i)) for i in (1, 2)]),
+        SMALL,
+    )
+    path = tmp_path / "old.joblib"
+    model.save(path)
+    stored = joblib.load(path)
+    stored["versions"]["scikit-learn"] = "0.24.2"
+    joblib.dump(stored, path)
+    with pytest.raises(DataError, match="made with scikit-learn 0.24.2, this is"):
+        ModelFile.load(path)
+    joblib.dump({"something": "else"}, path)
+    with pytest.raises(DataError, match="not a Redline model file"):
+        ModelFile.load(path)
