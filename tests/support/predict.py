@@ -14,12 +14,17 @@ SMALL = ResourceModel(clusters=(2, 4), alphas=(1e-2, 1e-1), gammas=(1e-2, 1e-1),
 
 
 def record(
-    path: Path, legs: list[int], seed: int = 0, traffic: bool = True, extra: str = ""
+    path: Path,
+    legs: list[int],
+    seed: int = 0,
+    traffic: bool = True,
+    extra: str = "",
+    base: float = 5.0,
 ) -> Path:
     """A recording as a run of a leg-processing component makes it: per segment a leg count,
     'legs' samples at 30 Hz whose size grows with it, 'persons' sent back, and the component's CPU
     growing with the square of the legs (as the paper's mock component's does); ``extra``: one
-    more key, on which the component's CPU does not depend."""
+    more key, on which the component's CPU does not depend; ``base``: its CPU without legs."""
     rng = np.random.default_rng(seed)
     with RecordingWriter(path) as writer:
         writer.metadata("redline.run", {"component": "builder"})
@@ -41,7 +46,7 @@ def record(
                     if extra:  # a key training never saw
                         writer.write(extra, b"e", t_ns=now + 2000)
                 if step % 3 == 0:
-                    cpu = 5 + 0.4 * count**2 + rng.normal(0, 1.0)
+                    cpu = base + 0.4 * count**2 + rng.normal(0, 1.0)
                     writer.counters("builder", 7, {"cpu_percent": cpu, "rss_bytes": 1e8}, now)
             t += 10 * NS
             writer.marker("end", "legs", "steady", params, t_ns=t)

@@ -11,6 +11,7 @@ import pytest
 from redline.predict.dataset import DataError, dataset, read_run
 from redline.predict.features import NS, FeatureSpec, _range_max, extract, unseen
 from redline.predict.model import ModelFile
+from redline.predict.watch import HOLD, EventWindow, Residuals, calibrate
 
 from tests.support.predict import SMALL, record
 
@@ -92,3 +93,35 @@ def test_bad_input_is_refused_naming_its_cause(tmp_path):
     joblib.dump({"something": "else"}, path)
     with pytest.raises(DataError, match="not a Redline model file"):
         ModelFile.load(path)
+
+
+def test_an_alarm_needs_the_smoothed_residual_beyond_the_threshold_for_three_steps():
+    tracker = Residuals("cpu_percent", threshold=10.0)
+    said = [tracker.update(measured, 5.0) for measured in [6, 4, 7, 5, 6] * 4]
+    assert not any(said)  # the model's own error: no alarm
+    said = [tracker.update(80.0, 5.0) for _ in range(6)]  # a busy thread: +75
+    started = [a for a in said if a is not None]
+    assert len(started) == 1 and started[0].started and started[0].step <= 20 + HOLD + 1
+    said = [tracker.update(5.0, 5.0) for _ in range(20)]
+    ended = [a for a in said if a is not None]
+    assert len(ended) == 1 and not ended[0].started
+
+
+def test_the_threshold_is_calibrated_on_held_out_residuals_with_a_floor():
+    rng = np.random.default_rng(4)
+    groups = [rng.normal(0, 2.0, 200) for _ in range(5)]
+    threshold = calibrate(groups, level=50.0)
+    assert threshold > 1.5 * np.quantile(np.abs(np.concatenate(groups)), 0.9) * 0.3
+    assert calibrate([np.zeros(50)], level=1e8) == pytest.approx(0.05 * 1e8)  # a constant RSS
+
+
+def test_the_live_window_gives_the_features_of_the_same_events():
+    spec = FeatureSpec((("a", "in"), ("b", "out")))
+    live = EventWindow(spec)
+    events = [("a", int(t * NS / 7), 10 + t % 5) for t in range(700)]
+    events += [("b", int(t * NS / 3), 3) for t in range(300)]
+    events.sort(key=lambda e: e[1])
+    for key, stamp, size in events:
+        live.add(key, stamp, size)
+    now = 99 * NS
+    assert np.array_equal(live.features(now), extract(events, np.array([now]), spec)[0])

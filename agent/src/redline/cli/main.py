@@ -25,6 +25,7 @@ _SERVER_COMMANDS = (
     "redline.commands.calibrate",
     "redline.commands.compare",
     "redline.commands.model",
+    "redline.commands.watch",
 )
 
 

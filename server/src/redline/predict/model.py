@@ -21,10 +21,11 @@ import numpy as np
 import sklearn
 from redline.predict.dataset import DataError, Dataset
 from redline.predict.features import FeatureSpec
+from redline.predict.watch import calibrate
 from sklearn.base import BaseEstimator, RegressorMixin
 from sklearn.cluster import FeatureAgglomeration
 from sklearn.kernel_ridge import KernelRidge
-from sklearn.model_selection import GridSearchCV, GroupKFold
+from sklearn.model_selection import GridSearchCV, GroupKFold, cross_val_predict
 from sklearn.pipeline import Pipeline
 from sklearn.preprocessing import StandardScaler
 
@@ -90,6 +91,20 @@ class ResourceModel(RegressorMixin, BaseEstimator):
         self.search_ = search
         self.best_params_ = search.best_params_
         self.cv_rmse_ = float(-search.best_score_)
+        # residuals on data each fold's model never saw: what the run-time alarm calibrates on
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            held_out = cross_val_predict(
+                sklearn.base.clone(search.best_estimator_),
+                x,
+                y,
+                groups=groups,
+                cv=GroupKFold(n_splits=min(self.folds, distinct)),
+            )
+        residuals = y - held_out
+        self.threshold_ = calibrate(
+            [residuals[groups == g] for g in dict.fromkeys(groups)], float(np.mean(np.abs(y)))
+        )
         return self
 
     def predict(self, x: np.ndarray) -> np.ndarray:
@@ -139,6 +154,7 @@ class ModelFile:
                 "cv_rmse": fitted.cv_rmse_,
                 "cv_baseline_rmse": float(np.std(y)),
                 "cv_ratio": fitted.cv_rmse_ / float(np.std(y)) if np.std(y) > 0 else float("inf"),
+                "threshold": fitted.threshold_,
                 **{k: float(v) for k, v in fitted.best_params_.items()},
             }
         return cls(

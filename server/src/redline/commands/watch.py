@@ -1,0 +1,163 @@
+"""`redline watch`: a resource model against a live component, for faults at run time.
+
+    redline watch --model MODEL (--process PID | --name NAME) [--zenoh-config FILE]
+                  [--interval 1] [--duration S] [--json]
+
+It opens its own zenoh session (``--zenoh-config``, else ``ZENOH_CONFIG``, else zenoh's defaults:
+the live system's network, not a test's isolation), subscribes to the keys the model knows, samples
+the component's process tree with the monitor's code (`redline.agent.sampling`), and every
+interval predicts its CPU % and RSS from the communication. When the smoothed residual stays beyond
+the threshold calibrated on the model's validation data, it prints an alarm (and when it ends).
+Exit status 2 on bad input (no such process, a model of another version); 0 when stopped.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import threading
+import time
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+EXIT_BAD_INPUT = 2
+
+
+def _fail(message: str) -> typer.Exit:
+    typer.echo(f"redline watch: {message}", err=True)
+    return typer.Exit(EXIT_BAD_INPUT)
+
+
+def _pid(process: int | None, name: str | None) -> int:
+    import psutil
+
+    if (process is None) == (name is None):
+        raise _fail("give the component's --process PID or its --name")
+    if process is not None:
+        if not psutil.pid_exists(process):
+            raise _fail(f"no process {process}")
+        return process
+    found = [p.pid for p in psutil.process_iter(["name", "cmdline"]) if _named(p, name or "")]
+    found = [pid for pid in found if pid != os.getpid()]
+    if len(found) != 1:
+        raise _fail(
+            f"{len(found)} processes are named {name!r}"
+            + (f" ({', '.join(map(str, found))}): give --process PID" if found else "")
+        )
+    return found[0]
+
+
+def _named(process: object, name: str) -> bool:
+    info = getattr(process, "info", {})
+    words = info.get("cmdline") or []
+    return info.get("name") == name or any(Path(word).stem == name for word in words[:3])
+
+
+def _session(config: Path | None):
+    import zenoh
+
+    if config is not None:
+        return zenoh.open(zenoh.Config.from_file(str(config)))
+    if os.environ.get("ZENOH_CONFIG"):
+        return zenoh.open(zenoh.Config.from_env())
+    return zenoh.open(zenoh.Config())
+
+
+def watch_cmd(
+    model: Annotated[Path, typer.Option(help="a model file (`redline model fit`)")],
+    process: Annotated[int | None, typer.Option(help="the component's process id")] = None,
+    name: Annotated[str | None, typer.Option(help="the component's process name")] = None,
+    zenoh_config: Annotated[
+        Path | None, typer.Option(help="zenoh configuration (else ZENOH_CONFIG, else defaults)")
+    ] = None,
+    interval: Annotated[float, typer.Option(min=0.1, help="seconds between predictions")] = 1.0,
+    duration: Annotated[
+        float | None, typer.Option(min=1, help="stop after this many seconds (default: never)")
+    ] = None,
+    as_json: Annotated[
+        bool, typer.Option("--json", help="one JSON line per step and per alarm")
+    ] = False,
+) -> None:
+    """Watch a running component for resource faults with a model of its usage."""
+    from redline.agent.sampling import TreeSampler
+    from redline.predict.dataset import TARGETS, DataError
+    from redline.predict.model import ModelFile
+    from redline.predict.watch import EventWindow, Residuals
+
+    try:
+        loaded = ModelFile.load(model)
+    except DataError as exc:
+        raise _fail(str(exc)) from None
+    pid = _pid(process, name)
+    window = EventWindow(loaded.spec)
+    residuals = {t: Residuals(t, loaded.metrics[t]["threshold"]) for t in TARGETS}
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    signal.signal(signal.SIGINT, lambda *_: stop.set())
+    session = _session(zenoh_config)
+    subscribers = [
+        session.declare_subscriber(
+            key,
+            lambda sample: window.add(
+                str(sample.key_expr), time.time_ns(), len(sample.payload.to_bytes())
+            ),
+        )
+        for key, _ in loaded.spec.channels
+    ]
+    sampler = TreeSampler(loaded.process, pid)
+    typer.echo(
+        f"watching {loaded.process} (pid {pid}) on {len(subscribers)} keys; thresholds: "
+        + ", ".join(f"{t} {r.threshold:.4g}" for t, r in residuals.items()),
+        err=True,
+    )
+    sampler.sample()  # the CPU rate is over the time since the previous sample
+    began = time.monotonic()
+    try:
+        while not stop.wait(interval):
+            try:
+                measured = sampler.sample()
+            except OSError:
+                typer.echo(f"the component (pid {pid}) has exited", err=True)
+                break
+            now = time.time_ns()
+            predicted = loaded.predict(window.features(now)[None, :])
+            said_measured: dict[str, float] = {}
+            said_predicted: dict[str, float] = {}
+            for target, tracker in residuals.items():
+                value, guess = float(measured.get(target, 0.0)), float(predicted[target][0])
+                said_measured[target], said_predicted[target] = value, guess
+                alarm = tracker.update(value, guess)
+                if alarm is not None:
+                    said = "fault" if alarm.started else "fault over"
+                    line = {"alarm": said, **alarm.__dict__}
+                    typer.echo(
+                        json.dumps(line)
+                        if as_json
+                        else f"{said}: {target} residual {alarm.residual:+.4g} "
+                        f"(threshold {alarm.threshold:.4g}) at step {alarm.step}"
+                    )
+            if as_json:
+                typer.echo(
+                    json.dumps(
+                        {
+                            "t": now / 1e9,
+                            "heard": window.heard(now, interval),
+                            "measured": said_measured,
+                            "predicted": said_predicted,
+                        }
+                    )
+                )
+            if duration is not None and time.monotonic() - began >= duration:
+                break
+    finally:
+        for subscriber in subscribers:
+            subscriber.undeclare()
+        session.close()
+        sampler.close()
+
+
+def register(app: typer.Typer) -> None:
+    app.command("watch")(watch_cmd)

@@ -1,0 +1,92 @@
+"""`redline watch` as a real command against a real process on a real (isolated) zenoh network: a
+model of a leg-processing component learnt from recordings, then a stand-in component whose
+traffic matches what the model expects, idle, until a busy thread is injected into it (a fault
+the model cannot explain by its communication): no alarm before, an alarm within 10 s after."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import textwrap
+import threading
+import time
+from pathlib import Path
+
+import pytest
+from redline.agent.network import RunNetwork, open_client
+from redline.predict.dataset import dataset, read_run
+from redline.predict.model import ModelFile
+
+from tests.support.predict import SMALL, record
+
+REDLINE = str(Path(sys.executable).parent / "redline")
+COMPONENT = textwrap.dedent(
+    """
+    import os, sys, time
+    flag = sys.argv[1]
+    while True:
+        if os.path.exists(flag):
+            end = time.monotonic() + 0.05
+            while time.monotonic() < end:
+                pass
+        else:
+            time.sleep(0.05)
+    """
+)
+
+
+@pytest.mark.slow
+def test_watch_is_quiet_while_usage_matches_and_alarms_within_10_s_of_a_busy_thread(tmp_path):
+    runs = [
+        read_run(record(tmp_path / f"t{i}.mcap", [1, 3, 5, 7], seed=i, base=0.0)) for i in (1, 2)
+    ]
+    model = tmp_path / "model.joblib"
+    ModelFile.fit(dataset(runs), SMALL).save(model)
+    flag = tmp_path / "busy"
+    script = tmp_path / "component.py"
+    script.write_text(COMPONENT)
+    component = subprocess.Popen([sys.executable, str(script), str(flag)])
+    stop = threading.Event()
+    with RunNetwork() as network:
+        config = network.write_component_config(tmp_path / "zenoh.json")
+
+        def drive() -> None:  # one leg at 30 Hz: the model expects under 1 % of a core
+            with open_client(network.client_settings()) as session:
+                publisher = session.declare_publisher("robot/legs")
+                while not stop.wait(1 / 30):
+                    publisher.put(b"x" * 16)
+
+        driver = threading.Thread(target=drive, daemon=True)
+        driver.start()
+        watcher = subprocess.Popen(
+            [REDLINE, "watch", "--model", str(model), "--process", str(component.pid),
+             "--zenoh-config", str(config), "--duration", "30", "--json"],
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        )  # fmt: skip
+        lines: list[dict] = []
+        injected = None
+        try:
+            for text in watcher.stdout:
+                line = json.loads(text)
+                lines.append(line)
+                steps = sum(1 for item in lines if "measured" in item)
+                if steps == 12 and injected is None:
+                    flag.touch()  # the fault: a busy thread the communication does not explain
+                    injected = time.monotonic()
+                if line.get("alarm") == "fault" and line["target"] == "cpu_percent":
+                    detected = time.monotonic() - injected if injected else None
+                    break
+        finally:
+            stop.set()
+            watcher.terminate()
+            _, errors = watcher.communicate(timeout=20)
+            component.kill()
+            component.wait()
+    before = [item for item in lines[: lines.index(line)] if item.get("target") == "cpu_percent"]
+    assert not before, f"an alarm before the fault: {before}\n{errors}"
+    assert injected is not None, errors
+    assert detected is not None and detected <= 10.0, (detected, errors)
+    steps = [item for item in lines if "predicted" in item]
+    assert min(item["heard"] for item in steps[2:]) >= 20  # the legs, at 30 Hz
+    assert max(item["predicted"]["cpu_percent"] for item in steps) < 5.0  # one leg: little CPU
