@@ -6,14 +6,14 @@ cross-validation never splits neighbouring time steps of one run between trainin
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 from redline.predict.features import NS, WINDOWS, Event, FeatureSpec, extract, spec_for
 from redline.recording.format import HOST_PROCESS, OWN_PROCESS
-from redline.recording.reader import Recording, RecordingError, read_recording
+from redline.recording.reader import Recording, RecordingError, Segment, read_recording
 
 #: what a model predicts: the monitor's counters of one component process
 TARGETS = ("cpu_percent", "rss_bytes")
@@ -33,7 +33,7 @@ class Run:
     path: Path
     events: list[Event]
     received: set[str]
-    segments: list[tuple[str, int, int]]  # (name, begin ns, end ns) of measured segments
+    segments: list[Segment]  # the measured ones (warm-up phases left out)
     samples: dict[str, list[tuple[int, dict[str, float]]]]  # process -> (t_ns, values)
 
 
@@ -65,11 +65,7 @@ def read_run(path: str | Path) -> Run:
         for report in recording.driver
         if report.get("action") in SENDING_ACTIONS and report.get("key")
     }
-    segments = [
-        (f"{s.case}/{s.phase}/{sorted(s.params.items())}", s.begin_ns, s.end_ns)
-        for s in recording.segments()
-        if not s.warmup
-    ]
+    segments = [s for s in recording.segments() if not s.warmup]
     samples: dict[str, list[tuple[int, dict[str, float]]]] = {}
     for sample in recording.counters:
         process = sample.get("process", "")
@@ -124,32 +120,38 @@ def dataset(
     process: str | None = None,
     spec: FeatureSpec | None = None,
     windows: Sequence[float] = WINDOWS,
+    keep: Callable[[Segment], bool] | None = None,
+    keys: Callable[[str], bool] | None = None,
 ) -> Dataset:
-    """The rows of every measured segment of ``runs`` (a step each second from the segment's
-    first full second), features by ``spec`` (by default: every key the runs saw, received or
-    sent); rows without a counter sample are left out."""
+    """The rows of every measured segment of ``runs`` that ``keep`` keeps (a step each second
+    from the segment's first full second), features by ``spec`` (by default: every key the runs
+    saw that ``keys`` keeps, received or sent); rows without a counter sample are left out."""
     if not runs:
         raise DataError("no recordings given")
     chosen = component_process(runs, process)
     if spec is None:
-        everything = [event for run in runs for event in run.events]
+        everything = [e for run in runs for e in run.events if keys is None or keys(e[0])]
         spec = spec_for(everything, set().union(*(run.received for run in runs)), windows)
     xs, groups, times_all = [], [], []
     ys: dict[str, list[np.ndarray]] = {t: [] for t in TARGETS}
     for number, run in enumerate(runs):
-        for name, begin, end in run.segments:
-            times = np.arange(begin + int(STEP_S * NS), end + 1, int(STEP_S * NS), dtype=np.int64)
+        for segment in run.segments:
+            if keep is not None and not keep(segment):
+                continue
+            name = f"{segment.case}/{segment.phase}/{sorted(segment.params.items())}"
+            step = int(STEP_S * NS)
+            times = np.arange(segment.begin_ns + step, segment.end_ns + 1, step, dtype=np.int64)
             if not len(times):
                 continue
             targets = _targets(run.samples[chosen], times)
-            keep = ~np.isnan(targets["cpu_percent"])
-            if not keep.any():
+            sampled = ~np.isnan(targets["cpu_percent"])
+            if not sampled.any():
                 continue
-            xs.append(extract(run.events, times[keep], spec))
+            xs.append(extract(run.events, times[sampled], spec))
             for target in TARGETS:
-                ys[target].append(targets[target][keep])
-            groups += [f"{number}#{name}"] * int(keep.sum())
-            times_all.append(times[keep])
+                ys[target].append(targets[target][sampled])
+            groups += [f"{number}#{name}"] * int(sampled.sum())
+            times_all.append(times[sampled])
     if not xs:
         raise DataError(
             "the recordings have no measured segment with counter samples of "

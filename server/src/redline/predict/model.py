@@ -35,7 +35,7 @@ CLUSTERS = (4, 8, 16, 32)
 ALPHAS = (1e-3, 1e-2, 1e-1, 1.0)
 GAMMAS = (1e-3, 1e-2, 1e-1)
 #: fewer rows or groups than these leave nothing to cross-validate
-MIN_ROWS, MIN_GROUPS = 20, 2
+MIN_ROWS, MIN_GROUPS = 10, 2
 
 
 class ResourceModel(RegressorMixin, BaseEstimator):
@@ -145,9 +145,18 @@ class ModelFile:
     versions: dict[str, str] = field(default_factory=_versions)
 
     @classmethod
-    def fit(cls, data: Dataset, model: ResourceModel | None = None, **provenance: Any) -> ModelFile:
+    def fit(
+        cls,
+        data: Dataset,
+        model: ResourceModel | None = None,
+        targets: tuple[str, ...] | None = None,
+        **provenance: Any,
+    ) -> ModelFile:
+        """A model per target (all of the data's by default), fitted on ``data``."""
         models, metrics = {}, {}
         for target, y in data.y.items():
+            if targets is not None and target not in targets:
+                continue
             fitted = sklearn.base.clone(model or ResourceModel()).fit(data.x, y, data.groups)
             models[target] = fitted
             metrics[target] = {
