@@ -421,16 +421,24 @@ def test_subscriptions_are_admin_only_checked_and_listed_changed_and_deleted(api
         assert answer.status_code == 403, answer.text
     bad = [
         ({"kind": "webhook", "url": "file:///etc/passwd"}, "http:// or https://"),
-        ({"kind": "webhook"}, "needs a url"),
-        ({"kind": "email"}, "needs an address"),
+        ({"kind": "webhook"}, "url: a webhook subscription needs one"),
+        ({"kind": "email"}, "address: an email subscription needs one"),
+        ({"kind": "email", "address": "a@b.example", "url": "https://x.example"}, "takes none"),
         ({"kind": "email", "address": "not an address"}, "address"),
         ({"kind": "pager", "address": "x@y.z"}, "kind"),
         ({**hook, "direction": "sideways"}, "direction"),
         ({**hook, "min_effect": -1}, "min_effect"),
+        ({**hook, "confirmedonly": False}, "confirmedonly"),  # a misspelt filter
     ]
     for body, said in bad:
         answer = api.post(f"{BASE}/subscriptions", "admin", body)
         assert answer.status_code == 422 and said in answer.text, (body, answer.text)
+    leaked = api.post(
+        f"{BASE}/subscriptions",
+        "admin",
+        {"kind": "webhook", "url": "file:///x", "secret": "TOPSECRET", "confirmedonly": 1},
+    )
+    assert leaked.status_code == 422 and "TOPSECRET" not in leaked.text, leaked.text
     assert api.post("/api/v1/components/nobody/subscriptions", "admin", hook).status_code == 404
     made = subscribe(api, hook)
     everywhere = subscribe(api, {"kind": "email", "address": "all@robots.example"}, None)
@@ -447,6 +455,12 @@ def test_subscriptions_are_admin_only_checked_and_listed_changed_and_deleted(api
         "digest",
         True,
     )
+    mail = api.client.patch(
+        f"/api/v1/subscriptions/{everywhere['id']}",
+        json={"url": "https://x.example/hook"},
+        headers=api.tokens["admin"],
+    )
+    assert mail.status_code == 422 and "takes none" in mail.text  # a url on a mail subscription
     gone = api.client.delete(f"{BASE}/subscriptions/{made['id']}", headers=api.tokens["admin"])
     assert gone.status_code == 204
     again = api.client.get(f"{BASE}/subscriptions/{made['id']}", headers=api.tokens["admin"])
@@ -469,3 +483,10 @@ def test_imported_results_alert_when_flagged_and_slack_gets_its_own_format(api, 
     assert set(body) == {"text"}  # what Slack-compatible incoming webhooks take
     assert body["text"].startswith("*Redline*\n<https://redline.example/regressions/")
     assert "|builder: regression: " in body["text"] and "cpu +" in body["text"]
+
+
+def test_a_wrong_token_is_refused_even_where_reading_is_open(api):
+    path = f"{BASE}/revisions/r1/verdict"
+    wrong = api.client.get(path, headers={"Authorization": "Bearer rl_mistyped"})
+    assert wrong.status_code == 401 and "invalid or revoked token" in wrong.text
+    assert api.client.get(path).status_code == 404  # no token: open reading, no such revision

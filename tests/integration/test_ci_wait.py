@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import subprocess
 import sys
+import time
 from pathlib import Path
 from xml.etree import ElementTree
 
@@ -80,9 +81,22 @@ def test_bad_input_and_a_timeout_exit_2_naming_the_cause(server):
     assert bad.returncode == 2 and "fail-on" in bad.stderr
     _, _, api = server
     api.revision("r8", "0008")  # queued, and no host to run it
-    late = wait(server, "--revision", "r8", "--timeout", "2")
+    kept = Path(api.settings.storage_dir).parent / "late.xml"
+    late = wait(server, "--revision", "r8", "--timeout", "2", "--junit", str(kept))
     assert late.returncode == 2
     assert "no verdict within 2 s" in late.stderr and "performance host" in late.stderr
+    error = ElementTree.parse(kept).getroot().find("testcase/error")
+    assert error is not None and "no verdict within 2 s" in error.get("message", "")
+    # refused before any waiting: a JUnit path that cannot be written, a server that is no URL
+    started = time.monotonic()
+    nowhere = wait(server, "--revision", "r8", "--junit", "/nonexistent/dir/x.xml")
+    assert nowhere.returncode == 2 and "no folder /nonexistent/dir" in nowhere.stderr
+    assert time.monotonic() - started < 30
+    url = subprocess.run(
+        [REDLINE, "ci", "wait", "--server", "notaurl", "--component", "c", "--revision", "r"],
+        capture_output=True, text=True, timeout=60,
+    )  # fmt: skip
+    assert url.returncode == 2 and "not an http:// or https:// URL" in url.stderr
 
 
 def test_failed_jobs_exit_3(server):
@@ -93,5 +107,14 @@ def test_failed_jobs_exit_3(server):
         for job in session.query(Job).filter_by(revision_id=revision.id):
             job.state, job.reason = JobState.failed, "build failed"
         session.commit()
-    done = wait(server, "--revision", "r9")
-    assert done.returncode == 3 and "failed or were cancelled" in done.stderr
+    done = wait(
+        server,
+        "--revision",
+        "r9",
+        "--junit",
+        str(Path(server[2].settings.storage_dir).parent / "r9.xml"),
+    )
+    assert done.returncode == 3 and "build failed" in done.stderr, done.stderr
+    suite = ElementTree.parse(Path(server[2].settings.storage_dir).parent / "r9.xml").getroot()
+    assert suite.get("errors") == "1"  # not an empty, green report
+    assert "build failed" in suite.find("testcase/error").get("message", "")

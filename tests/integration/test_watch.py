@@ -6,6 +6,7 @@ the model cannot explain by its communication): no alarm before, an alarm within
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 import textwrap
@@ -18,7 +19,9 @@ from redline.agent.network import RunNetwork, open_client
 from redline.predict.dataset import dataset, read_run
 from redline.predict.model import ModelFile
 
+from tests.support.api import api_with
 from tests.support.predict import SMALL, record
+from tests.support.servers import live_server
 
 REDLINE = str(Path(sys.executable).parent / "redline")
 COMPONENT = textwrap.dedent(
@@ -37,7 +40,9 @@ COMPONENT = textwrap.dedent(
 
 
 @pytest.mark.slow
-def test_watch_is_quiet_while_usage_matches_and_alarms_within_10_s_of_a_busy_thread(tmp_path):
+def test_watch_is_quiet_while_usage_matches_and_alarms_within_10_s_of_a_busy_thread(
+    services, tmp_path
+):
     runs = [
         read_run(record(tmp_path / f"t{i}.mcap", [1, 3, 5, 7], seed=i, base=0.0)) for i in (1, 2)
     ]
@@ -48,7 +53,12 @@ def test_watch_is_quiet_while_usage_matches_and_alarms_within_10_s_of_a_busy_thr
     script.write_text(COMPONENT)
     component = subprocess.Popen([sys.executable, str(script), str(flag)])
     stop = threading.Event()
-    with RunNetwork() as network:
+    with (
+        api_with(services, tmp_path) as api,
+        live_server(api.settings) as url,
+        RunNetwork() as network,
+    ):
+        api.component()
         config = network.write_component_config(tmp_path / "zenoh.json")
 
         def drive() -> None:  # one leg at 30 Hz: the model expects under 1 % of a core
@@ -59,13 +69,17 @@ def test_watch_is_quiet_while_usage_matches_and_alarms_within_10_s_of_a_busy_thr
 
         driver = threading.Thread(target=drive, daemon=True)
         driver.start()
+        agent = api.tokens["agent"]["Authorization"].removeprefix("Bearer ")
         watcher = subprocess.Popen(
             [REDLINE, "watch", "--model", str(model), "--process", str(component.pid),
-             "--zenoh-config", str(config), "--duration", "30", "--json"],
+             "--zenoh-config", str(config), "--duration", "30", "--json",
+             "--server", url, "--component", "builder"],
             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+            env={**os.environ, "REDLINE_TOKEN": agent},
         )  # fmt: skip
         lines: list[dict] = []
-        injected = None
+        injected = detected = None
+        line: dict = {}
         try:
             for text in watcher.stdout:
                 line = json.loads(text)
@@ -83,10 +97,14 @@ def test_watch_is_quiet_while_usage_matches_and_alarms_within_10_s_of_a_busy_thr
             _, errors = watcher.communicate(timeout=20)
             component.kill()
             component.wait()
-    before = [item for item in lines[: lines.index(line)] if item.get("target") == "cpu_percent"]
+        reported = api.client.get("/api/v1/components/builder/runtime-alerts").json()
+    alarmed = lines.index(line) if line in lines else len(lines)
+    before = [item for item in lines[:alarmed] if item.get("target") == "cpu_percent"]
     assert not before, f"an alarm before the fault: {before}\n{errors}"
     assert injected is not None, errors
     assert detected is not None and detected <= 10.0, (detected, errors)
     steps = [item for item in lines if "predicted" in item]
     assert min(item["heard"] for item in steps[2:]) >= 20  # the legs, at 30 Hz
     assert max(item["predicted"]["cpu_percent"] for item in steps) < 5.0  # one leg: little CPU
+    # and the server has it (its token from the environment, never the command line)
+    assert any(a["target"] == "cpu_percent" and a["started"] for a in reported), reported

@@ -9,12 +9,13 @@ Only httpx is needed, so CI machines install the light `redline-agent` distribut
 
 from __future__ import annotations
 
+import os
 import sys
 import time
 from enum import StrEnum
 from pathlib import Path
 from typing import Annotated, Any, NoReturn
-from urllib.parse import quote
+from urllib.parse import quote, urlsplit
 
 import httpx
 import typer
@@ -53,9 +54,16 @@ def _detail(answer: httpx.Response) -> str:
         return answer.text[:200]
 
 
-def _table(verdict: dict[str, Any]) -> str:
+def _counted(change: dict[str, Any], fail_on: FailOn) -> bool:
+    return fail_on == FailOn.any or (fail_on == FailOn.regression and change["worse"])
+
+
+def _table(verdict: dict[str, Any], fail_on: FailOn) -> str:
     rows = [("test case / phase [parameters]", "verdict", "changes")]
     for case in verdict["cases"]:
+        if case["state"] != "skipped":  # passed or failed as --fail-on counts
+            failed = any(_counted(c, fail_on) for c in case["changes"])
+            case = {**case, "state": "failed" if failed else "passed"}
         changes = ", ".join(
             f"{c['process']} {c['counter']} "
             + ("n/a" if c["effect"] is None else f"{c['effect'] * 100:+.1f} %")
@@ -72,6 +80,28 @@ def _table(verdict: dict[str, Any]) -> str:
         f"case(s) without enough data"
     )
     return "\n".join(lines)
+
+
+def _junit_error(path: Path, component: str, revision: str, message: str) -> None:
+    """A JUnit file that says why there is no verdict (so a CI step keeping it finds one)."""
+    from xml.sax.saxutils import quoteattr
+
+    path.write_text(
+        '<?xml version="1.0" encoding="utf-8"?>\n'
+        f'<testsuite name={quoteattr("redline." + component)} tests="1" failures="0" '
+        f'errors="1" skipped="0"><testcase classname={quoteattr("redline." + component)} '
+        f"name={quoteattr(revision + ' verdict')}><error message={quoteattr(message)}/>"
+        "</testcase></testsuite>\n"
+    )
+
+
+def _writable(path: Path) -> None:
+    """Exit 2 now, not after the wait, when the JUnit file cannot be written."""
+    folder = path.parent if str(path.parent) else Path(".")
+    if not folder.is_dir():
+        _stop(BAD_INPUT, f"--junit {path}: no folder {folder}")
+    if path.is_dir() or not os.access(folder, os.W_OK):
+        _stop(BAD_INPUT, f"--junit {path}: cannot be written")
 
 
 def wait(
@@ -96,14 +126,19 @@ def wait(
 ) -> None:
     """Wait for a revision's verdict; write JUnit XML; exit 0 (no change), 1 (change), 2 (bad
     input or timeout), 3 (its jobs failed)."""
+    if urlsplit(server).scheme not in ("http", "https") or not urlsplit(server).hostname:
+        _stop(BAD_INPUT, f"--server {server!r}: not an http:// or https:// URL")
+    if junit is not None:
+        _writable(junit)
     headers = {"Authorization": f"Bearer {token}"} if token else {}
     base = f"/api/v1/components/{quote(component, safe='')}/revisions/{quote(revision, safe='')}"
     started = time.monotonic()
-    said = ""
+    said, reached = "", False
     with httpx.Client(base_url=server.rstrip("/"), headers=headers, timeout=30) as client:
         while True:
             waited = time.monotonic() - started
             answer = _get(client, f"{base}/verdict")
+            reached = reached or answer is not None
             if answer is not None:
                 if answer.status_code in (401, 403):
                     _stop(BAD_INPUT, f"the server refused the token: {_detail(answer)}")
@@ -121,16 +156,28 @@ def wait(
                         said = verdict["waiting_for"]
                         typer.echo(f"waiting for {said} ({waited:.0f} s)", err=True)
             if waited + poll > timeout:
-                _stop(BAD_INPUT, f"no verdict within {timeout:.0f} s (last: waiting for {said})")
+                late = f"no verdict within {timeout:.0f} s: " + (
+                    f"still waiting for {said}"
+                    if said
+                    else "the revision did not appear"
+                    if reached
+                    else f"the server at {server} was never reached"
+                )
+                if junit is not None:
+                    _junit_error(junit, component, revision, late)
+                _stop(BAD_INPUT, late)
             time.sleep(poll)
         if junit is not None:
             xml = client.get(f"{base}/junit", params={"fail_on": fail_on.value})
             xml.raise_for_status()
-            junit.write_text(xml.text)
-    typer.echo(_table(verdict))
+            try:
+                junit.write_text(xml.text)
+            except OSError as error:
+                _stop(BAD_INPUT, f"--junit {junit}: {error}")
+    typer.echo(_table(verdict, fail_on))
     typer.echo(f"page: {server.rstrip('/')}{verdict['page']}")
     if verdict["state"] == "failed":
-        _stop(JOBS_FAILED, "the revision's performance jobs failed or were cancelled")
+        _stop(JOBS_FAILED, f"the revision's performance jobs failed: {verdict['reason']}")
     changed = {
         FailOn.regression: verdict["regressions"],
         FailOn.any: verdict["regressions"] + verdict["improvements"],

@@ -18,10 +18,14 @@ import os
 import signal
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
+
+if TYPE_CHECKING:
+    from redline.predict.watch import Alarm
 
 EXIT_BAD_INPUT = 2
 
@@ -56,6 +60,43 @@ def _named(process: object, name: str) -> bool:
     return info.get("name") == name or any(Path(word).stem == name for word in words[:3])
 
 
+def _reporter(server: str | None, component: str | None, process: str) -> Callable[[Alarm], None]:
+    """A function that posts an alarm to the server's runtime alerts (a no-op without one);
+    a failed post is said on stderr, and watching goes on."""
+    import socket
+
+    import httpx
+
+    if server is None:
+        return lambda alarm: None
+    if not component:
+        raise _fail("--server needs --component (the component's name on the server)")
+    token = os.environ.get("REDLINE_TOKEN", "")
+    if not token:
+        raise _fail("--server needs a token with scope 'agent' in REDLINE_TOKEN")
+    client = httpx.Client(
+        base_url=server.rstrip("/"), headers={"Authorization": f"Bearer {token}"}, timeout=10
+    )
+
+    def post(alarm: Alarm) -> None:
+        body = {
+            "target": alarm.target,
+            "started": alarm.started,
+            "residual": alarm.residual,
+            "threshold": alarm.threshold,
+            "step": alarm.step,
+            "host": socket.gethostname(),
+            "process": process,
+        }
+        try:
+            answer = client.post(f"/api/v1/components/{component}/runtime-alerts", json=body)
+            answer.raise_for_status()
+        except httpx.HTTPError as error:
+            typer.echo(f"could not report the alarm to {server}: {error}", err=True)
+
+    return post
+
+
 def _session(config: Path | None):
     import zenoh
 
@@ -80,6 +121,16 @@ def watch_cmd(
     as_json: Annotated[
         bool, typer.Option("--json", help="one JSON line per step and per alarm")
     ] = False,
+    server: Annotated[
+        str | None,
+        typer.Option(
+            help="also report alarms to this Redline server (token with scope 'agent' in "
+            "REDLINE_TOKEN, never on the command line)",
+        ),
+    ] = None,
+    component: Annotated[
+        str | None, typer.Option(help="the component's name on the server (with --server)")
+    ] = None,
 ) -> None:
     """Watch a running component for resource faults with a model of its usage."""
     from redline.agent.sampling import TreeSampler
@@ -92,6 +143,7 @@ def watch_cmd(
     except DataError as exc:
         raise _fail(str(exc)) from None
     pid = _pid(process, name)
+    report = _reporter(server, component, loaded.process)
     window = EventWindow(loaded.spec)
     residuals = {t: Residuals(t, loaded.metrics[t]["threshold"]) for t in TARGETS}
     stop = threading.Event()
@@ -131,6 +183,7 @@ def watch_cmd(
                 said_measured[target], said_predicted[target] = value, guess
                 alarm = tracker.update(value, guess)
                 if alarm is not None:
+                    report(alarm)
                     said = "fault" if alarm.started else "fault over"
                     line = {"alarm": said, **alarm.__dict__}
                     typer.echo(

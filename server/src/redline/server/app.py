@@ -22,6 +22,7 @@ from redline.server.routes import (
     health,
     imports,
     jobs,
+    learning,
     regressions,
     revisions,
     series,
@@ -61,10 +62,28 @@ def _excerpt(value: Any) -> Any:
     return _EXCERPT.repr(value)
 
 
+#: fields whose values a 422 never quotes (a webhook's signing secret, a token, a password)
+SECRET_FIELDS = frozenset({"secret", "webhook_secret", "token", "password"})
+
+
+def _unquoted(loc: tuple, value: Any) -> Any:
+    """``value`` with any secret in it masked: the whole value when ``loc`` names a secret
+    field, else each secret field of a dict (a body-level error quotes the whole body)."""
+    if any(part in SECRET_FIELDS for part in loc):
+        return "***"
+    if isinstance(value, dict):
+        return {k: "***" if k in SECRET_FIELDS else v for k, v in value.items()}
+    return value
+
+
 async def _invalid(request: Request, exc: Exception) -> JSONResponse:
-    """FastAPI's 422, quoting no more than a short excerpt of each input at fault."""
+    """FastAPI's 422, quoting no more than a short excerpt of each input at fault, and never a
+    secret."""
     assert isinstance(exc, RequestValidationError)
-    errors = [{**error, "input": _excerpt(error.get("input"))} for error in exc.errors()]
+    errors = [
+        {**error, "input": _excerpt(_unquoted(tuple(error["loc"]), error.get("input")))}
+        for error in exc.errors()
+    ]
     return JSONResponse(
         {"detail": jsonable_encoder(errors, custom_encoder={float: _excerpt})}, status_code=422
     )
@@ -105,6 +124,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         imports,
         regressions,
         alerts,
+        learning,
     ):
         app.include_router(module.router)
     web.mount(app, settings)

@@ -18,6 +18,7 @@ from redline.server.core.tasks import (
     RENDER_TASK,
     REQUEUE_TASK,
     SCAN_ALERTS_TASK,
+    TRAIN_TASK,
 )
 from redline.server.db import session_scope
 from redline.server.models import Revision
@@ -28,6 +29,7 @@ from redline.worker.detection import detect_revision as run_detection
 from redline.worker.ingest import ingest_execution as run_ingest
 from redline.worker.ingest import stale_uploads
 from redline.worker.reanalysis import reanalyze_component as run_reanalysis
+from redline.worker.training import train_model as run_training
 from redline.worker.trends import render_component_trends, render_revision_trends
 from sqlalchemy import select
 from sqlalchemy.exc import InterfaceError, OperationalError
@@ -143,3 +145,10 @@ def deliver_alerts() -> dict:
     the beat schedule looks for them (`redline.worker.app`)."""
     done = deliver_due(_settings().database_url, _settings())
     return {"sent": done["sent"], "failed": done["failed"]}
+
+
+@celery_app.task(name=TRAIN_TASK, acks_late=True, **RETRY)
+def train_model(model_id: int) -> None:
+    """Fit a resource-usage model from the executions its request names."""
+    with analysing():
+        run_training(_settings().database_url, _settings().storage_dir, model_id)

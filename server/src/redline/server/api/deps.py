@@ -91,7 +91,8 @@ READ_COOKIE = "redline_token"
 def reader(*scopes: str) -> Callable[..., None]:
     """A dependency for reading: open unless ``REDLINE_READ_ACCESS=token``; then a token with
     one of ``scopes`` is needed, as a bearer header, the ``redline_token`` cookie or ``?token=``
-    (for the browser UI), or a signed-in session of the pages."""
+    (for the browser UI), or a signed-in session of the pages. Open or not, a bearer token that
+    is given must be live (401 otherwise): a mistyped CI secret is refused, never ignored."""
 
     def check(
         request: Request,
@@ -100,6 +101,13 @@ def reader(*scopes: str) -> Callable[..., None]:
         credentials: Annotated[HTTPAuthorizationCredentials | None, Depends(_bearer)],
     ) -> None:
         if settings.read_access != "token":
+            given = _bearer_secret(credentials)
+            if given and authenticate(session, given) is None:
+                raise HTTPException(
+                    status.HTTP_401_UNAUTHORIZED,
+                    "invalid or revoked token",
+                    headers={"WWW-Authenticate": "Bearer"},
+                )
             return
         signed_in = current(session, request.cookies.get(SESSION_COOKIE))
         if signed_in is not None and any(grants(signed_in.scopes, s) for s in ("read", "ci")):

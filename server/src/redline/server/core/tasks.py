@@ -25,6 +25,7 @@ RENDER_TASK = "redline.render_trends"
 SCAN_ALERTS_TASK = "redline.scan_alerts"
 DELIVER_TASK = "redline.deliver_alerts"
 DIGEST_TASK = "redline.send_digests"
+TRAIN_TASK = "redline.train_model"
 
 
 def alerts_queue(settings: Settings) -> str:
@@ -88,3 +89,6 @@ class TaskSender:
 
     def deliver(self) -> bool:
         return self.send(DELIVER_TASK)
+
+    def train(self, model_id: int) -> bool:
+        return self.send(TRAIN_TASK, model_id)

@@ -14,6 +14,7 @@ from redline.server.models.detection import (
     RegressionEvent,
     RegressionState,
 )
+from redline.server.models.learning import ResourceModelRow, RuntimeAlarm
 from redline.server.models.results import FigureCache, Series, Summary
 from redline.server.models.tokens import ApiToken, User, WebSession
 from redline.server.models.work import Component, Execution, Host, Job, JobState, Revision
@@ -36,6 +37,8 @@ __all__ = [
     "Job",
     "JobState",
     "Reanalysis",
+    "ResourceModelRow",
+    "RuntimeAlarm",
     "Regression",
     "RegressionEvent",
     "RegressionState",

@@ -25,7 +25,13 @@ from redline.server.services import (
     subscriptions,
     tokens,
 )
-from redline.server.services.errors import BadRequest, Conflict, Forbidden, NotFound
+from redline.server.services.errors import (
+    BadRequest,
+    Conflict,
+    Forbidden,
+    NotFound,
+    Unprocessable,
+)
 from redline.server.ui.pages import form_fields, page, page_router, problem, signed_in
 
 ADMIN = "admin"
@@ -42,9 +48,13 @@ def _admin(request: Request) -> None:
 
 
 def _errors(exc: ValidationError) -> str:
-    return "; ".join(
-        f"{'.'.join(str(p) for p in error['loc'])}: {error['msg']}" for error in exc.errors()
-    )
+    """Each error as "field: what is wrong" (pydantic's "Value error, " left out)."""
+    said = []
+    for error in exc.errors():
+        field = ".".join(str(p) for p in error["loc"])
+        message = str(error["msg"]).removeprefix("Value error, ")
+        said.append(f"{field}: {message}" if field else message)
+    return "; ".join(said)
 
 
 def _settings(request: Request, session: SessionDep, created: str | None) -> HTMLResponse:
@@ -116,7 +126,7 @@ async def subscribe_form(name: str, request: Request, session: SessionDep) -> Re
         except ValueError as exc:
             raise BadRequest(f"minimum effect: a number ({exc})") from None
         subscriptions.create_subscription(session, name, data)
-    except (Forbidden, NotFound, BadRequest) as exc:
+    except (Forbidden, NotFound, BadRequest, Unprocessable) as exc:
         return problem(request, exc)
     return RedirectResponse(f"/settings/components/{name}#alerts", status_code=303)
 

@@ -4,15 +4,18 @@ and the CI verdict of a revision."""
 from __future__ import annotations
 
 from datetime import datetime
-from typing import Annotated, Literal, Self
+from typing import Annotated, Literal
 from urllib.parse import urlsplit
 
-from pydantic import AfterValidator, BaseModel, Field, model_validator
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field
 
 _ADDRESS = r"^[^@\s<>,;\"]+@[^@\s<>,;\"]+\.[^@\s<>,;\"]+$"
 
 
 def http_url(value: str) -> str:
+    """``value`` if it is an http(s) URL with a host ("" passes: none given)."""
+    if not value:
+        return value
     parts = urlsplit(value)
     if parts.scheme not in ("http", "https") or not parts.hostname:
         raise ValueError("must be an http:// or https:// URL with a host")
@@ -23,6 +26,7 @@ HttpUrl = Annotated[str, Field(max_length=2000), AfterValidator(http_url)]
 
 
 class SubscriptionFilters(BaseModel):
+    model_config = ConfigDict(extra="forbid")  # a misspelt filter is refused, never ignored
     counters: list[Annotated[str, Field(min_length=1, max_length=200)]] | None = Field(
         default=None,
         max_length=100,
@@ -47,19 +51,9 @@ class SubscriptionFilters(BaseModel):
 class SubscriptionCreate(SubscriptionFilters):
     kind: Literal["email", "webhook"]
     address: str = Field(default="", max_length=320, pattern=_ADDRESS + "|^$")
-    url: Annotated[str, Field(max_length=2000)] = ""
+    url: HttpUrl = ""
     secret: str = Field(default="", max_length=500, description="signs webhook bodies")
     format: Literal["redline", "slack"] = "redline"
-
-    @model_validator(mode="after")
-    def _target(self) -> Self:
-        if self.kind == "email" and not self.address:
-            raise ValueError("an email subscription needs an address")
-        if self.kind == "webhook":
-            if not self.url:
-                raise ValueError("a webhook subscription needs a url")
-            http_url(self.url)
-        return self
 
 
 class SubscriptionUpdate(SubscriptionFilters):
@@ -139,6 +133,7 @@ class CiVerdict(BaseModel):
         "its jobs failed or were cancelled"
     )
     waiting_for: str = Field(default="", description="what a pending verdict waits for")
+    reason: str = Field(default="", description="why a failed one failed (its jobs' reasons)")
     regressions: int = Field(description="changes for the worse, not dropped by confirmation")
     improvements: int
     skipped: int = Field(description="test cases without a verdict (not enough data)")

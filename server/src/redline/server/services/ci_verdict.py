@@ -28,11 +28,16 @@ FINISHED = (JobState.done, JobState.failed, JobState.cancelled)
 
 
 def _pending(session: Session, revision: Revision) -> tuple[str, str]:
-    """The verdict's state and, while pending, what it waits for."""
-    own = [job.state for job in revision.jobs if job.pair == 0]
-    state = revision_state(own, analyzed=revision.analyzed_at is not None)
+    """The verdict's state and, while pending, what it waits for (failed: why)."""
+    own = [job for job in revision.jobs if job.pair == 0]
+    state = revision_state([job.state for job in own], analyzed=revision.analyzed_at is not None)
     if state in ("failed", "cancelled"):
-        return "failed", ""
+        why = [
+            f"job {job.id} {job.state.value}: {job.reason or 'no reason given'}"
+            for job in own
+            if job.state in (JobState.failed, JobState.cancelled)
+        ]
+        return "failed", "; ".join(why)
     if state != "done":
         waits = {
             "empty": "jobs to be created",
@@ -71,7 +76,7 @@ def ci_verdict(session: Session, component_name: str, title: str) -> CiVerdict:
     )
     if revision is None:
         raise NotFound(f"component {component_name!r} has no revision {title!r}")
-    state, waiting = _pending(session, revision)
+    state, said = _pending(session, revision)
     alarming = component_config(session, component.id).alarming
     groups: dict[tuple[str, str, str], list[tuple[Detection, Series]]] = defaultdict(list)
     for detection, series in session.execute(
@@ -110,7 +115,8 @@ def ci_verdict(session: Session, component_name: str, title: str) -> CiVerdict:
         component=component.name,
         revision=revision.title,
         state=state,
-        waiting_for=waiting,
+        waiting_for=said if state == "pending" else "",
+        reason=said if state == "failed" else "",
         regressions=regressions,
         improvements=improvements,
         skipped=skipped,
@@ -122,11 +128,11 @@ def ci_verdict(session: Session, component_name: str, title: str) -> CiVerdict:
 def _describe(change: dict[str, Any]) -> str:
     effect = "n/a" if change["effect"] is None else f"{change['effect'] * 100:+.1f} %"
     p_value = "n/a" if change["p_value"] is None else f"{change['p_value']:.2g}"
+    state, why = change["confirmation"], change["confirmation_reason"]
+    confirmation = why if why.startswith(state) else f"{state}: {why}" if why else state
     return (
         f"{change['process']} {change['counter']} {effect} ({change['method']}, p={p_value}, "
-        f"confirmation: {change['confirmation']}"
-        + (f": {change['confirmation_reason']}" if change["confirmation_reason"] else "")
-        + ")"
+        f"confirmation: {confirmation})"
     )
 
 
@@ -137,7 +143,13 @@ def junit_xml(verdict: CiVerdict, fail_on: str = "regression") -> str:
     suite = ElementTree.Element(
         "testsuite", name=f"redline.{verdict.component}", tests=str(len(verdict.cases))
     )
-    failures = skipped = 0
+    failures = skipped = errors = 0
+    if verdict.state == "failed":  # no green report for a revision whose jobs never ran
+        errors += 1
+        element = ElementTree.SubElement(
+            suite, "testcase", classname=f"redline.{verdict.component}", name="performance jobs"
+        )
+        ElementTree.SubElement(element, "error", message=verdict.reason or "the jobs failed")
     for case in verdict.cases:
         element = ElementTree.SubElement(
             suite,
@@ -169,5 +181,6 @@ def junit_xml(verdict: CiVerdict, fail_on: str = "regression") -> str:
             )
     suite.set("failures", str(failures))
     suite.set("skipped", str(skipped))
-    suite.set("errors", "0")
+    suite.set("errors", str(errors))
+    suite.set("tests", str(len(verdict.cases) + errors))
     return ElementTree.tostring(suite, encoding="unicode", xml_declaration=True)

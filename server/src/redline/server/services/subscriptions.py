@@ -10,7 +10,7 @@ from redline.server.schemas.alerts import (
     SubscriptionUpdate,
 )
 from redline.server.services.components import get_component
-from redline.server.services.errors import NotFound
+from redline.server.services.errors import NotFound, Unprocessable
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
@@ -46,9 +46,24 @@ def _scope(session: Session, component: str | None) -> int | None:
     return None if component is None else get_component(session, component).id
 
 
+def _check_target(kind: str, address: str, url: str, secret: str, format_: str) -> None:
+    """Unprocessable unless the fields a kind takes are given, and no other kind's."""
+    if kind == "email":
+        if not address:
+            raise Unprocessable("address: an email subscription needs one")
+        if url or secret or format_ != "redline":
+            raise Unprocessable("url, secret, format: an email subscription takes none of them")
+    else:
+        if not url:
+            raise Unprocessable("url: a webhook subscription needs one")
+        if address:
+            raise Unprocessable("address: a webhook subscription takes none (it has a url)")
+
+
 def create_subscription(
     session: Session, component: str | None, data: SubscriptionCreate
 ) -> SubscriptionOut:
+    _check_target(data.kind, data.address, data.url, data.secret, data.format)
     fields = data.model_dump()
     for key, default in DEFAULTS.items():
         if fields[key] is None:
@@ -91,6 +106,13 @@ def update_subscription(
     for field, value in data.model_dump(exclude_unset=True).items():
         if value is not None:
             setattr(subscription, field, value)
+    _check_target(
+        subscription.kind,
+        subscription.address,
+        subscription.url,
+        subscription.secret,
+        subscription.format,
+    )
     session.commit()
     return subscription_out(subscription, component)
 

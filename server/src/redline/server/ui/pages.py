@@ -13,7 +13,7 @@ from redline.server.api.deps import READ, SessionDep
 from redline.server.core.bodies import JsonRoute
 from redline.server.models import WebSession
 from redline.server.services import signin
-from redline.server.services.errors import BadRequest, Conflict, Forbidden, NotFound
+from redline.server.services.errors import ServiceError
 
 
 def _web_session(request: Request, session: SessionDep) -> None:
@@ -44,7 +44,8 @@ def page(
     return templates.TemplateResponse(request, template, context, status_code=status_code)
 
 
-def problem(request: Request, exc: NotFound | BadRequest | Forbidden | Conflict) -> HTMLResponse:
+def problem(request: Request, exc: ServiceError) -> HTMLResponse:
+    """The error page for a service error, with its status and message."""
     code = exc.status_code
     return page(request, "not_found.html", {"message": exc.detail, "code": code}, code)
 

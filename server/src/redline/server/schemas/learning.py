@@ -1,0 +1,54 @@
+"""Resource-usage models: what to train on, a model as the API shows it, run-time alerts."""
+
+from __future__ import annotations
+
+from datetime import datetime
+from typing import Any
+
+from pydantic import BaseModel, ConfigDict, Field
+
+
+class ModelRequest(BaseModel):
+    """What to train on: executions chosen by revision titles and/or ids (none named: the newest
+    revision's), optionally only one test case's segments, and the process to model."""
+
+    model_config = ConfigDict(extra="forbid")
+    revisions: list[str] = Field(default_factory=list, max_length=1000)
+    executions: list[int] = Field(default_factory=list, max_length=10_000)
+    case: str | None = Field(default=None, max_length=200, description="one test case only")
+    process: str | None = Field(
+        default=None, max_length=200, description="the component process (default: the only one)"
+    )
+
+
+class ModelOut(BaseModel):
+    id: int
+    component: str
+    state: str = Field(description="queued, running, done or failed")
+    error: str
+    request: dict[str, Any]
+    process: str
+    metrics: dict[str, Any] = Field(
+        description="per target: cv_rmse, cv_baseline_rmse, cv_ratio, threshold, grid point"
+    )
+    provenance: dict[str, Any]
+    created: datetime
+    finished: datetime | None
+    file: str | None = Field(description="where to download the model file for `redline watch`")
+
+
+class RuntimeAlertIn(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    target: str = Field(min_length=1, max_length=50)
+    started: bool = Field(description="a fault began (true) or ended (false)")
+    residual: float = Field(allow_inf_nan=False)
+    threshold: float = Field(allow_inf_nan=False)
+    step: int = Field(default=0, ge=0)
+    model: int | None = Field(default=None, description="the server's model id, if from there")
+    host: str = Field(default="", max_length=200)
+    process: str = Field(default="", max_length=200)
+
+
+class RuntimeAlertOut(RuntimeAlertIn):
+    id: int
+    at: datetime
