@@ -6,6 +6,7 @@ token; and the bad input that must be refused or fail naming its cause."""
 from __future__ import annotations
 
 import hashlib
+import json
 from pathlib import Path
 
 import pytest
@@ -108,3 +109,23 @@ def test_runtime_alerts_are_reported_with_an_agent_token_and_listed(api):
     assert ghost.status_code == 404 and "no model 42" in ghost.text
     (listed,) = api.client.get(f"{BASE}/runtime-alerts").json()
     assert (listed["host"], listed["residual"], listed["started"]) == ("robot1", 75.0, True)
+
+
+def test_the_pages_show_models_with_their_chart_and_runtime_alerts(api, tmp_path):
+    first = executed(api, tmp_path, "r1", [1, 4, 7, 10, 13])
+    model = train(api, {"executions": [first]})
+    api.post(
+        f"{BASE}/runtime-alerts",
+        "agent",
+        {"target": "cpu_percent", "started": True, "residual": 75.0, "threshold": 9.5},
+    )
+    page = api.client.get("/components/builder").text
+    assert f'href="/components/builder/models/{model["id"]}"' in page
+    assert "cpu_percent fault" in page and "+75" in page
+    detail = api.client.get(f"/components/builder/models/{model['id']}")
+    assert detail.status_code == 200 and "alarm threshold" in detail.text
+    figures = detail.text.split('id="figure-data">', 1)[1].split("</script>", 1)[0]
+    (cpu, _) = json.loads(figures)
+    assert [trace["name"] for trace in cpu["data"]] == ["measured", "predicted"]
+    assert len(cpu["data"][0]["y"]) == len(cpu["data"][1]["y"]) > 10
+    assert api.client.get("/components/builder/models/999").status_code == 404

@@ -30,6 +30,7 @@ from redline.server.services import (
     dashboard,
     execution_view,
     home,
+    learning,
     regressions,
     revisions,
     signin,
@@ -42,6 +43,7 @@ from redline.server.ui.figures import (
     trend_charts,
     why_figures,
 )
+from redline.server.ui.model_figures import model_figures
 from redline.server.ui.pages import form_fields, page, page_router, problem, signed_in
 
 PLOTLY_JS = Path(plotly.__file__).parent / "package_data" / "plotly.min.js"
@@ -90,6 +92,25 @@ def component_page(name: str, request: Request, session: SessionDep) -> HTMLResp
             "revisions": newest,
             "verdicts": revisions.revision_verdicts(session, name, [r.title for r in newest]),
             "regressions": regressions.list_regressions(session, name, limit=LISTED)[0],
+            "models": learning.list_models(session, name)[:LISTED],
+            "runtime_alerts": learning.list_alerts(session, name, LISTED),
+        },
+    )
+
+
+@router.get("/components/{name}/models/{ident}", response_class=HTMLResponse)
+def model_page(name: str, ident: int, request: Request, session: SessionDep) -> HTMLResponse:
+    try:
+        row = learning.get_model(session, name, ident)
+    except NotFound as exc:
+        return problem(request, exc)
+    return page(
+        request,
+        "model.html",
+        {
+            "component": name,
+            "model": learning.model_out(row, name),
+            "figures": model_figures(row.plot or {}),
         },
     )
 
