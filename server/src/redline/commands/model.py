@@ -54,8 +54,12 @@ def fit(
     )
     for target, found in model.metrics.items():
         typer.echo(
-            f"  {target}: cross-validated RMSE {found['cv_rmse']:.4g} = "
-            f"{found['cv_ratio']:.0%} of predicting the mean"
+            f"  {target}: cross-validated RMSE {found['cv_rmse']:.4g}"
+            + (
+                f" = {found['cv_ratio']:.0%} of predicting the mean"
+                if found["cv_ratio"] is not None
+                else " (the target is constant)"
+            )
         )
 
 

@@ -162,7 +162,8 @@ class ModelFile:
             metrics[target] = {
                 "cv_rmse": fitted.cv_rmse_,
                 "cv_baseline_rmse": float(np.std(y)),
-                "cv_ratio": fitted.cv_rmse_ / float(np.std(y)) if np.std(y) > 0 else float("inf"),
+                # None, not inf, for a constant target: JSON (and Postgres) has no infinity
+                "cv_ratio": fitted.cv_rmse_ / float(np.std(y)) if np.std(y) > 0 else None,
                 "threshold": fitted.threshold_,
                 **{k: float(v) for k, v in fitted.best_params_.items()},
             }
