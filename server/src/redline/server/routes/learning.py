@@ -43,7 +43,7 @@ def get_model(name: str, ident: int, session: SessionDep) -> ModelOut:
 
 @router.get(
     "/{name}/models/{ident}/file",
-    responses=NOT_FOUND,
+    responses={**NOT_FOUND, 200: {"content": {"application/octet-stream": {}}}},
     dependencies=READ,
     response_class=FileResponse,
 )
