@@ -28,6 +28,7 @@ from pathlib import Path
 from redline.predict.dataset import DataError, dataset, read_run
 from redline.predict.model import ModelFile
 from redline.recording.disturbance import recording_disturbances, threshold
+from redline.recording.format import canonical_params
 from redline.recording.reader import Segment, read_recording
 
 LEGS = {"d": list(range(1, 23, 3)), "l": list(range(1, 14, 3)), "m": list(range(1, 29, 3))}
@@ -62,8 +63,6 @@ def main() -> int:
     print(f"{len(disturbed)} of {len(run.segments)} segments disturbed by other load (left out)")
 
     def clean(segment: Segment) -> bool:
-        from redline.recording.format import canonical_params
-
         return (segment.case, segment.phase, canonical_params(segment.params)) not in skip
 
     results = []

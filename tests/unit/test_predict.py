@@ -11,7 +11,7 @@ import pytest
 from redline.predict.dataset import DataError, dataset, read_run
 from redline.predict.features import NS, FeatureSpec, _range_max, extract, unseen
 from redline.predict.model import ModelFile
-from redline.predict.watch import HOLD, EventWindow, Residuals, calibrate
+from redline.predict.watch import HOLD, EventWindow, Residuals, calibrate, smooth
 
 from tests.support.predict import SMALL, record
 
@@ -111,7 +111,9 @@ def test_the_threshold_is_calibrated_on_held_out_residuals_with_a_floor():
     rng = np.random.default_rng(4)
     groups = [rng.normal(0, 2.0, 200) for _ in range(5)]
     threshold = calibrate(groups, level=50.0)
-    assert threshold > 1.5 * np.quantile(np.abs(np.concatenate(groups)), 0.9) * 0.3
+    # the model's own errors on unseen data never alarm, yet the threshold stays near their size
+    largest = max(np.abs(smooth(g)).max() for g in groups)
+    assert largest < threshold < 3 * largest
     assert calibrate([np.zeros(50)], level=1e8) == pytest.approx(0.05 * 1e8)  # a constant RSS
 
 

@@ -156,13 +156,13 @@ def wait(
                         said = verdict["waiting_for"]
                         typer.echo(f"waiting for {said} ({waited:.0f} s)", err=True)
             if waited + poll > timeout:
-                late = f"no verdict within {timeout:.0f} s: " + (
-                    f"still waiting for {said}"
-                    if said
-                    else "the revision did not appear"
-                    if reached
-                    else f"the server at {server} was never reached"
-                )
+                if said:
+                    why = f"still waiting for {said}"
+                elif reached:
+                    why = "the revision did not appear"
+                else:
+                    why = f"the server at {server} was never reached"
+                late = f"no verdict within {timeout:.0f} s: {why}"
                 if junit is not None:
                     _junit_error(junit, component, revision, late)
                 _stop(BAD_INPUT, late)

@@ -77,7 +77,7 @@ def flagged_changes(session: Session, component: Component, since: datetime) -> 
     alarming = component_config(session, component.id).alarming
     baseline = aliased(Revision)
     rows = session.execute(
-        select(Detection, Series, Revision, baseline.title, Regression)
+        select(Detection, Series, Revision, baseline.title)
         .join(Series, Series.id == Detection.series_id)
         .join(Revision, Revision.id == Detection.revision_id)
         .outerjoin(baseline, baseline.id == Detection.baseline_revision_id)
@@ -92,7 +92,7 @@ def flagged_changes(session: Session, component: Component, since: datetime) -> 
         .order_by(Detection.id)
     ).all()
     changes = []
-    for detection, series, revision, baseline_title, _ in rows:
+    for detection, series, revision, baseline_title in rows:
         is_worse = detection.direction == worse(series.process, series.counter)
         if is_worse and detection.regression_id is None:
             continue  # not grouped (no span): nothing to point at yet

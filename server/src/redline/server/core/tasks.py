@@ -87,8 +87,5 @@ class TaskSender:
     def reanalyze(self, component_id: int) -> bool:
         return self.send(REANALYZE_TASK, component_id)
 
-    def deliver(self) -> bool:
-        return self.send(DELIVER_TASK)
-
     def train(self, model_id: int) -> bool:
         return self.send(TRAIN_TASK, model_id)

@@ -129,7 +129,9 @@ def _describe(change: dict[str, Any]) -> str:
     effect = "n/a" if change["effect"] is None else f"{change['effect'] * 100:+.1f} %"
     p_value = "n/a" if change["p_value"] is None else f"{change['p_value']:.2g}"
     state, why = change["confirmation"], change["confirmation_reason"]
-    confirmation = why if why.startswith(state) else f"{state}: {why}" if why else state
+    confirmation = state  # the reason, when there is one, names the state itself or follows it
+    if why:
+        confirmation = why if why.startswith(state) else f"{state}: {why}"
     return (
         f"{change['process']} {change['counter']} {effect} ({change['method']}, p={p_value}, "
         f"confirmation: {confirmation})"
