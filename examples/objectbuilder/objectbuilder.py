@@ -12,6 +12,11 @@ payload, the persons as the reply), after `tuning.REPLY_DELAY_US` of waiting; wi
 
 Opens zenoh with ``zenoh.Config.from_env()`` (``ZENOH_CONFIG``), prints ``objectbuilder ready``
 once its subscribers and publisher are declared, and exits cleanly on SIGTERM or SIGINT.
+
+``--faults FILE`` lets a test inject a resource fault into the running component (for
+`redline watch`): while FILE exists and names one, ``busy`` spins a thread (CPU its traffic does
+not explain), ``leak`` keeps 256 KiB more every 50 ms, and ``stall`` blocks the leg workers (its
+messages queue up unprocessed).
 """
 
 from __future__ import annotations
@@ -58,6 +63,8 @@ class ObjectBuilder:
         self._publisher = publisher
         self._pose = (0.0, 0.0, 0.0)
         self._lock = threading.Lock()
+        self.running = threading.Event()  # cleared by a "stall" fault
+        self.running.set()
 
     def on_pose(self, data: bytes) -> None:
         pose = json.loads(data)
@@ -79,6 +86,7 @@ class ObjectBuilder:
         return json.dumps({"stamp": message.get("stamp"), "persons": persons})
 
     def on_legs(self, data: bytes) -> None:
+        self.running.wait()
         self._publisher.put(self.fuse(data), encoding="application/json")
 
 
@@ -120,6 +128,34 @@ def _person(
     return {"x": px + cos * mx - sin * my, "y": py + sin * mx + cos * my, "score": score}
 
 
+FAULTS = ("busy", "leak", "stall")
+LEAK_BYTES, LEAK_EVERY_S = 256 * 1024, 0.05
+
+
+def inject_faults(path: str, builder: ObjectBuilder, stop: threading.Event) -> None:
+    """Acts out the fault that ``path`` names while the file exists (see the module's doc)."""
+    leaked: list[bytearray] = []
+    while not stop.is_set():
+        try:
+            with open(path, encoding="utf-8") as file:
+                fault = file.read().strip()
+        except FileNotFoundError:
+            fault = ""
+        if fault == "stall":
+            builder.running.clear()
+        else:
+            builder.running.set()
+        end = time.monotonic() + LEAK_EVERY_S
+        if fault == "busy":
+            while time.monotonic() < end:
+                pass
+        else:
+            if fault == "leak":
+                leaked.append(bytearray(b"\x01" * LEAK_BYTES))  # touched: resident, not reserved
+            stop.wait(LEAK_EVERY_S)
+    builder.running.set()
+
+
 def _guarded(work: Any, data: bytes) -> None:
     try:
         work(data)
@@ -134,6 +170,9 @@ def main(argv: list[str] | None = None) -> int:
         "--prefix",
         default="objectbuilder",
         help="key prefix of its inputs and output (several can run side by side)",
+    )
+    parser.add_argument(
+        "--faults", metavar="FILE", help=f"inject the fault FILE names ({', '.join(FAULTS)})"
     )
     args = parser.parse_args(argv)
     stop = threading.Event()
@@ -157,12 +196,17 @@ def main(argv: list[str] | None = None) -> int:
         )
         locator = Locator(builder, keys[LOCATE_KEY])
         session.declare_queryable(keys[LOCATE_KEY], locator.on_query)
+        if args.faults:
+            threading.Thread(
+                target=inject_faults, args=(args.faults, builder, stop), daemon=True
+            ).start()
         print(
             f"objectbuilder ready (threads={args.threads}, work per pair={WORK_PER_PAIR})",
             flush=True,
         )
         while not stop.wait(0.2):  # a timed wait keeps signal handlers responsive
             pass
+    builder.running.set()
     legs_pool.shutdown(wait=True, cancel_futures=True)
     pose_pool.shutdown(wait=True, cancel_futures=True)
     print("objectbuilder stopped", flush=True)

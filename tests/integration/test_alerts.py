@@ -27,7 +27,7 @@ from redline.server.models import (
 )
 from redline.server.schemas.regressions import TriageRequest
 from redline.server.services.regressions import triage
-from redline.worker.alerts import commit_status, scan_component, send_digests
+from redline.worker.alerts import commit_status, runtime_alerts, scan_component, send_digests
 from redline.worker.deliver import claim, deliver_due
 from redline.worker.detection import detect_revision
 from redline.worker.ingest import ingest_execution
@@ -490,3 +490,57 @@ def test_a_wrong_token_is_refused_even_where_reading_is_open(api):
     wrong = api.client.get(path, headers={"Authorization": "Bearer rl_mistyped"})
     assert wrong.status_code == 401 and "invalid or revoked token" in wrong.text
     assert api.client.get(path).status_code == 404  # no token: open reading, no such revision
+
+
+def test_a_runtime_fault_reaches_the_subscriptions_that_want_its_target_once(
+    api, mailbox, receiver
+):
+    hook = subscribe(api, {"kind": "webhook", "url": receiver.url + "/hook"})
+    subscribe(api, {"kind": "email", "address": "mem@robots.example", "counters": ["rss_bytes"]})
+    fault = {"target": "cpu_percent", "started": True, "residual": 61.5, "threshold": 4.0,
+             "step": 60, "host": "robot-1", "process": "objectbuilder"}  # fmt: skip
+    answer = api.post(f"{BASE}/runtime-alerts", "agent", fault)
+    assert answer.status_code == 201, answer.text
+    database_url = api.settings.database_url
+    for _ in range(2):  # a retried task tells no one twice
+        with session_factory(database_url)() as session:
+            runtime_alerts(session, answer.json()["id"])
+            session.commit()
+    deliver_due(database_url, api.settings)
+
+    (call,) = receiver.to("/hook")
+    body = json.loads(call.body)
+    jsonschema.validate(body, SCHEMA)
+    assert body["event"] == "runtime_fault" == call.headers["X-Redline-Event"]
+    (told,) = body["alerts"]
+    assert told["summary"] == (
+        "builder: run-time fault: cpu_percent above what its traffic predicts by 61.5 "
+        "(threshold 4) (objectbuilder on robot-1)"
+    )
+    assert (
+        told["runtime"]["page_url"] == "https://redline.example/components/builder#runtime-alerts"
+    )
+    assert not mailbox.messages  # that subscription wants rss_bytes only
+    assert [d["event"] for d in deliveries(api, hook["id"])] == ["runtime_fault"]
+
+    # its end, and a leak, reach the mail subscription too; one made later hears nothing earlier
+    ended = api.post(f"{BASE}/runtime-alerts", "agent", {**fault, "started": False}).json()
+    leak = api.post(
+        f"{BASE}/runtime-alerts", "agent", {**fault, "target": "rss_bytes", "residual": 9e6}
+    ).json()
+    subscribe(api, {"kind": "webhook", "url": receiver.url + "/later"})
+    with session_factory(database_url)() as session:
+        for alarm in (ended, leak):
+            runtime_alerts(session, alarm["id"])
+        session.commit()
+    deliver_due(database_url, api.settings)
+    assert [json.loads(c.body)["event"] for c in receiver.to("/hook")] == [
+        "runtime_fault", "runtime_fault.over", "runtime_fault"
+    ]  # fmt: skip
+    (mail,) = mailbox.messages
+    assert mail["Subject"].startswith("[Redline] builder: run-time fault: rss_bytes above")
+    assert (
+        "https://redline.example/components/builder#runtime-alerts"
+        in mail.get_body(("plain",)).get_content()
+    )
+    assert not receiver.to("/later")

@@ -12,7 +12,7 @@ import redis
 from fastapi.testclient import TestClient
 from redline.server.app import create_app
 from redline.server.core.config import Settings
-from redline.server.core.tasks import broker_url
+from redline.server.core.tasks import broker_url, queue_of
 from redline.server.db import session_factory
 from redline.server.models import ApiToken, Execution, Job
 from redline.worker.detection import detect_revision
@@ -242,7 +242,9 @@ def test_valid_upload_stores_the_execution_and_queues_ingestion(api: Api, tmp_pa
         api.settings.storage_dir / "recordings" / f"{stored['execution']['sha256']}.mcap"
     ).read_bytes() == data
     broker = redis.Redis.from_url(api.settings.redis_url)
-    assert broker.llen(api.settings.queue) == 1  # the ingest task waits in the real broker
+    # the ingest task waits in the real broker, on the queue of ingestion
+    assert broker.llen(queue_of(api.settings, "ingest")) == 1
+    assert broker.llen(queue_of(api.settings, "detect")) == 0
     assert broker_url("unix:///tmp/r.sock") == "redis+socket:///tmp/r.sock"
 
 

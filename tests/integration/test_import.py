@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 import redis
 from redline.recording import SeriesKey, canonical_params
-from redline.server.core.tasks import DETECT_TASK
+from redline.server.core.tasks import DETECT_TASK, QUEUE_KINDS, queue_of
 from redline.server.db import session_factory
 from redline.server.services.imports import ImportedRun, store_import
 
@@ -159,7 +159,11 @@ def test_a_series_without_a_finite_value_gets_no_summary(api: Api):
 
 def _queued_tasks(api: Api) -> list[tuple[str, str]]:
     broker = redis.Redis.from_url(api.settings.redis_url)
-    messages = [json.loads(raw) for raw in broker.lrange(api.settings.queue, 0, -1)]
+    messages = [
+        json.loads(raw)
+        for kind in QUEUE_KINDS
+        for raw in broker.lrange(queue_of(api.settings, kind), 0, -1)
+    ]
     return [(m["headers"]["task"], m["headers"]["argsrepr"]) for m in messages]
 
 

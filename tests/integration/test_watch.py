@@ -63,9 +63,14 @@ def test_watch_is_quiet_while_usage_matches_and_alarms_within_10_s_of_a_busy_thr
 
         def drive() -> None:  # one leg at 30 Hz: the model expects under 1 % of a core
             with open_client(network.client_settings()) as session:
-                publisher = session.declare_publisher("robot/legs")
+                legs = session.declare_publisher("robot/legs")
+                persons = session.declare_publisher("robot/persons")  # what it answers, at 10 Hz
+                sent = 0
                 while not stop.wait(1 / 30):
-                    publisher.put(b"x" * 16)
+                    legs.put(b"x" * 16)
+                    if sent % 3 == 0:
+                        persons.put(b"p" * 8)
+                    sent += 1
 
         driver = threading.Thread(target=drive, daemon=True)
         driver.start()
@@ -101,7 +106,7 @@ def test_watch_is_quiet_while_usage_matches_and_alarms_within_10_s_of_a_busy_thr
     alarmed = lines.index(line) if line in lines else len(lines)
     before = [item for item in lines[:alarmed] if item.get("target") == "cpu_percent"]
     assert not before, f"an alarm before the fault: {before}\n{errors}"
-    assert injected is not None, errors
+    assert injected is not None, f"{lines}\n{errors}"
     assert detected is not None and detected <= 10.0, (detected, errors)
     steps = [item for item in lines if "predicted" in item]
     assert min(item["heard"] for item in steps[2:]) >= 20  # the legs, at 30 Hz

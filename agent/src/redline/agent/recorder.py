@@ -132,7 +132,7 @@ class Recorder:
             encoding = self._encodings.get(key)
             if encoding is None:
                 encoding = self._encodings[key] = str(sample.encoding)
-            arrived = _arrival(sample)
+            arrived = arrival_ns(sample)
             if count == 0:  # how far behind the writer is, once per batch
                 self.lag_max_ns = max(self.lag_max_ns, time.time_ns() - arrived)
             write(key, sample.payload.to_bytes(), encoding=encoding, t_ns=arrived)
@@ -196,7 +196,7 @@ class Recorder:
         self.writer.close()
 
 
-def _arrival(sample: zenoh.Sample) -> int:
+def arrival_ns(sample: zenoh.Sample) -> int:
     """When the sample reached the run's router (which stamps every sample it routes), not when
     the writer got to it: the FIFO may hold a backlog. Now, for a sample without a stamp."""
     stamp = sample.timestamp

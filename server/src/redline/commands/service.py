@@ -7,9 +7,10 @@ this module to build the CLI.
 
 from __future__ import annotations
 
+import contextlib
 import functools
-from collections.abc import Callable
-from typing import TYPE_CHECKING, Annotated, ParamSpec, TypeVar
+from collections.abc import Callable, Iterator
+from typing import TYPE_CHECKING, Annotated, Any, ParamSpec, TypeVar
 
 import typer
 
@@ -67,10 +68,17 @@ def migrate_cmd() -> None:
 def server_cmd(
     host: Annotated[str, typer.Option(help="interface to listen on")] = "127.0.0.1",
     port: Annotated[int, typer.Option(help="TCP port")] = 8080,
+    workers: Annotated[
+        int,
+        typer.Option(
+            min=1,
+            help="API processes on the one port (each with its own database pool: "
+            "docs/operations.md); metrics are summed over them",
+        ),
+    ] = 1,
 ) -> None:
     """Migrate the database, then serve the API and the UI."""
     import uvicorn
-    from redline.server.app import create_app
     from redline.server.core.logs import configure
     from redline.server.db import migrate
 
@@ -79,40 +87,76 @@ def server_cmd(
     migrate(settings.database_url, settings.migrations_dir)
     # an agent's long poll holds a request up to 20 s: on shutdown it is cut after a moment
     # (the agent retries), instead of keeping the server waiting
-    uvicorn.run(
-        create_app(settings),
-        host=host,
-        port=port,
-        log_config=None,
-        timeout_graceful_shutdown=SHUTDOWN_GRACE_S,
-    )
+    if workers == 1:
+        from redline.server.app import create_app
+
+        app: Any = create_app(settings)
+        counted: contextlib.AbstractContextManager[None] = contextlib.nullcontext()
+    else:  # each process builds its own app from the environment, as this one read it
+        app, counted = "redline.server.app:app_from_environment", _metrics_folder()
+    with counted:
+        uvicorn.run(
+            app,
+            factory=workers > 1,
+            workers=workers,
+            host=host,
+            port=port,
+            log_config=None,
+            timeout_graceful_shutdown=SHUTDOWN_GRACE_S,
+        )
+
+
+@contextlib.contextmanager
+def _metrics_folder() -> Iterator[None]:
+    """``PROMETHEUS_MULTIPROC_DIR`` for the API processes: the operator's (emptied first: files
+    of processes gone would count twice), else a temporary one removed at the end."""
+    import os
+    import shutil
+    import tempfile
+    from pathlib import Path
+
+    given = os.environ.get("PROMETHEUS_MULTIPROC_DIR")
+    folder = Path(given) if given else Path(tempfile.mkdtemp(prefix="redline-metrics-"))
+    folder.mkdir(parents=True, exist_ok=True)
+    for stale in folder.glob("*.db"):
+        stale.unlink()
+    os.environ["PROMETHEUS_MULTIPROC_DIR"] = str(folder)
+    try:
+        yield
+    finally:
+        if not given:
+            shutil.rmtree(folder, ignore_errors=True)
 
 
 def worker_cmd(
     concurrency: Annotated[int, typer.Option(help="worker processes (or threads)")] = 1,
     loglevel: Annotated[str, typer.Option(help="Celery log level")] = "INFO",
-    beat: Annotated[bool, typer.Option(help="also run the periodic tasks (retention)")] = True,
+    beat: Annotated[
+        bool,
+        typer.Option(help="also run the periodic tasks (retention, digests): in one worker only"),
+    ] = True,
     queues: Annotated[
         str,
         typer.Option(
-            help="all; analysis (ingestion, detection, alert scans); alerts (deliveries: give "
-            "them a worker of their own so a slow receiver never waits in front of analysis)"
+            help="the kinds of work this worker takes, comma-separated: ingest, detect, render, "
+            "alerts (deliveries: give them a worker of their own so a slow receiver never waits "
+            "in front of analysis); analysis = ingest,detect,render; all = every kind"
         ),
     ] = "all",
 ) -> None:
     """Run a Celery worker that ingests recordings, detects changes and sends alerts."""
-    from redline.server.core.tasks import alerts_queue
+    from redline.server.core.tasks import QUEUE_KINDS, queue_of
     from redline.worker.app import celery_app
 
     settings = celery_app.conf.redline_settings
-    chosen = {
-        "all": [settings.queue, alerts_queue(settings)],
-        "analysis": [settings.queue],
-        "alerts": [alerts_queue(settings)],
-    }.get(queues)
-    if chosen is None:
+    named = {"all": list(QUEUE_KINDS), "analysis": ["ingest", "detect", "render"]}
+    kinds = [k for word in queues.split(",") for k in named.get(word.strip(), [word.strip()])]
+    unknown = [kind for kind in kinds if kind not in QUEUE_KINDS]
+    if unknown or not kinds:
         raise typer.BadParameter(
-            f"{queues!r}: choose all, analysis or alerts", param_hint="--queues"
+            f"{', '.join(unknown) or queues!r}: choose from all, analysis, "
+            + ", ".join(QUEUE_KINDS),
+            param_hint="--queues",
         )
     schedule = settings.storage_dir / "celerybeat-schedule"
     schedule.parent.mkdir(parents=True, exist_ok=True)  # beat keeps its state beside the data
@@ -121,9 +165,9 @@ def worker_cmd(
             "worker",
             f"--concurrency={concurrency}",
             f"--loglevel={loglevel}",
-            f"--queues={','.join(chosen)}",
+            f"--queues={','.join(dict.fromkeys(queue_of(settings, k) for k in kinds))}",
             # deliveries wait on the network: threads, not processes
-            *(["--pool=threads"] if queues == "alerts" else []),
+            *(["--pool=threads"] if set(kinds) == {"alerts"} else []),
             *(["--beat", f"--schedule={schedule}"] if beat else []),
         ]
     )

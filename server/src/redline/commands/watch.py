@@ -20,12 +20,12 @@ import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
 if TYPE_CHECKING:
-    from redline.predict.watch import Alarm
+    from redline.predict.watch import Alarm, EventWindow
 
 EXIT_BAD_INPUT = 2
 
@@ -107,6 +107,23 @@ def _session(config: Path | None):
     return zenoh.open(zenoh.Config())
 
 
+def listen(session: Any, window: EventWindow) -> list[Any]:
+    """Subscribe to every key the window's features know; each sample heard is added with the
+    time it arrived, stamped as the recorder stamps what it records (so that watching extracts
+    from the times training did)."""
+    from redline.agent.recorder import arrival_ns
+
+    return [
+        session.declare_subscriber(
+            key,
+            lambda sample: window.add(
+                str(sample.key_expr), arrival_ns(sample), len(sample.payload.to_bytes())
+            ),
+        )
+        for key, _ in window.spec.channels
+    ]
+
+
 def watch_cmd(
     model: Annotated[Path, typer.Option(help="a model file (`redline model fit`)")],
     process: Annotated[int | None, typer.Option(help="the component's process id")] = None,
@@ -150,15 +167,7 @@ def watch_cmd(
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     signal.signal(signal.SIGINT, lambda *_: stop.set())
     session = _session(zenoh_config)
-    subscribers = [
-        session.declare_subscriber(
-            key,
-            lambda sample: window.add(
-                str(sample.key_expr), time.time_ns(), len(sample.payload.to_bytes())
-            ),
-        )
-        for key, _ in loaded.spec.channels
-    ]
+    subscribers = listen(session, window)
     sampler = TreeSampler(loaded.process, pid)
     typer.echo(
         f"watching {loaded.process} (pid {pid}) on {len(subscribers)} keys; thresholds: "
@@ -167,6 +176,9 @@ def watch_cmd(
     )
     sampler.sample()  # the CPU rate is over the time since the previous sample
     began = time.monotonic()
+    # until the longest window is full, the features undercount what the component heard
+    # before the watcher started: predictions too low, and an alarm for nothing
+    warm_until = began + max(loaded.spec.windows)
     try:
         while not stop.wait(interval):
             try:
@@ -178,10 +190,11 @@ def watch_cmd(
             predicted = loaded.predict(window.features(now)[None, :])
             said_measured: dict[str, float] = {}
             said_predicted: dict[str, float] = {}
+            warming = time.monotonic() < warm_until
             for target, tracker in residuals.items():
                 value, guess = float(measured.get(target, 0.0)), float(predicted[target][0])
                 said_measured[target], said_predicted[target] = value, guess
-                alarm = tracker.update(value, guess)
+                alarm = None if warming else tracker.update(value, guess)
                 if alarm is not None:
                     report(alarm)
                     said = "fault" if alarm.started else "fault over"
@@ -197,6 +210,7 @@ def watch_cmd(
                     json.dumps(
                         {
                             "t": now / 1e9,
+                            "warming": warming,
                             "heard": window.heard(now, interval),
                             "measured": said_measured,
                             "predicted": said_predicted,

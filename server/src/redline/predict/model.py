@@ -24,8 +24,9 @@ from redline.predict.features import FeatureSpec
 from redline.predict.watch import calibrate
 from sklearn.base import BaseEstimator, RegressorMixin
 from sklearn.cluster import FeatureAgglomeration
+from sklearn.compose import TransformedTargetRegressor
 from sklearn.kernel_ridge import KernelRidge
-from sklearn.model_selection import GridSearchCV, GroupKFold, cross_val_predict
+from sklearn.model_selection import GridSearchCV, GroupKFold
 from sklearn.pipeline import Pipeline
 from sklearn.preprocessing import StandardScaler
 
@@ -72,13 +73,20 @@ class ResourceModel(RegressorMixin, BaseEstimator):
                 ("regress", KernelRidge(kernel="rbf")),  # the default kernel is linear
             ]
         )
+        # the target standardized too: kernel ridge has no intercept, and an RBF model of an
+        # uncentred target falls to 0 away from its training points (an RSS of 50 MB "predicted"
+        # as a few MB); centred, it falls back to the training mean instead
+        model = TransformedTargetRegressor(regressor=pipeline, transformer=StandardScaler())
         grid = {
-            "reduce__n_clusters": clusters,
-            "regress__alpha": list(self.alphas),
-            "regress__gamma": list(self.gammas),
+            f"regressor__{name}": values
+            for name, values in (
+                ("reduce__n_clusters", clusters),
+                ("regress__alpha", list(self.alphas)),
+                ("regress__gamma", list(self.gammas)),
+            )
         }
         search = GridSearchCV(
-            pipeline,
+            model,
             grid,
             cv=GroupKFold(n_splits=min(self.folds, distinct)),
             scoring="neg_root_mean_squared_error",
@@ -89,21 +97,13 @@ class ResourceModel(RegressorMixin, BaseEstimator):
             warnings.simplefilter("ignore", RuntimeWarning)
             search.fit(x, y, groups=groups)
         self.search_ = search
-        self.best_params_ = search.best_params_
+        self.best_params_ = {
+            name.removeprefix("regressor__"): value for name, value in search.best_params_.items()
+        }
         self.cv_rmse_ = float(-search.best_score_)
-        # residuals on data each fold's model never saw: what the run-time alarm calibrates on
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", RuntimeWarning)
-            held_out = cross_val_predict(
-                sklearn.base.clone(search.best_estimator_),
-                x,
-                y,
-                groups=groups,
-                cv=GroupKFold(n_splits=min(self.folds, distinct)),
-            )
-        residuals = y - held_out
         self.threshold_ = calibrate(
-            [residuals[groups == g] for g in dict.fromkeys(groups)], float(np.mean(np.abs(y)))
+            _held_out_residuals(search.best_estimator_, x, y, groups, min(self.folds, distinct)),
+            float(np.mean(np.abs(y))),
         )
         return self
 
@@ -111,6 +111,32 @@ class ResourceModel(RegressorMixin, BaseEstimator):
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)
             return self.search_.best_estimator_.predict(np.asarray(x, float))
+
+
+def _held_out_residuals(
+    estimator: Any, x: np.ndarray, y: np.ndarray, groups: np.ndarray, folds: int
+) -> list[np.ndarray]:
+    """What the run-time alarm calibrates on: each group's residuals (in time order) from a model
+    fitted on the other folds, for the groups whose mean usage lies within the range of the
+    groups that model was fitted on. A group beyond every level its fold's model saw (the lowest
+    or highest load of a sweep) measures an extrapolation that the deployed model, fitted on
+    every group, does not make on traffic within its training range; counting it set thresholds
+    several times the model's error in between (all groups are used when none is inside)."""
+    levels = {group: float(np.mean(y[groups == group])) for group in dict.fromkeys(groups)}
+    inside: list[np.ndarray] = []
+    every: list[np.ndarray] = []
+    for train, test in GroupKFold(n_splits=folds).split(x, y, groups):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            predicted = sklearn.base.clone(estimator).fit(x[train], y[train]).predict(x[test])
+        seen = [levels[group] for group in set(groups[train].tolist())]
+        for group in dict.fromkeys(groups[test]):
+            rows = groups[test] == group
+            residuals = y[test][rows] - predicted[rows]
+            every.append(residuals)
+            if min(seen) <= levels[group] <= max(seen):
+                inside.append(residuals)
+    return inside or every
 
 
 def errors(y: np.ndarray, predicted: np.ndarray) -> dict[str, float]:

@@ -23,7 +23,7 @@ SMOOTHING = 0.3
 HOLD = 3
 #: the threshold: this many times the largest smoothed residual of the validation data
 #: (its 99.9th percentile), so that the model's own errors do not alarm
-MARGIN = 1.5
+MARGIN = 2.0
 #: and at least this share of the target's typical level (a model that fits its training data
 #: all but exactly, e.g. a constant RSS, would otherwise alarm at any wobble)
 FLOOR = 0.05

@@ -94,6 +94,16 @@ async def _service_error(request: Request, exc: Exception) -> JSONResponse:
     return JSONResponse({"detail": exc.detail}, status_code=exc.status_code)
 
 
+def app_from_environment() -> FastAPI:
+    """What each API process of `redline server --workers N` serves (uvicorn's app factory):
+    settings and logging from the environment, as the parent's were."""
+    from redline.server.core.logs import configure
+
+    settings = get_settings()
+    configure(settings.log_json)
+    return create_app(settings)
+
+
 def create_app(settings: Settings | None = None) -> FastAPI:
     """The Redline server; ``settings`` default to the environment (``REDLINE_*``).
 

@@ -8,15 +8,29 @@ from functools import lru_cache
 from pathlib import Path
 from typing import Any
 
-from redline.server.core.config import PACKAGE
-from sqlalchemy import Engine, String, Table, create_engine, text
+from redline.server.core.config import PACKAGE, get_settings
+from sqlalchemy import Engine, NullPool, String, Table, create_engine, text
 from sqlalchemy.orm import Session, sessionmaker
 
 
 @lru_cache
 def get_engine(database_url: str) -> Engine:
-    """One pooled engine per database URL in this process."""
-    return create_engine(database_url, pool_pre_ping=True)
+    """One engine per database URL in this process: a pool of at most ``REDLINE_DB_POOL_SIZE`` +
+    ``REDLINE_DB_MAX_OVERFLOW`` connections; with ``REDLINE_DB_PGBOUNCER``, none of its own
+    (PgBouncer pools) and no prepared statements (which its transaction mode cannot keep: psycopg
+    prepares a statement on a connection after its fifth use)."""
+    settings = get_settings()
+    if settings.db_pgbouncer:
+        return create_engine(
+            database_url, poolclass=NullPool, connect_args={"prepare_threshold": None}
+        )
+    return create_engine(
+        database_url,
+        pool_pre_ping=True,
+        pool_size=settings.db_pool_size,
+        max_overflow=settings.db_max_overflow,
+        pool_timeout=settings.db_pool_timeout_s,
+    )
 
 
 def session_factory(database_url: str) -> sessionmaker[Session]:

@@ -10,6 +10,9 @@ subscriptions get a `Delivery` per alert; digest ones collect their alerts until
 `send_digests`. Only revisions reported after the subscription was made are alerted (a new
 subscription does not replay the history), and a triaged regression (fixed, ignored, false
 positive) is never alerted again.
+
+A fault `redline watch` reports at run time (`runtime_alerts`) goes to the subscriptions that
+want regressions of its target (``counters`` empty or naming it), once each, its end too.
 """
 
 from __future__ import annotations
@@ -32,6 +35,7 @@ from redline.server.models import (
     Regression,
     RegressionState,
     Revision,
+    RuntimeAlarm,
     Series,
     Subscription,
     utcnow,
@@ -247,6 +251,48 @@ def scan_component(session: Session, component_id: int) -> list[int]:
             made.append(_alert(session, subscription, component, "improvement", None, found))
     session.flush()
     return [alert.delivery_id for alert in made if alert.delivery_id is not None]
+
+
+def runtime_alerts(session: Session, alarm_id: int) -> list[int]:
+    """Tell the subscriptions of a run-time alarm's component about it, once each (a retried
+    task finds the alerts it made); returns the new deliveries' ids."""
+    alarm = session.get(RuntimeAlarm, alarm_id)
+    if alarm is None:
+        return []  # its component was deleted
+    component = session.get_one(Component, alarm.component_id)
+    told = set(
+        session.scalars(select(Alert.subscription_id).where(Alert.runtime_alarm_id == alarm.id))
+    )
+    body = messages.runtime_body(component.name, alarm)
+    made = []
+    for subscription in session.scalars(
+        select(Subscription)
+        .where(
+            or_(Subscription.component_id == component.id, Subscription.component_id.is_(None)),
+            Subscription.direction != "improvement",
+            Subscription.created <= alarm.at,
+        )
+        .order_by(Subscription.id)
+    ):
+        if subscription.id in told or (
+            subscription.counters and alarm.target not in subscription.counters
+        ):
+            continue
+        alert = Alert(
+            subscription_id=subscription.id,
+            runtime_alarm_id=alarm.id,
+            kind=body["kind"],
+            body=body,
+        )
+        session.add(alert)
+        if subscription.delivery == "immediate":
+            delivery = new_delivery(subscription, body["kind"], body, component.id)
+            session.add(delivery)
+            session.flush()
+            alert.delivery_id = delivery.id
+            made.append(delivery.id)
+    session.flush()
+    return made
 
 
 def send_digests(session: Session, now: datetime | None = None) -> list[int]:

@@ -15,7 +15,7 @@ from datetime import datetime
 from typing import Any
 from urllib.parse import quote, urlencode
 
-from redline.server.models import Detection, Regression, Revision, Series
+from redline.server.models import Detection, Regression, Revision, RuntimeAlarm, Series
 
 #: the version of the webhook payload (docs/alerts.md); a breaking change raises it
 SCHEMA_VERSION = 1
@@ -93,6 +93,38 @@ def alert_body(
     return body
 
 
+def runtime_body(component: str, alarm: RuntimeAlarm) -> dict[str, Any]:
+    """A fault `redline watch` saw on the running component (or its end)."""
+    kind = "runtime_fault" if alarm.started else "runtime_fault.over"
+    side = "above" if alarm.residual > 0 else "below"
+    where = " on ".join(part for part in (alarm.process, alarm.host) if part)
+    summary = (
+        f"{component}: run-time fault: {alarm.target} {side} what its traffic predicts by "
+        f"{abs(alarm.residual):.4g} (threshold {alarm.threshold:.4g})"
+        if alarm.started
+        else f"{component}: run-time fault over: {alarm.target} back within {alarm.threshold:.4g}"
+        " of what its traffic predicts"
+    ) + (f" ({where})" if where else "")
+    return {
+        "kind": kind,
+        "component": component,
+        "summary": summary,
+        "runtime": {
+            "id": alarm.id,
+            "target": alarm.target,
+            "started": alarm.started,
+            "residual": alarm.residual,
+            "threshold": alarm.threshold,
+            "step": alarm.step,
+            "host": alarm.host,
+            "process": alarm.process,
+            "model": alarm.model_id,
+            "at": alarm.at.isoformat(),
+            "page": f"/components/{quote(component)}#runtime-alerts",
+        },
+    }
+
+
 def digest_body(alerts: list[dict[str, Any]]) -> dict[str, Any]:
     return {"alerts": alerts}
 
@@ -131,7 +163,9 @@ def slack_json(event: str, payload: dict[str, Any], public_url: str) -> dict[str
     """A body Slack's incoming webhooks (and Mattermost's, and Rocket.Chat's) accept."""
     lines = []
     for alert in _absolute(_alerts(payload), public_url):
-        link = (alert.get("regression") or {}).get("page_url") or alert["changes"][0]["chart_url"]
+        link = (alert.get("regression") or alert.get("runtime") or {}).get("page_url") or alert[
+            "changes"
+        ][0]["chart_url"]
         lines.append(f"<{link}|{_slack_escape(alert['summary'])}>")
     title = "Redline digest" if event == "digest" else "Redline"
     return {"text": f"*{title}*\n" + "\n".join(lines)}
@@ -182,8 +216,14 @@ def email(event: str, payload: dict[str, Any], public_url: str) -> tuple[str, st
                 f"<p>{html.escape(said)}. "
                 f'<a href="{html.escape(regression["page_url"])}">Open the regression</a></p>'
             )
+        runtime = alert.get("runtime")
+        if runtime:
+            text_parts.append(f"Component: {runtime['page_url']}")
+            html_parts.append(
+                f'<p><a href="{html.escape(runtime["page_url"])}">Open the component</a></p>'
+            )
         html_parts.append("<ul>")
-        for change in alert["changes"]:
+        for change in alert.get("changes", []):
             line = _change_line(change)
             text_parts.append(f"  - {line}\n    chart: {change['chart_url']}")
             html_parts.append(

@@ -17,12 +17,13 @@ from redline.server.core.tasks import (
     REANALYZE_TASK,
     RENDER_TASK,
     REQUEUE_TASK,
+    RUNTIME_ALERT_TASK,
     SCAN_ALERTS_TASK,
     TRAIN_TASK,
 )
 from redline.server.db import session_scope
 from redline.server.models import Revision
-from redline.worker.alerts import commit_status, scan_component, send_digests
+from redline.worker.alerts import commit_status, runtime_alerts, scan_component, send_digests
 from redline.worker.app import celery_app
 from redline.worker.deliver import deliver_due
 from redline.worker.detection import detect_revision as run_detection
@@ -124,6 +125,16 @@ def scan_alerts(component_id: int | None, revision_id: int | None = None) -> int
         deliveries = scan_component(session, component_id)
         if revision_id is not None:
             deliveries += commit_status(session, revision_id)
+    if deliveries:
+        deliver_alerts.delay()
+    return len(deliveries)
+
+
+@celery_app.task(name=RUNTIME_ALERT_TASK, acks_late=True, **RETRY)
+def runtime_alert(alarm_id: int) -> int:
+    """Tell the subscriptions about a fault `redline watch` reported, then send."""
+    with session_scope(_settings().database_url) as session:
+        deliveries = runtime_alerts(session, alarm_id)
     if deliveries:
         deliver_alerts.delay()
     return len(deliveries)

@@ -51,6 +51,19 @@ class Settings(BaseSettings):
     alert_timeout_s: float = 10.0
     alert_max_attempts: int = 10
     alert_retry_s: float = 30.0
+    # database connections of one process (an API process or a worker): a pool this big, and
+    # this many more in a burst; each API process of `redline server --workers N` has its own
+    # (docs/operations.md sizes them against Postgres's max_connections)
+    db_pool_size: int = 5
+    db_max_overflow: int = 5
+    db_pool_timeout_s: float = 10.0
+    # behind PgBouncer in transaction mode: no pool of our own, no prepared statements
+    db_pgbouncer: bool = False
+    # a task taken by a worker that died (SIGKILL, a lost host) goes back to the queue this long
+    # after it was taken (Redis's visibility timeout); longer than the longest task runs, or a
+    # second worker starts it again while the first still runs it (harmless: tasks are
+    # idempotent, but the work is done twice)
+    task_visibility_s: float = 3600.0
 
 
 @lru_cache

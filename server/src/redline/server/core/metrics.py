@@ -1,11 +1,14 @@
 """Prometheus metrics: request counts and latency per route, jobs by state, queue depth.
 
-Each app gets its own registry, so several apps in one process (tests) do not collide.
+Each app gets its own registry, so several apps in one process (tests) do not collide. Under
+`redline server --workers N` (``PROMETHEUS_MULTIPROC_DIR`` set) every API process writes its
+counts to files there and ``GET /metrics``, whichever process answers, sums them all.
 """
 
 from __future__ import annotations
 
 import logging
+import os
 import time
 from collections.abc import Awaitable, Callable
 
@@ -39,17 +42,20 @@ class JobCollector:
         except Exception:  # a scrape during an outage reports what it can
             log.warning("metrics: could not count jobs", exc_info=True)
         yield jobs
-        depth = self._queue_depth()
-        if depth is not None:
-            yield GaugeMetricFamily(
-                "redline_task_queue_depth", "tasks waiting in the Celery queue", value=depth
+        depths = self._queue_depths()
+        if depths:
+            family = GaugeMetricFamily(
+                "redline_task_queue_depth", "tasks waiting in each Celery queue", labels=["kind"]
             )
+            for kind, depth in depths.items():
+                family.add_metric([kind], depth)
+            yield family
 
-    def _queue_depth(self) -> int | None:
-        """Best effort: the Redis list named after the queue; None when Redis is away."""
+    def _queue_depths(self) -> dict[str, int]:
+        """Best effort: the Redis list of each kind's queue; nothing when Redis is away."""
         try:
             import redis
-            from redline.server.core.tasks import broker_url
+            from redline.server.core.tasks import QUEUE_KINDS, broker_url, queue_of
 
             url = broker_url(self.settings.redis_url)
             if url.startswith("redis+socket://"):
@@ -57,9 +63,9 @@ class JobCollector:
             else:
                 client = redis.Redis.from_url(url)
             with client:
-                return int(client.llen(self.settings.queue))
+                return {k: int(client.llen(queue_of(self.settings, k))) for k in QUEUE_KINDS}
         except Exception:
-            return None
+            return {}
 
 
 def install(app: FastAPI, settings: Settings) -> None:
@@ -89,4 +95,18 @@ def install(app: FastAPI, settings: Settings) -> None:
 
     @app.get("/metrics", include_in_schema=False)
     def metrics() -> Response:
-        return Response(generate_latest(registry), media_type=CONTENT_TYPE_LATEST)
+        return Response(
+            generate_latest(_scraped(registry, settings)), media_type=CONTENT_TYPE_LATEST
+        )
+
+
+def _scraped(registry: CollectorRegistry, settings: Settings) -> CollectorRegistry:
+    """This process's registry, or with several API processes, all of theirs summed."""
+    if not os.environ.get("PROMETHEUS_MULTIPROC_DIR"):
+        return registry
+    from prometheus_client import multiprocess
+
+    every = CollectorRegistry()
+    multiprocess.MultiProcessCollector(every)
+    every.register(JobCollector(settings))
+    return every

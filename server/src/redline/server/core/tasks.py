@@ -23,15 +23,25 @@ RETENTION_TASK = "redline.prune_old_recordings"
 REQUEUE_TASK = "redline.requeue_stale_uploads"
 RENDER_TASK = "redline.render_trends"
 SCAN_ALERTS_TASK = "redline.scan_alerts"
+RUNTIME_ALERT_TASK = "redline.runtime_alert"
 DELIVER_TASK = "redline.deliver_alerts"
 DIGEST_TASK = "redline.send_digests"
 TRAIN_TASK = "redline.train_model"
 
 
-def alerts_queue(settings: Settings) -> str:
-    """The queue of deliveries (webhooks, mails, commit statuses): a slow receiver waits there,
-    never in front of ingestion and detection (`redline worker --queues`)."""
-    return f"{settings.queue}.alerts"
+#: the kinds of work, each on a queue of its own so that an operator can give each its own
+#: workers (`redline worker --queues`, docs/operations.md): ingestion of uploads; detection,
+#: re-analysis, alert scans, model training and the housekeeping; trend charts; deliveries
+#: (webhooks, mails, commit statuses: a slow receiver waits there, never in front of analysis)
+QUEUE_KINDS = ("ingest", "detect", "render", "alerts")
+_KIND = {INGEST_TASK: "ingest", RENDER_TASK: "render", DELIVER_TASK: "alerts"}  # else: detect
+
+
+def queue_of(settings: Settings, kind: str) -> str:
+    """The Celery queue of a kind of work: detection keeps the settings' own queue name."""
+    if kind not in QUEUE_KINDS:
+        raise ValueError(f"no queue kind {kind!r}: {', '.join(QUEUE_KINDS)}")
+    return settings.queue if kind == "detect" else f"{settings.queue}.{kind}"
 
 
 def broker_url(redis_url: str) -> str:
@@ -49,8 +59,9 @@ def celery_client(settings: Settings, **options: object) -> Celery:
     app.conf.update(
         task_ignore_result=True,
         task_default_queue=settings.queue,
-        task_routes={DELIVER_TASK: {"queue": alerts_queue(settings)}},
+        task_routes={name: {"queue": queue_of(settings, kind)} for name, kind in _KIND.items()},
         broker_connection_retry_on_startup=True,
+        broker_transport_options={"visibility_timeout": settings.task_visibility_s},
         task_publish_retry_policy={
             "max_retries": 3,
             "interval_start": 0.2,
@@ -89,3 +100,6 @@ class TaskSender:
 
     def train(self, model_id: int) -> bool:
         return self.send(TRAIN_TASK, model_id)
+
+    def runtime_alert(self, alarm_id: int) -> bool:
+        return self.send(RUNTIME_ALERT_TASK, alarm_id)

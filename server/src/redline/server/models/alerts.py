@@ -8,7 +8,18 @@ from datetime import datetime
 from typing import Any
 
 from redline.server.models.base import Base, utcnow
-from sqlalchemy import JSON, Boolean, Float, ForeignKey, Index, Integer, String, Text, text
+from sqlalchemy import (
+    JSON,
+    Boolean,
+    Float,
+    ForeignKey,
+    Index,
+    Integer,
+    String,
+    Text,
+    UniqueConstraint,
+    text,
+)
 from sqlalchemy.orm import Mapped, mapped_column
 
 
@@ -42,10 +53,16 @@ class Subscription(Base):
 
 
 class Alert(Base):
-    """What one subscription was told (or, for a digest, will be told) about one regression, or
-    about one revision's improvements (``regression_id`` None, ``revision_id`` set)."""
+    """What one subscription was told (or, for a digest, will be told) about one regression,
+    about one revision's improvements (``regression_id`` None, ``revision_id`` set), or about a
+    fault `redline watch` saw at run time (``runtime_alarm_id`` set: told once per subscription)."""
 
     __tablename__ = "alert"
+    __table_args__ = (
+        UniqueConstraint(
+            "subscription_id", "runtime_alarm_id", name="uq_alert_subscription_runtime_alarm"
+        ),
+    )
     id: Mapped[int] = mapped_column(primary_key=True)
     subscription_id: Mapped[int] = mapped_column(
         ForeignKey("subscription.id", ondelete="CASCADE"), index=True
@@ -56,7 +73,11 @@ class Alert(Base):
     revision_id: Mapped[int | None] = mapped_column(
         ForeignKey("revision.id", ondelete="SET NULL"), default=None
     )
-    kind: Mapped[str] = mapped_column(String(30))  # regression, regression.updated, improvement
+    runtime_alarm_id: Mapped[int | None] = mapped_column(
+        ForeignKey("runtime_alarm.id", ondelete="CASCADE"), default=None
+    )
+    #: regression, regression.updated, improvement, runtime_fault, runtime_fault.over
+    kind: Mapped[str] = mapped_column(String(30))
     body: Mapped[dict[str, Any]] = mapped_column(JSON)  # the alert's part of a message
     delivery_id: Mapped[int | None] = mapped_column(
         ForeignKey("delivery.id", ondelete="SET NULL"), index=True, default=None

@@ -62,9 +62,14 @@ def model_file(name: str, ident: int, session: SessionDep) -> FileResponse:
     responses=NOT_FOUND,
     dependencies=[Depends(require("agent"))],
 )
-def report_alert(name: str, data: RuntimeAlertIn, session: SessionDep) -> RuntimeAlertOut:
-    """A resource fault (or its end) that `redline watch` saw on the running component."""
-    return learning.record_alert(session, name, data)
+def report_alert(
+    name: str, data: RuntimeAlertIn, session: SessionDep, request: Request
+) -> RuntimeAlertOut:
+    """A resource fault (or its end) that `redline watch` saw on the running component; the
+    alert subscriptions that want its target hear of it."""
+    stored = learning.record_alert(session, name, data)
+    request.app.state.tasks.runtime_alert(stored.id)
+    return stored
 
 
 @router.get("/{name}/runtime-alerts", responses=NOT_FOUND, dependencies=READ)

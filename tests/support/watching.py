@@ -1,0 +1,129 @@
+"""A live objectbuilder for `redline watch`: the real component on an isolated zenoh network, fed
+by a driver thread with a robot's traffic (leg counts that wander around 6 as the realistic
+replay's do, kept within the 1-11 legs the model was trained on; legs at 30/s, poses at 10/s), and
+its ``--faults`` file to inject a busy thread, a leak or a stall. Shared by
+tests/integration/test_watch.py and benchmarks/bench_watch.py."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import os
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from redline.agent.network import RunNetwork, open_client
+from redline.agent.runner import run_suite
+from redline.predict.dataset import dataset, read_run
+from redline.predict.model import ModelFile
+
+from tests.support import ROOT
+
+PERF = ROOT / "examples" / "objectbuilder" / "perf"
+OBJECTBUILDER = ROOT / "examples" / "objectbuilder" / "objectbuilder.py"
+REDLINE = str(Path(sys.executable).parent / "redline")
+#: the largest leg count of watch.toml's training sweep
+MAX_LEGS = 11
+
+
+def train(folder: Path) -> Path:
+    """A model of the objectbuilder fitted on a real run of ``perf/watch.toml`` (about a minute)."""
+    recording = run_suite(PERF / "watch.toml", folder / "training.mcap").recording
+    model = folder / "objectbuilder.model"
+    ModelFile.fit(dataset([read_run(recording)])).save(model)
+    return model
+
+
+def _realistic():
+    spec = importlib.util.spec_from_file_location("realistic", PERF / "realistic.py")
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+@dataclass
+class LiveBuilder:
+    pid: int
+    zenoh_config: Path
+    faults: Path
+
+    def inject(self, fault: str | None) -> None:
+        """Start ``fault`` (busy, leak, stall), or end the one running (None)."""
+        if fault is None:
+            self.faults.unlink(missing_ok=True)
+        else:
+            self.faults.write_text(fault)
+
+
+@contextmanager
+def live_objectbuilder(folder: Path, seed: int = 20261124) -> Iterator[LiveBuilder]:
+    realistic = _realistic()
+    counts = np.clip(realistic.leg_counts(np.random.default_rng(seed), 30 * 600), 1, MAX_LEGS)
+    stop = threading.Event()
+    with RunNetwork() as network:
+        config = network.write_component_config(folder / "zenoh.json")
+        faults = folder / "fault"
+        faults.unlink(missing_ok=True)  # no fault at the start
+        component = subprocess.Popen(
+            [sys.executable, str(OBJECTBUILDER), "--threads", "2", "--faults", str(faults)],
+            env={**os.environ, "ZENOH_CONFIG": str(config)},
+            stdout=subprocess.PIPE,
+            text=True,
+        )
+        assert component.stdout is not None
+        if "objectbuilder ready" not in component.stdout.readline():
+            component.kill()
+            raise RuntimeError("the objectbuilder did not start")
+
+        def drive() -> None:
+            with open_client(network.client_settings()) as session:
+                legs = session.declare_publisher("objectbuilder/legs")
+                pose = session.declare_publisher("objectbuilder/pose")
+                pose_message = json.dumps({"x": 1.0, "y": 0.5, "theta": 0.1})
+                began, index = time.monotonic(), 0
+                while not stop.is_set():
+                    count = int(counts[index % len(counts)])
+                    legs.put(realistic.legs_payload(count, time.time_ns()))
+                    if index % 3 == 0:
+                        pose.put(pose_message)
+                    index += 1
+                    stop.wait(max(0.0, began + index / 30 - time.monotonic()))
+
+        driver = threading.Thread(target=drive, daemon=True)
+        driver.start()
+        try:
+            yield LiveBuilder(component.pid, config, faults)
+        finally:
+            stop.set()
+            driver.join(timeout=5)
+            component.terminate()
+            try:
+                component.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                component.kill()
+                component.wait()
+
+
+def watch(
+    model: Path,
+    builder: LiveBuilder,
+    duration: float,
+    args: tuple[str, ...] = (),
+    env: dict[str, str] | None = None,
+) -> subprocess.Popen[str]:
+    """`redline watch --json` on the live objectbuilder, as a real command (``args``: more)."""
+    return subprocess.Popen(
+        [REDLINE, "watch", "--model", str(model), "--process", str(builder.pid),
+         "--zenoh-config", str(builder.zenoh_config), "--duration", str(duration), "--json",
+         *args],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        env={**os.environ, **(env or {})},
+    )  # fmt: skip

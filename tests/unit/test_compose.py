@@ -1,0 +1,44 @@
+"""docker-compose.yml runs commands the CLI accepts, and scales as issue 16 asks: the scalable
+workers run no periodic tasks (exactly one service does), the API runs several processes."""
+
+from __future__ import annotations
+
+import re
+
+import typer
+import yaml
+from redline.cli.main import _register_all, app
+
+from tests.support import ROOT
+
+COMPOSE = yaml.safe_load((ROOT / "docker-compose.yml").read_text())
+
+
+def _interpolated(word: str) -> str:
+    return re.sub(r"\$\{[A-Z_]+:-([^}]*)\}", r"\1", word)
+
+
+def parsed(command: list[str]) -> dict:
+    """The options the redline CLI parses from a service's command (never run)."""
+    _register_all()
+    group = typer.main.get_command(app)
+    context = group.make_context("redline", [], resilient_parsing=True)
+    name, found, rest = group.resolve_command(context, [_interpolated(w) for w in command])
+    assert found is not None, name
+    while hasattr(found, "resolve_command"):  # a sub-group (e.g. `token create`)
+        context = found.make_context(name, [], resilient_parsing=True)
+        name, found, rest = found.resolve_command(context, rest)
+    return dict(found.make_context(name, list(rest)).params)
+
+
+def test_every_redline_service_runs_a_command_the_cli_accepts() -> None:
+    services = {
+        name: parsed(service["command"])
+        for name, service in COMPOSE["services"].items()
+        if service.get("build") or "<<" in service or name in ("server", "worker", "agent")
+    }
+    assert services["server"]["workers"] >= 2
+    beats = [name for name, options in services.items() if options.get("beat")]
+    assert beats == ["alerts"]  # `--scale worker=N` must not start N schedulers
+    assert services["worker"]["queues"] == "analysis"
+    assert services["alerts"]["queues"] == "alerts"
