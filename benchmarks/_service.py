@@ -57,8 +57,9 @@ def database() -> Iterator[str]:
 
 
 @contextmanager
-def api_server(database_url: str) -> Iterator[tuple[str, dict[str, str]]]:
-    """`redline server` on ``database_url`` as a child process: its URL and a token per scope."""
+def api_server(database_url: str, workers: int = 1) -> Iterator[tuple[str, dict[str, str]]]:
+    """`redline server [--workers N]` on ``database_url`` as a child process: its URL and a token
+    per scope."""
     from redline.agent.network import free_port
     from redline.commands.stack import Stack
 
@@ -72,7 +73,10 @@ def api_server(database_url: str) -> Iterator[tuple[str, dict[str, str]]]:
             REDLINE_LEASE_SECONDS="600",
         )
         tokens = {scope: stack.token(scope, scope) for scope in ("admin", "ci", "agent", "read")}
-        stack._spawn("server", "server", "--host", "127.0.0.1", "--port", str(stack.port))
+        stack._spawn(
+            "server", "server", "--host", "127.0.0.1", "--port", str(stack.port),
+            "--workers", str(workers),
+        )  # fmt: skip
         try:
             stack._wait_healthy()
             yield stack.url, tokens

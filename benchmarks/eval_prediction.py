@@ -27,9 +27,7 @@ from pathlib import Path
 
 from redline.predict.dataset import DataError, dataset, read_run
 from redline.predict.model import ModelFile
-from redline.recording.disturbance import recording_disturbances, threshold
-from redline.recording.format import canonical_params
-from redline.recording.reader import Segment, read_recording
+from redline.recording.reader import Segment
 
 LEGS = {"d": list(range(1, 23, 3)), "l": list(range(1, 14, 3)), "m": list(range(1, 29, 3))}
 LEG_RATES = {"d": [30], "r": [10, 20, 40, 50], "dr": [10, 20, 30, 40, 50]}
@@ -56,14 +54,10 @@ def main() -> int:
     parser.add_argument("--json", type=Path, help="write every result here")
     args = parser.parse_args()
     run = read_run(args.recording)
-    disturbed = recording_disturbances(
-        read_recording(args.recording, strict=False).series_samples(), threshold()
+    print(
+        f"{len(run.disturbed)} of {len(run.segments)} segments disturbed by other load "
+        "(left out of training and scoring)"
     )
-    skip = {(case, phase, params) for case, phase, params in disturbed}
-    print(f"{len(disturbed)} of {len(run.segments)} segments disturbed by other load (left out)")
-
-    def clean(segment: Segment) -> bool:
-        return (segment.case, segment.phase, canonical_params(segment.params)) not in skip
 
     results = []
     for threads in (1, 2, 4):
@@ -75,8 +69,8 @@ def main() -> int:
                 train = dataset(
                     [run],
                     process,
-                    keep=lambda s, c=(legs, leg_rate, pose_rate), t=threads: (
-                        clean(s) and chosen(s, f"sweep_t{t}", *c)
+                    keep=lambda s, c=(legs, leg_rate, pose_rate), t=threads: chosen(
+                        s, f"sweep_t{t}", *c
                     ),
                     keys=lambda key, p=prefix: key.startswith(p),
                 )

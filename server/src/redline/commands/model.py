@@ -48,6 +48,8 @@ def fit(
         model.save(out)
     except DataError as exc:
         raise _fail(str(exc)) from None
+    for why in data.left_out:
+        typer.echo(f"warning: left out, disturbed by other load: {why}", err=True)
     typer.echo(
         f"{out}: process {model.process}, {len(data.x)} time steps of "
         f"{len(recordings)} recording(s), {len(data.spec.channels)} keys"

@@ -12,7 +12,8 @@ from pathlib import Path
 
 import numpy as np
 from redline.predict.features import NS, WINDOWS, Event, FeatureSpec, extract, spec_for
-from redline.recording.format import HOST_PROCESS, OWN_PROCESS
+from redline.recording.disturbance import recording_disturbances, threshold
+from redline.recording.format import HOST_PROCESS, OWN_PROCESS, canonical_params
 from redline.recording.reader import Recording, RecordingError, Segment, read_recording
 
 #: what a model predicts: the monitor's counters of one component process
@@ -35,6 +36,8 @@ class Run:
     received: set[str]
     segments: list[Segment]  # the measured ones (warm-up phases left out)
     samples: dict[str, list[tuple[int, dict[str, float]]]]  # process -> (t_ns, values)
+    #: measured segments another process's load disturbed, with why (case, phase, params)
+    disturbed: dict[tuple[str, str, str], str] = field(default_factory=dict)
 
 
 @dataclass
@@ -46,6 +49,7 @@ class Dataset:
     groups: np.ndarray  # "file#segment" per row
     times: np.ndarray
     sources: list[str] = field(default_factory=list)
+    left_out: list[str] = field(default_factory=list)  # disturbed segments, with why
 
 
 def read_run(path: str | Path) -> Run:
@@ -74,7 +78,8 @@ def read_run(path: str | Path) -> Run:
         samples.setdefault(process, []).append((int(sample["t_ns"]), sample["values"]))
     if not samples:
         raise DataError(f"{path}: no component process was monitored")
-    return Run(Path(path), events, received, segments, samples)
+    disturbed = recording_disturbances(recording.series_samples(), threshold())
+    return Run(Path(path), events, received, segments, samples, dict(disturbed))
 
 
 def component_process(runs: Sequence[Run], process: str | None) -> str:
@@ -122,10 +127,15 @@ def dataset(
     windows: Sequence[float] = WINDOWS,
     keep: Callable[[Segment], bool] | None = None,
     keys: Callable[[str], bool] | None = None,
+    keep_disturbed: bool = False,
 ) -> Dataset:
     """The rows of every measured segment of ``runs`` that ``keep`` keeps (a step each second
     from the segment's first full second), features by ``spec`` (by default: every key the runs
-    saw that ``keys`` keeps, received or sent); rows without a counter sample are left out."""
+    saw that ``keys`` keeps, received or sent); rows without a counter sample are left out, and
+    so are segments another process's load disturbed (unless ``keep_disturbed``: the component's
+    usage there is not what its traffic alone makes it, and one such segment in the validation
+    data would widen the run-time alarm's threshold several times; `Dataset.left_out` names
+    them)."""
     if not runs:
         raise DataError("no recordings given")
     chosen = component_process(runs, process)
@@ -134,11 +144,16 @@ def dataset(
         spec = spec_for(everything, set().union(*(run.received for run in runs)), windows)
     xs, groups, times_all = [], [], []
     ys: dict[str, list[np.ndarray]] = {t: [] for t in TARGETS}
+    left_out: list[str] = []
     for number, run in enumerate(runs):
         for segment in run.segments:
             if keep is not None and not keep(segment):
                 continue
             name = f"{segment.case}/{segment.phase}/{sorted(segment.params.items())}"
+            why = run.disturbed.get((segment.case, segment.phase, canonical_params(segment.params)))
+            if why and not keep_disturbed:
+                left_out.append(f"{run.path}: {name}: {why}")
+                continue
             step = int(STEP_S * NS)
             times = np.arange(segment.begin_ns + step, segment.end_ns + 1, step, dtype=np.int64)
             if not len(times):
@@ -165,4 +180,5 @@ def dataset(
         groups=np.array(groups),
         times=np.concatenate(times_all),
         sources=[str(run.path) for run in runs],
+        left_out=left_out,
     )

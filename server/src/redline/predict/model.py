@@ -26,7 +26,7 @@ from sklearn.base import BaseEstimator, RegressorMixin
 from sklearn.cluster import FeatureAgglomeration
 from sklearn.compose import TransformedTargetRegressor
 from sklearn.kernel_ridge import KernelRidge
-from sklearn.model_selection import GridSearchCV, GroupKFold
+from sklearn.model_selection import GridSearchCV, GroupKFold, LeaveOneGroupOut
 from sklearn.pipeline import Pipeline
 from sklearn.preprocessing import StandardScaler
 
@@ -35,6 +35,8 @@ FORMAT = 1
 CLUSTERS = (4, 8, 16, 32)
 ALPHAS = (1e-3, 1e-2, 1e-1, 1.0)
 GAMMAS = (1e-3, 1e-2, 1e-1)
+#: the alarm threshold is calibrated holding out one group at a time up to this many groups
+ALONE_UP_TO = 50
 #: fewer rows or groups than these leave nothing to cross-validate
 MIN_ROWS, MIN_GROUPS = 10, 2
 
@@ -117,15 +119,18 @@ def _held_out_residuals(
     estimator: Any, x: np.ndarray, y: np.ndarray, groups: np.ndarray, folds: int
 ) -> list[np.ndarray]:
     """What the run-time alarm calibrates on: each group's residuals (in time order) from a model
-    fitted on the other folds, for the groups whose mean usage lies within the range of the
-    groups that model was fitted on. A group beyond every level its fold's model saw (the lowest
+    fitted on the other groups (up to `ALONE_UP_TO` groups, else on the other folds), for the
+    groups whose mean usage lies within the range of the groups that model was fitted on. A group beyond every level its fold's model saw (the lowest
     or highest load of a sweep) measures an extrapolation that the deployed model, fitted on
     every group, does not make on traffic within its training range; counting it set thresholds
     several times the model's error in between (all groups are used when none is inside)."""
     levels = {group: float(np.mean(y[groups == group])) for group in dict.fromkeys(groups)}
     inside: list[np.ndarray] = []
     every: list[np.ndarray] = []
-    for train, test in GroupKFold(n_splits=folds).split(x, y, groups):
+    # each group held out alone where that stays cheap: k folds over a few groups hold out
+    # neighbours together, an interpolation over twice the gap the deployed model ever bridges
+    splitter = LeaveOneGroupOut() if len(levels) <= ALONE_UP_TO else GroupKFold(n_splits=folds)
+    for train, test in splitter.split(x, y, groups):
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)
             predicted = sklearn.base.clone(estimator).fit(x[train], y[train]).predict(x[test])
@@ -202,6 +207,7 @@ class ModelFile:
                 "recordings": data.sources,
                 "steps": len(data.x),
                 "groups": len(set(data.groups.tolist())),
+                "left_out": data.left_out,
                 "features": data.spec.names(),
                 "grid": {
                     "clusters": list(ResourceModel().clusters),
