@@ -120,10 +120,12 @@ def _held_out_residuals(
 ) -> list[np.ndarray]:
     """What the run-time alarm calibrates on: each group's residuals (in time order) from a model
     fitted on the other groups (up to `ALONE_UP_TO` groups, else on the other folds), for the
-    groups whose mean usage lies within the range of the groups that model was fitted on. A group beyond every level its fold's model saw (the lowest
-    or highest load of a sweep) measures an extrapolation that the deployed model, fitted on
-    every group, does not make on traffic within its training range; counting it set thresholds
-    several times the model's error in between (all groups are used when none is inside)."""
+    groups whose mean usage lies within the range of the groups that model was fitted on.
+
+    A group beyond every level its fold's model saw (the lowest or highest load of a sweep)
+    measures an extrapolation that the deployed model, fitted on every group, does not make on
+    traffic within its training range; counting it set thresholds several times the model's
+    error in between (all groups are used when none is inside)."""
     levels = {group: float(np.mean(y[groups == group])) for group in dict.fromkeys(groups)}
     inside: list[np.ndarray] = []
     every: list[np.ndarray] = []
