@@ -36,6 +36,14 @@ def fit(
     process: Annotated[
         str | None, typer.Option(help="the component process to model (default: the only one)")
     ] = None,
+    received_only: Annotated[
+        bool,
+        typer.Option(
+            help="features of the keys the component receives only: for `redline watch` (a "
+            "model that also sees what the component sends explains a stall's lower CPU by its "
+            "lower output, and misses the stall)"
+        ),
+    ] = False,
 ) -> None:
     """Learn a model of a component process's CPU % and RSS from its communication."""
     from redline.predict.dataset import DataError, dataset, read_run
@@ -43,7 +51,7 @@ def fit(
 
     try:
         runs = [read_run(path) for path in recordings]
-        data = dataset(runs, process)
+        data = dataset(runs, process, received_only=received_only)
         model = ModelFile.fit(data)
         model.save(out)
     except DataError as exc:

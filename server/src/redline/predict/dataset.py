@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from redline.predict.features import NS, WINDOWS, Event, FeatureSpec, extract, spec_for
+from redline.predict.features import IN, NS, WINDOWS, Event, FeatureSpec, extract, spec_for
 from redline.recording.disturbance import recording_disturbances, threshold
 from redline.recording.format import HOST_PROCESS, OWN_PROCESS, canonical_params
 from redline.recording.reader import Recording, RecordingError, Segment, read_recording
@@ -128,6 +128,7 @@ def dataset(
     keep: Callable[[Segment], bool] | None = None,
     keys: Callable[[str], bool] | None = None,
     keep_disturbed: bool = False,
+    received_only: bool = False,
 ) -> Dataset:
     """The rows of every measured segment of ``runs`` that ``keep`` keeps (a step each second
     from the segment's first full second), features by ``spec`` (by default: every key the runs
@@ -135,13 +136,17 @@ def dataset(
     so are segments another process's load disturbed (unless ``keep_disturbed``: the component's
     usage there is not what its traffic alone makes it, and one such segment in the validation
     data would widen the run-time alarm's threshold several times; `Dataset.left_out` names
-    them)."""
+    them). ``received_only``: features of the keys the component receives only."""
     if not runs:
         raise DataError("no recordings given")
     chosen = component_process(runs, process)
     if spec is None:
         everything = [e for run in runs for e in run.events if keys is None or keys(e[0])]
         spec = spec_for(everything, set().union(*(run.received for run in runs)), windows)
+        if received_only:
+            spec = FeatureSpec(tuple(c for c in spec.channels if c[1] == IN), spec.windows)
+            if not spec.channels:
+                raise DataError("the driver sent the component nothing: no feature it receives")
     xs, groups, times_all = [], [], []
     ys: dict[str, list[np.ndarray]] = {t: [] for t in TARGETS}
     left_out: list[str] = []

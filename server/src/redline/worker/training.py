@@ -41,7 +41,10 @@ def train_model(database_url: str, storage_dir: Path, model_id: int) -> None:
         runs = [read_run(path) for _, path, _ in chosen]
         case = request.get("case")
         data = dataset(
-            runs, request.get("process"), keep=(lambda s: s.case == case) if case else None
+            runs,
+            request.get("process"),
+            keep=(lambda s: s.case == case) if case else None,
+            received_only=bool(request.get("received_only")),
         )
         model = ModelFile.fit(
             data,

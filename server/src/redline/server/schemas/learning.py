@@ -19,6 +19,11 @@ class ModelRequest(BaseModel):
     process: str | None = Field(
         default=None, max_length=200, description="the component process (default: the only one)"
     )
+    received_only: bool = Field(
+        default=False,
+        description="features of what the component receives only: for watching, where a model "
+        "that also sees what it sends explains a stall's lower CPU by its lower output",
+    )
 
 
 class ModelOut(BaseModel):
