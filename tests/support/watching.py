@@ -88,6 +88,10 @@ def live_objectbuilder(folder: Path, seed: int = 20261124) -> Iterator[LiveBuild
 
         def drive() -> None:
             with open_client(network.client_settings()) as session:
+                # the robot listens to the persons it asks for: without a subscriber zenoh sends
+                # them nowhere, and the component spends less CPU than it did in training (where
+                # the recorder subscribed to everything) for the same traffic
+                consumer = session.declare_subscriber("objectbuilder/persons", lambda _: None)
                 legs = session.declare_publisher("objectbuilder/legs")
                 pose = session.declare_publisher("objectbuilder/pose")
                 pose_message = json.dumps({"x": 1.0, "y": 0.5, "theta": 0.1})
@@ -99,6 +103,7 @@ def live_objectbuilder(folder: Path, seed: int = 20261124) -> Iterator[LiveBuild
                         pose.put(pose_message)
                     index += 1
                     stop.wait(max(0.0, began + index / 30 - time.monotonic()))
+                consumer.undeclare()
 
         driver = threading.Thread(target=drive, daemon=True)
         driver.start()
