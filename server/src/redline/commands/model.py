@@ -29,6 +29,16 @@ def _fail(message: str) -> typer.Exit:
     return typer.Exit(EXIT_BAD_INPUT)
 
 
+def _windows(text: str) -> tuple[float, ...]:
+    try:
+        found = tuple(sorted({float(word) for word in text.split(",") if word.strip()}))
+    except ValueError:
+        found = ()
+    if not found or any(not 0 < w <= 600 for w in found):
+        raise _fail(f"--windows {text!r}: seconds between 0 and 600, comma-separated (e.g. 1,2)")
+    return found
+
+
 @model_app.command("fit")
 def fit(
     recordings: Annotated[list[Path], typer.Argument(help="recordings of performance tests")],
@@ -44,6 +54,13 @@ def fit(
             "lower output, and misses the stall)"
         ),
     ] = False,
+    windows: Annotated[
+        str,
+        typer.Option(
+            help="feature windows in seconds, comma-separated (for `redline watch`, 1,2: longer "
+            "windows learnt from steady test phases lag behind a load that falls)"
+        ),
+    ] = "1,2,5,10",
 ) -> None:
     """Learn a model of a component process's CPU % and RSS from its communication."""
     from redline.predict.dataset import DataError, dataset, read_run
@@ -51,7 +68,7 @@ def fit(
 
     try:
         runs = [read_run(path) for path in recordings]
-        data = dataset(runs, process, received_only=received_only)
+        data = dataset(runs, process, received_only=received_only, windows=_windows(windows))
         model = ModelFile.fit(data)
         model.save(out)
     except DataError as exc:
