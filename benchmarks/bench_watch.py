@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import subprocess
 import sys
 import tempfile
@@ -31,12 +30,12 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 import numpy as np  # noqa: E402
+from bench_monitor import cpu_seconds  # noqa: E402
 from redline.predict.model import ModelFile  # noqa: E402
 from redline.predict.watch import smooth  # noqa: E402
 
 from tests.support.watching import live_objectbuilder, train, watch  # noqa: E402
 
-TICKS = os.sysconf("SC_CLK_TCK")
 WARM_S = 20.0
 #: the reference: what any Python watcher pays to hear the same keys
 SUBSCRIBER = """\
@@ -48,12 +47,6 @@ with zenoh.open(zenoh.Config.from_file(sys.argv[1])) as session:
     print("ready", flush=True)
     sys.stdin.read()  # until the benchmark closes it
 """
-
-
-def cpu_seconds(pid: int) -> float:
-    with open(f"/proc/{pid}/stat", "rb") as stat:
-        fields = stat.read().rsplit(b")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / TICKS
 
 
 class CpuWindow:

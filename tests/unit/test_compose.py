@@ -25,9 +25,6 @@ def parsed(command: list[str]) -> dict:
     context = group.make_context("redline", [], resilient_parsing=True)
     name, found, rest = group.resolve_command(context, [_interpolated(w) for w in command])
     assert found is not None, name
-    while hasattr(found, "resolve_command"):  # a sub-group (e.g. `token create`)
-        context = found.make_context(name, [], resilient_parsing=True)
-        name, found, rest = found.resolve_command(context, rest)
     return dict(found.make_context(name, list(rest)).params)
 
 
