@@ -277,7 +277,7 @@ def test_why_flagged_shows_what_was_compared(client, database_url, tmp_path):
     assert client.get("/detections/999999").status_code == 404
 
 
-def test_execution_page_has_raw_counters_parameters_and_the_recording(
+def test_execution_page_has_raw_counters_parameters_the_log_and_the_recording(
     client, database_url, tmp_path
 ):
     history(database_url, tmp_path, [20.0])
@@ -293,6 +293,10 @@ def test_execution_page_has_raw_counters_parameters_and_the_recording(
     assert any("legs=8" in note["text"] for note in raw["layout"]["annotations"])
     against = charts["builder.cpu against legs"]["data"][0]
     assert against["x"] == [2.0, 8.0] and against["y"][1] > 3 * against["y"][0]
+    # the component's output, as text: its markup is shown, never run
+    assert "<summary>builder (" in page.text and "builder ready" in page.text
+    assert "&lt;script&gt;alert(&#39;from the log&#39;)&lt;/script&gt;" in page.text
+    assert "<script>alert(" not in page.text
     recording = client.get(f"/executions/{number}/recording")
     assert recording.status_code == 200 and recording.content.startswith(b"\x89MCAP")
     assert client.get("/executions/999999").status_code == 404

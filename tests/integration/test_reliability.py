@@ -30,6 +30,7 @@ import pytest
 from redline.agent.client import ServerClient
 from redline.agent.network import free_port
 from redline.commands.stack import Child, Stack
+from redline.recording import read_recording
 from redline.server.db import session_factory
 from redline.server.models import Execution, Job, JobState, Revision
 from sqlalchemy import func, select, update
@@ -54,8 +55,9 @@ SUITE = """\
 FILES = {
     "perf/redline.toml": SUITE,
     "perf/component.py": """\
-        import time
-        print("tiny ready", flush=True)
+        import os, time
+        print("tiny ready; the agent's token in my environment:", "REDLINE_TOKEN" in os.environ,
+              flush=True)
         while True:
             time.sleep(0.05)
         """,
@@ -276,6 +278,14 @@ def test_one_sigterm_lets_the_agent_finish_its_job_then_stop(service: Service):
     assert agent.process.wait(timeout=120) == 0, agent.tail()
     assert service.row(job_id).state == JobState.uploaded, agent.tail()
     assert service.executions(job_id) == 1
+    # the component's output reached the server in its recording; the agent's token did not
+    # reach the component (whose output readers of the server's pages see)
+    with session_factory(service.database_url)() as session:
+        stored = session.scalars(select(Execution).where(Execution.job_id == job_id)).one()
+        recording = read_recording(stored.recording_path)
+    assert recording.logs["tiny"] == ("tiny ready; the agent's token in my environment: False\n"), (
+        recording.logs
+    )
 
 
 def test_server_killed_during_an_upload_the_agent_retries_and_it_is_stored_once(service: Service):

@@ -63,6 +63,8 @@ def test_component_that_exits_early_fails_the_run_with_its_exit_code(tmp_path: P
     assert recording.run["status"] == "failed" and "exit code 3" in recording.run["error"]
     assert [m["event"] for m in recording.markers] == ["begin", "end"]
     assert recording.traffic["x/y"] > 0
+    # the component's own output travels with the recording, to the server's execution page
+    assert recording.logs["broken"] == "component ready\ngiving up\n"
 
 
 def test_component_never_ready_times_out_and_is_stopped(tmp_path: Path) -> None:

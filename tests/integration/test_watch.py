@@ -18,6 +18,7 @@ import pytest
 from redline.agent.network import RunNetwork, open_client
 from redline.predict.dataset import dataset, read_run
 from redline.predict.model import ModelFile
+from redline.predict.watch import ANCHOR_STEPS
 
 from tests.support.api import api_with
 from tests.support.predict import SMALL, record
@@ -77,7 +78,7 @@ def test_watch_is_quiet_while_usage_matches_and_alarms_within_10_s_of_a_busy_thr
         agent = api.tokens["agent"]["Authorization"].removeprefix("Bearer ")
         watcher = subprocess.Popen(
             [REDLINE, "watch", "--model", str(model), "--process", str(component.pid),
-             "--zenoh-config", str(config), "--duration", "30", "--json",
+             "--zenoh-config", str(config), "--duration", "45", "--json",
              "--server", url, "--component", "builder"],
             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
             env={**os.environ, "REDLINE_TOKEN": agent},
@@ -90,7 +91,9 @@ def test_watch_is_quiet_while_usage_matches_and_alarms_within_10_s_of_a_busy_thr
                 line = json.loads(text)
                 lines.append(line)
                 steps = sum(1 for item in lines if "measured" in item)
-                if steps == 12 and injected is None:
+                # after the warm-up (10 s: its longest window) and the steps that measure where
+                # this process stands against the model (`ANCHOR_STEPS`)
+                if steps == 10 + ANCHOR_STEPS + 2 and injected is None:
                     flag.touch()  # the fault: a busy thread the communication does not explain
                     injected = time.monotonic()
                 if line.get("alarm") == "fault" and line["target"] == "cpu_percent":

@@ -20,7 +20,8 @@ from tests.support.history import add_executions, ingest_and_detect
 def two_parameter_sets(
     path: Path, run: dict[str, str], counters: dict[str, np.ndarray], case: str = "build"
 ) -> Path:
-    """A recording of ``case`` at legs 2 and 8 (twice the counters' values at 8)."""
+    """A recording of ``case`` at legs 2 and 8 (twice the counters' values at 8), with the
+    component's output (markup in it, to be shown as text)."""
     with RecordingWriter(path) as writer:
         writer.metadata("redline.run", run)
         t_ns = 1_000_000_000
@@ -35,6 +36,7 @@ def two_parameter_sets(
                 writer.counters("builder", 4242, sample, t_ns)
             t_ns += 10_000_000
             writer.marker("end", case, "steady", params, warmup=False, t_ns=t_ns)
+        writer.log("builder", b"builder ready\n<script>alert('from the log')</script>\n")
     return path
 
 

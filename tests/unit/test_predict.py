@@ -117,6 +117,35 @@ def test_the_threshold_is_calibrated_on_held_out_residuals_with_a_floor():
     assert calibrate([np.zeros(50)], level=1e8) == pytest.approx(0.05 * 1e8)  # a constant RSS
 
 
+def test_usage_is_judged_by_how_it_moves_from_where_the_process_stood_at_first():
+    rng = np.random.default_rng(5)
+    tracker = Residuals("cpu_percent", threshold=6.8)
+    # this process runs 7.5 % of a core below the training run's for the same traffic (as a
+    # fresh objectbuilder can): beyond the threshold, yet no fault
+    said = [tracker.update(20.0 - 7.5 + rng.normal(0, 1.0), 20.0) for _ in range(120)]
+    assert not any(said) and tracker.offset == pytest.approx(-7.5, abs=1.0)
+    assert tracker.level is not None and abs(tracker.level) > tracker.threshold
+    # then its workers stall: its CPU falls to 1 %
+    said = [tracker.update(1.0, 20.0) for _ in range(8)]
+    (started,) = [a for a in said if a is not None]
+    assert started.started and started.residual < -6.8 and started.offset == tracker.offset
+    # memory: a process holding 3 MB less than the training run's, then leaking 5 MiB a second
+    memory = Residuals("rss_bytes", threshold=1.6e6)
+    said = [memory.update(37e6 + rng.normal(0, 2e5), 40e6) for _ in range(60)]
+    assert not any(said)
+    said = [memory.update(37e6 + 5 * 2**20 * (i + 1), 40e6) for i in range(5)]
+    assert any(a is not None and a.started and a.residual > 1.6e6 for a in said)
+
+
+def test_a_gross_fault_from_before_watching_began_alarms_however_the_process_started():
+    busy = Residuals("cpu_percent", threshold=6.8)  # a thread spinning since before the watch
+    said = [busy.update(10.0 + 90.0, 10.0) for _ in range(HOLD)]
+    assert said[-1] is not None and said[-1].started and said[-1].offset is None
+    stalled = Residuals("cpu_percent", threshold=6.8)  # not gross: its offset is only reported
+    assert not any(stalled.update(1.0, 10.0) for _ in range(30))
+    assert stalled.offset == pytest.approx(-9.0)
+
+
 def test_the_live_window_gives_the_features_of_the_same_events():
     spec = FeatureSpec((("a", "in"), ("b", "out")))
     live = EventWindow(spec)

@@ -69,3 +69,22 @@ def test_strict_reading_refuses_a_cut_off_file_and_lenient_reading_keeps_its_pre
     values = [sample["values"]["cpu_percent"] for sample in kept.counters]
     assert not kept.complete and 0 < len(values) < 300
     assert values == [float(index) for index in range(len(values))]
+
+
+def test_a_process_log_is_attached_and_only_its_end_kept_when_long(tmp_path: Path) -> None:
+    from redline.recording.format import LOG_KEEP_BYTES
+
+    path = tmp_path / "logs.mcap"
+    long = b"".join(b"line %d\n" % i for i in range(60_000))  # about 0.5 MB
+    with RecordingWriter(path) as writer:
+        writer.metadata("redline.run", {"component": "c"})
+        writer.log("c", b"ready\n\xff not utf-8\n")
+        writer.log("chatty", long[1000:], cut=1000)
+    recording = read_recording(path)
+    assert recording.logs["c"] == "ready\n\ufffd not utf-8\n"
+    first, rest = recording.logs["chatty"].split("\n", 1)
+    assert first == f"[... the first {len(long) - LOG_KEEP_BYTES} bytes are not kept ...]"
+    assert rest.encode() == long[-LOG_KEEP_BYTES:]
+    with open(path, "rb") as stream:  # standard MCAP attachments, for any MCAP tool
+        names = [a.name for a in make_reader(stream).iter_attachments()]
+    assert names == ["log/c", "log/chatty"]

@@ -11,7 +11,8 @@ once subscribed, and answers queries on ``@redline/recorder/status`` with its co
 uses that as a barrier: a reply means the samples published before it have arrived). On SIGTERM
 or SIGINT it drains the queues, writes the run and host metadata found in the ``--meta`` JSON
 file (read at that moment, so the runner can add the end time) and ``redline.recorder``: counts,
-per-key losses, whether zenoh shared memory was on; and finishes.
+per-key losses, whether zenoh shared memory was on; attaches the output of each process the
+file's ``logs`` names (``{process: log path}``: the components and fixtures); and finishes.
 """
 
 from __future__ import annotations
@@ -30,6 +31,7 @@ import zenoh
 from redline.agent.network import client_settings_from_env, open_client, shared_memory_enabled
 from redline.recording.format import (
     JSON_ENCODING,
+    LOG_KEEP_BYTES,
     META_HOST,
     META_RECORDER,
     META_RUN,
@@ -193,6 +195,12 @@ class Recorder:
                 "zenoh_endpoint": ",".join(settings.get("connect", {}).get("endpoints", [])),
             },
         )
+        for process, path in dict(meta.get("logs", {})).items():
+            try:
+                output, cut = _tail(Path(path), LOG_KEEP_BYTES)
+            except OSError as exc:
+                output, cut = f"[its log could not be read: {exc}]\n".encode(), 0
+            self.writer.log(str(process), output, cut)
         self.writer.close()
 
 
@@ -209,6 +217,15 @@ def _json(data: bytes) -> dict[str, Any]:
     except ValueError:
         return {}
     return found if isinstance(found, dict) else {}
+
+
+def _tail(path: Path, keep: int) -> tuple[bytes, int]:
+    """The last ``keep`` bytes of a file, and how many came before them."""
+    with open(path, "rb") as stream:
+        size = stream.seek(0, 2)
+        cut = max(0, size - keep)
+        stream.seek(cut)
+        return stream.read(keep), cut
 
 
 def _read_meta(path: Path) -> dict[str, Any]:

@@ -234,6 +234,9 @@ class _Run:
         self.say(f"starting {spec.name}: {' '.join(spec.command)}")
         began = time.monotonic()
         process = self._start(spec, env)
+        # its output goes into the recording (the recorder attaches it as it finishes)
+        self.meta.setdefault("logs", {})[spec.name] = str(process.log_path)
+        self._write_meta()
         if spec.ready is not None and spec.ready.kind in ("key", "liveliness"):
             seen = threading.Event()
             subscriber = (

@@ -74,6 +74,9 @@ def agent(
     from redline.agent.daemon import AgentDaemon, AgentStopping
 
     token = read_token(token_file)
+    # the token is the agent's: the builds and components it runs (whose output reaches the
+    # server's pages) inherit its environment, and must not find it there
+    os.environ.pop("REDLINE_TOKEN", None)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s agent %(levelname)s %(message)s")
     daemon = AgentDaemon(
         ServerClient(server, token, name),

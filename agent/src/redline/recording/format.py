@@ -29,6 +29,10 @@ samples received, written and dropped by the recorder; ``lost`` and ``lost_by_ke
 ``sent`` it put in all, with ``checked_keys`` the number of keys the driver reported;
 ``zenoh_shared_memory`` ``on``/``off`` and ``zenoh_endpoint``, the run's router). All values
 are strings, as MCAP requires.
+
+Attachments: ``log/<process>`` (``text/plain``), the output (stdout and stderr) of each component
+and fixture process of the run, its last `LOG_KEEP_BYTES` when longer (a first line says how much
+was cut).
 """
 
 from __future__ import annotations
@@ -65,6 +69,11 @@ META_HOST = "redline.host"
 META_RECORDER = "redline.recorder"
 
 JSON_ENCODING = "json"
+
+#: the attachment holding a process's output is named this followed by the process's name
+LOG_ATTACHMENT_PREFIX = "log/"
+#: at most this much of a process's output is kept in its recording (the end of it)
+LOG_KEEP_BYTES = 256 * 1024
 
 
 def no_traffic_reason(run: Mapping[str, str]) -> str | None:

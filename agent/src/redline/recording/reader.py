@@ -20,7 +20,7 @@ from typing import Any
 
 from mcap.data_stream import ReadDataStream
 from mcap.opcode import Opcode
-from mcap.records import Channel, Chunk, Footer, Header, Message, Metadata
+from mcap.records import Attachment, Channel, Chunk, Footer, Header, Message, Metadata
 from mcap.stream_reader import StreamReader, breakup_chunk
 from redline.recording.disturbance import OTHER_CPU, other_load
 from redline.recording.driver import (
@@ -39,6 +39,7 @@ from redline.recording.format import (
     COUNTERS_PREFIX,
     DRIVER_PREFIX,
     HOST_PROCESS,
+    LOG_ATTACHMENT_PREFIX,
     MARKERS_KEY,
     META_HOST,
     META_RECORDER,
@@ -79,6 +80,8 @@ class Recording:
     #: with ``read_recording(..., events=True)``: every traffic sample as (key, log time in ns,
     #: payload bytes), in file order (`redline.predict` learns from them)
     events: list[tuple[str, int, int]] | None = None
+    #: each component or fixture process's output (its end), by process name
+    logs: dict[str, str] = field(default_factory=dict)
     problem: str = ""
 
     @property
@@ -294,6 +297,9 @@ def _take_record(
         recording.profile = record.profile
     elif isinstance(record, Metadata):
         recording.metadata[record.name] = dict(record.metadata)
+    elif isinstance(record, Attachment) and record.name.startswith(LOG_ATTACHMENT_PREFIX):
+        process = record.name.removeprefix(LOG_ATTACHMENT_PREFIX)
+        recording.logs[process] = bytes(record.data).decode(errors="replace")
     elif isinstance(record, Footer):
         recording.complete = True
 

@@ -15,6 +15,8 @@ from redline.recording.format import (
     COUNTERS_PREFIX,
     FORMAT_VERSION,
     JSON_ENCODING,
+    LOG_ATTACHMENT_PREFIX,
+    LOG_KEEP_BYTES,
     MARKERS_KEY,
     PROFILE,
 )
@@ -142,6 +144,24 @@ class RecordingWriter:
 
     def metadata(self, name: str, data: dict[str, Any]) -> None:
         self._writer.add_metadata(name, _strings(data))
+
+    def log(self, process: str, output: bytes, cut: int = 0) -> None:
+        """Attach a process's output as ``log/<process>``: its last `LOG_KEEP_BYTES`, with a
+        first line saying how much was left out (``cut`` bytes before ``output`` began, and
+        whatever of ``output`` is beyond the limit)."""
+        if len(output) > LOG_KEEP_BYTES:
+            cut += len(output) - LOG_KEEP_BYTES
+            output = output[-LOG_KEEP_BYTES:]
+        if cut:
+            output = f"[... the first {cut} bytes are not kept ...]\n".encode() + output
+        now = time.time_ns()
+        self._writer.add_attachment(
+            create_time=now,
+            log_time=now,
+            name=LOG_ATTACHMENT_PREFIX + process,
+            media_type="text/plain",
+            data=output,
+        )
 
     def close(self) -> None:
         if self._closed:

@@ -8,6 +8,9 @@ the live system's network, not a test's isolation), subscribes to the keys the m
 the component's process tree with the monitor's code (`redline.agent.sampling`), and every
 interval predicts its CPU % and RSS from the communication. When the smoothed residual stays beyond
 the threshold calibrated on the model's validation data, it prints an alarm (and when it ends).
+Usage is judged by how it moves from where this process stood in its first judged steps (two
+processes of the same code differ by more than the model's error), and by its level only when
+gross; that first offset is printed (``{"offset": target, ...}`` with --json).
 Exit status 2 on bad input (no such process, a model of another version); 0 when stopped.
 """
 
@@ -25,7 +28,7 @@ from typing import TYPE_CHECKING, Annotated, Any
 import typer
 
 if TYPE_CHECKING:
-    from redline.predict.watch import Alarm, EventWindow
+    from redline.predict.watch import Alarm, EventWindow, Residuals
 
 EXIT_BAD_INPUT = 2
 
@@ -194,7 +197,10 @@ def watch_cmd(
             for target, tracker in residuals.items():
                 value, guess = float(measured.get(target, 0.0)), float(predicted[target][0])
                 said_measured[target], said_predicted[target] = value, guess
+                known = tracker.offset is not None
                 alarm = None if warming else tracker.update(value, guess)
+                if not known and tracker.offset is not None:
+                    _say_offset(tracker, as_json)
                 if alarm is not None:
                     report(alarm)
                     said = "fault" if alarm.started else "fault over"
@@ -224,6 +230,27 @@ def watch_cmd(
             subscriber.undeclare()
         session.close()
         sampler.close()
+
+
+def _say_offset(tracker: Residuals, as_json: bool) -> None:
+    """Where this process stands against the model, now that its first steps measured it: its
+    moves are judged from there (`redline.predict.watch`); beyond the threshold, a person should
+    look (a fault since before watching began, or a process unlike the training run's)."""
+    beyond = abs(tracker.offset or 0.0) > tracker.threshold
+    if as_json:
+        typer.echo(
+            json.dumps(
+                {"offset": tracker.target, "value": tracker.offset,
+                 "threshold": tracker.threshold, "beyond": beyond}
+            )
+        )  # fmt: skip
+        return
+    typer.echo(
+        f"{tracker.target}: this process stands {tracker.offset:+.4g} from the model's "
+        f"prediction (threshold {tracker.threshold:.4g}); its moves are judged from here"
+        + (": beyond the threshold from the start, look at it" if beyond else ""),
+        err=not beyond,
+    )
 
 
 def register(app: typer.Typer) -> None:

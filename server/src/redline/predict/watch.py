@@ -6,6 +6,17 @@ on validation data (Wienke & Wrede, Section 6; `redline watch` wires it to zenoh
 the very function training used (`redline.predict.features.extract`). `Residuals` smooths the
 residual (an exponentially weighted mean) and raises an alarm once it stays beyond the threshold
 for `HOLD` steps in a row; the alarm ends when it has been back within for as long.
+
+A process is judged by how its usage moves from where it stood, not only by its level: each
+target's residual is also taken from its median over the first `ANCHOR_STEPS` judged steps (the
+process's offset), and an alarm starts when that moved residual, smoothed, stays beyond the
+threshold, or when the residual itself stays beyond `GROSS` times the threshold. Two processes of
+the same code differ for the same traffic by more than a model's error: a fresh objectbuilder's
+RSS stood 1.6 MB (5 %) below its training run's, and its CPU can settle 7.5 % of a core lower (a
+cheaper hand-over of the GIL between its threads), close to what a stall takes away; judged by
+level alone, both alarmed on clean traffic. A fault shows as a move (a thread starts spinning, the
+workers stall, memory keeps growing); one present before watching began is seen only when gross
+(a busy thread: tens of % of a core), and the offset is reported for a person to judge.
 """
 
 from __future__ import annotations
@@ -27,6 +38,10 @@ MARGIN = 2.0
 #: and at least this share of the target's typical level (a model that fits its training data
 #: all but exactly, e.g. a constant RSS, would otherwise alarm at any wobble)
 FLOOR = 0.05
+#: judged steps whose median residual is the process's offset (the moves are judged after them)
+ANCHOR_STEPS = 10
+#: the residual's own level alarms beyond this many times the threshold, whatever the offset
+GROSS = 3.0
 
 
 def smooth(residuals: np.ndarray, weight: float = SMOOTHING) -> np.ndarray:
@@ -80,29 +95,47 @@ class Alarm:
     target: str
     started: bool  # True: a fault began; False: it ended
     step: int
-    residual: float
+    residual: float  # the smoothed residual judged: moved from the offset once it is known
     threshold: float
+    offset: float | None = None  # the process's offset (None while it is being measured)
 
 
 class Residuals:
-    """Smoothed residuals of one target against its threshold."""
+    """Smoothed residuals of one target against its threshold, judged by their move from the
+    process's offset (once `ANCHOR_STEPS` steps have measured it) and by their level against
+    `GROSS` times the threshold."""
 
     def __init__(self, target: str, threshold: float) -> None:
         self.target, self.threshold = target, threshold
-        self.level: float | None = None
+        self.level: float | None = None  # the smoothed residual
+        self.moved: float | None = None  # the smoothed residual less the offset
+        self.offset: float | None = None
         self.step = 0
         self.active = False
         self._streak = 0
+        self._first: list[float] = []
+
+    @staticmethod
+    def _smooth(level: float | None, value: float) -> float:
+        return value if level is None else SMOOTHING * value + (1 - SMOOTHING) * level
 
     def update(self, measured: float, predicted: float) -> Alarm | None:
         residual = measured - predicted
-        self.level = (
-            residual if self.level is None else SMOOTHING * residual + (1 - SMOOTHING) * self.level
-        )
         self.step += 1
-        beyond = abs(self.level) > self.threshold
+        self.level = self._smooth(self.level, residual)
+        if self.offset is None:
+            self._first.append(residual)
+            if len(self._first) == ANCHOR_STEPS:
+                self.offset = float(np.median(self._first))
+        else:
+            self.moved = self._smooth(self.moved, residual - self.offset)
+        # until the offset is known, only a gross level alarms
+        judged = self.level if self.moved is None else self.moved
+        beyond = abs(self.level) > GROSS * self.threshold or (
+            self.moved is not None and abs(self.moved) > self.threshold
+        )
         self._streak = self._streak + 1 if beyond != self.active else 0
         if self._streak >= HOLD:
             self.active, self._streak = beyond, 0
-            return Alarm(self.target, beyond, self.step, self.level, self.threshold)
+            return Alarm(self.target, beyond, self.step, judged, self.threshold, self.offset)
         return None

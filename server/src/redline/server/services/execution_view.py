@@ -1,6 +1,6 @@
 """One execution as its page shows it (the paper's plots, its section 4.4.2): the raw counters of
 the component's processes against time with the phases marked, each counter against each
-numeric test parameter, and the driver's metrics.
+numeric test parameter, the driver's metrics, and the output of the component's processes.
 
 The raw counters come from the stored recording (gone once retention pruned it: the page says
 so); the rest from the execution's summaries, which stay.
@@ -47,6 +47,8 @@ class ExecutionView:
     timelines: dict[tuple[str, str], list[tuple[float, float]]] = field(default_factory=dict)
     start_ns: int = 0
     summaries: list[SummaryRow] = field(default_factory=list)
+    #: each component or fixture process's output (its end), by process name
+    logs: dict[str, str] = field(default_factory=dict)
 
 
 def _summaries(session: Session, execution_id: int) -> list[SummaryRow]:
@@ -92,6 +94,7 @@ def execution_view(session: Session, execution_id: int) -> ExecutionView:
         return view
     view.recording = path
     view.segments = recording.segments()
+    view.logs = dict(sorted(recording.logs.items()))
     lines: dict[tuple[str, str], list[tuple[int, float]]] = defaultdict(list)
     for key, points in recording.series_timeline(include_warmup=True).items():
         if kind(key.process) == "counter":
