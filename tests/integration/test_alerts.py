@@ -15,6 +15,7 @@ from pathlib import Path
 import jsonschema
 import numpy as np
 import pytest
+import redis
 from redline.server.db import session_factory
 from redline.server.models import (
     Alert,
@@ -27,7 +28,13 @@ from redline.server.models import (
 )
 from redline.server.schemas.regressions import TriageRequest
 from redline.server.services.regressions import triage
-from redline.worker.alerts import commit_status, runtime_alerts, scan_component, send_digests
+from redline.worker.alerts import (
+    commit_status,
+    failed_without_status,
+    runtime_alerts,
+    scan_component,
+    send_digests,
+)
 from redline.worker.deliver import claim, deliver_due
 from redline.worker.detection import detect_revision
 from redline.worker.ingest import ingest_execution
@@ -543,3 +550,41 @@ def test_a_runtime_fault_reaches_the_subscriptions_that_want_its_target_once(
         in mail.get_body(("plain",)).get_content()
     )
     assert not receiver.to("/later")
+
+
+def _queued_tasks(api: Api) -> list[tuple[str, str]]:
+    """(task name, its arguments) of the messages waiting in the detection queue (no worker
+    runs in these tests: what the API sent stays in Redis)."""
+    broker = redis.Redis.from_url(api.settings.redis_url)
+    messages = [json.loads(m) for m in broker.lrange(api.settings.queue, 0, -1)]
+    return [(m["headers"]["task"], m["headers"]["argsrepr"]) for m in messages]
+
+
+def test_a_revision_whose_jobs_all_failed_gets_its_commit_status_too(api, receiver):
+    api.client.put(
+        f"{BASE}/commit-status",
+        json={"provider": "github", "api_url": receiver.url + "/api", "repository": "r/b",
+              "token": "tok"},  # fmt: skip
+        headers=api.tokens["admin"],
+    ).raise_for_status()
+    revision = api.revision("r1", "1")
+    api.post("/api/v1/agent/register", "agent", {"name": "perf1"}).raise_for_status()
+    job = api.lease()
+    database_url = api.settings.database_url
+    with session_factory(database_url)() as session:
+        assert failed_without_status(session) == []  # still running: its verdict may come
+    answer = api.post(f"/api/v1/jobs/{job['id']}/fail", "agent", {"host": "perf1", "reason": "x"})
+    assert answer.status_code == 200, answer.text
+    # no ingest follows a failed job: the API itself queues the verdict's scan ...
+    assert ("redline.scan_alerts", f"[None, {revision['revision_id']}]") in _queued_tasks(api)
+    with session_factory(database_url)() as session:
+        # ... and the periodic sweep finds it too, should that message be lost
+        assert failed_without_status(session) == [revision["revision_id"]]
+        assert len(commit_status(session, revision["revision_id"])) == 1
+        session.commit()
+        assert failed_without_status(session) == []  # posted once
+    deliver_due(database_url, api.settings)
+    (call,) = receiver.requests
+    body = json.loads(call.body)
+    assert call.path == "/api/repos/r/b/statuses/abc123"
+    assert body["state"] == "error" and "failed or were cancelled" in body["description"]

@@ -12,7 +12,7 @@ import psutil
 import pytest
 from redline.agent.network import free_port
 from redline.commands import demo
-from redline.commands.stack import Stack
+from redline.commands.stack import Stack, server_only_variables
 
 from tests.support.servers import Services, fresh_database
 
@@ -92,6 +92,12 @@ def test_secrets_stay_out_of_process_lists_and_logs(stack: Stack):
         assert len(commands) == 4 and "agent" in commands[-1]  # server, 2 workers, agent
         assert any("--queues alerts" in c for c in commands)  # deliveries apart from analysis
         assert not [c for c in commands if any(secret in c for secret in secrets)]
+        # the agent (whose builds and components inherit its environment) holds none of the
+        # server's settings: not its database, Redis, storage or secrets
+        agent = psutil.Process(stack.children[-1].process.pid).environ()
+        assert agent["REDLINE_TOKEN"] == stack.token("agent", "agent")
+        assert "REDLINE_DATABASE_URL" in stack.env and "REDLINE_REDIS_URL" in stack.env
+        assert not {k for k in agent if k in server_only_variables()}, sorted(agent)
         page = httpx.get(f"{stack.url}/components/nothing?token={stack.admin_token}")
         assert page.status_code == 404
         _wait_for(

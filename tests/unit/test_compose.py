@@ -39,3 +39,10 @@ def test_every_redline_service_runs_a_command_the_cli_accepts() -> None:
     assert beats == ["alerts"]  # `--scale worker=N` must not start N schedulers
     assert services["worker"]["queues"] == "analysis"
     assert services["alerts"]["queues"] == "alerts"
+
+
+def test_the_agent_holds_none_of_the_servers_settings_or_storage() -> None:
+    agent = COMPOSE["services"]["agent"]
+    assert set(agent["environment"]) == {"REDLINE_TOKEN"}  # no database or Redis URL
+    assert COMPOSE["services"]["server"]["environment"]["REDLINE_DATABASE_URL"]  # they have it
+    assert not [v for v in agent["volumes"] if v.startswith("storage:")]

@@ -31,6 +31,18 @@ def redline_executable() -> str:
     return str(found) if found.exists() else shutil.which("redline") or "redline"
 
 
+def server_only_variables() -> frozenset[str]:
+    """The server's settings (`Settings`: its database and Redis, secrets, storage) that an
+    agent does not read: the builds and components an agent runs inherit its environment (and
+    their output reaches the pages), so it is given none of them."""
+    from redline.server.core.config import Settings
+
+    agent_reads = {"allow_file_repos"}
+    return frozenset(
+        f"REDLINE_{name.upper()}" for name in Settings.model_fields if name not in agent_reads
+    )
+
+
 class StackError(RuntimeError):
     """The stack could not start or a child died; the message says which and why."""
 
@@ -105,8 +117,9 @@ class Stack:
             str(self.data / "agent"),
             "--poll",
             "1",
-            env={"REDLINE_TOKEN": agent},
-        )  # in its environment: argv is public (ps)
+            env={"REDLINE_TOKEN": agent},  # in its environment: argv is public (ps)
+            without=server_only_variables(),
+        )
 
     def _service_env(self) -> dict[str, str]:
         env = dict(os.environ)
@@ -145,13 +158,21 @@ class Stack:
         return token
 
     def _spawn(
-        self, name: str, *args: str, nice: int = 0, env: dict[str, str] | None = None
+        self,
+        name: str,
+        *args: str,
+        nice: int = 0,
+        env: dict[str, str] | None = None,
+        without: frozenset[str] = frozenset(),
     ) -> None:
+        """Start ``redline ARGS`` logging to ``logs/NAME.log``, with the stack's environment
+        less the variables ``without``, plus ``env``."""
         log_path = self.data / "logs" / f"{name}.log"
         log = open_private_log(log_path)
+        inherited = {key: value for key, value in self.env.items() if key not in without}
         process = subprocess.Popen(
             [redline_executable(), *args],
-            env={**self.env, **(env or {})},
+            env={**inherited, **(env or {})},
             stdout=log,
             stderr=subprocess.STDOUT,
             start_new_session=True,

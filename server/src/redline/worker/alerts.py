@@ -32,6 +32,8 @@ from redline.server.models import (
     Delivery,
     Detection,
     Execution,
+    Job,
+    JobState,
     Regression,
     RegressionState,
     Revision,
@@ -43,7 +45,7 @@ from redline.server.models import (
 from redline.server.services.ci_verdict import ci_verdict
 from redline.server.services.detection_config import component_config
 from redline.worker import messages
-from sqlalchemy import and_, or_, select
+from sqlalchemy import and_, func, or_, select
 from sqlalchemy.orm import Session, aliased
 
 #: a regression that grows is told again at most this often (and a digest goes out this often)
@@ -325,6 +327,41 @@ def send_digests(session: Session, now: datetime | None = None) -> list[int]:
         subscription.digest_sent = now
         made.append(delivery.id)
     return made
+
+
+#: jobs that have not ended: their revision's verdict may still change
+UNSETTLED = (JobState.queued, JobState.leased, JobState.running, JobState.uploaded)
+#: how far back the sweep looks for revisions whose jobs ended without a judgement
+SETTLED_WITHIN = timedelta(days=2)
+
+
+def failed_without_status(session: Session, now: datetime | None = None) -> list[int]:
+    """Revisions with a commit whose jobs have all
+    ended (in the last `SETTLED_WITHIN`), one of their own failed or cancelled, and with no final
+    status yet: no ingest follows such a job, so nothing else would post the verdict (a build
+    that fails, leases that lapse until the job is failed, a host that gives up)."""
+    since = (now or utcnow()) - SETTLED_WITHIN
+    other = aliased(Job)
+    unsettled = select(other.id).where(other.revision_id == Revision.id, other.state.in_(UNSETTLED))
+    final = select(Delivery.id).where(
+        Delivery.key.in_(
+            [
+                func.concat("status:", Revision.id, f":{state}")
+                for state in ("success", "failure", "error")
+            ]
+        )
+    )
+    return list(
+        session.scalars(
+            select(Revision.id)
+            .join(Job, Job.revision_id == Revision.id)
+            .where(Revision.commit != "")  # whether its component posts: `commit_status`
+            .where(Job.pair == 0, Job.state.in_((JobState.failed, JobState.cancelled)))
+            .where(Job.updated >= since)
+            .where(~unsettled.exists(), ~final.exists())
+            .distinct()
+        )
+    )
 
 
 def commit_status(session: Session, revision_id: int) -> list[int]:

@@ -23,7 +23,13 @@ from redline.server.core.tasks import (
 )
 from redline.server.db import session_scope
 from redline.server.models import Revision
-from redline.worker.alerts import commit_status, runtime_alerts, scan_component, send_digests
+from redline.worker.alerts import (
+    commit_status,
+    failed_without_status,
+    runtime_alerts,
+    scan_component,
+    send_digests,
+)
 from redline.worker.app import celery_app
 from redline.worker.deliver import deliver_due
 from redline.worker.detection import detect_revision as run_detection
@@ -87,11 +93,15 @@ def render_trends(revision_id: int) -> None:
 
 @celery_app.task(name=REQUEUE_TASK, acks_late=True)
 def requeue_stale_uploads() -> int:
-    """Queue again the ingestion of executions left `uploaded` (beat schedule: every 5 min)."""
+    """Queue again the ingestion of executions left `uploaded` (beat schedule: every 5 min),
+    and the commit status of revisions whose jobs ended failed, which no ingest follows."""
     with session_scope(_settings().database_url) as session:
         executions = stale_uploads(session)
+        revisions = failed_without_status(session)
     for execution_id in executions:
         ingest_execution.delay(execution_id)
+    for revision_id in revisions:
+        scan_alerts.delay(None, revision_id)
     if executions:
         log.warning(
             "ingestion queued again for %d executions left uploaded: %s",

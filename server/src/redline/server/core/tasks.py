@@ -79,7 +79,7 @@ class TaskSender:
         self.settings = settings
         self._celery: Celery | None = None
 
-    def send(self, name: str, *args: int) -> bool:
+    def send(self, name: str, *args: int | None) -> bool:
         try:
             if self._celery is None:
                 self._celery = celery_client(self.settings)
@@ -97,6 +97,10 @@ class TaskSender:
 
     def reanalyze(self, component_id: int) -> bool:
         return self.send(REANALYZE_TASK, component_id)
+
+    def revision_ended(self, revision_id: int) -> bool:
+        """Its jobs ended without a judgement to follow (they failed): post its verdict."""
+        return self.send(SCAN_ALERTS_TASK, None, revision_id)
 
     def train(self, model_id: int) -> bool:
         return self.send(TRAIN_TASK, model_id)

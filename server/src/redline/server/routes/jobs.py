@@ -59,10 +59,14 @@ def release(job_id: int, data: HostRequest, session: SessionDep, token: AgentTok
 
 
 @router.post("/{job_id}/fail", responses=PROBLEMS)
-def fail(job_id: int, data: FailRequest, session: SessionDep, token: AgentToken) -> JobStateOut:
+def fail(
+    job_id: int, data: FailRequest, request: Request, session: SessionDep, token: AgentToken
+) -> JobStateOut:
     """Fail the job with the agent's reason; 409 when this host does not hold it."""
     ensure_own_host(token, data.host)
     job = jobs.fail_job(session, job_id, data.host, data.reason)
+    if jobs.ended(session, job.revision_id):  # no ingest follows: the verdict is posted now
+        request.app.state.tasks.revision_ended(job.revision_id)
     return JobStateOut(id=job.id, state=job.state.value, reason=job.reason)
 
 

@@ -154,6 +154,18 @@ def release_job(session: Session, job_id: int, host_name: str) -> Job:
     return job
 
 
+def ended(session: Session, revision_id: int) -> bool:
+    """Whether every job of the revision has ended (none queued, held or awaiting ingest)."""
+    return not session.scalar(
+        select(
+            select(Job.id)
+            .where(Job.revision_id == revision_id)
+            .where(Job.state.in_((JobState.queued, *HELD, JobState.uploaded)))
+            .exists()
+        )
+    )
+
+
 def fail_job(session: Session, job_id: int, host_name: str, reason: str) -> Job:
     """Mark a job this host holds failed with its reason; the same host failing it again
     changes nothing. Another host (one whose lease lapsed, say) gets a Conflict."""
