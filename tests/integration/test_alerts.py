@@ -25,21 +25,24 @@ from redline.server.models import (
     Execution,
     RegressionState,
     Revision,
+    utcnow,
 )
 from redline.server.schemas.regressions import TriageRequest
 from redline.server.services.regressions import triage
 from redline.worker.alerts import (
+    SWEEP_GRACE,
     commit_status,
     failed_without_status,
     runtime_alerts,
     scan_component,
     send_digests,
+    untold_runtime_alarms,
 )
 from redline.worker.deliver import claim, deliver_due
 from redline.worker.detection import detect_revision
 from redline.worker.ingest import ingest_execution
 from redline.worker.reanalysis import reanalyze_component
-from sqlalchemy import select, update
+from sqlalchemy import delete, select, update
 
 from tests.support.api import Api, api_with
 from tests.support.history import add_execution
@@ -509,10 +512,17 @@ def test_a_runtime_fault_reaches_the_subscriptions_that_want_its_target_once(
     answer = api.post(f"{BASE}/runtime-alerts", "agent", fault)
     assert answer.status_code == 201, answer.text
     database_url = api.settings.database_url
+    later = utcnow() + SWEEP_GRACE + timedelta(seconds=5)
+    with session_factory(database_url)() as session:
+        # its task is on its way: the sweep leaves it; had it been lost, the sweep queues it
+        assert untold_runtime_alarms(session) == []
+        assert untold_runtime_alarms(session, now=later) == [answer.json()["id"]]
     for _ in range(2):  # a retried task tells no one twice
         with session_factory(database_url)() as session:
             runtime_alerts(session, answer.json()["id"])
             session.commit()
+    with session_factory(database_url)() as session:
+        assert untold_runtime_alarms(session, now=later) == []  # told
     deliver_due(database_url, api.settings)
 
     (call,) = receiver.to("/hook")
@@ -563,8 +573,12 @@ def _queued_tasks(api: Api) -> list[tuple[str, str]]:
 def test_a_revision_whose_jobs_all_failed_gets_its_commit_status_too(api, receiver):
     api.client.put(
         f"{BASE}/commit-status",
-        json={"provider": "github", "api_url": receiver.url + "/api", "repository": "r/b",
-              "token": "tok"},  # fmt: skip
+        json={
+            "provider": "github",
+            "api_url": receiver.url + "/api",
+            "repository": "r/b",
+            "token": "tok",
+        },  # fmt: skip
         headers=api.tokens["admin"],
     ).raise_for_status()
     revision = api.revision("r1", "1")
@@ -577,14 +591,23 @@ def test_a_revision_whose_jobs_all_failed_gets_its_commit_status_too(api, receiv
     assert answer.status_code == 200, answer.text
     # no ingest follows a failed job: the API itself queues the verdict's scan ...
     assert ("redline.scan_alerts", f"[None, {revision['revision_id']}]") in _queued_tasks(api)
+    later = utcnow() + SWEEP_GRACE + timedelta(seconds=5)
     with session_factory(database_url)() as session:
-        # ... and the periodic sweep finds it too, should that message be lost
-        assert failed_without_status(session) == [revision["revision_id"]]
+        # ... and the periodic sweep finds it too, should that message be lost (once the
+        # message has had time to arrive)
+        assert failed_without_status(session) == []
+        assert failed_without_status(session, now=later) == [revision["revision_id"]]
         assert len(commit_status(session, revision["revision_id"])) == 1
         session.commit()
-        assert failed_without_status(session) == []  # posted once
+        assert failed_without_status(session, now=later) == []  # posted once
     deliver_due(database_url, api.settings)
     (call,) = receiver.requests
     body = json.loads(call.body)
     assert call.path == "/api/repos/r/b/statuses/abc123"
     assert body["state"] == "error" and "failed or were cancelled" in body["description"]
+    with session_factory(database_url)() as session:
+        # a component that posts no statuses has nothing swept, however its jobs ended
+        session.execute(delete(Delivery))
+        session.execute(update(Component).values(commit_status={}))
+        session.commit()
+        assert failed_without_status(session, now=later) == []

@@ -139,8 +139,15 @@ def test_usage_is_judged_by_how_it_moves_from_where_the_process_stood_at_first()
 
 def test_a_gross_fault_from_before_watching_began_alarms_however_the_process_started():
     busy = Residuals("cpu_percent", threshold=6.8)  # a thread spinning since before the watch
-    said = [busy.update(10.0 + 90.0, 10.0) for _ in range(HOLD)]
-    assert said[-1] is not None and said[-1].started and said[-1].offset is None
+    said = [busy.update(10.0 + 90.0, 10.0) for _ in range(20)]
+    assert said[HOLD - 1] is not None and said[HOLD - 1].started and said[HOLD - 1].offset is None
+    assert not any(said[HOLD:])
+    # the thread stops: the alarm ends, and the process's offset is measured from then on (the
+    # fault's steps are not its level: that would have left a move of -90 alarming for ever)
+    said = [busy.update(10.0 + 0.5, 10.0) for _ in range(40)]
+    ends = [a for a in said if a is not None]
+    assert [a.started for a in ends] == [False]
+    assert busy.offset == pytest.approx(0.5) and not busy.active
     stalled = Residuals("cpu_percent", threshold=6.8)  # not gross: its offset is only reported
     assert not any(stalled.update(1.0, 10.0) for _ in range(30))
     assert stalled.offset == pytest.approx(-9.0)

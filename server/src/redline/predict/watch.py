@@ -95,15 +95,15 @@ class Alarm:
     target: str
     started: bool  # True: a fault began; False: it ended
     step: int
-    residual: float  # the smoothed residual judged: moved from the offset once it is known
+    residual: float  # the smoothed residual judged: its level when gross, else its move
     threshold: float
     offset: float | None = None  # the process's offset (None while it is being measured)
 
 
 class Residuals:
     """Smoothed residuals of one target against its threshold, judged by their move from the
-    process's offset (once `ANCHOR_STEPS` steps have measured it) and by their level against
-    `GROSS` times the threshold."""
+    process's offset (once `ANCHOR_STEPS` clean steps in a row, neither gross nor in an alarm,
+    have measured it) and by their level against `GROSS` times the threshold."""
 
     def __init__(self, target: str, threshold: float) -> None:
         self.target, self.threshold = target, threshold
@@ -123,17 +123,22 @@ class Residuals:
         residual = measured - predicted
         self.step += 1
         self.level = self._smooth(self.level, residual)
+        gross = abs(self.level) > GROSS * self.threshold
         if self.offset is None:
-            self._first.append(residual)
-            if len(self._first) == ANCHOR_STEPS:
-                self.offset = float(np.median(self._first))
+            # measured over clean steps in a row: a fault there would become the process's
+            # level, and its end a move that never ends
+            if gross or self.active:
+                self._first.clear()
+            else:
+                self._first.append(residual)
+                if len(self._first) == ANCHOR_STEPS:
+                    self.offset = float(np.median(self._first))
         else:
             self.moved = self._smooth(self.moved, residual - self.offset)
+        moved = self.moved is not None and abs(self.moved) > self.threshold
         # until the offset is known, only a gross level alarms
-        judged = self.level if self.moved is None else self.moved
-        beyond = abs(self.level) > GROSS * self.threshold or (
-            self.moved is not None and abs(self.moved) > self.threshold
-        )
+        judged = self.level if gross or self.moved is None else self.moved
+        beyond = gross or moved
         self._streak = self._streak + 1 if beyond != self.active else 0
         if self._streak >= HOLD:
             self.active, self._streak = beyond, 0

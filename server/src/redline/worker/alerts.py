@@ -45,7 +45,8 @@ from redline.server.models import (
 from redline.server.services.ci_verdict import ci_verdict
 from redline.server.services.detection_config import component_config
 from redline.worker import messages
-from sqlalchemy import and_, func, or_, select
+from sqlalchemy import and_, cast, func, or_, select
+from sqlalchemy.dialects.postgresql import JSONB
 from sqlalchemy.orm import Session, aliased
 
 #: a regression that grows is told again at most this often (and a digest goes out this often)
@@ -331,16 +332,20 @@ def send_digests(session: Session, now: datetime | None = None) -> list[int]:
 
 #: jobs that have not ended: their revision's verdict may still change
 UNSETTLED = (JobState.queued, JobState.leased, JobState.running, JobState.uploaded)
-#: how far back the sweep looks for revisions whose jobs ended without a judgement
-SETTLED_WITHIN = timedelta(days=2)
+#: how far back the sweeps look for revisions whose jobs ended without a judgement, and for
+#: run-time alarms no subscription was told of
+SWEEP_WITHIN = timedelta(days=2)
+#: and how old what they pick up must be: younger, the message queued for it may be on its way
+SWEEP_GRACE = timedelta(minutes=2)
 
 
 def failed_without_status(session: Session, now: datetime | None = None) -> list[int]:
-    """Revisions with a commit whose jobs have all
-    ended (in the last `SETTLED_WITHIN`), one of their own failed or cancelled, and with no final
-    status yet: no ingest follows such a job, so nothing else would post the verdict (a build
-    that fails, leases that lapse until the job is failed, a host that gives up)."""
-    since = (now or utcnow()) - SETTLED_WITHIN
+    """Revisions with a commit, of components that post commit statuses, whose jobs have all
+    ended (in the last `SWEEP_WITHIN`, `SWEEP_GRACE` ago at least), one of their own failed or
+    cancelled, and with no final status yet: no ingest follows such a job, so nothing else would
+    post the verdict (a build that fails, leases that lapse until the job is failed, a host that
+    gives up)."""
+    now = now or utcnow()
     other = aliased(Job)
     unsettled = select(other.id).where(other.revision_id == Revision.id, other.state.in_(UNSETTLED))
     final = select(Delivery.id).where(
@@ -354,12 +359,37 @@ def failed_without_status(session: Session, now: datetime | None = None) -> list
     return list(
         session.scalars(
             select(Revision.id)
+            .join(Component, Component.id == Revision.component_id)
             .join(Job, Job.revision_id == Revision.id)
-            .where(Revision.commit != "")  # whether its component posts: `commit_status`
+            .where(cast(Component.commit_status, JSONB).has_key("provider"), Revision.commit != "")
             .where(Job.pair == 0, Job.state.in_((JobState.failed, JobState.cancelled)))
-            .where(Job.updated >= since)
+            .where(Job.updated.between(now - SWEEP_WITHIN, now - SWEEP_GRACE))
             .where(~unsettled.exists(), ~final.exists())
             .distinct()
+        )
+    )
+
+
+def untold_runtime_alarms(session: Session, now: datetime | None = None) -> list[int]:
+    """Run-time alarms (of the last `SWEEP_WITHIN`, `SWEEP_GRACE` ago at least) that no alert
+    was made of although a subscription listens: their task was never queued (the broker was
+    down when `redline watch` reported) or got lost. `runtime_alerts` decides who is told."""
+    now = now or utcnow()
+    told = select(Alert.id).where(Alert.runtime_alarm_id == RuntimeAlarm.id)
+    listening = select(Subscription.id).where(
+        or_(
+            Subscription.component_id == RuntimeAlarm.component_id,
+            Subscription.component_id.is_(None),
+        ),
+        Subscription.direction != "improvement",
+        Subscription.created <= RuntimeAlarm.at,
+    )
+    return list(
+        session.scalars(
+            select(RuntimeAlarm.id)
+            .where(RuntimeAlarm.at.between(now - SWEEP_WITHIN, now - SWEEP_GRACE))
+            .where(~told.exists(), listening.exists())
+            .order_by(RuntimeAlarm.id)
         )
     )
 

@@ -29,6 +29,7 @@ from redline.worker.alerts import (
     runtime_alerts,
     scan_component,
     send_digests,
+    untold_runtime_alarms,
 )
 from redline.worker.app import celery_app
 from redline.worker.deliver import deliver_due
@@ -93,15 +94,19 @@ def render_trends(revision_id: int) -> None:
 
 @celery_app.task(name=REQUEUE_TASK, acks_late=True)
 def requeue_stale_uploads() -> int:
-    """Queue again the ingestion of executions left `uploaded` (beat schedule: every 5 min),
-    and the commit status of revisions whose jobs ended failed, which no ingest follows."""
+    """Queue again the ingestion of executions left `uploaded` (beat schedule: every 5 min);
+    and what a message lost on its way would have left undone: the commit status of revisions
+    whose jobs ended failed (which no ingest follows), the alerts of run-time alarms."""
     with session_scope(_settings().database_url) as session:
         executions = stale_uploads(session)
         revisions = failed_without_status(session)
+        alarms = untold_runtime_alarms(session)
     for execution_id in executions:
         ingest_execution.delay(execution_id)
     for revision_id in revisions:
         scan_alerts.delay(None, revision_id)
+    for alarm_id in alarms:
+        runtime_alert.delay(alarm_id)
     if executions:
         log.warning(
             "ingestion queued again for %d executions left uploaded: %s",
