@@ -91,7 +91,10 @@ def demo(data: Path = DataOption, port: int = PortOption) -> None:
             return  # stopped before the results were in
         changes = httpx.get(f"{stack.url}/api/v1/components/{example.COMPONENT}/changes").json()
         for change in (c for c in changes if c.get("flagged")):
-            console.print(f"[yellow]change[/yellow] {escape(example.change_line(change))}")
+            # one line each, however narrow the terminal (or a log file: no terminal at all)
+            console.print(
+                f"[yellow]change[/yellow] {escape(example.change_line(change))}", soft_wrap=True
+            )
         console.print(f"trend charts: [bold]{stack.url}/components/{example.COMPONENT}[/bold]")
 
     _serve(console, data, port, then=show)
