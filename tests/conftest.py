@@ -6,6 +6,7 @@ Every test under `tests/unit` is marked `unit`, under `tests/integration` `integ
 
 from __future__ import annotations
 
+import signal
 import tempfile
 from pathlib import Path
 
@@ -13,6 +14,14 @@ import pytest
 
 HERE = Path(__file__).resolve().parent
 FOLDERS = {HERE / "unit": pytest.mark.unit, HERE / "integration": pytest.mark.integration}
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    """Ctrl-C as an interactive shell would deliver it, however the suite was started: a shell
+    script that starts the suite in the background (``cmd &``) hands it SIGINT ignored, which
+    survives every exec, so the tests of Ctrl-C (to `redline run`, to the runner) would see it
+    do nothing. Python's own handler, unlike "ignored", is reset to the default by an exec."""
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:

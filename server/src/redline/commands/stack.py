@@ -106,6 +106,10 @@ class Stack:
             "--no-beat",
             nice=BACKGROUND_NICE,
         )
+        # the agent last, once the workers have started: their start-up takes a core or two for
+        # a few seconds, which the agent's first run would see as other load (and run again)
+        for worker in ("worker", "alerts"):
+            self._wait_logged(worker, " ready.")
         self._spawn(
             "agent",
             "agent",
@@ -191,6 +195,20 @@ class Stack:
                 pass
             time.sleep(0.3)
         raise StackError(f"the API server did not answer {self.url}/healthz within {timeout:.0f}s")
+
+    def _wait_logged(self, name: str, text: str, timeout: float = 90.0) -> None:
+        """Wait until the child ``name`` has logged ``text`` (Celery's "celery@host ready.")."""
+        child = next(c for c in self.children if c.name == name)
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            self.check_children()
+            if text in child.log_path.read_text(errors="replace"):
+                return
+            time.sleep(0.3)
+        raise StackError(
+            f"the {name} did not start within {timeout:.0f}s; its log ({child.log_path}) ends:\n"
+            f"{child.tail()}"
+        )
 
     def check_children(self) -> None:
         for child in self.children:
