@@ -91,7 +91,7 @@ def clean(model: Path, folder: Path, minutes: float) -> dict:
         reference.communicate(timeout=10)
     steps = [line for line in lines if "measured" in line and not line["warming"]]
     alarms = [line for line in lines if line.get("alarm") == "fault"]
-    offsets = {line["offset"]: line["value"] for line in lines if "offset" in line}
+    offsets = {line["offset"]: line["taken_off"] for line in lines if "offset" in line}
     thresholds, largest, largest_moved = {}, {}, {}
     for target in ("cpu_percent", "rss_bytes"):
         residuals = np.array(

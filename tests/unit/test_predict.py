@@ -137,6 +137,17 @@ def test_usage_is_judged_by_how_it_moves_from_where_the_process_stood_at_first()
     assert any(a is not None and a.started and a.residual > 1.6e6 for a in said)
 
 
+def test_an_offset_within_the_models_own_error_is_not_taken_off():
+    rng = np.random.default_rng(6)
+    tracker = Residuals("cpu_percent", threshold=8.3)
+    said = [tracker.update(12.0 - 2.9 + rng.normal(0, 0.3), 12.0) for _ in range(12)]
+    assert not any(said) and tracker.offset == pytest.approx(-2.9, abs=0.3)
+    assert tracker.taken_off == 0.0  # under half the threshold: the model's error
+    # a clean burst of +6.6 stays a move of +6.6, not +9.5
+    said = [tracker.update(12.0 + 6.6, 12.0) for _ in range(10)]
+    assert not any(said)
+
+
 def test_a_gross_fault_from_before_watching_began_alarms_however_the_process_started():
     busy = Residuals("cpu_percent", threshold=6.8)  # a thread spinning since before the watch
     said = [busy.update(10.0 + 90.0, 10.0) for _ in range(20)]

@@ -241,7 +241,8 @@ def _say_offset(tracker: Residuals, as_json: bool) -> None:
         typer.echo(
             json.dumps(
                 {"offset": tracker.target, "value": tracker.offset,
-                 "threshold": tracker.threshold, "beyond": beyond}
+                 "taken_off": tracker.taken_off, "threshold": tracker.threshold,
+                 "beyond": beyond}
             )
         )  # fmt: skip
         return
