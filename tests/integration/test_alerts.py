@@ -30,18 +30,16 @@ from redline.server.models import (
 from redline.server.schemas.regressions import TriageRequest
 from redline.server.services.regressions import triage
 from redline.worker.alerts import (
-    SWEEP_GRACE,
     commit_status,
-    failed_without_status,
     runtime_alerts,
     scan_component,
     send_digests,
-    untold_runtime_alarms,
 )
 from redline.worker.deliver import claim, deliver_due
 from redline.worker.detection import detect_revision
 from redline.worker.ingest import ingest_execution
 from redline.worker.reanalysis import reanalyze_component
+from redline.worker.sweeps import SWEEP_GRACE, failed_without_status, untold_runtime_alarms
 from sqlalchemy import delete, select, update
 
 from tests.support.api import Api, api_with

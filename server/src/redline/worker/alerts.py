@@ -32,8 +32,6 @@ from redline.server.models import (
     Delivery,
     Detection,
     Execution,
-    Job,
-    JobState,
     Regression,
     RegressionState,
     Revision,
@@ -45,8 +43,7 @@ from redline.server.models import (
 from redline.server.services.ci_verdict import ci_verdict
 from redline.server.services.detection_config import component_config
 from redline.worker import messages
-from sqlalchemy import and_, cast, func, or_, select
-from sqlalchemy.dialects.postgresql import JSONB
+from sqlalchemy import and_, or_, select
 from sqlalchemy.orm import Session, aliased
 
 #: a regression that grows is told again at most this often (and a digest goes out this often)
@@ -256,6 +253,17 @@ def scan_component(session: Session, component_id: int) -> list[int]:
     return [alert.delivery_id for alert in made if alert.delivery_id is not None]
 
 
+def runtime_listeners(component_id: Any, at: Any) -> tuple[Any, ...]:
+    """The conditions on `Subscription` that make it hear of a run-time alarm of the component
+    at that time (values, or columns of a query over `RuntimeAlarm`): of the component or of
+    all, not for improvements only, and made by then."""
+    return (
+        or_(Subscription.component_id == component_id, Subscription.component_id.is_(None)),
+        Subscription.direction != "improvement",
+        Subscription.created <= at,
+    )
+
+
 def runtime_alerts(session: Session, alarm_id: int) -> list[int]:
     """Tell the subscriptions of a run-time alarm's component about it, once each (a retried
     task finds the alerts it made); returns the new deliveries' ids."""
@@ -270,11 +278,7 @@ def runtime_alerts(session: Session, alarm_id: int) -> list[int]:
     made = []
     for subscription in session.scalars(
         select(Subscription)
-        .where(
-            or_(Subscription.component_id == component.id, Subscription.component_id.is_(None)),
-            Subscription.direction != "improvement",
-            Subscription.created <= alarm.at,
-        )
+        .where(*runtime_listeners(component.id, alarm.at))
         .order_by(Subscription.id)
     ):
         if subscription.id in told or (
@@ -328,70 +332,6 @@ def send_digests(session: Session, now: datetime | None = None) -> list[int]:
         subscription.digest_sent = now
         made.append(delivery.id)
     return made
-
-
-#: jobs that have not ended: their revision's verdict may still change
-UNSETTLED = (JobState.queued, JobState.leased, JobState.running, JobState.uploaded)
-#: how far back the sweeps look for revisions whose jobs ended without a judgement, and for
-#: run-time alarms no subscription was told of
-SWEEP_WITHIN = timedelta(days=2)
-#: and how old what they pick up must be: younger, the message queued for it may be on its way
-SWEEP_GRACE = timedelta(minutes=2)
-
-
-def failed_without_status(session: Session, now: datetime | None = None) -> list[int]:
-    """Revisions with a commit, of components that post commit statuses, whose jobs have all
-    ended (in the last `SWEEP_WITHIN`, `SWEEP_GRACE` ago at least), one of their own failed or
-    cancelled, and with no final status yet: no ingest follows such a job, so nothing else would
-    post the verdict (a build that fails, leases that lapse until the job is failed, a host that
-    gives up)."""
-    now = now or utcnow()
-    other = aliased(Job)
-    unsettled = select(other.id).where(other.revision_id == Revision.id, other.state.in_(UNSETTLED))
-    final = select(Delivery.id).where(
-        Delivery.key.in_(
-            [
-                func.concat("status:", Revision.id, f":{state}")
-                for state in ("success", "failure", "error")
-            ]
-        )
-    )
-    return list(
-        session.scalars(
-            select(Revision.id)
-            .join(Component, Component.id == Revision.component_id)
-            .join(Job, Job.revision_id == Revision.id)
-            .where(cast(Component.commit_status, JSONB).has_key("provider"), Revision.commit != "")
-            .where(Job.pair == 0, Job.state.in_((JobState.failed, JobState.cancelled)))
-            .where(Job.updated.between(now - SWEEP_WITHIN, now - SWEEP_GRACE))
-            .where(~unsettled.exists(), ~final.exists())
-            .distinct()
-        )
-    )
-
-
-def untold_runtime_alarms(session: Session, now: datetime | None = None) -> list[int]:
-    """Run-time alarms (of the last `SWEEP_WITHIN`, `SWEEP_GRACE` ago at least) that no alert
-    was made of although a subscription listens: their task was never queued (the broker was
-    down when `redline watch` reported) or got lost. `runtime_alerts` decides who is told."""
-    now = now or utcnow()
-    told = select(Alert.id).where(Alert.runtime_alarm_id == RuntimeAlarm.id)
-    listening = select(Subscription.id).where(
-        or_(
-            Subscription.component_id == RuntimeAlarm.component_id,
-            Subscription.component_id.is_(None),
-        ),
-        Subscription.direction != "improvement",
-        Subscription.created <= RuntimeAlarm.at,
-    )
-    return list(
-        session.scalars(
-            select(RuntimeAlarm.id)
-            .where(RuntimeAlarm.at.between(now - SWEEP_WITHIN, now - SWEEP_GRACE))
-            .where(~told.exists(), listening.exists())
-            .order_by(RuntimeAlarm.id)
-        )
-    )
 
 
 def commit_status(session: Session, revision_id: int) -> list[int]:

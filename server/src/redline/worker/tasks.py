@@ -23,20 +23,14 @@ from redline.server.core.tasks import (
 )
 from redline.server.db import session_scope
 from redline.server.models import Revision
-from redline.worker.alerts import (
-    commit_status,
-    failed_without_status,
-    runtime_alerts,
-    scan_component,
-    send_digests,
-    untold_runtime_alarms,
-)
+from redline.worker.alerts import commit_status, runtime_alerts, scan_component, send_digests
 from redline.worker.app import celery_app
 from redline.worker.deliver import deliver_due
 from redline.worker.detection import detect_revision as run_detection
 from redline.worker.ingest import ingest_execution as run_ingest
 from redline.worker.ingest import stale_uploads
 from redline.worker.reanalysis import reanalyze_component as run_reanalysis
+from redline.worker.sweeps import failed_without_status, untold_runtime_alarms
 from redline.worker.training import train_model as run_training
 from redline.worker.trends import render_component_trends, render_revision_trends
 from sqlalchemy import select

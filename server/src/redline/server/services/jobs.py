@@ -12,6 +12,8 @@ from sqlalchemy.dialects.postgresql import JSONB, insert
 from sqlalchemy.orm import Session
 
 HELD = (JobState.leased, JobState.running)
+#: jobs that have not ended: their revision's verdict may still change
+UNENDED = (JobState.queued, *HELD, JobState.uploaded)
 
 
 def register_host(session: Session, data: RegisterRequest) -> Host:
@@ -160,7 +162,7 @@ def ended(session: Session, revision_id: int) -> bool:
         select(
             select(Job.id)
             .where(Job.revision_id == revision_id)
-            .where(Job.state.in_((JobState.queued, *HELD, JobState.uploaded)))
+            .where(Job.state.in_(UNENDED))
             .exists()
         )
     )

@@ -1,0 +1,81 @@
+"""What a lost message would leave undone, found again by the periodic re-queue task
+(`redline.worker.tasks.requeue_stale_uploads`): the commit status of revisions whose jobs ended
+failed (no ingest follows them), and the alerts of run-time alarms whose task never ran.
+"""
+
+from __future__ import annotations
+
+from datetime import datetime, timedelta
+
+from redline.server.models import (
+    Alert,
+    Component,
+    Delivery,
+    Job,
+    JobState,
+    Revision,
+    RuntimeAlarm,
+    Subscription,
+    utcnow,
+)
+from redline.server.services.jobs import UNENDED
+from redline.worker.alerts import runtime_listeners
+from sqlalchemy import cast, func, select
+from sqlalchemy.dialects.postgresql import JSONB
+from sqlalchemy.orm import Session, aliased
+
+#: how far back the sweeps look for revisions whose jobs ended without a judgement, and for
+#: run-time alarms no subscription was told of
+SWEEP_WITHIN = timedelta(days=2)
+#: and how old what they pick up must be: younger, the message queued for it may be on its way
+SWEEP_GRACE = timedelta(minutes=2)
+
+
+def failed_without_status(session: Session, now: datetime | None = None) -> list[int]:
+    """Revisions with a commit, of components that post commit statuses, whose jobs have all
+    ended (in the last `SWEEP_WITHIN`, `SWEEP_GRACE` ago at least), one of their own failed or
+    cancelled, and with no final status yet: no ingest follows such a job, so nothing else would
+    post the verdict (a build that fails, leases that lapse until the job is failed, a host that
+    gives up)."""
+    now = now or utcnow()
+    other = aliased(Job)
+    unsettled = select(other.id).where(other.revision_id == Revision.id, other.state.in_(UNENDED))
+    final = select(Delivery.id).where(
+        Delivery.key.in_(
+            [
+                func.concat("status:", Revision.id, f":{state}")
+                for state in ("success", "failure", "error")
+            ]
+        )
+    )
+    return list(
+        session.scalars(
+            select(Revision.id)
+            .join(Component, Component.id == Revision.component_id)
+            .join(Job, Job.revision_id == Revision.id)
+            .where(cast(Component.commit_status, JSONB).has_key("provider"), Revision.commit != "")
+            .where(Job.pair == 0, Job.state.in_((JobState.failed, JobState.cancelled)))
+            .where(Job.updated.between(now - SWEEP_WITHIN, now - SWEEP_GRACE))
+            .where(~unsettled.exists(), ~final.exists())
+            .distinct()
+        )
+    )
+
+
+def untold_runtime_alarms(session: Session, now: datetime | None = None) -> list[int]:
+    """Run-time alarms (of the last `SWEEP_WITHIN`, `SWEEP_GRACE` ago at least) that no alert
+    was made of although a subscription listens: their task was never queued (the broker was
+    down when `redline watch` reported) or got lost. `runtime_alerts` decides who is told."""
+    now = now or utcnow()
+    told = select(Alert.id).where(Alert.runtime_alarm_id == RuntimeAlarm.id)
+    listening = select(Subscription.id).where(
+        *runtime_listeners(RuntimeAlarm.component_id, RuntimeAlarm.at)
+    )
+    return list(
+        session.scalars(
+            select(RuntimeAlarm.id)
+            .where(RuntimeAlarm.at.between(now - SWEEP_WITHIN, now - SWEEP_GRACE))
+            .where(~told.exists(), listening.exists())
+            .order_by(RuntimeAlarm.id)
+        )
+    )
