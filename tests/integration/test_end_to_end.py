@@ -17,20 +17,18 @@ import os
 import uuid
 from collections.abc import Iterator
 from dataclasses import dataclass
-from pathlib import Path
 
 import httpx
 import pytest
 from redline.commands import demo
 from redline.commands.stack import Stack
 
+from tests.support.pages import Watched, chromium
 from tests.support.servers import Services, fresh_database
 
 pytestmark = pytest.mark.serial
 
 CPU = "cpu_percent"
-CHROMIUM = "/usr/bin/chromium"
-CHROMIUM_FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking"]
 
 
 @dataclass
@@ -112,35 +110,59 @@ def test_tripled_work_is_flagged_by_ks_and_unchanged_code_is_not(history: Histor
     assert not _cpu_changes(history.changes, history.base.title)  # no baseline to compare with
 
 
-@pytest.mark.browser
-def test_trend_page_marks_the_regression_in_chromium(history: History, tmp_path: Path):
-    from playwright.sync_api import sync_playwright
+@pytest.fixture(scope="module")
+def browser() -> Iterator[object]:
+    with chromium() as launched:
+        yield launched
 
-    if not Path(CHROMIUM).exists():
-        pytest.fail(f"{CHROMIUM} is missing: `python3 run.py test` installs Debian's chromium")
+
+@pytest.mark.browser
+def test_trend_page_marks_the_regression_in_chromium(history: History, browser):
     title = "legs_and_rate/steady objectbuilder.cpu_percent"
-    with sync_playwright() as pw:
-        browser = pw.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_FLAGS)
-        page = browser.new_page()
-        errors: list[str] = []
-        page.on("pageerror", lambda exc: errors.append(str(exc)))
-        page.on("console", lambda m: errors.append(m.text) if m.type == "error" else None)
-        page.goto(f"{history.stack.url}/components/objectbuilder")
-        page.wait_for_selector(
-            ".js-plotly-plot .scatterlayer .trace", timeout=30_000, state="attached"
-        )
-        page.screenshot(path=str(tmp_path / "objectbuilder.png"), full_page=True)
-        print(f"screenshot: {tmp_path / 'objectbuilder.png'}")
-        chart = page.locator(f'.chart[aria-label="{title}"]')
-        chart.scroll_into_view_if_needed()
-        page.wait_for_function(
-            "el => el.data !== undefined", arg=chart.element_handle(), timeout=30_000
-        )
-        marks = chart.evaluate(
-            """el => el.data.filter(t => (t.name || '').startsWith('change'))
-                   .flatMap(t => t.x.map((x, i) => [x, t.text[i]]))"""
-        )
-        browser.close()
-    assert not errors, errors
+    watched = Watched(browser, history.stack.url)
+    watched.visit(f"{history.stack.url}/components/objectbuilder")
+    page = watched.page
+    page.wait_for_selector(".js-plotly-plot .scatterlayer .trace", timeout=30_000, state="attached")
+    chart = page.locator(f'.chart[aria-label="{title}"]')
+    chart.scroll_into_view_if_needed()
+    drawn = "el => el.data !== undefined"
+    page.wait_for_function(drawn, arg=chart.element_handle(), timeout=30_000)
+    marks = chart.evaluate(
+        """el => el.data.filter(t => (t.name || '').startsWith('change'))
+               .flatMap(t => t.x.map((x, i) => [x, t.text[i]]))"""
+    )
+    assert not watched.errors, watched.errors
     heavy = [x for x, text in marks if "legs=8," in text]
     assert len(heavy) == 2 and set(heavy) == {history.regressed.title}, marks
+
+
+@pytest.mark.browser
+def test_every_page_of_the_demo_loads_clean(history: History, browser):
+    """The pages on the demo's own data (docs/ui.md's screenshots, with REDLINE_SCREENSHOTS)."""
+    base, regressed = history.stack.url, history.regressed.title
+    api = f"{base}/api/v1/components/objectbuilder"
+    flagged = [
+        d
+        for d in httpx.get(f"{api}/detections", params={"revision": regressed}).json()
+        if d["flagged"] and d["series"]["counter"] == CPU
+    ]
+    assert flagged, "the tripled work has a flagged detection to explain"
+    execution = httpx.get(f"{api}/revisions/{regressed}").json()["jobs"][0]["execution"]["id"]
+    pages = {
+        "demo-home": "/",
+        "demo-component": "/components/objectbuilder?process=objectbuilder&counter=cpu_percent",
+        "demo-revision": f"/components/objectbuilder/revisions/{regressed}",
+        "demo-compare": (
+            f"/components/objectbuilder/compare?base={history.base.title}&candidate={regressed}"
+        ),
+        "demo-regressions": "/regressions",
+        "demo-why-flagged": f"/detections/{flagged[0]['id']}",
+        "demo-execution": f"/executions/{execution}",
+    }
+    watched = Watched(browser, base)
+    for name, path in pages.items():
+        watched.visit(base + path, name)
+        if name in ("demo-component", "demo-compare", "demo-why-flagged", "demo-execution"):
+            assert watched.first_chart_traces() > 0, name
+    assert not watched.errors, watched.errors
+    assert not watched.foreign, watched.foreign

@@ -85,6 +85,44 @@ def test_earlier_history_is_a_link_away(client, database_url, tmp_path):
     assert shown == ["r1"], shown
 
 
+def test_the_chart_data_of_a_longer_history_is_there_for_zoom_and_pan(
+    client, database_url, tmp_path
+):
+    history(database_url, tmp_path, [20.0, 20.0, 20.0, 60.0])
+    page = client.get("/components/builder?counter=cpu&revisions=2")
+    charts = re.search(r'id="charts" data-source="([^"]+)" data-view="([^"]*)"', page.text)
+    assert charts, "the page says where its charts' data comes from"
+    source, view = charts.group(1), charts.group(2).replace("&amp;", "&")
+    assert source == "/components/builder/trends" and view == "counter=cpu&revisions=2"
+    assert 'data-earlier="r3"' in page.text
+
+    answer = client.get(f"{source}?counter=cpu&revisions=4")
+    assert answer.status_code == 200 and answer.headers["content-type"] == "application/json"
+    body = answer.json()
+    assert body["earlier"] is None and body["view"] == "counter=cpu&revisions=4"
+    assert [r[0] for r in body["page"]["revisions"]] == ["r1", "r2", "r3", "r4"]
+    assert body["page"]["charts"] and all(
+        c["title"].endswith(".cpu") for c in body["page"]["charts"]
+    )
+    assert client.get(f"{source}?revisions=3").json()["earlier"] == "r2"
+    # the same view as the page's, from the same cache: what the page shows is a prefix of it
+    assert body["page"]["charts"][0]["title"] == trend_data(page.text)["charts"][0]["title"]
+
+    for count in ("5000", "²", "-1"):  # "²" is a digit to str.isdigit, not a number
+        bad = client.get(f"{source}?revisions={count}")
+        assert bad.status_code == 400 and "revisions" in bad.json()["detail"], bad.text
+    keys = [json.loads(c["key"]) for c in body["page"]["charts"]]
+    assert len({tuple(k) for k in keys}) == len(keys)  # what the page matches charts by
+    assert all(
+        k[:2] == [c["case"], c["phase"]] for k, c in zip(keys, body["page"]["charts"], strict=True)
+    )
+    bad = client.get(f"{source}?revisions=5000")
+    assert bad.status_code == 400 and "revisions" in bad.json()["detail"]
+    assert client.get(f"{source}?before=nope").status_code == 400
+    missing = client.get("/components/nope/trends")
+    assert missing.status_code == 404 and "nope" in missing.json()["detail"]
+
+
 def test_bad_filters_and_unknown_things_are_pages_naming_them(client, database_url, tmp_path):
     history(database_url, tmp_path, [20.0])
     bad = client.get("/components/builder?revisions=0")

@@ -76,6 +76,9 @@ def test_read_access_token_mode_needs_a_read_token(services: Services, tmp_path:
         assert api.client.get("/api/v1/components", headers=read).status_code == 200
         secret = read["Authorization"].removeprefix("Bearer ")
         assert api.client.get(f"/?token={secret}").status_code == 200
+        # the charts' data, which the component page fetches on zoom and pan, reads the same way
+        assert api.client.get("/components/nope/trends").status_code == 401
+        assert api.client.get(f"/components/nope/trends?token={secret}").status_code == 404
         api.client.cookies.set("redline_token", secret)
         assert api.client.get("/api/v1/components").status_code == 200
         api.client.cookies.clear()

@@ -1,11 +1,16 @@
 """A component's history for the page tests: revisions of 'builder' measured at two parameter
-sets, ingested and judged; and what the tests read back from a page."""
+sets, ingested and judged; what the tests read back from a page; and Debian's Chromium driven by
+Playwright, with a page that collects console errors and requests to other hosts."""
 
 from __future__ import annotations
 
 import json
+import os
 import re
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
+from urllib.parse import urlparse
 
 import numpy as np
 from redline.recording import RecordingWriter
@@ -77,3 +82,60 @@ def form_token(page: str) -> str:
     match = re.search(r'name="csrf" value="([^"]+)"', page)
     assert match, "a signed-in page carries its form token"
     return match.group(1)
+
+
+CHROMIUM = "/usr/bin/chromium"
+CHROMIUM_FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking"]
+
+
+@contextmanager
+def chromium() -> Iterator[object]:
+    """Debian's Chromium under Playwright (never a downloaded browser)."""
+    import pytest
+    from playwright.sync_api import sync_playwright
+
+    if not Path(CHROMIUM).exists():
+        pytest.fail(f"{CHROMIUM} is missing: `python3 run.py test` installs Debian's chromium")
+    with sync_playwright() as pw:
+        browser = pw.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_FLAGS)
+        try:
+            yield browser
+        finally:
+            browser.close()
+
+
+class Watched:
+    """A page whose console errors, page errors and requests to other hosts are collected; with
+    ``REDLINE_SCREENSHOTS=DIR``, `visit` saves a screenshot of each page it loads there."""
+
+    def __init__(self, browser, base: str) -> None:  # noqa: ANN001 - a Playwright Browser
+        self.page = browser.new_page()
+        self.errors: list[str] = []
+        self.foreign: list[str] = []
+        self.page.on("pageerror", lambda exc: self.errors.append(str(exc)))
+        self.page.on("console", lambda m: self.errors.append(m.text) if m.type == "error" else None)
+        host = urlparse(base).netloc
+        self.page.on(
+            "request",
+            lambda r: (
+                self.foreign.append(r.url) if urlparse(r.url).netloc not in (host, "") else None
+            ),
+        )
+
+    def visit(self, url: str, name: str | None = None) -> None:
+        """Load ``url`` (200 expected); ``name``: the screenshot's, if one is wanted."""
+        answer = self.page.goto(url)
+        assert answer is not None and answer.status == 200, f"{url}: {answer and answer.status}"
+        self.page.wait_for_load_state("networkidle")
+        folder = os.environ.get("REDLINE_SCREENSHOTS")
+        if folder and name:
+            Path(folder).mkdir(parents=True, exist_ok=True)
+            self.page.screenshot(path=str(Path(folder) / f"{name}.png"), full_page=True)
+
+    def first_chart_traces(self) -> int:
+        """How many traces the page's first chart has, once one is drawn."""
+        self.page.wait_for_selector(
+            ".js-plotly-plot .scatterlayer .trace, .barlayer", state="attached"
+        )
+        first = "() => document.querySelector('.js-plotly-plot').data.length"
+        return int(self.page.evaluate(first))

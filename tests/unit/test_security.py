@@ -11,6 +11,7 @@ from pathlib import Path
 
 import pytest
 from redline.agent.checkout import CheckoutError, CloneCache, refused_repo
+from redline.server.core.logs import URL_LOGGERS
 from redline.server.schemas.results import SeriesOut
 from redline.server.services.repos import repo_key
 
@@ -69,18 +70,27 @@ def test_chart_labels_are_text_not_markup():
 
 @pytest.fixture
 def root_logging() -> Iterator[None]:
-    root = logging.getLogger()
-    handlers, level = root.handlers[:], root.level
+    """The root's and the HTTP server's loggers as they were, after the test."""
+    loggers = [logging.getLogger(), *map(logging.getLogger, URL_LOGGERS)]
+    saved = [(lg.handlers[:], lg.level, lg.propagate, lg.disabled) for lg in loggers]
     yield
-    root.handlers[:] = handlers
-    root.setLevel(level)
+    for logger, (handlers, level, propagate, disabled) in zip(loggers, saved, strict=True):
+        logger.handlers[:] = handlers
+        logger.setLevel(level)
+        logger.propagate, logger.disabled = propagate, disabled
 
 
 def test_logged_urls_have_their_credentials_redacted(
     capfd: pytest.CaptureFixture[str], root_logging: None
 ):
+    import logging.config
+
+    import uvicorn.config
     from redline.server.core.logs import configure
 
+    # as after any uvicorn run in this process (a test's live server): its access logger has
+    # a handler of its own and does not propagate, so its lines would pass no redaction
+    logging.config.dictConfig(uvicorn.config.LOGGING_CONFIG)
     configure(json_lines=False)
     access = logging.getLogger("uvicorn.access")
     access.info(

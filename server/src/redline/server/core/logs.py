@@ -54,6 +54,10 @@ class JsonFormatter(logging.Formatter):
         return json.dumps(entry, default=str)
 
 
+#: the loggers of the HTTP server, which log the requests' addresses
+URL_LOGGERS = ("uvicorn", "uvicorn.access", "uvicorn.error")
+
+
 def configure(json_lines: bool, level: int = logging.INFO) -> None:
     """Log to stderr, as JSON lines or as text, with secrets redacted."""
     handler = logging.StreamHandler()
@@ -66,3 +70,11 @@ def configure(json_lines: bool, level: int = logging.INFO) -> None:
     root = logging.getLogger()
     root.handlers[:] = [handler]
     root.setLevel(level)
+    # a server's loggers that uvicorn's own logging configuration (applied by any uvicorn run in
+    # this process) gives handlers of their own: their lines, which carry the requests' URLs,
+    # must pass the redacting handler above like every other
+    for name in URL_LOGGERS:
+        logger = logging.getLogger(name)
+        logger.handlers.clear()
+        logger.propagate = True
+        logger.disabled = False

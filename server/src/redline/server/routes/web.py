@@ -1,7 +1,8 @@
 """The browser UI: pages rendered on the server (Jinja2), plotly.js served by Redline itself.
 
 Addresses: ``/`` (components, hosts, the job queue); ``/components/{name}`` (trend charts by case
-and phase, filters kept in the address); ``/components/{name}/revisions/{title}`` (jobs and
+and phase, filters kept in the address; ``/components/{name}/trends``, their data as JSON, for
+loading earlier history on zoom and pan); ``/components/{name}/revisions/{title}`` (jobs and
 verdicts); ``/components/{name}/compare?base=&candidate=``; ``/regressions`` and
 ``/regressions/{id}`` (triage when signed in); ``/detections/{id}`` (why a change was flagged);
 ``/executions/{id}`` (raw counters, counters against parameters, the recording); ``/signin``;
@@ -12,6 +13,7 @@ filter a 400 page naming it.
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import plotly
@@ -88,6 +90,7 @@ def component_page(name: str, request: Request, session: SessionDep) -> HTMLResp
             "component": component,
             "view": view,
             "page": trends,
+            "most_revisions": dashboard.MAX_REVISIONS,
             "choices": dashboard.choices(session, component),
             "revisions": newest,
             "verdicts": revisions.revision_verdicts(session, name, [r.title for r in newest]),
@@ -96,6 +99,19 @@ def component_page(name: str, request: Request, session: SessionDep) -> HTMLResp
             "runtime_alerts": learning.list_alerts(session, name, LISTED),
         },
     )
+
+
+@router.get("/components/{name}/trends")
+def component_trends(name: str, request: Request, session: SessionDep) -> Response:
+    """The component page's chart data for a view (the same query as the page), as JSON: what
+    the page fetches to load earlier history when a chart is zoomed or panned past its oldest
+    revision. ``{"earlier": the oldest revision shown when there are older ones, "view": the
+    page's query for this view, "page": {"charts", "revisions"}}``; a bad filter is a 400."""
+    component = components.get_component(session, name)
+    view = dashboard.TrendView.from_query(request.query_params)
+    trends = dashboard.cached_page(session, component, view, trend_charts)
+    head = json.dumps({"earlier": trends.earlier, "view": view.query()})
+    return Response(f'{head[:-1]},"page":{trends.data}}}', media_type="application/json")
 
 
 @router.get("/components/{name}/models/{ident}", response_class=HTMLResponse)

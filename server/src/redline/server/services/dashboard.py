@@ -67,7 +67,7 @@ class TrendView:
             if len(value) > MAX_FILTER_LENGTH:
                 raise BadRequest(f"{key}: at most {MAX_FILTER_LENGTH} characters")
         raw = query.get("revisions", str(DEFAULT_REVISIONS)) or str(DEFAULT_REVISIONS)
-        if not raw.isdigit() or not 1 <= int(raw) <= MAX_REVISIONS:
+        if not (raw.isascii() and raw.isdecimal()) or not 1 <= int(raw) <= MAX_REVISIONS:
             raise BadRequest(f"revisions: a whole number from 1 to {MAX_REVISIONS}, not {raw!r}")
         params = tuple(
             sorted(

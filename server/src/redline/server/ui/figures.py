@@ -9,6 +9,7 @@ becomes a live link), so every name that came from outside goes through `plot_te
 from __future__ import annotations
 
 import html
+import json
 from collections import defaultdict
 from itertools import cycle
 from typing import TYPE_CHECKING, Any
@@ -180,7 +181,8 @@ def _mark_traces(
 def trend_charts(data: TrendData, view: TrendView) -> list[dict[str, Any]]:
     """One chart per case, phase, process and counter, a line per parameter set, in the order
     the page groups them (case, then phase; the machine's context last): a list of
-    ``{"id", "case", "phase", "title", "figure"}``."""
+    ``{"id", "key", "case", "phase", "title", "figure"}``; a series trace's x is left out, for
+    the page to fill with the x axis's ``categoryarray`` (the revisions' titles as plot text)."""
     titles = [plot_text(revision.title) for revision in data.revisions]
     index = {revision.id: at for at, revision in enumerate(data.revisions)}
     groups: dict[tuple[str, str, str, str], list[TrendSeries]] = defaultdict(list)
@@ -216,6 +218,9 @@ def trend_charts(data: TrendData, view: TrendView) -> list[dict[str, Any]]:
         charts.append(
             {
                 "id": f"chart-{number}",
+                # what the page matches a chart by when it loads a longer history: unambiguous,
+                # where the title is not (case "a/b", phase "c" and case "a", phase "b/c")
+                "key": json.dumps([case, phase, process, counter]),
                 "case": case,
                 "phase": phase,
                 "title": f"{case}/{phase} {process}.{counter}",
