@@ -83,6 +83,8 @@ PASSES = (
     ["-n", str(WORKERS), "--dist", "loadfile", "-m", "not serial"],
     ["-m", "serial"],
 )
+#: the slowest tests of each pass, printed: the suite must stay under 12 minutes in CI
+DURATIONS = ["--durations=12", "--durations-min=5"]
 
 
 def test(args: list[str]) -> int:
@@ -93,7 +95,7 @@ def test(args: list[str]) -> int:
     codes = []
     for extra in PASSES:
         say(f"pytest {' '.join(extra)}")
-        codes.append(subprocess.run([*pytest, *extra], cwd=ROOT).returncode)
+        codes.append(subprocess.run([*pytest, *extra, *DURATIONS], cwd=ROOT).returncode)
     if any(codes):
         say(f"failed: pass exit codes {codes}")
     return next((code for code in codes if code), 0)

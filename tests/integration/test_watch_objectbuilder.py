@@ -1,11 +1,14 @@
 """`redline watch` on the real objectbuilder (issue 15): a model learnt from a real run of its
-training sweep (`perf/watch.toml`), then live objectbuilders fed a robot's traffic on their own
-zenoh networks, watched side by side for five minutes: one clean, which must raise nothing; into
-the other, faults are injected one after another while it runs (a busy thread, stalled workers, a
-leak), each of which must be detected within 10 s (the stall not reliably yet: see its xfail).
+training sweep (`perf/watch.toml`), then a live objectbuilder fed a robot's traffic on its own
+zenoh network and watched: for five minutes clean, which must raise nothing; then faults are
+injected one after another while it runs (a busy thread, a leak, stalled workers), each of which
+must be detected within 10 s (the stall not reliably yet: see its xfail).
 
-Serial: the watchers compare the components' measured CPU with their predictions, which other
-tests' load would move.
+Serial: the watcher compares the component's measured CPU with its prediction, which other load
+moves. The faults come after the clean minutes, into the same process, never beside them: a
+busy thread spinning in a neighbour objectbuilder on this 2-core VM raised the clean one's CPU
+for the same traffic by 12 % of a core, beyond its threshold of 10 (a fresh-clone CI run,
+2026-11-24).
 """
 
 from __future__ import annotations
@@ -14,19 +17,17 @@ import json
 import subprocess
 import threading
 import time
-from pathlib import Path
 
 import pytest
-from redline.predict.watch import ANCHOR_STEPS
 
 from tests.support.watching import live_objectbuilder, train, watch
 
 pytestmark = [pytest.mark.serial, pytest.mark.slow]
 
 CLEAN_S = 300
-#: clean steps before the first fault: the watcher's warm-up (2 s, its longest window), the steps
-#: that measure where the process stands against the model, and a few judged ones
-FIRST_FAULT_STEP = 2 + ANCHOR_STEPS + 5
+#: the longest the faults may take after the clean minutes: each one's alarm within 30 s, and the
+#: busy thread's and the leak's CPU alarms over within 30 s each
+FAULTS_S = 150
 #: each fault, the target whose alarm it must raise, and the residual's sign
 #: the stall last: while its leg workers stand, their messages queue up in memory, and a stall
 #: seen late (see its xfail) left RSS high enough to hide the leak's alarm behind its own
@@ -41,27 +42,27 @@ def _lines(watcher: subprocess.Popen[str], into: list[dict]) -> None:
 
 @pytest.fixture(scope="module")
 def watched(tmp_path_factory: pytest.TempPathFactory) -> dict:
-    """The run both tests judge: five minutes of a clean and a faulty objectbuilder side by side."""
+    """The run the tests judge: an objectbuilder watched for five clean minutes, then faulted."""
     tmp_path = tmp_path_factory.mktemp("watch")
     model = train(tmp_path)
-    (tmp_path / "clean").mkdir()
-    (tmp_path / "faulty").mkdir()
-    with (
-        live_objectbuilder(tmp_path / "clean", seed=1) as clean,
-        live_objectbuilder(tmp_path / "faulty", seed=2) as faulty,
-    ):
-        quiet: list[dict] = []
-        watcher = watch(model, clean, CLEAN_S)
-        reader = threading.Thread(target=_lines, args=(watcher, quiet), daemon=True)
+    with live_objectbuilder(tmp_path, seed=1) as builder:
+        lines: list[dict] = []
+        watcher = watch(model, builder, CLEAN_S + FAULTS_S)
+        reader = threading.Thread(target=_lines, args=(watcher, lines), daemon=True)
         reader.start()
-        detected = _inject_each(model, faulty)
-        watcher.wait(timeout=CLEAN_S + 60)
-        reader.join(timeout=10)
+        try:
+            _wait(lambda: _steps(lines) >= CLEAN_S, CLEAN_S + 60)
+            quiet = list(lines)
+            detected = _inject_each(lines, builder)
+        finally:
+            watcher.terminate()
+            watcher.wait(timeout=20)
+            reader.join(timeout=5)
         errors = watcher.stderr.read() if watcher.stderr else ""
     return {"quiet": quiet, "detected": detected, "errors": errors}
 
 
-@pytest.mark.timeout(CLEAN_S + 180)
+@pytest.mark.timeout(CLEAN_S + FAULTS_S + 180)
 def test_a_busy_thread_and_a_leak_are_detected_within_10_s(watched) -> None:
     for fault, (delay, alarm, before) in watched["detected"].items():
         assert not before, f"{fault}: an alarm before it: {before}"
@@ -91,49 +92,44 @@ def test_five_minutes_of_clean_traffic_raise_nothing(watched) -> None:
     assert not alarms, f"{alarms}\n{watched['errors']}"
 
 
-def _inject_each(model: Path, builder) -> dict[str, tuple[float | None, dict | None, list]]:
-    """Each fault after `FIRST_FAULT_STEP` clean steps, until its alarm (or 30 s); then it is
-    ended and its alarms are let end before the next. Per fault: the delay to its alarm, the
-    alarm, and the alarms raised since the previous fault's were over (none may be)."""
-    lines: list[dict] = []
-    watcher = watch(model, builder, CLEAN_S)
-    reader = threading.Thread(target=_lines, args=(watcher, lines), daemon=True)
-    reader.start()
+def _inject_each(lines: list[dict], builder) -> dict[str, tuple[float | None, dict | None, list]]:
+    """Each fault into the watched objectbuilder, until its alarm (or 30 s); then it is ended and
+    its CPU alarm is let end before the next (a leak's memory stays, and its alarm with it). Per
+    fault: the delay to its alarm, the alarm, and the alarms raised since the previous fault's
+    were over, the five clean minutes for the first (none may be)."""
     found = {}
-    try:
-        _wait(lambda: sum("measured" in line for line in lines) >= FIRST_FAULT_STEP, 60)
-        calm = 0  # where the lines since every alarm ended begin
-        for fault, target, sign in FAULTS:
-            seen = len(lines)
-            before = [line for line in lines[calm:seen] if line.get("alarm") == "fault"]
-            builder.inject(fault)
-            injected = time.monotonic()
+    calm = 0  # where the lines since every CPU alarm ended begin
+    for fault, target, sign in FAULTS:
+        seen = len(lines)
+        before = [line for line in lines[calm:seen] if line.get("alarm") == "fault"]
+        builder.inject(fault)
+        injected = time.monotonic()
 
-            def raised(target: str = target, sign: int = sign, seen: int = seen) -> dict | None:
-                return next(
-                    (
-                        line
-                        for line in lines[seen:]
-                        if line.get("alarm") == "fault"
-                        and line["target"] == target
-                        and line["residual"] * sign > 0
-                    ),
-                    None,
-                )
+        def raised(target: str = target, sign: int = sign, seen: int = seen) -> dict | None:
+            return next(
+                (
+                    line
+                    for line in lines[seen:]
+                    if line.get("alarm") == "fault"
+                    and line["target"] == target
+                    and line["residual"] * sign > 0
+                ),
+                None,
+            )
 
-            _wait(lambda r=raised: r() is not None, 30)
-            alarm = raised()
-            found[fault] = (alarm["read_at"] - injected if alarm else None, alarm, before)
-            if fault == FAULTS[-1][0]:
-                break
-            builder.inject(None)
-            _wait(lambda: not _active(lines), 30)  # the leak's memory stays: its alarm too
-            calm = len(lines)
-    finally:
-        watcher.terminate()
-        watcher.wait(timeout=20)
-        reader.join(timeout=5)
+        _wait(lambda r=raised: r() is not None, 30)
+        alarm = raised()
+        found[fault] = (alarm["read_at"] - injected if alarm else None, alarm, before)
+        if fault == FAULTS[-1][0]:
+            break
+        builder.inject(None)
+        _wait(lambda: "cpu_percent" not in _active(lines), 30)
+        calm = len(lines)
     return found
+
+
+def _steps(lines: list[dict]) -> int:
+    return sum("measured" in line for line in lines)
 
 
 def _active(lines: list[dict]) -> set[str]:
