@@ -80,7 +80,8 @@ def ensure_chromium() -> None:
 #: the third worker fills those waits (measured: the pass took 3:10 instead of 3:58).
 WORKERS = 3
 PASSES = (
-    ["-n", str(WORKERS), "--dist", "loadfile", "-m", "not serial"],
+    # in the order tests/conftest.py sorts them (slow modules first), not xdist's by test count
+    ["-n", str(WORKERS), "--dist", "loadfile", "--no-loadscope-reorder", "-m", "not serial"],
     ["-m", "serial"],
 )
 #: the slowest tests of each pass, printed: the suite must stay under 12 minutes in CI

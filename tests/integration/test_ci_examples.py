@@ -134,6 +134,10 @@ def run_example(server, name: str, number: int, cpu: float, webhook: bool = Fals
         "REDLINE_TOKEN": api.tokens["ci"]["Authorization"].removeprefix("Bearer "),
         "REDLINE_AGENT": str(wheel),
         "COMPONENT": "builder",  # the examples' component is the CI system's setting
+        # one pip cache for the four installs, as a CI runner's cache would be (each HOME is
+        # new): the agent's dependencies are downloaded once, not four times
+        "PIP_CACHE_DIR": str(tmp / "pip-cache"),
+        "PIP_DISABLE_PIP_VERSION_CHECK": "1",
         sha_var: sha,
         number_var: str(number),
         branch_var: "main",

@@ -21,6 +21,8 @@ from schemathesis.checks import not_a_server_error
 
 from tests.support.servers import Services, fresh_database
 
+pytestmark = pytest.mark.slow
+
 MAX_EXAMPLES = 25
 #: no fuzzed long poll may hold the run: the lease waits at most this long here
 MAX_WAIT_S = 1

@@ -8,10 +8,13 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
 from redline.predict.dataset import dataset, read_run
 from redline.predict.model import ModelFile
 
 from tests.support.predict import SMALL, record
+
+pytestmark = pytest.mark.slow
 
 REDLINE = str(Path(sys.executable).parent / "redline")
 

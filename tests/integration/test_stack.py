@@ -17,6 +17,8 @@ from redline.commands.stack import Stack, server_only_variables
 
 from tests.support.servers import Services, fresh_database
 
+pytestmark = pytest.mark.slow
+
 
 def _started_under(folder: Path) -> list[psutil.Process]:
     """Live processes working in ``folder`` or naming a file in it: the run's component (its

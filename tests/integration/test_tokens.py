@@ -90,6 +90,7 @@ def test_read_access_open_by_default(api: Api):
     assert api.client.get("/").status_code == 200
 
 
+@pytest.mark.slow  # a real `redline` command each time
 def test_cli_lists_and_revokes_tokens(api: Api):
     env = {**os.environ, "REDLINE_DATABASE_URL": api.settings.database_url}
     command = [str(Path(sys.executable).parent / "redline"), "token"]
@@ -111,6 +112,7 @@ def test_cli_lists_and_revokes_tokens(api: Api):
     assert missing.returncode == 1 and "nobody" in missing.stderr
 
 
+@pytest.mark.slow  # a real `redline` command each time
 def test_cli_creates_a_host_bound_token_one_live_per_name(api: Api):
     env = {**os.environ, "REDLINE_DATABASE_URL": api.settings.database_url}
     command = [str(Path(sys.executable).parent / "redline"), "token", "create", "perf-1"]

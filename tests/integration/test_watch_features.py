@@ -15,11 +15,14 @@ import sys
 import time
 
 import numpy as np
+import pytest
 from redline.agent.network import RunNetwork, open_client
 from redline.commands.watch import listen
 from redline.predict.features import NS, FeatureSpec, extract
 from redline.predict.watch import EventWindow
 from redline.recording import read_recording
+
+pytestmark = pytest.mark.slow
 
 SPEC = FeatureSpec((("robot/legs", "in"), ("robot/persons", "out"), ("robot/pose", "in")))
 BURSTS = 14  # one a second: longer than the longest window (10 s)
