@@ -12,8 +12,8 @@
                                  format), lint-imports (the layers), mypy (types)
 
 It makes `.venv/` with `python -m venv`, puts `uv` into it with pip, and lets uv install the
-workspace (agent and server, editable) from `uv.lock`. Browser tests need Debian's Chromium;
-`test` installs it with apt-get when it is missing and we are root.
+workspace (agent and server, editable) from `uv.lock`. Tests need Debian's Chromium (the
+browser tests) and PgBouncer: `test` installs them with apt-get when missing and we are root.
 """
 
 from __future__ import annotations
@@ -27,7 +27,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent
 VENV = ROOT / ".venv"
 BIN = VENV / "bin"
-CHROMIUM = Path("/usr/bin/chromium")
+#: Debian packages the tests need, and a file each installs
+DEBIAN = {"chromium": Path("/usr/bin/chromium"), "pgbouncer": Path("/usr/sbin/pgbouncer")}
 
 
 def say(message: str) -> None:
@@ -57,19 +58,22 @@ def ensure_environment() -> None:
     )
 
 
-def ensure_chromium() -> None:
-    if CHROMIUM.exists():
+def ensure_debian_packages() -> None:
+    """What the tests take from Debian: Chromium for the browser tests, PgBouncer for the test
+    of Redline behind it; installed with apt-get when missing and we are root."""
+    missing = [package for package, path in DEBIAN.items() if not path.exists()]
+    if not missing:
         return
     if shutil.which("apt-get") is None or os.geteuid() != 0:
         say(
-            "Chromium is missing and cannot be installed here (needs root and apt-get); "
-            "browser tests will fail until /usr/bin/chromium exists"
+            f"{', '.join(missing)} missing and cannot be installed here (needs root and "
+            "apt-get); the tests that need them will fail until they are installed"
         )
         return
-    say("installing Debian's chromium for the browser tests")
+    say(f"installing Debian's {', '.join(missing)} for the tests")
     run(["apt-get", "update", "-qq"])
     run(
-        ["apt-get", "install", "-y", "-qq", "chromium"],
+        ["apt-get", "install", "-y", "-qq", *missing],
         env=dict(os.environ, DEBIAN_FRONTEND="noninteractive"),
     )
 
@@ -126,7 +130,7 @@ def main(argv: list[str]) -> int:
     if command == "check":
         return check()
     if command == "test":
-        ensure_chromium()
+        ensure_debian_packages()
         return test(rest)
     if command == "demo":
         args = [str(BIN / "redline"), "demo", *rest]

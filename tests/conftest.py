@@ -6,6 +6,7 @@ Every test under `tests/unit` is marked `unit`, under `tests/integration` `integ
 
 from __future__ import annotations
 
+import os
 import signal
 import tempfile
 from pathlib import Path
@@ -29,12 +30,15 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
         for folder, mark in FOLDERS.items():
             if folder in item.path.parents:
                 item.add_marker(mark)
-    # modules with a `slow` test first, each module's tests in their order: the parallel pass
-    # hands whole modules to its workers in this order, and the long ones last (most of them
-    # late in the alphabet) left one worker finishing them while the others stood idle (the
-    # pass's last 8 % of tests took 150 of its 250 s)
-    slow = {item.path for item in items if item.get_closest_marker("slow") is not None}
-    items.sort(key=lambda item: item.path not in slow)
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        # on xdist's workers, modules with a `slow` test first, each module's tests in their
+        # order: the parallel pass hands whole modules to its workers in this order, and the
+        # long ones last (most of them late in the alphabet) left one worker finishing them
+        # while the others stood idle (the pass's last 8 % of tests took 150 of its 250 s). The
+        # serial pass keeps its order: the end-to-end test's CPU verdicts first, on a host no
+        # earlier serial test has worked
+        slow = {item.path for item in items if item.get_closest_marker("slow") is not None}
+        items.sort(key=lambda item: item.path not in slow)
 
 
 @pytest.fixture

@@ -1,8 +1,9 @@
 """`redline watch` on the real objectbuilder (issue 15): a model learnt from a real run of its
-training sweep (`perf/watch.toml`), then a live objectbuilder fed a robot's traffic on its own
-zenoh network and watched: for five minutes clean, which must raise nothing; then faults are
-injected one after another while it runs (a busy thread, a leak, stalled workers), each of which
-must be detected within 10 s (the stall not reliably yet: see its xfail).
+training sweep (`perf/watch.toml`, committed as `perf/data/watch-training.mcap`), then a live
+objectbuilder fed a robot's traffic on its own zenoh network and watched: for five minutes
+clean, which must raise nothing; then faults are injected one after another while it runs (a
+busy thread, a leak, stalled workers), each of which must be detected within 10 s (the stall not
+reliably yet: see its xfail).
 
 Serial: the watcher compares the component's measured CPU with its prediction, which other load
 moves. The faults come after the clean minutes, into the same process, never beside them: a
@@ -20,7 +21,7 @@ import time
 
 import pytest
 
-from tests.support.watching import live_objectbuilder, train, watch
+from tests.support.watching import TRAINING, fit, live_objectbuilder, watch
 
 pytestmark = [pytest.mark.serial, pytest.mark.slow]
 
@@ -44,7 +45,7 @@ def _lines(watcher: subprocess.Popen[str], into: list[dict]) -> None:
 def watched(tmp_path_factory: pytest.TempPathFactory) -> dict:
     """The run the tests judge: an objectbuilder watched for five clean minutes, then faulted."""
     tmp_path = tmp_path_factory.mktemp("watch")
-    model = train(tmp_path)
+    model = fit(TRAINING, tmp_path)
     with live_objectbuilder(tmp_path, seed=1) as builder:
         lines: list[dict] = []
         watcher = watch(model, builder, CLEAN_S + FAULTS_S)
