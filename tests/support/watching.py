@@ -24,7 +24,7 @@ from redline.agent.runner import run_suite
 from redline.predict.dataset import dataset, read_run
 from redline.predict.model import ModelFile
 
-from tests.support import ROOT
+from tests.support import ROOT, stop
 
 PERF = ROOT / "examples" / "objectbuilder" / "perf"
 OBJECTBUILDER = ROOT / "examples" / "objectbuilder" / "objectbuilder.py"
@@ -91,7 +91,7 @@ def live_objectbuilder(folder: Path, seed: int = 20261124) -> Iterator[LiveBuild
     # core) left a stall's move at the threshold in a CI run (detected after 16 s), three
     # (about 13 %) leave it well beyond
     counts = np.clip(realistic.leg_counts(np.random.default_rng(seed), 30 * 600) + 3, 1, MAX_LEGS)
-    stop = threading.Event()
+    ending = threading.Event()
     with RunNetwork() as network:
         config = network.write_component_config(folder / "zenoh.json")
         faults = folder / "fault"
@@ -117,13 +117,13 @@ def live_objectbuilder(folder: Path, seed: int = 20261124) -> Iterator[LiveBuild
                 pose = session.declare_publisher("objectbuilder/pose")
                 pose_message = json.dumps({"x": 1.0, "y": 0.5, "theta": 0.1})
                 began, index = time.monotonic(), 0
-                while not stop.is_set():
+                while not ending.is_set():
                     count = int(counts[index % len(counts)])
                     legs.put(realistic.legs_payload(count, time.time_ns()))
                     if index % 3 == 0:
                         pose.put(pose_message)
                     index += 1
-                    stop.wait(max(0.0, began + index / 30 - time.monotonic()))
+                    ending.wait(max(0.0, began + index / 30 - time.monotonic()))
                 consumer.undeclare()
 
         driver = threading.Thread(target=drive, daemon=True)
@@ -131,7 +131,7 @@ def live_objectbuilder(folder: Path, seed: int = 20261124) -> Iterator[LiveBuild
         try:
             yield LiveBuilder(component.pid, config, faults)
         finally:
-            stop.set()
+            ending.set()
             driver.join(timeout=5)
             stop(component)
 
