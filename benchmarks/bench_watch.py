@@ -3,7 +3,7 @@ kind of fault, and its false alarms on clean traffic.
 
     .venv/bin/python benchmarks/bench_watch.py [--clean-minutes 30] [--repeats 3] [--json OUT]
 
-1. Trains a model on a real run of ``examples/objectbuilder/perf/watch.toml`` (about two minutes).
+1. Trains a model on a real run of ``examples/objectbuilder/perf/watch.toml`` (about a minute).
 2. **Clean**: watches the objectbuilder fed a robot's traffic (`tests/support/watching.py`) for
    ``--clean-minutes`` with no fault: alarms per hour (goal 0), and the largest smoothed residual
    against the threshold. Meanwhile, the watcher's CPU (from /proc, after its first 20 s of start

@@ -38,7 +38,7 @@ WATCH_WINDOWS = (1.0, 2.0)
 
 
 #: a real run of ``perf/watch.toml`` on this project's 2-core VM (a quiet host, 2026-11-24),
-#: committed (0.5 MB): the watch test fits its model on it instead of recording a minute of its
+#: committed (0.2 MB): the watch test fits its model on it instead of recording a minute of its
 #: own each time, as a model learnt on a performance host watches the component elsewhere. Made
 #: again after a change to the objectbuilder, in ``examples/objectbuilder``, with
 #: ``redline run perf/watch.toml -o perf/data/watch-training.mcap``
@@ -56,7 +56,7 @@ def fit(recording: Path, folder: Path) -> Path:
 
 
 def train(folder: Path) -> Path:
-    """`fit` on a real run of ``perf/watch.toml`` made now (about two minutes)."""
+    """`fit` on a real run of ``perf/watch.toml`` made now (about a minute)."""
     return fit(run_suite(PERF / "watch.toml", folder / "training.mcap").recording, folder)
 
 
