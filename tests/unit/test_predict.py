@@ -54,6 +54,7 @@ def test_a_model_learns_cpu_from_the_traffic_and_predicts_segments_it_never_saw(
     data = dataset(train)
     assert data.process == "builder" and len(set(data.groups)) == 10
     assert data.spec.keys == {"robot/legs": "in", "robot/persons": "out"}
+    assert data.responses == ("robot/persons",)  # answered at every step legs came in
     model = ModelFile.fit(data, SMALL, trained_on="test")
     test = dataset(
         [read_run(record(tmp_path / "test.mcap", [3, 6, 9, 12], seed=9))], spec=data.spec
@@ -65,6 +66,7 @@ def test_a_model_learns_cpu_from_the_traffic_and_predicts_segments_it_never_saw(
     again = ModelFile.load(path)
     assert again.score(test)["cpu_percent"] == found
     assert again.provenance["trained_on"] == "test" and again.provenance["groups"] == 10
+    assert again.responses == ("robot/persons",)
 
 
 def test_bad_input_is_refused_naming_its_cause(tmp_path):

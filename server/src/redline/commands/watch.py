@@ -10,7 +10,10 @@ interval predicts its CPU % and RSS from the communication. When the smoothed re
 the threshold calibrated on the model's validation data, it prints an alarm (and when it ends).
 Usage is judged by how it moves from where this process stood in its first judged steps (two
 processes of the same code differ by more than the model's error), and by its level only when
-gross; that first offset is printed (``{"offset": target, ...}`` with --json).
+gross; that first offset is printed (``{"offset": target, ...}`` with --json). It also listens to
+the model's responses (keys the component answered on at every step of its training at which it
+received traffic): when traffic keeps coming in and nothing goes out on one, it alarms
+(``silence:KEY``), as a stall that the CPU does not show would.
 Exit status 2 on bad input (no such process, a model of another version); 0 when stopped.
 """
 
@@ -154,9 +157,10 @@ def watch_cmd(
 ) -> None:
     """Watch a running component for resource faults with a model of its usage."""
     from redline.agent.sampling import TreeSampler
-    from redline.predict.dataset import TARGETS, DataError
+    from redline.predict.dataset import RESPONSE_WINDOW_S, TARGETS, DataError
+    from redline.predict.features import OUT, FeatureSpec
     from redline.predict.model import ModelFile
-    from redline.predict.watch import EventWindow, Residuals
+    from redline.predict.watch import EventWindow, Residuals, Silence
 
     try:
         loaded = ModelFile.load(model)
@@ -165,18 +169,36 @@ def watch_cmd(
     pid = _pid(process, name)
     report = _reporter(server, component, loaded.process)
     window = EventWindow(loaded.spec)
+    # what the component sends on at every step it receives: heard apart from the features
+    answers = EventWindow(
+        FeatureSpec(tuple((key, OUT) for key in loaded.responses), (RESPONSE_WINDOW_S,))
+    )
+    silences = [Silence(key) for key in loaded.responses]
     residuals = {t: Residuals(t, loaded.metrics[t]["threshold"]) for t in TARGETS}
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     signal.signal(signal.SIGINT, lambda *_: stop.set())
     session = _session(zenoh_config)
     subscribers = listen(session, window)
+    subscribers += listen(session, answers)
     sampler = TreeSampler(loaded.process, pid)
     typer.echo(
         f"watching {loaded.process} (pid {pid}) on {len(subscribers)} keys; thresholds: "
-        + ", ".join(f"{t} {r.threshold:.4g}" for t, r in residuals.items()),
+        + ", ".join(f"{t} {r.threshold:.4g}" for t, r in residuals.items())
+        + "".join(f"; answers on {s.key} expected while it receives" for s in silences),
         err=True,
     )
+
+    def say(alarm: Alarm) -> None:
+        report(alarm)
+        said = "fault" if alarm.started else "fault over"
+        typer.echo(
+            json.dumps({"alarm": said, **alarm.__dict__})
+            if as_json
+            else f"{said}: {alarm.target} residual {alarm.residual:+.4g} "
+            f"(threshold {alarm.threshold:.4g}) at step {alarm.step}"
+        )
+
     sampler.sample()  # the CPU rate is over the time since the previous sample
     began = time.monotonic()
     # until the longest window is full, the features undercount what the component heard
@@ -202,15 +224,13 @@ def watch_cmd(
                 if not known and tracker.offset is not None:
                     _say_offset(tracker, as_json)
                 if alarm is not None:
-                    report(alarm)
-                    said = "fault" if alarm.started else "fault over"
-                    line = {"alarm": said, **alarm.__dict__}
-                    typer.echo(
-                        json.dumps(line)
-                        if as_json
-                        else f"{said}: {target} residual {alarm.residual:+.4g} "
-                        f"(threshold {alarm.threshold:.4g}) at step {alarm.step}"
-                    )
+                    say(alarm)
+            received = window.heard(now, 1.0)
+            answered = {s.key: answers.heard(now, RESPONSE_WINDOW_S, s.key) for s in silences}
+            for silence in silences:
+                alarm = None if warming else silence.update(received, answered[silence.key])
+                if alarm is not None:
+                    say(alarm)
             if as_json:
                 typer.echo(
                     json.dumps(
@@ -218,6 +238,7 @@ def watch_cmd(
                             "t": now / 1e9,
                             "warming": warming,
                             "heard": window.heard(now, interval),
+                            "answered": answered,
                             "measured": said_measured,
                             "predicted": said_predicted,
                         }

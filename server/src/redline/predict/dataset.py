@@ -21,6 +21,12 @@ TARGETS = ("cpu_percent", "rss_bytes")
 STEP_S = 1.0
 #: the driver's actions whose key is one the component receives (a query is answered by it)
 SENDING_ACTIONS = ("Publish", "FixedRate", "Query", "Replay")
+#: a key the component sends on is one of its responses when, at every step at which it had
+#: received anything in the last second, it had sent on that key within this many seconds:
+#: `redline watch` alarms when it stops while traffic still comes in (a stall its CPU hides)
+RESPONSE_WINDOW_S = 2.0
+#: steps with incoming traffic that a key must have answered, at least, to count as a response
+RESPONSE_MIN_STEPS = 10
 
 
 class DataError(ValueError):
@@ -50,6 +56,8 @@ class Dataset:
     times: np.ndarray
     sources: list[str] = field(default_factory=list)
     left_out: list[str] = field(default_factory=list)  # disturbed segments, with why
+    #: the keys the component answered on at every step it received traffic (`responses`)
+    responses: tuple[str, ...] = ()
 
 
 def read_run(path: str | Path) -> Run:
@@ -147,7 +155,7 @@ def dataset(
             spec = FeatureSpec(tuple(c for c in spec.channels if c[1] == IN), spec.windows)
             if not spec.channels:
                 raise DataError("the driver sent the component nothing: no feature it receives")
-    xs, groups, times_all = [], [], []
+    xs, groups, times_all, run_times = [], [], [], []
     ys: dict[str, list[np.ndarray]] = {t: [] for t in TARGETS}
     left_out: list[str] = []
     for number, run in enumerate(runs):
@@ -172,6 +180,7 @@ def dataset(
                 ys[target].append(targets[target][sampled])
             groups += [f"{number}#{name}"] * int(sampled.sum())
             times_all.append(times[sampled])
+            run_times.append((run, times[sampled]))
     if not xs:
         raise DataError(
             "the recordings have no measured segment with counter samples of "
@@ -186,4 +195,39 @@ def dataset(
         times=np.concatenate(times_all),
         sources=[str(run.path) for run in runs],
         left_out=left_out,
+        responses=responses(run_times, keys),
     )
+
+
+def _in_window(stamps: np.ndarray, times: np.ndarray, seconds: float) -> np.ndarray:
+    """How many of the sorted ``stamps`` lie in (t - seconds, t], for each t of ``times``."""
+    hi = np.searchsorted(stamps, times, side="right")
+    return hi - np.searchsorted(stamps, times - int(seconds * NS), side="right")
+
+
+def responses(
+    rows: Sequence[tuple[Run, np.ndarray]], keys: Callable[[str], bool] | None = None
+) -> tuple[str, ...]:
+    """The keys the component sent on within `RESPONSE_WINDOW_S` of every step (of ``rows``:
+    each run with its steps' times) at which it had received anything in the last second,
+    over at least `RESPONSE_MIN_STEPS` such steps."""
+    by_run = []
+    for run, times in rows:
+        stamps: dict[str, list[int]] = {}
+        for key, stamp, _ in run.events:
+            if keys is None or keys(key):
+                stamps.setdefault(key, []).append(stamp)
+        by_run.append((run, times, stamps))
+    candidates = {k for run, _, stamps in by_run for k in stamps if k not in run.received}
+    busy_steps = 0
+    for run, times, stamps in by_run:
+        inbound = np.sort(
+            np.array([t for k, v in stamps.items() if k in run.received for t in v], np.int64)
+        )
+        busy = _in_window(inbound, times, STEP_S) > 0
+        busy_steps += int(busy.sum())
+        for key in list(candidates):
+            sent = np.sort(np.array(stamps.get(key, []), np.int64))
+            if not (_in_window(sent, times[busy], RESPONSE_WINDOW_S) > 0).all():
+                candidates.discard(key)
+    return tuple(sorted(candidates)) if busy_steps >= RESPONSE_MIN_STEPS else ()

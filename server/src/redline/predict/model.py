@@ -176,6 +176,8 @@ class ModelFile:
     metrics: dict[str, dict[str, float]] = field(default_factory=dict)
     provenance: dict[str, Any] = field(default_factory=dict)
     versions: dict[str, str] = field(default_factory=_versions)
+    #: keys the component answers on while it receives (`redline.predict.dataset.responses`)
+    responses: tuple[str, ...] = ()
 
     @classmethod
     def fit(
@@ -205,6 +207,7 @@ class ModelFile:
             process=data.process,
             models=models,
             metrics=metrics,
+            responses=data.responses,
             provenance={
                 "recordings": data.sources,
                 "steps": len(data.x),
@@ -236,6 +239,7 @@ class ModelFile:
                 "models": self.models,
                 "metrics": self.metrics,
                 "provenance": self.provenance,
+                "responses": list(self.responses),
             },
             path,
         )
@@ -276,4 +280,5 @@ class ModelFile:
             metrics=data["metrics"],
             provenance=data["provenance"],
             versions=versions,
+            responses=tuple(data.get("responses", ())),  # none in files made before them
         )

@@ -81,10 +81,16 @@ class EventWindow:
         with self._lock:
             self._events.append((key, stamp_ns, size))
 
-    def heard(self, now_ns: int, seconds: float = 1.0) -> int:
-        """How many samples arrived in the last ``seconds`` (to see that it hears anything)."""
+    def heard(self, now_ns: int, seconds: float = 1.0, key: str | None = None) -> int:
+        """How many samples arrived in the last ``seconds`` (of ``key``, else of every key)."""
         with self._lock:
-            return sum(1 for _, stamp, _ in self._events if stamp > now_ns - seconds * NS)
+            while self._events and self._events[0][1] <= now_ns - self._keep_ns:
+                self._events.popleft()
+            return sum(
+                1
+                for k, stamp, _ in self._events
+                if stamp > now_ns - seconds * NS and (key is None or k == key)
+            )
 
     def features(self, now_ns: int) -> np.ndarray:
         """The feature row at ``now_ns``; forgets what no window reaches any more."""
@@ -155,4 +161,33 @@ class Residuals:
         if self._streak >= HOLD:
             self.active, self._streak = beyond, 0
             return Alarm(self.target, beyond, self.step, judged, self.threshold, self.offset)
+        return None
+
+
+class Silence:
+    """One of the component's responses (a key it answered on at every step of its training at
+    which it received traffic) judged each step: silent when traffic came in during the last
+    second and nothing went out on the key within `RESPONSE_WINDOW_S`. An alarm starts after
+    `HOLD` silent steps in a row and ends after as many answered ones; a step without incoming
+    traffic says nothing. What a stall shows when its CPU does not: a component whose workers
+    stand still uses less CPU than it did, by less than a threshold set by the model's own noise
+    may allow (docs/prediction.md), but it stops answering at once."""
+
+    def __init__(self, key: str) -> None:
+        self.key, self.target = key, f"silence:{key}"[:50]
+        self.step = 0
+        self.active = False
+        self._streak = 0
+
+    def update(self, received: int, answered: int) -> Alarm | None:
+        """``received``: samples heard on the inputs in the last second; ``answered``: sent on
+        the key within the response window. The alarm's residual is the unanswered samples."""
+        self.step += 1
+        if received <= 0:
+            return None
+        silent = answered == 0
+        self._streak = self._streak + 1 if silent != self.active else 0
+        if self._streak >= HOLD:
+            self.active, self._streak = silent, 0
+            return Alarm(self.target, silent, self.step, float(received if silent else 0), 0.0)
         return None
