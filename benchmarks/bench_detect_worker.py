@@ -74,7 +74,7 @@ def _history(
         for number in range(1, revisions + 1):
             title = f"{number:04d}"
             revision = create_revision(
-                session, RevisionCreate(component=name, title=title, sort_key=title)
+                session, RevisionCreate(component=name, title=title, sort_key=title, commit="main")
             )
             job = revision.jobs[0]
             path = folder / f"{name}-{title}.mcap"

@@ -129,7 +129,7 @@ def _execution(url: str, folder: Path) -> tuple[int, int]:
     with session_factory(url)() as session:
         create_component(session, ComponentCreate(name="bench"))
         revision = create_revision(
-            session, RevisionCreate(component="bench", title="r1", sort_key="1")
+            session, RevisionCreate(component="bench", title="r1", sort_key="1", commit="main")
         )
         job = revision.jobs[0]
         path = folder / "r1.mcap"

@@ -33,7 +33,8 @@ def _queue(url: str) -> None:
         create_component(session, ComponentCreate(name="bench", executions=EXECUTIONS))
         for n in range(REVISIONS):
             create_revision(
-                session, RevisionCreate(component="bench", title=f"r{n}", sort_key=str(n))
+                session,
+                RevisionCreate(component="bench", title=f"r{n}", sort_key=str(n), commit="main"),
             )
 
 

@@ -73,7 +73,10 @@ def leases(processes: int) -> float:
             create_component(session, ComponentCreate(name="bench", executions=EXECUTIONS))
             for n in range(REVISIONS):
                 create_revision(
-                    session, RevisionCreate(component="bench", title=f"r{n}", sort_key=str(n))
+                    session,
+                    RevisionCreate(
+                        component="bench", title=f"r{n}", sort_key=str(n), commit="main"
+                    ),
                 )
         agents = [(server, tokens["agent"], f"agent-{n}") for n in range(AGENTS)]
         with multiprocessing.get_context("spawn").Pool(AGENTS) as pool:

@@ -69,7 +69,7 @@ def _revision(api: Api, **fields: object) -> object:
     return api.post(
         "/api/v1/revisions",
         "ci",
-        {"component": "builder", "title": "r1", "sort_key": "1", **fields},
+        {"component": "builder", "title": "r1", "sort_key": "1", "commit": "abc123", **fields},
     )
 
 
@@ -299,7 +299,7 @@ def test_a_surrogate_pair_is_text_like_any_other(api: Api):
     answer = _post_raw(
         api,
         "/api/v1/revisions",
-        b'{"component": "builder", "title": "r\\ud83d\\ude00", "sort_key": "1"}',
+        b'{"component": "builder", "title": "r\\ud83d\\ude00", "sort_key": "1", "commit": "c1"}',
     )
     assert answer.status_code == 201, answer.text
     assert api.client.get(f"/api/v1/components/builder/revisions/{quote('r😀')}").status_code == 200
@@ -476,3 +476,15 @@ def test_concurrent_imports_over_http_lose_nothing(api: Api):
     for thread in threads:
         thread.join(60)
     assert sorted(answers) == [201] * 16
+
+
+@pytest.mark.parametrize("suite", ["../../../etc/passwd", "/etc/passwd", "perf/../../x.toml"])
+def test_a_suite_outside_the_repository_is_refused_when_it_is_set(api: Api, suite: str):
+    """Not only when a job fails on a host, long after (a trial from outside, 2026-11-24)."""
+    answer = api.post("/api/v1/components", "admin", {"name": "trav", "suite": suite})
+    assert answer.status_code == 422 and "suite" in answer.text and "repository" in answer.text
+    changed = api.client.patch(
+        "/api/v1/components/builder", json={"suite": suite}, headers=api.tokens["admin"]
+    )
+    assert changed.status_code == 422 and "suite" in changed.text
+    assert api.client.get("/api/v1/components/builder").json()["suite"] == "perf/redline.toml"

@@ -400,7 +400,8 @@ def _second_run_later(session, tmp_path: Path, database_url: str):
     revisions = []
     for number in range(1, 8):
         revision = create_revision(
-            session, RevisionCreate(component=NAME, title=f"r{number}", sort_key=str(number))
+            session,
+            RevisionCreate(component=NAME, title=f"r{number}", sort_key=str(number), commit="main"),
         )
         revisions.append(revision)
     session.commit()

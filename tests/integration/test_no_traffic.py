@@ -147,7 +147,7 @@ def test_a_good_run_has_no_warning(runs: dict[str, object]) -> None:
 def _execution(session, title: str, sort_key: str, recording: Path) -> Execution:
     """Report a revision of 'svc' and store ``recording`` for its job, as an upload would."""
     revision = create_revision(
-        session, RevisionCreate(component="svc", title=title, sort_key=sort_key)
+        session, RevisionCreate(component="svc", title=title, sort_key=sort_key, commit="main")
     )
     (job,) = revision.jobs
     execution = Execution(

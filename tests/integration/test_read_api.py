@@ -45,7 +45,9 @@ def imported(api: Api, revision: str, key: str) -> dict:
 def test_revisions_page_in_sort_key_order_with_a_cursor(api: Api):
     for title, key in (("r10", "10"), ("r9", "9"), ("r2", "2"), ("r11", "11"), ("r1", "1")):
         api.post(
-            "/api/v1/revisions", "ci", {"component": "builder", "title": title, "sort_key": key}
+            "/api/v1/revisions",
+            "ci",
+            {"component": "builder", "title": title, "sort_key": key, "commit": "abc123"},
         ).raise_for_status()
     seen, cursor, pages = [], None, 0
     while True:
@@ -118,7 +120,9 @@ def test_openapi_gives_every_route_a_response_model(api: Api):
 
 def test_metrics_count_requests_and_jobs_by_state(api: Api):
     api.post(
-        "/api/v1/revisions", "ci", {"component": "builder", "title": "r1", "sort_key": "1"}
+        "/api/v1/revisions",
+        "ci",
+        {"component": "builder", "title": "r1", "sort_key": "1", "commit": "abc123"},
     ).raise_for_status()
     api.client.get("/api/v1/components")
     text = api.client.get("/metrics").text

@@ -369,7 +369,7 @@ def _two_hundred_jobs(service: Service) -> list[int]:
         answer = httpx.post(
             f"{service.stack.url}/api/v1/revisions",
             headers=service.headers("ci"),
-            json={"component": "raced", "title": f"r{n}", "sort_key": str(n)},
+            json={"component": "raced", "title": f"r{n}", "sort_key": str(n), "commit": "main"},
         )
         assert answer.status_code == 201, answer.text
     with session_factory(service.database_url)() as session:

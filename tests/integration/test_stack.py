@@ -71,6 +71,13 @@ def _no_secret_in_process_lists(stack: Stack) -> list[str]:
     # server's settings: not its database, Redis, storage or secrets
     agent = psutil.Process(stack.children[-1].process.pid).environ()
     assert agent["REDLINE_TOKEN"] == stack.token("agent", "agent")
+    # and its token acts for its own host only: another host's name is refused
+    forged = httpx.post(
+        f"{stack.url}/api/v1/agent/register",
+        json={"name": "perf-evil", "labels": []},
+        headers={"Authorization": f"Bearer {agent['REDLINE_TOKEN']}"},
+    )
+    assert forged.status_code == 403, forged.text
     assert "REDLINE_DATABASE_URL" in stack.env and "REDLINE_REDIS_URL" in stack.env
     assert not {k for k in agent if k in server_only_variables()}, sorted(agent)
     page = httpx.get(f"{stack.url}/components/nothing?token={stack.admin_token}")

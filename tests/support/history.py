@@ -51,7 +51,7 @@ def add_executions(
     ``record(path, run_metadata, run, **extra)`` writes each, by default `write_recording`
     with ``run`` the counters' samples."""
     revision = create_revision(
-        session, RevisionCreate(component=component, title=title, sort_key=sort_key)
+        session, RevisionCreate(component=component, title=title, sort_key=sort_key, commit="main")
     )
     assert len(revision.jobs) == len(runs), "the component's executions per revision"
     executions = []

@@ -21,6 +21,8 @@ import httpx
 from redline.agent.quiet import LOCK_VARIABLE
 from redline.commands.embedded import EmbeddedServices, start_postgres, start_redis
 
+#: the name the stack's agent registers as, and the one host its token may act as
+AGENT_NAME = "local-agent"
 STOP_TIMEOUT_S = 20.0
 AGENT_FINISH_S = 5.0
 BACKGROUND_NICE = 10
@@ -80,7 +82,7 @@ class Stack:
         self.env = self._service_env()
         self._redline("migrate")
         self.admin_token = self.token("admin", "admin")
-        agent = self.token("agent", "agent")
+        agent = self.token("agent", "agent", host=AGENT_NAME)
         # On one machine, analysis must yield to measurement: the server and the worker run
         # at a lower priority than the agent, whose runs they would otherwise disturb.
         self._spawn(
@@ -116,7 +118,7 @@ class Stack:
             "--server",
             self.url,
             "--name",
-            "local-agent",
+            AGENT_NAME,
             "--work",
             str(self.data / "agent"),
             "--poll",
@@ -150,12 +152,16 @@ class Stack:
             raise StackError(f"`redline {' '.join(args)}` failed:\n{done.stderr.strip()}")
         return done.stdout.strip()
 
-    def token(self, name: str, scopes: str) -> str:
-        """The token kept in DIR/<name>-token (mode 600), created on first start."""
+    def token(self, name: str, scopes: str, host: str | None = None) -> str:
+        """The token kept in DIR/<name>-token (mode 600), created on first start; an agent
+        token bound to ``host``, the one host it may act as."""
         path = self.data / f"{name}-token"
         if path.exists():
             return path.read_text().strip()
-        token = self._redline("token", "create", f"{name}-{int(time.time())}", "--scopes", scopes)
+        bound = ["--host", host] if host else []
+        token = self._redline(
+            "token", "create", f"{name}-{int(time.time())}", "--scopes", scopes, *bound
+        )
         token = token.splitlines()[-1].strip()
         path.touch(mode=0o600)
         path.write_text(token + "\n")

@@ -5,7 +5,7 @@ from __future__ import annotations
 from datetime import datetime
 
 from pydantic import BaseModel, ConfigDict, Field
-from redline.server.schemas.fields import ComponentName
+from redline.server.schemas.fields import ComponentName, SuitePath
 
 
 class ComponentSettings(BaseModel):
@@ -17,7 +17,7 @@ class ComponentSettings(BaseModel):
         max_length=200,
         description="the default branch; pushes to it become revisions",
     )
-    suite: str | None = Field(
+    suite: SuitePath | None = Field(
         default=None, description="path of the suite file inside the repository"
     )
     executions: int | None = Field(
@@ -44,7 +44,7 @@ class ComponentCreate(BaseModel):
         max_length=200,
         description="the default branch; pushes to it become revisions",
     )
-    suite: str = Field(default="", description="path of the suite file inside the repository")
+    suite: SuitePath = Field(default="", description="path of the suite file inside the repository")
     executions: int = Field(default=1, ge=1, le=100, description="executions per revision")
     host_labels: list[str] = Field(
         default_factory=list, description="labels a host needs to run its jobs"

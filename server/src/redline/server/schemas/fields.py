@@ -29,6 +29,18 @@ def path_segment(value: str) -> str:
     return value
 
 
+def inside_repository(value: str) -> str:
+    """A relative path that stays inside the repository ('' keeps the default): the agent would
+    refuse any other only when a job runs, long after the setting was made."""
+    if value.startswith(("/", "\\")) or re.match(r"^[A-Za-z]:", value):
+        raise ValueError("must be a path relative to the repository's root, not an absolute one")
+    if ".." in re.split(r"[/\\]", value):
+        raise ValueError("must stay inside the repository (no '..')")
+    if _CONTROL.search(value):
+        raise ValueError("must not contain control characters")
+    return value
+
+
 def commit_time(value: datetime) -> datetime:
     """``value`` in UTC (naive means UTC), between 1970 and a year from now."""
     if value.tzinfo is None:
@@ -61,4 +73,8 @@ ComponentName = Annotated[
 Title = Annotated[str, Field(min_length=1, max_length=200), AfterValidator(path_segment)]
 #: a commit as git names it (a hash, a tag, a branch); never starting with '-'
 Commit = Annotated[str, Field(max_length=200, pattern=r"^(?:[A-Za-z0-9_][\w./@+-]*)?$")]
+#: the same, where a performance host will check it out: never empty
+RunCommit = Annotated[str, Field(min_length=1, max_length=200, pattern=r"^[A-Za-z0-9_][\w./@+-]*$")]
 CommitTime = Annotated[datetime, AfterValidator(commit_time)]
+#: a suite file's path inside a component's repository
+SuitePath = Annotated[str, Field(max_length=500), AfterValidator(inside_repository)]

@@ -5,14 +5,14 @@ from __future__ import annotations
 from datetime import datetime
 
 from pydantic import BaseModel, ConfigDict, Field
-from redline.server.schemas.fields import Commit, CommitTime, Title
+from redline.server.schemas.fields import CommitTime, RunCommit, Title
 
 
 class RevisionCreate(BaseModel):
     component: str = Field(min_length=1, max_length=200)
     title: Title
     sort_key: str = Field(min_length=1, max_length=200, description="orders revisions; '9' < '10'")
-    commit: Commit = ""
+    commit: RunCommit = Field(description="what the performance hosts check out and build")
     repo: str = Field(
         default="",
         description="optional; when given, it must name the "
