@@ -188,3 +188,19 @@ def test_a_phase_without_counter_samples_is_judged_by_what_was_measured(
     cpu = found[(NAME, "cpu_percent", "execution_shift")]
     assert cpu.verdict == "not enough data" and cpu.reason
     assert found[("driver", f"{QUERY}:rtt_p50_us", "execution_shift")].verdict == "no change"
+
+
+def test_a_baseline_measured_only_while_the_host_was_busy_is_named_as_the_reason(
+    session, database_url, tmp_path
+):
+    """Not "unreadable or absent": a trial from outside saw a 4x CPU change skipped for that
+    reason, where the baseline's every run had been disturbed (2026-11-24)."""
+    create_component(session, ComponentCreate(name=NAME, executions=RUNS))
+    ingest_and_detect(database_url, _revision(session, tmp_path, 1, host_percent=90.0))
+    ingest_and_detect(database_url, _revision(session, tmp_path, 2))
+    session.expire_all()
+    r2 = session.scalars(select(Revision).where(Revision.title == "r2")).one()
+    for method in ("execution_shift", "ks"):
+        cpu = _verdicts(session, r2)[(NAME, "cpu_percent", method)]
+        assert cpu.verdict == "not enough data", cpu.reason
+        assert "revision r1's runs of this series were all disturbed (host busy" in cpu.reason

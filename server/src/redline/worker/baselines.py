@@ -15,7 +15,7 @@ from redline.server.models import (
     Revision,
 )
 from redline.worker.history import earlier_than, flagged_verdicts, previous_revisions
-from redline.worker.samples import SampleCache
+from redline.worker.samples import SampleCache, read_samples
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
@@ -103,12 +103,28 @@ class Baselines:
             )
         found = self._revisions(series_id, detector)
         if not found:
-            known = self.pinned is not None or self.previous.get(series_id)
-            return Baseline(
-                None,
-                missing="missing baseline: the baseline revision's samples "
-                "of this series are unreadable or absent"
-                if known
-                else "missing baseline: no earlier revision has samples of this series",
-            )
+            known = [self.pinned] if self.pinned is not None else self.previous.get(series_id)
+            if not known:
+                return Baseline(
+                    None, missing="missing baseline: no earlier revision has samples of this series"
+                )
+            return Baseline(None, missing=self._why_unusable(known, series_id))
         return Baseline(np.concatenate([values for _, values in found]), found[0][0], len(found))
+
+    def _why_unusable(self, revisions: list[int], series_id: int) -> str:
+        """Why the earlier revisions that measured the series give no baseline values: the
+        host was busy while they measured it (each of its runs disturbed: charted, never
+        judged), or their samples are unreadable."""
+        for revision_id in revisions:
+            disturbed = read_samples(self.session, revision_id)[3].get(series_id)
+            if disturbed:
+                title = self.session.get(Revision, revision_id)
+                return (
+                    f"missing baseline: revision {title.title if title else revision_id}'s "
+                    f"runs of this series were all disturbed ({disturbed}), and no earlier "
+                    "revision measured it undisturbed"
+                )
+        return (
+            "missing baseline: the baseline revision's samples of this series are unreadable "
+            "or absent"
+        )
