@@ -497,6 +497,9 @@ def test_a_wrong_token_is_refused_even_where_reading_is_open(api):
     path = f"{BASE}/revisions/r1/verdict"
     wrong = api.client.get(path, headers={"Authorization": "Bearer rl_mistyped"})
     assert wrong.status_code == 401 and "invalid or revoked token" in wrong.text
+    # in the address as in the header (a trial from outside found it ignored there)
+    wrong = api.client.get(f"{path}?token=rl_mistyped")
+    assert wrong.status_code == 401 and "invalid or revoked token" in wrong.text
     assert api.client.get(path).status_code == 404  # no token: open reading, no such revision
 
 

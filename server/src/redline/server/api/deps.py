@@ -91,8 +91,10 @@ READ_COOKIE = "redline_token"
 def reader(*scopes: str) -> Callable[..., None]:
     """A dependency for reading: open unless ``REDLINE_READ_ACCESS=token``; then a token with
     one of ``scopes`` is needed, as a bearer header, the ``redline_token`` cookie or ``?token=``
-    (for the browser UI), or a signed-in session of the pages. Open or not, a bearer token that
-    is given must be live (401 otherwise): a mistyped CI secret is refused, never ignored."""
+    (for the browser UI), or a signed-in session of the pages. Open or not, a token that is
+    given as a bearer header or ``?token=`` must be live (401 otherwise): a mistyped CI secret
+    is refused, never ignored. (A stale cookie is not refused where reading is open: the
+    browser, not the caller, sends it.)"""
 
     def check(
         request: Request,
@@ -101,7 +103,7 @@ def reader(*scopes: str) -> Callable[..., None]:
         credentials: Annotated[HTTPAuthorizationCredentials | None, Depends(_bearer)],
     ) -> None:
         if settings.read_access != "token":
-            given = _bearer_secret(credentials)
+            given = _bearer_secret(credentials) or request.query_params.get("token")
             if given and authenticate(session, given) is None:
                 raise HTTPException(
                     status.HTTP_401_UNAUTHORIZED,
