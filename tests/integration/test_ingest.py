@@ -7,9 +7,11 @@ from pathlib import Path
 import numpy as np
 import pyarrow.parquet as pq
 import pytest
+from redline.recording.format import SeriesKey
 from redline.server.models import Detection, Execution, Job, JobState, Revision, Series, Summary
 from redline.server.schemas.components import ComponentCreate
 from redline.server.services.components import create_component
+from redline.server.services.ingestion import SERIES_PER_INSERT, series_ids
 from redline.server.services.revisions import list_revisions
 from redline.server.storage import samples_path
 from redline.worker.detection import detect_revision
@@ -201,3 +203,15 @@ def test_revision_is_analyzing_until_detection_has_run(session, database_url, tm
     detect_revision(database_url, execution.revision_id)
     session.expire_all()
     assert [r.state for r in list_revisions(session, "builder")] == ["done"]
+
+
+def test_series_beyond_one_statements_parameters_are_all_created(session):
+    """20,000 series in one import took 120,000 parameters, over Postgres's 65,535 for a
+    statement; the import was answered "database unavailable" (a trial from outside)."""
+    component = create_component(session, ComponentCreate(name="wide"))
+    count = 2 * SERIES_PER_INSERT + 1_000  # 66,000 parameters in one statement: too many
+    keys = [SeriesKey(f"c{n}", "steady", "{}", "wide", "x") for n in range(count)]
+    found = series_ids(session, component.id, keys)
+    session.commit()
+    assert len(set(found.values())) == count
+    assert session.scalar(select(func.count()).select_from(Series)) == count

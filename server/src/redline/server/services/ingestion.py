@@ -25,6 +25,9 @@ from sqlalchemy.dialects.postgresql import insert
 from sqlalchemy.orm import Session
 
 Samples = dict[SeriesKey, list[float]]
+#: series rows per INSERT: Postgres takes at most 65,535 parameters a statement, six a series
+#: (an import of 20,000 series was answered "database unavailable", a 503 no retry could help)
+SERIES_PER_INSERT = 5_000
 
 
 def series_ids(session: Session, component_id: int, keys: list[SeriesKey]) -> dict[SeriesKey, int]:
@@ -41,7 +44,9 @@ def series_ids(session: Session, component_id: int, keys: list[SeriesKey]) -> di
             )
             for k in keys
         ]
-        session.execute(insert(Series).values(rows).on_conflict_do_nothing())
+        for start in range(0, len(rows), SERIES_PER_INSERT):
+            chunk = rows[start : start + SERIES_PER_INSERT]
+            session.execute(insert(Series).values(chunk).on_conflict_do_nothing())
     known = session.scalars(select(Series).where(Series.component_id == component_id))
     by_key = {SeriesKey(s.case, s.phase, s.params, s.process, s.counter): s.id for s in known}
     return {key: by_key[key] for key in keys}
