@@ -488,3 +488,18 @@ def test_a_suite_outside_the_repository_is_refused_when_it_is_set(api: Api, suit
     )
     assert changed.status_code == 422 and "suite" in changed.text
     assert api.client.get("/api/v1/components/builder").json()["suite"] == "perf/redline.toml"
+
+
+def test_an_unknown_field_is_refused_naming_it_never_ignored(api: Api):
+    """A trial from outside saw `suite` in a revision and `committed_at` in an import dropped
+    without a word (2026-11-24)."""
+    answer = _revision(api, suite="../../other/perf/redline.toml")
+    assert answer.status_code == 422 and "suite" in answer.text
+    imported = _post_raw(
+        api,
+        "/api/v1/import/results",
+        json.dumps({**_results("r9"), "committed_at": "2026-01-01T00:00:00"}).encode(),
+    )
+    assert imported.status_code == 422 and "committed_at" in imported.text
+    typo = api.post("/api/v1/components", "admin", {"name": "other", "exeuctions": 3})
+    assert typo.status_code == 422 and "exeuctions" in typo.text

@@ -11,6 +11,8 @@ from redline.server.schemas.fields import ComponentName, SuitePath
 class ComponentSettings(BaseModel):
     """What PATCH may change; every field is optional there."""
 
+    model_config = ConfigDict(extra="forbid")  # a misspelt field is refused, never ignored
+
     repo: str | None = Field(default=None, description="URL or path; https/ssh/.git all match")
     branch: str | None = Field(
         default=None,
@@ -33,6 +35,7 @@ class ComponentSettings(BaseModel):
 
 
 class ComponentCreate(BaseModel):
+    model_config = ConfigDict(extra="forbid")  # a misspelt field is refused, never ignored
     name: ComponentName
     repo: str = Field(
         default="",

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Annotated, Any
 
-from pydantic import BaseModel, Field
+from pydantic import BaseModel, ConfigDict, Field
 from redline.server.schemas.fields import Commit, Title
 
 
@@ -20,6 +20,8 @@ class ImportResult(BaseModel):
 class ResultValue(BaseModel):
     """One measured series of a generic result: its name and its samples."""
 
+    model_config = ConfigDict(extra="forbid")  # a misspelt field is refused, never ignored
+
     case: str = Field(min_length=1, max_length=200)
     phase: str = Field(default="main", min_length=1, max_length=200)
     params: dict[str, Any] = Field(default_factory=dict)
@@ -32,6 +34,8 @@ class ResultValue(BaseModel):
 
 class ResultsImport(BaseModel):
     """A benchmark's results without the SDK; see docs/api.md."""
+
+    model_config = ConfigDict(extra="forbid")  # a misspelt field is refused, never ignored
 
     component: str = Field(min_length=1, max_length=200)
     revision: Title = Field(description="the revision's title")

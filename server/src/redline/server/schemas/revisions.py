@@ -9,6 +9,7 @@ from redline.server.schemas.fields import CommitTime, RunCommit, Title
 
 
 class RevisionCreate(BaseModel):
+    model_config = ConfigDict(extra="forbid")  # a misspelt field is refused, never ignored
     component: str = Field(min_length=1, max_length=200)
     title: Title
     sort_key: str = Field(min_length=1, max_length=200, description="orders revisions; '9' < '10'")
