@@ -62,7 +62,7 @@ def pgbouncer(database_url: str, pool_size: int = 2) -> Iterator[str]:
     process = subprocess.Popen(
         command, cwd=folder, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True
     )
-    through = parts._replace(netloc=f"{user}@127.0.0.1:{port}", query="", path=parts.path).geturl()
+    through = parts._replace(netloc=f"{user}@127.0.0.1:{port}", query="").geturl()
     try:
         _wait_until_up(process, through, folder)
         yield through

@@ -81,11 +81,15 @@ class EventWindow:
         with self._lock:
             self._events.append((key, stamp_ns, size))
 
+    def _forget(self, now_ns: int) -> None:
+        """Drop what no window reaches any more (the lock held)."""
+        while self._events and self._events[0][1] <= now_ns - self._keep_ns:
+            self._events.popleft()
+
     def heard(self, now_ns: int, seconds: float = 1.0, key: str | None = None) -> int:
         """How many samples arrived in the last ``seconds`` (of ``key``, else of every key)."""
         with self._lock:
-            while self._events and self._events[0][1] <= now_ns - self._keep_ns:
-                self._events.popleft()
+            self._forget(now_ns)
             return sum(
                 1
                 for k, stamp, _ in self._events
@@ -95,8 +99,7 @@ class EventWindow:
     def features(self, now_ns: int) -> np.ndarray:
         """The feature row at ``now_ns``; forgets what no window reaches any more."""
         with self._lock:
-            while self._events and self._events[0][1] <= now_ns - self._keep_ns:
-                self._events.popleft()
+            self._forget(now_ns)
             held = list(self._events)
         return extract(held, np.array([now_ns]), self.spec)[0]
 

@@ -46,6 +46,8 @@ class Baselines:
     ) -> None:
         """``walk``: what a re-analysis knows of the earlier revisions; else it is read."""
         self.session, self.config = session, config
+        #: per earlier revision, its series no execution may be judged by, with why
+        self._unjudged: dict[int, dict[int, str]] = {}
         self.cache = walk.cache if walk else SampleCache(config.window + 1)
         self.pinned: int | None = None
         self.flagged: set[tuple[int, str, int]] = walk.flagged if walk else set()
@@ -116,7 +118,9 @@ class Baselines:
         host was busy while they measured it (each of its runs disturbed: charted, never
         judged), or their samples are unreadable."""
         for revision_id in revisions:
-            disturbed = read_samples(self.session, revision_id)[3].get(series_id)
+            if revision_id not in self._unjudged:  # once a revision, whatever the series
+                self._unjudged[revision_id] = read_samples(self.session, revision_id)[3]
+            disturbed = self._unjudged[revision_id].get(series_id)
             if disturbed:
                 title = self.session.get(Revision, revision_id)
                 return (
