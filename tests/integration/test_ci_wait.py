@@ -9,12 +9,16 @@ import time
 from pathlib import Path
 from xml.etree import ElementTree
 
+import numpy as np
 import pytest
 from redline.server.db import session_factory
 from redline.server.models import Job, JobState, Revision
+from redline.server.schemas.components import ComponentCreate
+from redline.server.services.components import create_component
+from sqlalchemy import select
 
 from tests.support.api import api_with
-from tests.support.history import cpu_history, ingest_and_detect
+from tests.support.history import add_executions, cpu_history, ingest_and_detect
 from tests.support.servers import live_server
 
 REDLINE = str(Path(sys.executable).parent / "redline")
@@ -29,9 +33,28 @@ def server(services, tmp_path_factory):
         with session_factory(api.settings.database_url)() as session:
             executions = cpu_history(session, tmp, CPUS, config={"methods": ["ks"]})
         ingest_and_detect(api.settings.database_url, executions)
+        with session_factory(api.settings.database_url)() as session:
+            executions = _busy_baseline(session, tmp)
+        ingest_and_detect(api.settings.database_url, executions)
         read = api.tokens["read"]["Authorization"].removeprefix("Bearer ")
         with live_server(api.settings) as url:
             yield url, read, api
+
+
+def _busy_baseline(session, tmp: Path) -> list:
+    """Component "busy": b1 measured while the host was busy (and so was its fresh run,
+    which failed), then b2 at four times its CPU on a quiet host."""
+    create_component(session, ComponentCreate(name="busy", executions=1))
+    rng = np.random.default_rng(3)
+    executions = add_executions(
+        session, tmp, "busy", "b1", "1", [{"cpu": rng.normal(10, 0.5, 60)}], host_percent=90.0
+    )
+    ingest_and_detect(session.get_bind().url.render_as_string(False), executions)
+    session.expire_all()
+    for job in session.scalars(select(Job).where(Job.remeasures_job_id.is_not(None))):
+        job.state, job.reason = JobState.failed, "the host went away"
+    session.commit()
+    return add_executions(session, tmp, "busy", "b2", "2", [{"cpu": rng.normal(40, 2, 60)}])
 
 
 def wait(server, *args: str, token: str | None = None) -> subprocess.CompletedProcess:
@@ -70,6 +93,21 @@ def test_no_change_passes_and_no_baseline_is_skipped_with_its_reason(server, tmp
     assert first.returncode == 0, first.stderr
     skipped = ElementTree.parse(out).getroot().find("testcase/skipped")
     assert skipped is not None and "not enough data" in skipped.get("message", "")
+
+
+def test_a_verdict_the_busy_host_left_undecided_exits_4_never_0(server, tmp_path):
+    """A trial from outside saw a 4x regression pass where every run of the baseline had been
+    disturbed (2026-11-24): exit 0 with skipped test cases."""
+    out = tmp_path / "junit.xml"
+    done = wait(server, "--component", "busy", "--revision", "b2", "--junit", str(out))
+    assert done.returncode == 4, (done.stdout, done.stderr)
+    assert "undecided" in done.stdout and "host was busy" in done.stderr
+    suite = ElementTree.parse(out).getroot()
+    assert (suite.get("errors"), suite.get("skipped")) == ("1", "0")
+    assert "host busy" in suite.find("testcase/error").get("message", "")
+    assert (
+        wait(server, "--component", "busy", "--revision", "b2", "--fail-on", "none").returncode == 0
+    )
 
 
 def test_bad_input_and_a_timeout_exit_2_naming_the_cause(server):

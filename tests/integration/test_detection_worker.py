@@ -33,6 +33,7 @@ from tests.support.history import (
     add_executions,
     cpu_history,
     ingest_and_detect,
+    uploaded,
 )
 
 
@@ -413,15 +414,7 @@ def _second_run_later(session, tmp_path: Path, database_url: str):
             run_metadata(job, NAME, revision.title, revision.sort_key),
             {"cpu": rng.normal(level, 1, 60)},
         )
-        execution = Execution(
-            job_id=job.id,
-            revision_id=revision.id,
-            recording_path=str(path),
-            sha256=name.ljust(64, "0"),
-            size=path.stat().st_size,
-        )
-        job.state = "uploaded"
-        session.add(execution)
+        execution = uploaded(session, job, path, name)
         session.commit()
         ingest_execution(database_url, execution.id)
 

@@ -6,16 +6,33 @@ from __future__ import annotations
 
 from pathlib import Path
 from typing import Any
+from xml.etree import ElementTree
 
 import numpy as np
 from redline.recording import RecordingWriter
-from redline.server.models import Detection, Execution, Regression, Revision, Series
+from redline.server.models import (
+    Detection,
+    Execution,
+    Host,
+    Job,
+    JobState,
+    Regression,
+    Revision,
+    Series,
+)
 from redline.server.schemas.components import ComponentCreate
+from redline.server.schemas.revisions import RevisionCreate
+from redline.server.services.ci_verdict import ci_verdict, junit_xml
 from redline.server.services.components import create_component
+from redline.server.services.jobs import lease_job
+from redline.server.services.revisions import create_revision
+from redline.worker.detection import detect_revision
+from redline.worker.ingest import ingest_execution
 from sqlalchemy import select
 
 from tests.support.api import api_with
-from tests.support.history import add_executions, ingest_and_detect
+from tests.support.history import add_executions, ingest_and_detect, uploaded
+from tests.support.recordings import run_metadata
 
 NAME, CASE, PHASE, PARAMS = "svc", "ask", "steady", {"rate": 50}
 QUERY = "FixedRate/Query(svc/get)"
@@ -204,3 +221,100 @@ def test_a_baseline_measured_only_while_the_host_was_busy_is_named_as_the_reason
         cpu = _verdicts(session, r2)[(NAME, "cpu_percent", method)]
         assert cpu.verdict == "not enough data", cpu.reason
         assert "revision r1's runs of this series were all disturbed (host busy" in cpu.reason
+
+
+def _fresh_run(session, tmp_path: Path, title: str, **recorded: Any) -> Execution:
+    """The fresh run the worker queued for revision ``title``, recorded with ``recorded`` and
+    uploaded as an agent would."""
+    revision = session.scalars(select(Revision).where(Revision.title == title)).one()
+    job = session.scalars(
+        select(Job).where(Job.revision_id == revision.id, Job.remeasures_job_id.is_not(None))
+    ).one()
+    name = f"{title}-fresh-{job.execution_index}"
+    path = _record(
+        tmp_path / f"{name}.mcap",
+        run_metadata(job, NAME, title, revision.sort_key),
+        seed=99,
+        **recorded,
+    )
+    execution = uploaded(session, job, path, name)
+    session.commit()
+    return execution
+
+
+def _busy_baseline(session, database_url: str, tmp_path: Path) -> None:
+    """r1 measured while the host was busy in every run, then r2 on a quiet host."""
+    create_component(session, ComponentCreate(name=NAME, executions=RUNS))
+    ingest_and_detect(database_url, _revision(session, tmp_path, 1, host_percent=90.0))
+    ingest_and_detect(database_url, _revision(session, tmp_path, 2))
+    session.expire_all()
+
+
+def test_a_baseline_the_host_was_busy_in_is_run_afresh_and_the_next_verdict_waits_for_it(
+    session, database_url, tmp_path
+):
+    """A trial from outside saw a 4x CPU change pass `redline ci wait` where the baseline's
+    every run had been disturbed (2026-11-24): the baseline is now run afresh, once, ahead of
+    other work, and the verdict of the revision that lacks it waits."""
+    _busy_baseline(session, database_url, tmp_path)
+    r1 = session.scalars(select(Revision).where(Revision.title == "r1")).one()
+    fresh = [job for job in r1.jobs if job.remeasures_job_id is not None]
+    assert len(fresh) == 1, "one fresh run per revision, however many runs were disturbed"
+    assert fresh[0].cases == [CASE] and fresh[0].execution_index == RUNS
+    assert fresh[0].state == JobState.queued and fresh[0].pair == 0
+    waiting = ci_verdict(session, NAME, "r2")
+    assert waiting.state == "pending", waiting
+    assert "fresh run of its baseline r1" in waiting.waiting_for
+    assert ci_verdict(session, NAME, "r1").state == "pending"  # its own fresh run is under way
+    create_revision(session, RevisionCreate(component=NAME, title="r3", sort_key="3", commit="c"))
+    session.add(Host(name="perf-1"))
+    session.commit()
+    leased = lease_job(session, "perf-1", 60, 3)
+    assert leased is not None and leased.id == fresh[0].id, "the fresh run goes before r3's"
+    leased.state = JobState.uploaded  # as its upload will
+    session.commit()
+
+    execution = _fresh_run(session, tmp_path, "r1")  # the host was quiet this time
+    for revision_id in ingest_execution(database_url, execution.id):
+        detect_revision(database_url, revision_id)
+    session.expire_all()
+    r2 = session.scalars(select(Revision).where(Revision.title == "r2")).one()
+    cpu = _verdicts(session, r2)[(NAME, "cpu_percent", "ks")]
+    assert cpu.verdict == "no change", cpu.reason
+    judged = ci_verdict(session, NAME, "r2")
+    assert judged.state == "done" and judged.undecided == 0
+    assert [case.state for case in judged.cases] == ["passed"]
+
+
+def test_a_host_busy_in_the_fresh_run_too_leaves_the_verdict_undecided_never_passed(
+    session, database_url, tmp_path
+):
+    _busy_baseline(session, database_url, tmp_path)
+    execution = _fresh_run(session, tmp_path, "r1", host_percent=90.0)
+    for revision_id in ingest_execution(database_url, execution.id):
+        detect_revision(database_url, revision_id)
+    session.expire_all()
+    r1 = session.scalars(select(Revision).where(Revision.title == "r1")).one()
+    assert sum(job.remeasures_job_id is not None for job in r1.jobs) == 1  # no second one
+    verdict = ci_verdict(session, NAME, "r2")
+    assert verdict.state == "done" and verdict.undecided == 1 and verdict.skipped == 0
+    (case,) = verdict.cases
+    assert case.state == "undecided" and "host busy" in case.reason
+    suite = ElementTree.fromstring(junit_xml(verdict))
+    error = suite.find("testcase/error")
+    assert suite.get("errors") == "1" and error is not None  # never an empty, green report
+    assert "undecided" in error.get("message", "")
+    assert ElementTree.fromstring(junit_xml(verdict, "none")).get("errors") == "0"
+
+
+def test_a_fresh_run_that_could_not_run_leaves_its_revision_as_it_was(
+    session, database_url, tmp_path
+):
+    _busy_baseline(session, database_url, tmp_path)
+    r1 = session.scalars(select(Revision).where(Revision.title == "r1")).one()
+    (fresh,) = [job for job in r1.jobs if job.remeasures_job_id is not None]
+    fresh.state, fresh.reason = JobState.failed, "commit gone"
+    session.commit()
+    assert ci_verdict(session, NAME, "r1").state == "done"  # not failed: its own runs ran
+    verdict = ci_verdict(session, NAME, "r2")
+    assert verdict.state == "done" and [c.state for c in verdict.cases] == ["undecided"]

@@ -18,7 +18,7 @@ from pathlib import Path
 import pytest
 from redline.agent.runner import RunResult, run_suite
 from redline.recording import read_recording
-from redline.server.models import Detection, Execution, JobState, Revision, Summary
+from redline.server.models import Detection, Execution, Revision, Summary
 from redline.server.schemas.components import ComponentCreate
 from redline.server.schemas.revisions import RevisionCreate
 from redline.server.services.compare import compare
@@ -27,6 +27,8 @@ from redline.server.services.revisions import create_revision
 from redline.worker.detection import detect_revision
 from redline.worker.ingest import ingest_execution
 from sqlalchemy import select
+
+from tests.support.history import uploaded
 
 COMPONENT = """\
     import argparse, json, signal, socket, threading, zenoh
@@ -150,15 +152,7 @@ def _execution(session, title: str, sort_key: str, recording: Path) -> Execution
         session, RevisionCreate(component="svc", title=title, sort_key=sort_key, commit="main")
     )
     (job,) = revision.jobs
-    execution = Execution(
-        job_id=job.id,
-        revision_id=revision.id,
-        recording_path=str(recording),
-        sha256=title.ljust(64, "0"),
-        size=recording.stat().st_size,
-    )
-    job.state = JobState.uploaded
-    session.add(execution)
+    execution = uploaded(session, job, recording, title)
     session.commit()
     return execution
 

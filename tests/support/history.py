@@ -7,7 +7,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from redline.server.models import DetectionConfigRow, Execution, JobState
+from redline.server.models import DetectionConfigRow, Execution, Job, JobState
 from redline.server.schemas.components import ComponentCreate
 from redline.server.schemas.revisions import RevisionCreate
 from redline.server.services.components import create_component
@@ -65,18 +65,24 @@ def add_executions(
             counters,
             **extra,
         )
-        execution = Execution(
-            job_id=job.id,
-            revision_id=revision.id,
-            recording_path=str(path),
-            sha256=name.ljust(64, "0"),
-            size=path.stat().st_size,
-        )
-        job.state = JobState.uploaded
-        session.add(execution)
-        executions.append(execution)
+        executions.append(uploaded(session, job, path, name))
     session.commit()
     return executions
+
+
+def uploaded(session, job: Job, path: Path, name: str) -> Execution:
+    """Store the recording at ``path`` as ``job``'s execution, as an upload would (not yet
+    committed); ``name`` makes its checksum unique."""
+    execution = Execution(
+        job_id=job.id,
+        revision_id=job.revision_id,
+        recording_path=str(path),
+        sha256=name.ljust(64, "0"),
+        size=path.stat().st_size,
+    )
+    job.state = JobState.uploaded
+    session.add(execution)
+    return execution
 
 
 def cpu_history(

@@ -18,10 +18,15 @@ def write_recording(
     *,
     warmup: dict[str, np.ndarray] | None = None,
     process: str = PROCESS,
+    host_percent: float | None = None,
 ) -> Path:
-    """A finished Redline recording: one segment per phase, one counter sample per 10 ms."""
+    """A finished Redline recording: one segment per phase, one counter sample per 10 ms;
+    with ``host_percent``, the host's CPU (% of its 2 cores) and Redline's own beside each
+    sample (`redline.recording.disturbance`)."""
     with RecordingWriter(path) as writer:
         writer.metadata("redline.run", run)
+        if host_percent is not None:
+            writer.metadata("redline.host", {"cpu_cores": "2"})
         t_ns = 1_000_000_000
         for phase, values, is_warmup in (("warmup", warmup, True), (PHASE, counters, False)):
             if values is None:
@@ -31,6 +36,9 @@ def write_recording(
                 t_ns += 10_000_000
                 sample = {name: float(column[index]) for name, column in values.items()}
                 writer.counters(process, 4242, sample, t_ns)
+                if host_percent is not None:  # with Redline's own share, to tell the other
+                    writer.counters("host", 0, {"cpu_percent": host_percent}, t_ns)
+                    writer.counters("redline", 0, {"cpu_percent": 4.0}, t_ns)
             t_ns += 10_000_000
             writer.marker("end", CASE, phase, PARAMS, warmup=is_warmup, t_ns=t_ns)
     return path

@@ -3,7 +3,9 @@ verdict (its jobs, their analysis, and confirmation runs), writes it as JUnit XM
 table, and says by its exit code whether the revision passes.
 
 Exit codes: 0 no change (per ``--fail-on``), 1 a change, 2 bad input or timeout (unknown
-component or revision, refused token, no verdict in time), 3 the revision's jobs failed.
+component or revision, refused token, no verdict in time), 3 the revision's jobs failed, 4 no
+change found but some test case undecided: the host was busy in every run of it or of its
+baseline, even after a fresh run (never a silent pass; ``--fail-on none`` passes it).
 Only httpx is needed, so CI machines install the light `redline-agent` distribution.
 """
 
@@ -20,7 +22,7 @@ from urllib.parse import quote, urlsplit
 import httpx
 import typer
 
-PASSED, CHANGED, BAD_INPUT, JOBS_FAILED = 0, 1, 2, 3
+PASSED, CHANGED, BAD_INPUT, JOBS_FAILED, UNDECIDED = 0, 1, 2, 3, 4
 #: how long a revision may take to appear (its push is still being reported) before "unknown"
 APPEAR_S = 120.0
 
@@ -61,7 +63,7 @@ def _counted(change: dict[str, Any], fail_on: FailOn) -> bool:
 def _table(verdict: dict[str, Any], fail_on: FailOn) -> str:
     rows = [("test case / phase [parameters]", "verdict", "changes")]
     for case in verdict["cases"]:
-        if case["state"] != "skipped":  # passed or failed as --fail-on counts
+        if case["state"] in ("passed", "failed"):  # as --fail-on counts
             failed = any(_counted(c, fail_on) for c in case["changes"])
             case = {**case, "state": "failed" if failed else "passed"}
         changes = ", ".join(
@@ -78,6 +80,11 @@ def _table(verdict: dict[str, Any], fail_on: FailOn) -> str:
         f"{verdict['component']} {verdict['revision']}: {verdict['regressions']} change(s) for "
         f"the worse, {verdict['improvements']} for the better, {verdict['skipped']} test "
         f"case(s) without enough data"
+        + (
+            f", {verdict['undecided']} undecided (the host was busy)"
+            if verdict.get("undecided")
+            else ""
+        )
     )
     return "\n".join(lines)
 
@@ -125,7 +132,7 @@ def wait(
     poll: Annotated[float, typer.Option(min=0.1, help="seconds between two looks")] = 10.0,
 ) -> None:
     """Wait for a revision's verdict; write JUnit XML; exit 0 (no change), 1 (change), 2 (bad
-    input or timeout), 3 (its jobs failed)."""
+    input or timeout), 3 (its jobs failed), 4 (undecided: the host was busy)."""
     if urlsplit(server).scheme not in ("http", "https") or not urlsplit(server).hostname:
         _stop(BAD_INPUT, f"--server {server!r}: not an http:// or https:// URL")
     if junit is not None:
@@ -184,7 +191,15 @@ def wait(
         FailOn.none: 0,
     }[fail_on]
     sys.stdout.flush()
-    raise typer.Exit(CHANGED if changed else PASSED)
+    if changed:
+        raise typer.Exit(CHANGED)
+    if verdict.get("undecided") and fail_on != FailOn.none:
+        _stop(
+            UNDECIDED,
+            f"{verdict['undecided']} test case(s) undecided: the host was busy in every run of "
+            "them or of their baseline, even after a fresh run; see the page",
+        )
+    raise typer.Exit(PASSED)
 
 
 def register(app: typer.Typer) -> None:

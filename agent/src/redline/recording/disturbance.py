@@ -26,6 +26,14 @@ DEFAULT_THRESHOLD = 30.0
 THRESHOLD_VARIABLE = "REDLINE_DISTURBED_CPU_PERCENT"
 
 Segment = tuple[str, str, str]  # case, phase, canonical parameters
+#: what every disturbed segment's reason starts with, and a verdict it left undecided names
+BUSY = "host busy:"
+
+
+def names_busy_host(reason: str) -> bool:
+    """Whether a "not enough data" reason is a busy host's (the candidate's or the baseline's
+    runs disturbed), not a history too short or a run the component took no part in."""
+    return BUSY in reason
 
 
 def threshold() -> float:
@@ -68,7 +76,7 @@ def disturbed(others: Mapping[Segment, Sequence[float]], limit: float) -> dict[S
         worst = max(values, default=0.0)
         if worst > limit:
             found[segment] = (
-                f"host busy: other load {worst:.0f} % of a core during the phase (over {limit:g} %)"
+                f"{BUSY} other load {worst:.0f} % of a core during the phase (over {limit:g} %)"
             )
     return found
 

@@ -350,6 +350,8 @@ def commit_status(session: Session, revision_id: int) -> list[int]:
         state, said = "error", "its performance jobs failed or were cancelled"
     elif verdict.regressions:
         state, said = "failure", f"{verdict.regressions} change(s) for the worse"
+    elif verdict.undecided:  # never a green status for a measurement the host spoiled
+        state, said = "error", f"{verdict.undecided} test case(s) undecided: the host was busy"
     else:
         state, said = (
             "success",

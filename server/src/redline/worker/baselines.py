@@ -110,25 +110,29 @@ class Baselines:
                 return Baseline(
                     None, missing="missing baseline: no earlier revision has samples of this series"
                 )
-            return Baseline(None, missing=self._why_unusable(known, series_id))
+            return self._unusable(known, series_id)
         return Baseline(np.concatenate([values for _, values in found]), found[0][0], len(found))
 
-    def _why_unusable(self, revisions: list[int], series_id: int) -> str:
-        """Why the earlier revisions that measured the series give no baseline values: the
-        host was busy while they measured it (each of its runs disturbed: charted, never
-        judged), or their samples are unreadable."""
+    def _unusable(self, revisions: list[int], series_id: int) -> Baseline:
+        """No baseline, saying why the earlier revisions that measured the series give no
+        values: the host was busy while they measured it (each of its runs disturbed: charted,
+        never judged; that revision is named as the baseline, for its fresh run,
+        `redline.worker.remeasure`), or their samples are unreadable."""
         for revision_id in revisions:
             if revision_id not in self._unjudged:  # once a revision, whatever the series
                 self._unjudged[revision_id] = read_samples(self.session, revision_id)[3]
             disturbed = self._unjudged[revision_id].get(series_id)
             if disturbed:
                 title = self.session.get(Revision, revision_id)
-                return (
-                    f"missing baseline: revision {title.title if title else revision_id}'s "
-                    f"runs of this series were all disturbed ({disturbed}), and no earlier "
-                    "revision measured it undisturbed"
+                return Baseline(
+                    None,
+                    newest=revision_id,
+                    missing=f"missing baseline: revision {title.title if title else revision_id}"
+                    f"'s runs of this series were all disturbed ({disturbed}), and no earlier "
+                    "revision measured it undisturbed",
                 )
-        return (
-            "missing baseline: the baseline revision's samples of this series are unreadable "
-            "or absent"
+        return Baseline(
+            None,
+            missing="missing baseline: the baseline revision's samples of this series are "
+            "unreadable or absent",
         )

@@ -17,6 +17,7 @@ from redline.server.db import session_scope
 from redline.server.models import Execution, Job, JobState, Revision, utcnow
 from redline.server.services.ingestion import store_samples
 from redline.worker.history import successor_with_data
+from redline.worker.remeasure import queue_remeasure, waiting_on
 from sqlalchemy import select, update
 from sqlalchemy.orm import Session
 
@@ -38,6 +39,8 @@ def _ingest(session: Session, execution: Execution) -> Job:
     disturbed = recording_disturbances(samples, threshold())
     store_samples(session, execution, revision.component_id, samples, reason, disturbed)
     job.state, job.reason = JobState.done, reason or ""
+    if reason is None:  # a run the component took no part in would not fare better again
+        queue_remeasure(session, job, (case for case, _, _ in disturbed))
     return job
 
 
@@ -54,7 +57,9 @@ def ingest_execution(database_url: str, execution_id: int) -> list[int]:
 
     Returns the revisions whose changes should be detected now: the execution's own, and the
     next revision (by sort key) that already has data, whose baseline this one may have become;
-    for a confirmation run, the revision it confirms (`redline.worker.confirm_runs`).
+    for a confirmation run, the revision it confirms (`redline.worker.confirm_runs`); for a
+    fresh run of a disturbed one, also the revisions that lacked it as their baseline.
+    An own execution with a phase the host was busy in is run again (`redline.worker.remeasure`).
     A bad recording (`RecordingError`, or another ValueError from its data) marks the job
     failed with the reason and is raised again. Any other error (a database or broker outage,
     storage) is raised leaving the job `uploaded`, for the task's retries or the periodic
@@ -73,6 +78,9 @@ def ingest_execution(database_url: str, execution_id: int) -> list[int]:
             else:
                 later = successor_with_data(session, execution.revision_id)
                 revisions = [execution.revision_id] + ([later] if later is not None else [])
+                if job.remeasures_job_id is not None:  # a fresh run: who waited for it
+                    revisions += waiting_on(session, execution.revision_id)
+                revisions = list(dict.fromkeys(revisions))
             session.execute(
                 update(Revision).where(Revision.id.in_(revisions)).values(analyzed_at=None)
             )

@@ -96,6 +96,11 @@ class Job(Base):
         ForeignKey("revision.id"), default=None, index=True
     )
     pinned_host_id: Mapped[int | None] = mapped_column(ForeignKey("host.id"), default=None)
+    #: a fresh run of one of the revision's own executions the host was busy in
+    #: (`redline.worker.remeasure`): that execution's job; it counts as one of the revision's own
+    remeasures_job_id: Mapped[int | None] = mapped_column(
+        ForeignKey("job.id", ondelete="SET NULL"), default=None
+    )
     #: the test cases to run (a confirmation run's: those with a suspected change); []: all
     cases: Mapped[list[str]] = mapped_column(JSON, default=list)
     created: Mapped[datetime] = mapped_column(default=utcnow)

@@ -120,7 +120,10 @@ class CaseVerdict(BaseModel):
     case: str
     phase: str
     parameters: str
-    state: Literal["passed", "failed", "skipped"]
+    state: Literal["passed", "failed", "skipped", "undecided"] = Field(
+        description="skipped: no verdict yet (a history too short); undecided: none because "
+        "the host was busy in every run of it or of its baseline, even after a fresh run"
+    )
     changes: list[dict] = Field(default_factory=list)
     reason: str = ""
 
@@ -137,5 +140,8 @@ class CiVerdict(BaseModel):
     regressions: int = Field(description="changes for the worse, not dropped by confirmation")
     improvements: int
     skipped: int = Field(description="test cases without a verdict (not enough data)")
+    undecided: int = Field(
+        default=0, description="test cases without a verdict because the host was busy"
+    )
     cases: list[CaseVerdict]
     page: str = Field(description="the revision's page")

@@ -1,9 +1,12 @@
 """A revision's verdict for CI: whether it is settled, and per test case x phase x parameter set
 what the alarm methods found; as JSON (`redline ci wait` polls it) and as JUnit XML.
 
-Pending while the revision's own jobs run, until detection has seen them, and while confirmation
-runs of it are under way. A change for the worse that confirmation dropped is not a failure; one
-still suspected is (the later revisions may drop it, the CI run cannot wait for them), and says so.
+Pending while the revision's own jobs run (fresh runs of disturbed ones included), until
+detection has seen them, while confirmation runs of it are under way, and while its baseline is
+run afresh because the host was busy in all its runs (`redline.worker.remeasure`). A change for
+the worse that confirmation dropped is not a failure; one still suspected is (the later revisions
+may drop it, the CI run cannot wait for them), and says so. A test case left without a verdict
+because the host stayed busy is "undecided", an error in JUnit: never a silent pass.
 """
 
 from __future__ import annotations
@@ -15,12 +18,14 @@ from xml.etree import ElementTree
 
 from redline.detect.confirmation import DROPPED
 from redline.detect.counters import worse
+from redline.detect.result import NOT_ENOUGH_DATA
+from redline.recording.disturbance import names_busy_host
 from redline.server.models import Detection, Job, JobState, Revision, Series
 from redline.server.schemas.alerts import CaseVerdict, CiVerdict
 from redline.server.services.components import get_component
 from redline.server.services.detection_config import component_config
 from redline.server.services.errors import NotFound
-from redline.server.services.revisions import revision_state
+from redline.server.services.revisions import own_states, revision_state
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
@@ -29,13 +34,14 @@ FINISHED = (JobState.done, JobState.failed, JobState.cancelled)
 
 def _pending(session: Session, revision: Revision) -> tuple[str, str]:
     """The verdict's state and, while pending, what it waits for (failed: why)."""
-    own = [job for job in revision.jobs if job.pair == 0]
-    state = revision_state([job.state for job in own], analyzed=revision.analyzed_at is not None)
+    state = revision_state(own_states(revision), analyzed=revision.analyzed_at is not None)
     if state in ("failed", "cancelled"):
         why = [
             f"job {job.id} {job.state.value}: {job.reason or 'no reason given'}"
-            for job in own
-            if job.state in (JobState.failed, JobState.cancelled)
+            for job in revision.jobs
+            if job.pair == 0
+            and job.remeasures_job_id is None
+            and job.state in (JobState.failed, JobState.cancelled)
         ]
         return "failed", "; ".join(why)
     if state != "done":
@@ -51,6 +57,22 @@ def _pending(session: Session, revision: Revision) -> tuple[str, str]:
     )
     if reruns is not None:
         return "pending", "confirmation runs of it and its baseline"
+    fresh = session.scalar(  # a baseline all of whose runs were disturbed, being run afresh
+        select(Revision.title)
+        .join(Job, Job.revision_id == Revision.id)
+        .where(
+            Revision.id.in_(
+                select(Detection.baseline_revision_id).where(
+                    Detection.revision_id == revision.id, Detection.verdict == NOT_ENOUGH_DATA
+                )
+            ),
+            Job.remeasures_job_id.is_not(None),
+            Job.state.not_in(FINISHED),
+        )
+        .limit(1)
+    )
+    if fresh is not None:
+        return "pending", f"a fresh run of its baseline {fresh}, whose runs the host was busy in"
     return "done", ""
 
 
@@ -87,20 +109,22 @@ def ci_verdict(session: Session, component_name: str, title: str) -> CiVerdict:
     ):
         groups[(series.case, series.phase, series.params)].append((detection, series))
     cases = []
-    regressions = improvements = skipped = 0
+    regressions = improvements = skipped = undecided = 0
     for (case, phase, params), found in groups.items():
         changes = [_change(d, s) for d, s in found if d.flagged and d.confirmation != DROPPED]
         worse_count = sum(c["worse"] for c in changes)
         regressions += worse_count
         improvements += len(changes) - worse_count
-        if all(d.verdict == "not enough data" for d, _ in found):
-            skipped += 1
+        if all(d.verdict == NOT_ENOUGH_DATA for d, _ in found):
+            busy = [d.reason for d, _ in found if names_busy_host(d.reason)]
+            undecided += bool(busy)
+            skipped += not busy
             verdict = CaseVerdict(
                 case=case,
                 phase=phase,
                 parameters=params,
-                state="skipped",
-                reason=f"not enough data: {found[0][0].reason}",
+                state="undecided" if busy else "skipped",
+                reason=f"not enough data: {busy[0] if busy else found[0][0].reason}",
             )
         else:
             verdict = CaseVerdict(
@@ -120,6 +144,7 @@ def ci_verdict(session: Session, component_name: str, title: str) -> CiVerdict:
         regressions=regressions,
         improvements=improvements,
         skipped=skipped,
+        undecided=undecided,
         cases=cases,
         page=f"/components/{quote(component.name)}/revisions/{quote(revision.title)}",
     )
@@ -162,6 +187,12 @@ def junit_xml(verdict: CiVerdict, fail_on: str = "regression") -> str:
         if case.state == "skipped":
             skipped += 1
             ElementTree.SubElement(element, "skipped", message=case.reason)
+            continue
+        if case.state == "undecided":  # no green report for a measurement the host spoiled
+            errors += fail_on != "none"
+            kind = "error" if fail_on != "none" else "skipped"
+            ElementTree.SubElement(element, kind, message=f"undecided: {case.reason}")
+            skipped += kind == "skipped"
             continue
         told = [
             c

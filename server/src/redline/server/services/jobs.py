@@ -69,16 +69,17 @@ def lease_job(
     )
     in_pool = cast(Job.labels, JSONB).contained_by(list(host.labels or []))  # has every label
     # a confirmation run goes to the host that measured the revision it confirms, and its pairs
-    # go in the order they were queued (baseline, candidate, baseline, ...) before other work
+    # go in the order they were queued (baseline, candidate, baseline, ...) before other work;
+    # so does a fresh run of a disturbed execution, which a later revision's verdict may await
     pinned = or_(Job.pinned_host_id.is_(None), Job.pinned_host_id == host.id)
-    confirming = Job.confirms_revision_id.is_not(None)
+    ahead = or_(Job.confirms_revision_id.is_not(None), Job.remeasures_job_id.is_not(None))
     job = session.scalar(
         select(Job)
         .join(Revision, Revision.id == Job.revision_id)
         .where(available, in_pool, pinned)
         .order_by(
-            case((confirming, 0), else_=1),
-            case((confirming, Job.id), else_=0),
+            case((ahead, 0), else_=1),
+            case((ahead, Job.id), else_=0),
             Revision.id.desc(),
             Job.execution_index,
         )

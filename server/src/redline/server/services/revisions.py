@@ -26,6 +26,7 @@ from sqlalchemy.orm import Session, selectinload
 
 _DIGITS = re.compile(r"\d+")
 _UNDER_WAY = (JobState.queued, JobState.leased, JobState.running, JobState.uploaded)
+_DID_NOT_RUN = (JobState.failed, JobState.cancelled)
 
 
 def order_key(sort_key: str) -> str:
@@ -85,6 +86,17 @@ def create_revision(session: Session, data: RevisionCreate) -> Revision:
     return revision
 
 
+def own_states(revision: Revision) -> list[JobState]:
+    """The states of the jobs a revision's state is made of: its own executions, and fresh
+    runs of them (`redline.worker.remeasure`) unless those failed: a fresh run that could
+    not be made leaves the revision with the runs it had. Confirmation runs never count."""
+    return [
+        job.state
+        for job in revision.jobs
+        if job.pair == 0 and not (job.remeasures_job_id is not None and job.state in _DID_NOT_RUN)
+    ]
+
+
 def revision_state(states: list[JobState], analyzed: bool = True) -> str:
     """One word for a revision from its jobs' states.
 
@@ -117,10 +129,7 @@ def _revision_out(revision: Revision) -> dict:
         committed_at=revision.committed_at,
         created=revision.created,
         analyzed_at=revision.analyzed_at,
-        state=revision_state(  # its own jobs: confirmation runs do not make it running
-            [job.state for job in revision.jobs if job.pair == 0],
-            analyzed=revision.analyzed_at is not None,
-        ),
+        state=revision_state(own_states(revision), analyzed=revision.analyzed_at is not None),
     )
 
 
