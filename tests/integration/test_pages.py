@@ -4,6 +4,7 @@ pages that name what is wrong, and paged lists in the API."""
 
 from __future__ import annotations
 
+import html
 import json
 import re
 import uuid
@@ -133,6 +134,31 @@ def test_bad_filters_and_unknown_things_are_pages_naming_them(client, database_u
     assert client.get("/components/builder/revisions/r99").status_code == 404
     assert client.get("/regressions/999999").status_code == 404
     assert client.get("/regressions?state=closed").status_code == 400
+
+
+@pytest.mark.parametrize(
+    ("path", "named"),
+    [
+        ("/executions/abc", "no execution 'abc'"),
+        ("/executions/abc/recording", "no execution 'abc'"),
+        ("/regressions/1x", "no regression '1x'"),
+        ("/detections/-", "no detection '-'"),
+        ("/components/builder/models/abc", "no model 'abc'"),
+    ],
+)
+def test_an_address_that_does_not_parse_is_a_page_naming_it_not_json(client, path, named):
+    """A trial from outside followed such links and met FastAPI's raw JSON (2026-11-24)."""
+    page = client.get(path, headers={"accept": "text/html,application/xhtml+xml"})
+    assert page.status_code == 404 and page.headers["content-type"].startswith("text/html")
+    assert "<h1>Not found</h1>" in page.text and named in html.unescape(page.text)
+    # the API, and a script's fetch, still get JSON naming the field
+    api = client.get(path)
+    assert api.status_code == 422 and api.json()["detail"][0]["loc"][0] == "path"
+
+
+def test_a_form_posted_to_a_page_address_that_does_not_parse_is_a_page(client):
+    page = client.post("/settings/tokens/abc/revoke", headers={"accept": "text/html"})
+    assert page.status_code == 404 and "no token 'abc'" in html.unescape(page.text)
 
 
 def test_the_page_is_served_from_the_cache_until_the_data_changes(client, database_url, tmp_path):
@@ -384,6 +410,15 @@ def test_settings_pages_are_for_administrators_and_change_what_the_api_does(
         "/settings/components/builder", data={"csrf": csrf, "config": '{"confirm_pairs": 99}'}
     )
     assert unknown.status_code == 400 and "confirm_pairs" in unknown.text
+    # a value the service refuses (a repository no performance host fetches from): a page
+    outside = client.post(
+        "/settings/components/builder",
+        data={"csrf": csrf, "repo": "ftp://example.org/x.git"},
+        headers={"accept": "text/html"},
+    )
+    assert outside.status_code == 422 and "ftp" in outside.text, outside.text
+    assert outside.headers["content-type"].startswith("text/html"), outside.text
+    assert "<h1>Bad request</h1>" in outside.text
     saved = client.post(
         "/settings/components/builder",
         data={

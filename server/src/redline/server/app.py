@@ -9,7 +9,7 @@ from typing import Any
 from fastapi import FastAPI, Request
 from fastapi.encoders import jsonable_encoder
 from fastapi.exceptions import RequestValidationError
-from fastapi.responses import JSONResponse
+from fastapi.responses import JSONResponse, Response
 from redline.server.core import metrics
 from redline.server.core.bodies import BodyLimit
 from redline.server.core.config import Settings, get_settings
@@ -30,7 +30,8 @@ from redline.server.routes import (
     web,
     webhooks,
 )
-from redline.server.services.errors import ServiceError
+from redline.server.services.errors import BadRequest, NotFound, ServiceError
+from redline.server.ui.pages import problem
 from sqlalchemy.exc import DataError
 
 
@@ -76,10 +77,31 @@ def _unquoted(loc: tuple, value: Any) -> Any:
     return value
 
 
-async def _invalid(request: Request, exc: Exception) -> JSONResponse:
+def _for_a_browser(request: Request) -> bool:
+    """A page asked for by a browser (it accepts HTML), not the API nor a script's fetch."""
+    return not request.url.path.startswith("/api/") and "text/html" in request.headers.get(
+        "accept", ""
+    )
+
+
+def _invalid_page(request: Request, exc: RequestValidationError) -> Response:
+    """A page whose address does not parse: 404 for a path naming nothing (``/executions/abc``),
+    else 400 naming the field; a page, not JSON, since a person reads it."""
+    first = exc.errors()[0]
+    where, field = (tuple(first["loc"]) + ("", ""))[:2]
+    given = _excerpt(_unquoted((where, field), first.get("input")))
+    if where == "path":
+        thing = str(field).removesuffix("_id").replace("_", " ")
+        return problem(request, NotFound(f"there is no {thing} {given!r}"))
+    return problem(request, BadRequest(f"{field}: {first['msg']} (given: {given!r})"))
+
+
+async def _invalid(request: Request, exc: Exception) -> Response:
     """FastAPI's 422, quoting no more than a short excerpt of each input at fault, and never a
-    secret."""
+    secret; for a browser's page, the error page (`_invalid_page`)."""
     assert isinstance(exc, RequestValidationError)
+    if _for_a_browser(request):
+        return _invalid_page(request, exc)
     errors = [
         {**error, "input": _excerpt(_unquoted(tuple(error["loc"]), error.get("input")))}
         for error in exc.errors()
@@ -89,8 +111,11 @@ async def _invalid(request: Request, exc: Exception) -> JSONResponse:
     )
 
 
-async def _service_error(request: Request, exc: Exception) -> JSONResponse:
+async def _service_error(request: Request, exc: Exception) -> Response:
+    """The service's refusal with its status: JSON, or the error page for a browser's page."""
     assert isinstance(exc, ServiceError)
+    if _for_a_browser(request):
+        return problem(request, exc)
     return JSONResponse({"detail": exc.detail}, status_code=exc.status_code)
 
 

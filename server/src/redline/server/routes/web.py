@@ -114,10 +114,10 @@ def component_trends(name: str, request: Request, session: SessionDep) -> Respon
     return Response(f'{head[:-1]},"page":{trends.data}}}', media_type="application/json")
 
 
-@router.get("/components/{name}/models/{ident}", response_class=HTMLResponse)
-def model_page(name: str, ident: int, request: Request, session: SessionDep) -> HTMLResponse:
+@router.get("/components/{name}/models/{model_id}", response_class=HTMLResponse)
+def model_page(name: str, model_id: int, request: Request, session: SessionDep) -> HTMLResponse:
     try:
-        row = learning.get_model(session, name, ident)
+        row = learning.get_model(session, name, model_id)
     except NotFound as exc:
         return problem(request, exc)
     return page(
