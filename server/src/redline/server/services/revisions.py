@@ -30,15 +30,20 @@ _DID_NOT_RUN = (JobState.failed, JobState.cancelled)
 
 
 def order_key(sort_key: str) -> str:
-    """``sort_key`` with every digit run prefixed by its length, so text order is numeric order.
+    """``sort_key`` in natural order: every digit run (of any script's decimal digits, as ASCII)
+    prefixed by its length, so text order is numeric order, the rest compared as text.
 
-    "9" -> "019", "10" -> "0210": compared bytewise, "9" < "10" and "r2" < "r10". Titles are
-    never parsed; only the sort key the caller gave is normalized.
+    "9" -> "019", "10" -> "0210": compared bytewise, "9" < "10", "r2" < "r10", "1.9" < "1.10"
+    (as versions), and "١٠" (Arabic-Indic ten) == "10". A run of 99 digits or more is prefixed
+    "99" and its length in three digits, after every shorter run. Titles are never parsed; only
+    the sort key the caller gave is normalized. Not a number parser: "1e3" is 1, "e", 3, and
+    "-5" is "-" then 5 (docs/api.md).
     """
 
     def run(match: re.Match[str]) -> str:
-        digits = match.group().lstrip("0") or "0"
-        return f"{len(digits):02d}{digits}"
+        digits = str(int(match.group()))  # int() reads every script's decimal digits
+        size = len(digits)
+        return f"{size:02d}{digits}" if size < 99 else f"99{size:03d}{digits}"
 
     return _DIGITS.sub(run, sort_key)
 
