@@ -22,6 +22,7 @@ from redline.testing import (
     Message,
     Param,
     ParameterSet,
+    Phase,
     Publish,
     Query,
     Replay,
@@ -263,3 +264,48 @@ def test_publish_puts_built_payloads_on_real_zenoh() -> None:
         link.close()
         subscriber.undeclare()
     assert received[:5] == [b"hihi"] * 5
+
+
+def test_redlines_own_messages_are_put_whole_when_a_signal_comes_during_the_put(peers):
+    """Seen under load in CI: a Ctrl-C landed inside a marker's zenoh put, which went out empty
+    and made the whole recording unreadable. Now the put is held: the signal is raised once the
+    message is out, whole."""
+    import json
+    import signal
+    from contextlib import contextmanager
+
+    from redline.agent.execution import Markers
+    from redline.agent.interrupts import Terminated, signals_as_exceptions
+    from redline.recording.format import MARKERS_KEY
+
+    heard: list[bytes] = []
+    got = threading.Event()
+
+    def hear(sample: zenoh.Sample) -> None:
+        heard.append(sample.payload.to_bytes())
+        got.set()
+
+    subscribers = [
+        peers.component.declare_subscriber(k, hear) for k in (MARKERS_KEY, "@redline/driver/**")
+    ]
+    for put in (
+        lambda hold: Markers(peers.link.session, hold).publish(
+            "begin", "c", Phase("steady", Param("x")), {}
+        ),
+        lambda hold: Link(peers.link.session, hold).put_json("@redline/driver/c/steady", {"n": 1}),
+    ):
+        got.clear()
+        with pytest.raises(Terminated), signals_as_exceptions() as guard:
+
+            @contextmanager
+            def held_with_a_signal() -> Iterator[None]:
+                with guard.held():
+                    signal.raise_signal(signal.SIGTERM)  # as the put begins: noted, held
+                    yield
+
+            put(held_with_a_signal)
+            pytest.fail("the signal was not raised when the put ended")
+        assert got.wait(5), "the message never arrived"
+        assert json.loads(heard[-1])  # whole, not empty
+    for subscriber in subscribers:
+        subscriber.undeclare()

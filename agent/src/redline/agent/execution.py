@@ -6,6 +6,7 @@ import json
 import threading
 import time
 from collections.abc import Callable, Sequence
+from contextlib import AbstractContextManager, nullcontext
 from typing import Any
 
 import zenoh
@@ -17,29 +18,34 @@ from redline.testing import Context, Link, ParameterSet, Phase, TestCase
 class Markers:
     """Publishes begin/end markers on ``@redline/markers`` (format in recording/format.py)."""
 
-    def __init__(self, session: zenoh.Session) -> None:
+    def __init__(
+        self, session: zenoh.Session, hold: Callable[[], AbstractContextManager[Any]] = nullcontext
+    ) -> None:
+        """``hold``: a section no signal may cut (`SignalGuard.held`): a put a signal cut in
+        half left an empty marker, and the whole recording unreadable (seen under load)."""
         # Markers are rare and a lost one loses a whole segment, so this publisher may block.
         self._publisher = session.declare_publisher(
             MARKERS_KEY, congestion_control=zenoh.CongestionControl.BLOCK
         )
+        self._hold = hold
         self._open: tuple[str, Phase, dict[str, Any]] | None = None
 
     def publish(self, event: str, case: str, phase: Phase, params: dict[str, Any]) -> None:
         if event == "begin":
             self._open = (case, phase, params)
-        self._publisher.put(
-            json.dumps(
-                {
-                    "t_ns": time.time_ns(),
-                    "event": event,
-                    "case": case,
-                    "phase": phase.name,
-                    "params": params,
-                    "warmup": phase.warmup,
-                },
-                default=str,
-            )
+        payload = json.dumps(
+            {
+                "t_ns": time.time_ns(),
+                "event": event,
+                "case": case,
+                "phase": phase.name,
+                "params": params,
+                "warmup": phase.warmup,
+            },
+            default=str,
         )
+        with self._hold():
+            self._publisher.put(payload)
         if event == "end":
             self._open = None
 

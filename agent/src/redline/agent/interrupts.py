@@ -77,6 +77,8 @@ class SignalGuard:
         self._held = 0
         self._stopping = False
         self.pending: list[int] = []
+        #: the signal last raised as an exception, until the guard exits
+        self._raised: int | None = None
 
     def __enter__(self) -> SignalGuard:
         if self._depth == 0 and threading.current_thread() is threading.main_thread():
@@ -98,6 +100,7 @@ class SignalGuard:
             for signum, handler in self._previous.items():
                 signal.signal(signum, handler)
             self._previous.clear()
+            self._raised = None
         own = [signum for signum in pending if _is_default(signum, previous.get(signum))]
         for signum in dict.fromkeys(s for s in pending if s not in own):
             previous[signum](signum, None)
@@ -114,6 +117,7 @@ class SignalGuard:
         handler = self._previous.get(signum)
         if _is_default(signum, handler):
             self._stopping = True
+            self._raised = signum
             raise signal_exception(signum)
         assert callable(handler), handler  # installed only over a default or callable one
         try:
@@ -122,13 +126,26 @@ class SignalGuard:
             self._stopping = True
             raise
 
+    def raise_swallowed(self) -> None:
+        """Raise again a signal whose exception never arrived: raised inside a native callback
+        (a zenoh put), it is printed as "Exception ignored" and the code goes on. Called where
+        the work it would have cut short has ended normally, so the run still ends as the signal
+        asked (seen under load: a Ctrl-C lost, the run reported as ok)."""
+        if self._raised is not None:
+            raise signal_exception(self._raised)
+
     def stopping(self) -> None:
         """The run is shutting down: from now on signals are noted, not acted on."""
         self._stopping = True
 
     @contextmanager
     def held(self) -> Iterator[None]:
-        """A section no signal may cut in half (a process started and not yet known)."""
+        """A section no signal may cut in half (a process started and not yet known, one of
+        Redline's own messages put). Signals interrupt only the main thread: elsewhere there is
+        nothing to hold."""
+        if threading.current_thread() is not threading.main_thread():
+            yield
+            return
         self._held += 1
         try:
             yield

@@ -177,6 +177,7 @@ class _Run:
                 recorder.wait_ready(probe=lambda: query_recorder(session, 0.5) is not None)
                 self.say("recorder subscribed")
                 self._run_tests(network, session)
+                self.guard.raise_swallowed()
                 self._judge_traffic(network)
             except BaseException as exc:
                 self.meta["run"].update(ending(exc))
@@ -216,7 +217,7 @@ class _Run:
         monitor.wait_ready()
         watchdog = threading.Thread(target=self._watch, args=([*components, monitor],), daemon=True)
         watchdog.start()
-        link, markers = Link(session), Markers(session)
+        link, markers = Link(session, self.guard.held), Markers(session, self.guard.held)
         try:
             self.segments = execute_cases(
                 self.cases, link, markers, self.stop, self.say, self.traffic.observe

@@ -6,6 +6,7 @@ import json
 import threading
 import time
 from collections.abc import Callable, Mapping
+from contextlib import AbstractContextManager, nullcontext
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -27,8 +28,13 @@ class Link:
     ``CongestionControl.BLOCK``: the load generator must not be throttled by a slow subscriber.
     """
 
-    def __init__(self, session: zenoh.Session) -> None:
+    def __init__(
+        self, session: zenoh.Session, hold: Callable[[], AbstractContextManager[Any]] = nullcontext
+    ) -> None:
+        """``hold``: a section no signal may cut (the runner's `SignalGuard.held`), around each
+        of Redline's own messages, which a put cut half-way would leave empty in the recording."""
         self.session = session
+        self._hold = hold
         self._publishers: dict[tuple[str, str | None], zenoh.Publisher] = {}
         self._lock = threading.Lock()
         self._sequences: dict[str, int] = {}
@@ -83,7 +89,9 @@ class Link:
 
     def put_json(self, key: str, obj: dict[str, Any]) -> None:
         """Publish a JSON object (Redline's own messages: driver metrics)."""
-        self.publisher(key, "application/json").put(json.dumps(obj, default=str))
+        payload = json.dumps(obj, default=str)
+        with self._hold():
+            self.publisher(key, "application/json").put(payload)
 
     def count_sent(self, key: str, samples: int = 1) -> None:
         """Count samples `Publish` put on ``key`` (loops count in bulk when they finish)."""
