@@ -34,27 +34,25 @@ def server(services, tmp_path_factory):
             executions = cpu_history(session, tmp, CPUS, config={"methods": ["ks"]})
         ingest_and_detect(api.settings.database_url, executions)
         with session_factory(api.settings.database_url)() as session:
-            executions = _busy_baseline(session, tmp)
-        ingest_and_detect(api.settings.database_url, executions)
+            _busy_baseline(session, api.settings.database_url, tmp)
         read = api.tokens["read"]["Authorization"].removeprefix("Bearer ")
         with live_server(api.settings) as url:
             yield url, read, api
 
 
-def _busy_baseline(session, tmp: Path) -> list:
-    """Component "busy": b1 measured while the host was busy (and so was its fresh run,
-    which failed), then b2 at four times its CPU on a quiet host."""
+def _busy_baseline(session, database_url: str, tmp: Path) -> None:
+    """Component "busy": b1 measured while the host was busy, then b2 at four times its CPU on
+    a quiet host; b1's fresh run, which b2's verdict waits for, fails (the host went away)."""
     create_component(session, ComponentCreate(name="busy", executions=1))
     rng = np.random.default_rng(3)
-    executions = add_executions(
-        session, tmp, "busy", "b1", "1", [{"cpu": rng.normal(10, 0.5, 60)}], host_percent=90.0
-    )
-    ingest_and_detect(session.get_bind().url.render_as_string(False), executions)
+    for title, cpu, load in (("b1", 10.0, 90.0), ("b2", 40.0, None)):
+        runs = [{"cpu": rng.normal(cpu, cpu / 20, 60)}]
+        executions = add_executions(session, tmp, "busy", title, title[1:], runs, host_percent=load)
+        ingest_and_detect(database_url, executions)
     session.expire_all()
-    for job in session.scalars(select(Job).where(Job.remeasures_job_id.is_not(None))):
-        job.state, job.reason = JobState.failed, "the host went away"
+    (fresh,) = session.scalars(select(Job).where(Job.remeasures_job_id.is_not(None)))
+    fresh.state, fresh.reason = JobState.failed, "the host went away"
     session.commit()
-    return add_executions(session, tmp, "busy", "b2", "2", [{"cpu": rng.normal(40, 2, 60)}])
 
 
 def wait(server, *args: str, token: str | None = None) -> subprocess.CompletedProcess:

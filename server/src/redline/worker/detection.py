@@ -41,6 +41,7 @@ from redline.worker.history import (
     judged_counters,
     no_longer_measured,
 )
+from redline.worker.remeasure import queue_for_baselines
 from redline.worker.rows import Judged, KsChange, detection_row, ks_change
 from redline.worker.samples import Samples, ingested_runs, read_samples
 from sqlalchemy import Table, delete, func, select, text
@@ -154,8 +155,9 @@ def store(
     session: Session, revision: Revision, rows: list[dict[str, Any]], rerun: bool = False
 ) -> None:
     """Replace the revision's detections, regroup its regressions, queue or judge its
-    confirmation runs (`redline.worker.confirm_runs`), and settle what the later revisions can
-    confirm (`redline.worker.confirmation`).
+    confirmation runs (`redline.worker.confirm_runs`), queue a fresh run of a baseline the host
+    was busy in (`redline.worker.remeasure`), and settle what the later revisions can confirm
+    (`redline.worker.confirmation`).
 
     One statement (`bulk_insert`): 500 series x 2 methods would otherwise spend more time in
     the ORM and in round trips than in the detectors.
@@ -171,6 +173,7 @@ def store(
     group_revision(session, revision, config.alarming)
     if rerun:  # new results only: a re-analysis never queues machine time for old revisions
         queue_confirmations(session, revision, config)
+        queue_for_baselines(session, rows)
     settle_pending_pairs(session, revision.component_id)
     confirm_by_history(session, revision.component_id, config.confirm_revisions)
     revision.analyzed_at = utcnow()

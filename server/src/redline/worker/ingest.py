@@ -17,7 +17,7 @@ from redline.server.db import session_scope
 from redline.server.models import Execution, Job, JobState, Revision, utcnow
 from redline.server.services.ingestion import store_samples
 from redline.worker.history import successor_with_data
-from redline.worker.remeasure import queue_remeasure, waiting_on
+from redline.worker.remeasure import waiting_on
 from sqlalchemy import select, update
 from sqlalchemy.orm import Session
 
@@ -39,8 +39,6 @@ def _ingest(session: Session, execution: Execution) -> Job:
     disturbed = recording_disturbances(samples, threshold())
     store_samples(session, execution, revision.component_id, samples, reason, disturbed)
     job.state, job.reason = JobState.done, reason or ""
-    if reason is None:  # a run the component took no part in would not fare better again
-        queue_remeasure(session, job, (case for case, _, _ in disturbed))
     return job
 
 
@@ -58,8 +56,8 @@ def ingest_execution(database_url: str, execution_id: int) -> list[int]:
     Returns the revisions whose changes should be detected now: the execution's own, and the
     next revision (by sort key) that already has data, whose baseline this one may have become;
     for a confirmation run, the revision it confirms (`redline.worker.confirm_runs`); for a
-    fresh run of a disturbed one, also the revisions that lacked it as their baseline.
-    An own execution with a phase the host was busy in is run again (`redline.worker.remeasure`).
+    fresh run of a baseline the host was busy in, also the revisions that lacked it
+    (`redline.worker.remeasure`).
     A bad recording (`RecordingError`, or another ValueError from its data) marks the job
     failed with the reason and is raised again. Any other error (a database or broker outage,
     storage) is raised leaving the job `uploaded`, for the task's retries or the periodic

@@ -1,23 +1,27 @@
-"""A fresh run where the host was busy: an own execution of a revision with a phase measured
-while other work loaded the host (`redline.recording.disturbance`) is run again, once per
-disturbed execution and at most `REMEASURE_LIMIT` times per revision, for the disturbed test
-cases only.
+"""A fresh run of a baseline the host was busy in: when a revision's new results cannot be
+judged because every run of its baseline revision was measured while other work loaded the host
+(`redline.recording.disturbance`; the agent already ran each of them again, at once), the
+baseline revision gets one fresh run of the test cases concerned, at most `REMEASURE_LIMIT` per
+revision, and the revision is judged again once it is ingested (`waiting_on`).
 
-Without it a busy host silences detection: a disturbed phase is charted, never judged, so a
-revision measured only while the host was busy has no verdict, and neither has the next one,
-whose baseline it is — a trial from outside saw a 4x CPU regression pass `redline ci wait` that
-way. The fresh run is one of the revision's own (`Job.pair` 0; a failed one leaves the
-revision as it was, `redline.server.services.revisions.own_jobs`); it goes before other work
-(`redline.server.services.jobs.lease_job`), and the CI verdict of a revision that waits for it,
-its own or its baseline's, stays pending meanwhile (`redline.server.services.ci_verdict`).
+Without it a busy host silences detection: a disturbed phase is charted, never judged, so the
+revision after one measured only while the host was busy had no verdict — a trial from outside
+saw a 4x CPU regression pass `redline ci wait` that way. Machine time is spent only where a
+verdict waits for it: a revision's own disturbed runs are not run again by the server (its
+verdict is "undecided", `redline.server.services.ci_verdict`) unless a later revision needs
+them as its baseline. The fresh run is one of the baseline revision's own (`Job.pair` 0; a
+failed one leaves that revision as it was, `redline.server.services.revisions.own_states`), it
+goes before other work (`redline.server.services.jobs.lease_job`), and the CI verdict of the
+revision waiting for it stays pending meanwhile.
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from typing import Any
 
 from redline.detect.result import NOT_ENOUGH_DATA
-from redline.server.models import Detection, Job
+from redline.recording.disturbance import names_busy_host
+from redline.server.models import Detection, Job, Revision, Series
 from redline.worker.confirm_runs import FIRST_INDEX
 from sqlalchemy import func, select
 from sqlalchemy.orm import Session
@@ -26,31 +30,50 @@ from sqlalchemy.orm import Session
 REMEASURE_LIMIT = 1
 
 
-def queue_remeasure(session: Session, job: Job, cases: Iterable[str]) -> Job | None:
-    """Queue a fresh run of the disturbed ``cases`` of an own ``job`` just ingested; None when
-    it is a confirmation run, was run afresh already, or its revision used its fresh runs."""
+def queue_for_baselines(session: Session, rows: list[dict[str, Any]]) -> list[Job]:
+    """A fresh run of each baseline revision that ``rows`` (a revision's new verdicts) could
+    not be judged against because the host was busy in all its runs."""
+    wanted: dict[int, set[int]] = {}
+    for row in rows:
+        if (
+            row["verdict"] == NOT_ENOUGH_DATA
+            and row["baseline_revision_id"] is not None
+            and names_busy_host(row["reason"])
+        ):
+            wanted.setdefault(row["baseline_revision_id"], set()).add(row["series_id"])
+    queued = []
+    for revision_id, series in sorted(wanted.items()):
+        cases = session.scalars(select(Series.case).where(Series.id.in_(series)).distinct())
+        job = queue_remeasure(session, revision_id, cases)
+        if job is not None:
+            queued.append(job)
+    return queued
+
+
+def queue_remeasure(session: Session, revision_id: int, cases: Any) -> Job | None:
+    """Queue a fresh run of the revision's ``cases``; None when it had its fresh runs."""
     cases = sorted(set(cases))
-    if not cases or job.pair != 0:
-        return None
-    if session.scalar(select(Job.id).where(Job.remeasures_job_id == job.id).limit(1)):
-        return None  # an ingestion run again: its fresh run is queued already
     used = session.scalar(
         select(func.count()).where(
-            Job.revision_id == job.revision_id, Job.remeasures_job_id.is_not(None)
+            Job.revision_id == revision_id, Job.remeasures_job_id.is_not(None)
         )
     )
-    if (used or 0) >= REMEASURE_LIMIT:
+    if not cases or (used or 0) >= REMEASURE_LIMIT:
         return None
+    revision = session.get_one(Revision, revision_id)
+    own = [job for job in revision.jobs if job.pair == 0 and job.remeasures_job_id is None]
+    if not own:
+        return None  # imported results: no performance host measured them
     index = session.scalar(
         select(func.max(Job.execution_index)).where(
-            Job.revision_id == job.revision_id, Job.execution_index < FIRST_INDEX
+            Job.revision_id == revision_id, Job.execution_index < FIRST_INDEX
         )
     )
     fresh = Job(
-        revision_id=job.revision_id,
+        revision_id=revision_id,
         execution_index=(index or 0) + 1,
-        remeasures_job_id=job.id,
-        labels=list(job.labels or []),
+        remeasures_job_id=min(own, key=lambda job: job.execution_index).id,
+        labels=list(own[0].labels or []),
         cases=cases,
     )
     session.add(fresh)
@@ -59,8 +82,8 @@ def queue_remeasure(session: Session, job: Job, cases: Iterable[str]) -> Job | N
 
 
 def waiting_on(session: Session, revision_id: int) -> list[int]:
-    """The revisions whose "not enough data" verdicts name this one as the baseline that was
-    disturbed: judged again once its fresh run is ingested."""
+    """The revisions whose "not enough data" verdicts name this one as their baseline: judged
+    again once its fresh run is ingested."""
     return list(
         session.scalars(
             select(Detection.revision_id)

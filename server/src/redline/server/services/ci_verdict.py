@@ -1,8 +1,8 @@
 """A revision's verdict for CI: whether it is settled, and per test case x phase x parameter set
 what the alarm methods found; as JSON (`redline ci wait` polls it) and as JUnit XML.
 
-Pending while the revision's own jobs run (fresh runs of disturbed ones included), until
-detection has seen them, while confirmation runs of it are under way, and while its baseline is
+Pending while the revision's own jobs run (a fresh run of it included), until detection has
+seen them, while confirmation runs of it are under way, and while its baseline is
 run afresh because the host was busy in all its runs (`redline.worker.remeasure`). A change for
 the worse that confirmation dropped is not a failure; one still suspected is (the later revisions
 may drop it, the CI run cannot wait for them), and says so. A test case left without a verdict
