@@ -79,11 +79,12 @@ def server(services, tmp_path_factory):
             )
             session.commit()
         ingest_and_detect(api.settings.database_url, executions)
-        # where "the organisation keeps" redline-agent (docs/ci.md): a wheel of this checkout,
-        # built once, so the four examples' installs do not each build it again
+        # where "the organisation keeps" redline-agent (docs/ci.md): a wheel of this checkout
+        # and of what it needs, made once, from which the four examples' installs take theirs
+        # without asking the package index again (`run_example`)
         wheels = tmp / "wheels"
         subprocess.run(
-            [sys.executable, "-m", "pip", "wheel", "--quiet", "--no-deps", "-w", str(wheels),
+            [sys.executable, "-m", "pip", "wheel", "--quiet", "-w", str(wheels),
              str(ROOT / "agent")],
             check=True, capture_output=True, timeout=300,
         )  # fmt: skip
@@ -134,9 +135,10 @@ def run_example(server, name: str, number: int, cpu: float, webhook: bool = Fals
         "REDLINE_TOKEN": api.tokens["ci"]["Authorization"].removeprefix("Bearer "),
         "REDLINE_AGENT": str(wheel),
         "COMPONENT": "builder",  # the examples' component is the CI system's setting
-        # one pip cache for the four installs, as a CI runner's cache would be (each HOME is
-        # new): the agent's dependencies are downloaded once, not four times
-        "PIP_CACHE_DIR": str(tmp / "pip-cache"),
+        # the agent and its dependencies from the wheels made once, as a CI runner's cache or
+        # the organisation's own index would serve them (each HOME is new)
+        "PIP_NO_INDEX": "1",
+        "PIP_FIND_LINKS": str(wheel.parent),
         "PIP_DISABLE_PIP_VERSION_CHECK": "1",
         sha_var: sha,
         number_var: str(number),

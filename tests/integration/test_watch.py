@@ -1,7 +1,15 @@
 """`redline watch` as a real command against a real process on a real (isolated) zenoh network: a
 model of a leg-processing component learnt from recordings, then a stand-in component whose
 traffic matches what the model expects, idle, until a busy thread is injected into it (a fault
-the model cannot explain by its communication): no alarm before, an alarm within 10 s after."""
+the model cannot explain by its communication): no alarm before, an alarm within 10 s after.
+
+Serial: the model is learnt from synthetic recordings whose samples keep perfect time, so it
+knows nothing of a driver thread that a loaded host delays and then bursts; in the parallel pass
+of two fresh-clone CI runs (2026-11-24) such bursts moved its CPU prediction from 0.2 to 4-8 %
+of a core for a stand-in at 0.2 %, and the watcher alarmed on usage the model could not explain
+before the fault was injected. (Holding each feature within its training range did not prevent
+it, tried offline; a model learnt from a real run, as `test_watch_objectbuilder`'s, has seen
+its driver's jitter.)"""
 
 from __future__ import annotations
 
@@ -42,6 +50,7 @@ COMPONENT = textwrap.dedent(
 
 
 @pytest.mark.slow
+@pytest.mark.serial  # see the module docstring
 def test_watch_is_quiet_while_usage_matches_and_alarms_within_10_s_of_a_busy_thread(
     services, tmp_path
 ):
