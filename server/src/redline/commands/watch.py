@@ -2,6 +2,7 @@
 
     redline watch --model MODEL (--process PID | --name NAME) [--zenoh-config FILE]
                   [--interval 1] [--duration S] [--json]
+    redline watch --model MODEL --replay RECORDING [--json]
 
 It opens its own zenoh session (``--zenoh-config``, else ``ZENOH_CONFIG``, else zenoh's defaults:
 the live system's network, not a test's isolation), subscribes to the keys the model knows, samples
@@ -14,7 +15,10 @@ gross; that first offset is printed (``{"offset": target, ...}`` with --json). I
 the model's responses (keys the component answered on at every step of its training at which it
 received traffic): when traffic keeps coming in and nothing goes out on one, it alarms
 (``silence:KEY``), as a stall that the CPU does not show would.
-Exit status 2 on bad input (no such process, a model of another version); 0 when stopped.
+With ``--replay`` it watches a recording instead, step by step in the recording's time
+(`redline.predict.replay`): a model checked against a run of any length in seconds.
+Exit status 2 on bad input (no such process, a model of another version, a recording without the
+model's process); 0 when stopped.
 """
 
 from __future__ import annotations
@@ -154,6 +158,13 @@ def watch_cmd(
     component: Annotated[
         str | None, typer.Option(help="the component's name on the server (with --server)")
     ] = None,
+    replay: Annotated[
+        Path | None,
+        typer.Option(
+            help="watch a recording (`redline run`) instead of a live component: every step, "
+            "in the recording's time, in seconds"
+        ),
+    ] = None,
 ) -> None:
     """Watch a running component for resource faults with a model of its usage."""
     from redline.agent.sampling import TreeSampler
@@ -166,6 +177,9 @@ def watch_cmd(
         loaded = ModelFile.load(model)
     except DataError as exc:
         raise _fail(str(exc)) from None
+    if replay is not None:
+        _replay(loaded, replay, as_json)
+        return
     pid = _pid(process, name)
     report = _reporter(server, component, loaded.process)
     window = EventWindow(loaded.spec)
@@ -191,13 +205,7 @@ def watch_cmd(
 
     def say(alarm: Alarm) -> None:
         report(alarm)
-        said = "fault" if alarm.started else "fault over"
-        typer.echo(
-            json.dumps({"alarm": said, **alarm.__dict__})
-            if as_json
-            else f"{said}: {alarm.target} residual {alarm.residual:+.4g} "
-            f"(threshold {alarm.threshold:.4g}) at step {alarm.step}"
-        )
+        _say_alarm(alarm, as_json)
 
     sampler.sample()  # the CPU rate is over the time since the previous sample
     began = time.monotonic()
@@ -251,6 +259,39 @@ def watch_cmd(
             subscriber.undeclare()
         session.close()
         sampler.close()
+
+
+def _say_alarm(alarm: Alarm, as_json: bool) -> None:
+    said = "fault" if alarm.started else "fault over"
+    typer.echo(
+        json.dumps({"alarm": said, **alarm.__dict__})
+        if as_json
+        else f"{said}: {alarm.target} residual {alarm.residual:+.4g} "
+        f"(threshold {alarm.threshold:.4g}) at step {alarm.step}"
+    )
+
+
+def _replay(loaded: Any, recording: Path, as_json: bool) -> None:
+    """``--replay``: the steps and alarms of a recording watched with the model; a summary on
+    stderr. Exit 2 when the recording cannot be read or holds nothing to watch."""
+    from redline.predict.dataset import DataError, read_run
+    from redline.predict.replay import Step, replay
+    from redline.recording.reader import RecordingError
+
+    try:
+        found = replay(loaded, read_run(recording))
+    except (DataError, RecordingError, OSError) as exc:
+        raise _fail(f"--replay {recording}: {exc}") from None
+    alarms = 0
+    for item in found:
+        if isinstance(item, Step):
+            if as_json:
+                typer.echo(json.dumps(item.line()))
+            continue
+        alarms += item.started
+        _say_alarm(item, as_json)
+    steps = sum(isinstance(item, Step) for item in found)
+    typer.echo(f"replayed {steps} steps of {recording}: {alarms} alarm(s)", err=True)
 
 
 def _say_offset(tracker: Residuals, as_json: bool) -> None:

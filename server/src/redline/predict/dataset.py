@@ -108,7 +108,7 @@ def component_process(runs: Sequence[Run], process: str | None) -> str:
     return next(iter(common))
 
 
-def _targets(
+def step_targets(
     samples: list[tuple[int, dict[str, float]]], times: np.ndarray
 ) -> dict[str, np.ndarray]:
     """Per target, the mean of the samples in (t - step, t]; NaN where there is none."""
@@ -171,7 +171,7 @@ def dataset(
             times = np.arange(segment.begin_ns + step, segment.end_ns + 1, step, dtype=np.int64)
             if not len(times):
                 continue
-            targets = _targets(run.samples[chosen], times)
+            targets = step_targets(run.samples[chosen], times)
             sampled = ~np.isnan(targets["cpu_percent"])
             if not sampled.any():
                 continue
@@ -199,7 +199,7 @@ def dataset(
     )
 
 
-def _in_window(stamps: np.ndarray, times: np.ndarray, seconds: float) -> np.ndarray:
+def in_window(stamps: np.ndarray, times: np.ndarray, seconds: float) -> np.ndarray:
     """How many of the sorted ``stamps`` lie in (t - seconds, t], for each t of ``times``."""
     hi = np.searchsorted(stamps, times, side="right")
     return hi - np.searchsorted(stamps, times - int(seconds * NS), side="right")
@@ -224,10 +224,10 @@ def responses(
         inbound = np.sort(
             np.array([t for k, v in stamps.items() if k in run.received for t in v], np.int64)
         )
-        busy = _in_window(inbound, times, STEP_S) > 0
+        busy = in_window(inbound, times, STEP_S) > 0
         busy_steps += int(busy.sum())
         for key in list(candidates):
             sent = np.sort(np.array(stamps.get(key, []), np.int64))
-            if not (_in_window(sent, times[busy], RESPONSE_WINDOW_S) > 0).all():
+            if not (in_window(sent, times[busy], RESPONSE_WINDOW_S) > 0).all():
                 candidates.discard(key)
     return tuple(sorted(candidates)) if busy_steps >= RESPONSE_MIN_STEPS else ()

@@ -1,0 +1,67 @@
+"""Five clean minutes of the real objectbuilder, replayed through `redline watch` (issue 15: "a
+clean 5-minute replay raises nothing"): a model fitted on the committed training sweep watches
+the committed clean run (`perf/data/watch-clean.mcap`, made by `perf/watch-clean.toml` on a quiet
+host) step by step in the recording's time, in seconds instead of five minutes. The same replay
+with a busy thread's CPU added halfway alarms within 10 steps, so the clean verdict is no
+watcher that cannot alarm. The live watcher is tested on faults in test_watch_objectbuilder."""
+
+from __future__ import annotations
+
+import subprocess
+from pathlib import Path
+
+import pytest
+from redline.predict.dataset import read_run
+from redline.predict.model import ModelFile
+from redline.predict.replay import Step, replay
+from redline.predict.watch import Alarm
+
+from tests.support.watching import PERF, REDLINE, TRAINING, fit
+
+CLEAN = PERF / "data" / "watch-clean.mcap"
+
+
+@pytest.fixture(scope="module")
+def model(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return fit(TRAINING, tmp_path_factory.mktemp("replay"))
+
+
+def test_five_clean_minutes_replayed_raise_nothing(model: Path) -> None:
+    found = replay(ModelFile.load(model), read_run(CLEAN))
+    steps = [item for item in found if isinstance(item, Step)]
+    assert len(steps) >= 295, "five minutes, a step a second"
+    assert [item for item in found if isinstance(item, Alarm)] == []
+    judged = [step for step in steps if not step.warming]
+    assert min(step.heard for step in judged) >= 25  # the legs at 30/s were heard throughout
+
+
+def test_a_busy_thread_added_halfway_alarms_within_10_steps(model: Path) -> None:
+    run = read_run(CLEAN)
+    (process,) = [name for name in run.samples if name == "objectbuilder"]
+    middle = (run.segments[0].begin_ns + run.segments[-1].end_ns) // 2
+    run.samples[process] = [
+        (t, {**values, "cpu_percent": values["cpu_percent"] + 40.0 * (t >= middle)})
+        for t, values in run.samples[process]
+    ]  # a thread spinning at 40 % of a core from the middle on
+    found = replay(ModelFile.load(model), run)
+    started = [item for item in found if isinstance(item, Alarm) and item.started]
+    assert started and started[0].target == "cpu_percent", started
+    raised_by = found[: found.index(started[0])]  # an alarm follows the step that raised it
+    at = next(item.t_ns for item in reversed(raised_by) if isinstance(item, Step))
+    assert 0 <= (at - middle) / 1e9 <= 10.0
+
+
+def test_the_command_line_replays_and_refuses_what_it_cannot_read(model: Path, tmp_path) -> None:
+    done = subprocess.run(
+        [REDLINE, "watch", "--model", str(model), "--replay", str(CLEAN), "--json"],
+        capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    assert "0 alarm(s)" in done.stderr and done.stdout.count('"predicted"') >= 295
+    broken = tmp_path / "broken.mcap"
+    broken.write_bytes(b"not an mcap")
+    bad = subprocess.run(
+        [REDLINE, "watch", "--model", str(model), "--replay", str(broken)],
+        capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    assert bad.returncode == 2 and "--replay" in bad.stderr and "broken.mcap" in bad.stderr
