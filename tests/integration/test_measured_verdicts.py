@@ -28,7 +28,7 @@ from redline.server.services.jobs import lease_job
 from redline.server.services.revisions import create_revision
 from redline.worker.detection import detect_revision
 from redline.worker.ingest import ingest_execution
-from sqlalchemy import select
+from sqlalchemy import func, select
 
 from tests.support.api import api_with
 from tests.support.history import add_executions, ingest_and_detect, uploaded
@@ -318,3 +318,30 @@ def test_a_fresh_run_that_could_not_run_leaves_its_revision_as_it_was(
     assert ci_verdict(session, NAME, "r1").state == "done"  # not failed: its own runs ran
     verdict = ci_verdict(session, NAME, "r2")
     assert verdict.state == "done" and [c.state for c in verdict.cases] == ["undecided"]
+
+
+def test_a_fresh_run_is_queued_one_level_back_never_walking_a_busy_history(
+    session, database_url, tmp_path
+):
+    create_component(session, ComponentCreate(name=NAME, executions=RUNS))
+    for number, load in ((1, 90.0), (2, 90.0), (3, None)):
+        recorded = {} if load is None else {"host_percent": load}
+        ingest_and_detect(database_url, _revision(session, tmp_path, number, **recorded))
+    session.expire_all()
+
+    def fresh_runs() -> dict[str, int]:
+        rows = session.execute(
+            select(Revision.title, func.count())
+            .join(Job, Job.revision_id == Revision.id)
+            .where(Job.remeasures_job_id.is_not(None))
+            .group_by(Revision.title)
+        )
+        return dict(rows.all())
+
+    assert fresh_runs() == {"r2": 1}  # r3 waits for its baseline r2; a busy r2 waited for none
+    execution = _fresh_run(session, tmp_path, "r2")  # quiet this time
+    for revision_id in ingest_execution(database_url, execution.id):
+        detect_revision(database_url, revision_id)
+    session.expire_all()
+    assert fresh_runs() == {"r2": 1}, "r2's own baseline r1 is no one's wait"
+    assert ci_verdict(session, NAME, "r3").state == "done"

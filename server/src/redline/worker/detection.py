@@ -173,7 +173,7 @@ def store(
     group_revision(session, revision, config.alarming)
     if rerun:  # new results only: a re-analysis never queues machine time for old revisions
         queue_confirmations(session, revision, config)
-        queue_for_baselines(session, rows)
+        queue_for_baselines(session, revision, rows)
     settle_pending_pairs(session, revision.component_id)
     confirm_by_history(session, revision.component_id, config.confirm_revisions)
     revision.analyzed_at = utcnow()

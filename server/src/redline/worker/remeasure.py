@@ -30,9 +30,16 @@ from sqlalchemy.orm import Session
 REMEASURE_LIMIT = 1
 
 
-def queue_for_baselines(session: Session, rows: list[dict[str, Any]]) -> list[Job]:
-    """A fresh run of each baseline revision that ``rows`` (a revision's new verdicts) could
-    not be judged against because the host was busy in all its runs."""
+def queue_for_baselines(
+    session: Session, revision: Revision, rows: list[dict[str, Any]]
+) -> list[Job]:
+    """A fresh run of each baseline revision that ``rows`` (the revision's new verdicts) could
+    not be judged against because the host was busy in all its runs. Not for a revision that
+    was itself run afresh: its verdicts are judged again for the revision that waited for it,
+    and its own baseline's runs are no one's wait (one level, never a walk back through a busy
+    history)."""
+    if any(job.remeasures_job_id is not None for job in revision.jobs):
+        return []
     wanted: dict[int, set[int]] = {}
     for row in rows:
         if (
