@@ -15,7 +15,7 @@ from typing import Any
 from plotly.offline import get_plotlyjs
 from redline.detect.compare import Comparison, RecordedSeries, SegmentVerdict
 from redline.detect.compare_junit import series_line
-from redline.server.ui.figures import evolution_figure, timeseries_figure
+from redline.server.ui.compare_figures import evolution_figure, timeseries_figure
 
 STYLE = """body{font-family:sans-serif;margin:1.5em;max-width:1100px}
 h2{margin-top:2em;border-bottom:1px solid #ccc}.changed{color:#d62728}.ok{color:#2ca02c}

@@ -39,12 +39,9 @@ from redline.server.services import (
     why,
 )
 from redline.server.services.errors import BadRequest, Forbidden, NotFound
-from redline.server.ui.figures import (
-    comparison_figure,
-    execution_figures,
-    trend_charts,
-    why_figures,
-)
+from redline.server.ui.compare_figures import comparison_figure
+from redline.server.ui.detail_figures import execution_figures, why_figures
+from redline.server.ui.figures import trend_charts
 from redline.server.ui.model_figures import model_figures
 from redline.server.ui.pages import form_fields, page, page_router, problem, signed_in
 
