@@ -81,6 +81,7 @@ def uploaded(session, job: Job, path: Path, name: str) -> Execution:
         size=path.stat().st_size,
     )
     job.state = JobState.uploaded
+    job.attempts = max(job.attempts or 0, 1)  # leased once, as an agent that uploads has
     session.add(execution)
     return execution
 

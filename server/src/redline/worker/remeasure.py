@@ -68,9 +68,13 @@ def queue_remeasure(session: Session, revision_id: int, cases: Any) -> Job | Non
     if not cases or (used or 0) >= REMEASURE_LIMIT:
         return None
     revision = session.get_one(Revision, revision_id)
-    own = [job for job in revision.jobs if job.pair == 0 and job.remeasures_job_id is None]
+    own = [
+        job
+        for job in revision.jobs
+        if job.pair == 0 and job.remeasures_job_id is None and job.attempts > 0
+    ]
     if not own:
-        return None  # imported results: no performance host measured them
+        return None  # imported results: no agent measured them, none runs them again
     index = session.scalar(
         select(func.max(Job.execution_index)).where(
             Job.revision_id == revision_id, Job.execution_index < FIRST_INDEX
