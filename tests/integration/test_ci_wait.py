@@ -102,6 +102,7 @@ def test_a_verdict_the_busy_host_left_undecided_exits_4_never_0(server, tmp_path
     assert "undecided" in done.stdout and "host was busy" in done.stderr
     suite = ElementTree.parse(out).getroot()
     assert (suite.get("errors"), suite.get("skipped")) == ("1", "0")
+    assert suite.get("tests") == str(len(suite.findall("testcase")))  # counted once, not twice
     assert "host busy" in suite.find("testcase/error").get("message", "")
     assert (
         wait(server, "--component", "busy", "--revision", "b2", "--fail-on", "none").returncode == 0

@@ -283,7 +283,10 @@ def test_a_baseline_the_host_was_busy_in_is_run_afresh_and_the_next_verdict_wait
     assert cpu.verdict == "no change", cpu.reason
     judged = ci_verdict(session, NAME, "r2")
     assert judged.state == "done" and judged.undecided == 0
-    assert [case.state for case in judged.cases] == ["passed"]
+    # KS judged the fresh run's samples; execution_shift still wants more executions of
+    # history than one fresh run: no pass yet, and no "host busy" any more
+    (case,) = judged.cases
+    assert case.state == "skipped" and "too few samples: baseline" in case.reason, case
 
 
 def test_a_host_busy_in_the_fresh_run_too_leaves_the_verdict_undecided_never_passed(
@@ -345,3 +348,40 @@ def test_a_fresh_run_is_queued_one_level_back_never_walking_a_busy_history(
     session.expire_all()
     assert fresh_runs() == {"r2": 1}, "r2's own baseline r1 is no one's wait"
     assert ci_verdict(session, NAME, "r3").state == "done"
+
+
+def test_a_case_passes_only_when_every_series_that_can_be_judged_was(
+    session, database_url, tmp_path
+):
+    """A trial saw a 2.5x CPU rise pass `redline ci wait` (2026-11-24): execution_shift, the
+    alarm method, still lacked baseline executions for the CPU and the round trip, and a
+    judged count of timeouts ("no change") made the case "passed"."""
+    create_component(session, ComponentCreate(name=NAME, executions=RUNS))
+    for number in (1, 2, 3):
+        ingest_and_detect(database_url, _revision(session, tmp_path, number))
+    r2 = ci_verdict(session, NAME, "r2")
+    (case,) = r2.cases
+    assert case.state == "skipped", case  # 3 baseline executions of the 6 it needs
+    assert "too few samples: baseline has 3" in case.reason and "verdicts)" in case.reason
+    assert [c.state for c in ci_verdict(session, NAME, "r3").cases] == ["passed"]
+    suite = ElementTree.fromstring(junit_xml(r2))
+    assert (suite.get("tests"), suite.get("skipped")) == ("1", "1")
+
+
+def test_the_newest_of_several_revisions_waits_for_the_earlier_ones_it_lacks(
+    session, database_url, tmp_path
+):
+    """Several commits reported at once run newest first: the newest's verdict waits for the
+    earlier ones that will be its baseline, instead of a skip CI would take for an answer."""
+    create_component(session, ComponentCreate(name=NAME, executions=RUNS))
+    earlier = create_revision(
+        session, RevisionCreate(component=NAME, title="r1", sort_key="1", commit="c1")
+    )
+    ingest_and_detect(database_url, _revision(session, tmp_path, 2))
+    waiting = ci_verdict(session, NAME, "r2")
+    assert waiting.state == "pending" and "earlier revision, r1" in waiting.waiting_for
+    for job in earlier.jobs:
+        job.state = JobState.cancelled  # superseded: it will never be its baseline
+    session.commit()
+    done = ci_verdict(session, NAME, "r2")
+    assert done.state == "done" and [c.state for c in done.cases] == ["skipped"]

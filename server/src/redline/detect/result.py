@@ -47,6 +47,16 @@ def not_enough(method: str, reason: str) -> Detection:
     return Detection(method=method, verdict=NOT_ENOUGH_DATA, reason=reason)
 
 
+#: how the "not enough data" reasons begin that more history lifts
+HISTORY_REASONS = ("missing baseline", "too few samples: baseline")
+
+
+def waits_for_history(reason: str) -> bool:
+    """Whether a "not enough data" reason is one more history will lift (no baseline yet, a
+    baseline with too few values), not one it never will (a constant series, NaN)."""
+    return reason.startswith(HISTORY_REASONS)
+
+
 def direction_of(effect: float) -> str:
     if effect > 0:
         return "increase"
