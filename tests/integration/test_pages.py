@@ -410,6 +410,10 @@ def test_settings_pages_are_for_administrators_and_change_what_the_api_does(
         "/settings/components/builder", data={"csrf": csrf, "config": '{"confirm_pairs": 99}'}
     )
     assert unknown.status_code == 400 and "confirm_pairs" in unknown.text
+    typo = client.post(
+        "/settings/components/builder", data={"csrf": csrf, "config": '{"nonsense_key": 1}'}
+    )
+    assert typo.status_code == 400 and "nonsense_key" in typo.text
     # a value the service refuses (a repository no performance host fetches from): a page
     outside = client.post(
         "/settings/components/builder",

@@ -49,6 +49,29 @@ class StackError(RuntimeError):
     """The stack could not start or a child died; the message says which and why."""
 
 
+def lock_data(data: Path) -> IO[bytes]:
+    """Hold the data folder for this `redline up` while the returned file stays open: a second
+    one on the same folder shared the first one's embedded Redis and, on its exit, stopped it,
+    leaving the first unable to queue any work (a trial from outside, 2026-11-24)."""
+    import fcntl
+
+    handle = open(data / "lock", "a+b")  # noqa: SIM115 - held open for the stack's life
+    try:
+        fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        handle.seek(0)
+        holder = handle.read().decode(errors="replace").strip() or "unknown"
+        handle.close()
+        raise StackError(
+            f"the data folder {data} is in use by another `redline up` (pid {holder}): stop it "
+            "first, or give this one its own --data"
+        ) from None
+    handle.truncate(0)
+    handle.write(str(os.getpid()).encode())
+    handle.flush()
+    return handle
+
+
 @dataclass
 class Child:
     name: str
@@ -69,6 +92,7 @@ class Stack:
     embedded: EmbeddedServices | None = None
     env: dict[str, str] = field(default_factory=dict)
     admin_token: str = ""
+    lock: IO[bytes] | None = None  # the data folder's, held while the stack runs
 
     @property
     def url(self) -> str:
@@ -78,6 +102,7 @@ class Stack:
         # new, the data folder is its owner's only: it holds the database, recordings, tokens
         # (as root, pgserver opens the path to the user it runs Postgres as: see security.md)
         self.data.mkdir(mode=0o700, parents=True, exist_ok=True)
+        self.lock = lock_data(self.data)
         (self.data / "logs").mkdir(mode=0o700, exist_ok=True)
         self.env = self._service_env()
         self._redline("migrate")
@@ -241,6 +266,9 @@ class Stack:
         if self.embedded is not None:
             self.embedded.stop()
             self.embedded = None
+        if self.lock is not None:
+            self.lock.close()  # the data folder is free again
+            self.lock = None
 
 
 def open_private_log(path: Path) -> IO[bytes]:

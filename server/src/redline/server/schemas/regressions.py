@@ -5,7 +5,7 @@ from __future__ import annotations
 from datetime import datetime
 from typing import Literal
 
-from pydantic import BaseModel, Field
+from pydantic import BaseModel, ConfigDict, Field
 from redline.detect.baseline import DEFAULT_WINDOW
 from redline.detect.config import MAX_CONFIRM_PAIRS, MAX_CONFIRM_REVISIONS, MAX_WINDOW
 from redline.detect.confirmation import DEFAULT_CONFIRM_REVISIONS
@@ -86,6 +86,9 @@ class AccuracyOut(BaseModel):
 
 
 class DetectionConfigIn(BaseModel):
+    # a misspelt field ("alarm_method") would otherwise be dropped and its default stored
+    model_config = ConfigDict(extra="forbid")
+
     methods: list[str] | None = Field(
         default=None, description="default: the evaluated default and ks"
     )
