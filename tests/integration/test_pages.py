@@ -156,6 +156,19 @@ def test_an_address_that_does_not_parse_is_a_page_naming_it_not_json(client, pat
     assert api.status_code == 422 and api.json()["detail"][0]["loc"][0] == "path"
 
 
+def test_an_id_out_of_range_and_an_unknown_address_are_404_not_json_in_a_page(client):
+    """A trial from outside met 422 "cannot be stored" for a GET of /executions/<21 digits>,
+    and JSON for an address no page has (2026-11-24)."""
+    browser = {"accept": "text/html"}
+    huge = client.get("/executions/99999999999999999999", headers=browser)
+    assert huge.status_code == 404 and huge.headers["content-type"].startswith("text/html")
+    api = client.get("/api/v1/executions/99999999999999999999")
+    assert api.status_code == 404 and "out of range" in api.json()["detail"]
+    nowhere = client.get("/nonexistent", headers=browser)
+    assert nowhere.status_code == 404 and "<h1>Not found</h1>" in nowhere.text
+    assert client.get("/api/v1/nonexistent").json() == {"detail": "Not Found"}
+
+
 def test_a_form_posted_to_a_page_address_that_does_not_parse_is_a_page(client):
     page = client.post("/settings/tokens/abc/revoke", headers={"accept": "text/html"})
     assert page.status_code == 404 and "no token 'abc'" in html.unescape(page.text)

@@ -30,18 +30,32 @@ from redline.server.routes import (
     web,
     webhooks,
 )
-from redline.server.services.errors import BadRequest, NotFound, ServiceError
+from redline.server.services.errors import BadRequest, NotFound, ServiceError, Unprocessable
 from redline.server.ui.pages import problem
 from sqlalchemy.exc import DataError
+from starlette.exceptions import HTTPException as StarletteHTTPException
 
 
-async def _unstorable(request: Request, exc: Exception) -> JSONResponse:
-    """A value Postgres cannot hold (an id past 2**31, a NUL in a text): the caller's fault."""
+async def _unstorable(request: Request, exc: Exception) -> Response:
+    """A value Postgres cannot hold (an id past 2**31, a NUL in a text): the caller's fault. A
+    read asking for such an id asks for something that cannot exist: 404, not "cannot be
+    stored"."""
     orig = getattr(exc, "orig", None) or exc
     reason = (str(orig).strip().splitlines() or [type(orig).__name__])[0]
-    return JSONResponse(
-        {"detail": f"a value in the request cannot be stored: {reason}"}, status_code=422
-    )
+    if request.method in ("GET", "HEAD") and "out of range" in reason:
+        missing = NotFound(f"there is nothing at {request.url.path[:200]}: an id out of range")
+        return await _service_error(request, missing)
+    refused = Unprocessable(f"a value in the request cannot be stored: {reason}")
+    return await _service_error(request, refused)
+
+
+async def _no_route(request: Request, exc: Exception) -> Response:
+    """Starlette's own refusals (no such address, a method it does not take): the error page
+    for a browser, JSON otherwise."""
+    assert isinstance(exc, StarletteHTTPException)
+    if _for_a_browser(request) and exc.status_code in (404, 405):
+        return problem(request, NotFound(f"there is no page at {request.url.path[:200]}"))
+    return JSONResponse({"detail": exc.detail}, status_code=exc.status_code, headers=exc.headers)
 
 
 _EXCERPT = reprlib.Repr()  # keyword arguments only from Python 3.12
@@ -141,6 +155,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.add_exception_handler(ServiceError, _service_error)
     app.add_exception_handler(DataError, _unstorable)
     app.add_exception_handler(RequestValidationError, _invalid)
+    app.add_exception_handler(StarletteHTTPException, _no_route)
     for down in health.DATABASE_DOWN:  # 503 with a message, never a 500, while Postgres is away
         app.add_exception_handler(down, health.database_unavailable)
     # inside the metrics middleware, whose own reads of the request must not meet the limit
