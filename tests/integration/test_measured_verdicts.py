@@ -359,6 +359,7 @@ def test_a_case_passes_only_when_every_series_that_can_be_judged_was(
     create_component(session, ComponentCreate(name=NAME, executions=RUNS))
     for number in (1, 2, 3):
         ingest_and_detect(database_url, _revision(session, tmp_path, number))
+    session.expire_all()  # the worker's sessions changed the jobs (uploaded -> done)
     r2 = ci_verdict(session, NAME, "r2")
     (case,) = r2.cases
     assert case.state == "skipped", case  # 3 baseline executions of the 6 it needs
@@ -378,6 +379,7 @@ def test_the_newest_of_several_revisions_waits_for_the_earlier_ones_it_lacks(
         session, RevisionCreate(component=NAME, title="r1", sort_key="1", commit="c1")
     )
     ingest_and_detect(database_url, _revision(session, tmp_path, 2))
+    session.expire_all()  # the worker's sessions changed r2's jobs (uploaded -> done)
     waiting = ci_verdict(session, NAME, "r2")
     assert waiting.state == "pending" and "earlier revision, r1" in waiting.waiting_for
     for job in earlier.jobs:

@@ -176,3 +176,17 @@ def test_the_live_window_gives_the_features_of_the_same_events():
         live.add(key, stamp, size)
     now = 99 * NS
     assert np.array_equal(live.features(now), extract(events, np.array([now]), spec)[0])
+
+
+def test_a_fit_that_fails_for_want_of_disturbed_segments_says_they_were_left_out(tmp_path):
+    """A trial's fit on runs made while the host was busy said only "nothing to learn from"
+    (2026-11-24): the segments it left out, and why, are in the message."""
+    from redline.recording.format import canonical_params
+
+    run = read_run(record(tmp_path / "busy.mcap", [1, 3]))
+    run.disturbed = {
+        (s.case, s.phase, canonical_params(s.params)): "host busy: other load 90 %"
+        for s in run.segments
+    }
+    with pytest.raises(DataError, match=r"nothing to learn from \(2 left out, disturbed .*90 %"):
+        dataset([run])

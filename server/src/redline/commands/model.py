@@ -69,12 +69,13 @@ def fit(
     try:
         runs = [read_run(path) for path in recordings]
         data = dataset(runs, process, received_only=received_only, windows=_windows(windows))
+        # said before the fit, which may fail for want of what was left out
+        for why in data.left_out:
+            typer.echo(f"warning: left out, disturbed by other load: {why}", err=True)
         model = ModelFile.fit(data)
         model.save(out)
     except DataError as exc:
         raise _fail(str(exc)) from None
-    for why in data.left_out:
-        typer.echo(f"warning: left out, disturbed by other load: {why}", err=True)
     typer.echo(
         f"{out}: process {model.process}, {len(data.x)} time steps of "
         f"{len(recordings)} recording(s), {len(data.spec.channels)} keys"

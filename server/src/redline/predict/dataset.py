@@ -185,6 +185,13 @@ def dataset(
         raise DataError(
             "the recordings have no measured segment with counter samples of "
             f"process {chosen!r}: nothing to learn from"
+            + (
+                f" ({len(left_out)} left out, disturbed by other load: {left_out[0]}"
+                + (" ..." if len(left_out) > 1 else "")
+                + ")"
+                if left_out
+                else ""
+            )
         )
     return Dataset(
         spec=spec,
