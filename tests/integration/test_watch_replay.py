@@ -13,8 +13,8 @@ from pathlib import Path
 import pytest
 from redline.predict.dataset import read_run
 from redline.predict.model import ModelFile
-from redline.predict.replay import Step, replay
-from redline.predict.watch import Alarm
+from redline.predict.replay import replay
+from redline.predict.watch import Alarm, Step
 
 from tests.support.watching import PERF, REDLINE, TRAINING, fit
 

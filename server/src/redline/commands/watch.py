@@ -171,7 +171,7 @@ def watch_cmd(
     from redline.predict.dataset import RESPONSE_WINDOW_S, TARGETS, DataError
     from redline.predict.features import OUT, FeatureSpec
     from redline.predict.model import ModelFile
-    from redline.predict.watch import EventWindow, Residuals, Silence
+    from redline.predict.watch import EventWindow, Residuals, Silence, Step, judge_step
 
     try:
         loaded = ModelFile.load(model)
@@ -221,37 +221,22 @@ def watch_cmd(
                 break
             now = time.time_ns()
             predicted = loaded.predict(window.features(now)[None, :])
-            said_measured: dict[str, float] = {}
-            said_predicted: dict[str, float] = {}
+            values = {t: float(measured.get(t, 0.0)) for t in TARGETS}
+            guesses = {t: float(predicted[t][0]) for t in TARGETS}
             warming = time.monotonic() < warm_until
-            for target, tracker in residuals.items():
-                value, guess = float(measured.get(target, 0.0)), float(predicted[target][0])
-                said_measured[target], said_predicted[target] = value, guess
-                known = tracker.offset is not None
-                alarm = None if warming else tracker.update(value, guess)
-                if not known and tracker.offset is not None:
-                    _say_offset(tracker, as_json)
-                if alarm is not None:
-                    say(alarm)
             received = window.heard(now, 1.0)
             answered = {s.key: answers.heard(now, RESPONSE_WINDOW_S, s.key) for s in silences}
-            for silence in silences:
-                alarm = None if warming else silence.update(received, answered[silence.key])
-                if alarm is not None:
+            if not warming:
+                unknown = [t for t in residuals.values() if t.offset is None]
+                alarms = judge_step(residuals, silences, values, guesses, received, answered)
+                for tracker in unknown:
+                    if tracker.offset is not None:  # measured by this step's residual
+                        _say_offset(tracker, as_json)
+                for alarm in alarms:
                     say(alarm)
             if as_json:
-                typer.echo(
-                    json.dumps(
-                        {
-                            "t": now / 1e9,
-                            "warming": warming,
-                            "heard": window.heard(now, interval),
-                            "answered": answered,
-                            "measured": said_measured,
-                            "predicted": said_predicted,
-                        }
-                    )
-                )
+                heard = window.heard(now, interval)
+                typer.echo(json.dumps(Step(now, warming, heard, answered, values, guesses).line()))
             if duration is not None and time.monotonic() - began >= duration:
                 break
     finally:
@@ -275,7 +260,8 @@ def _replay(loaded: Any, recording: Path, as_json: bool) -> None:
     """``--replay``: the steps and alarms of a recording watched with the model; a summary on
     stderr. Exit 2 when the recording cannot be read or holds nothing to watch."""
     from redline.predict.dataset import DataError, read_run
-    from redline.predict.replay import Step, replay
+    from redline.predict.replay import replay
+    from redline.predict.watch import Step
     from redline.recording.reader import RecordingError
 
     try:

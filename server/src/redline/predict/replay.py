@@ -13,8 +13,6 @@ sample of the process is left out.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 from redline.predict.dataset import (
     RESPONSE_WINDOW_S,
@@ -28,29 +26,7 @@ from redline.predict.dataset import (
 )
 from redline.predict.features import NS, extract
 from redline.predict.model import ModelFile
-from redline.predict.watch import Alarm, Residuals, Silence
-
-
-@dataclass(frozen=True)
-class Step:
-    """One step as the live watcher prints it (``--json``)."""
-
-    t_ns: int
-    warming: bool
-    heard: int
-    answered: dict[str, int]
-    measured: dict[str, float]
-    predicted: dict[str, float]
-
-    def line(self) -> dict:
-        return {
-            "t": self.t_ns / 1e9,
-            "warming": self.warming,
-            "heard": self.heard,
-            "answered": self.answered,
-            "measured": self.measured,
-            "predicted": self.predicted,
-        }
+from redline.predict.watch import Alarm, Residuals, Silence, Step, judge_step
 
 
 def replay(model: ModelFile, run: Run) -> list[Step | Alarm]:
@@ -87,9 +63,6 @@ def replay(model: ModelFile, run: Run) -> list[Step | Alarm]:
         guesses = {t: float(predicted[t][index]) for t in TARGETS}
         said = {key: int(counts[index]) for key, counts in answered.items()}
         out.append(Step(t_ns, warming, int(received[index]), said, values, guesses))
-        if warming:
-            continue
-        alarms = [residuals[t].update(values[t], guesses[t]) for t in TARGETS]
-        alarms += [s.update(int(received[index]), said[s.key]) for s in silences]
-        out += [alarm for alarm in alarms if alarm is not None]
+        if not warming:
+            out += judge_step(residuals, silences, values, guesses, int(received[index]), said)
     return out

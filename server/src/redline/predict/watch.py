@@ -114,6 +114,28 @@ class Alarm:
     offset: float | None = None  # the process's offset (None while it is being measured)
 
 
+@dataclass(frozen=True)
+class Step:
+    """One step of a watch, live or replayed, as `redline watch --json` prints it."""
+
+    t_ns: int
+    warming: bool
+    heard: int
+    answered: dict[str, int]
+    measured: dict[str, float]
+    predicted: dict[str, float]
+
+    def line(self) -> dict:
+        return {
+            "t": self.t_ns / 1e9,
+            "warming": self.warming,
+            "heard": self.heard,
+            "answered": self.answered,
+            "measured": self.measured,
+            "predicted": self.predicted,
+        }
+
+
 class Residuals:
     """Smoothed residuals of one target against its threshold, judged by their move from the
     process's offset (once `ANCHOR_STEPS` clean steps in a row, neither gross nor in an alarm,
@@ -194,3 +216,18 @@ class Silence:
             self.active, self._streak = silent, 0
             return Alarm(self.target, silent, self.step, float(received if silent else 0), 0.0)
         return None
+
+
+def judge_step(
+    residuals: dict[str, Residuals],
+    silences: list[Silence],
+    measured: dict[str, float],
+    predicted: dict[str, float],
+    received: int,
+    answered: dict[str, int],
+) -> list[Alarm]:
+    """One judged step, live or replayed: each target's residual, then each response's
+    silence; the alarms it started or ended."""
+    alarms = [tracker.update(measured[t], predicted[t]) for t, tracker in residuals.items()]
+    alarms += [silence.update(received, answered[silence.key]) for silence in silences]
+    return [alarm for alarm in alarms if alarm is not None]

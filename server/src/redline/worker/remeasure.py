@@ -10,20 +10,20 @@ saw a 4x CPU regression pass `redline ci wait` that way. Machine time is spent o
 verdict waits for it: a revision's own disturbed runs are not run again by the server (its
 verdict is "undecided", `redline.server.services.ci_verdict`) unless a later revision needs
 them as its baseline. The fresh run is one of the baseline revision's own (`Job.pair` 0; a
-failed one leaves that revision as it was, `redline.server.services.revisions.own_states`), it
+failed one leaves that revision as it was, `redline.server.services.revisions.own_jobs`), it
 goes before other work (`redline.server.services.jobs.lease_job`), and the CI verdict of the
 revision waiting for it stays pending meanwhile.
 """
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from typing import Any
 
 from redline.detect.result import NOT_ENOUGH_DATA
 from redline.recording.disturbance import names_busy_host
 from redline.server.models import Detection, Job, Revision, Series
-from redline.worker.confirm_runs import FIRST_INDEX
-from sqlalchemy import func, select
+from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 #: fresh runs a revision may have in all: a host that stays busy leaves the verdict undecided
@@ -57,39 +57,26 @@ def queue_for_baselines(
     return queued
 
 
-def queue_remeasure(session: Session, revision_id: int, cases: Any) -> Job | None:
-    """Queue a fresh run of the revision's ``cases``; None when it had its fresh runs."""
-    cases = sorted(set(cases))
-    used = session.scalar(
-        select(func.count()).where(
-            Job.revision_id == revision_id, Job.remeasures_job_id.is_not(None)
-        )
-    )
-    if not cases or (used or 0) >= REMEASURE_LIMIT:
-        return None
+def queue_remeasure(session: Session, revision_id: int, cases: Iterable[str]) -> Job | None:
+    """Queue a fresh run of the revision's ``cases``; None when it had its fresh runs, or when
+    no agent measured it (imported results: none runs them again)."""
+    wanted = sorted(set(cases))
     revision = session.get_one(Revision, revision_id)
-    own = [
-        job
-        for job in revision.jobs
-        if job.pair == 0 and job.remeasures_job_id is None and job.attempts > 0
-    ]
-    if not own:
-        return None  # imported results: no agent measured them, none runs them again
-    index = session.scalar(
-        select(func.max(Job.execution_index)).where(
-            Job.revision_id == revision_id, Job.execution_index < FIRST_INDEX
-        )
-    )
-    fresh = Job(
+    jobs = [job for job in revision.jobs if job.pair == 0]
+    fresh = [job for job in jobs if job.remeasures_job_id is not None]
+    measured = [job for job in jobs if job.remeasures_job_id is None and job.attempts > 0]
+    if not wanted or len(fresh) >= REMEASURE_LIMIT or not measured:
+        return None
+    job = Job(
         revision_id=revision_id,
-        execution_index=(index or 0) + 1,
-        remeasures_job_id=min(own, key=lambda job: job.execution_index).id,
-        labels=list(own[0].labels or []),
-        cases=cases,
+        execution_index=max(job.execution_index for job in jobs) + 1,
+        remeasures_job_id=min(measured, key=lambda job: job.execution_index).id,
+        labels=list(measured[0].labels or []),
+        cases=wanted,
     )
-    session.add(fresh)
+    session.add(job)
     session.flush()
-    return fresh
+    return job
 
 
 def waiting_on(session: Session, revision_id: int) -> list[int]:

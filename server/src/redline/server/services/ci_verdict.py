@@ -25,7 +25,7 @@ from redline.server.schemas.alerts import CaseVerdict, CiVerdict
 from redline.server.services.components import get_component
 from redline.server.services.detection_config import component_config
 from redline.server.services.errors import NotFound
-from redline.server.services.revisions import own_states, revision_state
+from redline.server.services.revisions import own_jobs, revision_state
 from sqlalchemy import or_, select, tuple_
 from sqlalchemy.orm import Session
 
@@ -34,14 +34,13 @@ FINISHED = (JobState.done, JobState.failed, JobState.cancelled)
 
 def _pending(session: Session, revision: Revision) -> tuple[str, str]:
     """The verdict's state and, while pending, what it waits for (failed: why)."""
-    state = revision_state(own_states(revision), analyzed=revision.analyzed_at is not None)
+    own = own_jobs(revision)
+    state = revision_state([job.state for job in own], analyzed=revision.analyzed_at is not None)
     if state in ("failed", "cancelled"):
         why = [
             f"job {job.id} {job.state.value}: {job.reason or 'no reason given'}"
-            for job in revision.jobs
-            if job.pair == 0
-            and job.remeasures_job_id is None
-            and job.state in (JobState.failed, JobState.cancelled)
+            for job in own
+            if job.state in (JobState.failed, JobState.cancelled)
         ]
         return "failed", "; ".join(why)
     if state != "done":

@@ -91,12 +91,12 @@ def create_revision(session: Session, data: RevisionCreate) -> Revision:
     return revision
 
 
-def own_states(revision: Revision) -> list[JobState]:
-    """The states of the jobs a revision's state is made of: its own executions, and fresh
-    runs of them (`redline.worker.remeasure`) unless those failed: a fresh run that could
-    not be made leaves the revision with the runs it had. Confirmation runs never count."""
+def own_jobs(revision: Revision) -> list[Job]:
+    """The jobs a revision's state is made of: its own executions, and fresh runs of them
+    (`redline.worker.remeasure`) unless those failed: a fresh run that could not be made leaves
+    the revision with the runs it had. Confirmation runs never count."""
     return [
-        job.state
+        job
         for job in revision.jobs
         if job.pair == 0 and not (job.remeasures_job_id is not None and job.state in _DID_NOT_RUN)
     ]
@@ -134,7 +134,9 @@ def _revision_out(revision: Revision) -> dict:
         committed_at=revision.committed_at,
         created=revision.created,
         analyzed_at=revision.analyzed_at,
-        state=revision_state(own_states(revision), analyzed=revision.analyzed_at is not None),
+        state=revision_state(
+            [job.state for job in own_jobs(revision)], analyzed=revision.analyzed_at is not None
+        ),
     )
 
 

@@ -39,11 +39,8 @@ def upgrade() -> None:
         ).all()
         if not rows:
             return
-        changed = [
-            {"ident": ident, "key": order_key(sort_key)}
-            for ident, sort_key, stored in rows
-            if order_key(sort_key) != stored
-        ]
+        keys = ((ident, order_key(sort_key), stored) for ident, sort_key, stored in rows)
+        changed = [{"ident": ident, "key": key} for ident, key, stored in keys if key != stored]
         if changed:
             bind.execute(
                 revisions.update()
