@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import hashlib
+import socket
 import uuid
 from collections.abc import Iterator
 from pathlib import Path
@@ -19,7 +20,7 @@ from redline.worker.detection import detect_revision
 from redline.worker.ingest import ingest_execution
 from sqlalchemy import func, select, update
 
-from tests.support.api import Api, emptied_with_tokens, expire_lease, recording_for
+from tests.support.api import Api, api_with, emptied_with_tokens, expire_lease, recording_for
 from tests.support.pages import trend_data
 from tests.support.servers import Services
 
@@ -46,7 +47,19 @@ def api(services: Services, database_url: str, tmp_path: Path) -> Iterator[Api]:
 
 
 def test_healthz_answers_without_a_token(api: Api):
-    assert api.client.get("/healthz").json() == {"status": "ok", "database": "ok"}
+    assert api.client.get("/healthz").json() == {"status": "ok", "database": "ok", "queue": "ok"}
+
+
+def test_healthz_says_the_queue_is_away_and_uploads_are_still_taken(services, tmp_path):
+    with socket.socket() as closed:  # a port nothing listens on
+        closed.bind(("127.0.0.1", 0))
+        port = closed.getsockname()[1]
+    with api_with(services, tmp_path, redis_url=f"redis://127.0.0.1:{port}/0") as api:
+        health = api.client.get("/healthz")
+        assert health.status_code == 200, health.text
+        assert health.json()["status"] == "degraded" and health.json()["database"] == "ok"
+        assert health.json()["queue"].startswith("unavailable: "), health.json()
+        assert str(port) in health.json()["queue"]
 
 
 def test_missing_invalid_or_revoked_token_is_401(api: Api):

@@ -295,6 +295,19 @@ def test_a_lone_surrogate_in_a_signed_push_is_400(api: Api):
     assert counts(api) == (0, 0)
 
 
+def test_a_nul_character_is_a_4xx_naming_where_it_is(api: Api):
+    body = b'{"name": "x", "description": "a\\u0000b"}'
+    answer = _post_raw(api, "/api/v1/components", body, "admin")
+    assert answer.status_code == 422, answer.text
+    assert "NUL" in answer.text and "$.description" in answer.text, answer.text
+    push = send_github(api, github_push().replace(b'"first"', b'"fi\\u0000rst"'))
+    assert push.status_code == 400 and "NUL" in push.text and "message" in push.text, push.text
+    assert counts(api) == (0, 0)
+    # a backslash followed by "u0000" is text like any other
+    fine = b'{"name": "y", "description": "C:\\\\u0000"}'
+    assert _post_raw(api, "/api/v1/components", fine, "admin").status_code == 201
+
+
 def test_a_surrogate_pair_is_text_like_any_other(api: Api):
     answer = _post_raw(
         api,

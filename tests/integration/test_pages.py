@@ -129,6 +129,10 @@ def test_bad_filters_and_unknown_things_are_pages_naming_them(client, database_u
     bad = client.get("/components/builder?revisions=0")
     assert bad.status_code == 400 and "revisions" in bad.text
     assert client.get("/components/builder?before=nope").status_code == 400
+    for switch, value in (("median", "abc"), ("log", "maybe")):  # not silently "off"
+        bad = client.get(f"/components/builder?{switch}={value}")
+        assert bad.status_code == 400 and f"{switch}: 1 or 0" in bad.text, bad.text
+    assert client.get("/components/builder?log=on&median=0").status_code == 200
     missing = client.get("/components/nope")
     assert missing.status_code == 404 and "nope" in missing.text
     assert client.get("/components/builder/revisions/r99").status_code == 404

@@ -108,13 +108,12 @@ def api_with(services: Services, tmp_path: Path, **settings: Any) -> Iterator[Ap
     if services.database_url not in _MIGRATED:
         migrate(services.database_url)
         _MIGRATED.add(services.database_url)
-    config = Settings(
-        database_url=services.database_url,
-        redis_url=services.redis_url,
-        storage_dir=tmp_path / "storage",
-        queue=f"test-{uuid.uuid4().hex[:8]}",
-        **settings,
-    )
+    defaults = {
+        "redis_url": services.redis_url,
+        "storage_dir": tmp_path / "storage",
+        "queue": f"test-{uuid.uuid4().hex[:8]}",
+    }
+    config = Settings(database_url=services.database_url, **{**defaults, **settings})
     tokens = emptied_with_tokens(config.database_url)
     with TestClient(create_app(config)) as client:
         yield Api(client, config, tokens)

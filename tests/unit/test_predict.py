@@ -11,7 +11,7 @@ import pytest
 from redline.predict.dataset import DataError, dataset, read_run
 from redline.predict.features import NS, FeatureSpec, _range_max, extract, unseen
 from redline.predict.model import ModelFile
-from redline.predict.watch import HOLD, EventWindow, Residuals, calibrate, smooth
+from redline.predict.watch import ANCHOR_STEPS, HOLD, EventWindow, Residuals, calibrate, smooth
 
 from tests.support.predict import SMALL, record
 
@@ -148,6 +148,16 @@ def test_an_offset_within_the_models_own_error_is_not_taken_off():
     # a clean burst of +6.6 stays a move of +6.6, not +9.5
     said = [tracker.update(12.0 + 6.6, 12.0) for _ in range(10)]
     assert not any(said)
+
+
+def test_a_burst_just_after_the_offset_is_measured_is_smoothed_like_any_other():
+    tracker = Residuals("cpu_percent", threshold=22.6)
+    said = [tracker.update(14.0 + 4.0, 14.0) for _ in range(ANCHOR_STEPS)]
+    assert tracker.offset == pytest.approx(4.0) and not any(said)
+    # one second's burst of +45 (a driver delayed, then catching up), then clean again: as a
+    # burst anywhere else, it moves the smoothed residual by 0.3 of itself, not by all of it
+    said = [tracker.update(14.0 + r, 14.0) for r in [45.0, 4.0, 4.0, 4.0, 4.0, 4.0]]
+    assert not any(said), said
 
 
 def test_a_gross_fault_from_before_watching_began_alarms_however_the_process_started():

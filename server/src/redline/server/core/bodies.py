@@ -3,8 +3,8 @@
 Every body is limited before it is read whole (`BodyLimit`): a declared ``Content-Length`` over
 the limit is refused at once, and a body without one is counted as it streams in. JSON is parsed
 in one place (`parse_json`, used by every route through `JsonRoute` and by the routes that read
-raw bodies) so that a document nested deeper than `MAX_DEPTH` or holding a lone surrogate (text
-no database can store) is a 400 naming the fault, never a 500.
+raw bodies) so that a document nested deeper than `MAX_DEPTH` or holding a lone surrogate or a NUL
+(text no database can store) is a 4xx naming the fault and where it is, never a 500.
 """
 
 from __future__ import annotations
@@ -29,6 +29,7 @@ MAX_DEPTH = 32
 _STRING = re.compile(rb'"[^"\\]*(?:\\.[^"\\]*)*"')  # a JSON string, escapes included
 _NOT_BRACKETS = bytes(b for b in range(256) if b not in b"[]{}")
 _SURROGATE_ESCAPE = re.compile(rb"\\u[dD][89a-fA-F]")  # \ud800-\udfff, paired or not
+_NUL_ESCAPE = re.compile(rb"\\u0000")
 
 
 class BadJson(ValueError):
@@ -49,23 +50,31 @@ def _shown(key: str) -> str:
     return key.encode("utf-8", "backslashreplace").decode()
 
 
-def _lone_surrogate(value: Any, path: str = "$") -> str | None:
-    """Where in ``value`` a string (or key) holds a lone surrogate, e.g. ``$.results[0].case``."""
+def _is_lone_surrogate(text: str) -> bool:
+    try:
+        text.encode("utf-8")
+    except UnicodeEncodeError:
+        return True
+    return False
+
+
+def _has_nul(text: str) -> bool:
+    return "\x00" in text
+
+
+def _where(value: Any, bad: Callable[[str], bool], path: str = "$") -> str | None:
+    """Where in ``value`` a string (or key) is ``bad``, e.g. ``$.results[0].case``."""
     if isinstance(value, str):
-        try:
-            value.encode("utf-8")
-        except UnicodeEncodeError:
-            return path
-        return None
+        return path if bad(value) else None
     if isinstance(value, list):
         for index, item in enumerate(value):
-            if (found := _lone_surrogate(item, f"{path}[{index}]")) is not None:
+            if (found := _where(item, bad, f"{path}[{index}]")) is not None:
                 return found
     elif isinstance(value, dict):
         for key, item in value.items():
             where = f"{path}.{_shown(key)}"
             if (
-                found := _lone_surrogate(key, f"{where} (its name)") or _lone_surrogate(item, where)
+                found := _where(key, bad, f"{where} (its name)") or _where(item, bad, where)
             ) is not None:
                 return found
     return None
@@ -73,7 +82,8 @@ def _lone_surrogate(value: Any, path: str = "$") -> str | None:
 
 def parse_json(body: bytes) -> Any:
     """The JSON document in ``body``; `BadJson` naming the fault when it is malformed, nested
-    deeper than `MAX_DEPTH`, or holds a lone surrogate (``"\\ud800"``), which is not text."""
+    deeper than `MAX_DEPTH`, or holds a lone surrogate (``"\\ud800"``) or a NUL (``"\\u0000"``),
+    which no database text holds."""
     try:
         value = json.loads(body)
     except RecursionError:
@@ -82,10 +92,12 @@ def parse_json(body: bytes) -> Any:
         raise BadJson(f"not valid JSON: {exc}") from None
     if _depth(body) > MAX_DEPTH:
         raise BadJson(f"JSON nested deeper than {MAX_DEPTH} levels")
-    if _SURROGATE_ESCAPE.search(body) and (where := _lone_surrogate(value)) is not None:
+    if _SURROGATE_ESCAPE.search(body) and (where := _where(value, _is_lone_surrogate)):
         raise BadJson(
             f"the string at {where} holds a lone surrogate (\\ud800-\\udfff), which is not text"
         )
+    if _NUL_ESCAPE.search(body) and (where := _where(value, _has_nul)):
+        raise BadJson(f"the string at {where} holds a NUL character (\\u0000), which no text holds")
     return value
 
 

@@ -54,15 +54,9 @@ class JobCollector:
     def _queue_depths(self) -> dict[str, int]:
         """Best effort: the Redis list of each kind's queue; nothing when Redis is away."""
         try:
-            import redis
-            from redline.server.core.tasks import QUEUE_KINDS, broker_url, queue_of
+            from redline.server.core.tasks import QUEUE_KINDS, queue_of, redis_client
 
-            url = broker_url(self.settings.redis_url)
-            if url.startswith("redis+socket://"):
-                client = redis.Redis(unix_socket_path=url[len("redis+socket://") :])
-            else:
-                client = redis.Redis.from_url(url)
-            with client:
+            with redis_client(self.settings) as client:
                 return {k: int(client.llen(queue_of(self.settings, k))) for k in QUEUE_KINDS}
         except Exception:
             return {}

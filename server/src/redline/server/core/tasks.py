@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING
 from redline.server.core.config import Settings
 
 if TYPE_CHECKING:
+    import redis
     from celery import Celery
 
 log = logging.getLogger(__name__)
@@ -49,6 +50,17 @@ def broker_url(redis_url: str) -> str:
     if redis_url.startswith("unix://"):
         return "redis+socket://" + redis_url[len("unix://") :]
     return redis_url
+
+
+def redis_client(settings: Settings) -> redis.Redis:
+    """A client of the broker's Redis (a TCP or unix-socket address), failing within 2 s."""
+    import redis
+
+    url = broker_url(settings.redis_url)
+    if url.startswith("redis+socket://"):
+        path = url[len("redis+socket://") :]
+        return redis.Redis(unix_socket_path=path, socket_timeout=2, socket_connect_timeout=2)
+    return redis.Redis.from_url(url, socket_timeout=2, socket_connect_timeout=2)
 
 
 def celery_client(settings: Settings, **options: object) -> Celery:

@@ -1,4 +1,8 @@
-"""/healthz, and the answer every route gives while the database cannot be reached: 503, not 500."""
+"""/healthz, and the answer every route gives while the database cannot be reached: 503, not 500.
+
+/healthz asks the database and the task queue's Redis. Without the database nothing works (503);
+without the queue the API still takes uploads and reports, which are queued once it is back (the
+periodic re-queue), so the service is "degraded" (200: a load balancer keeps it), and says why."""
 
 from __future__ import annotations
 
@@ -7,6 +11,8 @@ from fastapi.responses import JSONResponse, Response
 from pydantic import BaseModel
 from redline.server.api.deps import SettingsDep
 from redline.server.core.bodies import JsonRoute
+from redline.server.core.config import Settings
+from redline.server.core.tasks import redis_client
 from redline.server.db import get_engine
 from sqlalchemy import exc, text
 from starlette.concurrency import run_in_threadpool
@@ -23,8 +29,9 @@ RETRY_AFTER_S = "5"
 
 
 class Health(BaseModel):
-    status: str
+    status: str  # ok, degraded (no queue) or unavailable (no database)
     database: str
+    queue: str
 
 
 def _reason(error: BaseException) -> str:
@@ -51,18 +58,29 @@ def _ping(database_url: str) -> str:
     return "ok"
 
 
+def _ping_queue(settings: Settings) -> str:
+    try:
+        with redis_client(settings) as client:
+            client.ping()
+    except Exception as error:  # refused, timed out, a socket gone: each is "away"
+        return f"unavailable: {_reason(error)}"
+    return "ok"
+
+
 @router.get(
     "/healthz",
     response_model=Health,
     responses={503: {"model": Health, "description": "no database"}},
 )
 async def healthz(settings: SettingsDep) -> Health | Response:
-    """Liveness and the database's state; 503 while the database cannot be reached."""
+    """Liveness, and the database's and the task queue's state: 503 while the database cannot be
+    reached; "degraded" (200) while only the queue cannot (uploads are kept and queued later)."""
     database = await run_in_threadpool(_ping, settings.database_url)
+    queue = await run_in_threadpool(_ping_queue, settings)
     if database != "ok":
         return JSONResponse(
-            Health(status="unavailable", database=database).model_dump(),
+            Health(status="unavailable", database=database, queue=queue).model_dump(),
             status_code=503,
             headers={"Retry-After": RETRY_AFTER_S},
         )
-    return Health(status="ok", database=database)
+    return Health(status="ok" if queue == "ok" else "degraded", database=database, queue=queue)

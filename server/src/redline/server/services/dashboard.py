@@ -81,8 +81,8 @@ class TrendView:
             params=params,
             revisions=int(raw),
             before=query.get("before", ""),
-            log=query.get("log", "") in ("1", "on", "true"),
-            median=query.get("median", "") in ("1", "on", "true"),
+            log=_flag(query, "log"),
+            median=_flag(query, "median"),
         )
 
     def query(self, **changes: Any) -> str:
@@ -100,6 +100,25 @@ class TrendView:
     def selects(self, series: SeriesRef) -> bool:
         fields: dict[str, str | None] = {name: getattr(self, name) or None for name in FIELDS}
         return matches(series, fields, dict(self.params))
+
+
+#: what a switch in an address may say (a checkbox sends "on")
+FLAG_VALUES = {
+    "1": True,
+    "on": True,
+    "true": True,
+    "": False,
+    "0": False,
+    "off": False,
+    "false": False,
+}
+
+
+def _flag(query: Mapping[str, str], name: str) -> bool:
+    value = query.get(name, "")
+    if value.lower() not in FLAG_VALUES:
+        raise BadRequest(f"{name}: 1 or 0 (on or off), not {value!r}")
+    return FLAG_VALUES[value.lower()]
 
 
 @dataclass(frozen=True)
