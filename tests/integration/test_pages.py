@@ -60,6 +60,21 @@ def test_component_page_groups_charts_one_line_per_parameter_set(client, databas
     assert all(len(r) == 3 for r in data["revisions"])  # title, commit, time for the hover
 
 
+def test_the_trends_say_why_revisions_without_a_verdict_have_no_marks(
+    client, database_url, tmp_path
+):
+    """A trial on a busy host saw charts without a mark and nothing saying why."""
+    history(database_url, tmp_path, [20.0])  # one revision: nothing to compare it with
+    note = re.search(
+        r'<p class="meta" id="unjudged">(.*?)</p>', client.get("/components/builder").text
+    )
+    assert note and "1 of the newest 1 revisions have no verdict yet" in note.group(1), note
+    assert "baseline" in note.group(1)  # the reason, as the revision list says it
+    history(database_url, tmp_path, [20.0], start=2)  # judged against r1
+    note = re.search(r'id="unjudged">(.*?)</p>', client.get("/components/builder").text)
+    assert note and "1 of the newest 2 revisions" in note.group(1), note
+
+
 def test_filters_are_kept_in_the_address_and_choose_the_charts(client, database_url, tmp_path):
     history(database_url, tmp_path, [20.0, 20.0])
     everything = trend_data(client.get("/components/builder").text)["charts"]

@@ -14,6 +14,7 @@ filter a 400 page naming it.
 from __future__ import annotations
 
 import json
+from collections import Counter
 from pathlib import Path
 
 import plotly
@@ -39,6 +40,7 @@ from redline.server.services import (
     why,
 )
 from redline.server.services.errors import BadRequest, Forbidden, NotFound
+from redline.server.services.revisions import WAITING
 from redline.server.ui.compare_figures import comparison_figure
 from redline.server.ui.detail_figures import execution_figures, why_figures
 from redline.server.ui.figures import trend_charts
@@ -71,6 +73,16 @@ def index(request: Request, session: SessionDep) -> HTMLResponse:
     )
 
 
+def _unjudged(verdicts: dict[str, str]) -> str:
+    """Why the trends may show no change marks: how many of the newest revisions have no
+    verdict yet, and the commonest reason ("" when every one has one)."""
+    waiting = [said for said in verdicts.values() if WAITING in said]
+    if not waiting:
+        return ""
+    reason = Counter(waiting).most_common(1)[0][0]
+    return f"{len(waiting)} of the newest {len(verdicts)} revisions have no verdict yet ({reason})"
+
+
 @router.get("/components/{name}", response_class=HTMLResponse)
 def component_page(name: str, request: Request, session: SessionDep) -> HTMLResponse:
     try:
@@ -80,17 +92,19 @@ def component_page(name: str, request: Request, session: SessionDep) -> HTMLResp
     except (NotFound, BadRequest) as exc:
         return problem(request, exc)
     newest = revisions.newest_revisions(session, name, LISTED)
+    verdicts = revisions.revision_verdicts(session, name, [r.title for r in newest])
     return page(
         request,
         "component.html",
         {
+            "verdicts": verdicts,
+            "unjudged": _unjudged(verdicts),
             "component": component,
             "view": view,
             "page": trends,
             "most_revisions": dashboard.MAX_REVISIONS,
             "choices": dashboard.choices(session, component),
             "revisions": newest,
-            "verdicts": revisions.revision_verdicts(session, name, [r.title for r in newest]),
             "regressions": regressions.list_regressions(session, name, limit=LISTED)[0],
             "models": learning.list_models(session, name)[:LISTED],
             "runtime_alerts": learning.list_alerts(session, name, LISTED),

@@ -6,6 +6,7 @@ import base64
 import re
 from collections import Counter, defaultdict
 from collections.abc import Collection
+from typing import Any
 
 from redline.recording.format import META_RUN
 from redline.server.models import Component, Detection, Execution, Job, JobState, Revision
@@ -25,6 +26,8 @@ from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session, selectinload
 
 _DIGITS = re.compile(r"\d+")
+#: what a revision without a verdict yet is said to have (`revision_verdicts`)
+WAITING = "not enough data yet"
 _UNDER_WAY = (JobState.queued, JobState.leased, JobState.running, JobState.uploaded)
 _DID_NOT_RUN = (JobState.failed, JobState.cancelled)
 
@@ -265,24 +268,30 @@ def revision_detail(session: Session, component_name: str, title: str) -> Revisi
 
 
 def execution_notes(session: Session, revision_id: int) -> dict[int, str]:
-    """Per execution of the revision, what its run's metadata says went unusually: runs the
-    agent repeated because another load disturbed them, a run the component took no part in."""
-    notes = {}
-    for ident, meta in session.execute(
-        select(Execution.id, Execution.meta).where(Execution.revision_id == revision_id)
-    ):
-        run = (meta or {}).get(META_RUN) or {}
-        said = []
-        if run.get("disturbed_runs"):
-            said.append(
-                f"run again {run['disturbed_runs']} time(s), the host being busy "
-                f"({run.get('disturbed_reason', '')})"
-            )
-        if run.get("status"):
-            said.append(f"{run['status']}: {run.get('warning', '')}")
-        if said:
-            notes[ident] = "; ".join(said)
-    return notes
+    """Per execution of the revision, what its run's metadata says went unusually (`run_note`),
+    for the executions with something to say."""
+    notes = {
+        ident: run_note((meta or {}).get(META_RUN) or {})
+        for ident, meta in session.execute(
+            select(Execution.id, Execution.meta).where(Execution.revision_id == revision_id)
+        )
+    }
+    return {ident: note for ident, note in notes.items() if note}
+
+
+def run_note(run: dict[str, Any]) -> str:
+    """What a run's metadata says went unusually: runs the agent repeated because another load
+    disturbed them, a status other than "ok" (a run stopped, or the component took no part), a
+    warning; "" for a run that went as it should."""
+    said = []
+    if run.get("disturbed_runs"):
+        said.append(
+            f"run again {run['disturbed_runs']} time(s), the host being busy "
+            f"({run.get('disturbed_reason', '')})"
+        )
+    status, warning = str(run.get("status") or "ok"), str(run.get("warning") or "")
+    said += [": ".join(part for part in (status if status != "ok" else "", warning) if part)]
+    return "; ".join(part for part in said if part)
 
 
 def revision_verdicts(
@@ -321,5 +330,5 @@ def revision_verdicts(
                 f", {unknown} not judged yet" if unknown else ""
             )
         else:
-            said[title] = f"{method}: not enough data yet ({why.get(title, '')})"
+            said[title] = f"{method}: {WAITING} ({why.get(title, '')})"
     return said

@@ -126,11 +126,24 @@ def why_figures(why: WhyFlagged) -> list[dict[str, Any]]:
 SEGMENT_COLORS = ("rgba(31,119,180,0.08)", "rgba(255,127,14,0.08)")
 
 
+#: the width of a chart's plotting area (px) and of a label's character (px, at size 9), about
+PLOT_PX, CHAR_PX = 900, 5.5
+
+
+def _fitting(name: str, number: int, share: float) -> str:
+    """A phase's label as wide as its shaded band (``share`` of the run): its name when that
+    fits, else its number (the name on hover), so that short phases' labels never overlap."""
+    return name if len(name) * CHAR_PX <= share * PLOT_PX else f"{number + 1}"
+
+
 def execution_figures(view: ExecutionView) -> list[dict[str, Any]]:
     """The execution page's charts: each raw counter of the component's processes against time
     with its phases shaded and named (the paper's Figure 5); then each counter's mean against
     each numeric test parameter (its correlation plots), one line per case and phase."""
     shapes, notes = [], []
+    ends = [(s.end_ns - view.start_ns) / 1e9 for s in view.segments]
+    ends += [points[-1][0] for points in view.timelines.values() if points]
+    span = max([*ends, 1e-9])  # the x axis: the run, seconds
     for number, segment in enumerate(view.segments):
         begin = (segment.begin_ns - view.start_ns) / 1e9
         end = (segment.end_ns - view.start_ns) / 1e9
@@ -140,10 +153,12 @@ def execution_figures(view: ExecutionView) -> list[dict[str, Any]]:
              "layer": "below"}
         )  # fmt: skip
         name = f"{segment.case}/{segment.phase} [{params_name(segment.params)}]"
+        name += " (warm-up)" if segment.warmup else ""
         notes.append(
             {"xref": "x", "yref": "paper", "x": (begin + end) / 2, "y": 1, "yanchor": "bottom",
-             "text": plot_text(name) + (" (warm-up)" if segment.warmup else ""),
-             "showarrow": False, "textangle": -30, "font": {"size": 9, "color": "#555"}}
+             "text": plot_text(_fitting(name, number, (end - begin) / span)),
+             "hovertext": plot_text(name), "showarrow": False,
+             "font": {"size": 9, "color": "#555"}}
         )  # fmt: skip
     charts = [
         {
