@@ -17,6 +17,8 @@ from redline.server.models import (
     Regression,
     Revision,
     Series,
+    StagedDetection,
+    StagedRevision,
     Summary,
 )
 from redline.server.schemas.components import ComponentCreate
@@ -108,8 +110,9 @@ def test_execution_shift_judges_executions_and_restarts_its_baseline_after_a_cha
     assert 0.2 < found["r7"].effect < 0.4
 
 
+@pytest.mark.parametrize("parts", [1, 3])
 def test_reanalysis_reproduces_the_verdicts_of_detection_revision_by_revision(
-    session, database_url, tmp_path
+    session, database_url, tmp_path, parts
 ):
     executions = _runs_history(session, tmp_path, [15.0] * 5 + [19.5] * 3 + [15.0] * 3)
     ingest_and_detect(database_url, executions)
@@ -120,11 +123,19 @@ def test_reanalysis_reproduces_the_verdicts_of_detection_revision_by_revision(
             for key, d in _verdicts(session).items()
         }
 
-    incremental = keyed()
-    assert any(d[0] == "change" for d in incremental.values())
+    def grouped():
+        session.expire_all()
+        return sorted(
+            (r.good_revision_id, r.bad_revision_id, r.confirmation, r.confirmation_reason)
+            for r in session.scalars(select(Regression))
+        )
+
+    incremental, regressions = keyed(), grouped()
+    assert any(d[0] == "change" for d in incremental.values()) and regressions
     component = session.scalar(select(Component))
-    assert reanalyze_component(database_url, component.id) == 11
-    assert keyed() == incremental
+    assert reanalyze_component(database_url, component.id, parts) == 11
+    assert keyed() == incremental and grouped() == regressions
+    assert session.scalar(select(func.count()).select_from(StagedDetection)) == 0  # cleared
 
 
 def test_first_revision_says_missing_baseline_for_every_method(session, database_url, tmp_path):
@@ -216,14 +227,15 @@ def test_reanalysis_after_a_configuration_change_is_idempotent_with_progress(
         DetectionConfigRow(component_id=component.id, config={"methods": ["mann_whitney", "ks"]})
     )
     session.commit()
-    assert reanalyze_component(database_url, component.id) == 3
+    assert reanalyze_component(database_url, component.id, parts=2) == 3
     first = {key: (d.verdict, d.score) for key, d in _verdicts(session).items()}
     assert {method for _, method in first} == {"mann_whitney", "ks"}
-    assert reanalyze_component(database_url, component.id) == 3
+    assert reanalyze_component(database_url, component.id, parts=2) == 3
     assert {key: (d.verdict, d.score) for key, d in _verdicts(session).items()} == first
     session.expire_all()
     progress = session.get(Reanalysis, component.id)
-    assert (progress.state, progress.done, progress.total) == ("done", 3, 3)
+    # a unit of progress per revision and part, and one per revision stored in order
+    assert (progress.state, progress.done, progress.total) == ("done", 9, 9)
     assert session.scalar(select(func.count()).select_from(Regression)) == 1
 
 
@@ -330,7 +342,7 @@ def test_reanalysis_with_a_pruned_revision_keeps_its_verdicts_and_matches_detect
         k: v for k, v in before.items() if k[0] == "r7"
     }  # the pruned revision's verdicts stand
     component = session.scalar(select(Component))
-    assert reanalyze_component(database_url, component.id) == 11
+    assert reanalyze_component(database_url, component.id, parts=3) == 11
     assert keyed() == by_detection
 
 
@@ -341,22 +353,24 @@ def test_a_failure_while_storing_fails_the_reanalysis_with_the_error(
 
     executions = _runs_history(session, tmp_path, [15.0] * 8)
     ingest_and_detect(database_url, executions)
-    stored, store = [], reanalysis.store_judged
+    before = {key: (d.id, d.verdict, d.score) for key, d in _verdicts(session).items()}
+    stored, store = [], reanalysis._store_staged
 
-    def failing_store(url, judged, durable=True):  # the fourth write fails
+    def failing_store(session, revision, run, alarming):  # the fourth revision's fails
         if len(stored) == 3:
             raise RuntimeError("disk full")
-        stored.append(judged.revision_id)
-        store(url, judged, durable)
+        stored.append(revision.id)
+        store(session, revision, run, alarming)
 
-    monkeypatch.setattr(reanalysis, "store_judged", failing_store)
+    monkeypatch.setattr(reanalysis, "_store_staged", failing_store)
     component = session.scalar(select(Component))
     with pytest.raises(RuntimeError, match="disk full"):
-        reanalyze_component(database_url, component.id)
+        reanalyze_component(database_url, component.id, parts=2)
     session.expire_all()
     progress = session.get(Reanalysis, component.id)
     assert progress.state == "failed" and "RuntimeError: disk full" in progress.error
-    assert len(stored) == 3
+    assert len(stored) == 3 and progress.stored == 0  # their transaction was rolled back
+    assert {key: (d.id, d.verdict, d.score) for key, d in _verdicts(session).items()} == before
 
 
 def test_reanalysis_skips_an_all_nan_revision_in_baselines_as_detection_does(
@@ -384,7 +398,7 @@ def test_reanalysis_skips_an_all_nan_revision_in_baselines_as_detection_does(
     assert "NaN" in by_detection[("r4", "ks")][1]
     assert by_detection[("r5", "ks")][4] == executions[2].revision_id  # r3, past r4
     component = session.scalar(select(Component))
-    assert reanalyze_component(database_url, component.id) == 9
+    assert reanalyze_component(database_url, component.id, parts=2) == 9
     assert keyed() == by_detection
 
 
@@ -427,37 +441,48 @@ def _second_run_later(session, tmp_path: Path, database_url: str):
 def test_verdicts_judged_before_an_execution_was_ingested_are_judged_again_when_stored(
     session, database_url, tmp_path
 ):
-    from redline.server.db import session_factory
-    from redline.worker.detection import judge_revision, store_judged
-
-    revision_id, ingest_second_run = _second_run_later(session, tmp_path, database_url)
-    with session_factory(database_url)() as reading:
-        stale = judge_revision(reading, revision_id)  # only the first run (20 %) is in
-    assert not any(row["flagged"] for row in stale.rows)
-    ingest_second_run()  # 60 %: with it, r7 has moved
-    store_judged(database_url, stale)
-    stored = _verdicts(session)[("r7", "ks")]
-    assert stored.flagged and stored.direction == "increase"  # the fresh judgement, not stale
-
-
-def test_the_walk_stops_using_its_memory_once_an_execution_is_ingested_under_it(
-    session, database_url, tmp_path
-):
-    from redline.server.db import session_factory
-    from redline.worker.history import ingested_fingerprint
-    from redline.worker.reanalysis import Walk
+    """The parts judged r7 from its first run; its second is ingested before the finishing
+    step stores r7: r7 is judged again from what is stored then, not stored stale."""
+    from redline.worker.reanalysis import finish, judge_part, plan
 
     revision_id, ingest_second_run = _second_run_later(session, tmp_path, database_url)
     component_id = session.scalar(select(Component.id))
-    drained = []
-    with session_factory(database_url)() as reading:
-        walk = Walk.over(10, ingested_fingerprint(reading, component_id))
-        walk.on_disable = lambda: drained.append(True)
-        walk.check(reading, component_id)
-        assert walk.usable and not drained
-        ingest_second_run()
-        walk.check(reading, component_id)
-    assert not walk.usable and drained == [True]
+    run = plan(database_url, component_id, parts=2)
+    assert not judge_part(database_url, component_id, run, 0)
+    assert judge_part(database_url, component_id, run, 1)  # the last part: the end is due
+    staged = session.scalars(
+        select(StagedDetection).where(StagedDetection.revision_id == revision_id)
+    ).all()
+    assert staged and not any(row.flagged for row in staged)  # only the first run (20 %) in
+    ingest_second_run()  # 60 %: with it, r7 has moved
+    assert finish(database_url, component_id, run)
+    stored = _verdicts(session)[("r7", "ks")]
+    assert stored.flagged and stored.direction == "increase"  # the fresh judgement, not stale
+    session.expire_all()
+    assert session.get(Reanalysis, component_id).from_database
+
+
+def test_a_superseded_reanalysis_stops_and_the_newer_one_stores_everything(
+    session, database_url, tmp_path
+):
+    from redline.worker.reanalysis import finish, judge_part, plan
+
+    executions = _runs_history(session, tmp_path, [15.0] * 5 + [19.5] * 3)
+    ingest_and_detect(database_url, executions)
+    expected = {key: (d.verdict, d.score) for key, d in _verdicts(session).items()}
+    component_id = session.scalar(select(Component.id))
+    old = plan(database_url, component_id, parts=2)
+    assert not judge_part(database_url, component_id, old, 0)
+    new = plan(database_url, component_id, parts=1)  # a configuration changed again
+    assert not judge_part(database_url, component_id, old, 1)  # superseded: it stops
+    assert not finish(database_url, component_id, old)
+    assert judge_part(database_url, component_id, new, 0)
+    assert finish(database_url, component_id, new)
+    assert not finish(database_url, component_id, new)  # a duplicate finds it done
+    assert {key: (d.verdict, d.score) for key, d in _verdicts(session).items()} == expected
+    session.expire_all()
+    assert session.get(Reanalysis, component_id).state == "done"
+    assert session.scalar(select(func.count()).select_from(StagedRevision)) == 0
 
 
 def test_bulk_insert_refuses_an_over_long_string_rather_than_cutting_it(

@@ -175,9 +175,12 @@ def test_configuration_is_validated_stored_and_queues_a_reanalysis(api, database
     assert api.get("/reanalysis").json()["state"] == "queued"
     with session_factory(database_url)() as session:
         component_id = session.execute(text("SELECT id FROM component")).scalar_one()
-    reanalyze_component(database_url, component_id)  # what the queued task runs
+    parts = Settings().reanalysis_parts  # the default
+    reanalyze_component(database_url, component_id, parts)  # what the queued tasks run
     progress = api.get("/reanalysis").json()
-    assert (progress["state"], progress["done"], progress["total"]) == ("done", 2, 2)
+    # a unit per revision and part, and one per revision stored
+    assert (progress["state"], progress["done"], progress["total"]) == ("done", 6, 6)
+    assert (progress["parts"], progress["revisions"]) == (parts, 2) == (2, 2)
     methods = {d["method"] for d in api.get("/detections").json()}
     assert methods == {"ks", "mann_whitney"}
 

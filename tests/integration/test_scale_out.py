@@ -97,27 +97,25 @@ def test_a_worker_killed_mid_reanalysis_loses_nothing_and_the_redelivered_task_f
         ingest_and_detect(database_url, executions)
         expected = _verdicts(database_url)
 
-        log = tmp_path / "worker.log"
-        first = _worker(api.settings, log)
+        # two workers share the parts; one is killed in the middle of its part, whose task
+        # goes back to the queue when its visibility timeout lapses, and the other finishes it
+        logs = [tmp_path / "worker-1.log", tmp_path / "worker-2.log"]
+        first, second = (_worker(api.settings, log) for log in logs)
+        log = logs[1]
         try:
             assert TaskSender(api.settings).reanalyze(component_id)
             deadline = time.monotonic() + 120
             while time.monotonic() < deadline:  # kill it in the middle of the walk
                 row = _progress(database_url, component_id)
-                if row is not None and row.state == "running" and 0 < row.done < row.total // 2:
+                if row is not None and row.state == "running" and 0 < row.done < row.total // 3:
                     break
                 time.sleep(0.02)
             else:
-                pytest.fail(f"the re-analysis never got going: {log.read_text()[-2000:]}")
+                pytest.fail(f"the re-analysis never got going: {logs[0].read_text()[-2000:]}")
             os.killpg(first.pid, signal.SIGKILL)
             first.wait(timeout=10)
             killed_at = _progress(database_url, component_id)
             assert killed_at is not None and killed_at.state == "running"
-        finally:
-            if first.poll() is None:
-                os.killpg(first.pid, signal.SIGKILL)
-        second = _worker(api.settings, log)
-        try:
             deadline = time.monotonic() + 120
             while time.monotonic() < deadline:
                 row = _progress(database_url, component_id)
@@ -125,17 +123,25 @@ def test_a_worker_killed_mid_reanalysis_loses_nothing_and_the_redelivered_task_f
                     break
                 time.sleep(0.2)
         finally:
-            os.killpg(second.pid, signal.SIGTERM)
-            second.wait(timeout=30)
+            for worker in (first, second):
+                if worker.poll() is None:
+                    os.killpg(worker.pid, signal.SIGTERM)
+                    worker.wait(timeout=30)
+        taken = [
+            re.findall(r"redline\.reanalyze_part\[[^\]]+\] received", p.read_text()) for p in logs
+        ]
+        assert all(taken), taken  # each worker took a part: the work was split between them
+        assert len(taken[1]) == 2  # its own, and the killed worker's, redelivered
         row = _progress(database_url, component_id)
         assert row is not None and row.state == "done", log.read_text()[-3000:]
-        assert row.done == row.total == REVISIONS
+        # every unit once: a unit per revision and part, and one per revision stored
+        assert row.done == row.total == REVISIONS * (api.settings.reanalysis_parts + 1)
         after = _verdicts(database_url)
         assert after == expected  # every verdict, once, as the first detection gave them
         with session_factory(database_url)() as session:
             flagged = session.scalar(select(func.count()).where(Detection.verdict == "change"))
         assert flagged  # the history holds changes: a walk that judged nothing would not pass
-        reanalyze_component(database_url, component_id)  # and again in-process: the same
+        reanalyze_component(database_url, component_id, 1)  # again in one part: the same
         assert _verdicts(database_url) == expected
 
 

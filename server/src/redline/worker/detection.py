@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import logging
 import math
+from collections.abc import Callable
 from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
@@ -43,8 +44,8 @@ from redline.worker.history import (
 )
 from redline.worker.remeasure import queue_for_baselines
 from redline.worker.rows import Judged, KsChange, detection_row, ks_change
-from redline.worker.samples import Samples, ingested_runs, read_samples
-from sqlalchemy import Table, delete, func, select, text
+from redline.worker.samples import Samples, read_samples
+from sqlalchemy import Table, delete, func, select
 from sqlalchemy.orm import Session
 
 log = logging.getLogger(__name__)
@@ -69,13 +70,15 @@ def analyze(
     candidate: Samples | None = None,
     walk: Walk | None = None,
     unjudged: dict[int, str] | None = None,
+    only: Callable[[int], bool] | None = None,
 ) -> tuple[list[dict[str, Any]], list[KsChange]]:
     """Every configured method on every judged series of the revision (nothing stored); counts
     of rare events by `CountRate`; a series no longer measured, "not enough data" saying so.
 
     ``candidate``: the revision's samples, when already read, and ``unjudged`` the series only
     executions not to be judged hold, with the reason (`read_samples`): each method answers
-    "not enough data" with it. ``walk``: what a re-analysis carries from the earlier revisions.
+    "not enough data" with it. ``walk``: what a re-analysis carries from the earlier revisions;
+    ``only``: the series a re-analysis's part judges (a count's total is read all the same).
     """
     if candidate is None:
         candidate, _, _, unjudged = read_samples(session, revision.id)
@@ -92,6 +95,8 @@ def analyze(
     missing = next(iter(unjudged.values())) if unjudged and not candidate else NOT_MEASURED
     absent = {**dict.fromkeys(gone, missing), **unjudged}
     judged = judged_counters(session, [*candidate, *absent], config.context_counters)
+    if only is not None:
+        judged = {series_id: names for series_id, names in judged.items() if only(series_id)}
     baselines = Baselines(session, revision, config, sorted(candidate.keys() & judged), walk)
     baselines.cache.put(revision.id, candidate)
     detectors = config.detectors()
@@ -179,18 +184,22 @@ def store(
     revision.analyzed_at = utcnow()
 
 
-def judge_revision(session: Session, revision_id: int, walk: Walk | None = None) -> Judged | None:
+def judge_revision(
+    session: Session,
+    revision_id: int,
+    walk: Walk | None = None,
+    only: Callable[[int], bool] | None = None,
+) -> Judged | None:
     """The reading half of `detect_revision`: every verdict computed, nothing stored.
 
     None when there is nothing to store: no such revision, or ingested executions none of whose
     samples can be read any more (pruned), whose stored results are kept (nothing is not a new
-    verdict). ``walk``: a re-analysis's memory of the earlier revisions, brought up to date.
+    verdict). ``walk``: a re-analysis's memory of the earlier revisions, brought up to date;
+    ``only``: the series its part judges.
     """
     revision = session.get(Revision, revision_id)
     if revision is None:
         return None
-    if walk is not None:
-        walk.check(session, revision.component_id)
     candidate, read, executions, unjudged = read_samples(session, revision.id)
     if executions and not read:
         log.warning(
@@ -203,44 +212,24 @@ def judge_revision(session: Session, revision_id: int, walk: Walk | None = None)
             walk.kept(session, revision_id)
         return None
     config = component_config(session, revision.component_id)
-    if walk is not None and walk.usable and config.window != walk.window:
-        walk.disable(f"component {revision.component_id}: its window changed")
-    memory = walk if walk is not None and walk.usable else None
-    rows, changes = analyze(session, revision, config, candidate, memory, unjudged)
+    if walk is not None and config.window != walk.window:
+        raise WindowChanged(
+            f"component {revision.component_id}: the detection configuration's window changed "
+            f"from {walk.window} to {config.window} during the re-analysis"
+        )
+    rows, changes = analyze(session, revision, config, candidate, walk, unjudged, only)
     if walk is not None:
         walk.judged(session, revision.id, candidate, rows, complete=read == len(executions))
     return Judged(revision.id, rows, changes, executions)
 
 
-def _lock(session: Session, revision_id: int) -> None:
+class WindowChanged(RuntimeError):
+    """A re-analysis's memory holds the newest revisions of the window it began with."""
+
+
+def lock_revision(session: Session, revision_id: int) -> None:
     """Detections of one revision take turns: a lock for the transaction."""
     session.execute(select(func.pg_advisory_xact_lock(DETECT_LOCK, revision_id)))
-
-
-def store_judged(database_url: str, judged: Judged, durable: bool = True) -> None:
-    """The writing half: replace the revision's results with ``judged``, in one transaction,
-    unless the revision's ingested executions changed since it was judged: then it is judged
-    again under the lock and that is stored.
-
-    A re-analysis passes ``durable=False``: its commits do not wait for the WAL flush (a crash
-    can lose the last few revisions' verdicts, never half of one, and the retried task
-    recomputes them all).
-    """
-    with session_scope(database_url) as session:
-        if not durable:
-            session.execute(text("SET LOCAL synchronous_commit TO OFF"))
-        _lock(session, judged.revision_id)
-        revision = session.get(Revision, judged.revision_id)
-        if revision is None:
-            return
-        if tuple(i for i, _ in ingested_runs(session, revision.id)) != judged.executions:
-            # an execution was ingested since: judged again from what is stored now, so a
-            # detection of the newer data is never overwritten by verdicts on the older
-            fresh = judge_revision(session, revision.id)
-            if fresh is None:
-                return
-            judged = fresh
-        store(session, revision, judged.rows)
 
 
 def detect_revision(database_url: str, revision_id: int) -> list[KsChange]:
@@ -251,7 +240,7 @@ def detect_revision(database_url: str, revision_id: int) -> list[KsChange]:
     one transaction; a revision whose samples were all pruned keeps its stored results.
     """
     with session_scope(database_url) as session:
-        _lock(session, revision_id)
+        lock_revision(session, revision_id)
         judged = judge_revision(session, revision_id)
         if judged is None:
             return []

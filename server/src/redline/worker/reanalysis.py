@@ -1,9 +1,26 @@
-"""Re-analysis of a component's whole history (after its detection configuration changed).
+"""Re-analysis of a component's whole history (after its detection configuration changed), split
+by series across workers.
 
-Idempotent: every revision with ingested results is detected again in sort-key order, each
-stored in its own transaction (so a crash loses at most a few revisions' work, and running it
-again gives the same result); progress (done / total) is stored in ``reanalysis`` for the API.
-Judging and storing overlap: a writer thread stores revision n while revision n + 1 is judged.
+A series is judged against its own history alone, so a re-analysis fans out by series: `plan`
+records the revisions to judge and how many parts share the series; each part (`judge_part`, a
+task of its own on any worker) walks every planned revision in sort-key order and judges the
+series whose id, modulo the parts, is its index, carrying what the baselines need of the earlier
+revisions in memory (`Walk`), and stages its verdicts (`StagedDetection`, and a `StagedRevision`
+naming the executions each revision was judged from). The part that completes the set queues the
+finishing step (Postgres decides which, under the re-analysis row's lock: a Celery chord would
+need a result backend, which Redline does without). `finish` stores the staged verdicts revision
+by revision in order, grouping each revision's changes into regressions as detection does, then
+settles the confirmations once for the component (they depend on stored data only,
+`redline.worker.confirmation`): the verdicts, regressions and confirmations are those detection
+revision by revision gives (tested).
+
+Idempotent and resumable: a part redelivered after its worker died stages its series again (its
+progress taken back first: ``done`` counts what is staged and stored, in the same transactions);
+the finishing step commits every `FINISH_BATCH` revisions with how far it got, and a redelivered
+(or duplicate) one goes on from there. A revision whose executions changed after its parts judged it
+(one was ingested meanwhile) is judged again from the database, and so is every revision after
+it. A new re-analysis supersedes a running one: the old one's parts and finishing step stop at
+their next step.
 """
 
 from __future__ import annotations
@@ -11,71 +28,79 @@ from __future__ import annotations
 import logging
 import queue
 import threading
-import time
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Collection
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
-from redline.server.db import session_scope
-from redline.server.models import Execution, Reanalysis, Revision, utcnow
-from redline.server.services.detection_config import component_config
-from redline.worker.detection import judge_revision, store_judged
-from redline.worker.history import (
-    flagged_verdicts,
-    ingested_fingerprint,
-    summarized_series,
+from redline.server.db import bulk_insert, session_scope
+from redline.server.models import (
+    Component,
+    Detection,
+    Execution,
+    Reanalysis,
+    Revision,
+    StagedDetection,
+    StagedRevision,
+    utcnow,
 )
+from redline.server.services.detection_config import component_config
+from redline.worker.confirm_runs import settle_pending_pairs
+from redline.worker.confirmation import confirm_by_history
+from redline.worker.detection import judge_revision, lock_revision, store
+from redline.worker.grouping import group_revision
+from redline.worker.history import flagged_verdicts, summarized_series
 from redline.worker.rows import Judged
-from redline.worker.samples import SampleCache, Samples, ingested_executions
-from sqlalchemy import select
+from redline.worker.samples import SampleCache, Samples, ingested_executions, ingested_runs
+from sqlalchemy import Table, delete, insert, select, text, update
+from sqlalchemy.dialects.postgresql import insert as upsert
 from sqlalchemy.orm import Session
 
 log = logging.getLogger(__name__)
-#: how often the stored progress (done / total) is brought up to date, at most
-PROGRESS_EVERY_S = 0.5
-#: judged revisions waiting for the writer, at most (their verdicts are held in memory)
-WRITE_AHEAD = 4
-KEPT = "kept"  # a revision whose samples are gone: its stored results stand
+#: judged revisions waiting for a part's writer, at most (their verdicts are held in memory)
+WRITE_AHEAD = 8
+#: revisions the finishing step stores in one transaction
+FINISH_BATCH = 50
+#: a revision whose samples are gone: its stored results stand
+KEPT = "kept"
+#: the columns a staged verdict gives its `Detection`
+DETECTION_COLUMNS = (
+    "series_id, revision_id, baseline_revision_id, baseline_revisions, method, verdict, reason, "
+    "score, p_value, effect, direction, flagged, confirmation, confirmation_reason, created"
+)
+
+
+class Superseded(Exception):
+    """A newer re-analysis of the component began: this one's work stops."""
+
+
+@dataclass(frozen=True)
+class Part:
+    """The series one part of a re-analysis judges: those whose id modulo ``of`` is ``index``."""
+
+    index: int
+    of: int
+
+    def __call__(self, series_id: int) -> bool:
+        return series_id % self.of == self.index
 
 
 @dataclass
 class Walk:
-    """What a re-analysis carries from one revision to the next, so that a revision's baselines
-    need nothing read back: earlier revisions' samples, every flagged (series, method,
-    revision) so far, and the newest revisions with summaries, each with the series it has
-    summaries of (a series with at least one finite sample), newest last.
-
-    Valid only while the history stays as it was when the walk began (``fingerprint``) and the
-    configuration's window is the walk's: otherwise ``usable`` turns False for good, and the
-    revisions left are judged from the database as `detect_revision` judges them.
-    """
+    """What a part carries from one revision to the next, so that a revision's baselines need
+    nothing read back: earlier revisions' samples, every flagged (series, method, revision) of
+    its series so far, and the newest revisions with summaries, each with the series it has
+    summaries of (a series with at least one finite sample), newest last."""
 
     cache: SampleCache
     window: int
-    fingerprint: tuple[int, int]
     flagged: set[tuple[int, str, int]] = field(default_factory=set)
     recent: deque[tuple[int, frozenset[int]]] = field(default_factory=deque)
-    usable: bool = True
-    #: called once when the walk turns unusable, before anything is read from the database
-    #: (a re-analysis waits there until every revision judged so far is stored)
-    on_disable: Callable[[], None] | None = None
 
     @classmethod
-    def over(cls, window: int, fingerprint: tuple[int, int]) -> Walk:
-        return cls(SampleCache(window + 1), window, fingerprint, recent=deque(maxlen=window))
-
-    def check(self, session: Session, component_id: int) -> None:
-        """Stop using the memory if executions were ingested since the walk began."""
-        if self.usable and ingested_fingerprint(session, component_id) != self.fingerprint:
-            self.disable(f"component {component_id}: executions ingested during the re-analysis")
-
-    def disable(self, why: str) -> None:
-        log.info("%s; the rest of the re-analysis reads its baselines from the database", why)
-        self.usable = False
-        if self.on_disable is not None:
-            self.on_disable()
+    def over(cls, window: int) -> Walk:
+        return cls(SampleCache(window + 1), window, recent=deque(maxlen=window))
 
     def newest_first(self) -> list[tuple[int, frozenset[int]]]:
         return list(reversed(self.recent))
@@ -115,14 +140,6 @@ class Walk:
             self.recent.append((revision_id, series))
 
 
-def _progress(session: Session, component_id: int) -> Reanalysis:
-    row = session.get(Reanalysis, component_id)
-    if row is None:
-        row = Reanalysis(component_id=component_id)
-        session.add(row)
-    return row
-
-
 def revisions_with_data(session: Session, component_id: int) -> list[int]:
     return list(
         session.scalars(
@@ -140,99 +157,281 @@ def revisions_with_data(session: Session, component_id: int) -> list[int]:
     )
 
 
-class _Writer(threading.Thread):
-    """Stores judged revisions in order, in its own transactions, while the walk judges the
-    next ones: Postgres's share of the work (300 rows a revision of 100 series, with their keys
-    and indexes) then runs on the other core instead of between two revisions' detections."""
+def _current(session: Session, component_id: int, run: int, lock: bool = False) -> Reanalysis:
+    """The re-analysis row, if ``run`` is still the component's current one."""
+    query = select(Reanalysis).where(Reanalysis.component_id == component_id)
+    if lock:
+        query = query.with_for_update()
+    row = session.scalar(query.execution_options(populate_existing=True))
+    if row is None or row.run != run:
+        raise Superseded(f"component {component_id}: re-analysis {run} was superseded")
+    return row
 
-    def __init__(self, database_url: str, component_id: int) -> None:
-        super().__init__(name="reanalysis-writer", daemon=True)
-        self.database_url, self.component_id = database_url, component_id
-        # a Judged to store; KEPT: a revision whose stored results stand; None: the end
-        self.queue: queue.Queue[Judged | str | None] = queue.Queue(maxsize=WRITE_AHEAD)
-        self.done = 0
+
+def _fail(database_url: str, component_id: int, run: int, error: BaseException) -> None:
+    """The run's row must not stay "running", whatever stopped it (unless a newer run began)."""
+    with session_scope(database_url) as session:
+        session.execute(
+            update(Reanalysis)
+            .where(Reanalysis.component_id == component_id, Reanalysis.run == run)
+            .values(state="failed", error=f"{type(error).__name__}: {error}", finished=utcnow())
+        )
+
+
+def plan(database_url: str, component_id: int, parts: int) -> int:
+    """Begin a re-analysis of the component's history in ``parts`` parts; returns its run.
+    Any earlier run still going is superseded, and its staged verdicts are dropped."""
+    parts = max(1, parts)
+    with session_scope(database_url) as session:
+        session.execute(
+            upsert(Reanalysis).values(component_id=component_id).on_conflict_do_nothing()
+        )
+        row = session.scalar(
+            select(Reanalysis).where(Reanalysis.component_id == component_id).with_for_update()
+        )
+        assert row is not None
+        revisions = revisions_with_data(session, component_id)
+        row.run += 1
+        row.state, row.error, row.started, row.finished = "running", "", utcnow(), None
+        row.parts, row.revisions, row.parts_done = parts, revisions, []
+        row.total, row.done = len(revisions) * (parts + 1), 0
+        row.stored, row.from_database = 0, False
+        for table in (StagedDetection, StagedRevision):
+            session.execute(delete(table).where(table.component_id == component_id))
+        return row.run
+
+
+class _Stager(threading.Thread):
+    """Stages a part's judged revisions, several in a transaction, while the part judges the
+    next ones: Postgres's share of the work then runs beside the detectors, not between them."""
+
+    def __init__(self, database_url: str, component_id: int, run: int, part: int) -> None:
+        super().__init__(name=f"reanalysis-part-{part}", daemon=True)
+        self.database_url, self.component_id, self.run_id, self.part = (
+            database_url,
+            component_id,
+            run,
+            part,
+        )
+        # (revision id, its verdicts or None: samples pruned, results kept); None: the end
+        self.queue: queue.Queue[tuple[int, Judged | None] | None] = queue.Queue(WRITE_AHEAD)
         self.error: BaseException | None = None
 
     def run(self) -> None:
-        reported = time.monotonic()
-        while True:
-            judged = self.queue.get()
+        ended = False
+        while not ended:
+            batch, ended = self._take()
             try:
-                if judged is None:
-                    return
-                if self.error is not None:
-                    continue  # emptying the queue: the walk stops at its next put
-                if judged is not KEPT:
-                    assert isinstance(judged, Judged)
-                    store_judged(self.database_url, judged, durable=False)
-                self.done += 1
-                if time.monotonic() - reported >= PROGRESS_EVERY_S:
-                    self._report()
-                    reported = time.monotonic()
-            except BaseException as exc:  # handed to the walk, which raises it
+                if self.error is None and batch:
+                    self._stage(batch)
+            except BaseException as exc:  # handed to the part, which raises it
                 self.error = exc
             finally:
-                self.queue.task_done()
+                for _ in range(len(batch) + ended):
+                    self.queue.task_done()
 
-    def _report(self) -> None:
+    def _take(self) -> tuple[list[tuple[int, Judged | None]], bool]:
+        """What is queued, at least one item: the judged revisions, and whether the end came."""
+        items = [self.queue.get()]
+        while len(items) < WRITE_AHEAD and not self.queue.empty():
+            items.append(self.queue.get_nowait())
+        ended = items[-1] is None
+        return [item for item in items if item is not None], ended
+
+    def _stage(self, batch: list[tuple[int, Judged | None]]) -> None:
         with session_scope(self.database_url) as session:
-            _progress(session, self.component_id).done = self.done
+            # a crash loses the last staged revisions, never half of one: the redelivered part
+            # stages its series again
+            session.execute(text("SET LOCAL synchronous_commit TO OFF"))
+            _current(session, self.component_id, self.run_id)
+            owner = {"component_id": self.component_id, "run": self.run_id, "part": self.part}
+            session.execute(
+                insert(StagedRevision),
+                [
+                    {
+                        **owner,
+                        "revision_id": revision_id,
+                        "executions": KEPT if judged is None else _joined(judged.executions),
+                    }
+                    for revision_id, judged in batch
+                ],
+            )
+            rows = [{**row, **owner} for _, judged in batch if judged for row in judged.rows]
+            bulk_insert(session, cast(Table, StagedDetection.__table__), rows)
+            # the progress with what it counts (the row's lock last: held only until the commit)
+            session.execute(
+                update(Reanalysis)
+                .where(Reanalysis.component_id == self.component_id, Reanalysis.run == self.run_id)
+                .values(done=Reanalysis.done + len(batch))
+            )
 
-    def put(self, judged: Judged | str) -> None:
+    def put(self, revision_id: int, judged: Judged | None) -> None:
         if self.error is not None:
             raise self.error
-        self.queue.put(judged)
-
-    def drain(self) -> None:
-        """Wait until every revision handed over so far is stored."""
-        self.queue.join()
-        if self.error is not None:
-            raise self.error
+        self.queue.put((revision_id, judged))
 
     def finish(self) -> None:
-        """Wait for every judged revision to be stored; raise the writer's error, if any."""
+        """Wait for every judged revision to be staged; raise the stager's error, if any."""
         self.queue.put(None)
         self.join()
-        self._report()
         if self.error is not None:
             raise self.error
 
 
-def _walk(database_url: str, revisions: list[int], walk: Walk, writer: _Writer) -> None:
-    """Judge the revisions in order, handing each to the writer; what a revision's baselines
-    need of the earlier ones is carried along in memory (`Walk`) while it stays valid."""
-    walk.on_disable = writer.drain  # the database must hold every earlier verdict first
-    for revision_id in revisions:
-        with session_scope(database_url) as session:
-            judged = judge_revision(session, revision_id, walk)
-        writer.put(KEPT if judged is None else judged)  # None: samples pruned, results kept
+def _joined(executions: tuple[int, ...]) -> str:
+    return ",".join(str(execution) for execution in executions)
 
 
-def reanalyze_component(database_url: str, component_id: int) -> int:
-    """Detect every revision of the component again; returns how many were analysed."""
-    with session_scope(database_url) as session:
-        revisions = revisions_with_data(session, component_id)
-        walk = Walk.over(
-            component_config(session, component_id).window,
-            ingested_fingerprint(session, component_id),
-        )
-        row = _progress(session, component_id)
-        row.state, row.total, row.done, row.error = "running", len(revisions), 0, ""
-        row.started, row.finished = utcnow(), None
-    writer = _Writer(database_url, component_id)
-    writer.start()
+def judge_part(database_url: str, component_id: int, run: int, index: int) -> bool:
+    """Judge the series of part ``index`` in every planned revision, staging the verdicts.
+    True when this part completed the set: the finishing step is due (`finish`)."""
     try:
-        try:
-            _walk(database_url, revisions, walk, writer)
-        finally:
-            writer.finish()  # stores what was judged; raises the writer's own error
-    except BaseException as exc:  # the row must not stay "running", whatever stopped it
         with session_scope(database_url) as session:
-            row = _progress(session, component_id)
-            row.state, row.error, row.finished = "failed", f"{type(exc).__name__}: {exc}", utcnow()
+            row = _current(session, component_id, run, lock=True)
+            revisions, part = list(row.revisions), Part(index, row.parts)
+            window = component_config(session, component_id).window
+            # a redelivered part starts again: what it staged, and counted, is taken back
+            staged = session.scalars(
+                delete(StagedRevision)
+                .where(
+                    StagedRevision.component_id == component_id,
+                    StagedRevision.run == run,
+                    StagedRevision.part == index,
+                )
+                .returning(StagedRevision.revision_id)
+            ).all()
+            session.execute(
+                delete(StagedDetection).where(
+                    StagedDetection.component_id == component_id,
+                    StagedDetection.run == run,
+                    StagedDetection.part == index,
+                )
+            )
+            row.done -= len(staged)
+        walk = Walk.over(window)
+        stager = _Stager(database_url, component_id, run, index)
+        stager.start()
+        try:
+            for revision_id in revisions:
+                with session_scope(database_url) as session:
+                    stager.put(revision_id, judge_revision(session, revision_id, walk, part))
+        finally:
+            stager.finish()
+        with session_scope(database_url) as session:
+            row = _current(session, component_id, run, lock=True)
+            if index not in row.parts_done:
+                row.parts_done = sorted([*row.parts_done, index])
+            return len(row.parts_done) == row.parts
+    except Superseded as exc:
+        log.info("%s: part %d stops", exc, index)
+        return False
+    except BaseException as exc:
+        _fail(database_url, component_id, run, exc)
         raise
+
+
+def finish(database_url: str, component_id: int, run: int) -> bool:
+    """Store the staged verdicts revision by revision in order, then settle confirmations; True
+    when this call ended the re-analysis (False: superseded, or ended by another)."""
+    try:
+        while True:
+            with session_scope(database_url) as session:
+                if not _store_batch(session, component_id, run):
+                    break
+        with session_scope(database_url) as session:
+            session.execute(
+                select(Component.id).where(Component.id == component_id).with_for_update()
+            )
+            row = _current(session, component_id, run, lock=True)
+            if row.state != "running":
+                return False
+            settle_pending_pairs(session, component_id)
+            confirm_by_history(
+                session, component_id, component_config(session, component_id).confirm_revisions
+            )
+            for table in (StagedDetection, StagedRevision):
+                session.execute(delete(table).where(table.component_id == component_id))
+            row.state, row.finished = "done", utcnow()
+    except Superseded as exc:
+        log.info("%s: its finishing step stops", exc)
+        return False
+    except BaseException as exc:
+        _fail(database_url, component_id, run, exc)
+        raise
+    log.info("component %s: re-analysis %d done", component_id, run)
+    return True
+
+
+def _store_batch(session: Session, component_id: int, run: int) -> bool:
+    """The next `FINISH_BATCH` planned revisions stored; False when none is left."""
+    row = _current(session, component_id, run)
+    start = row.stored
+    batch = row.revisions[start : start + FINISH_BATCH]
+    if not batch or row.state != "running":
+        return False
+    # the revisions' locks before the component's, in the order detection takes them
+    for revision_id in batch:
+        lock_revision(session, revision_id)
+    session.execute(select(Component.id).where(Component.id == component_id).with_for_update())
+    row = _current(session, component_id, run, lock=True)
+    if row.stored != start:
+        return True  # another finishing step stored these meanwhile
+    judged_from: dict[int, set[str]] = {}
+    for revision_id, executions in session.execute(
+        select(StagedRevision.revision_id, StagedRevision.executions).where(
+            StagedRevision.component_id == component_id,
+            StagedRevision.run == run,
+            StagedRevision.revision_id.in_(batch),
+        )
+    ):
+        judged_from.setdefault(revision_id, set()).add(executions)
+    config = component_config(session, component_id)
+    fresh = row.from_database
+    for revision_id in batch:
+        revision = session.get(Revision, revision_id)
+        if revision is None:
+            continue  # deleted since it was planned
+        said = judged_from.get(revision_id, set())
+        if said == {KEPT}:
+            continue
+        now = _joined(tuple(execution for execution, _ in ingested_runs(session, revision_id)))
+        if fresh or said != {now}:
+            # an execution was ingested (or one went) since the parts judged it: judged again
+            # from what is stored now, as detection does, and so is every revision after it
+            fresh = True
+            judged = judge_revision(session, revision_id)
+            if judged is not None:
+                store(session, revision, judged.rows)
+            continue
+        _store_staged(session, revision, run, config.alarming)
+    row.stored, row.done, row.from_database = start + len(batch), row.done + len(batch), fresh
+    return True
+
+
+def _store_staged(
+    session: Session, revision: Revision, run: int, alarming: Collection[str]
+) -> None:
+    """Replace the revision's verdicts with its staged ones, in the order detection stores them
+    (by series, each series' methods in order), and group its changes into regressions."""
+    session.execute(delete(Detection).where(Detection.revision_id == revision.id))
+    session.execute(
+        text(
+            f"INSERT INTO detection ({DETECTION_COLUMNS}) SELECT {DETECTION_COLUMNS} "
+            "FROM staged_detection WHERE component_id = :component AND run = :run "
+            "AND revision_id = :revision ORDER BY series_id, id"
+        ),
+        {"component": revision.component_id, "run": run, "revision": revision.id},
+    )
+    group_revision(session, revision, alarming)
+    revision.analyzed_at = utcnow()
+
+
+def reanalyze_component(database_url: str, component_id: int, parts: int = 1) -> int:
+    """The whole re-analysis in this process, its parts one after another (what the tasks do on
+    several workers); returns how many revisions were analysed."""
+    run = plan(database_url, component_id, parts)
+    for index in range(parts):
+        if judge_part(database_url, component_id, run, index):
+            finish(database_url, component_id, run)
     with session_scope(database_url) as session:
-        row = _progress(session, component_id)
-        row.state, row.finished = "done", utcnow()
-    log.info("component %s: %d revisions re-analysed", component_id, len(revisions))
-    return len(revisions)
+        return len(_current(session, component_id, run).revisions)

@@ -14,6 +14,8 @@ from redline.server.core.tasks import (
     DETECT_TASK,
     DIGEST_TASK,
     INGEST_TASK,
+    REANALYZE_FINISH_TASK,
+    REANALYZE_PART_TASK,
     REANALYZE_TASK,
     RENDER_TASK,
     REQUEUE_TASK,
@@ -23,13 +25,13 @@ from redline.server.core.tasks import (
 )
 from redline.server.db import session_scope
 from redline.server.models import Revision
+from redline.worker import reanalysis
 from redline.worker.alerts import commit_status, runtime_alerts, scan_component, send_digests
 from redline.worker.app import celery_app
 from redline.worker.deliver import deliver_due
 from redline.worker.detection import detect_revision as run_detection
 from redline.worker.ingest import ingest_execution as run_ingest
 from redline.worker.ingest import stale_uploads
-from redline.worker.reanalysis import reanalyze_component as run_reanalysis
 from redline.worker.sweeps import failed_without_status, untold_runtime_alarms
 from redline.worker.training import train_model as run_training
 from redline.worker.trends import render_component_trends, render_revision_trends
@@ -112,9 +114,31 @@ def requeue_stale_uploads() -> int:
 
 @celery_app.task(name=REANALYZE_TASK, acks_late=True)
 def reanalyze_component(component_id: int) -> None:
-    """Detect every revision of the component again (after a configuration change)."""
+    """Detect every revision of the component again (after a configuration change): planned
+    here, judged in parts by series on any worker (`reanalyze_part`), stored in order by the
+    finishing step the last part queues (`redline.worker.reanalysis`)."""
+    parts = _settings().reanalysis_parts
+    run = reanalysis.plan(_settings().database_url, component_id, parts)
+    for index in range(parts):
+        reanalyze_part.delay(component_id, run, index)
+
+
+@celery_app.task(name=REANALYZE_PART_TASK, acks_late=True)
+def reanalyze_part(component_id: int, run: int, index: int) -> None:
+    """One part's series of every revision judged and staged; the last part queues the end."""
     with analysing():
-        run_reanalysis(_settings().database_url, component_id)
+        last = reanalysis.judge_part(_settings().database_url, component_id, run, index)
+    if last:
+        finish_reanalysis.delay(component_id, run)
+
+
+@celery_app.task(name=REANALYZE_FINISH_TASK, acks_late=True)
+def finish_reanalysis(component_id: int, run: int) -> None:
+    """The staged verdicts stored in revision order, grouped and confirmed; then the charts and
+    the alerts."""
+    with analysing():
+        if not reanalysis.finish(_settings().database_url, component_id, run):
+            return
         render_component_trends(_settings().database_url, component_id)
     scan_alerts.delay(component_id)
 

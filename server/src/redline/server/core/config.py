@@ -7,7 +7,7 @@ from importlib.resources import files
 from pathlib import Path
 from typing import Literal
 
-from pydantic import SecretStr
+from pydantic import Field, SecretStr
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
 #: the installed package: the UI's templates and static files, and the migrations, ship in it
@@ -64,6 +64,9 @@ class Settings(BaseSettings):
     # second worker starts it again while the first still runs it (harmless: tasks are
     # idempotent, but the work is done twice)
     task_visibility_s: float = 3600.0
+    # a re-analysis is judged in this many parts, split by series, each a task any detect
+    # worker takes (docs/operations.md): as many as the worker processes that should share it
+    reanalysis_parts: int = Field(default=2, ge=1, le=64)
 
 
 @lru_cache

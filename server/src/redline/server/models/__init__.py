@@ -13,6 +13,8 @@ from redline.server.models.detection import (
     Regression,
     RegressionEvent,
     RegressionState,
+    StagedDetection,
+    StagedRevision,
 )
 from redline.server.models.learning import ResourceModelRow, RuntimeAlarm
 from redline.server.models.results import FigureCache, Series, Summary
@@ -43,6 +45,8 @@ __all__ = [
     "RegressionEvent",
     "RegressionState",
     "Revision",
+    "StagedDetection",
+    "StagedRevision",
     "Series",
     "Summary",
     "User",

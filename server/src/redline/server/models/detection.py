@@ -97,7 +97,25 @@ class RegressionEvent(Base):
     comment: Mapped[str] = mapped_column(Text, default="")
 
 
-class Detection(Base):
+class VerdictColumns:
+    """The columns of a method's verdict, a stored `Detection`'s and a staged one's."""
+
+    baseline_revisions: Mapped[int] = mapped_column(Integer, default=0)
+    method: Mapped[str] = mapped_column(String(50))
+    verdict: Mapped[str] = mapped_column(String(20))
+    reason: Mapped[str] = mapped_column(Text, default="")
+    score: Mapped[float] = mapped_column(Float, default=0.0)
+    p_value: Mapped[float | None] = mapped_column(Float, default=None)
+    effect: Mapped[float | None] = mapped_column(Float, default=None)  # None when undefined
+    direction: Mapped[str] = mapped_column(String(10), default="none")
+    flagged: Mapped[bool] = mapped_column(Boolean, default=False)
+    #: of a flagged change for the worse: suspected, held or dropped (`detect.confirmation`)
+    confirmation: Mapped[str] = mapped_column(String(20), default="")
+    confirmation_reason: Mapped[str] = mapped_column(Text, default="")
+    created: Mapped[datetime] = mapped_column(default=utcnow)
+
+
+class Detection(VerdictColumns, Base):
     """One method's verdict on one series of one revision against its baseline.
 
     ``verdict`` is "change", "no change" or "not enough data" (then ``reason`` says what is
@@ -121,29 +139,22 @@ class Detection(Base):
     baseline_revision_id: Mapped[int | None] = mapped_column(
         ForeignKey("revision.id"), default=None
     )
-    baseline_revisions: Mapped[int] = mapped_column(Integer, default=0)
-    method: Mapped[str] = mapped_column(String(50))
-    verdict: Mapped[str] = mapped_column(String(20))
-    reason: Mapped[str] = mapped_column(Text, default="")
-    score: Mapped[float] = mapped_column(Float, default=0.0)
-    p_value: Mapped[float | None] = mapped_column(Float, default=None)
-    effect: Mapped[float | None] = mapped_column(Float, default=None)  # None when undefined
-    direction: Mapped[str] = mapped_column(String(10), default="none")
-    flagged: Mapped[bool] = mapped_column(Boolean, default=False)
-    #: of a flagged change for the worse: suspected, held or dropped (`detect.confirmation`)
-    confirmation: Mapped[str] = mapped_column(String(20), default="")
-    confirmation_reason: Mapped[str] = mapped_column(Text, default="")
     regression_id: Mapped[int | None] = mapped_column(
         ForeignKey("regression.id", ondelete="SET NULL"), index=True, default=None
     )
-    created: Mapped[datetime] = mapped_column(default=utcnow)
     series: Mapped[Series] = relationship()
     revision: Mapped[Revision] = relationship(foreign_keys=[revision_id])
     baseline_revision: Mapped[Revision | None] = relationship(foreign_keys=[baseline_revision_id])
 
 
 class Reanalysis(Base):
-    """The latest re-analysis of a component's whole history, with its progress."""
+    """The latest re-analysis of a component's whole history, with its progress.
+
+    A re-analysis is split by series into ``parts`` (`redline.worker.reanalysis`), each judging
+    every revision of the ``revisions`` planned; ``run`` tells one re-analysis from the next (a
+    part of a superseded run stops), ``parts_done`` which parts have judged everything, and
+    ``stored`` how many revisions the finishing step stored in order. Progress: ``done`` of
+    ``total`` units, one per revision and part, and one per revision stored."""
 
     __tablename__ = "reanalysis"
     component_id: Mapped[int] = mapped_column(ForeignKey("component.id"), primary_key=True)
@@ -154,3 +165,40 @@ class Reanalysis(Base):
     requested: Mapped[datetime] = mapped_column(default=utcnow)
     started: Mapped[datetime | None] = mapped_column(default=None)
     finished: Mapped[datetime | None] = mapped_column(default=None)
+    run: Mapped[int] = mapped_column(Integer, default=0, server_default="0")
+    parts: Mapped[int] = mapped_column(Integer, default=1, server_default="1")
+    revisions: Mapped[list[int]] = mapped_column(JSON, default=list, server_default="[]")
+    parts_done: Mapped[list[int]] = mapped_column(JSON, default=list, server_default="[]")
+    stored: Mapped[int] = mapped_column(Integer, default=0, server_default="0")
+    #: the finishing step met a revision whose executions changed since its parts judged it:
+    #: from there on it judges each revision again from the database, as detection does
+    from_database: Mapped[bool] = mapped_column(Boolean, default=False, server_default="false")
+
+
+class StagedDetection(VerdictColumns, Base):
+    """A re-analysis part's verdict (the columns of a `Detection`), kept until the finishing
+    step stores its revision's verdicts in revision order (`redline.worker.reanalysis`)."""
+
+    __tablename__ = "staged_detection"
+    __table_args__ = (Index("ix_staged_detection_revision", "component_id", "run", "revision_id"),)
+    id: Mapped[int] = mapped_column(primary_key=True)
+    component_id: Mapped[int] = mapped_column(ForeignKey("component.id", ondelete="CASCADE"))
+    run: Mapped[int] = mapped_column(Integer)
+    part: Mapped[int] = mapped_column(Integer)
+    series_id: Mapped[int] = mapped_column(Integer)
+    revision_id: Mapped[int] = mapped_column(Integer)
+    baseline_revision_id: Mapped[int | None] = mapped_column(Integer, default=None)
+
+
+class StagedRevision(Base):
+    """That a re-analysis part judged a revision, and from which executions ("kept": its samples
+    are gone and its stored verdicts stand), written with its `StagedDetection` rows."""
+
+    __tablename__ = "staged_revision"
+    component_id: Mapped[int] = mapped_column(
+        ForeignKey("component.id", ondelete="CASCADE"), primary_key=True
+    )
+    run: Mapped[int] = mapped_column(Integer, primary_key=True)
+    part: Mapped[int] = mapped_column(Integer, primary_key=True)
+    revision_id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    executions: Mapped[str] = mapped_column(Text)

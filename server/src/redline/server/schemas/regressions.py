@@ -144,8 +144,11 @@ class DetectionConfigOut(BaseModel):
 class ReanalysisOut(BaseModel):
     component: str
     state: Literal["none", "queued", "running", "done", "failed"]
+    #: units of work: one per revision and part (judged), and one per revision (stored)
     total: int
     done: int
+    revisions: int = 0  # the revisions planned
+    parts: int = 1  # the parts its series were split into, each a task any worker takes
     error: str
     requested: datetime | None
     started: datetime | None

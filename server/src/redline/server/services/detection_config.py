@@ -85,6 +85,8 @@ def reanalysis_status(session: Session, component_name: str) -> ReanalysisOut:
         state=row.state,
         total=row.total,
         done=row.done,
+        revisions=len(row.revisions),
+        parts=row.parts,
         error=row.error,
         requested=row.requested,
         started=row.started,
