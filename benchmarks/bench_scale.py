@@ -12,8 +12,14 @@ Leases per second, and the ratio to one process (goal: >= 1.7x with 2 on 2 cores
 `redline worker --queues ingest` with 1, then 2 worker processes (`--concurrency`) until every
 job is done: executions per minute, and the ratio of 2 to 1.
 
-The re-analysis of 1,000 revisions x 100 series is one task today (not split by series), so more
-workers do not shorten it: `benchmarks/bench_detect_worker.py` measures it.
+**Re-analysis.** A history of 1,000 revisions x 100 series (one execution of 30 samples each,
+the default methods), ingested once; then the re-analysis task sent and timed until its row says
+done, by a `redline worker --queues detect` with 1 process and the re-analysis in 1 part (the
+reference: one walk, as before it was split), with 1 process and 2 parts (what splitting costs
+a worker alone), and with 2 processes and 2 parts (goal: <= 30 s). The verdicts of every run
+must be the same.
+
+    .venv/bin/python benchmarks/bench_scale.py --only reanalysis
 """
 
 from __future__ import annotations
@@ -148,25 +154,119 @@ def ingestion(workers: int) -> float:
     return INGESTED / seconds * 60
 
 
+def _worker(env: dict[str, str], queues: str, processes: int, log: Path) -> subprocess.Popen:
+    """`redline worker` taking ``queues``, once it says it is ready."""
+    worker = subprocess.Popen(
+        [REDLINE, "worker", "--queues", queues, "--no-beat", "--concurrency", str(processes),
+         "--loglevel", "INFO"],
+        env=env, start_new_session=True, stdout=log.open("ab"), stderr=subprocess.STDOUT,
+    )  # fmt: skip
+    deadline = time.monotonic() + 60
+    while " ready." not in log.read_text(errors="replace"):
+        if time.monotonic() > deadline or worker.poll() is not None:
+            os.killpg(worker.pid, 9)
+            raise RuntimeError(f"the worker did not start: {log.read_text()[-2000:]}")
+        time.sleep(0.1)
+    return worker
+
+
+def reanalysis(runs: list[tuple[int, int]]) -> dict[str, float]:
+    """Seconds of a re-analysis of 1,000 x 100 for each (worker processes, parts) in ``runs``."""
+    from bench_detect_worker import _history, _ingest
+    from redline.server.models import Detection, Reanalysis
+
+    seconds: dict[str, float] = {}
+    with database() as url, tempfile.TemporaryDirectory(prefix="bench-scale-") as tmp:
+        folder = Path(tmp)
+        start = time.perf_counter()
+        component_id, executions = _history(url, folder, "history", 100, 1000)
+        _ingest(url, executions)
+        print(f"history of 1,000 x 100 ingested in {time.perf_counter() - start:.0f} s", flush=True)
+        verdicts = []
+        for processes, parts in runs:
+            settings = Settings(
+                database_url=url,
+                redis_url=os.environ.get("REDLINE_REDIS_URL", "redis://127.0.0.1:6379/0"),
+                queue=f"bench-reanalysis-{os.getpid()}-{processes}-{parts}",
+                storage_dir=folder / "storage",
+            )
+            env = {
+                **os.environ,
+                "REDLINE_DATABASE_URL": url,
+                "REDLINE_REDIS_URL": settings.redis_url,
+                "REDLINE_QUEUE": settings.queue,
+                "REDLINE_STORAGE_DIR": str(settings.storage_dir),
+                "REDLINE_REANALYSIS_PARTS": str(parts),
+            }
+            worker = _worker(env, "detect", processes, folder / f"worker-{processes}-{parts}.log")
+            with session_factory(url)() as session:
+                row = session.get(Reanalysis, component_id)
+                before = row.run if row is not None else 0
+            try:
+                start = time.perf_counter()
+                TaskSender(settings).reanalyze(component_id)
+                while True:
+                    with session_factory(url)() as session:
+                        row = session.get(Reanalysis, component_id)
+                        state = row.state if row is not None and row.run > before else "queued"
+                    if state in ("done", "failed"):
+                        break
+                    time.sleep(0.1)
+                took = time.perf_counter() - start
+            finally:
+                os.killpg(worker.pid, 15)
+                worker.wait(timeout=60)
+            assert state == "done", f"the re-analysis failed: {row.error if row else ''}"
+            with session_factory(url)() as session:
+                verdicts.append(
+                    session.execute(
+                        select(Detection.series_id, Detection.revision_id, Detection.method,
+                               Detection.verdict, Detection.score)
+                        .order_by(Detection.series_id, Detection.revision_id, Detection.method)
+                    ).all()
+                )  # fmt: skip
+            seconds[f"{processes} process(es), {parts} part(s)"] = took
+            print(f"re-analysis, {processes} worker process(es), {parts} part(s): {took:.1f} s",
+                  flush=True)  # fmt: skip
+        assert all(v == verdicts[0] for v in verdicts), "the runs' verdicts differ"
+    return seconds
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--json", type=Path)
+    parser.add_argument("--only", choices=["leases", "ingestion", "reanalysis"])
     args = parser.parse_args()
-    report: dict[str, dict[str, float]] = {"leases_per_s": {}, "ingested_per_min": {}}
-    for processes in (1, 2, 4):
-        report["leases_per_s"][str(processes)] = rate = leases(processes)
-        print(f"{processes} API process(es), {AGENTS} agents: {rate:.0f} leases/s", flush=True)
-    one = report["leases_per_s"]["1"]
-    for processes in ("2", "4"):
-        print(f"  {processes} / 1 process(es): {report['leases_per_s'][processes] / one:.2f}x")
-    for workers in (1, 2):
-        report["ingested_per_min"][str(workers)] = rate = ingestion(workers)
-        print(f"{workers} ingest worker process(es): {rate:.0f} executions/min", flush=True)
-    ratio = report["ingested_per_min"]["2"] / report["ingested_per_min"]["1"]
-    print(f"  2 / 1 worker(s): {ratio:.2f}x")
-    if args.json:
-        args.json.write_text(json.dumps(report, indent=1))
+    report: dict[str, dict[str, float]] = {}
+    if args.only in (None, "reanalysis"):
+        report["reanalysis_s"] = times = reanalysis([(1, 1), (1, 2), (2, 2)])
+        reference = times["1 process(es), 1 part(s)"]
+        for name, took in times.items():
+            print(f"  {name}: {took / reference:.2f}x the one walk's {reference:.1f} s")
+    if args.only in (None, "leases"):
+        report["leases_per_s"] = {}
+        for processes in (1, 2, 4):
+            report["leases_per_s"][str(processes)] = rate = leases(processes)
+            print(f"{processes} API process(es), {AGENTS} agents: {rate:.0f} leases/s", flush=True)
+        one = report["leases_per_s"]["1"]
+        for processes in ("2", "4"):
+            print(f"  {processes} / 1 process(es): {report['leases_per_s'][processes] / one:.2f}x")
+    if args.only in (None, "ingestion"):
+        report["ingested_per_min"] = {}
+        for workers in (1, 2):
+            report["ingested_per_min"][str(workers)] = rate = ingestion(workers)
+            print(f"{workers} ingest worker process(es): {rate:.0f} executions/min", flush=True)
+        ratio = report["ingested_per_min"]["2"] / report["ingested_per_min"]["1"]
+        print(f"  2 / 1 worker(s): {ratio:.2f}x")
+    _write(args.json, report)
     return 0
+
+
+def _write(path: Path | None, report: dict) -> None:
+    """The figures into ``path``, merged with those an earlier run of other parts wrote."""
+    if path:
+        earlier = json.loads(path.read_text()) if path.exists() else {}
+        path.write_text(json.dumps(earlier | report, indent=1))
 
 
 if __name__ == "__main__":

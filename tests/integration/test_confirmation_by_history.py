@@ -159,7 +159,7 @@ def test_the_defaults_make_no_regression_of_unchanged_code_run_once_per_revision
         .join(Revision, Revision.id == Detection.revision_id)
         .where(Revision.title == "r3", Detection.method == "execution_shift")
     ).one()
-    assert r3.verdict == "not enough data" and "(4 more to come)" in r3.reason
+    assert r3.verdict == "not enough data" and "(4 short: the revisions after" in r3.reason
 
 
 def test_a_change_whose_series_is_no_longer_measured_is_dropped_not_left_waiting(
@@ -175,3 +175,34 @@ def test_a_change_whose_series_is_no_longer_measured_is_dropped_not_left_waiting
         r5.confirmation_reason
         == "not confirmed: of the 6 revisions after it, 0 measured the series"
     )
+
+
+def test_a_later_change_does_not_confirm_an_earlier_flag(session, database_url, tmp_path):
+    """A trial's README commit was flagged on a noisy counter; the next revision raised CPU
+    threefold, and the counter with it, and the README commit's regression was "confirmed" by
+    that later change. Only the revisions before the next change may confirm a flag."""
+    _component(session)
+    rng = np.random.default_rng(9)
+    levels = [(20.0, 20.0)] * 4 + [(20.0, 30.0)] + [(30.0, 30.0)] * 3  # (cpu, noisy)
+    for number, (cpu, noisy) in enumerate(levels, start=1):
+        runs = [
+            {"cpu": rng.normal(cpu, cpu * 0.02, 40), "noisy": rng.normal(noisy, noisy * 0.02, 40)}
+            for _ in range(RUNS)
+        ]
+        executions = add_executions(session, tmp_path, NAME, f"r{number}", str(number), runs)
+        ingest_and_detect(database_url, executions)
+    session.expire_all()
+    rows = session.execute(
+        select(Detection, Revision.title)
+        .join(Revision, Revision.id == Detection.revision_id)
+        .where(Detection.flagged, Detection.method == "execution_shift")
+    )
+    flagged = {(title, d.series.counter): d for d, title in rows}
+    assert set(flagged) == {("r5", "noisy"), ("r6", "cpu")}, set(flagged)
+    early, real = flagged[("r5", "noisy")], flagged[("r6", "cpu")]
+    assert early.confirmation == "suspected", early.confirmation_reason
+    assert "changed again 1 revision(s) later" in early.confirmation_reason
+    assert real.confirmation == "held", real.confirmation_reason  # r7 and r8 kept it
+    by_revision = {r.bad_revision.title: r for r in session.scalars(select(Regression))}
+    assert by_revision["r5"].confirmation == "suspected"
+    assert by_revision["r6"].confirmation == "confirmed"

@@ -51,6 +51,7 @@ def _record(
     report: bool = True,
     path_in_tree: str = QUERY,
     counters: bool = True,
+    cpu: float = 20.0,
 ) -> Path:
     """One execution's recording: a 2 s steady phase with the component's CPU, the host's and
     Redline's own, and the driver's report of its queries (as `redline.testing.Query` makes)."""
@@ -61,7 +62,7 @@ def _record(
         writer.metadata("redline.host", {"cpu_cores": "2"})
         writer.marker("begin", CASE, PHASE, PARAMS, warmup=False, t_ns=begin)
         for t_ns in range(begin + 50_000_000, end, 50_000_000) if counters else ():
-            writer.counters(NAME, 42, {"cpu_percent": rng.normal(20.0, 0.4)}, t_ns)
+            writer.counters(NAME, 42, {"cpu_percent": rng.normal(cpu, cpu / 50)}, t_ns)
             writer.counters("host", 0, {"cpu_percent": host_percent}, t_ns)
             writer.counters("redline", 0, {"cpu_percent": 4.0}, t_ns)
         if report:
@@ -367,6 +368,23 @@ def test_a_case_passes_only_when_every_series_that_can_be_judged_was(
     assert [c.state for c in ci_verdict(session, NAME, "r3").cases] == ["passed"]
     suite = ElementTree.fromstring(junit_xml(r2))
     assert (suite.get("tests"), suite.get("skipped")) == ("1", "1")
+
+
+def test_a_case_not_judged_yet_names_the_change_the_charted_method_sees(
+    session, database_url, tmp_path
+):
+    """A trial's threefold CPU was "skipped" with a reason naming a driver's latency and
+    nothing of the CPU, which KS (charted, not alarming) had flagged at +216 %."""
+    create_component(session, ComponentCreate(name=NAME, executions=RUNS))
+    ingest_and_detect(database_url, _revision(session, tmp_path, 1))
+    ingest_and_detect(database_url, _revision(session, tmp_path, 2, cpu=60.0))
+    session.expire_all()
+    (case,) = ci_verdict(session, NAME, "r2").cases
+    assert case.state == "skipped", case
+    assert case.reason.startswith("not enough data (") and f": {NAME} cpu_percent: " in case.reason
+    assert "ks, which charts but does not alarm, flags svc cpu_percent +200 %" in case.reason
+    (quiet,) = ci_verdict(session, NAME, "r1").cases
+    assert "ks, which" not in quiet.reason  # nothing flagged: nothing said
 
 
 def test_the_newest_of_several_revisions_waits_for_the_earlier_ones_it_lacks(

@@ -371,6 +371,12 @@ def test_why_flagged_shows_what_was_compared(client, database_url, tmp_path):
     assert min(sides["candidate executions"]["y"]) > 5 * max(sides["baseline executions"]["y"])
     assert "largest gap 1.00" in distributions["layout"]["title"]["text"]  # apart entirely
     assert client.get("/detections/999999").status_code == 404
+    # a verdict with no baseline (the first revision's) has its page too: the API lists it
+    # (a trial got a 500 for each of those)
+    first = client.get("/api/v1/components/builder/detections?revision=r1").json()
+    assert first and all(d["verdict"] == "not enough data" for d in first)
+    page = client.get(f"/detections/{first[0]['id']}")
+    assert page.status_code == 200 and "missing baseline" in page.text, page.text[-500:]
 
 
 def test_execution_page_has_raw_counters_parameters_the_log_and_the_recording(

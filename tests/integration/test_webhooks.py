@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from datetime import UTC, datetime
+
 import json
 from collections.abc import Iterator
 from pathlib import Path
@@ -34,6 +36,19 @@ def api(services: Services, tmp_path: Path) -> Iterator[Api]:
         yield api
 
 
+def test_a_pushed_commit_sorts_after_the_history_ci_reported_before_it(api: Api):
+    """CI reports `git log -1 --format=%ct` (docs/ci.md); a push's sort key must order with it:
+    a trial's pushed commit sorted before all of CI's (20261124 < 1795551380)."""
+    earlier = int(datetime(2026, 11, 20, 8, tzinfo=UTC).timestamp())
+    later = datetime(2026, 11, 20, 10, tzinfo=UTC).timestamp()
+    for title, key in (("ci-early", earlier), ("ci-late", int(later))):
+        body = {"component": "builder", "title": title, "sort_key": str(key), "commit": "c" * 40}
+        api.post("/api/v1/revisions", "ci", body).raise_for_status()
+    assert send_github(api, github_push()).status_code == 200  # commits at 09:00
+    listed = [r["title"] for r in api.client.get("/api/v1/components/builder/revisions").json()]
+    assert listed == ["ci-early", "a" * 12, "b" * 12, "ci-late"], listed
+
+
 def test_github_push_creates_a_revision_per_commit_with_jobs_per_execution(api: Api):
     answer = send_github(api, github_push())
     assert answer.status_code == 200, answer.text
@@ -41,7 +56,8 @@ def test_github_push_creates_a_revision_per_commit_with_jobs_per_execution(api: 
     assert [r["title"] for r in created] == ["a" * 12, "b" * 12]
     assert all(len(r["job_ids"]) == 2 for r in created)
     # same commit time: the order in the push decides
-    assert created[0]["sort_key"] == "20261120T090000Z.0000" < created[1]["sort_key"]
+    pushed = int(datetime(2026, 11, 20, 9, tzinfo=UTC).timestamp())
+    assert created[0]["sort_key"] == f"{pushed}.0000" < created[1]["sort_key"]
     listed = api.client.get("/api/v1/components/builder/revisions").json()
     assert [(r["commit"], r["branch"]) for r in listed] == [("a" * 40, "main"), ("b" * 40, "main")]
     with session_factory(api.settings.database_url)() as session:

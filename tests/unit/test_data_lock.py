@@ -1,11 +1,15 @@
-"""`redline up` holds its data folder: a second one on the same folder is refused before it
-starts anything (a trial saw it share and then stop the first one's embedded Redis)."""
+"""`redline up` holds its data folder and its port: a second one on the same folder, or a port
+already taken, is refused before it starts anything (a trial saw it share and then stop the first
+one's embedded Redis); the admin commands find its services through the data folder."""
 
 from __future__ import annotations
 
 import os
+import socket
 
 import pytest
+from redline.commands.embedded import read_services, write_services
+from redline.commands.service import needs_database
 from redline.commands.stack import Stack, StackError, lock_data
 
 
@@ -27,3 +31,40 @@ def test_a_refused_stack_starts_nothing_and_leaves_the_first_alone(tmp_path) -> 
     with pytest.raises(StackError):  # the first still holds it
         lock_data(tmp_path)
     held.close()
+
+
+def test_a_taken_port_is_refused_before_anything_starts(tmp_path) -> None:
+    """A trial waited 20 s for Postgres and migrations, then read a page of logs ending in
+    "address already in use"."""
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        stack = Stack(tmp_path, port=port)
+        with pytest.raises(StackError, match=rf"port {port} is taken .*--port"):
+            stack.start()
+        assert stack.children == [] and stack.embedded is None
+        stack.stop()
+
+
+def test_the_admin_commands_find_the_database_of_the_redline_up_running_here(
+    tmp_path, monkeypatch
+) -> None:
+    """The README's `redline user create` under the Quick start said: database "redline" does
+    not exist (the embedded database is named only in the data folder)."""
+    data = tmp_path / ".redline"
+    data.mkdir()
+    write_services(data, {"REDLINE_DATABASE_URL": "postgresql+psycopg://u@/redline?host=/s"})
+    assert (data / "services.env").stat().st_mode & 0o777 == 0o600
+    assert read_services(data) == {
+        "REDLINE_DATABASE_URL": "postgresql+psycopg://u@/redline?host=/s"
+    }
+    monkeypatch.delenv("REDLINE_DATABASE_URL", raising=False)
+    monkeypatch.chdir(tmp_path)
+    seen = []
+    needs_database(lambda: seen.append(os.environ["REDLINE_DATABASE_URL"]))()
+    assert seen == ["postgresql+psycopg://u@/redline?host=/s"]
+    # a configured database is the one used, whatever a data folder says
+    monkeypatch.setenv("REDLINE_DATABASE_URL", "postgresql+psycopg://other/db")
+    needs_database(lambda: seen.append(os.environ["REDLINE_DATABASE_URL"]))()
+    assert seen[-1] == "postgresql+psycopg://other/db"

@@ -23,3 +23,19 @@ def test_the_demos_wait_ends_at_once_when_stopped():
     stop = threading.Event()
     stop.set()  # Ctrl-C while the revisions run: the demo must stop waiting, not finish them
     assert demo.wait_for_results("http://127.0.0.1:9", print, stop=stop) == []
+
+
+def test_the_demo_says_why_its_newest_revision_shows_no_change():
+    """A trial's demo on a busy machine ended in "r3: done" with no mark and no word why."""
+    busy = "host busy: other load 104 % of a core (limit 25 %) during the phase"
+    verdicts = [
+        {"revision": "r3", "verdict": "not enough data", "reason": busy},
+        {"revision": "r3", "verdict": "not enough data", "reason": busy},
+        {"revision": "r3", "verdict": "not enough data", "reason": "missing baseline"},
+    ]
+    said = demo.unmarked(verdicts)
+    assert said.startswith("no change marked: every verdict of r3 is not enough data (host busy")
+    assert "REDLINE_DISTURBED_CPU_PERCENT" in said
+    judged = [*verdicts, {"revision": "r3", "verdict": "change", "reason": ""}]
+    assert demo.unmarked(judged) == ""  # the change is printed above it
+    assert "quieter" not in demo.unmarked(verdicts[2:])  # no baseline: nothing about the host

@@ -48,7 +48,11 @@ def test_the_cpu_split_moving_while_the_total_holds_is_no_change(tmp_path: Path)
 
 def test_context_counters_are_part_of_a_components_configuration() -> None:
     default = DetectionConfig.parse(None)
-    assert default.context_counters == ("cpu_user_percent", "cpu_system_percent")
+    assert default.context_counters == (
+        "cpu_user_percent",
+        "cpu_system_percent",
+        "ctx_involuntary_per_s",
+    )
     assert DetectionConfig.parse({"context_counters": []}).context_counters == ()
     assert DetectionConfig.parse(default.as_dict()) == default
     with pytest.raises(ConfigError, match="unknown field"):

@@ -158,10 +158,12 @@ def wait(
                 else:
                     verdict = answer.json()
                     if verdict["state"] != "pending":
+                        # the waits said on stderr, before the table on stdout: how long it took
+                        typer.echo(f"verdict after {waited:.0f} s of waiting", err=True)
                         break
                     if verdict["waiting_for"] != said:
                         said = verdict["waiting_for"]
-                        typer.echo(f"waiting for {said} ({waited:.0f} s)", err=True)
+                        typer.echo(f"waiting for {said} (at {waited:.0f} s)", err=True)
             if waited + poll > timeout:
                 if said:
                     why = f"still waiting for {said}"

@@ -13,11 +13,13 @@ import shutil
 import subprocess
 import threading
 import time
+from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
 import httpx
+from redline.recording.disturbance import names_busy_host
 
 COMPONENT = "objectbuilder"
 SUITE = "objectbuilder/perf/redline.toml"
@@ -179,3 +181,20 @@ def change_line(change: dict) -> str:
         f"{change['revision']}: {change['series']['label']} effect {effect} "
         f"(KS D={change['score']:.2f})"
     )
+
+
+def unmarked(verdicts: list[dict]) -> str:
+    """Why the demo's newest revision shows no change (its KS ``verdicts``, as the API lists
+    them): "" when one is flagged or judged; else the commonest reason, and what to do about a
+    busy host (a trial's demo ended in "done" on a busy machine, with no mark and no word)."""
+    if not verdicts or any(v["verdict"] != "not enough data" for v in verdicts):
+        return ""
+    reason = Counter(v["reason"] for v in verdicts).most_common(1)[0][0]
+    newest = verdicts[0]["revision"]
+    said = f"no change marked: every verdict of {newest} is not enough data ({reason})"
+    if names_busy_host(reason):
+        said += (
+            "; another load shared the host while it ran: run the demo on a quieter machine, or "
+            "see docs/running-agents.md (REDLINE_DISTURBED_CPU_PERCENT)"
+        )
+    return said

@@ -14,6 +14,32 @@ from typing import Any
 DATABASE_NAME = "redline"
 
 
+#: the file in a data folder naming the database and Redis its `redline up` uses (mode 600), so
+#: that `redline token`, `redline user` and the like find them (`redline.commands.service`)
+SERVICES_FILE = "services.env"
+SERVICE_VARIABLES = ("REDLINE_DATABASE_URL", "REDLINE_REDIS_URL")
+
+
+def write_services(data: Path, started: dict[str, str]) -> None:
+    """Name the embedded servers ``started`` (variable: URL) in ``data``; the ones configured
+    by the environment are the user's to know, and stay out of it (a URL may hold a password)."""
+    path = data / SERVICES_FILE
+    path.touch(mode=0o600)
+    path.chmod(0o600)
+    named = [name for name in SERVICE_VARIABLES if name in started]
+    path.write_text("".join(f"{name}={started[name]}\n" for name in named))
+
+
+def read_services(data: Path) -> dict[str, str]:
+    """What `write_services` wrote in ``data`` ({} when nothing did)."""
+    try:
+        lines = (data / SERVICES_FILE).read_text().splitlines()
+    except OSError:
+        return {}
+    pairs = (line.partition("=") for line in lines)
+    return {name: value for name, _, value in pairs if name in SERVICE_VARIABLES and value}
+
+
 @dataclass
 class EmbeddedServices:
     """Handles of the embedded servers this process started (either may be absent)."""

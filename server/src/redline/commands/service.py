@@ -9,7 +9,9 @@ from __future__ import annotations
 
 import contextlib
 import functools
+import os
 from collections.abc import Callable, Iterator
+from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any, ParamSpec, TypeVar
 
 import typer
@@ -28,26 +30,48 @@ def _settings() -> Settings:
     return get_settings()
 
 
+#: the data folder of the `redline up` whose services the commands use when none is configured
+DATA_VARIABLE = "REDLINE_DATA"
+
+
+def _local_stack() -> None:
+    """Without ``REDLINE_DATABASE_URL``, the embedded database and Redis of the `redline up` on
+    this machine whose data folder is ``REDLINE_DATA`` (default ``.redline``): what the Quick
+    start's `redline user create` needs (a trial got "database "redline" does not exist")."""
+    from redline.commands.embedded import read_services
+
+    if os.environ.get("REDLINE_DATABASE_URL"):
+        return
+    data = Path(os.environ.get(DATA_VARIABLE) or ".redline")
+    found = read_services(data)
+    if "REDLINE_DATABASE_URL" in found:
+        for name, value in found.items():
+            os.environ.setdefault(name, value)
+        typer.echo(f"(the services of `redline up` in {data})", err=True)
+
+
 SHUTDOWN_GRACE_S = 2  # seconds requests in flight get when the server is asked to stop
 P = ParamSpec("P")
 R = TypeVar("R")
 
 
 def needs_database(command: Callable[P, R]) -> Callable[P, R]:
-    """A command that talks to the database: an unreachable one is a message, not a traceback."""
+    """A command that talks to the database (the configured one, else that of the `redline up`
+    running here): an unreachable one is a message, not a traceback."""
 
     @functools.wraps(command)
     def run(*args: P.args, **kwargs: P.kwargs) -> R:
         from sqlalchemy.exc import InterfaceError, OperationalError
 
+        _local_stack()
         try:
             return command(*args, **kwargs)
         except (OperationalError, InterfaceError) as exc:
             reason = (str(exc.orig or exc).strip().splitlines() or ["unreachable"])[0]
             typer.echo(
-                f"error: cannot reach the database ({reason}). Set REDLINE_DATABASE_URL; "
-                "with `redline up`, manage tokens through the API with the admin token "
-                "(DATA/admin-token; see docs/api.md, Tokens).",
+                f"error: cannot reach the database ({reason}). Set REDLINE_DATABASE_URL, or "
+                f"run this while `redline up` runs, from the folder holding its data folder "
+                f"(.redline), or with {DATA_VARIABLE}=its data folder.",
                 err=True,
             )
             raise typer.Exit(1) from None

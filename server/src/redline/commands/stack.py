@@ -10,6 +10,7 @@ from __future__ import annotations
 import os
 import shutil
 import signal
+import socket
 import subprocess
 import sys
 import time
@@ -19,7 +20,12 @@ from typing import IO
 
 import httpx
 from redline.agent.quiet import LOCK_VARIABLE
-from redline.commands.embedded import EmbeddedServices, start_postgres, start_redis
+from redline.commands.embedded import (
+    EmbeddedServices,
+    start_postgres,
+    start_redis,
+    write_services,
+)
 
 #: the name the stack's agent registers as, and the one host its token may act as
 AGENT_NAME = "local-agent"
@@ -47,6 +53,19 @@ def server_only_variables() -> frozenset[str]:
 
 class StackError(RuntimeError):
     """The stack could not start or a child died; the message says which and why."""
+
+
+def port_free(port: int) -> None:
+    """A `StackError` naming the way out when something already listens on ``port``."""
+    with socket.socket() as probe:
+        probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            probe.bind(("127.0.0.1", port))
+        except OSError as exc:
+            raise StackError(
+                f"port {port} is taken ({exc.strerror}): another `redline up`, or another "
+                "server; give this one another with --port"
+            ) from None
 
 
 def lock_data(data: Path) -> IO[bytes]:
@@ -103,6 +122,7 @@ class Stack:
         # (as root, pgserver opens the path to the user it runs Postgres as: see security.md)
         self.data.mkdir(mode=0o700, parents=True, exist_ok=True)
         self.lock = lock_data(self.data)
+        port_free(self.port)  # before Postgres starts: seconds, and a page of its logs
         (self.data / "logs").mkdir(mode=0o700, exist_ok=True)
         self.env = self._service_env()
         self._redline("migrate")
@@ -157,16 +177,22 @@ class Stack:
         database = env.get("REDLINE_DATABASE_URL")
         redis = env.get("REDLINE_REDIS_URL")
         self.embedded = EmbeddedServices()
+        started = {}
         if not database:
             database, self.embedded.postgres = start_postgres(self.data / "postgres")
+            started["REDLINE_DATABASE_URL"] = database
         if not redis:
             redis, self.embedded.redis = start_redis(self.data / "redis")
+            started["REDLINE_REDIS_URL"] = redis
+        write_services(self.data, started)
         env.update(REDLINE_DATABASE_URL=database, REDLINE_REDIS_URL=redis)
         env.setdefault("REDLINE_STORAGE_DIR", str(self.data / "storage"))
         # one machine, one user: components may live in local repositories (the demo's does)
         env.setdefault("REDLINE_ALLOW_FILE_REPOS", "true")
         # agent and worker share this machine: analysis waits while a run measures (quiet.py)
         env.setdefault(LOCK_VARIABLE, str(self.data / "measurement.lock"))
+        # one worker process: a re-analysis in more parts would only read each revision again
+        env.setdefault("REDLINE_REANALYSIS_PARTS", "1")
         return env
 
     def _redline(self, *args: str) -> str:

@@ -95,6 +95,12 @@ def demo(data: Path = DataOption, port: int = PortOption) -> None:
             console.print(
                 f"[yellow]change[/yellow] {escape(example.change_line(change))}", soft_wrap=True
             )
+        newest = httpx.get(
+            f"{stack.url}/api/v1/components/{example.COMPONENT}/detections",
+            params={"revision": revisions[-1].title, "method": "ks"},
+        ).json()
+        if why := example.unmarked(newest):
+            console.print(f"[yellow]{escape(why)}[/yellow]", soft_wrap=True)
         console.print(f"trend charts: [bold]{stack.url}/components/{example.COMPONENT}[/bold]")
 
     _serve(console, data, port, then=show)

@@ -126,7 +126,7 @@ def check_samples(
     if len(base) < min_baseline:
         return (
             f"too few samples: baseline has {len(base)}, needs at least {min_baseline} "
-            f"({min_baseline - len(base)} more to come)"
+            f"({min_baseline - len(base)} short: the revisions after it will have more history)"
         )
     if len(cand) < min_candidate:
         return f"too few samples: candidate has {len(cand)}, needs at least {min_candidate}"

@@ -13,6 +13,7 @@ order with the later ones already ingested, settles each change as the increment
 from __future__ import annotations
 
 from collections import defaultdict
+from collections.abc import Collection
 
 import numpy as np
 from redline.detect.confirmation import DROPPED, HELD, SUSPECTED, Hold, hold
@@ -73,8 +74,19 @@ def _later_revisions(session: Session, order_key: str, detection: Detection) -> 
     )
 
 
-def settle(session: Session, detection: Detection, process: str, counter: str, wait: int) -> None:
-    """Settle one suspected detection if enough later revisions measured its series."""
+def settle(
+    session: Session,
+    detection: Detection,
+    process: str,
+    counter: str,
+    wait: int,
+    changed: Collection[int] = (),
+) -> None:
+    """Settle one suspected detection if enough later revisions measured its series, counting
+    only the revisions before the next one that itself changed (``changed``: the revisions with
+    a flagged change of any series): a later change is no evidence for an earlier one. (A
+    trial's README commit was flagged on a noisy counter and "held" because the next revision
+    raised CPU threefold, and that counter with it.)"""
     count = is_count(process, counter)
     levels = _levels(session, detection.series_id, count)
     position = {rid: i for i, (_, rid, _) in enumerate(levels)}
@@ -88,8 +100,16 @@ def settle(session: Session, detection: Detection, process: str, counter: str, w
         return
     first = max(0, newest + 1 - max(1, detection.baseline_revisions))
     baseline = np.concatenate([values for _, _, values in levels[first : newest + 1]])
-    following = [values for _, _, values in levels[at + 1 :]]
+    end = next((i for i in range(at + 1, len(levels)) if levels[i][1] in changed), len(levels))
+    following = [values for _, _, values in levels[at + 1 : end]]
     found = hold(baseline, levels[at][2], following, wait, count=count)
+    if found.state == SUSPECTED and end < len(levels):
+        if not detection.confirmation_reason.startswith(UNDECIDED):
+            detection.confirmation_reason = (
+                f"suspected: the series changed again {end - at} revision(s) later, before "
+                f"{wait} revision(s) could confirm it; re-runs (confirm_pairs) or triage decide"
+            )
+        return  # what follows the next change says nothing of this one
     later = _later_revisions(session, levels[at][0], detection) if found.state == SUSPECTED else 0
     if found.state == SUSPECTED and later >= GONE_AFTER * wait:
         # the component went on without measuring it (a test renamed or removed): it cannot hold
@@ -145,8 +165,12 @@ def _summarize_regressions(session: Session, component_id: int) -> None:
             regression.confirmation, regression.confirmation_reason = confirmation, reason
 
 
-def confirm_by_history(session: Session, component_id: int, wait: int) -> None:
-    """Settle what the component's stored revisions can settle, then summarize regressions."""
+def confirm_by_history(
+    session: Session, component_id: int, wait: int, alarming: Collection[str]
+) -> None:
+    """Settle what the component's stored revisions can settle, then summarize regressions.
+    A revision with a flagged change of the ``alarming`` methods ends what the revisions before
+    it can confirm (`settle`)."""
     # a revision whose confirmation runs are still under way waits for them
     # (`redline.worker.confirm_runs`, which leaves suspected what no complete pair can settle)
     rerun = exists().where(
@@ -163,7 +187,23 @@ def confirm_by_history(session: Session, component_id: int, wait: int) -> None:
         )
         .order_by(Detection.id)
     ).all()
+    changed = (
+        set(
+            session.scalars(
+                select(Detection.revision_id)
+                .distinct()
+                .join(Series, Series.id == Detection.series_id)
+                .where(
+                    Series.component_id == component_id,
+                    Detection.flagged,
+                    Detection.method.in_(list(alarming)),
+                )
+            )
+        )
+        if suspected
+        else set()
+    )
     for detection, process, counter in suspected:
-        settle(session, detection, process, counter, wait)
+        settle(session, detection, process, counter, wait, changed)
     session.flush()
     _summarize_regressions(session, component_id)

@@ -180,7 +180,7 @@ def store(
         queue_confirmations(session, revision, config)
         queue_for_baselines(session, revision, rows)
     settle_pending_pairs(session, revision.component_id)
-    confirm_by_history(session, revision.component_id, config.confirm_revisions)
+    confirm_by_history(session, revision.component_id, config.confirm_revisions, config.alarming)
     revision.analyzed_at = utcnow()
 
 

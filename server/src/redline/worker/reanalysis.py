@@ -346,9 +346,8 @@ def finish(database_url: str, component_id: int, run: int) -> bool:
             if row.state != "running":
                 return False
             settle_pending_pairs(session, component_id)
-            confirm_by_history(
-                session, component_id, component_config(session, component_id).confirm_revisions
-            )
+            config = component_config(session, component_id)
+            confirm_by_history(session, component_id, config.confirm_revisions, config.alarming)
             for table in (StagedDetection, StagedRevision):
                 session.execute(delete(table).where(table.component_id == component_id))
             row.state, row.finished = "done", utcnow()

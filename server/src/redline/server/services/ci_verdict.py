@@ -16,10 +16,12 @@ from typing import Any
 from urllib.parse import quote
 from xml.etree import ElementTree
 
+from redline.detect.config import CHARTED_METHOD
 from redline.detect.confirmation import DROPPED
 from redline.detect.counters import worse
 from redline.detect.result import HISTORY_REASONS, NOT_ENOUGH_DATA, waits_for_history
 from redline.recording.disturbance import names_busy_host
+from redline.recording.driver import DRIVER_PROCESS as DRIVER
 from redline.server.models import Detection, Job, JobState, Revision, Series
 from redline.server.schemas.alerts import CaseVerdict, CiVerdict
 from redline.server.services.components import get_component
@@ -131,13 +133,21 @@ def ci_verdict(session: Session, component_name: str, title: str) -> CiVerdict:
     state, said = _pending(session, revision)
     alarming = component_config(session, component.id).alarming
     groups: dict[tuple[str, str, str], list[tuple[Detection, Series]]] = defaultdict(list)
+    charted: dict[tuple[str, str, str], list[tuple[Detection, Series]]] = defaultdict(list)
     for detection, series in session.execute(
         select(Detection, Series)
         .join(Series, Series.id == Detection.series_id)
-        .where(Detection.revision_id == revision.id, Detection.method.in_(alarming))
+        .where(
+            Detection.revision_id == revision.id,
+            Detection.method.in_([*alarming, CHARTED_METHOD]),
+        )
         .order_by(Series.case, Series.phase, Series.params, Series.process, Series.counter)
     ):
-        groups[(series.case, series.phase, series.params)].append((detection, series))
+        key = (series.case, series.phase, series.params)
+        if detection.method in alarming:
+            groups[key].append((detection, series))
+        elif detection.flagged and detection.direction == worse(series.process, series.counter):
+            charted[key].append((detection, series))
     cases = []
     regressions = improvements = skipped = undecided = 0
     for (case, phase, params), found in groups.items():
@@ -156,7 +166,8 @@ def ci_verdict(session: Session, component_name: str, title: str) -> CiVerdict:
             # baseline values beside a judged count of timeouts is no pass (a trial saw 2.5x the
             # CPU pass that way, 2026-11-24)
             busy = [(d, s) for d, s in lacking if names_busy_host(d.reason)]
-            first, series = (busy or lacking or found)[0]
+            # a component's own counter before the driver's metrics: what a developer changed
+            first, series = min(busy or lacking or found, key=lambda f: f[1].process == DRIVER)
             undecided += bool(busy)
             skipped += not busy
             some = f" ({len(lacking)} of {len(found)} verdicts)" if lacking else ""
@@ -165,7 +176,8 @@ def ci_verdict(session: Session, component_name: str, title: str) -> CiVerdict:
                 phase=phase,
                 parameters=params,
                 state="undecided" if busy else "skipped",
-                reason=f"not enough data{some}: {series.process} {series.counter}: {first.reason}",
+                reason=f"not enough data{some}: {series.process} {series.counter}: {first.reason}"
+                + _charted_note(charted[(case, phase, params)]),
                 changes=changes,
             )
         else:
@@ -190,6 +202,20 @@ def ci_verdict(session: Session, component_name: str, title: str) -> CiVerdict:
         cases=cases,
         page=f"/components/{quote(component.name)}/revisions/{quote(revision.title)}",
     )
+
+
+def _charted_note(flagged: list[tuple[Detection, Series]]) -> str:
+    """What the charted method, which does not alarm, flagged for the worse in a test case the
+    alarm methods could not judge yet: a threefold CPU must not pass unmentioned (a trial)."""
+    if not flagged:
+        return ""
+    flagged = sorted(flagged, key=lambda f: -abs(f[0].effect or 0.0))
+    said = [
+        f"{s.process} {s.counter} {'n/a' if d.effect is None else f'{d.effect * 100:+.0f} %'}"
+        for d, s in flagged[:3]
+    ]
+    more = f" and {len(flagged) - 3} more" if len(flagged) > 3 else ""
+    return f"; {CHARTED_METHOD}, which charts but does not alarm, flags {', '.join(said)}{more}"
 
 
 def _describe(change: dict[str, Any]) -> str:

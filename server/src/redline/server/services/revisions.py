@@ -155,7 +155,9 @@ def _decode_cursor(cursor: str) -> tuple[str, int]:
         key, _, ident = raw.rpartition("\x00")
         return key, int(ident)
     except (ValueError, UnicodeDecodeError):
-        raise BadRequest(f"malformed cursor {cursor!r}; pass back a next_cursor") from None
+        raise BadRequest(
+            f"malformed cursor {cursor!r}; pass back the X-Next-Cursor header of the last page"
+        ) from None
 
 
 def list_revisions(

@@ -105,8 +105,11 @@ def commit_time(commit: PushCommit) -> datetime | None:
 
 
 def sort_key(when: datetime, index: int) -> str:
-    """Commit time (UTC), then the commit's place in the push: ``20261122T021651Z.0002``."""
-    return f"{when.astimezone(UTC):%Y%m%dT%H%M%SZ}.{index:04d}"
+    """Commit time in seconds since the epoch, as CI reports it (`git log -1 --format=%ct`,
+    docs/ci.md), then the commit's place in the push: ``1795165200.0002``. (A calendar form,
+    ``20261122T021651Z``, sorted before every CI-reported revision: a trial's pushed commit came
+    before the history CI had reported.)"""
+    return f"{int(when.timestamp())}.{index:04d}"
 
 
 def _add_revision(session: Session, component: Component, data: RevisionCreate) -> Revision | None:

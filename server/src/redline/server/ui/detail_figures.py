@@ -17,7 +17,8 @@ if TYPE_CHECKING:
 
 def _ecdf(sketches: list[list[float]]) -> tuple[np.ndarray, np.ndarray]:
     """The pooled ECDF of executions' quantile sketches (each quantile one equal step)."""
-    values = np.sort(np.concatenate([np.asarray(s, dtype=float) for s in sketches if s]))
+    pooled = [np.asarray(s, dtype=float) for s in sketches if s]
+    values = np.sort(np.concatenate(pooled)) if pooled else np.empty(0)  # no baseline: none
     return values, (np.arange(values.size) + 1) / max(1, values.size)
 
 
