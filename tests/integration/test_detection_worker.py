@@ -356,11 +356,11 @@ def test_a_failure_while_storing_fails_the_reanalysis_with_the_error(
     before = {key: (d.id, d.verdict, d.score) for key, d in _verdicts(session).items()}
     stored, store = [], reanalysis._store_staged
 
-    def failing_store(session, revision, run, alarming):  # the fourth revision's fails
+    def failing_store(session, revision, *args):  # the fourth revision's fails
         if len(stored) == 3:
             raise RuntimeError("disk full")
         stored.append(revision.id)
-        store(session, revision, run, alarming)
+        store(session, revision, *args)
 
     monkeypatch.setattr(reanalysis, "_store_staged", failing_store)
     component = session.scalar(select(Component))

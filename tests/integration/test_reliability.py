@@ -16,7 +16,6 @@ import os
 import signal
 import subprocess
 import tempfile
-import textwrap
 import time
 import uuid
 from collections import Counter
@@ -35,42 +34,13 @@ from redline.server.db import session_factory
 from redline.server.models import Execution, Job, JobState, Revision
 from sqlalchemy import func, select, update
 
-from tests.support.git import committed_repo
 from tests.support.servers import Services, fresh_database
+from tests.support.tiny import tiny_repo
 
 pytestmark = pytest.mark.slow
 
 LEASE_S = 4  # short, so that a killed agent's lease lapses within the test
 UNTIL_S = 90.0
-
-SUITE = """\
-    name = "tiny"
-    tests = ["test_tiny.py"]
-    build = ["python", "build.py"]
-    [[component]]
-    name = "tiny"
-    command = ["python", "component.py"]
-    ready = { log = "tiny ready" }
-    """
-FILES = {
-    "perf/redline.toml": SUITE,
-    "perf/component.py": """\
-        import os, time
-        print("tiny ready; the agent's token in my environment:", "REDLINE_TOKEN" in os.environ,
-              flush=True)
-        while True:
-            time.sleep(0.05)
-        """,
-    "perf/test_tiny.py": """\
-        from redline.testing import Phase, Sleep, TestCase
-        idle = TestCase("idle", [Phase("idle", Sleep(1.0))])
-        """,
-    "perf/build.py": """\
-        import os, time
-        if "/slow-" in os.getcwd():  # the tests' way of holding an agent mid-job
-            time.sleep(600)
-        """,
-}
 
 
 def _until(check: Callable[[], object], what: str, timeout: float = UNTIL_S) -> object:
@@ -187,9 +157,7 @@ class Service:
 
 
 def _service(database_url: str, redis_url: str, root: Path, lease_s: int) -> Service:
-    repo, commit = committed_repo(
-        root / "tiny-repo", {name: textwrap.dedent(text) for name, text in FILES.items()}
-    )
+    repo, commit = tiny_repo(root / "tiny-repo")
     stack = Stack(root / "data", free_port())
     (stack.data / "logs").mkdir(parents=True, exist_ok=True)
     stack.env = dict(

@@ -94,9 +94,8 @@ def analyze(
     # a series is missing from it
     missing = next(iter(unjudged.values())) if unjudged and not candidate else NOT_MEASURED
     absent = {**dict.fromkeys(gone, missing), **unjudged}
-    judged = judged_counters(session, [*candidate, *absent], config.context_counters)
-    if only is not None:
-        judged = {series_id: names for series_id, names in judged.items() if only(series_id)}
+    asked = [series_id for series_id in [*candidate, *absent] if only is None or only(series_id)]
+    judged = judged_counters(session, asked, config.context_counters, walk.names if walk else None)
     baselines = Baselines(session, revision, config, sorted(candidate.keys() & judged), walk)
     baselines.cache.put(revision.id, candidate)
     detectors = config.detectors()
@@ -211,20 +210,12 @@ def judge_revision(
         if walk is not None:
             walk.kept(session, revision_id)
         return None
-    config = component_config(session, revision.component_id)
-    if walk is not None and config.window != walk.window:
-        raise WindowChanged(
-            f"component {revision.component_id}: the detection configuration's window changed "
-            f"from {walk.window} to {config.window} during the re-analysis"
-        )
+    # a re-analysis judges with the configuration it began with (a change queues another)
+    config = walk.config if walk is not None else component_config(session, revision.component_id)
     rows, changes = analyze(session, revision, config, candidate, walk, unjudged, only)
     if walk is not None:
         walk.judged(session, revision.id, candidate, rows, complete=read == len(executions))
     return Judged(revision.id, rows, changes, executions)
-
-
-class WindowChanged(RuntimeError):
-    """A re-analysis's memory holds the newest revisions of the window it began with."""
 
 
 def lock_revision(session: Session, revision_id: int) -> None:

@@ -63,17 +63,26 @@ def successor_with_data(session: Session, revision_id: int) -> int | None:
 
 
 def judged_counters(
-    session: Session, series_ids: Collection[int], context: Collection[str] = CONTEXT_COUNTERS
+    session: Session,
+    series_ids: Collection[int],
+    context: Collection[str] = CONTEXT_COUNTERS,
+    known: dict[int, tuple[str, str]] | None = None,
 ) -> dict[int, tuple[str, str]]:
     """Series id → (process, counter), of the series a verdict is asked of
-    (`redline.detect.counters`: not the host's, not a context counter, not a driver's load)."""
-    rows = session.execute(
-        select(Series.id, Series.process, Series.counter).where(Series.id.in_(series_ids))
-    )
+    (`redline.detect.counters`: not the host's, not a context counter, not a driver's load).
+    ``known``: the names read so far (a re-analysis's memory; a series' names never change),
+    brought up to date."""
+    known = {} if known is None else known
+    unknown = [series_id for series_id in series_ids if series_id not in known]
+    if unknown:
+        rows = session.execute(
+            select(Series.id, Series.process, Series.counter).where(Series.id.in_(unknown))
+        )
+        known.update((series_id, (process, counter)) for series_id, process, counter in rows)
     return {
-        series_id: (process, counter)
-        for series_id, process, counter in rows
-        if judged(process, counter, context)
+        series_id: known[series_id]
+        for series_id in series_ids
+        if series_id in known and judged(*known[series_id], context)
     }
 
 
@@ -195,6 +204,8 @@ def count_totals(session: Session, series_ids: Collection[int]) -> dict[int, int
     """For each series counting rare events (a driver's timeouts, losses), the series of what
     it counts out of (the queries sent...: the first of the metric's ``of`` fields that exists
     for the same action); a count without one is left out."""
+    if not series_ids:
+        return {}
     counts = [
         series
         for series in session.scalars(select(Series).where(Series.id.in_(series_ids)))

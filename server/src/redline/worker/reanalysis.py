@@ -28,12 +28,13 @@ from __future__ import annotations
 import logging
 import queue
 import threading
-from collections import deque
+from collections import defaultdict, deque
 from collections.abc import Collection
 from dataclasses import dataclass, field
 from typing import Any, cast
 
 import numpy as np
+from redline.detect.config import DetectionConfig
 from redline.server.db import bulk_insert, session_scope
 from redline.server.models import (
     Component,
@@ -52,7 +53,7 @@ from redline.worker.detection import judge_revision, lock_revision, store
 from redline.worker.grouping import group_revision
 from redline.worker.history import flagged_verdicts, summarized_series
 from redline.worker.rows import Judged
-from redline.worker.samples import SampleCache, Samples, ingested_executions, ingested_runs
+from redline.worker.samples import SampleCache, Samples, ingested_executions
 from sqlalchemy import Table, delete, insert, select, text, update
 from sqlalchemy.dialects.postgresql import insert as upsert
 from sqlalchemy.orm import Session
@@ -89,18 +90,22 @@ class Part:
 @dataclass
 class Walk:
     """What a part carries from one revision to the next, so that a revision's baselines need
-    nothing read back: earlier revisions' samples, every flagged (series, method, revision) of
-    its series so far, and the newest revisions with summaries, each with the series it has
-    summaries of (a series with at least one finite sample), newest last."""
+    nothing read back: the configuration, earlier revisions' samples, every flagged (series,
+    method, revision) of its series so far, and the newest revisions with summaries, each with
+    the series it has summaries of (a series with at least one finite sample), newest last."""
 
+    config: DetectionConfig
     cache: SampleCache
-    window: int
     flagged: set[tuple[int, str, int]] = field(default_factory=set)
     recent: deque[tuple[int, frozenset[int]]] = field(default_factory=deque)
+    #: each series' (process, counter) read so far (`redline.worker.history.judged_counters`)
+    names: dict[int, tuple[str, str]] = field(default_factory=dict)
 
     @classmethod
-    def over(cls, window: int) -> Walk:
-        return cls(SampleCache(window + 1), window, recent=deque(maxlen=window))
+    def over(cls, config: DetectionConfig) -> Walk:
+        """A walk judging with ``config``, which it keeps throughout."""
+        window = config.window
+        return cls(config, SampleCache(window + 1), recent=deque(maxlen=window))
 
     def newest_first(self) -> list[tuple[int, frozenset[int]]]:
         return list(reversed(self.recent))
@@ -289,7 +294,7 @@ def judge_part(database_url: str, component_id: int, run: int, index: int) -> bo
         with session_scope(database_url) as session:
             row = _current(session, component_id, run, lock=True)
             revisions, part = list(row.revisions), Part(index, row.parts)
-            window = component_config(session, component_id).window
+            config = component_config(session, component_id)
             # a redelivered part starts again: what it staged, and counted, is taken back
             staged = session.scalars(
                 delete(StagedRevision)
@@ -308,7 +313,7 @@ def judge_part(database_url: str, component_id: int, run: int, index: int) -> bo
                 )
             )
             row.done -= len(staged)
-        walk = Walk.over(window)
+        walk = Walk.over(config)
         stager = _Stager(database_url, component_id, run, index)
         stager.start()
         try:
@@ -384,17 +389,36 @@ def _store_batch(session: Session, component_id: int, run: int) -> bool:
         )
     ):
         judged_from.setdefault(revision_id, set()).add(executions)
+    ingested: dict[int, list[int]] = defaultdict(list)
+    for execution_id, revision_id in session.execute(
+        select(Execution.id, Execution.revision_id)
+        .where(Execution.revision_id.in_(batch), Execution.id.in_(ingested_executions()))
+        .order_by(Execution.id)  # as `ingested_runs` lists them
+    ):
+        ingested[revision_id].append(execution_id)
+    flagged = set(
+        session.scalars(
+            select(StagedDetection.revision_id)
+            .distinct()
+            .where(
+                StagedDetection.component_id == component_id,
+                StagedDetection.run == run,
+                StagedDetection.revision_id.in_(batch),
+                StagedDetection.flagged,
+            )
+        )
+    )
+    revisions = {r.id: r for r in session.scalars(select(Revision).where(Revision.id.in_(batch)))}
     config = component_config(session, component_id)
-    fresh = row.from_database
+    fresh, stored = row.from_database, []
     for revision_id in batch:
-        revision = session.get(Revision, revision_id)
+        revision = revisions.get(revision_id)
         if revision is None:
             continue  # deleted since it was planned
         said = judged_from.get(revision_id, set())
         if said == {KEPT}:
             continue
-        now = _joined(tuple(execution for execution, _ in ingested_runs(session, revision_id)))
-        if fresh or said != {now}:
+        if fresh or said != {_joined(tuple(ingested[revision_id]))}:
             # an execution was ingested (or one went) since the parts judged it: judged again
             # from what is stored now, as detection does, and so is every revision after it
             fresh = True
@@ -402,17 +426,28 @@ def _store_batch(session: Session, component_id: int, run: int) -> bool:
             if judged is not None:
                 store(session, revision, judged.rows)
             continue
-        _store_staged(session, revision, run, config.alarming)
+        _store_staged(session, revision, run, config.alarming, revision_id in flagged)
+        stored.append(revision_id)
+    if stored:
+        session.execute(
+            update(Revision).where(Revision.id.in_(stored)).values(analyzed_at=utcnow())
+        )
     row.stored, row.done, row.from_database = start + len(batch), row.done + len(batch), fresh
     return True
 
 
 def _store_staged(
-    session: Session, revision: Revision, run: int, alarming: Collection[str]
+    session: Session, revision: Revision, run: int, alarming: Collection[str], flagged: bool
 ) -> None:
     """Replace the revision's verdicts with its staged ones, in the order detection stores them
-    (by series, each series' methods in order), and group its changes into regressions."""
-    session.execute(delete(Detection).where(Detection.revision_id == revision.id))
+    (by series, each series' methods in order), and group its changes into regressions: when
+    it has ``flagged`` ones, or when the verdicts replaced belonged to regressions (which may
+    be left empty); otherwise grouping would find nothing to do."""
+    emptied = session.scalars(
+        delete(Detection)
+        .where(Detection.revision_id == revision.id)
+        .returning(Detection.regression_id)
+    ).all()
     session.execute(
         text(
             f"INSERT INTO detection ({DETECTION_COLUMNS}) SELECT {DETECTION_COLUMNS} "
@@ -421,8 +456,8 @@ def _store_staged(
         ),
         {"component": revision.component_id, "run": run, "revision": revision.id},
     )
-    group_revision(session, revision, alarming)
-    revision.analyzed_at = utcnow()
+    if flagged or any(regression is not None for regression in emptied):
+        group_revision(session, revision, alarming)
 
 
 def reanalyze_component(database_url: str, component_id: int, parts: int = 1) -> int:

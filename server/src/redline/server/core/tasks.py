@@ -75,7 +75,13 @@ def celery_client(settings: Settings, **options: object) -> Celery:
         task_default_queue=settings.queue,
         task_routes={name: {"queue": queue_of(settings, kind)} for name, kind in _KIND.items()},
         broker_connection_retry_on_startup=True,
-        broker_transport_options={"visibility_timeout": settings.task_visibility_s},
+        broker_transport_options={
+            "visibility_timeout": settings.task_visibility_s,
+            # a running worker looks for tasks whose worker died this often (kombu's default,
+            # 10 s x every 10th look, left such a task waiting 100 s past its timeout)
+            "unacked_restore_interval": max(1, min(10, int(settings.task_visibility_s / 4))),
+            "unacked_restore_throttle": 1,
+        },
         task_publish_retry_policy={
             "max_retries": 3,
             "interval_start": 0.2,

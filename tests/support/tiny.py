@@ -1,0 +1,44 @@
+"""A tiny component for tests that run real agents: it idles, and its suite is one one-second
+phase, so that a job takes seconds; its build step hangs for agents whose work folder is named
+``slow-*``, which is how a test holds an agent in the middle of a job."""
+
+from __future__ import annotations
+
+import textwrap
+from pathlib import Path
+
+from tests.support.git import committed_repo
+
+SUITE = """\
+    name = "tiny"
+    tests = ["test_tiny.py"]
+    build = ["python", "build.py"]
+    [[component]]
+    name = "tiny"
+    command = ["python", "component.py"]
+    ready = { log = "tiny ready" }
+    """
+FILES = {
+    "perf/redline.toml": SUITE,
+    "perf/component.py": """\
+        import os, time
+        print("tiny ready; the agent's token in my environment:", "REDLINE_TOKEN" in os.environ,
+              flush=True)
+        while True:
+            time.sleep(0.05)
+        """,
+    "perf/test_tiny.py": """\
+        from redline.testing import Phase, Sleep, TestCase
+        idle = TestCase("idle", [Phase("idle", Sleep(1.0))])
+        """,
+    "perf/build.py": """\
+        import os, time
+        if "/slow-" in os.getcwd():  # the tests' way of holding an agent mid-job
+            time.sleep(600)
+        """,
+}
+
+
+def tiny_repo(path: Path) -> tuple[Path, str]:
+    """The tiny component's repository at ``path``, and its commit."""
+    return committed_repo(path, {name: textwrap.dedent(text) for name, text in FILES.items()})
