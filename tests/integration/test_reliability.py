@@ -35,7 +35,7 @@ from redline.server.models import Execution, Job, JobState, Revision
 from sqlalchemy import func, select, update
 
 from tests.support.servers import Services, fresh_database
-from tests.support.tiny import tiny_repo
+from tests.support.tiny import agent_args, tiny_repo
 
 pytestmark = pytest.mark.slow
 
@@ -78,19 +78,7 @@ class Service:
     def start_agent(self, name: str) -> Child:
         self.stack._spawn(
             name,
-            "agent",
-            "--server",
-            self.stack.url,
-            "--name",
-            name,
-            "--work",
-            str(self.root / name),
-            "--poll",
-            "0.5",
-            "--wait",
-            "2",
-            "--grace",
-            "300",
+            *agent_args(self.stack.url, name, self.root / name),
             env={"REDLINE_TOKEN": self.tokens["agent"]},
         )
         return self.stack.children[-1]

@@ -42,3 +42,11 @@ FILES = {
 def tiny_repo(path: Path) -> tuple[Path, str]:
     """The tiny component's repository at ``path``, and its commit."""
     return committed_repo(path, {name: textwrap.dedent(text) for name, text in FILES.items()})
+
+
+def agent_args(server: str, name: str, work: Path) -> list[str]:
+    """`redline agent`'s arguments (after `redline`) for a test's agent: it looks for jobs every
+    half second, waits 2 s for one, and lets a job it runs end (grace) rather than a test's
+    signal stop it half-way."""
+    return ["agent", "--server", server, "--name", name, "--work", str(work),
+            "--poll", "0.5", "--wait", "2", "--grace", "300"]  # fmt: skip
