@@ -68,6 +68,9 @@ def test_lnt_report_becomes_a_revision_with_a_series_per_test_and_metric(api: Ap
     assert fib["points"][0]["n"] == 4 and fib["points"][0]["mean"] == pytest.approx(1.0125)
     execution = api.client.get(f"/api/v1/executions/{answer.json()['execution_id']}").json()
     assert execution["host"] == "bench-box" and execution["metadata"] == {"imported": "json"}
+    # the machine the report names is no performance host: the home page does not list it as
+    # one, for ever offline (a trial)
+    assert "bench-box" not in api.client.get("/").text
 
 
 def test_same_report_twice_stores_it_once(api: Api):

@@ -145,3 +145,14 @@ def test_component_settings_are_created_patched_and_shown(api: Api):
     )
     assert denied.status_code == 403
     assert send_github(api, github_push()).status_code == 202  # main no longer matches
+
+
+def test_without_a_secret_every_delivery_is_told_so(services: Services, tmp_path: Path):
+    """A trial: with no secret configured, a well-formed push was told "no webhook secret is
+    configured" and a malformed body "signature does not match"."""
+    with api_with(services, tmp_path) as bare:  # no REDLINE_WEBHOOK_SECRET, no component's own
+        for body in (github_push(), b'{"not": "a push"}', b"not json"):
+            answer = send_github(bare, body)
+            assert answer.status_code == 401, answer.text
+            assert "no webhook secret is configured" in answer.json()["detail"], body
+        assert counts(bare) == (0, 0)

@@ -86,8 +86,8 @@ def compare_cmd(
     judge_split: Annotated[
         bool,
         typer.Option(
-            help="judge the user/system split of CPU too (by default only the total is judged: "
-            "the split moves between runs of the same code)"
+            help="judge the context counters too: the user/system split of CPU and involuntary "
+            "context switches (by default not: they move between runs of the same code)"
         ),
     ] = False,
 ) -> None:

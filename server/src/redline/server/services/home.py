@@ -52,7 +52,12 @@ class QueuedJob:
     pair: int
 
 
+#: the fingerprint of a host only imported results name (`redline.server.services.imports`)
+IMPORTED = {"imported": True}
+
+
 def list_hosts(session: Session) -> list[HostView]:
+    """The performance hosts: the agents that registered, whether online now or not."""
     held = {
         host_id: f"{component} {title}"
         for host_id, component, title in session.execute(
@@ -73,6 +78,7 @@ def list_hosts(session: Session) -> list[HostView]:
             fingerprint=dict(host.fingerprint or {}),
         )
         for host in session.scalars(select(Host).order_by(Host.name))
+        if host.fingerprint != IMPORTED  # a machine an import named, not an agent: no host here
     ]
 
 

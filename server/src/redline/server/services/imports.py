@@ -17,6 +17,7 @@ from redline.recording import SeriesKey, canonical_params
 from redline.server.models import Execution, Host, Job, JobState, Revision, Summary
 from redline.server.schemas.imports import ImportResult, ResultsImport
 from redline.server.services.components import get_component
+from redline.server.services.home import IMPORTED
 from redline.server.services.ingestion import store_samples
 from redline.server.services.revisions import order_key
 from sqlalchemy import func, select
@@ -79,7 +80,7 @@ def _host(session: Session, name: str) -> Host | None:
         return None
     session.execute(
         insert(Host)
-        .values(name=name, fingerprint={"imported": True}, labels=[])
+        .values(name=name, fingerprint=IMPORTED, labels=[])
         .on_conflict_do_nothing(index_elements=["name"])
     )
     return session.scalars(select(Host).where(Host.name == name)).one()

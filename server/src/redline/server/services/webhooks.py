@@ -167,6 +167,13 @@ def _record(session: Session, components: list[Component], push: Push) -> Webhoo
     return result
 
 
+def _unverified(secrets: set[str]) -> str:
+    """Why a delivery is refused: no secret to check it with, or none it was signed with (the
+    same answer whatever the body holds: a trial saw a malformed body told "does not match"
+    where a well-formed one was told no secret is configured)."""
+    return "webhook signature does not match" if any(secrets) else "no webhook secret is configured"
+
+
 def authenticate_push(
     session: Session, body: bytes, verify: Verifier, default_secret: str
 ) -> tuple[Push, list[Component]]:
@@ -180,16 +187,12 @@ def authenticate_push(
         push = parse_push(body)
     except BadRequest:
         if not verify(default_secret):
-            raise Unauthorized("webhook signature does not match") from None
+            raise Unauthorized(_unverified({default_secret})) from None
         raise
     candidates = _of_repository(session, push)
     secrets = {c.webhook_secret or default_secret for c in candidates} or {default_secret}
     if not any(verify(secret) for secret in secrets):
-        raise Unauthorized(
-            "webhook signature does not match"
-            if any(secrets)
-            else "no webhook secret is configured"
-        )
+        raise Unauthorized(_unverified(secrets))
     return push, [
         c
         for c in candidates
