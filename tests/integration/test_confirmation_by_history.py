@@ -206,3 +206,43 @@ def test_a_later_change_does_not_confirm_an_earlier_flag(session, database_url, 
     by_revision = {r.bad_revision.title: r for r in session.scalars(select(Regression))}
     assert by_revision["r5"].confirmation == "suspected"
     assert by_revision["r6"].confirmation == "confirmed"
+
+
+def test_a_later_spike_that_was_dropped_does_not_stop_an_earlier_change_being_confirmed(
+    session, database_url, tmp_path
+):
+    """A flag the revisions after it dropped (a spike) is no change: the revisions after it
+    still confirm an earlier change, the newest suspected being settled first."""
+    _component(session)
+    rng = np.random.default_rng(11)
+    levels = [(20.0, 20.0)] * 4 + [(30.0, 20.0), (30.0, 30.0)] + [(30.0, 20.0)] * 3
+    for number, (cpu, spiky) in enumerate(levels, start=1):  # cpu up at r5; a spike at r6
+        runs = [
+            {"cpu": rng.normal(cpu, cpu * 0.02, 40), "spiky": rng.normal(spiky, spiky * 0.02, 40)}
+            for _ in range(RUNS)
+        ]
+        executions = add_executions(session, tmp_path, NAME, f"r{number}", str(number), runs)
+        ingest_and_detect(database_url, executions)
+    session.expire_all()
+    rows = session.execute(
+        select(Detection, Revision.title)
+        .join(Revision, Revision.id == Detection.revision_id)
+        .where(Detection.flagged, Detection.method == "execution_shift")
+    )
+    flagged = {(title, d.series.counter): d for d, title in rows}
+    assert {("r5", "cpu"), ("r6", "spiky")} <= set(flagged), set(flagged)
+    spike, change = flagged[("r6", "spiky")], flagged[("r5", "cpu")]
+    assert spike.confirmation == "dropped", spike.confirmation_reason
+    assert change.confirmation == "held", change.confirmation_reason
+    before = {key: d.confirmation for key, d in flagged.items()}
+    reanalyze_component(database_url, session.scalar(select(Regression.component_id)), 2)
+    session.expire_all()
+    again = {
+        (title, d.series.counter): d.confirmation
+        for d, title in session.execute(
+            select(Detection, Revision.title)
+            .join(Revision, Revision.id == Detection.revision_id)
+            .where(Detection.flagged, Detection.method == "execution_shift")
+        )
+    }
+    assert again == before  # as the incremental path settled them

@@ -169,8 +169,12 @@ def confirm_by_history(
     session: Session, component_id: int, wait: int, alarming: Collection[str]
 ) -> None:
     """Settle what the component's stored revisions can settle, then summarize regressions.
+
     A revision with a flagged change of the ``alarming`` methods ends what the revisions before
-    it can confirm (`settle`)."""
+    it can confirm (`settle`), unless every such change of it was dropped (a spike is no
+    change). The newest suspected changes are settled first, so that whether a later flag was
+    dropped is known when an earlier one is settled: one pass reaches what repeated passes would.
+    """
     # a revision whose confirmation runs are still under way waits for them
     # (`redline.worker.confirm_runs`, which leaves suspected what no complete pair can settle)
     rerun = exists().where(
@@ -180,30 +184,34 @@ def confirm_by_history(
     suspected = session.execute(
         select(Detection, Series.process, Series.counter)
         .join(Series, Series.id == Detection.series_id)
+        .join(Revision, Revision.id == Detection.revision_id)
         .where(
             Series.component_id == component_id,
             Detection.confirmation == SUSPECTED,
             ~rerun,
         )
-        .order_by(Detection.id)
+        .order_by(Revision.order_key.desc(), Revision.id.desc(), Detection.id)
     ).all()
-    changed = (
-        set(
-            session.scalars(
-                select(Detection.revision_id)
-                .distinct()
-                .join(Series, Series.id == Detection.series_id)
-                .where(
-                    Series.component_id == component_id,
-                    Detection.flagged,
-                    Detection.method.in_(list(alarming)),
-                )
+    # per revision with flagged changes, those not dropped: while any is left, it changed
+    standing: dict[int, set[int]] = defaultdict(set)
+    if suspected:
+        for revision_id, detection_id in session.execute(
+            select(Detection.revision_id, Detection.id)
+            .join(Series, Series.id == Detection.series_id)
+            .where(
+                Series.component_id == component_id,
+                Detection.flagged,
+                Detection.method.in_(list(alarming)),
+                Detection.confirmation != DROPPED,
             )
-        )
-        if suspected
-        else set()
-    )
+        ):
+            standing[revision_id].add(detection_id)
+    changed = set(standing)
     for detection, process, counter in suspected:
         settle(session, detection, process, counter, wait, changed)
+        if detection.confirmation == DROPPED and detection.revision_id in standing:
+            standing[detection.revision_id].discard(detection.id)
+            if not standing[detection.revision_id]:
+                changed.discard(detection.revision_id)
     session.flush()
     _summarize_regressions(session, component_id)
