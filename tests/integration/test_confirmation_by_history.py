@@ -177,27 +177,42 @@ def test_a_change_whose_series_is_no_longer_measured_is_dropped_not_left_waiting
     )
 
 
-def test_a_later_change_does_not_confirm_an_earlier_flag(session, database_url, tmp_path):
-    """A trial's README commit was flagged on a noisy counter; the next revision raised CPU
-    threefold, and the counter with it, and the README commit's regression was "confirmed" by
-    that later change. Only the revisions before the next change may confirm a flag."""
+def _judge_two(
+    session, database_url: str, tmp_path: Path, levels: list[tuple[float, float]], names, seed
+) -> dict[tuple[str, str], Detection]:
+    """Revisions r1.. of two counters ``names`` at ``levels``, judged one by one; the flagged
+    detections of the default method, by (revision, counter)."""
     _component(session)
-    rng = np.random.default_rng(9)
-    levels = [(20.0, 20.0)] * 4 + [(20.0, 30.0)] + [(30.0, 30.0)] * 3  # (cpu, noisy)
-    for number, (cpu, noisy) in enumerate(levels, start=1):
+    rng = np.random.default_rng(seed)
+    for number, pair in enumerate(levels, start=1):
         runs = [
-            {"cpu": rng.normal(cpu, cpu * 0.02, 40), "noisy": rng.normal(noisy, noisy * 0.02, 40)}
+            {
+                name: rng.normal(level, level * 0.02, 40)
+                for name, level in zip(names, pair, strict=True)
+            }
             for _ in range(RUNS)
         ]
         executions = add_executions(session, tmp_path, NAME, f"r{number}", str(number), runs)
         ingest_and_detect(database_url, executions)
     session.expire_all()
+    return _flagged_by_counter(session)
+
+
+def _flagged_by_counter(session) -> dict[tuple[str, str], Detection]:
     rows = session.execute(
         select(Detection, Revision.title)
         .join(Revision, Revision.id == Detection.revision_id)
         .where(Detection.flagged, Detection.method == "execution_shift")
     )
-    flagged = {(title, d.series.counter): d for d, title in rows}
+    return {(title, d.series.counter): d for d, title in rows}
+
+
+def test_a_later_change_does_not_confirm_an_earlier_flag(session, database_url, tmp_path):
+    """A trial's README commit was flagged on a noisy counter; the next revision raised CPU
+    threefold, and the counter with it, and the README commit's regression was "confirmed" by
+    that later change. Only the revisions before the next change may confirm a flag."""
+    levels = [(20.0, 20.0)] * 4 + [(20.0, 30.0)] + [(30.0, 30.0)] * 3
+    flagged = _judge_two(session, database_url, tmp_path, levels, ("cpu", "noisy"), seed=9)
     assert set(flagged) == {("r5", "noisy"), ("r6", "cpu")}, set(flagged)
     early, real = flagged[("r5", "noisy")], flagged[("r6", "cpu")]
     assert early.confirmation == "suspected", early.confirmation_reason
@@ -213,23 +228,8 @@ def test_a_later_spike_that_was_dropped_does_not_stop_an_earlier_change_being_co
 ):
     """A flag the revisions after it dropped (a spike) is no change: the revisions after it
     still confirm an earlier change, the newest suspected being settled first."""
-    _component(session)
-    rng = np.random.default_rng(11)
     levels = [(20.0, 20.0)] * 4 + [(30.0, 20.0), (30.0, 30.0)] + [(30.0, 20.0)] * 3
-    for number, (cpu, spiky) in enumerate(levels, start=1):  # cpu up at r5; a spike at r6
-        runs = [
-            {"cpu": rng.normal(cpu, cpu * 0.02, 40), "spiky": rng.normal(spiky, spiky * 0.02, 40)}
-            for _ in range(RUNS)
-        ]
-        executions = add_executions(session, tmp_path, NAME, f"r{number}", str(number), runs)
-        ingest_and_detect(database_url, executions)
-    session.expire_all()
-    rows = session.execute(
-        select(Detection, Revision.title)
-        .join(Revision, Revision.id == Detection.revision_id)
-        .where(Detection.flagged, Detection.method == "execution_shift")
-    )
-    flagged = {(title, d.series.counter): d for d, title in rows}
+    flagged = _judge_two(session, database_url, tmp_path, levels, ("cpu", "spiky"), seed=11)
     assert {("r5", "cpu"), ("r6", "spiky")} <= set(flagged), set(flagged)
     spike, change = flagged[("r6", "spiky")], flagged[("r5", "cpu")]
     assert spike.confirmation == "dropped", spike.confirmation_reason
@@ -237,12 +237,5 @@ def test_a_later_spike_that_was_dropped_does_not_stop_an_earlier_change_being_co
     before = {key: d.confirmation for key, d in flagged.items()}
     reanalyze_component(database_url, session.scalar(select(Regression.component_id)), 2)
     session.expire_all()
-    again = {
-        (title, d.series.counter): d.confirmation
-        for d, title in session.execute(
-            select(Detection, Revision.title)
-            .join(Revision, Revision.id == Detection.revision_id)
-            .where(Detection.flagged, Detection.method == "execution_shift")
-        )
-    }
+    again = {key: d.confirmation for key, d in _flagged_by_counter(session).items()}
     assert again == before  # as the incremental path settled them
