@@ -339,9 +339,11 @@ def finish(database_url: str, component_id: int, run: int) -> bool:
     """Store the staged verdicts revision by revision in order, then settle confirmations; True
     when this call ended the re-analysis (False: superseded, or ended by another)."""
     try:
+        with session_scope(database_url) as session:
+            planned = list(_current(session, component_id, run).revisions)  # read once
         while True:
             with session_scope(database_url) as session:
-                if not _store_batch(session, component_id, run):
+                if not _store_batch(session, component_id, run, planned):
                     break
         with session_scope(database_url) as session:
             session.execute(
@@ -366,11 +368,11 @@ def finish(database_url: str, component_id: int, run: int) -> bool:
     return True
 
 
-def _store_batch(session: Session, component_id: int, run: int) -> bool:
-    """The next `FINISH_BATCH` planned revisions stored; False when none is left."""
+def _store_batch(session: Session, component_id: int, run: int, planned: list[int]) -> bool:
+    """The next `FINISH_BATCH` of the ``planned`` revisions stored; False when none is left."""
     row = _current(session, component_id, run)
     start = row.stored
-    batch = row.revisions[start : start + FINISH_BATCH]
+    batch = planned[start : start + FINISH_BATCH]
     if not batch or row.state != "running":
         return False
     # the revisions' locks before the component's, in the order detection takes them

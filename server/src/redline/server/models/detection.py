@@ -167,7 +167,10 @@ class Reanalysis(Base):
     finished: Mapped[datetime | None] = mapped_column(default=None)
     run: Mapped[int] = mapped_column(Integer, default=0, server_default="0")
     parts: Mapped[int] = mapped_column(Integer, default=1, server_default="1")
-    revisions: Mapped[list[int]] = mapped_column(JSON, default=list, server_default="[]")
+    #: read only where it is used (a part's start, the finishing step's): it holds every revision
+    revisions: Mapped[list[int]] = mapped_column(
+        JSON, default=list, server_default="[]", deferred=True
+    )
     parts_done: Mapped[list[int]] = mapped_column(JSON, default=list, server_default="[]")
     stored: Mapped[int] = mapped_column(Integer, default=0, server_default="0")
     #: the finishing step met a revision whose executions changed since its parts judged it:
