@@ -387,6 +387,33 @@ def test_a_case_not_judged_yet_names_the_change_the_charted_method_sees(
     assert "ks, which" not in quiet.reason  # nothing flagged: nothing said
 
 
+def test_a_case_whose_method_failed_is_undecided_never_passed(
+    session, database_url, tmp_path, monkeypatch
+):
+    """A trial stored a threshold of the wrong kind: every verdict of its alarm method said
+    "method failed", and the case of a fourfold CPU rise "passed"."""
+    from redline.detect.methods import KolmogorovSmirnov
+    from redline.server.models import DetectionConfigRow
+
+    component = create_component(session, ComponentCreate(name=NAME, executions=RUNS))
+    session.add(DetectionConfigRow(component_id=component.id, config={"methods": ["ks"]}))
+    session.commit()
+    ingest_and_detect(database_url, _revision(session, tmp_path, 1))
+
+    def broken(self, baseline, candidate):
+        raise TypeError("'<' not supported between instances of 'float' and 'str'")
+
+    monkeypatch.setattr(KolmogorovSmirnov, "compare", broken)
+    ingest_and_detect(database_url, _revision(session, tmp_path, 2, cpu=80.0))
+    session.expire_all()
+    verdict = ci_verdict(session, NAME, "r2")
+    (case,) = verdict.cases
+    assert case.state == "undecided" and "method failed: TypeError" in case.reason, case
+    assert verdict.undecided == 1
+    suite = ElementTree.fromstring(junit_xml(verdict))
+    assert suite.get("errors") == "1", junit_xml(verdict)
+
+
 def test_the_newest_of_several_revisions_waits_for_the_earlier_ones_it_lacks(
     session, database_url, tmp_path
 ):

@@ -3,6 +3,8 @@ database: arrays in, verdicts out."""
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 from redline.detect.config import ConfigError, DetectionConfig
@@ -37,11 +39,29 @@ def test_the_absolute_floor_keeps_a_tiny_significant_change_quiet():
         ({"baseline": "pinned"}, "pinned"),
         ({"thresholds": {"ks": {"beta": 1}}}, "thresholds.ks"),
         ({"window": 0}, "window"),
+        # of the wrong kind or range: stored, they failed every verdict of their method (a trial)
+        ({"thresholds": {"ks": {"alpha": "high"}}}, "thresholds.ks.alpha: must be a number"),
+        ({"thresholds": {"ks": {"alpha": -1}}}, "thresholds.ks.alpha: must be between 0 and 1"),
+        ({"thresholds": {"ks": {"min_baseline": 2.5}}}, "ks.min_baseline: must be a whole"),
+        ({"thresholds": {"execution_shift": {"threshold": True}}}, "threshold: must be a number"),
+        ({"thresholds": {"execution_shift": {"min_effect": -0.1}}}, "min_effect: must be 0 or"),
     ],
 )
 def test_bad_configuration_names_the_field(config, field):
-    with pytest.raises(ConfigError, match=field):
+    with pytest.raises(ConfigError, match=re.escape(field)):
         DetectionConfig.parse(config)
+
+
+def test_thresholds_of_the_right_kind_are_taken():
+    config = DetectionConfig.parse(
+        {
+            "thresholds": {
+                "ks": {"alpha": 0.05, "min_baseline": 3},
+                "execution_shift": {"threshold": 6},
+            }
+        }
+    )
+    assert config.detectors()[1].alpha == 0.05
 
 
 def test_median_shift_ignores_a_few_huge_outliers_that_move_the_mean():

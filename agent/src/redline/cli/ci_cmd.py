@@ -5,7 +5,8 @@ table, and says by its exit code whether the revision passes.
 Exit codes: 0 no change (per ``--fail-on``), 1 a change, 2 bad input or timeout (unknown
 component or revision, refused token, no verdict in time), 3 the revision's jobs failed, 4 no
 change found but some test case undecided: the host was busy in every run of it or of its
-baseline, even after a fresh run (never a silent pass; ``--fail-on none`` passes it).
+baseline, even after a fresh run, or its method failed (never a silent pass; ``--fail-on none``
+passes it).
 Only httpx is needed, so CI machines install the light `redline-agent` distribution.
 """
 
@@ -81,7 +82,7 @@ def _table(verdict: dict[str, Any], fail_on: FailOn) -> str:
         f"the worse, {verdict['improvements']} for the better, {verdict['skipped']} test "
         f"case(s) without enough data"
         + (
-            f", {verdict['undecided']} undecided (the host was busy)"
+            f", {verdict['undecided']} undecided (the host was busy, or a method failed)"
             if verdict.get("undecided")
             else ""
         )
@@ -132,7 +133,8 @@ def wait(
     poll: Annotated[float, typer.Option(min=0.1, help="seconds between two looks")] = 10.0,
 ) -> None:
     """Wait for a revision's verdict; write JUnit XML; exit 0 (no change), 1 (change), 2 (bad
-    input or timeout), 3 (its jobs failed), 4 (undecided: the host was busy)."""
+    input or timeout), 3 (its jobs failed), 4 (undecided: the host was busy, or a method
+    failed)."""
     if urlsplit(server).scheme not in ("http", "https") or not urlsplit(server).hostname:
         _stop(BAD_INPUT, f"--server {server!r}: not an http:// or https:// URL")
     if junit is not None:
@@ -199,7 +201,8 @@ def wait(
         _stop(
             UNDECIDED,
             f"{verdict['undecided']} test case(s) undecided: the host was busy in every run of "
-            "them or of their baseline, even after a fresh run; see the page",
+            "them or of their baseline, even after a fresh run, or a method failed; see the "
+            "page",
         )
     raise typer.Exit(PASSED)
 

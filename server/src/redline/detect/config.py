@@ -7,6 +7,7 @@ the API validates what an admin sends with `DetectionConfig.parse`. Errors name 
 from __future__ import annotations
 
 import inspect
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
@@ -36,6 +37,31 @@ def _integer(value: Any, name: str) -> int:
     if isinstance(value, bool) or not isinstance(value, int):
         raise ConfigError(f"{name}: must be a whole number, not {value!r}")
     return value
+
+
+#: thresholds that are probabilities or shares: strictly between 0 and 1
+_PROBABILITIES = {"alpha", "confidence_lv", "min_support", "min_confidence"}
+
+
+def _check_threshold(where: str, value: Any, default: Any) -> None:
+    """A threshold of the kind its default is: a text, a whole number of at least 1 (a count of
+    values), or a finite number of at least 0 (a probability: between 0 and 1). A value of
+    another kind was stored, and every verdict of its method then failed (a trial: an alpha of
+    "high" made a fourfold CPU rise pass CI)."""
+    if isinstance(default, str):
+        if not isinstance(value, str):
+            raise ConfigError(f"{where}: must be text, like {default!r}, not {value!r}")
+        return
+    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+        raise ConfigError(f"{where}: must be a number, like {default!r}, not {value!r}")
+    if isinstance(default, int) and not isinstance(default, bool):
+        if not isinstance(value, int) or value < 1:
+            raise ConfigError(f"{where}: must be a whole number of at least 1, not {value!r}")
+    elif where.rsplit(".", 1)[-1] in _PROBABILITIES:
+        if not 0 < value < 1:
+            raise ConfigError(f"{where}: must be between 0 and 1, not {value!r}")
+    elif value < 0:
+        raise ConfigError(f"{where}: must be 0 or more, not {value!r}")
 
 
 @dataclass(frozen=True)
@@ -133,12 +159,18 @@ class DetectionConfig:
         for name, params in self.thresholds.items():
             if name not in self.methods:
                 raise ConfigError(f"thresholds: {name!r} is not among the methods")
-            allowed = list(inspect.signature(DETECTORS[name].__init__).parameters)[1:]
-            for key in params:
+            allowed = {
+                key: parameter.default
+                for key, parameter in list(
+                    inspect.signature(DETECTORS[name].__init__).parameters.items()
+                )[1:]
+            }
+            for key, value in params.items():
                 if key not in allowed:
                     raise ConfigError(
                         f"thresholds.{name}: unknown parameter {key!r}; known: {', '.join(allowed)}"
                     )
+                _check_threshold(f"thresholds.{name}.{key}", value, allowed[key])
 
     def detectors(self) -> list[Detector]:
         """One detector per configured method, with its thresholds."""

@@ -47,6 +47,9 @@ def not_enough(method: str, reason: str) -> Detection:
     return Detection(method=method, verdict=NOT_ENOUGH_DATA, reason=reason)
 
 
+#: how the "not enough data" reason of a method that raised begins (`redline.detect.verdict`)
+METHOD_FAILED = "method failed"
+
 #: how the "not enough data" reasons begin that more history lifts
 HISTORY_REASONS = ("missing baseline", "too few samples: baseline")
 

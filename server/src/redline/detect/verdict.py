@@ -13,7 +13,7 @@ import logging
 import numpy as np
 from redline.detect.floors import absolute_floor
 from redline.detect.methods import Detector
-from redline.detect.result import NO_CHANGE, Detection, not_enough
+from redline.detect.result import METHOD_FAILED, NO_CHANGE, Detection, not_enough
 
 log = logging.getLogger(__name__)
 
@@ -38,7 +38,7 @@ def judge_series(
         found = detector.compare(baseline, candidate)
     except Exception as exc:  # a detector bug must not lose the other series' verdicts
         log.exception("%s failed on %s", detector.name, counter)
-        return not_enough(detector.name, f"method failed: {type(exc).__name__}: {exc}")
+        return not_enough(detector.name, f"{METHOD_FAILED}: {type(exc).__name__}: {exc}")
     if not found.flagged:
         return found
     floor = absolute_floor(counter)

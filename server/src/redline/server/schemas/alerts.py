@@ -122,7 +122,8 @@ class CaseVerdict(BaseModel):
     parameters: str
     state: Literal["passed", "failed", "skipped", "undecided"] = Field(
         description="skipped: no verdict yet (a history too short); undecided: none because "
-        "the host was busy in every run of it or of its baseline, even after a fresh run"
+        "the host was busy in every run of it or of its baseline, even after a fresh run, or "
+        "because the method failed"
     )
     changes: list[dict] = Field(default_factory=list)
     reason: str = ""
@@ -141,7 +142,8 @@ class CiVerdict(BaseModel):
     improvements: int
     skipped: int = Field(description="test cases without a verdict (not enough data)")
     undecided: int = Field(
-        default=0, description="test cases without a verdict because the host was busy"
+        default=0,
+        description="test cases without a verdict because the host was busy or a method failed",
     )
     cases: list[CaseVerdict]
     page: str = Field(description="the revision's page")

@@ -6,7 +6,8 @@ seen them, while confirmation runs of it are under way, and while its baseline i
 run afresh because the host was busy in all its runs (`redline.worker.remeasure`). A change for
 the worse that confirmation dropped is not a failure; one still suspected is (the later revisions
 may drop it, the CI run cannot wait for them), and says so. A test case left without a verdict
-because the host stayed busy is "undecided", an error in JUnit: never a silent pass.
+because the host stayed busy, or because its method failed, is "undecided", an error in JUnit:
+never a silent pass.
 """
 
 from __future__ import annotations
@@ -19,7 +20,12 @@ from xml.etree import ElementTree
 from redline.detect.config import CHARTED_METHOD
 from redline.detect.confirmation import DROPPED
 from redline.detect.counters import worse
-from redline.detect.result import HISTORY_REASONS, NOT_ENOUGH_DATA, waits_for_history
+from redline.detect.result import (
+    HISTORY_REASONS,
+    METHOD_FAILED,
+    NOT_ENOUGH_DATA,
+    waits_for_history,
+)
 from redline.recording.disturbance import names_busy_host
 from redline.recording.driver import DRIVER_PROCESS as DRIVER
 from redline.server.models import Detection, Job, JobState, Revision, Series
@@ -159,13 +165,13 @@ def ci_verdict(session: Session, component_name: str, title: str) -> CiVerdict:
             (d, s)
             for d, s in found
             if d.verdict == NOT_ENOUGH_DATA
-            and (names_busy_host(d.reason) or waits_for_history(d.reason))
+            and (_undecided(d.reason) or waits_for_history(d.reason))
         ]
         if not worse_count and (lacking or all(d.verdict == NOT_ENOUGH_DATA for d, _ in found)):
             # passed only when every series that can be judged was: a CPU series still short of
             # baseline values beside a judged count of timeouts is no pass (a trial saw 2.5x the
             # CPU pass that way, 2026-11-24)
-            busy = [(d, s) for d, s in lacking if names_busy_host(d.reason)]
+            busy = [(d, s) for d, s in lacking if _undecided(d.reason)]
             # a component's own counter before the driver's metrics: what a developer changed
             first, series = min(busy or lacking or found, key=lambda f: f[1].process == DRIVER)
             undecided += bool(busy)
@@ -202,6 +208,13 @@ def ci_verdict(session: Session, component_name: str, title: str) -> CiVerdict:
         cases=cases,
         page=f"/components/{quote(component.name)}/revisions/{quote(revision.title)}",
     )
+
+
+def _undecided(reason: str) -> bool:
+    """A "not enough data" no wait lifts: the host was busy in every run (and a fresh one), or
+    the method failed (a trial's threshold of the wrong kind made every verdict fail, and its
+    fourfold CPU rise "passed")."""
+    return names_busy_host(reason) or reason.startswith(METHOD_FAILED)
 
 
 def _charted_note(flagged: list[tuple[Detection, Series]]) -> str:
