@@ -126,9 +126,28 @@ def test_duplicate_component_or_revision_title_is_409(api: Api):
     answer = api.post(
         "/api/v1/revisions",
         "ci",
-        {"component": "builder", "title": "r1", "sort_key": "5", "commit": "abc123"},
+        {"component": "builder", "title": "r1", "sort_key": "5", "commit": "def456"},
     )
     assert answer.status_code == 409 and "'r1'" in answer.json()["detail"]
+    assert "'abc123'" in answer.json()["detail"]  # both commits named
+
+
+def test_a_revision_reported_again_with_its_commit_is_the_same_revision(api: Api):
+    """A re-run CI pipeline (or CI and a webhook both) report a revision again: ci.md's
+    `curl -fsS` failed on the 409 before `redline ci wait` could run (a trial)."""
+    api.component()
+    body = {"component": "builder", "title": "r1", "sort_key": "7", "commit": "c" * 40}
+    first = api.post("/api/v1/revisions", "ci", body)
+    assert first.status_code == 201, first.text
+    again = api.post("/api/v1/revisions", "ci", body)
+    assert again.status_code == 200 and again.json() == first.json(), again.text
+    # a webhook's key for the same commit ("7.0000") or a CI's: the first report's stands
+    keyed = api.post("/api/v1/revisions", "ci", {**body, "sort_key": "7.0000"})
+    assert keyed.status_code == 200 and keyed.json() == first.json(), keyed.text
+    other = api.post("/api/v1/revisions", "ci", {**body, "commit": "d" * 40})
+    assert other.status_code == 409 and "c" * 40 in other.json()["detail"], other.text
+    listed = api.client.get("/api/v1/components/builder/revisions").json()
+    assert [r["title"] for r in listed] == ["r1"] and len(first.json()["job_ids"]) >= 1
 
 
 def test_revisions_are_listed_in_sort_key_order_with_their_state(api: Api):

@@ -148,6 +148,8 @@ def test_bad_filters_and_unknown_things_are_pages_naming_them(client, database_u
         bad = client.get(f"/components/builder?{switch}={value}")
         assert bad.status_code == 400 and f"{switch}: 1 or 0" in bad.text, bad.text
     assert client.get("/components/builder?log=on&median=0").status_code == 200
+    nul = client.get("/components/builder?before=%00")  # was a 422 naming a database detail
+    assert nul.status_code == 400 and "before: must not contain control" in nul.text, nul.text
     missing = client.get("/components/nope")
     assert missing.status_code == 404 and "nope" in missing.text
     assert client.get("/components/builder/revisions/r99").status_code == 404
@@ -282,6 +284,8 @@ def test_triage_in_the_page_needs_a_sign_in_and_the_form_token(client, database_
     with session_factory(database_url)() as session:
         create_user(session, "ada", "correct horse battery", "ci")
         create_user(session, "reader", "correct horse battery", "read")
+        with pytest.raises(BadRequest, match="'agent' is for a host's token"):  # a trial made one
+            create_user(session, "eve", "correct horse battery", "agent")
     triage = f"/regressions/{number}/triage"
     refused = client.post(triage, data={"state": "confirmed", "csrf": "x"})
     assert refused.status_code == 403 and "sign in" in refused.text
@@ -370,6 +374,9 @@ def test_why_flagged_shows_what_was_compared(client, database_url, tmp_path):
     assert pooled[-1] == "r3" and set(pooled) <= {"r1", "r2", "r3"}
     assert min(sides["candidate executions"]["y"]) > 5 * max(sides["baseline executions"]["y"])
     assert "largest gap 1.00" in distributions["layout"]["title"]["text"]  # apart entirely
+    # the method's own rule, not one rule for all (KS's score is D: it needs no "1 or more")
+    assert "needs 1 or more" not in page.text
+    assert flagged["method"] == "ks" and "the score is D (0..1)" in page.text
     assert client.get("/detections/999999").status_code == 404
     # a verdict with no baseline (the first revision's) has its page too: the API lists it
     # (a trial got a 500 for each of those)

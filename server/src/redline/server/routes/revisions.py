@@ -2,12 +2,12 @@
 
 from __future__ import annotations
 
-from fastapi import APIRouter, Depends, status
+from fastapi import APIRouter, Depends, Response, status
 from redline.server.api.deps import SessionDep, require
 from redline.server.core.bodies import JsonRoute
 from redline.server.schemas.common import Problem
 from redline.server.schemas.revisions import RevisionCreate, RevisionCreated
-from redline.server.services.revisions import create_revision
+from redline.server.services.revisions import report_revision
 
 router = APIRouter(prefix="/api/v1/revisions", tags=["revisions"], route_class=JsonRoute)
 
@@ -16,9 +16,17 @@ router = APIRouter(prefix="/api/v1/revisions", tags=["revisions"], route_class=J
     "",
     status_code=status.HTTP_201_CREATED,
     dependencies=[Depends(require("ci"))],
-    responses={404: {"model": Problem}, 409: {"model": Problem}},
+    responses={
+        200: {"model": RevisionCreated, "description": "reported before: the same commit"},
+        404: {"model": Problem},
+        409: {"model": Problem},
+    },
 )
-def report_revision(data: RevisionCreate, session: SessionDep) -> RevisionCreated:
-    """Record the revision and queue one job per execution the component asks for."""
-    revision = create_revision(session, data)
+def report(data: RevisionCreate, session: SessionDep, response: Response) -> RevisionCreated:
+    """Record the revision and queue one job per execution the component asks for; a report
+    of a revision already known with the same commit and sort key answers 200 with it (a
+    re-run CI pipeline must not fail), of another commit 409."""
+    revision, created = report_revision(session, data)
+    if not created:
+        response.status_code = status.HTTP_200_OK
     return RevisionCreated(revision_id=revision.id, job_ids=[job.id for job in revision.jobs])

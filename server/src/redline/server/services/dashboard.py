@@ -66,6 +66,8 @@ class TrendView:
         for key, value in query.items():
             if len(value) > MAX_FILTER_LENGTH:
                 raise BadRequest(f"{key}: at most {MAX_FILTER_LENGTH} characters")
+            if any(ord(c) < 32 or ord(c) == 127 for c in value):  # a NUL reached the database
+                raise BadRequest(f"{key}: must not contain control characters")
         raw = query.get("revisions", str(DEFAULT_REVISIONS)) or str(DEFAULT_REVISIONS)
         if not (raw.isascii() and raw.isdecimal()) or not 1 <= int(raw) <= MAX_REVISIONS:
             raise BadRequest(f"revisions: a whole number from 1 to {MAX_REVISIONS}, not {raw!r}")

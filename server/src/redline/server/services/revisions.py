@@ -8,6 +8,7 @@ from collections import Counter, defaultdict
 from collections.abc import Collection
 from typing import Any
 
+from redline.detect.result import waits_for_history
 from redline.recording.format import META_RUN
 from redline.server.models import Component, Detection, Execution, Job, JobState, Revision
 from redline.server.schemas.revisions import (
@@ -92,6 +93,29 @@ def create_revision(session: Session, data: RevisionCreate) -> Revision:
             f"component {data.component!r} already has a revision {data.title!r}"
         ) from None
     return revision
+
+
+def report_revision(session: Session, data: RevisionCreate) -> tuple[Revision, bool]:
+    """CI's report: the revision made (True), or the one reported before with the same commit
+    (False: a re-run pipeline, or CI and a webhook both reporting it, whose sort keys differ in
+    form: the first report's stands); a title taken by another commit is a Conflict naming
+    both."""
+    try:
+        return create_revision(session, data), True
+    except Conflict:
+        existing = session.scalar(
+            select(Revision)
+            .join(Component, Component.id == Revision.component_id)
+            .where(Component.name == data.component, Revision.title == data.title)
+        )
+        if existing is None:
+            raise
+        if existing.commit == data.commit:
+            return existing, False
+        raise Conflict(
+            f"component {data.component!r} already has a revision {data.title!r}, of commit "
+            f"{existing.commit!r}; this report says {data.commit!r}"
+        ) from None
 
 
 def own_jobs(revision: Revision) -> list[Job]:
@@ -329,7 +353,9 @@ def revision_verdicts(
             said[title] = f"{method}: {changed} change(s), {same} series unchanged"
         elif same:
             said[title] = f"{method}: no change in {same} series" + (
-                f", {unknown} not judged yet" if unknown else ""
+                f", {unknown} not judged" + (" yet" if waits_for_history(why[title]) else "")
+                if unknown
+                else ""
             )
         else:
             said[title] = f"{method}: {WAITING} ({why.get(title, '')})"

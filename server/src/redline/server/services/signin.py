@@ -77,6 +77,8 @@ def create_user(session: Session, name: str, password: str, scopes: str | list[s
         parsed = parse_scopes(scopes)
     except ValueError as exc:
         raise BadRequest(str(exc)) from None
+    if "agent" in parsed:  # a person never acts as a performance host (security.md)
+        raise BadRequest("a user's scopes: read, ci or admin; 'agent' is for a host's token")
     user = User(name=name, password_hash=hash_password(password), scopes=parsed)
     session.add(user)
     try:

@@ -12,6 +12,7 @@ the change was re-run. Only the revisions' own executions count, as for the dete
 
 from __future__ import annotations
 
+import inspect
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -44,6 +45,7 @@ class WhyFlagged:
     baseline_titles: list[str]  # oldest first
     thresholds: dict[str, Any]
     floor: float
+    rule: str  # what the method's score is and how it decides, in its own words
     pairs: list[tuple[int, float | None, float | None]] = field(default_factory=list)
 
 
@@ -135,5 +137,14 @@ def why_flagged(session: Session, detection_id: int) -> WhyFlagged:
         baseline_titles=[r.title for r in baseline],
         thresholds=thresholds,
         floor=absolute_floor(series.counter),
+        rule=_rule(detection.method),
         pairs=_pairs(session, detection),
     )
+
+
+def _rule(method: str) -> str:
+    """The first paragraph of the method's own description (each method scores differently:
+    KS's score is D, and a change needs its p below alpha; a page said "a change needs 1 or
+    more" for every method, beside a KS change of D = 0.95)."""
+    described = inspect.getdoc(DETECTORS[method]) if method in DETECTORS else None
+    return " ".join((described or "").split("\n\n")[0].split()).replace("``", "").replace("`", "")
