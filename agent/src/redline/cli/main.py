@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import importlib
+import warnings
 from importlib import metadata
 
 import typer
@@ -50,5 +51,8 @@ def _register_all() -> None:
 
 
 def main() -> None:
+    # platformdirs says so on machines without a login session (containers, CI), once per
+    # process, into the output of `redline demo` and every command: nothing a user can act on
+    warnings.filterwarnings("ignore", message="XDG_RUNTIME_DIR is not set")
     _register_all()
     app()

@@ -185,9 +185,13 @@ def authenticate_push(
     """
     try:
         push = parse_push(body)
-    except BadRequest:
+    except BadRequest as unreadable:
         if not verify(default_secret):
-            raise Unauthorized(_unverified({default_secret})) from None
+            # a component's own secret is found through the repository the push names
+            raise Unauthorized(
+                f"{_unverified({default_secret})}: the body is no push Redline can read "
+                f"({unreadable.detail[:200]}), so only the server-wide secret could sign it"
+            ) from None
         raise
     candidates = _of_repository(session, push)
     secrets = {c.webhook_secret or default_secret for c in candidates} or {default_secret}
