@@ -69,6 +69,15 @@ def _verdicts(database_url: str) -> list[tuple]:
     return [tuple(row) for row in rows]
 
 
+def _wait_for(logs: list[Path], text: str, what: str, seconds: float = 120) -> None:
+    """Until every one of ``logs`` holds ``text``."""
+    deadline = time.monotonic() + seconds
+    while not all(text in log.read_text(errors="replace") for log in logs):
+        if time.monotonic() > deadline:
+            pytest.fail(f"gave up waiting: {what}: {[log.read_text()[-1500:] for log in logs]}")
+        time.sleep(0.02)
+
+
 def _progress(database_url: str, component_id: int) -> Reanalysis | None:
     with session_factory(database_url)() as session:
         return session.get(Reanalysis, component_id)
@@ -103,16 +112,14 @@ def test_a_worker_killed_mid_reanalysis_loses_nothing_and_the_redelivered_task_f
         first, second = (_worker(api.settings, log) for log in logs)
         log = logs[1]
         try:
+            # both ready before the work is sent: a worker still starting took no part in a
+            # CI run (the other took both), and its kill then interrupted nothing
+            _wait_for(logs, " ready.", "both workers start")
             assert TaskSender(api.settings).reanalyze(component_id)
-            deadline = time.monotonic() + 120
-            while time.monotonic() < deadline:  # kill it in the middle of the walk
-                row = _progress(database_url, component_id)
-                if row is not None and row.state == "running" and 0 < row.done < row.total // 3:
-                    break
-                time.sleep(0.02)
-            else:
-                pytest.fail(f"the re-analysis never got going: {logs[0].read_text()[-2000:]}")
-            os.killpg(first.pid, signal.SIGKILL)
+            _wait_for(logs, "redline.reanalyze_part[", "each worker takes a part")
+            row = _progress(database_url, component_id)
+            assert row is not None and row.state == "running" and row.done < row.total // 2
+            os.killpg(first.pid, signal.SIGKILL)  # in the middle of its part
             first.wait(timeout=10)
             killed_at = _progress(database_url, component_id)
             assert killed_at is not None and killed_at.state == "running"
