@@ -5,6 +5,7 @@ one's embedded Redis); the admin commands find its services through the data fol
 from __future__ import annotations
 
 import os
+import signal
 import socket
 
 import pytest
@@ -68,3 +69,23 @@ def test_the_admin_commands_find_the_database_of_the_redline_up_running_here(
     monkeypatch.setenv("REDLINE_DATABASE_URL", "postgresql+psycopg://other/db")
     needs_database(lambda: seen.append(os.environ["REDLINE_DATABASE_URL"]))()
     assert seen[-1] == "postgresql+psycopg://other/db"
+
+
+def test_a_refused_start_says_no_stopping(tmp_path) -> None:
+    """A trial's refused second `redline up` said "stopping…" after its error."""
+    import typer
+    from redline.commands.up import _serve
+    from rich.console import Console
+
+    held = lock_data(tmp_path)
+    console = Console(record=True, width=200)
+    handlers = {signum: signal.getsignal(signum) for signum in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        with pytest.raises(typer.Exit):
+            _serve(console, tmp_path, port=1)
+    finally:  # _serve takes Ctrl-C and SIGTERM for its own
+        for signum, handler in handlers.items():
+            signal.signal(signum, handler)
+    said = console.export_text()
+    assert "in use by another `redline up`" in said and "stopping" not in said, said
+    held.close()

@@ -57,7 +57,8 @@ def _serve(
         console.print(f"[red]error:[/red] {exc}")
         raise typer.Exit(1) from exc
     finally:
-        console.print("stopping…")
+        if stack.children or stack.embedded is not None:  # a refused start started nothing
+            console.print("stopping…")
         stack.stop()
 
 
