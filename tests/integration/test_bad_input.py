@@ -516,3 +516,16 @@ def test_an_unknown_field_is_refused_naming_it_never_ignored(api: Api):
     assert imported.status_code == 422 and "committed_at" in imported.text
     typo = api.post("/api/v1/components", "admin", {"name": "other", "exeuctions": 3})
     assert typo.status_code == 422 and "exeuctions" in typo.text
+
+
+def test_a_body_sent_as_a_form_is_415_asking_for_json(api: Api):
+    """`curl -d '{...}'` without its header sends a form: "Input should be a valid dictionary"
+    named nothing the caller could fix (a trial)."""
+    body = b'{"component": "builder", "title": "r1", "sort_key": "1", "commit": "c1"}'
+    answer = _post_raw(
+        api, "/api/v1/revisions", body, **{"Content-Type": "application/x-www-form-urlencoded"}
+    )
+    assert answer.status_code == 415 and "Content-Type: application/json" in answer.text
+    assert counts(api) == (0, 0)
+    fine = _post_raw(api, "/api/v1/revisions", body, **{"Content-Type": "application/json"})
+    assert fine.status_code == 201, fine.text

@@ -121,11 +121,26 @@ class JsonRoute(APIRoute):
 
     def get_route_handler(self) -> Callable[[Request], Coroutine[Any, Any, Response]]:
         handler = super().get_route_handler()
+        takes_json = self.body_field is not None
 
         async def handle(request: Request) -> Response:
+            kind = request.headers.get("content-type", "")
+            if takes_json and kind and not _is_json(kind):
+                # a form-encoded body (curl -d without -H) was "Input should be a valid
+                # dictionary", which named nothing the caller could fix (a trial)
+                return JSONResponse(
+                    {"detail": f"send the body as JSON (Content-Type: application/json), "
+                               f"not {kind[:100]!r}"},
+                    status_code=415,
+                )  # fmt: skip
             return await handler(JsonRequest(request.scope, request.receive))
 
         return handle
+
+
+def _is_json(content_type: str) -> bool:
+    kind = content_type.split(";", 1)[0].strip().lower()
+    return kind == "application/json" or kind.endswith("+json")
 
 
 def body_limit(settings: Settings, path: str) -> tuple[int, str]:
