@@ -27,7 +27,7 @@ from redline.server.storage import samples_path
 from redline.worker.detection import detect_revision
 from redline.worker.ingest import ingest_execution
 from redline.worker.reanalysis import reanalyze_component
-from sqlalchemy import func, select
+from sqlalchemy import delete, func, select
 
 from tests.support.history import COMPONENT as NAME
 from tests.support.history import (
@@ -478,7 +478,9 @@ def test_a_superseded_reanalysis_stops_and_the_newer_one_stores_everything(
     assert not finish(database_url, component_id, old)
     assert judge_part(database_url, component_id, new, 0)
     assert finish(database_url, component_id, new)
-    assert not finish(database_url, component_id, new)  # a duplicate finds it done
+    # delivered again after the end: done already, nothing stored twice (the caller renders
+    # the charts and scans the alerts again, which is harmless)
+    assert finish(database_url, component_id, new)
     assert {key: (d.verdict, d.score) for key, d in _verdicts(session).items()} == expected
     session.expire_all()
     assert session.get(Reanalysis, component_id).state == "done"
@@ -498,3 +500,30 @@ def test_bulk_insert_refuses_an_over_long_string_rather_than_cutting_it(
     with pytest.raises(DataError, match="too long"):
         bulk_insert(session, Detection.__table__, [values])
     session.rollback()
+
+
+def test_a_part_delivered_twice_never_leaves_a_revision_without_its_series_verdicts(
+    session, database_url, tmp_path
+):
+    """A review: a copy of a part delivered again took the first copy's staging back, and the
+    finishing step then stored revisions with only the other parts' series."""
+    from redline.worker.reanalysis import finish, judge_part, plan
+
+    executions = _runs_history(session, tmp_path, [15.0] * 4)
+    ingest_and_detect(database_url, executions)
+    expected = {key: (d.verdict, d.score) for key, d in _verdicts(session).items()}
+    component_id = session.scalar(select(Component.id))
+    run = plan(database_url, component_id, parts=2)
+    assert not judge_part(database_url, component_id, run, 0)
+    staged = session.scalar(select(func.count()).select_from(StagedDetection))
+    assert not judge_part(database_url, component_id, run, 0)  # again, once done: nothing redone
+    assert session.scalar(select(func.count()).select_from(StagedDetection)) == staged
+    assert judge_part(database_url, component_id, run, 1)
+    # the second part's staging taken back (as a copy starting again would) before the end
+    session.execute(delete(StagedRevision).where(StagedRevision.part == 1))
+    session.commit()
+    with pytest.raises(RuntimeError, match=r"1 of 2 parts staged it"):
+        finish(database_url, component_id, run)
+    session.expire_all()
+    assert session.get(Reanalysis, component_id).state == "failed"
+    assert {key: (d.verdict, d.score) for key, d in _verdicts(session).items()} == expected

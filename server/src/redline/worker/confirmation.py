@@ -84,7 +84,8 @@ def settle(
 ) -> None:
     """Settle one suspected detection if enough later revisions measured its series, counting
     only the revisions before the next one that itself changed (``changed``: the revisions with
-    a flagged change of any series): a later change is no evidence for an earlier one. (A
+    a flagged change of an alarming method, of any series, not dropped): a later change is no
+    evidence for an earlier one. (A
     trial's README commit was flagged on a noisy counter and "held" because the next revision
     raised CPU threefold, and that counter with it.)"""
     count = is_count(process, counter)

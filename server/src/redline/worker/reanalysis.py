@@ -170,6 +170,8 @@ def _current(session: Session, component_id: int, run: int, lock: bool = False) 
     row = session.scalar(query.execution_options(populate_existing=True))
     if row is None or row.run != run:
         raise Superseded(f"component {component_id}: re-analysis {run} was superseded")
+    if row.state == "failed":  # a sibling part or the finishing step failed: the run is over
+        raise Superseded(f"component {component_id}: re-analysis {run} failed: {row.error}")
     return row
 
 
@@ -293,6 +295,8 @@ def judge_part(database_url: str, component_id: int, run: int, index: int) -> bo
     try:
         with session_scope(database_url) as session:
             row = _current(session, component_id, run, lock=True)
+            if index in row.parts_done:  # delivered again after it finished: nothing to redo
+                return False
             revisions, part = list(row.revisions), Part(index, row.parts)
             config = component_config(session, component_id)
             # a redelivered part starts again: what it staged, and counted, is taken back
@@ -350,6 +354,8 @@ def finish(database_url: str, component_id: int, run: int) -> bool:
                 select(Component.id).where(Component.id == component_id).with_for_update()
             )
             row = _current(session, component_id, run, lock=True)
+            if row.state == "done":  # delivered again after its end: the charts, alerts again
+                return True
             if row.state != "running":
                 return False
             settle_pending_pairs(session, component_id)
@@ -383,6 +389,7 @@ def _store_batch(session: Session, component_id: int, run: int, planned: list[in
     if row.stored != start:
         return True  # another finishing step stored these meanwhile
     judged_from: dict[int, set[str]] = {}
+    staged: dict[int, int] = defaultdict(int)  # how many parts staged each revision
     for revision_id, executions in session.execute(
         select(StagedRevision.revision_id, StagedRevision.executions).where(
             StagedRevision.component_id == component_id,
@@ -391,6 +398,7 @@ def _store_batch(session: Session, component_id: int, run: int, planned: list[in
         )
     ):
         judged_from.setdefault(revision_id, set()).add(executions)
+        staged[revision_id] += 1
     ingested: dict[int, list[int]] = defaultdict(list)
     for execution_id, revision_id in session.execute(
         select(Execution.id, Execution.revision_id)
@@ -418,6 +426,13 @@ def _store_batch(session: Session, component_id: int, run: int, planned: list[in
         if revision is None:
             continue  # deleted since it was planned
         said = judged_from.get(revision_id, set())
+        if staged.get(revision_id, 0) != row.parts:
+            # a copy of a part delivered again while the first still ran took the first's
+            # staging back: storing now would leave that part's series without verdicts
+            raise RuntimeError(
+                f"revision {revision_id}: {staged.get(revision_id, 0)} of {row.parts} parts "
+                "staged it (a part ran twice at once); request the re-analysis again"
+            )
         if said == {KEPT}:
             continue
         if fresh or said != {_joined(tuple(ingested[revision_id]))}:
@@ -441,8 +456,9 @@ def _store_batch(session: Session, component_id: int, run: int, planned: list[in
 def _store_staged(
     session: Session, revision: Revision, run: int, alarming: Collection[str], flagged: bool
 ) -> None:
-    """Replace the revision's verdicts with its staged ones, in the order detection stores them
-    (by series, each series' methods in order), and group its changes into regressions: when
+    """Replace the revision's verdicts with its staged ones, by series, each series' methods in
+    order (the order detection stores the flagged ones in, which grouping follows), and group
+    its changes into regressions: when
     it has ``flagged`` ones, or when the verdicts replaced belonged to regressions (which may
     be left empty); otherwise grouping would find nothing to do."""
     emptied = session.scalars(

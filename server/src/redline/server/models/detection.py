@@ -202,6 +202,7 @@ class StagedRevision(Base):
         ForeignKey("component.id", ondelete="CASCADE"), primary_key=True
     )
     run: Mapped[int] = mapped_column(Integer, primary_key=True)
-    part: Mapped[int] = mapped_column(Integer, primary_key=True)
+    # before the part: the finishing step looks a batch of revisions up across the parts
     revision_id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    part: Mapped[int] = mapped_column(Integer, primary_key=True)
     executions: Mapped[str] = mapped_column(Text)

@@ -66,8 +66,8 @@ def upgrade() -> None:
             primary_key=True,
         ),
         sa.Column("run", sa.Integer(), primary_key=True),
-        sa.Column("part", sa.Integer(), primary_key=True),
         sa.Column("revision_id", sa.Integer(), primary_key=True),
+        sa.Column("part", sa.Integer(), primary_key=True),
         sa.Column("executions", sa.Text(), nullable=False),
     )
 
