@@ -527,3 +527,45 @@ def test_a_part_delivered_twice_never_leaves_a_revision_without_its_series_verdi
     session.expire_all()
     assert session.get(Reanalysis, component_id).state == "failed"
     assert {key: (d.verdict, d.score) for key, d in _verdicts(session).items()} == expected
+
+
+def test_a_revision_reported_during_a_reanalysis_is_judged_when_it_ends(
+    session, database_url, tmp_path
+):
+    """A review: revisions reported while a re-analysis ran were judged live against earlier
+    verdicts of the old configuration, and never again."""
+    from redline.worker.reanalysis import finish, judge_part, plan
+
+    executions = _runs_history(session, tmp_path, [15.0] * 6)
+    ingest_and_detect(database_url, executions)
+    component_id = session.scalar(select(Component.id))
+    run = plan(database_url, component_id, parts=1)
+    assert judge_part(database_url, component_id, run, 0)
+    rng = np.random.default_rng(8)
+    late = add_executions(
+        session, tmp_path, NAME, "r7", "7", [{"cpu": rng.normal(15.0, 1.5, 40)} for _ in range(3)]
+    )
+    for execution in late:
+        ingest_execution(database_url, execution.id)  # its detection message lost, say
+    r7 = late[0].revision_id
+    session.expire_all()
+    assert session.get_one(Revision, r7).analyzed_at is None and not _verdicts_of(session, r7)
+    assert finish(database_url, component_id, run)
+    session.expire_all()
+    judged = _verdicts_of(session, r7)
+    assert judged and session.get_one(Revision, r7).analyzed_at is not None
+    for revision_id in dict.fromkeys(e.revision_id for e in [*executions, *late]):
+        detect_revision(database_url, revision_id)  # revision by revision, as detection does
+    session.expire_all()
+    assert _verdicts_of(session, r7) == judged
+
+
+def _verdicts_of(session, revision_id: int) -> list[tuple]:
+    return [
+        (d.series_id, d.method, d.verdict, d.score, d.baseline_revision_id)
+        for d in session.scalars(
+            select(Detection)
+            .where(Detection.revision_id == revision_id)
+            .order_by(Detection.series_id, Detection.method)
+        )
+    ]

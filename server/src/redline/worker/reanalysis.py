@@ -17,10 +17,12 @@ revision by revision gives (tested).
 Idempotent and resumable: a part redelivered after its worker died stages its series again (its
 progress taken back first: ``done`` counts what is staged and stored, in the same transactions);
 the finishing step commits every `FINISH_BATCH` revisions with how far it got, and a redelivered
-(or duplicate) one goes on from there. A revision whose executions changed after its parts judged it
-(one was ingested meanwhile) is judged again from the database, and so is every revision after
-it. A new re-analysis supersedes a running one: the old one's parts and finishing step stop at
-their next step.
+(or duplicate) one goes on from there. A revision whose executions changed after its parts
+judged it (one was ingested meanwhile) is judged again from the database, and so is every
+revision after it; so are, at the end, the revisions reported during the run and those whose
+executions changed after they were stored (`_catch_up`). A new re-analysis (or a new request
+for one) supersedes a running one: the old one's parts and finishing step stop at their next
+step.
 """
 
 from __future__ import annotations
@@ -350,6 +352,8 @@ def finish(database_url: str, component_id: int, run: int) -> bool:
                 if not _store_batch(session, component_id, run, planned):
                     break
         with session_scope(database_url) as session:
+            _catch_up(session, component_id, run, planned)
+        with session_scope(database_url) as session:
             session.execute(
                 select(Component.id).where(Component.id == component_id).with_for_update()
             )
@@ -372,6 +376,54 @@ def finish(database_url: str, component_id: int, run: int) -> bool:
         raise
     log.info("component %s: re-analysis %d done", component_id, run)
     return True
+
+
+def _catch_up(session: Session, component_id: int, run: int, planned: list[int]) -> None:
+    """What the history gained while the re-analysis ran, judged again from the database, as
+    detection does: every revision from the first one that was not planned (reported during
+    it) or whose ingested executions are not those its parts judged. Live detection judged
+    those against earlier verdicts of the old configuration, or the finishing step stored
+    verdicts whose baselines lacked an execution ingested since (a review)."""
+    row = _current(session, component_id, run)
+    if row.state != "running":
+        return
+    judged = dict(
+        session.execute(
+            select(StagedRevision.revision_id, StagedRevision.executions).where(
+                StagedRevision.component_id == component_id, StagedRevision.run == run
+            )
+        ).all()
+    )
+    now = revisions_with_data(session, component_id)
+    ingested: dict[int, list[int]] = defaultdict(list)
+    for execution_id, revision_id in session.execute(
+        select(Execution.id, Execution.revision_id)
+        .join(Revision, Revision.id == Execution.revision_id)
+        .where(Revision.component_id == component_id, Execution.id.in_(ingested_executions()))
+        .order_by(Execution.id)
+    ):
+        ingested[revision_id].append(execution_id)
+    first = next(
+        (
+            index
+            for index, revision_id in enumerate(now)
+            if index >= len(planned)
+            or planned[index] != revision_id
+            or judged.get(revision_id) not in (KEPT, _joined(tuple(ingested[revision_id])))
+        ),
+        None,
+    )
+    if first is None:
+        return
+    log.info("component %s: %d revisions changed during re-analysis %d, judged again",
+             component_id, len(now) - first, run)  # fmt: skip
+    for revision_id in now[first:]:  # the revisions' locks before the component's
+        lock_revision(session, revision_id)
+    session.execute(select(Component.id).where(Component.id == component_id).with_for_update())
+    for revision_id in now[first:]:
+        fresh = judge_revision(session, revision_id)
+        if fresh is not None:
+            store(session, session.get_one(Revision, revision_id), fresh.rows)
 
 
 def _store_batch(session: Session, component_id: int, run: int, planned: list[int]) -> bool:

@@ -61,7 +61,11 @@ def request_reanalysis(session: Session, component: Component) -> None:
     session.execute(
         insert(Reanalysis)
         .values(component_id=component.id, **queued)
-        .on_conflict_do_update(index_elements=["component_id"], set_=queued)
+        .on_conflict_do_update(
+            index_elements=["component_id"],
+            # a run still going is superseded at once: its parts stop at their next step
+            set_={**queued, "run": Reanalysis.__table__.c.run + 1},
+        )
     )
     session.commit()
 
