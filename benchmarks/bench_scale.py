@@ -121,13 +121,7 @@ def ingestion(workers: int) -> float:
         sender = TaskSender(settings)
         for execution in executions:
             sender.ingest(execution.id)
-        env = {
-            **os.environ,
-            "REDLINE_DATABASE_URL": url,
-            "REDLINE_REDIS_URL": settings.redis_url,
-            "REDLINE_QUEUE": settings.queue,
-            "REDLINE_STORAGE_DIR": str(settings.storage_dir),
-        }
+        env = _worker_env(settings)
         start = time.perf_counter()
         worker = subprocess.Popen(
             [REDLINE, "worker", "--queues", "ingest", "--no-beat", "--concurrency", str(workers),
@@ -152,6 +146,17 @@ def ingestion(workers: int) -> float:
         assert not failed, f"{failed} ingestion(s) failed"
         shutil.rmtree(folder / "storage", ignore_errors=True)
     return INGESTED / seconds * 60
+
+
+def _worker_env(settings: Settings) -> dict[str, str]:
+    """A `redline worker`'s environment: this run's database, Redis, queue and storage."""
+    return {
+        **os.environ,
+        "REDLINE_DATABASE_URL": settings.database_url,
+        "REDLINE_REDIS_URL": settings.redis_url,
+        "REDLINE_QUEUE": settings.queue,
+        "REDLINE_STORAGE_DIR": str(settings.storage_dir),
+    }
 
 
 def _worker(env: dict[str, str], queues: str, processes: int, log: Path) -> subprocess.Popen:
@@ -190,14 +195,7 @@ def reanalysis(runs: list[tuple[int, int]]) -> dict[str, float]:
                 queue=f"bench-reanalysis-{os.getpid()}-{processes}-{parts}",
                 storage_dir=folder / "storage",
             )
-            env = {
-                **os.environ,
-                "REDLINE_DATABASE_URL": url,
-                "REDLINE_REDIS_URL": settings.redis_url,
-                "REDLINE_QUEUE": settings.queue,
-                "REDLINE_STORAGE_DIR": str(settings.storage_dir),
-                "REDLINE_REANALYSIS_PARTS": str(parts),
-            }
+            env = {**_worker_env(settings), "REDLINE_REANALYSIS_PARTS": str(parts)}
             worker = _worker(env, "detect", processes, folder / f"worker-{processes}-{parts}.log")
             with session_factory(url)() as session:
                 row = session.get(Reanalysis, component_id)

@@ -349,12 +349,12 @@ def test_reanalysis_with_a_pruned_revision_keeps_its_verdicts_and_matches_detect
 def test_a_failure_while_storing_fails_the_reanalysis_with_the_error(
     session, database_url, tmp_path, monkeypatch
 ):
-    from redline.worker import reanalysis
+    from redline.worker import reanalysis_finish
 
     executions = _runs_history(session, tmp_path, [15.0] * 8)
     ingest_and_detect(database_url, executions)
     before = {key: (d.id, d.verdict, d.score) for key, d in _verdicts(session).items()}
-    stored, store = [], reanalysis._store_staged
+    stored, store = [], reanalysis_finish._store_staged
 
     def failing_store(session, revision, *args):  # the fourth revision's fails
         if len(stored) == 3:
@@ -362,7 +362,7 @@ def test_a_failure_while_storing_fails_the_reanalysis_with_the_error(
         stored.append(revision.id)
         store(session, revision, *args)
 
-    monkeypatch.setattr(reanalysis, "_store_staged", failing_store)
+    monkeypatch.setattr(reanalysis_finish, "_store_staged", failing_store)
     component = session.scalar(select(Component))
     with pytest.raises(RuntimeError, match="disk full"):
         reanalyze_component(database_url, component.id, parts=2)
@@ -443,7 +443,8 @@ def test_verdicts_judged_before_an_execution_was_ingested_are_judged_again_when_
 ):
     """The parts judged r7 from its first run; its second is ingested before the finishing
     step stores r7: r7 is judged again from what is stored then, not stored stale."""
-    from redline.worker.reanalysis import finish, judge_part, plan
+    from redline.worker.reanalysis import judge_part, plan
+    from redline.worker.reanalysis_finish import finish
 
     revision_id, ingest_second_run = _second_run_later(session, tmp_path, database_url)
     component_id = session.scalar(select(Component.id))
@@ -465,7 +466,8 @@ def test_verdicts_judged_before_an_execution_was_ingested_are_judged_again_when_
 def test_a_superseded_reanalysis_stops_and_the_newer_one_stores_everything(
     session, database_url, tmp_path
 ):
-    from redline.worker.reanalysis import finish, judge_part, plan
+    from redline.worker.reanalysis import judge_part, plan
+    from redline.worker.reanalysis_finish import finish
 
     executions = _runs_history(session, tmp_path, [15.0] * 5 + [19.5] * 3)
     ingest_and_detect(database_url, executions)
@@ -507,7 +509,8 @@ def test_a_part_delivered_twice_never_leaves_a_revision_without_its_series_verdi
 ):
     """A review: a copy of a part delivered again took the first copy's staging back, and the
     finishing step then stored revisions with only the other parts' series."""
-    from redline.worker.reanalysis import finish, judge_part, plan
+    from redline.worker.reanalysis import judge_part, plan
+    from redline.worker.reanalysis_finish import finish
 
     executions = _runs_history(session, tmp_path, [15.0] * 4)
     ingest_and_detect(database_url, executions)
@@ -534,7 +537,8 @@ def test_a_revision_reported_during_a_reanalysis_is_judged_when_it_ends(
 ):
     """A review: revisions reported while a re-analysis ran were judged live against earlier
     verdicts of the old configuration, and never again."""
-    from redline.worker.reanalysis import finish, judge_part, plan
+    from redline.worker.reanalysis import judge_part, plan
+    from redline.worker.reanalysis_finish import finish
 
     executions = _runs_history(session, tmp_path, [15.0] * 6)
     ingest_and_detect(database_url, executions)

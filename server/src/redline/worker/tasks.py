@@ -25,7 +25,7 @@ from redline.server.core.tasks import (
 )
 from redline.server.db import session_scope
 from redline.server.models import Revision
-from redline.worker import reanalysis
+from redline.worker import reanalysis, reanalysis_finish
 from redline.worker.alerts import commit_status, runtime_alerts, scan_component, send_digests
 from redline.worker.app import celery_app
 from redline.worker.deliver import deliver_due
@@ -137,7 +137,7 @@ def finish_reanalysis(component_id: int, run: int) -> None:
     """The staged verdicts stored in revision order, grouped and confirmed; then the charts and
     the alerts."""
     with analysing():
-        if not reanalysis.finish(_settings().database_url, component_id, run):
+        if not reanalysis_finish.finish(_settings().database_url, component_id, run):
             return
         render_component_trends(_settings().database_url, component_id)
     scan_alerts.delay(component_id)
