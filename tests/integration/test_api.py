@@ -182,6 +182,20 @@ def test_lease_hands_out_newest_revision_first_then_204(api: Api):
     assert unknown.status_code == 404 and "stranger" in unknown.json()["detail"]
 
 
+def test_a_busy_component_does_not_starve_the_others(api: Api):
+    """Components take turns (served longest ago first), newest revision first within one: a
+    component whose CI reports faster than the hosts run leaves room for the others."""
+    api.component("quiet")
+    api.component("busy")
+    waiting = api.revision("q1", "1", component="quiet")["job_ids"][0]
+    busy = [api.revision(f"b{n}", str(n), component="busy")["job_ids"][0] for n in (1, 2, 3)]
+    assert api.lease()["id"] == busy[2]  # neither served yet: the newest report
+    busy.append(api.revision("b4", "4", component="busy")["job_ids"][0])  # still reporting
+    assert api.lease()["id"] == waiting
+    assert [api.lease()["id"] for _ in range(3)] == [busy[3], busy[1], busy[0]]
+    assert api.lease() is None
+
+
 def test_lease_hands_a_host_only_jobs_of_pools_it_belongs_to(api: Api):
     api.component("plain")
     api.component("needs_gpu", host_labels=["gpu"])

@@ -21,31 +21,32 @@ def test_autogenerate_finds_the_models_and_the_migrated_schema_equal(services: S
 
 def test_the_order_key_migration_reorders_what_the_old_keys_misordered(services: Services):
     """Migration 0016 rewrites stored order keys: Arabic-Indic three was ordered after five.
-    (The schema at 0015 is the models' own: 0016 changes data only.)"""
+    (Rows are written with the schema as it was at 0015, not with today's models.)"""
+    import sqlalchemy as sa
     from alembic import command
-    from redline.server.db import alembic_config, session_factory
-    from redline.server.models import Revision
-    from redline.server.schemas.components import ComponentCreate
-    from redline.server.services.components import create_component
-    from sqlalchemy import select
+    from redline.server.db import alembic_config
 
     database_url, _ = fresh_database(services.database_url)
     command.upgrade(alembic_config(database_url), "0015")
-    order = select(Revision.title).order_by(Revision.order_key)
-    with session_factory(database_url)() as session:
-        component = create_component(session, ComponentCreate(name="c"))
-        for title, sort_key, old in (("three", "\u0663", "01\u0663"), ("five", "5", "015")):
-            session.add(
-                Revision(
-                    component_id=component.id,
-                    title=title,
-                    sort_key=sort_key,
-                    order_key=old,
-                    commit="main",
-                )
+    order = sa.text("SELECT title FROM revision ORDER BY order_key")
+    with get_engine(database_url).begin() as connection:
+        component = connection.execute(
+            sa.text(
+                "INSERT INTO component (name, repo, branch, suite, executions, created, repo_key,"
+                " host_labels, description, commit_status)"
+                " VALUES ('c', '', 'main', '', 1, now(), '', '[]', '', '{}') RETURNING id"
             )
-        session.commit()
-        assert list(session.scalars(order)) == ["five", "three"]  # the old, wrong order
+        ).scalar_one()
+        for title, sort_key, old in (("three", "\u0663", "01\u0663"), ("five", "5", "015")):
+            connection.execute(
+                sa.text(
+                    "INSERT INTO revision (component_id, title, sort_key, order_key, commit,"
+                    " repo, branch, message, created)"
+                    " VALUES (:component, :title, :sort_key, :old, 'main', '', '', '', now())"
+                ),
+                {"component": component, "title": title, "sort_key": sort_key, "old": old},
+            )
+        assert list(connection.scalars(order)) == ["five", "three"]  # the old, wrong order
     migrate(database_url)
-    with session_factory(database_url)() as session:
-        assert list(session.scalars(order)) == ["three", "five"]
+    with get_engine(database_url).connect() as connection:
+        assert list(connection.scalars(order)) == ["three", "five"]

@@ -48,6 +48,9 @@ class Component(Base):
     #: where its revisions' verdicts go as commit statuses: provider (github, gitlab), api_url,
     #: repository (owner/name or a GitLab project id or path), token; empty: nowhere
     commit_status: Mapped[dict[str, Any]] = mapped_column(JSON, default=dict)
+    #: when a host last leased one of its revisions' jobs: leases go to the component served
+    #: longest ago first (`redline.server.services.jobs.lease_job`)
+    last_leased_at: Mapped[datetime | None] = mapped_column(default=None)
 
 
 class Revision(Base):

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from datetime import datetime, timedelta
 
-from redline.server.models import Host, Job, JobState, Revision, utcnow
+from redline.server.models import Component, Host, Job, JobState, Revision, utcnow
 from redline.server.schemas.jobs import LeasedJob, LeasedRevision, RegisterRequest
 from redline.server.services.errors import Conflict, NotFound
 from sqlalchemy import and_, case, cast, or_, select, update
@@ -51,13 +51,27 @@ def _fail_exhausted(session: Session, now: datetime, max_attempts: int) -> None:
     )
 
 
+def _served(session: Session, component_id: int, now: datetime) -> None:
+    """Mark the component served at ``now`` for `lease_job`'s turns, unless an agent leasing
+    at the same moment holds its row (it is marking it served just as recently): agents of
+    one component never queue behind each other on that row."""
+    row = select(Component).where(Component.id == component_id)
+    component = session.scalar(row.with_for_update(skip_locked=True))
+    if component is not None:
+        component.last_leased_at = now
+
+
 def lease_job(
     session: Session, host_name: str, lease_seconds: int, max_attempts: int
 ) -> Job | None:
-    """Hand the host the newest revision's next queued (or abandoned) job whose pool it is in
-    (it has every label the job asks for); None when there is none.
+    """Hand the host the next queued (or abandoned) job whose pool it is in (it has every label
+    the job asks for); None when there is none.
 
-    Newest means most recently reported: sort keys of different components do not compare.
+    Confirmation and re-measuring runs go first, in the order they were queued. Other jobs go
+    to the component served longest ago (``last_leased_at``; never served first), and within
+    it to the newest revision, newest meaning most recently reported (sort keys of different
+    components do not compare): a component whose CI reports faster than the hosts run does
+    not starve the others, one job each in turn.
     ``FOR UPDATE SKIP LOCKED``: agents leasing at once never get the same job, nor wait.
     """
     host = _host(session, host_name)
@@ -76,10 +90,12 @@ def lease_job(
     job = session.scalar(
         select(Job)
         .join(Revision, Revision.id == Job.revision_id)
+        .join(Component, Component.id == Revision.component_id)
         .where(available, in_pool, pinned)
         .order_by(
             case((ahead, 0), else_=1),
             case((ahead, Job.id), else_=0),
+            Component.last_leased_at.asc().nulls_first(),
             Revision.id.desc(),
             Job.execution_index,
         )
@@ -92,6 +108,7 @@ def lease_job(
         job.host = host
         job.attempts += 1
         job.lease_expires_at = now + timedelta(seconds=lease_seconds)
+        _served(session, job.revision.component_id, now)
     session.commit()
     return job
 
