@@ -463,6 +463,35 @@ def test_verdicts_judged_before_an_execution_was_ingested_are_judged_again_when_
     assert session.get(Reanalysis, component_id).from_database
 
 
+def test_a_reanalysis_judges_by_the_configuration_it_was_planned_with(
+    session, database_url, tmp_path
+):
+    """A configuration saved during a run without a re-analysis of its own does not mix into
+    it: the parts, and the finishing step judging r7 again from the database (its second run
+    was ingested meanwhile), all judge by the configuration as the run was planned."""
+    from redline.worker.reanalysis import judge_part, plan
+    from redline.worker.reanalysis_finish import finish
+
+    def configure(methods: list[str]) -> None:
+        session.merge(DetectionConfigRow(component_id=component_id, config={"methods": methods}))
+        session.commit()
+
+    _, ingest_second_run = _second_run_later(session, tmp_path, database_url)
+    component_id = session.scalar(select(Component.id))
+    configure(["mann_whitney"])
+    run = plan(database_url, component_id, parts=2)
+    configure(["welch_t"])  # saved with "reanalyze": false
+    assert not judge_part(database_url, component_id, run, 0)
+    ingest_second_run()
+    assert judge_part(database_url, component_id, run, 1)
+    assert finish(database_url, component_id, run)
+    session.expire_all()
+    assert session.get(Reanalysis, component_id).from_database  # r7 judged from the database
+    methods = {(title, method) for title, method in _verdicts(session)}
+    assert {method for _, method in methods} == {"mann_whitney"}
+    assert {title for title, _ in methods} == {f"r{n}" for n in range(1, 8)}
+
+
 def test_a_superseded_reanalysis_stops_and_the_newer_one_stores_everything(
     session, database_url, tmp_path
 ):

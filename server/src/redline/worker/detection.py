@@ -156,7 +156,11 @@ def _judge_count(
 
 
 def store(
-    session: Session, revision: Revision, rows: list[dict[str, Any]], rerun: bool = False
+    session: Session,
+    revision: Revision,
+    rows: list[dict[str, Any]],
+    rerun: bool = False,
+    config: DetectionConfig | None = None,
 ) -> None:
     """Replace the revision's detections, regroup its regressions, queue or judge its
     confirmation runs (`redline.worker.confirm_runs`), queue a fresh run of a baseline the host
@@ -173,7 +177,7 @@ def store(
     )
     session.execute(delete(Detection).where(Detection.revision_id == revision.id))
     bulk_insert(session, cast(Table, Detection.__table__), rows)
-    config = component_config(session, revision.component_id)
+    config = config or component_config(session, revision.component_id)
     group_revision(session, revision, config.alarming)
     if rerun:  # new results only: a re-analysis never queues machine time for old revisions
         queue_confirmations(session, revision, config)
@@ -188,13 +192,15 @@ def judge_revision(
     revision_id: int,
     walk: Walk | None = None,
     only: Callable[[int], bool] | None = None,
+    config: DetectionConfig | None = None,
 ) -> Judged | None:
     """The reading half of `detect_revision`: every verdict computed, nothing stored.
 
     None when there is nothing to store: no such revision, or ingested executions none of whose
     samples can be read any more (pruned), whose stored results are kept (nothing is not a new
     verdict). ``walk``: a re-analysis's memory of the earlier revisions, brought up to date;
-    ``only``: the series its part judges.
+    ``only``: the series its part judges; ``config``: the configuration to judge by (a
+    re-analysis's, `redline.worker.reanalysis_finish.run_config`), else the component's.
     """
     revision = session.get(Revision, revision_id)
     if revision is None:
@@ -211,7 +217,9 @@ def judge_revision(
             walk.kept(session, revision_id)
         return None
     # a re-analysis judges with the configuration it began with (a change queues another)
-    config = walk.config if walk is not None else component_config(session, revision.component_id)
+    if walk is not None:
+        config = walk.config
+    config = config or component_config(session, revision.component_id)
     rows, changes = analyze(session, revision, config, candidate, walk, unjudged, only)
     if walk is not None:
         walk.judged(session, revision.id, candidate, rows, complete=read == len(executions))

@@ -41,6 +41,7 @@ from redline.worker.reanalysis_finish import (
     finish,
     joined,
     revisions_with_data,
+    run_config,
 )
 from redline.worker.rows import Judged
 from redline.worker.samples import SampleCache, Samples
@@ -140,6 +141,7 @@ def plan(database_url: str, component_id: int, parts: int) -> int:
         row.parts, row.revisions, row.parts_done = parts, revisions, []
         row.total, row.done = len(revisions) * (parts + 1), 0
         row.stored, row.from_database = 0, False
+        row.config = component_config(session, component_id).as_dict()
         for table in (StagedDetection, StagedRevision):
             session.execute(delete(table).where(table.component_id == component_id))
         return row.run
@@ -234,7 +236,7 @@ def judge_part(database_url: str, component_id: int, run: int, index: int) -> bo
             if index in row.parts_done:  # delivered again after it finished: nothing to redo
                 return False
             revisions, part = list(row.revisions), Part(index, row.parts)
-            config = component_config(session, component_id)
+            config = run_config(session, row)
             # a redelivered part starts again: what it staged, and counted, is taken back
             staged = session.scalars(
                 delete(StagedRevision)

@@ -17,6 +17,7 @@ import logging
 from collections import defaultdict
 from collections.abc import Collection
 
+from redline.detect.config import DetectionConfig
 from redline.server.db import session_scope
 from redline.server.models import (
     Component,
@@ -84,6 +85,15 @@ def current_run(session: Session, component_id: int, run: int, lock: bool = Fals
     return row
 
 
+def run_config(session: Session, row: Reanalysis) -> DetectionConfig:
+    """The configuration the run judges by: the component's as it was planned. A change saved
+    during the run without a re-analysis of its own (``"reanalyze": false``) therefore does not
+    mix two configurations in one history; it applies from the next revision judged after."""
+    if row.config is None:
+        return component_config(session, row.component_id)
+    return DetectionConfig.parse(row.config)
+
+
 def fail_run(database_url: str, component_id: int, run: int, error: BaseException) -> None:
     """The run's row must not stay "running", whatever stopped it (unless a newer run began)."""
     with session_scope(database_url) as session:
@@ -120,7 +130,7 @@ def finish(database_url: str, component_id: int, run: int) -> bool:
             if row.state != "running":
                 return False
             settle_pending_pairs(session, component_id)
-            config = component_config(session, component_id)
+            config = run_config(session, row)
             confirm_by_history(session, component_id, config.confirm_revisions, config.alarming)
             for table in (StagedDetection, StagedRevision):
                 session.execute(delete(table).where(table.component_id == component_id))
@@ -177,10 +187,11 @@ def _catch_up(session: Session, component_id: int, run: int, planned: list[int])
     for revision_id in now[first:]:  # the revisions' locks before the component's
         lock_revision(session, revision_id)
     session.execute(select(Component.id).where(Component.id == component_id).with_for_update())
+    config = run_config(session, row)
     for revision_id in now[first:]:
-        fresh = judge_revision(session, revision_id)
+        fresh = judge_revision(session, revision_id, config=config)
         if fresh is not None:
-            store(session, session.get_one(Revision, revision_id), fresh.rows)
+            store(session, session.get_one(Revision, revision_id), fresh.rows, config=config)
 
 
 def _store_batch(session: Session, component_id: int, run: int, planned: list[int]) -> bool:
@@ -228,7 +239,7 @@ def _store_batch(session: Session, component_id: int, run: int, planned: list[in
         )
     )
     revisions = {r.id: r for r in session.scalars(select(Revision).where(Revision.id.in_(batch)))}
-    config = component_config(session, component_id)
+    config = run_config(session, row)
     fresh, stored = row.from_database, []
     for revision_id in batch:
         revision = revisions.get(revision_id)
@@ -248,9 +259,9 @@ def _store_batch(session: Session, component_id: int, run: int, planned: list[in
             # an execution was ingested (or one went) since the parts judged it: judged again
             # from what is stored now, as detection does, and so is every revision after it
             fresh = True
-            judged = judge_revision(session, revision_id)
+            judged = judge_revision(session, revision_id, config=config)
             if judged is not None:
-                store(session, revision, judged.rows)
+                store(session, revision, judged.rows, config=config)
             continue
         _store_staged(session, revision, run, config.alarming, revision_id in flagged)
         stored.append(revision_id)

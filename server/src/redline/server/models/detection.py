@@ -176,6 +176,9 @@ class Reanalysis(Base):
     #: the finishing step met a revision whose executions changed since its parts judged it:
     #: from there on it judges each revision again from the database, as detection does
     from_database: Mapped[bool] = mapped_column(Boolean, default=False, server_default="false")
+    #: the detection configuration as the run was planned, which its parts and finishing step
+    #: judge by however the component's changes meanwhile (None: planned before 0019)
+    config: Mapped[dict[str, Any] | None] = mapped_column(JSON, default=None)
 
 
 class StagedDetection(VerdictColumns, Base):
