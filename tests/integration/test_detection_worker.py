@@ -492,6 +492,47 @@ def test_a_reanalysis_judges_by_the_configuration_it_was_planned_with(
     assert {title for title, _ in methods} == {f"r{n}" for n in range(1, 8)}
 
 
+def test_a_database_outage_in_a_part_leaves_the_run_going_for_the_task_to_try_again(
+    session, database_url, tmp_path, monkeypatch
+):
+    """A passing outage is no failure of the run: the task tries the part again (tested in
+    tests/unit/test_task_retries.py), which takes back what it staged. A part delivered again
+    after it finished says the finishing step is due while the run is going (queueing it may
+    have failed), and not once the run is done."""
+    from redline.worker import reanalysis
+    from redline.worker.reanalysis import judge_part, plan
+    from redline.worker.reanalysis_finish import finish
+    from sqlalchemy.exc import OperationalError
+
+    executions = _runs_history(session, tmp_path, [15.0] * 5 + [19.5] * 3)
+    ingest_and_detect(database_url, executions)
+    expected = {key: (d.verdict, d.score) for key, d in _verdicts(session).items()}
+    component_id = session.scalar(select(Component.id))
+    run = plan(database_url, component_id, parts=2)
+    judge, calls = reanalysis.judge_revision, []
+
+    def outage_at_the_fifth(*args, **kwargs):
+        calls.append(args[1])
+        if len(calls) == 5:
+            raise OperationalError("SELECT 1", {}, Exception("server closed the connection"))
+        return judge(*args, **kwargs)
+
+    monkeypatch.setattr(reanalysis, "judge_revision", outage_at_the_fifth)
+    with pytest.raises(OperationalError):
+        judge_part(database_url, component_id, run, 0)
+    session.expire_all()
+    assert session.get(Reanalysis, component_id).state == "running"
+    assert not judge_part(database_url, component_id, run, 0)  # tried again: all of it
+    assert judge_part(database_url, component_id, run, 1)
+    assert judge_part(database_url, component_id, run, 1)  # again: the end is still due
+    assert finish(database_url, component_id, run)
+    assert not judge_part(database_url, component_id, run, 1)  # the run is done
+    assert {key: (d.verdict, d.score) for key, d in _verdicts(session).items()} == expected
+    session.expire_all()
+    progress = session.get(Reanalysis, component_id)
+    assert (progress.state, progress.done) == ("done", progress.total)
+
+
 def test_a_superseded_reanalysis_stops_and_the_newer_one_stores_everything(
     session, database_url, tmp_path
 ):

@@ -35,6 +35,7 @@ from redline.worker.detection import judge_revision
 from redline.worker.history import flagged_verdicts, summarized_series
 from redline.worker.reanalysis_finish import (
     KEPT,
+    TRANSIENT,
     Superseded,
     current_run,
     fail_run,
@@ -233,8 +234,9 @@ def judge_part(database_url: str, component_id: int, run: int, index: int) -> bo
     try:
         with session_scope(database_url) as session:
             row = current_run(session, component_id, run, lock=True)
-            if index in row.parts_done:  # delivered again after it finished: nothing to redo
-                return False
+            if index in row.parts_done:  # delivered again after it finished: nothing to redo,
+                # but the finishing step is due again if queueing it failed (a broker outage)
+                return len(row.parts_done) == row.parts and row.state == "running"
             revisions, part = list(row.revisions), Part(index, row.parts)
             config = run_config(session, row)
             # a redelivered part starts again: what it staged, and counted, is taken back
@@ -275,6 +277,8 @@ def judge_part(database_url: str, component_id: int, run: int, index: int) -> bo
     except Superseded as exc:
         log.info("%s: part %d stops", exc, index)
         return False
+    except TRANSIENT:
+        raise  # the task tries the part again, which takes back what it staged
     except BaseException as exc:
         fail_run(database_url, component_id, run, exc)
         raise

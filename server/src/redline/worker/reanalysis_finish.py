@@ -36,6 +36,7 @@ from redline.worker.detection import judge_revision, lock_revision, store
 from redline.worker.grouping import group_revision
 from redline.worker.samples import ingested_executions
 from sqlalchemy import delete, select, text, update
+from sqlalchemy.exc import InterfaceError, OperationalError
 from sqlalchemy.orm import Session
 
 log = logging.getLogger(__name__)
@@ -94,6 +95,10 @@ def run_config(session: Session, row: Reanalysis) -> DetectionConfig:
     return DetectionConfig.parse(row.config)
 
 
+#: a database that went away for a moment: the task is tried again, the run is not failed
+TRANSIENT = (OperationalError, InterfaceError)
+
+
 def fail_run(database_url: str, component_id: int, run: int, error: BaseException) -> None:
     """The run's row must not stay "running", whatever stopped it (unless a newer run began)."""
     with session_scope(database_url) as session:
@@ -138,6 +143,8 @@ def finish(database_url: str, component_id: int, run: int) -> bool:
     except Superseded as exc:
         log.info("%s: its finishing step stops", exc)
         return False
+    except TRANSIENT:
+        raise  # the task tries again (`redline.worker.tasks`), going on from the last batch
     except BaseException as exc:
         fail_run(database_url, component_id, run, exc)
         raise

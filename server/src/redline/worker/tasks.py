@@ -6,7 +6,9 @@ import importlib
 import logging
 from typing import Any
 
+from celery import Task
 from celery.signals import worker_init
+from kombu.exceptions import OperationalError as BrokerError
 from redline.agent.quiet import analysing
 from redline.server.core.config import Settings
 from redline.server.core.tasks import (
@@ -41,6 +43,20 @@ from sqlalchemy.exc import InterfaceError, OperationalError
 log = logging.getLogger(__name__)
 #: a passing database outage is retried (with backoff), never a failed job or a lost revision
 RETRY = dict(autoretry_for=(OperationalError, InterfaceError), retry_backoff=True, max_retries=5)
+#: a re-analysis's steps also when queueing the next step fails (the broker went away)
+RETRY_REANALYSIS = {**RETRY, "autoretry_for": (OperationalError, InterfaceError, BrokerError)}
+
+
+class ReanalysisStep(Task):
+    """A re-analysis's part or finishing step: tried again after a passing outage (each is
+    idempotent); when the tries run out its run is failed with the error rather than left
+    "running" with no task to end it."""
+
+    def on_failure(
+        self, exc: BaseException, task_id: str, args: Any, kwargs: Any, einfo: Any
+    ) -> None:
+        component_id, run = args[0], args[1]
+        reanalysis_finish.fail_run(_settings().database_url, component_id, run, exc)
 
 
 @worker_init.connect
@@ -112,7 +128,7 @@ def requeue_stale_uploads() -> int:
     return len(executions)
 
 
-@celery_app.task(name=REANALYZE_TASK, acks_late=True)
+@celery_app.task(name=REANALYZE_TASK, acks_late=True, **RETRY_REANALYSIS)
 def reanalyze_component(component_id: int) -> None:
     """Detect every revision of the component again (after a configuration change): planned
     here, judged in parts by series on any worker (`reanalyze_part`), stored in order by the
@@ -123,7 +139,7 @@ def reanalyze_component(component_id: int) -> None:
         reanalyze_part.delay(component_id, run, index)
 
 
-@celery_app.task(name=REANALYZE_PART_TASK, acks_late=True)
+@celery_app.task(name=REANALYZE_PART_TASK, acks_late=True, base=ReanalysisStep, **RETRY_REANALYSIS)
 def reanalyze_part(component_id: int, run: int, index: int) -> None:
     """One part's series of every revision judged and staged; the last part queues the end."""
     with analysing():
@@ -132,7 +148,9 @@ def reanalyze_part(component_id: int, run: int, index: int) -> None:
         finish_reanalysis.delay(component_id, run)
 
 
-@celery_app.task(name=REANALYZE_FINISH_TASK, acks_late=True)
+@celery_app.task(
+    name=REANALYZE_FINISH_TASK, acks_late=True, base=ReanalysisStep, **RETRY_REANALYSIS
+)
 def finish_reanalysis(component_id: int, run: int) -> None:
     """The staged verdicts stored in revision order, grouped and confirmed; then the charts and
     the alerts."""
