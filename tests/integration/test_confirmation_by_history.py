@@ -110,6 +110,28 @@ def test_a_reanalysis_settles_changes_as_the_incremental_path_did(session, datab
     assert after == before
 
 
+def test_while_a_reanalysis_stores_its_verdicts_settling_waits_for_its_end(
+    session, database_url, tmp_path
+):
+    """A revision judged live while a re-analysis runs would settle r5 against later verdicts
+    half old, half new; settling waits for the run's end, which settles once."""
+    from redline.worker.reanalysis import judge_part, plan
+    from redline.worker.reanalysis_finish import finish
+
+    _component(session)
+    _judge(session, database_url, tmp_path, [20.0] * 4 + [30.0, 30.0])
+    component_id = session.scalars(select(Revision.component_id)).first()
+    run = plan(database_url, component_id, parts=1)
+    _judge(session, database_url, tmp_path, [30.5], start=7)  # the second later revision
+    assert session.scalars(select(Regression)).one().confirmation == "suspected"
+    assert judge_part(database_url, component_id, run, 0)
+    assert finish(database_url, component_id, run)  # r7, reported during the run, judged too
+    session.expire_all()
+    regression = session.scalars(select(Regression)).one()
+    assert regression.confirmation == "confirmed", regression.confirmation_reason
+    assert _flagged(session)["r5"].confirmation == "held"
+
+
 def test_the_api_lists_regressions_by_confirmation(session, database_url, tmp_path, services):
     with api_with(services, tmp_path) as api:
         _component(session)

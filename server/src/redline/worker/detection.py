@@ -31,7 +31,7 @@ from redline.detect.result import Detection as Verdict
 from redline.detect.result import not_enough
 from redline.detect.verdict import judge_series
 from redline.server.db import bulk_insert, session_scope
-from redline.server.models import Component, Detection, Revision, utcnow
+from redline.server.models import Component, Detection, Reanalysis, Revision, utcnow
 from redline.server.services.detection_config import component_config
 from redline.worker.baselines import Baseline, Baselines
 from redline.worker.confirm_runs import queue_confirmations, settle_pending_pairs
@@ -183,8 +183,20 @@ def store(
         queue_confirmations(session, revision, config)
         queue_for_baselines(session, revision, rows)
     settle_pending_pairs(session, revision.component_id)
-    confirm_by_history(session, revision.component_id, config.confirm_revisions, config.alarming)
+    if not _reanalysing(session, revision.component_id):
+        confirm_by_history(
+            session, revision.component_id, config.confirm_revisions, config.alarming
+        )
     revision.analyzed_at = utcnow()
+
+
+def _reanalysing(session: Session, component_id: int) -> bool:
+    """A re-analysis of the component is storing its verdicts: the later revisions' verdicts
+    are a mix of old and new, so settling by history waits for the run's end, which settles
+    once for the component (`redline.worker.reanalysis_finish.finish`; the component's row,
+    locked by both, orders the two)."""
+    state = session.scalar(select(Reanalysis.state).where(Reanalysis.component_id == component_id))
+    return state == "running"
 
 
 def judge_revision(
