@@ -134,7 +134,8 @@ def wait_idle(engine: sa.Engine, stack: Any, timeout: float = 1800.0) -> None:
 
 
 def agent_seconds(log: Path) -> dict[int, float]:
-    """Seconds per job id, from the agent's log line that starts it to its upload or failure."""
+    """Seconds per job id, from the agent's log line that starts it to its upload, failure or
+    abandonment."""
     began: dict[int, datetime] = {}
     spent: dict[int, float] = {}
     for line in log.read_text(errors="replace").splitlines():
@@ -143,7 +144,8 @@ def agent_seconds(log: Path) -> dict[int, float]:
             continue
         at = datetime.strptime(match.group(1), "%Y-%m-%d %H:%M:%S,%f")
         job, rest = int(match.group(2)), match.group(3) + match.group(4)
-        if rest.startswith(": uploaded") or rest.startswith(" failed"):
+        # a confirmation run cancelled as not needed while it ran ends in a lost lease
+        if rest.startswith((": uploaded", ": lease lost", " failed")):
             if job in began:
                 spent[job] = (at - began.pop(job)).total_seconds()
         elif rest.startswith(": "):

@@ -167,8 +167,55 @@ def test_pairs_that_do_not_show_it_leave_the_regression_not_confirmed(
         _run(session, database_url, tmp_path, job, 20.0)  # r5 again at r4's level: a fluke
     detection = _r5_detection(session)
     assert detection.confirmation == "dropped"
-    assert "not confirmed: the change showed in 0 of 2 pairs" in detection.confirmation_reason
+    # with two pairs wanted, a first that shows nothing decides: the second could not make
+    # it the two of two needed, so it does not run
+    assert "not confirmed: the change showed in 0 of 1 pairs" in detection.confirmation_reason
+    assert "1 more pair(s) not needed" in detection.confirmation_reason
     assert session.scalars(select(Regression)).one().confirmation == "not_confirmed"
+
+
+def test_pairs_that_already_decide_the_change_spare_the_pairs_left_to_run(
+    session, database_url, tmp_path
+):
+    """Three pairs queued; two that agree decide whatever the third would show: the third's
+    runs are cancelled (the one already leased too: its agent gets 409) and the verdict is the
+    one all three would give."""
+    import pytest
+    from redline.server.services.errors import Conflict
+    from redline.server.services.jobs import heartbeat
+    from redline.worker.confirm_runs import NOT_NEEDED
+
+    _flagged_history(session, database_url, tmp_path, pairs=3)
+    for _ in range(3):  # pair 1, and pair 2's baseline
+        job = lease_job(session, "perf-1", 60, 3)
+        _run(session, database_url, tmp_path, job, 30.0 if job.revision.title == "r5" else 20.0)
+    candidate = lease_job(session, "perf-1", 60, 3)
+    third = lease_job(session, "perf-1", 60, 3)  # leased before the worker judged pair 2
+    assert (candidate.pair, third.pair) == (2, 3)
+    _run(session, database_url, tmp_path, candidate, 30.0)
+    spared = session.scalars(select(Job).where(Job.pair == 3).order_by(Job.id)).all()
+    assert [(j.state, j.reason) for j in spared] == [(JobState.cancelled, NOT_NEEDED)] * 2
+    assert lease_job(session, "perf-1", 60, 3) is None
+    with pytest.raises(Conflict):
+        heartbeat(session, third.id, "perf-1", 60)
+    detection = _r5_detection(session)
+    assert detection.confirmation == "held", detection.confirmation_reason
+    assert detection.confirmation_reason.startswith("confirmed by 2 of 2 pairs")
+    assert detection.confirmation_reason.endswith("1 more pair(s) not needed: these decided it")
+    assert "did not run" not in detection.confirmation_reason
+    assert "failed" not in detection.confirmation_reason
+
+
+def test_pairs_that_disagree_run_the_third(session, database_url, tmp_path):
+    _flagged_history(session, database_url, tmp_path, pairs=3)
+    levels = {("r5", 1): 30.0, ("r5", 2): 20.0, ("r5", 3): 30.0}  # a fluke in the second
+    while (job := lease_job(session, "perf-1", 60, 3)) is not None:
+        _run(session, database_url, tmp_path, job, levels.get((job.revision.title, job.pair), 20.0))
+    states = session.scalars(select(Job.state).where(Job.confirms_revision_id.is_not(None)))
+    assert set(states) == {JobState.done}
+    detection = _r5_detection(session)
+    assert detection.confirmation == "held", detection.confirmation_reason
+    assert detection.confirmation_reason.startswith("confirmed by 2 of 3 pairs")
 
 
 def test_a_baseline_that_can_no_longer_run_is_named_and_the_history_decides_instead(

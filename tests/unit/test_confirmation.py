@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import pytest
 from redline.detect.config import ConfigError, DetectionConfig
 from redline.detect.confirmation import DROPPED, HELD, SUSPECTED, hold
@@ -79,3 +80,26 @@ def test_pairs_confirm_a_change_most_of_them_show_and_name_what_did_not_run() ->
     assert partial.state == HELD and "1 pair(s) did not run" in partial.reason
     none = pairs_hold([], "increase", 0.3, 2)
     assert none.state == DROPPED and "none of the 2 confirmation pair(s) ran" in none.reason
+
+
+def test_two_pairs_that_agree_decide_three_and_the_decision_is_what_all_would_give() -> None:
+    from redline.detect.confirmation import pairs_decided, pairs_hold
+
+    up, flat = (100.0, 131.0), (100.0, 101.0)
+    assert pairs_decided([up, up], "increase", 0.3, pending=1)
+    assert pairs_decided([flat, flat], "increase", 0.3, pending=1)
+    assert not pairs_decided([up, flat], "increase", 0.3, pending=1)
+    assert not pairs_decided([up], "increase", 0.3, pending=2)
+    assert not pairs_decided([], "increase", 0.3, pending=3)
+    assert pairs_decided([up, flat, up], "increase", 0.3, pending=0)
+    # whatever the pending pairs show, or if they never run, the verdict stays the decided one
+    rng = np.random.default_rng(3)
+    outcomes = [(100.0, 131.0), (100.0, 101.0), (math.nan, 120.0), (100.0, 69.0)]
+    for _ in range(2_000):
+        wanted = int(rng.integers(1, 6))
+        pairs = [outcomes[i] for i in rng.integers(0, len(outcomes), wanted)]
+        direction, effect = ("increase", 0.3) if rng.random() < 0.5 else ("decrease", -0.3)
+        for ran in range(wanted + 1):
+            if pairs_decided(pairs[:ran], direction, effect, pending=wanted - ran):
+                decided = pairs_hold(pairs[:ran], direction, effect, wanted).state
+                assert pairs_hold(pairs, direction, effect, wanted).state == decided, pairs

@@ -91,6 +91,40 @@ def hold(
 PAIRS_SHARE = 2 / 3
 
 
+def _complete(pairs: Sequence[tuple[float, float]]) -> list[tuple[float, float]]:
+    return [(b, c) for b, c in pairs if math.isfinite(b) and math.isfinite(c) and b != 0]
+
+
+def _moves(complete: Sequence[tuple[float, float]]) -> list[float]:
+    return [(c - b) / abs(b) for b, c in complete]
+
+
+def _shows(move: float, direction: str, effect: float) -> bool:
+    """Whether one pair's relative move shows the change flagged ``direction`` by ``effect``."""
+    sign = 1.0 if direction == "increase" else -1.0
+    return sign * move >= HOLD_SHARE * abs(effect)
+
+
+def _holds(shown: int, complete: int) -> bool:
+    return complete > 0 and shown >= max(1, math.ceil(PAIRS_SHARE * complete))
+
+
+def pairs_decided(
+    pairs: Sequence[tuple[float, float]], direction: str, effect: float, pending: int
+) -> bool:
+    """Whether the ``pairs`` that ran decide `pairs_hold` whatever the ``pending`` ones show,
+    or whether they run at all: then those need not run (with 3 pairs, two that agree decide).
+    The verdict is the one all the pairs would give; only machine time is saved."""
+    complete = _complete(pairs)
+    shown = sum(_shows(move, direction, effect) for move in _moves(complete))
+    outcomes = {
+        _holds(shown + more_shown, len(complete) + more)
+        for more in range(pending + 1)
+        for more_shown in range(more + 1)
+    }
+    return len(outcomes) == 1
+
+
 def pairs_hold(
     pairs: Sequence[tuple[float, float]], direction: str, effect: float, wanted: int
 ) -> Hold:
@@ -99,20 +133,18 @@ def pairs_hold(
     A pair shows the change when the candidate moved the flagged way by at least `HOLD_SHARE`
     of the effect; the change holds when at least `PAIRS_SHARE` of the complete pairs show it.
     ``wanted``: the pairs that were queued (a missing one is named in the reason)."""
-    complete = [(b, c) for b, c in pairs if math.isfinite(b) and math.isfinite(c) and b != 0]
+    complete = _complete(pairs)
     if not complete:
         return Hold(DROPPED, f"not confirmed: none of the {wanted} confirmation pair(s) ran", 0.0)
     sign = 1.0 if direction == "increase" else -1.0
-    least = HOLD_SHARE * abs(effect)
-    moves = [(c - b) / abs(b) for b, c in complete]
-    shown = sum(sign * move >= least for move in moves)
-    needed = max(1, math.ceil(PAIRS_SHARE * len(complete)))
+    moves = _moves(complete)
+    shown = sum(_shows(move, direction, effect) for move in moves)
     moved = ", ".join(f"{100 * move:+.1f} %" for move in moves)
     missing = f"; {wanted - len(complete)} pair(s) did not run" if len(complete) < wanted else ""
     figures = (
         f"{shown} of {len(complete)} pairs (candidate against baseline, back to back on one "
         f"host: {moved}; flagged {100 * sign * abs(effect):+.1f} %){missing}"
     )
-    if shown >= needed:
+    if _holds(shown, len(complete)):
         return Hold(HELD, f"confirmed by {figures}", shown / len(complete))
     return Hold(DROPPED, f"not confirmed: the change showed in {figures}", shown / len(complete))

@@ -22,7 +22,7 @@ from collections import defaultdict
 from datetime import timedelta
 
 from redline.detect.config import DetectionConfig
-from redline.detect.confirmation import SUSPECTED, pairs_hold
+from redline.detect.confirmation import SUSPECTED, pairs_decided, pairs_hold
 from redline.detect.counters import is_count
 from redline.server.models import (
     Detection,
@@ -46,6 +46,8 @@ FINISHED = (JobState.done, JobState.failed, JobState.cancelled)
 HOST_GONE = timedelta(minutes=30)
 #: confirmation jobs that will never give a value: their revision falls back to the history
 DID_NOT_RUN = (JobState.failed, JobState.cancelled)
+#: the reason of a confirmation job cancelled because the pairs before it decided every change
+NOT_NEEDED = "not needed: the pairs that ran before it decided every suspected change"
 
 
 def _suspected(session: Session, revision_id: int) -> list[tuple[Detection, str, str]]:
@@ -135,6 +137,24 @@ def _values(session: Session, jobs: list[Job]) -> dict[tuple[int, int, int], tup
     return {(s, pair, rid): (p50, mean) for s, pair, rid, p50, mean in rows}
 
 
+def _measured(
+    values: dict[tuple[int, int, int], tuple[float, float]],
+    series_id: int,
+    pairs: list[int],
+    baseline: int,
+    candidate: int,
+) -> list[tuple[float, float]]:
+    """The series' (baseline, candidate) medians of each of ``pairs``; NaN where one is missing."""
+    nan = (math.nan, math.nan)
+    return [
+        (
+            values.get((series_id, pair, baseline), nan)[0],
+            values.get((series_id, pair, candidate), nan)[0],
+        )
+        for pair in pairs
+    ]
+
+
 def settle_pairs(session: Session, revision: Revision) -> bool:
     """Judge the revision's suspected changes on its confirmation pairs once they all ran;
     False (nothing settled) when it has none. While they run, the reason says how far."""
@@ -143,6 +163,10 @@ def settle_pairs(session: Session, revision: Revision) -> bool:
         return False
     suspected = _suspected(session, revision.id)
     running = [job for job in jobs if job.state not in FINISHED]
+    if running and _decided(session, revision, jobs, suspected):
+        for job in running:  # an agent running one gets 409 at its next heartbeat
+            job.state, job.reason, job.lease_expires_at = JobState.cancelled, NOT_NEEDED, None
+        running = []
     if running:
         for detection, _, _ in suspected:
             detection.confirmation_reason = (
@@ -153,10 +177,11 @@ def settle_pairs(session: Session, revision: Revision) -> bool:
         {
             f"{job.revision.title}: {job.reason or job.state.value}"
             for job in jobs
-            if job.state in DID_NOT_RUN
+            if job.state in DID_NOT_RUN and job.reason != NOT_NEEDED
         }
     )
-    pairs = sorted({job.pair for job in jobs})
+    spared = {job.pair for job in jobs if job.reason == NOT_NEEDED}
+    pairs = sorted({job.pair for job in jobs} - spared)
     baseline = next(job.revision_id for job in jobs if job.revision_id != revision.id)
     ran = {(job.pair, job.revision_id) for job in jobs if job.state == JobState.done}
     if not any((pair, revision.id) in ran and (pair, baseline) in ran for pair in pairs):
@@ -167,7 +192,6 @@ def settle_pairs(session: Session, revision: Revision) -> bool:
             )
         return True
     values = _values(session, jobs)
-    nan = (float("nan"),) * 2
     for detection, process, counter in suspected:
         if is_count(process, counter):
             detection.confirmation_reason = (
@@ -175,13 +199,7 @@ def settle_pairs(session: Session, revision: Revision) -> bool:
                 "later revisions, not by a few pairs"
             )
             continue
-        measured = [
-            (
-                values.get((detection.series_id, pair, baseline), nan)[0],
-                values.get((detection.series_id, pair, revision.id), nan)[0],
-            )
-            for pair in pairs
-        ]
+        measured = _measured(values, detection.series_id, pairs, baseline, revision.id)
         if detection.baseline_revision_id != baseline or not any(
             math.isfinite(b) and math.isfinite(c) for b, c in measured
         ):
@@ -192,7 +210,33 @@ def settle_pairs(session: Session, revision: Revision) -> bool:
             continue
         found = pairs_hold(measured, detection.direction, detection.effect or 0.0, len(pairs))
         reason = found.reason + (f" (failed: {'; '.join(failed)})" if failed else "")
+        if spared:
+            reason += f"; {len(spared)} more pair(s) not needed: these decided it"
         detection.confirmation, detection.confirmation_reason = found.state, reason
+    return True
+
+
+def _decided(
+    session: Session,
+    revision: Revision,
+    jobs: list[Job],
+    suspected: list[tuple[Detection, str, str]],
+) -> bool:
+    """Whether the pairs complete so far decide every suspected change that the pairs judge,
+    whatever the pairs still to run would show (`pairs_decided`): then those need not run."""
+    baseline = next(job.revision_id for job in jobs if job.revision_id != revision.id)
+    done = {(job.pair, job.revision_id) for job in jobs if job.state == JobState.done}
+    gone = {job.pair for job in jobs if job.state in DID_NOT_RUN}
+    pairs = sorted({job.pair for job in jobs})
+    complete = [p for p in pairs if (p, baseline) in done and (p, revision.id) in done]
+    pending = len([p for p in pairs if p not in complete and p not in gone])
+    values = _values(session, jobs)
+    for detection, process, counter in suspected:
+        if is_count(process, counter) or detection.baseline_revision_id != baseline:
+            continue  # the pairs do not judge it (`settle_pairs`)
+        measured = _measured(values, detection.series_id, complete, baseline, revision.id)
+        if not pairs_decided(measured, detection.direction, detection.effect or 0.0, pending):
+            return False
     return True
 
 
