@@ -193,6 +193,8 @@ class Stack:
         env.setdefault(LOCK_VARIABLE, str(self.data / "measurement.lock"))
         # one worker process: a re-analysis in more parts would only read each revision again
         env.setdefault("REDLINE_REANALYSIS_PARTS", "1")
+        # links in alerts lead to the pages this stack serves (a trial's pointed at port 8000)
+        env.setdefault("REDLINE_PUBLIC_URL", self.url)
         return env
 
     def _redline(self, *args: str) -> str:
