@@ -150,6 +150,27 @@ def test_a_revision_reported_again_with_its_commit_is_the_same_revision(api: Api
     assert [r["title"] for r in listed] == ["r1"] and len(first.json()["job_ids"]) >= 1
 
 
+def test_a_commit_reported_under_its_full_and_its_short_sha_is_one_revision(api: Api):
+    """README's example titled a revision by the full SHA, ci.md and the webhooks by 12 digits:
+    a trial reporting both got 201 twice, and the commit measured twice."""
+    api.component()
+    full = "0123456789abcdef" * 2 + "01234567"
+    body = {"component": "builder", "title": full, "sort_key": "7", "commit": full}
+    first = api.post("/api/v1/revisions", "ci", body)
+    assert first.status_code == 201, first.text
+    for title, commit in ((full[:12], full), (full[:12], full[:12]), ("r7", full[:7].upper())):
+        again = api.post("/api/v1/revisions", "ci", {**body, "title": title, "commit": commit})
+        assert again.status_code == 200 and again.json() == first.json(), (title, again.text)
+    # a six-digit prefix, or a branch name, is no commit's identity: a revision of its own
+    for title, commit in (("short", full[:6]), ("nightly-1", "main"), ("nightly-2", "main")):
+        made = api.post("/api/v1/revisions", "ci", {**body, "title": title, "commit": commit})
+        assert made.status_code == 201, made.text
+    listed = api.client.get("/api/v1/components/builder/revisions").json()
+    assert sorted(r["title"] for r in listed) == sorted([full, "short", "nightly-1", "nightly-2"])
+    with session_factory(api.settings.database_url)() as session:
+        assert session.scalar(select(func.count()).select_from(Job)) == 4  # none for repeats
+
+
 def test_revisions_are_listed_in_sort_key_order_with_their_state(api: Api):
     api.component(executions=2)
     for title, key in (("ten", "10"), ("nine", "9"), ("two", "2")):

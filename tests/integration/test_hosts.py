@@ -32,6 +32,7 @@ from redline.worker.detection import detect_revision
 from sqlalchemy import func, select
 from sqlalchemy.engine import make_url
 
+from tests.support.git import empty_commits
 from tests.support.netns import Host, Relay, why_not_allowed
 from tests.support.servers import Services, fresh_database
 from tests.support.tiny import agent_args, tiny_repo
@@ -113,7 +114,8 @@ def test_three_hosts_lose_no_job_to_a_killed_agent_or_worker(
     workers_host, agents_host = hosts
     database_url, _ = fresh_database(services.database_url)
     migrate(database_url)
-    repo, commit = tiny_repo(tmp_path / "repo")
+    repo, _ = tiny_repo(tmp_path / "repo")
+    commits = empty_commits(repo, REVISIONS)  # one commit of one code per revision
     with session_factory(database_url)() as session:
         tokens = {scope: issue_token(session, scope, scope)[1] for scope in ("admin", "ci")}
         agent_token = issue_token(session, "agents", "agent")[1]
@@ -180,7 +182,7 @@ def test_three_hosts_lose_no_job_to_a_killed_agent_or_worker(
             headers={"Authorization": f"Bearer {tokens['admin']}"},
             json={"name": "tiny", "repo": str(repo), "suite": "perf/redline.toml"},
         ).raise_for_status()
-        for number in range(1, REVISIONS + 1):
+        for number, commit in enumerate(commits, start=1):
             client.post(
                 "/api/v1/revisions",
                 headers={"Authorization": f"Bearer {tokens['ci']}"},

@@ -40,8 +40,8 @@ def test_a_pushed_commit_sorts_after_the_history_ci_reported_before_it(api: Api)
     a trial's pushed commit sorted before all of CI's (20261124 < 1795551380)."""
     earlier = int(datetime(2026, 11, 20, 8, tzinfo=UTC).timestamp())
     later = datetime(2026, 11, 20, 10, tzinfo=UTC).timestamp()
-    for title, key in (("ci-early", earlier), ("ci-late", int(later))):
-        body = {"component": "builder", "title": title, "sort_key": str(key), "commit": "c" * 40}
+    for title, key, commit in (("ci-early", earlier, "c"), ("ci-late", int(later), "d")):
+        body = {"component": "builder", "title": title, "sort_key": str(key), "commit": commit * 40}
         api.post("/api/v1/revisions", "ci", body).raise_for_status()
     assert send_github(api, github_push()).status_code == 200  # commits at 09:00
     listed = [r["title"] for r in api.client.get("/api/v1/components/builder/revisions").json()]
@@ -69,6 +69,16 @@ def test_repeated_delivery_creates_nothing_twice(api: Api):
     assert again.status_code == 200 and again.json()["created"] == []
     assert again.json()["existing"] == 2
     assert counts(api) == (2, 4)
+
+
+def test_a_commit_ci_reported_under_its_full_sha_is_not_made_again_by_a_push(api: Api):
+    """CI (README's example) titles a revision by the full SHA, a push by 12 digits."""
+    body = {"component": "builder", "title": "a" * 40, "sort_key": "1", "commit": "a" * 40}
+    assert api.post("/api/v1/revisions", "ci", body).status_code == 201
+    answer = send_github(api, github_push())
+    assert answer.status_code == 200, answer.text
+    assert [r["title"] for r in answer.json()["created"]] == ["b" * 12]
+    assert answer.json()["existing"] == 1 and counts(api) == (2, 4)
 
 
 def test_forged_signature_is_401_and_creates_nothing(api: Api):

@@ -20,3 +20,19 @@ def committed_repo(repo: Path, files: dict[str, str]) -> tuple[Path, str]:
         ["git", "rev-parse", "HEAD"], cwd=repo, check=True, capture_output=True, text=True
     ).stdout.strip()
     return repo, head
+
+
+def empty_commits(repo: Path, count: int) -> list[str]:
+    """``count`` commits on top of ``repo``'s head that change nothing: the same code under
+    distinct hashes (one commit reported under two titles is one revision); their hashes."""
+    hashes = []
+    for number in range(count):
+        subprocess.run(
+            [*GIT, "commit", "-q", "--allow-empty", "-m", f"again {number}"], cwd=repo, check=True
+        )
+        hashes.append(
+            subprocess.run(
+                ["git", "rev-parse", "HEAD"], cwd=repo, check=True, capture_output=True, text=True
+            ).stdout.strip()
+        )
+    return hashes

@@ -28,7 +28,7 @@ from redline.server.schemas.webhooks import (
 )
 from redline.server.services.errors import BadRequest, ServiceError
 from redline.server.services.repos import repo_key
-from redline.server.services.revisions import new_revision
+from redline.server.services.revisions import new_revision, revision_of_commit
 from sqlalchemy import select
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
@@ -113,7 +113,10 @@ def sort_key(when: datetime, index: int) -> str:
 
 
 def _add_revision(session: Session, component: Component, data: RevisionCreate) -> Revision | None:
-    """The new revision, or None when the component already has it (a repeated delivery)."""
+    """The new revision, or None when the component already has it (a repeated delivery, or
+    CI's report of the commit under its full SHA)."""
+    if revision_of_commit(session, component, data.commit) is not None:
+        return None
     try:
         with session.begin_nested():
             revision = new_revision(component, data)
