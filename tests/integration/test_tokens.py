@@ -7,10 +7,12 @@ import subprocess
 import sys
 from collections.abc import Iterator
 from pathlib import Path
+from urllib.parse import urlencode
 
 import pytest
 from redline.server.db import session_factory
 from redline.server.models import ApiToken
+from redline.server.services.signin import create_user
 from sqlalchemy import select
 
 from tests.support import ROOT
@@ -83,6 +85,45 @@ def test_read_access_token_mode_needs_a_read_token(services: Services, tmp_path:
         assert api.client.get("/api/v1/components").status_code == 200
         api.client.cookies.clear()
         assert api.client.get("/api/v1/components", headers=api.tokens["agent"]).status_code == 403
+
+
+def test_a_browser_asking_for_a_page_under_read_access_token_is_sent_to_sign_in(
+    services: Services, tmp_path: Path
+):
+    """A trial's browser got `401 {"detail":"missing bearer token"}` on every page, and no way
+    to the sign-in page that works; the API, and a script's fetch, still get 401 JSON."""
+    browser = {"Accept": "text/html,application/xhtml+xml,*/*;q=0.8"}
+    with api_with(services, tmp_path, read_access="token") as api:
+        with session_factory(api.settings.database_url)() as session:
+            create_user(session, "ada", "correct horse battery", "read")
+        for path, back in (
+            ("/", "/"),
+            ("/components/builder?case=build", "/components/builder?case=build"),
+            ("/regressions?state=new&token=rl_stale", "/regressions?state=new"),  # no secret
+        ):
+            answer = api.client.get(path, headers=browser, follow_redirects=False)
+            assert answer.status_code == 303, (path, answer.text)
+            assert answer.headers["location"] == "/signin?" + urlencode({"next": back})
+        signin = api.client.get("/signin?next=/components/builder%3Fcase%3Dbuild", headers=browser)
+        assert signin.status_code == 200 and 'value="/components/builder?case=build"' in signin.text
+        assert api.client.get("/static/redline.css", headers=browser).status_code == 200
+        fetch = {"Accept": "application/json"}  # the component page's script, for its charts
+        for path, asked in (
+            ("/api/v1/components", browser),
+            ("/static/plotly.min.js", browser),
+            ("/components/builder/trends", fetch),
+        ):
+            refused = api.client.get(path, headers=asked, follow_redirects=False)
+            assert refused.status_code == 401, path
+            assert refused.json() == {"detail": "missing bearer token"}
+        assert api.client.get("/", follow_redirects=False).status_code == 401  # not a browser
+        signed = api.client.post(
+            "/signin",
+            data={"name": "ada", "password": "correct horse battery", "next": "/regressions"},
+            follow_redirects=False,
+        )
+        assert signed.headers["location"] == "/regressions"
+        assert api.client.get("/", headers=browser).status_code == 200
 
 
 def test_read_access_open_by_default(api: Api):

@@ -5,11 +5,12 @@ from __future__ import annotations
 import math
 import reprlib
 from typing import Any
+from urllib.parse import urlencode
 
 from fastapi import FastAPI, Request
 from fastapi.encoders import jsonable_encoder
 from fastapi.exceptions import RequestValidationError
-from fastapi.responses import JSONResponse, Response
+from fastapi.responses import JSONResponse, RedirectResponse, Response
 from redline.server.core import metrics
 from redline.server.core.bodies import BodyLimit
 from redline.server.core.config import Settings, get_settings
@@ -53,9 +54,18 @@ async def _no_route(request: Request, exc: Exception) -> Response:
     """Starlette's own refusals (no such address, a method it does not take): the error page
     for a browser, JSON otherwise."""
     assert isinstance(exc, StarletteHTTPException)
+    if _for_a_browser(request) and exc.status_code == 401:
+        return RedirectResponse(_signin_address(request), status_code=303)
     if _for_a_browser(request) and exc.status_code in (404, 405):
         return problem(request, NotFound(f"there is no page at {request.url.path[:200]}"))
     return JSONResponse({"detail": exc.detail}, status_code=exc.status_code, headers=exc.headers)
+
+
+def _signin_address(request: Request) -> str:
+    """The sign-in page, to come back to this page (less a refused ``?token=``) after it."""
+    query = urlencode([(k, v) for k, v in request.query_params.multi_items() if k != "token"])
+    back = request.url.path + (f"?{query}" if query else "")
+    return "/signin?" + urlencode({"next": back})
 
 
 _EXCERPT = reprlib.Repr()  # keyword arguments only from Python 3.12
@@ -93,7 +103,8 @@ def _unquoted(loc: tuple, value: Any) -> Any:
 
 def _for_a_browser(request: Request) -> bool:
     """A page asked for by a browser (it accepts HTML), not the API nor a script's fetch."""
-    return not request.url.path.startswith("/api/") and "text/html" in request.headers.get(
+    path = request.url.path
+    return not path.startswith(("/api/", "/static/")) and "text/html" in request.headers.get(
         "accept", ""
     )
 
