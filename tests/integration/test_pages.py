@@ -172,9 +172,27 @@ def test_an_address_that_does_not_parse_is_a_page_naming_it_not_json(client, pat
     page = client.get(path, headers={"accept": "text/html,application/xhtml+xml"})
     assert page.status_code == 404 and page.headers["content-type"].startswith("text/html")
     assert "<h1>Not found</h1>" in page.text and named in html.unescape(page.text)
-    # the API, and a script's fetch, still get JSON naming the field
-    api = client.get(path)
-    assert api.status_code == 422 and api.json()["detail"][0]["loc"][0] == "path"
+    # the API, and a script's fetch of what is not a page (a recording), still get JSON
+    for fetched in ("/api/v1/executions/abc", "/executions/abc/recording"):
+        api = client.get(fetched)
+        assert api.status_code == 422 and api.json()["detail"][0]["loc"][0] == "path"
+
+
+@pytest.mark.parametrize(
+    ("path", "named"),
+    [
+        ("/executions/abc", "no execution 'abc'"),
+        ("/regressions/99999999999999999999999", "/regressions/99999999999999999999999"),
+        ("/detections/99999999999999999999999", "an id out of range"),
+        ("/components/nosuch", "nosuch"),
+    ],
+)
+def test_a_page_asked_for_without_accepting_html_still_answers_an_error_page(client, path, named):
+    """A trial's curl of page addresses met pydantic's 422 and JSON 404s; docs/ui.md promises
+    a 404 page naming what does not exist."""
+    page = client.get(path)  # curl's Accept: */*
+    assert page.status_code == 404 and page.headers["content-type"].startswith("text/html")
+    assert "<h1>Not found</h1>" in page.text and named in html.unescape(page.text)
 
 
 def test_an_id_out_of_range_and_an_unknown_address_are_404_not_json_in_a_page(client):

@@ -10,7 +10,8 @@ from urllib.parse import urlencode
 from fastapi import FastAPI, Request
 from fastapi.encoders import jsonable_encoder
 from fastapi.exceptions import RequestValidationError
-from fastapi.responses import JSONResponse, RedirectResponse, Response
+from fastapi.responses import HTMLResponse, JSONResponse, RedirectResponse, Response
+from fastapi.routing import APIRoute
 from redline.server.core import metrics
 from redline.server.core.bodies import BodyLimit
 from redline.server.core.config import Settings, get_settings
@@ -56,7 +57,7 @@ async def _no_route(request: Request, exc: Exception) -> Response:
     assert isinstance(exc, StarletteHTTPException)
     if _for_a_browser(request) and exc.status_code == 401:
         return RedirectResponse(_signin_address(request), status_code=303)
-    if _for_a_browser(request) and exc.status_code in (404, 405):
+    if _a_page(request) and exc.status_code in (404, 405):
         return problem(request, NotFound(f"there is no page at {request.url.path[:200]}"))
     return JSONResponse({"detail": exc.detail}, status_code=exc.status_code, headers=exc.headers)
 
@@ -109,6 +110,14 @@ def _for_a_browser(request: Request) -> bool:
     )
 
 
+def _a_page(request: Request) -> bool:
+    """An address whose answer is a page: one of the UI's HTML routes, whoever asks (a trial's
+    curl of /executions/abc met pydantic's JSON), or any but the API's asked for by a browser."""
+    route = request.scope.get("route")
+    html = isinstance(route, APIRoute) and route.response_class is HTMLResponse
+    return html or _for_a_browser(request)
+
+
 def _invalid_page(request: Request, exc: RequestValidationError) -> Response:
     """A page whose address does not parse: 404 for a path naming nothing (``/executions/abc``),
     else 400 naming the field; a page, not JSON, since a person reads it."""
@@ -123,9 +132,9 @@ def _invalid_page(request: Request, exc: RequestValidationError) -> Response:
 
 async def _invalid(request: Request, exc: Exception) -> Response:
     """FastAPI's 422, quoting no more than a short excerpt of each input at fault, and never a
-    secret; for a browser's page, the error page (`_invalid_page`)."""
+    secret; for a page, the error page (`_invalid_page`)."""
     assert isinstance(exc, RequestValidationError)
-    if _for_a_browser(request):
+    if _a_page(request):
         return _invalid_page(request, exc)
     errors = [
         {**error, "input": _excerpt(_unquoted(tuple(error["loc"]), error.get("input")))}
@@ -137,9 +146,9 @@ async def _invalid(request: Request, exc: Exception) -> Response:
 
 
 async def _service_error(request: Request, exc: Exception) -> Response:
-    """The service's refusal with its status: JSON, or the error page for a browser's page."""
+    """The service's refusal with its status: JSON, or the error page for a page."""
     assert isinstance(exc, ServiceError)
-    if _for_a_browser(request):
+    if _a_page(request):
         return problem(request, exc)
     return JSONResponse({"detail": exc.detail}, status_code=exc.status_code)
 
