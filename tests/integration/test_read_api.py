@@ -99,6 +99,18 @@ def test_execution_details_and_unknown_execution(api: Api):
     assert api.client.get("/api/v1/executions/999999").status_code == 404
 
 
+def test_detections_of_an_unknown_revision_are_404_naming_it_not_an_empty_list(api: Api):
+    """A trial's `?revision=nosuch` (a typo) answered 200 [], as if it had no verdict."""
+    api.revision("r1", "1")
+    listed = api.client.get("/api/v1/components/builder/detections?revision=r1")
+    assert listed.status_code == 200 and listed.json() == []  # known, not judged yet
+    unknown = api.client.get("/api/v1/components/builder/detections?revision=nosuch")
+    assert unknown.status_code == 404
+    assert unknown.json() == {"detail": "component 'builder' has no revision 'nosuch'"}
+    compared = api.client.get("/api/v1/components/builder/compare?base=r1&candidate=nosuch")
+    assert compared.json() == unknown.json()  # as compare says it
+
+
 def test_openapi_gives_every_route_a_response_model(api: Api):
     document = api.client.get("/openapi.json").json()
     missing = []

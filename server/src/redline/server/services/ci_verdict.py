@@ -30,9 +30,8 @@ from redline.recording.disturbance import names_busy_host
 from redline.recording.driver import DRIVER_PROCESS as DRIVER
 from redline.server.models import Detection, Job, JobState, Revision, Series
 from redline.server.schemas.alerts import CaseVerdict, CiVerdict
-from redline.server.services.components import get_component
+from redline.server.services.components import get_component, get_revision
 from redline.server.services.detection_config import component_config
-from redline.server.services.errors import NotFound
 from redline.server.services.revisions import own_jobs, revision_state
 from sqlalchemy import or_, select, tuple_
 from sqlalchemy.orm import Session
@@ -131,11 +130,7 @@ def _change(detection: Detection, series: Series) -> dict[str, Any]:
 
 def ci_verdict(session: Session, component_name: str, title: str) -> CiVerdict:
     component = get_component(session, component_name)
-    revision = session.scalar(
-        select(Revision).where(Revision.component_id == component.id, Revision.title == title)
-    )
-    if revision is None:
-        raise NotFound(f"component {component_name!r} has no revision {title!r}")
+    revision = get_revision(session, component, title)
     state, said = _pending(session, revision)
     alarming = component_config(session, component.id).alarming
     groups: dict[tuple[str, str, str], list[tuple[Detection, Series]]] = defaultdict(list)

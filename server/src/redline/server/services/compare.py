@@ -13,10 +13,9 @@ import numpy as np
 import pyarrow.parquet as pq
 from redline.detect.ks import ks
 from redline.detect.summary import describe
-from redline.server.models import Execution, Revision, Series, Summary
+from redline.server.models import Execution, Series, Summary
 from redline.server.schemas.results import Comparison, SeriesComparison, Statistics
-from redline.server.services.components import get_component
-from redline.server.services.errors import NotFound
+from redline.server.services.components import get_component, get_revision
 from redline.server.services.results import series_ref
 from redline.server.storage import not_judged, samples_path
 from sqlalchemy import select
@@ -56,20 +55,11 @@ def statistics(values: np.ndarray) -> Statistics:
     return Statistics(**describe(values))
 
 
-def _revision(session: Session, component_id: int, component: str, title: str) -> Revision:
-    revision = session.scalar(
-        select(Revision).where(Revision.component_id == component_id, Revision.title == title)
-    )
-    if revision is None:
-        raise NotFound(f"component {component!r} has no revision {title!r}")
-    return revision
-
-
 def compare(session: Session, component_name: str, base: str, candidate: str) -> Comparison:
     """Every series both revisions measured: their statistics, relative change and KS test."""
     component = get_component(session, component_name)
-    before = _revision(session, component.id, component_name, base)
-    after = _revision(session, component.id, component_name, candidate)
+    before = get_revision(session, component, base)
+    after = get_revision(session, component, candidate)
     base_samples, base_exact = revision_samples(session, before.id)
     cand_samples, cand_exact = revision_samples(session, after.id)
     common = sorted(set(base_samples) & set(cand_samples))

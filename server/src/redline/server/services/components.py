@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from redline.agent.checkout import refused_repo
-from redline.server.models import Component
+from redline.server.models import Component, Revision
 from redline.server.schemas.components import ComponentCreate, ComponentOut, ComponentSettings
 from redline.server.services.errors import Conflict, NotFound, Unprocessable
 from redline.server.services.repos import repo_key
@@ -77,3 +77,13 @@ def get_component(session: Session, name: str) -> Component:
     if component is None:
         raise NotFound(f"unknown component {name!r}")
     return component
+
+
+def get_revision(session: Session, component: Component, title: str) -> Revision:
+    """The component's revision titled ``title``; NotFound naming both otherwise."""
+    revision = session.scalar(
+        select(Revision).where(Revision.component_id == component.id, Revision.title == title)
+    )
+    if revision is None:
+        raise NotFound(f"component {component.name!r} has no revision {title!r}")
+    return revision

@@ -25,7 +25,7 @@ from redline.server.schemas.regressions import (
     RegressionOut,
     TriageRequest,
 )
-from redline.server.services.components import get_component
+from redline.server.services.components import get_component, get_revision
 from redline.server.services.errors import BadRequest, NotFound
 from redline.server.services.paging import after_newest_first, decode_cursor, encode_cursor
 from redline.server.services.results import series_ref
@@ -269,7 +269,7 @@ def list_detections(
     component = get_component(session, component_name)
     query = _detections_query(component.id).add_columns(Revision.order_key)
     if revision is not None:
-        query = query.where(Revision.title == revision)
+        query = query.where(Revision.id == get_revision(session, component, revision).id)
     if method is not None:
         query = query.where(Detection.method == method)
     after = after_newest_first(cursor, Revision.order_key, Detection.flagged, Detection.id)

@@ -18,7 +18,7 @@ from redline.server.schemas.revisions import (
     RevisionDetail,
     RevisionOut,
 )
-from redline.server.services.components import get_component
+from redline.server.services.components import get_component, get_revision
 from redline.server.services.detection_config import component_config
 from redline.server.services.errors import BadRequest, Conflict, Forbidden, NotFound
 from redline.server.services.repos import repo_key
@@ -306,12 +306,7 @@ def cancel_revision(session: Session, component_name: str, title: str) -> Revisi
     beside it included), for a superseded commit, say: none is leased again,
     and an agent running one learns it at its next heartbeat (409) and abandons it. Jobs
     already uploaded or finished keep their results."""
-    component = get_component(session, component_name)
-    revision = session.scalar(
-        select(Revision).where(Revision.component_id == component.id, Revision.title == title)
-    )
-    if revision is None:
-        raise NotFound(f"component {component_name!r} has no revision {title!r}")
+    revision = get_revision(session, get_component(session, component_name), title)
     jobs = session.scalars(
         select(Job)
         .where(
