@@ -345,6 +345,30 @@ def test_triage_in_the_page_needs_a_sign_in_and_the_form_token(client, database_
     assert _state(client, number) == "confirmed"
 
 
+STATES = ("new", "acknowledged", "confirmed", "false_positive", "fixed", "ignored")
+
+
+def test_a_triage_to_no_state_names_the_field_and_the_states_not_pydantic(
+    client, database_url, tmp_path
+):
+    """A trial's page read pydantic's own text, ending "For further information visit
+    https://errors.pydantic.dev/..."."""
+    number = _regression(client, database_url, tmp_path)
+    with session_factory(database_url)() as session:
+        create_user(session, "ada", "correct horse battery", "ci")
+    client.post("/signin", data={"name": "ada", "password": "correct horse battery"})
+    csrf = form_token(client.get(f"/regressions/{number}").text)
+    for given, field in (({"state": "closed"}, "state"), ({"comment": "x" * 10_001}, "comment")):
+        data = {"state": "confirmed", "csrf": csrf, **given}
+        answer = client.post(f"/regressions/{number}/triage", data=data)
+        said = html.unescape(re.search(r'class="problem">(.*?)</p>', answer.text, re.S).group(1))
+        assert answer.status_code == 400 and said.startswith(f"triage: {field}: "), said
+        assert "pydantic" not in said and "validation error" not in said and "\n" not in said
+        if field == "state":  # the value given, and every one allowed
+            assert "'closed'" in said and all(f"'{s}'" in said for s in STATES), said
+    assert _state(client, number) == "new"
+
+
 def test_a_pasted_token_signs_in_with_its_own_scopes_only(client, database_url, tmp_path):
     number = _regression(client, database_url, tmp_path)
     with session_factory(database_url)() as session:

@@ -32,7 +32,7 @@ from redline.server.services.errors import (
     NotFound,
     Unprocessable,
 )
-from redline.server.ui.pages import form_fields, page, page_router, problem, signed_in
+from redline.server.ui.pages import form_errors, form_fields, page, page_router, problem, signed_in
 
 ADMIN = "admin"
 router = page_router()
@@ -45,16 +45,6 @@ def _admin(request: Request) -> None:
         raise Forbidden("sign in as an administrator to see the settings")
     if not grants(list(row.scopes), ADMIN):
         raise Forbidden(f"{row.who} lacks the 'admin' scope")
-
-
-def _errors(exc: ValidationError) -> str:
-    """Each error as "field: what is wrong" (pydantic's "Value error, " left out)."""
-    said = []
-    for error in exc.errors():
-        field = ".".join(str(p) for p in error["loc"])
-        message = str(error["msg"]).removeprefix("Value error, ")
-        said.append(f"{field}: {message}" if field else message)
-    return "; ".join(said)
 
 
 def _settings(request: Request, session: SessionDep, created: str | None) -> HTMLResponse:
@@ -122,7 +112,7 @@ async def subscribe_form(name: str, request: Request, session: SessionDep) -> Re
                 delivery=form.get("delivery") or None,
             )
         except ValidationError as exc:
-            raise BadRequest(_errors(exc)) from None
+            raise BadRequest(form_errors(exc)) from None
         except ValueError as exc:
             raise BadRequest(f"minimum effect: a number ({exc})") from None
         subscriptions.create_subscription(session, name, data)
@@ -167,7 +157,7 @@ async def component_settings_form(
         except json.JSONDecodeError as exc:
             raise BadRequest(f"detection configuration: not JSON ({exc})") from None
         except ValidationError as exc:
-            raise BadRequest(_errors(exc)) from None
+            raise BadRequest(form_errors(exc)) from None
         except ValueError as exc:
             raise BadRequest(f"executions: a whole number ({exc})") from None
         components.update_component(session, name, changed, settings.allow_file_repos)

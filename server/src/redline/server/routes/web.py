@@ -22,6 +22,7 @@ from fastapi import FastAPI, Request, Response
 from fastapi.responses import FileResponse, HTMLResponse, RedirectResponse
 from fastapi.staticfiles import StaticFiles
 from fastapi.templating import Jinja2Templates
+from pydantic import ValidationError
 from redline.server.api.deps import SessionDep
 from redline.server.core.config import Settings
 from redline.server.models import RegressionState
@@ -45,7 +46,14 @@ from redline.server.ui.compare_figures import comparison_figure
 from redline.server.ui.detail_figures import execution_figures, why_figures
 from redline.server.ui.figures import trend_charts
 from redline.server.ui.model_figures import model_figures
-from redline.server.ui.pages import form_fields, page, page_router, problem, signed_in
+from redline.server.ui.pages import (
+    form_errors,
+    form_fields,
+    page,
+    page_router,
+    problem,
+    signed_in,
+)
 
 PLOTLY_JS = Path(plotly.__file__).parent / "package_data" / "plotly.min.js"
 router = page_router()
@@ -278,8 +286,8 @@ async def triage_form(regression_id: int, request: Request, session: SessionDep)
         regressions.triage(session, name, regression_id, change, who)
     except (NotFound, BadRequest, Forbidden) as exc:
         return problem(request, exc)
-    except ValueError as exc:  # pydantic: a state that is none, a comment too long
-        return problem(request, BadRequest(f"triage: {exc}"))
+    except ValidationError as exc:  # a state that is none, a comment too long
+        return problem(request, BadRequest(f"triage: {form_errors(exc)}"))
     return RedirectResponse(f"/regressions/{regression_id}", status_code=303)
 
 

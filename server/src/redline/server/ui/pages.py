@@ -9,6 +9,7 @@ from urllib.parse import parse_qs
 from fastapi import APIRouter, Depends, Request
 from fastapi.responses import HTMLResponse
 from fastapi.templating import Jinja2Templates
+from pydantic import ValidationError
 from redline.server.api.deps import READ, SessionDep
 from redline.server.core.bodies import JsonRoute
 from redline.server.models import WebSession
@@ -48,6 +49,20 @@ def problem(request: Request, exc: ServiceError) -> HTMLResponse:
     """The error page for a service error, with its status and message."""
     code = exc.status_code
     return page(request, "not_found.html", {"message": exc.detail, "code": code}, code)
+
+
+def form_errors(exc: ValidationError) -> str:
+    """Each error of a form's fields as "field: what is wrong (given: ...)", for a person:
+    pydantic's own text names the model and ends in a link to its documentation."""
+    said = []
+    for error in exc.errors():
+        field = ".".join(str(p) for p in error["loc"])
+        message = str(error["msg"]).removeprefix("Value error, ")
+        given = error.get("input")
+        if isinstance(given, str) and error["type"] not in ("string_too_long", "missing"):
+            message += f" (given: {given[:80]!r})"
+        said.append(f"{field}: {message}" if field else message)
+    return "; ".join(said)
 
 
 async def form_fields(request: Request) -> dict[str, str]:
