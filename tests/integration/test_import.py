@@ -67,7 +67,11 @@ def test_lnt_report_becomes_a_revision_with_a_series_per_test_and_metric(api: Ap
     fib = named[("nts.SingleSource/fib", "execution_time")]
     assert fib["points"][0]["n"] == 4 and fib["points"][0]["mean"] == pytest.approx(1.0125)
     execution = api.client.get(f"/api/v1/executions/{answer.json()['execution_id']}").json()
-    assert execution["host"] == "bench-box" and execution["metadata"] == {"imported": "json"}
+    assert execution["host"] == "bench-box" and execution["metadata"] == {
+        "imported": "lnt",  # a trial's said "json"
+        "start_time": "2026-11-20T10:00:00+00:00",
+        "end_time": "2026-11-20T10:05:00+00:00",
+    }
     # the machine the report names is no performance host: the home page does not list it as
     # one, for ever offline (a trial)
     assert "bench-box" not in api.client.get("/").text
@@ -92,6 +96,26 @@ def test_malformed_lnt_reports_are_400_naming_the_fault(api: Api):
     assert "tests[0]" in send_lnt(api, nameless).json()["detail"]
     assert send_lnt(api, lnt_report(), component="ghost").status_code == 404
     assert send_lnt(api, lnt_report(), scope="agent").status_code == 403
+    assert api.client.get("/api/v1/components/clang/revisions").json() == []
+
+
+@pytest.mark.parametrize(
+    ("field", "given", "said"),
+    [
+        ("start_time", "2026-02-30T10:00:00", "day is out of range for month"),
+        ("start_time", "not a date", "not a valid ISO 8601 time"),
+        ("start_time", "9999-01-01T00:00:00", "not between 1970-01-01 and a year from now"),
+        ("start_time", 1795165200, "not a valid ISO 8601 time"),
+        ("end_time", "2026-11-20T09:00:00", "before the run's start_time"),
+    ],
+)
+def test_an_lnt_run_time_that_is_none_is_422_naming_the_field(api: Api, field, given, said):
+    """A trial's reports with such start times were stored (201), as if they were times."""
+    report = lnt_report()
+    report["run"][field] = given
+    answer = send_lnt(api, report)
+    assert answer.status_code == 422, answer.text
+    assert f"run.{field}" in answer.json()["detail"] and said in answer.json()["detail"]
     assert api.client.get("/api/v1/components/clang/revisions").json() == []
 
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import hashlib
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from redline.recording import SeriesKey, canonical_params
@@ -37,6 +37,8 @@ class ImportedRun:
     commit: str
     host: str
     samples: dict[SeriesKey, list[float]]
+    #: the execution's metadata: the format imported, and what else the report says of the run
+    meta: dict[str, str] = field(default_factory=lambda: {"imported": "json"})
 
 
 def from_results(data: ResultsImport) -> ImportedRun:
@@ -142,7 +144,7 @@ def store_import(
         recording_path=str(path),
         sha256=sha256,
         size=len(body),
-        meta={"imported": suffix[1:]},
+        meta=run.meta,
     )
     session.add(execution)
     session.flush()

@@ -12,12 +12,13 @@ Each test's metric becomes a series (case = test name, counter = metric); the ru
 from __future__ import annotations
 
 import math
+from datetime import datetime
 from typing import Any
 
 from redline.recording import SeriesKey, canonical_params
 from redline.server.core.bodies import BadJson, parse_json
-from redline.server.schemas.fields import path_segment
-from redline.server.services.errors import BadRequest
+from redline.server.schemas.fields import commit_time, path_segment
+from redline.server.services.errors import BadRequest, Unprocessable
 from redline.server.services.imports import IMPORT_PROCESS, ImportedRun
 
 PHASE = "lnt"
@@ -66,6 +67,37 @@ def _samples(tests: Any) -> dict[SeriesKey, list[float]]:
     return samples
 
 
+def _run_time(run: dict[str, Any], field: str) -> datetime | None:
+    """The run's ``field`` (start_time, end_time) as an ISO 8601 time checked like a revision's
+    committed_at; absent, None; anything else an Unprocessable naming it."""
+    text = run.get(field)
+    if text is None:
+        return None
+    where = f"LNT report: run.{field} {str(text)[:40]!r}"
+    if not isinstance(text, str):
+        raise Unprocessable(f"{where} is not a valid ISO 8601 time (a {type(text).__name__})")
+    try:
+        when = datetime.fromisoformat(text)
+    except ValueError as exc:
+        raise Unprocessable(f"{where} is not a valid ISO 8601 time ({exc})") from None
+    try:
+        return commit_time(when)
+    except ValueError as exc:
+        raise Unprocessable(f"{where}: {exc}") from None
+
+
+def _run_meta(run: dict[str, Any]) -> dict[str, str]:
+    """What the execution keeps of the run: its format, and its times when given."""
+    start, end = _run_time(run, "start_time"), _run_time(run, "end_time")
+    if start is not None and end is not None and end < start:
+        raise Unprocessable(
+            f"LNT report: run.end_time {end.isoformat()} is before the run's start_time "
+            f"{start.isoformat()}"
+        )
+    times = {"start_time": start, "end_time": end}
+    return {"imported": "lnt"} | {k: v.isoformat() for k, v in times.items() if v is not None}
+
+
 def parse_lnt(body: bytes, component: str, order_field: str = ORDER_FIELD) -> ImportedRun:
     """The run an LNT v2 report describes; BadRequest naming the field at fault otherwise."""
     try:
@@ -92,4 +124,5 @@ def parse_lnt(body: bytes, component: str, order_field: str = ORDER_FIELD) -> Im
         commit=str(run.get("git_sha", run.get("commit", "")))[:200],
         host=str(machine.get("name", ""))[:200],
         samples=_samples(report.get("tests")),
+        meta=_run_meta(run),
     )
