@@ -89,6 +89,22 @@ def test_forged_signature_is_401_and_creates_nothing(api: Api):
     assert counts(api) == (0, 0)
 
 
+@pytest.mark.parametrize(
+    ("path", "header"),
+    [
+        ("/api/v1/webhooks/github", "X-Hub-Signature-256"),
+        ("/api/v1/webhooks/gitlab", "X-Gitlab-Token"),
+    ],
+)
+def test_a_delivery_without_its_signature_header_is_401_naming_the_header(api: Api, path, header):
+    """A trial's unsigned GitHub delivery was told "webhook signature does not match"."""
+    for given in ({}, {header: ""}):
+        answer = api.client.post(path, content=github_push(), headers=given)
+        assert answer.status_code == 401, answer.text
+        assert answer.json()["detail"].startswith(f"the {header} header is missing"), answer.text
+    assert counts(api) == (0, 0)
+
+
 def test_unknown_repository_or_other_branch_is_202_and_creates_nothing(api: Api):
     answer = send_github(api, github_push(repo="https://github.com/org/ghost"))
     assert answer.status_code == 202

@@ -13,6 +13,7 @@ from redline.server.db import session_factory
 from redline.server.schemas.common import Problem
 from redline.server.schemas.webhooks import PushEvent, WebhookResult
 from redline.server.services.webhooks import (
+    Unauthorized,
     Verifier,
     github_verifier,
     gitlab_verifier,
@@ -44,6 +45,16 @@ def _receive(
         return receive_push(session, body, verify, settings.webhook_secret, event)
 
 
+def _signed(header: str, given: str | None, provider: str) -> None:
+    """Unauthorized naming ``header`` when the delivery does not carry it (a trial's was told
+    the signature did not match)."""
+    if not given:
+        raise Unauthorized(
+            f"the {header} header is missing: {provider} sends it once the webhook has a secret "
+            "(the component's webhook_secret, else REDLINE_WEBHOOK_SECRET)"
+        )
+
+
 async def _answer(
     request: Request,
     response: Response,
@@ -70,6 +81,7 @@ async def github_push(
 ) -> WebhookResult:
     """A GitHub push: one revision per commit for each component of that repository and
     branch. Other events (``ping``) are authenticated, acknowledged (202) and ignored."""
+    _signed("X-Hub-Signature-256", x_hub_signature_256, "GitHub")
     return await _answer(
         request,
         response,
@@ -88,6 +100,7 @@ async def gitlab_push(
     x_gitlab_event: Annotated[str, Header()] = "Push Hook",
 ) -> WebhookResult:
     """A GitLab push hook: one revision per commit for each matching component."""
+    _signed("X-Gitlab-Token", x_gitlab_token, "GitLab")
     event = "push" if x_gitlab_event in ("Push Hook", "System Hook") else x_gitlab_event
     return await _answer(
         request, response, settings, lambda _body: gitlab_verifier(x_gitlab_token), event
