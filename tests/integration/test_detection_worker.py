@@ -138,6 +138,56 @@ def test_reanalysis_reproduces_the_verdicts_of_detection_revision_by_revision(
     assert session.scalar(select(func.count()).select_from(StagedDetection)) == 0  # cleared
 
 
+def _blind_window_history(session, database_url, tmp_path) -> None:
+    """One execution a revision (an import, a team sparing machine time): r1-r3 at 10 %, then
+    r4-r12 at 20 %. When r4 was measured its baseline held 3 values of the 6 needed."""
+    ingest_and_detect(database_url, cpu_history(session, tmp_path, [10.0] * 3 + [20.0] * 9))
+
+
+def test_a_change_in_a_history_too_short_to_judge_is_found_at_its_revision_later(
+    session, database_url, tmp_path
+):
+    """A change landing where the history was too short to judge it is neither lost in the
+    baselines that pool it nor pinned on a later, innocent revision: once the revisions after
+    it measured the new level, the step is flagged at the revision it came with."""
+    _blind_window_history(session, database_url, tmp_path)
+    found = {
+        title: d for (title, method), d in _verdicts(session).items() if method == "execution_shift"
+    }
+    assert [t for t, d in sorted(found.items(), key=lambda i: int(i[0][1:])) if d.flagged] == ["r4"]
+    r4 = found["r4"]
+    assert r4.direction == "increase" and 0.9 < r4.effect < 1.1
+    assert r4.baseline_revisions == 3 and "found when r6 was judged" in r4.reason
+    # the revisions after it are judged against the new level, from r4 on
+    assert found["r10"].verdict == "no change" and found["r10"].baseline_revisions == 6
+    regression = session.scalars(select(Regression)).one()
+    assert (regression.good_revision.title, regression.bad_revision.title) == ("r3", "r4")
+    assert regression.confirmation == "confirmed", regression.confirmation_reason
+
+
+@pytest.mark.parametrize("parts", [1, 2])
+def test_a_reanalysis_finds_the_same_step_at_the_same_revision(
+    session, database_url, tmp_path, parts
+):
+    _blind_window_history(session, database_url, tmp_path)
+    before = {
+        key: (d.verdict, d.score, d.baseline_revision_id) for key, d in _verdicts(session).items()
+    }
+    regressions = [
+        (r.good_revision_id, r.bad_revision_id) for r in session.scalars(select(Regression))
+    ]
+    component = session.scalar(select(Component))
+    assert reanalyze_component(database_url, component.id, parts) == 12
+    after = {
+        key: (d.verdict, d.score, d.baseline_revision_id) for key, d in _verdicts(session).items()
+    }
+    assert after == before
+    session.expire_all()
+    assert [
+        (r.good_revision_id, r.bad_revision_id) for r in session.scalars(select(Regression))
+    ] == regressions
+
+
 def test_first_revision_says_missing_baseline_for_every_method(session, database_url, tmp_path):
     ingest_and_detect(database_url, cpu_history(session, tmp_path, [20.0]))
     found = _verdicts(session)

@@ -53,11 +53,14 @@ def median_shift(base: np.ndarray, cand: np.ndarray, rel_scale: float) -> Shift:
     before, after = median(base), median(cand)
     mad = MAD_TO_SD * median(np.abs(base - before))
     spread = max(mad, rel_scale * abs(before), 1e-12)
+    return Shift(before, after, spread, relative_effect(before, after))
+
+
+def relative_effect(before: float, after: float) -> float:
+    """(after - before) / |before|; from 0, infinite with the sign of ``after`` (0 to 0: 0)."""
     if before == 0:
-        effect = 0.0 if after == 0 else math.copysign(math.inf, after)
-    else:
-        effect = (after - before) / abs(before)
-    return Shift(before, after, spread, effect)
+        return 0.0 if after == 0 else math.copysign(math.inf, after)
+    return (after - before) / abs(before)
 
 
 class MedianShift(Detector):

@@ -39,6 +39,14 @@ def judge_series(
     except Exception as exc:  # a detector bug must not lose the other series' verdicts
         log.exception("%s failed on %s", detector.name, counter)
         return not_enough(detector.name, f"{METHOD_FAILED}: {type(exc).__name__}: {exc}")
+    return floored(found, counter, baseline, candidate)
+
+
+def floored(
+    found: Detection, counter: str, baseline: np.ndarray, candidate: np.ndarray
+) -> Detection:
+    """``found``, or "no change" when its change of the mean is below the counter's absolute
+    floor (`redline.detect.floors`)."""
     if not found.flagged:
         return found
     floor = absolute_floor(counter)

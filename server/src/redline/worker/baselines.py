@@ -10,11 +10,18 @@ from typing import TYPE_CHECKING
 import numpy as np
 from redline.detect.baseline import take_recent
 from redline.detect.config import DetectionConfig
+from redline.detect.execution_shift import ExecutionShift, strongest_step
 from redline.detect.methods import Levelled
+from redline.detect.result import Detection
 from redline.server.models import (
     Revision,
 )
-from redline.worker.history import earlier_than, flagged_verdicts, previous_revisions
+from redline.worker.history import (
+    earlier_than,
+    flagged_verdicts,
+    previous_revisions,
+    undecided_verdicts,
+)
 from redline.worker.samples import SampleCache, read_samples
 from sqlalchemy import select
 from sqlalchemy.orm import Session
@@ -31,6 +38,17 @@ class Baseline:
     newest: int | None = None  # the newest baseline revision
     revisions: int = 0
     missing: str = ""
+
+
+@dataclass(frozen=True)
+class Step:
+    """A step found at an earlier revision that could not be judged when it was measured
+    (`Baselines.step`): that revision, what was before it, its values and those after it."""
+
+    revision_id: int
+    before: Baseline
+    after: np.ndarray
+    found: Detection
 
 
 class Baselines:
@@ -51,6 +69,8 @@ class Baselines:
         self.cache = walk.cache if walk else SampleCache(config.window + 1)
         self.pinned: int | None = None
         self.flagged: set[tuple[int, str, int]] = walk.flagged if walk else set()
+        #: the earlier (series, method, revision) judged "not enough data": a step may be there
+        self.undecided: set[tuple[int, str, int]] = walk.undecided if walk else set()
         if config.baseline == "pinned":
             self.pinned = session.scalar(
                 select(Revision.id).where(
@@ -68,6 +88,7 @@ class Baselines:
         if config.baseline == "recent" and walk is None:
             earlier = {r for ids in self.previous.values() for r in ids}
             self.flagged = flagged_verdicts(session, earlier, series_ids)
+            self.undecided = undecided_verdicts(session, earlier, series_ids)
 
     def values(self, revision_id: int, series_id: int, detector: Levelled) -> np.ndarray | None:
         return self.cache.values(self.session, revision_id, series_id, detector)
@@ -91,6 +112,50 @@ class Baselines:
             detector.baseline_values,
             self.config.window,
         )
+
+    def step(self, series_id: int, detector: Levelled, candidate: np.ndarray | None) -> Step | None:
+        """A step at one of the baseline's revisions that could not be judged when measured
+        (too few values before them: a new history, or executions left out as disturbed),
+        judged now that this revision and those between add values after it (`strongest_step`):
+        without it, such a change would pool into the baseline and either never be found or be
+        found at a later, innocent revision. Only for `ExecutionShift`'s kind under ``recent``,
+        and not in a baseline restarted at a flagged change (see below)."""
+        if (
+            self.config.baseline != "recent"
+            or not isinstance(detector, ExecutionShift)
+            or candidate is None
+        ):
+            return None
+        oldest_first = self._revisions(series_id, detector)[::-1]
+        if not oldest_first or (series_id, detector.name, oldest_first[0][0]) in self.flagged:
+            # a baseline restarted at a flagged change: a revision after it that differs says
+            # whether that change held, which confirmation by history settles, not a new step
+            return None
+        at = [
+            k
+            for k, (revision_id, _) in enumerate(oldest_first)
+            if k > 0 and (series_id, detector.name, revision_id) in self.undecided
+        ]
+        if not at:
+            return None
+        stretches = [values[np.isfinite(values)] for _, values in oldest_first]
+        best = strongest_step(detector, [*stretches, candidate[np.isfinite(candidate)]], at)
+        if best is None:
+            return None
+        k, found = best
+        before = oldest_first[:k]
+        return Step(
+            oldest_first[k][0],
+            Baseline(np.concatenate(stretches[:k]), before[-1][0], len(before)),
+            np.concatenate([*stretches[k:], candidate[np.isfinite(candidate)]]),
+            found,
+        )
+
+    def restart(self, series_id: int, detector: Levelled, revision_id: int) -> None:
+        """The method now flags the series at ``revision_id``: the baselines start there."""
+        key = (series_id, detector.name, revision_id)
+        self.flagged.add(key)
+        self.undecided.discard(key)
 
     def revisions_of(self, series_id: int, detector: Levelled) -> list[int]:
         """The ids of the baseline's revisions of the series for ``detector``, newest first."""

@@ -21,15 +21,17 @@ from __future__ import annotations
 import logging
 import math
 from collections.abc import Callable
+from dataclasses import replace
 from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 from redline.detect.config import DetectionConfig
 from redline.detect.count_rate import CountRate
 from redline.detect.counters import is_count
+from redline.detect.methods import Detector
 from redline.detect.result import Detection as Verdict
 from redline.detect.result import not_enough
-from redline.detect.verdict import judge_series
+from redline.detect.verdict import floored, judge_series
 from redline.server.db import bulk_insert, session_scope
 from redline.server.models import Component, Detection, Reanalysis, Revision, utcnow
 from redline.server.services.detection_config import component_config
@@ -114,8 +116,11 @@ def analyze(
             rows.append(detection_row(series_id, revision.id, base, verdict))
             continue
         for detector in detectors:
-            base = baselines.of(series_id, detector)
             values = baselines.values(revision.id, series_id, detector)
+            step = _step(baselines, revision, series_id, detector, judged[series_id][1], values)
+            if step is not None:
+                rows.append(step)
+            base = baselines.of(series_id, detector)
             verdict = judge_series(
                 detector, judged[series_id][1], base.values, values, missing=base.missing
             )
@@ -124,6 +129,34 @@ def analyze(
             if change is not None:
                 changes.append(change)
     return rows, changes
+
+
+def _step(
+    baselines: Baselines,
+    revision: Revision,
+    series_id: int,
+    detector: Detector,
+    counter: str,
+    values: np.ndarray | None,
+) -> dict[str, Any] | None:
+    """The verdict of an earlier revision that could not be judged when it was measured, when
+    this revision shows that the series stepped there (`Baselines.step`); the baselines then
+    start at it, this revision's included. None when there is no such step."""
+    step = baselines.step(series_id, detector, values)
+    if step is None:
+        return None
+    assert step.before.values is not None
+    found = floored(step.found, counter, step.before.values, step.after)
+    if not found.flagged:
+        return None
+    baselines.restart(series_id, detector, step.revision_id)
+    found = replace(
+        found,
+        reason=f"found when {revision.title} was judged: it could not be judged when measured "
+        f"(too few values before it); its {len(step.after)} values and those after it against "
+        f"the {len(step.before.values)} before it",
+    )
+    return detection_row(series_id, step.revision_id, step.before, found)
 
 
 def _judge_count(
@@ -175,19 +208,43 @@ def store(
     session.execute(
         select(Component.id).where(Component.id == revision.component_id).with_for_update()
     )
-    session.execute(delete(Detection).where(Detection.revision_id == revision.id))
-    bulk_insert(session, cast(Table, Detection.__table__), rows)
     config = config or component_config(session, revision.component_id)
+    own = [row for row in rows if row["revision_id"] == revision.id]
+    _store_steps(session, [row for row in rows if row["revision_id"] != revision.id], config)
+    session.execute(delete(Detection).where(Detection.revision_id == revision.id))
+    bulk_insert(session, cast(Table, Detection.__table__), own)
     group_revision(session, revision, config.alarming)
     if rerun:  # new results only: a re-analysis never queues machine time for old revisions
         queue_confirmations(session, revision, config)
-        queue_for_baselines(session, revision, rows)
+        queue_for_baselines(session, revision, own)
     settle_pending_pairs(session, revision.component_id)
     if not _reanalysing(session, revision.component_id):
         confirm_by_history(
             session, revision.component_id, config.confirm_revisions, config.alarming
         )
     revision.analyzed_at = utcnow()
+
+
+def _store_steps(session: Session, rows: list[dict[str, Any]], config: DetectionConfig) -> None:
+    """The verdicts of earlier revisions a step was found at (`_step`), each replacing that
+    revision's verdict of its series and method, grouped into regressions (the earlier
+    revisions first, as a re-analysis stores them)."""
+    for row in rows:
+        session.execute(
+            delete(Detection).where(
+                Detection.revision_id == row["revision_id"],
+                Detection.series_id == row["series_id"],
+                Detection.method == row["method"],
+            )
+        )
+    bulk_insert(session, cast(Table, Detection.__table__), rows)
+    earlier = session.scalars(
+        select(Revision)
+        .where(Revision.id.in_({row["revision_id"] for row in rows}))
+        .order_by(Revision.order_key, Revision.id)
+    )
+    for revision in earlier:
+        group_revision(session, revision, config.alarming)
 
 
 def _reanalysing(session: Session, component_id: int) -> bool:

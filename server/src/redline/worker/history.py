@@ -7,6 +7,7 @@ from collections import defaultdict
 from collections.abc import Collection, Sequence
 
 from redline.detect.counters import CONTEXT_COUNTERS, driver_metric, is_count, judged
+from redline.detect.result import NOT_ENOUGH_DATA
 from redline.server.models import (
     Detection,
     Execution,
@@ -15,7 +16,7 @@ from redline.server.models import (
     Summary,
 )
 from redline.worker.samples import ingested_executions
-from sqlalchemy import func, select, tuple_
+from sqlalchemy import ColumnElement, func, select, tuple_
 from sqlalchemy.orm import Session
 
 
@@ -182,10 +183,27 @@ def flagged_verdicts(
 ) -> set[tuple[int, str, int]]:
     """(series, method, revision) of the stored flagged verdicts of those revisions (and of
     those series, when given)."""
+    return _verdicts_where(session, Detection.flagged.is_(True), revision_ids, series_ids)
+
+
+def undecided_verdicts(
+    session: Session, revision_ids: set[int], series_ids: list[int] | None = None
+) -> set[tuple[int, str, int]]:
+    """(series, method, revision) of the stored "not enough data" verdicts of those revisions
+    (and series): where a step may be found later (`redline.worker.baselines`)."""
+    return _verdicts_where(session, Detection.verdict == NOT_ENOUGH_DATA, revision_ids, series_ids)
+
+
+def _verdicts_where(
+    session: Session,
+    condition: ColumnElement[bool],
+    revision_ids: set[int],
+    series_ids: list[int] | None,
+) -> set[tuple[int, str, int]]:
     if not revision_ids:
         return set()
     query = select(Detection.series_id, Detection.method, Detection.revision_id).where(
-        Detection.flagged, Detection.revision_id.in_(revision_ids)
+        condition, Detection.revision_id.in_(revision_ids)
     )
     if series_ids is not None:
         query = query.where(Detection.series_id.in_(series_ids))

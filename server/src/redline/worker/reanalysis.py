@@ -28,6 +28,7 @@ from typing import Any, cast
 
 import numpy as np
 from redline.detect.config import DetectionConfig
+from redline.detect.result import NOT_ENOUGH_DATA
 from redline.server.db import bulk_insert, session_scope
 from redline.server.models import Reanalysis, StagedDetection, StagedRevision, utcnow
 from redline.server.services.detection_config import component_config
@@ -76,6 +77,9 @@ class Walk:
     config: DetectionConfig
     cache: SampleCache
     flagged: set[tuple[int, str, int]] = field(default_factory=set)
+    #: every (series, method, revision) judged "not enough data" so far: a step may be found
+    #: there later (`redline.worker.baselines.Baselines.step`)
+    undecided: set[tuple[int, str, int]] = field(default_factory=set)
     recent: deque[tuple[int, frozenset[int]]] = field(default_factory=deque)
     #: each series' (process, counter) read so far (`redline.worker.history.judged_counters`)
     names: dict[int, tuple[str, str]] = field(default_factory=dict)
@@ -98,10 +102,15 @@ class Walk:
         complete: bool,
     ) -> None:
         """``complete``: every ingested execution's samples were read; else the revision's
-        series are those its summaries name, as the database sees them."""
-        self.flagged.update(
-            (row["series_id"], row["method"], revision_id) for row in rows if row["flagged"]
-        )
+        series are those its summaries name, as the database sees them. ``rows`` may hold the
+        verdict of an earlier revision a step was found at, which its baselines then start at."""
+        for row in rows:
+            key = (row["series_id"], row["method"], row["revision_id"])
+            if row["flagged"]:
+                self.flagged.add(key)
+                self.undecided.discard(key)
+            elif row["verdict"] == NOT_ENOUGH_DATA:
+                self.undecided.add(key)
         if complete:
             self._add(
                 revision_id,
@@ -201,13 +210,36 @@ class _Stager(threading.Thread):
                 ],
             )
             rows = [{**row, **owner} for _, judged in batch if judged for row in judged.rows]
-            bulk_insert(session, cast(Table, StagedDetection.__table__), rows)
+            own = {judged.revision_id for _, judged in batch if judged}
+            bulk_insert(
+                session,
+                cast(Table, StagedDetection.__table__),
+                [row for row in rows if row["revision_id"] in own],
+            )
+            self._stage_steps(session, [row for row in rows if row["revision_id"] not in own])
             # the progress with what it counts (the row's lock last: held only until the commit)
             session.execute(
                 update(Reanalysis)
                 .where(Reanalysis.component_id == self.component_id, Reanalysis.run == self.run_id)
                 .values(done=Reanalysis.done + len(batch))
             )
+
+    def _stage_steps(self, session: Session, rows: list[dict[str, Any]]) -> None:
+        """Verdicts of earlier revisions a step was found at (`redline.worker.detection`), each
+        replacing what this part staged of that revision, series and method: the finishing
+        step stores them with that revision, as detection would have left it."""
+        for row in rows:
+            session.execute(
+                delete(StagedDetection).where(
+                    StagedDetection.component_id == self.component_id,
+                    StagedDetection.run == self.run_id,
+                    StagedDetection.part == self.part,
+                    StagedDetection.revision_id == row["revision_id"],
+                    StagedDetection.series_id == row["series_id"],
+                    StagedDetection.method == row["method"],
+                )
+            )
+        bulk_insert(session, cast(Table, StagedDetection.__table__), rows)
 
     def put(self, revision_id: int, judged: Judged | None) -> None:
         if self.error is not None:
