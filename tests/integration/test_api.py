@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import hashlib
+import html
 import socket
 import uuid
 from collections.abc import Iterator
@@ -15,7 +16,7 @@ from redline.server.app import create_app
 from redline.server.core.config import Settings
 from redline.server.core.tasks import broker_url, queue_of
 from redline.server.db import session_factory
-from redline.server.models import ApiToken, Execution, Job
+from redline.server.models import ApiToken, Execution, Job, JobState
 from redline.worker.detection import detect_revision
 from redline.worker.ingest import ingest_execution
 from sqlalchemy import func, select, update
@@ -169,6 +170,27 @@ def test_a_commit_reported_under_its_full_and_its_short_sha_is_one_revision(api:
     assert sorted(r["title"] for r in listed) == sorted([full, "short", "nightly-1", "nightly-2"])
     with session_factory(api.settings.database_url)() as session:
         assert session.scalar(select(func.count()).select_from(Job)) == 4  # none for repeats
+
+
+def test_a_failed_revision_says_it_failed_and_why_not_that_a_verdict_is_coming(api: Api):
+    """A trial's revision whose every job failed read "No verdict yet ... has not been
+    analysed", as if it were still coming, and its API verdict was ""."""
+    api.component(executions=2)
+    api.revision("r1", "1")
+    with session_factory(api.settings.database_url)() as session:
+        reasons = iter(("build failed: exit 2", "the host went away"))
+        for job in session.scalars(select(Job)):
+            job.state, job.reason = JobState.failed, next(reasons)
+        session.commit()
+    detail = api.client.get("/api/v1/components/builder/revisions/r1").json()
+    assert detail["state"] == "failed"
+    assert detail["verdict"] == (
+        "no verdict: the revision failed, 2 of its 2 jobs "
+        "(build failed: exit 2; the host went away)"
+    )
+    page = html.unescape(api.client.get("/components/builder/revisions/r1").text)
+    assert detail["verdict"] in page and "not been analysed" not in page
+    assert "No verdict yet" not in page
 
 
 def test_revisions_are_listed_in_sort_key_order_with_their_state(api: Api):

@@ -75,5 +75,6 @@ class RevisionDetail(RevisionOut):
     verdict: str = Field(
         default="",
         description="what the alarm method found, in a few words, or why there is no verdict "
-        "yet (e.g. how many more baseline executions it waits for)",
+        "yet (e.g. how many more baseline executions it waits for), or none will come (its jobs "
+        "failed, with their reasons, or were cancelled); empty while one may still come",
     )

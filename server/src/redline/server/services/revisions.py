@@ -321,6 +321,17 @@ def cancel_revision(session: Session, component_name: str, title: str) -> Revisi
     return revision_detail(session, component_name, title)
 
 
+def _unmeasured(jobs: list[Job]) -> str:
+    """The verdict of a revision none will come for, as its jobs failed or were cancelled, and
+    why; "" while one may still come (a trial's failed revision read "no verdict yet")."""
+    state = revision_state([job.state for job in jobs])
+    failed = [job for job in jobs if job.state == JobState.failed]
+    if state == "failed":
+        reasons = "; ".join(dict.fromkeys(job.reason or "no reason given" for job in failed))
+        return f"no verdict: the revision failed, {len(failed)} of its {len(jobs)} jobs ({reasons})"
+    return "no verdict: its jobs were cancelled" if state == "cancelled" else ""
+
+
 def revision_detail(session: Session, component_name: str, title: str) -> RevisionDetail:
     component = get_component(session, component_name)
     revision = session.scalar(
@@ -337,7 +348,8 @@ def revision_detail(session: Session, component_name: str, title: str) -> Revisi
         **_revision_out(revision),
         component=component.name,
         jobs=[job_out(job) for job in revision.jobs],
-        verdict=revision_verdicts(session, component_name, [title]).get(title, ""),
+        verdict=revision_verdicts(session, component_name, [title]).get(title)
+        or _unmeasured(own_jobs(revision)),
     )
 
 
