@@ -42,6 +42,13 @@ def client(services: Services, database_url: str, tmp_path: Path) -> Iterator[Te
         yield client
 
 
+def _admin(client: TestClient) -> dict[str, str]:
+    with session_factory(client.app.state.settings.database_url)() as session:
+        return {
+            "Authorization": f"Bearer {issue_token(session, f'admin-{uuid.uuid4()}', 'admin')[1]}"
+        }
+
+
 def test_component_page_groups_charts_one_line_per_parameter_set(client, database_url, tmp_path):
     history(database_url, tmp_path, [20.0, 20.0, 60.0])
     answer = client.get("/components/builder")
@@ -211,6 +218,27 @@ def test_an_id_out_of_range_and_an_unknown_address_are_404_not_json_in_a_page(cl
 def test_a_form_posted_to_a_page_address_that_does_not_parse_is_a_page(client):
     page = client.post("/settings/tokens/abc/revoke", headers={"accept": "text/html"})
     assert page.status_code == 404 and "no token 'abc'" in html.unescape(page.text)
+
+
+def test_a_parameters_numeric_values_are_offered_in_numeric_order(client):
+    """A trial's filter offered "100 150 50"; text values follow the numbers, as text."""
+    admin = _admin(client)
+    client.post("/api/v1/components", json={"name": "sizes"}, headers=admin)
+    values = [100, 150, 50, 2.5, -1, "large", "huge"]
+    body = {
+        "component": "sizes",
+        "revision": "r1",
+        "sort_key": "1",
+        "results": [
+            {"case": "c", "params": {"n": n}, "counter": "cpu", "values": [1.0]} for n in values
+        ],
+    }
+    answer = client.post("/api/v1/import/results", json=body, headers=admin)
+    assert answer.status_code == 201, answer.text
+    page = client.get("/components/sizes").text
+    offered = re.search(r'<select name="param.n">(.*?)</select>', page, re.S).group(1)
+    shown = re.findall(r'<option value="([^"]*)"', offered)
+    assert shown == ["", "-1", "2.5", "50", "100", "150", "huge", "large"], shown
 
 
 def test_the_page_is_served_from_the_cache_until_the_data_changes(client, database_url, tmp_path):

@@ -14,6 +14,7 @@ for the default view (`warm`), and by the page on a miss.
 from __future__ import annotations
 
 import json
+import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
 from datetime import datetime
@@ -165,7 +166,16 @@ def _choices(refs: list[SeriesRef]) -> dict[str, list[str]]:
             found[name].add(getattr(ref, name))
         for name, value in ref.params.items():
             found.setdefault(f"param.{name}", set()).add(param_text(value))
-    return {name: sorted(values) for name, values in found.items()}
+    return {name: sorted(values, key=_numbers_first) for name, values in found.items()}
+
+
+def _numbers_first(value: str) -> tuple[bool, float, str]:
+    """Numbers in numeric order ("50" before "100"), then any other text in text order."""
+    try:
+        number = float(value)
+    except ValueError:
+        return True, 0.0, value
+    return (False, number, value) if math.isfinite(number) else (True, 0.0, value)
 
 
 def trend_data(session: Session, component: Component, view: TrendView) -> TrendData:
