@@ -224,6 +224,23 @@ def test_a_baseline_measured_only_while_the_host_was_busy_is_named_as_the_reason
         assert "revision r1's runs of this series were all disturbed (host busy" in cpu.reason
 
 
+def test_a_short_baseline_says_how_many_executions_it_left_out(session, database_url, tmp_path):
+    """A trial from outside read "baseline has 1, needs at least 6" where the baseline revision
+    had 3 executions, 2 measured while the host was busy: the reason now says so."""
+    create_component(session, ComponentCreate(name=NAME, executions=RUNS))
+    ingest_and_detect(database_url, _revision(session, tmp_path, 1))
+    ingest_and_detect(database_url, _revision(session, tmp_path, 2, host_percent=90.0))
+    ingest_and_detect(database_url, _revision(session, tmp_path, 3))
+    session.expire_all()
+    r3 = session.scalars(select(Revision).where(Revision.title == "r3")).one()
+    cpu = _verdicts(session, r3)[(NAME, "cpu_percent", "execution_shift")]
+    assert cpu.verdict == "not enough data", cpu.reason
+    assert cpu.reason.startswith("too few samples: baseline has 3, needs at least 6"), cpu.reason
+    assert "; 3 execution(s) of its revisions left out (measured while the host was busy" in (
+        cpu.reason
+    )
+
+
 def _fresh_run(session, tmp_path: Path, title: str, **recorded: Any) -> Execution:
     """The fresh run the worker queued for revision ``title``, recorded with ``recorded`` and
     uploaded as an agent would."""

@@ -43,6 +43,10 @@ class Detection:
         return self.verdict != NOT_ENOUGH_DATA
 
 
+#: how the reason of a baseline with too few values begins
+SHORT_BASELINE = "too few samples: baseline has"
+
+
 def not_enough(method: str, reason: str) -> Detection:
     return Detection(method=method, verdict=NOT_ENOUGH_DATA, reason=reason)
 
@@ -128,7 +132,7 @@ def check_samples(
             return f"{name} contains NaN/inf ({bad} values)"
     if len(base) < min_baseline:
         return (
-            f"too few samples: baseline has {len(base)}, needs at least {min_baseline} "
+            f"{SHORT_BASELINE} {len(base)}, needs at least {min_baseline} "
             f"({min_baseline - len(base)} short: the revisions after it will have more history)"
         )
     if len(cand) < min_candidate:

@@ -13,17 +13,15 @@ from redline.detect.config import DetectionConfig
 from redline.detect.execution_shift import ExecutionShift, strongest_step
 from redline.detect.methods import Levelled
 from redline.detect.result import Detection
-from redline.server.models import (
-    Revision,
-)
+from redline.server.models import Execution, Revision
 from redline.worker.history import (
     earlier_than,
     flagged_verdicts,
     previous_revisions,
     undecided_verdicts,
 )
-from redline.worker.samples import SampleCache, read_samples
-from sqlalchemy import select
+from redline.worker.samples import SampleCache, ingested_executions, read_samples
+from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
 log = logging.getLogger(__name__)
@@ -156,6 +154,23 @@ class Baselines:
         key = (series_id, detector.name, revision_id)
         self.flagged.add(key)
         self.undecided.discard(key)
+
+    def left_out(self, series_id: int, detector: Levelled, used: int) -> int:
+        """How many executions of the baseline's revisions gave it no value of the series, for
+        an execution-level ``detector`` that pooled ``used`` values: measured while the host
+        was busy, or without the series (0 for other levels)."""
+        taken = self.revisions_of(series_id, detector)
+        if detector.level != "execution" or not taken:
+            return 0
+        # the revisions it reached back over, those that gave no value at all included
+        known = self.previous.get(series_id, [])
+        ids = known[: known.index(taken[-1]) + 1] if taken[-1] in known else taken
+        ingested = self.session.scalar(
+            select(func.count())
+            .select_from(Execution)
+            .where(Execution.revision_id.in_(ids), Execution.id.in_(ingested_executions()))
+        )
+        return max(0, (ingested or 0) - used)
 
     def revisions_of(self, series_id: int, detector: Levelled) -> list[int]:
         """The ids of the baseline's revisions of the series for ``detector``, newest first."""

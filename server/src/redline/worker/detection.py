@@ -29,8 +29,8 @@ from redline.detect.config import DetectionConfig
 from redline.detect.count_rate import CountRate
 from redline.detect.counters import is_count
 from redline.detect.methods import Detector
+from redline.detect.result import SHORT_BASELINE, not_enough
 from redline.detect.result import Detection as Verdict
-from redline.detect.result import not_enough
 from redline.detect.verdict import floored, judge_series
 from redline.server.db import bulk_insert, session_scope
 from redline.server.models import Component, Detection, Reanalysis, Revision, utcnow
@@ -57,6 +57,13 @@ DETECT_LOCK = 0x5244  # "RD"
 if TYPE_CHECKING:
     from redline.worker.reanalysis import Walk
 
+
+#: what follows a short baseline's reason (`redline.detect.result.SHORT_BASELINE`) when
+#: executions of the baseline's revisions gave no value
+LEFT_OUT = (
+    "execution(s) of its revisions left out (measured while the host was busy, or without "
+    "this series)"
+)
 
 #: why a series the newest earlier revision measured has no verdict of this one
 NOT_MEASURED = (
@@ -124,6 +131,10 @@ def analyze(
             verdict = judge_series(
                 detector, judged[series_id][1], base.values, values, missing=base.missing
             )
+            if base.values is not None and verdict.reason.startswith(SHORT_BASELINE):
+                left = baselines.left_out(series_id, detector, len(base.values))
+                if left:
+                    verdict = replace(verdict, reason=f"{verdict.reason}; {left} {LEFT_OUT}")
             rows.append(detection_row(series_id, revision.id, base, verdict))
             change = ks_change(rows[-1], verdict)
             if change is not None:
