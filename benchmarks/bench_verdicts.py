@@ -56,7 +56,9 @@ from measure_quiet_host import spin
 ROOT = Path(__file__).resolve().parents[1]
 COMPONENT = "objectbuilder"
 SUITE = "objectbuilder/perf/verdicts.toml"
-CPU = ("cpu_percent",)
+#: the component's CPU, and its CPU per unit of work the driver delivered (the injected change is
+#: more work per leg pair: both move)
+CPU = ("cpu_percent", "cpu_us_per_op")
 RTT = ("rtt_p50_us", "rtt_p90_us")
 TIMEOUTS = ("timeouts",)
 EVENTS = [
@@ -184,6 +186,45 @@ def verdicts(url: str, token: str) -> list[dict[str, Any]]:
         for detection in detail["flagged"]:
             found.append({**detection, "regression": regression["confirmation"]})
     return found
+
+
+def scores(
+    found: list[dict[str, Any]], titles: list[str], starts: dict[int, Event], pairs: int
+) -> dict[str, Any]:
+    """As run, as flagged before any confirmation, and as the first 1..pairs-1 pairs would
+    have decided."""
+    result = {
+        "as_run": score(found, titles, starts, lambda d: d["confirmation"] or "held"),
+        "flagged_before_confirmation": score(found, titles, starts, lambda d: "held"),
+    }
+    for first_n in range(1, pairs):
+
+        def first(detection: dict[str, Any], first_n: int = first_n) -> str:
+            reason, effect = detection["confirmation_reason"], detection["effect"] or 0
+            return first_pairs(reason, effect, first_n) or detection["confirmation"] or "held"
+
+        result[f"first_{first_n}_pairs"] = score(found, titles, starts, first)
+    return result
+
+
+def rescore(path: Path, stretch: int, events: int) -> dict[str, Any]:
+    """The figures of a run saved with --json, scored again (by this file's scoring): its
+    detections' series are read back from their labels ("case/phase[params] process.counter")."""
+    saved = json.loads(path.read_text())
+    _, starts = plan(saved.get("stretch", stretch), EVENTS[: saved.get("events", events)])
+    titles = [f"r{n:03d}" for n in range(saved["revisions"])]
+    found = []
+    for detection in saved["detections"]:
+        process, _, counter = detection["series"].split(" ", 1)[1].partition(".")
+        kind = "driver" if process == "driver" else "counter"
+        series = {
+            "label": detection["series"],
+            "process": process,
+            "counter": counter,
+            "kind": kind,
+        }
+        found.append({**detection, "series": series})
+    return {**saved, **scores(found, titles, starts, saved["pairs"])}
 
 
 def score(
@@ -314,16 +355,10 @@ def run(args: argparse.Namespace, work: Path) -> dict[str, Any]:
         "agent_seconds_per_revision_confirming": round(confirming / len(commits), 1),
         "confirmation_cost": round(confirming / own, 3) if own else None,
         "confirmation_jobs": sum(1 for pair in jobs.values() if pair > 0),
-        "as_run": score(found, titles, starts, lambda d: d["confirmation"] or "held"),
-        "flagged_before_confirmation": score(found, titles, starts, lambda d: "held"),
+        "stretch": args.stretch,
+        "events": args.events,
+        **scores(found, titles, starts, args.pairs),
     }
-    for pairs in range(1, args.pairs):
-
-        def first(detection: dict[str, Any], pairs: int = pairs) -> str:
-            decided = first_pairs(detection["confirmation_reason"], detection["effect"] or 0, pairs)
-            return decided or detection["confirmation"] or "held"
-
-        result[f"first_{pairs}_pairs"] = score(found, titles, starts, first)
     result["detections"] = [
         {
             key: detection[key]
@@ -352,7 +387,15 @@ def main() -> int:
     parser.add_argument("--events", type=int, default=len(EVENTS), help="the first N events")
     parser.add_argument("--seed", type=int, default=1, help="of the background load's switching")
     parser.add_argument("--json", type=Path, help="write every figure here")
+    parser.add_argument(
+        "--rescore", type=Path, help="score a run saved with --json again, and run nothing"
+    )
     args = parser.parse_args()
+    if args.rescore:
+        rescored = rescore(args.rescore, args.stretch, args.events)
+        args.rescore.write_text(json.dumps(rescored, indent=1) + "\n")
+        print(json.dumps({k: v for k, v in rescored.items() if k != "detections"}, indent=1))
+        return 0
     # a SIGTERM stops the service and the load as Ctrl-C does, rather than orphaning them
     signal.signal(signal.SIGTERM, signal.default_int_handler)
     with tempfile.TemporaryDirectory(prefix="redline-verdicts-") as folder:
