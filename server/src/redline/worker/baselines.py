@@ -122,6 +122,10 @@ class Baselines:
             self.config.baseline != "recent"
             or not isinstance(detector, ExecutionShift)
             or candidate is None
+            or not any(
+                (series_id, detector.name, revision_id) in self.undecided
+                for revision_id in self.previous.get(series_id, [])
+            )  # the common case, answered without gathering the baseline
         ):
             return None
         oldest_first = self._revisions(series_id, detector)[::-1]
