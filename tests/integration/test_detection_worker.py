@@ -165,10 +165,21 @@ def test_a_change_in_a_history_too_short_to_judge_is_found_at_its_revision_later
     assert regression.confirmation == "confirmed", regression.confirmation_reason
 
 
-@pytest.mark.parametrize("parts", [1, 2])
+@pytest.mark.parametrize(("parts", "one_batch"), [(1, False), (2, False), (1, True)])
 def test_a_reanalysis_finds_the_same_step_at_the_same_revision(
-    session, database_url, tmp_path, parts
+    session, database_url, tmp_path, monkeypatch, parts, one_batch
 ):
+    """``one_batch``: the part's writer stages every revision in one transaction, the step's
+    revision (r4) with the one that found it (r6)."""
+    from redline.worker import reanalysis
+
+    if one_batch:  # the writer starts only once everything is judged and queued
+        start, finish = reanalysis._Stager.start, reanalysis._Stager.finish
+        monkeypatch.setattr(reanalysis, "WRITE_AHEAD", 64)
+        monkeypatch.setattr(reanalysis._Stager, "start", lambda self: None)
+        monkeypatch.setattr(
+            reanalysis._Stager, "finish", lambda self: (start(self), finish(self))[1]
+        )
     _blind_window_history(session, database_url, tmp_path)
     before = {
         key: (d.verdict, d.score, d.baseline_revision_id) for key, d in _verdicts(session).items()
@@ -182,6 +193,8 @@ def test_a_reanalysis_finds_the_same_step_at_the_same_revision(
         key: (d.verdict, d.score, d.baseline_revision_id) for key, d in _verdicts(session).items()
     }
     assert after == before
+    # one verdict a revision, series and method: a step's replaces what was staged of it
+    assert session.scalar(select(func.count()).select_from(Detection)) == len(before)
     session.expire_all()
     assert [
         (r.good_revision_id, r.bad_revision_id) for r in session.scalars(select(Regression))

@@ -163,7 +163,9 @@ def settle_pairs(session: Session, revision: Revision) -> bool:
         return False
     suspected = _suspected(session, revision.id)
     running = [job for job in jobs if job.state not in FINISHED]
-    if running and _decided(session, revision, jobs, suspected):
+    baseline = next(job.revision_id for job in jobs if job.revision_id != revision.id)
+    values = _values(session, jobs)
+    if running and _decided(revision, jobs, suspected, baseline, values):
         for job in running:  # an agent running one gets 409 at its next heartbeat
             job.state, job.reason, job.lease_expires_at = JobState.cancelled, NOT_NEEDED, None
         running = []
@@ -182,7 +184,6 @@ def settle_pairs(session: Session, revision: Revision) -> bool:
     )
     spared = {job.pair for job in jobs if job.reason == NOT_NEEDED}
     pairs = sorted({job.pair for job in jobs} - spared)
-    baseline = next(job.revision_id for job in jobs if job.revision_id != revision.id)
     ran = {(job.pair, job.revision_id) for job in jobs if job.state == JobState.done}
     if not any((pair, revision.id) in ran and (pair, baseline) in ran for pair in pairs):
         for detection, _, _ in suspected:  # not one complete pair: the history decides
@@ -191,7 +192,6 @@ def settle_pairs(session: Session, revision: Revision) -> bool:
                 "revisions will confirm it instead"
             )
         return True
-    values = _values(session, jobs)
     for detection, process, counter in suspected:
         if is_count(process, counter):
             detection.confirmation_reason = (
@@ -217,20 +217,19 @@ def settle_pairs(session: Session, revision: Revision) -> bool:
 
 
 def _decided(
-    session: Session,
     revision: Revision,
     jobs: list[Job],
     suspected: list[tuple[Detection, str, str]],
+    baseline: int,
+    values: dict[tuple[int, int, int], tuple[float, float]],
 ) -> bool:
     """Whether the pairs complete so far decide every suspected change that the pairs judge,
     whatever the pairs still to run would show (`pairs_decided`): then those need not run."""
-    baseline = next(job.revision_id for job in jobs if job.revision_id != revision.id)
     done = {(job.pair, job.revision_id) for job in jobs if job.state == JobState.done}
     gone = {job.pair for job in jobs if job.state in DID_NOT_RUN}
     pairs = sorted({job.pair for job in jobs})
     complete = [p for p in pairs if (p, baseline) in done and (p, revision.id) in done]
     pending = len([p for p in pairs if p not in complete and p not in gone])
-    values = _values(session, jobs)
     for detection, process, counter in suspected:
         if is_count(process, counter) or detection.baseline_revision_id != baseline:
             continue  # the pairs do not judge it (`settle_pairs`)

@@ -240,6 +240,8 @@ def _store_steps(session: Session, rows: list[dict[str, Any]], config: Detection
     """The verdicts of earlier revisions a step was found at (`_step`), each replacing that
     revision's verdict of its series and method, grouped into regressions (the earlier
     revisions first, as a re-analysis stores them)."""
+    if not rows:  # nearly always: no step found
+        return
     for row in rows:
         session.execute(
             delete(Detection).where(

@@ -209,14 +209,18 @@ class _Stager(threading.Thread):
                     for revision_id, judged in batch
                 ],
             )
-            rows = [{**row, **owner} for _, judged in batch if judged for row in judged.rows]
-            own = {judged.revision_id for _, judged in batch if judged}
-            bulk_insert(
-                session,
-                cast(Table, StagedDetection.__table__),
-                [row for row in rows if row["revision_id"] in own],
-            )
-            self._stage_steps(session, [row for row in rows if row["revision_id"] not in own])
+            # a judged revision's own verdicts, and those of earlier revisions a step was found
+            # at (which may be in this batch too: they replace what it staged of them)
+            own: list[dict[str, Any]] = []
+            steps: list[dict[str, Any]] = []
+            for _, judged in batch:
+                if judged is None:
+                    continue
+                for row in judged.rows:
+                    mine = row["revision_id"] == judged.revision_id
+                    (own if mine else steps).append({**row, **owner})
+            bulk_insert(session, cast(Table, StagedDetection.__table__), own)
+            self._stage_steps(session, steps)
             # the progress with what it counts (the row's lock last: held only until the commit)
             session.execute(
                 update(Reanalysis)
