@@ -45,22 +45,24 @@ DROPPED_HELD_S = 0.5  # a dropped query is finished only after this (the caller 
 MAX_LEG_GAP = 0.8  # metres: two legs further apart than this are not one person
 
 
-def pair_score(a: dict[str, float], b: dict[str, float]) -> float:
-    """How likely two legs belong to one person: a deliberately CPU-heavy iterative fit."""
+def pair_score(a: dict[str, float], b: dict[str, float], work: int = WORK_PER_PAIR) -> float:
+    """How likely two legs belong to one person: a deliberately CPU-heavy iterative fit of
+    ``work`` steps."""
     dx, dy = a["x"] - b["x"], a["y"] - b["y"]
     gap = math.hypot(dx, dy)
     score = 0.0
-    for step in range(WORK_PER_PAIR):
+    for step in range(work):
         phase = (step + 1) * 0.001
         score += math.exp(-((gap - 0.35 + phase) ** 2)) * math.cos(phase * gap)
-    return score / WORK_PER_PAIR
+    return score / work
 
 
 class ObjectBuilder:
     """Fuses legs and the latest robot pose into person hypotheses."""
 
-    def __init__(self, publisher: zenoh.Publisher) -> None:
+    def __init__(self, publisher: zenoh.Publisher, work_per_pair: int = WORK_PER_PAIR) -> None:
         self._publisher = publisher
+        self._work = work_per_pair
         self._pose = (0.0, 0.0, 0.0)
         self._lock = threading.Lock()
         self.running = threading.Event()  # cleared by a "stall" fault
@@ -80,7 +82,7 @@ class ObjectBuilder:
         persons: list[dict[str, Any]] = []
         for i, a in enumerate(legs):
             for b in legs[i + 1 :]:
-                score = pair_score(a, b)
+                score = pair_score(a, b, self._work)
                 if math.hypot(a["x"] - b["x"], a["y"] - b["y"]) <= MAX_LEG_GAP:
                     persons.append(_person(a, b, score, px, py, theta))
         return json.dumps({"stamp": message.get("stamp"), "persons": persons})
@@ -174,7 +176,17 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--faults", metavar="FILE", help=f"inject the fault FILE names ({', '.join(FAULTS)})"
     )
+    parser.add_argument(
+        "--work-per-pair",
+        type=int,
+        default=WORK_PER_PAIR,
+        help="steps of the fit per pair of legs (default: tuning.WORK_PER_PAIR, which revisions "
+        "change; the resource-model evaluation sets its own so that its sweep never saturates "
+        "a core)",
+    )
     args = parser.parse_args(argv)
+    if args.work_per_pair < 1:
+        parser.error("--work-per-pair must be at least 1")
     stop = threading.Event()
     for signum in (signal.SIGTERM, signal.SIGINT):
         signal.signal(signum, lambda *_: stop.set())
@@ -185,7 +197,7 @@ def main(argv: list[str] | None = None) -> int:
             key: key.replace("objectbuilder", args.prefix, 1)
             for key in (LEGS_KEY, POSE_KEY, PERSONS_KEY, LOCATE_KEY)
         }
-        builder = ObjectBuilder(session.declare_publisher(keys[PERSONS_KEY]))
+        builder = ObjectBuilder(session.declare_publisher(keys[PERSONS_KEY]), args.work_per_pair)
         session.declare_subscriber(
             keys[LEGS_KEY],
             lambda s: legs_pool.submit(_guarded, builder.on_legs, s.payload.to_bytes()),
@@ -201,7 +213,7 @@ def main(argv: list[str] | None = None) -> int:
                 target=inject_faults, args=(args.faults, builder, stop), daemon=True
             ).start()
         print(
-            f"objectbuilder ready (threads={args.threads}, work per pair={WORK_PER_PAIR})",
+            f"objectbuilder ready (threads={args.threads}, work per pair={args.work_per_pair})",
             flush=True,
         )
         while not stop.wait(0.2):  # a timed wait keeps signal handlers responsive
