@@ -7,7 +7,7 @@ from redline.server.api.deps import SessionDep, require
 from redline.server.core.bodies import JsonRoute
 from redline.server.schemas.common import Problem
 from redline.server.schemas.revisions import RevisionCreate, RevisionCreated
-from redline.server.services.revisions import report_revision
+from redline.server.services.revision_reports import report_revision
 
 router = APIRouter(prefix="/api/v1/revisions", tags=["revisions"], route_class=JsonRoute)
 

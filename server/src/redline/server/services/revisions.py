@@ -1,4 +1,5 @@
-"""Revisions and their jobs: created by CI, ordered by an explicit sort key."""
+"""Revisions and their jobs: created by CI, ordered by an explicit sort key; their state, lists,
+detail and verdict text (CI's report of one, one commit under two titles: `revision_reports`)."""
 
 from __future__ import annotations
 
@@ -22,13 +23,11 @@ from redline.server.services.components import get_component, get_revision
 from redline.server.services.detection_config import component_config
 from redline.server.services.errors import BadRequest, Conflict, Forbidden, NotFound
 from redline.server.services.repos import repo_key
-from sqlalchemy import and_, func, literal, or_, select, tuple_
+from sqlalchemy import func, literal, or_, select, tuple_
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session, selectinload
 
 _DIGITS = re.compile(r"\d+")
-#: a commit hash, full or abbreviated as git does (7 digits at least)
-_HASH = re.compile(r"^[0-9a-fA-F]{7,64}$")
 #: what a revision without a verdict yet is said to have (`revision_verdicts`)
 WAITING = "not enough data yet"
 _UNDER_WAY = (JobState.queued, JobState.leased, JobState.running, JobState.uploaded)
@@ -76,7 +75,7 @@ def new_revision(component: Component, data: RevisionCreate) -> Revision:
     )
 
 
-def _run_from_own_repository(component: Component, data: RevisionCreate) -> None:
+def require_own_repository(component: Component, data: RevisionCreate) -> None:
     """Forbidden when a report names another repository than the component's."""
     if data.repo and repo_key(data.repo) != component.repo_key:
         raise Forbidden(
@@ -89,7 +88,7 @@ def _run_from_own_repository(component: Component, data: RevisionCreate) -> None
 def create_revision(session: Session, data: RevisionCreate) -> Revision:
     """A revision and one queued job per execution the component asks for."""
     component = get_component(session, data.component)
-    _run_from_own_repository(component, data)
+    require_own_repository(component, data)
     revision = new_revision(component, data)
     session.add(revision)
     try:
@@ -100,75 +99,6 @@ def create_revision(session: Session, data: RevisionCreate) -> Revision:
             f"component {data.component!r} already has a revision {data.title!r}"
         ) from None
     return revision
-
-
-def same_commit(first: str, second: str) -> bool:
-    """Do two commit names name one commit: equal, or hashes of 7 hex digits or more one of
-    which abbreviates the other (a 12-digit title's commit and the full SHA)."""
-    if first == second:
-        return True
-    if not (_HASH.fullmatch(first) and _HASH.fullmatch(second)):
-        return False
-    first, second = first.lower(), second.lower()
-    return first.startswith(second) or second.startswith(first)
-
-
-def revision_of_commit(session: Session, component: Component, commit: str) -> Revision | None:
-    """The component's first revision of ``commit`` (`same_commit`), whatever its title; None
-    for a name that is not a hash (a branch, "main", names a commit that moves)."""
-    if not _HASH.fullmatch(commit):
-        return None
-    stored, given = func.lower(Revision.commit), commit.lower()
-    return session.scalars(
-        select(Revision)
-        .where(
-            Revision.component_id == component.id,
-            or_(
-                stored.startswith(given),
-                and_(
-                    Revision.commit.regexp_match(_HASH.pattern), literal(given).startswith(stored)
-                ),
-            ),
-        )
-        .order_by(Revision.id)
-        .limit(1)
-    ).first()
-
-
-def _reported_before(session: Session, data: RevisionCreate) -> Revision | None:
-    """The revision ``data`` reports again: of its title and commit, or of its commit under
-    another title (CI's full SHA and a webhook's 12 digits); a Conflict naming both commits when
-    its title is another commit's."""
-    component = get_component(session, data.component)
-    _run_from_own_repository(component, data)
-    titled = session.scalar(
-        select(Revision).where(Revision.component_id == component.id, Revision.title == data.title)
-    )
-    if titled is None:
-        return revision_of_commit(session, component, data.commit)
-    if same_commit(titled.commit, data.commit):
-        return titled
-    raise Conflict(
-        f"component {data.component!r} already has a revision {data.title!r}, of commit "
-        f"{titled.commit!r}; this report says {data.commit!r}"
-    )
-
-
-def report_revision(session: Session, data: RevisionCreate) -> tuple[Revision, bool]:
-    """CI's report: the revision made (True), or the one reported before with the same commit
-    (False: a re-run pipeline, or CI and a webhook both reporting it, whose sort keys and titles
-    may differ in form: the first report's stand); a title taken by another commit is a
-    Conflict naming both."""
-    reported = _reported_before(session, data)
-    if reported is not None:
-        return reported, False
-    try:
-        return create_revision(session, data), True
-    except Conflict:  # reported meanwhile by another request
-        reported = _reported_before(session, data)
-        if reported is None:
-            raise
-        return reported, False
 
 
 def own_jobs(revision: Revision) -> list[Job]:

@@ -28,7 +28,8 @@ from redline.server.schemas.webhooks import (
 )
 from redline.server.services.errors import BadRequest, ServiceError
 from redline.server.services.repos import repo_key
-from redline.server.services.revisions import new_revision, revision_of_commit
+from redline.server.services.revision_reports import revision_of_commit
+from redline.server.services.revisions import new_revision
 from sqlalchemy import select
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session

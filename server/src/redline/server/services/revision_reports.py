@@ -1,0 +1,86 @@
+"""CI's report of a revision: a new revision, or the one reported before of the same commit
+(one commit under two titles: CI's full SHA and a webhook's 12 digits are one revision)."""
+
+from __future__ import annotations
+
+import re
+
+from redline.server.models import Component, Revision
+from redline.server.schemas.revisions import RevisionCreate
+from redline.server.services.components import get_component
+from redline.server.services.errors import Conflict
+from redline.server.services.revisions import create_revision, require_own_repository
+from sqlalchemy import and_, func, literal, or_, select
+from sqlalchemy.orm import Session
+
+#: a commit hash, full or abbreviated as git does (7 digits at least)
+_HASH = re.compile(r"^[0-9a-fA-F]{7,64}$")
+
+
+def same_commit(first: str, second: str) -> bool:
+    """Do two commit names name one commit: equal, or hashes of 7 hex digits or more one of
+    which abbreviates the other (a 12-digit title's commit and the full SHA)."""
+    if first == second:
+        return True
+    if not (_HASH.fullmatch(first) and _HASH.fullmatch(second)):
+        return False
+    first, second = first.lower(), second.lower()
+    return first.startswith(second) or second.startswith(first)
+
+
+def revision_of_commit(session: Session, component: Component, commit: str) -> Revision | None:
+    """The component's first revision of ``commit`` (`same_commit`), whatever its title; None
+    for a name that is not a hash (a branch, "main", names a commit that moves)."""
+    if not _HASH.fullmatch(commit):
+        return None
+    stored, given = func.lower(Revision.commit), commit.lower()
+    return session.scalars(
+        select(Revision)
+        .where(
+            Revision.component_id == component.id,
+            or_(
+                stored.startswith(given),
+                and_(
+                    Revision.commit.regexp_match(_HASH.pattern), literal(given).startswith(stored)
+                ),
+            ),
+        )
+        .order_by(Revision.id)
+        .limit(1)
+    ).first()
+
+
+def _reported_before(session: Session, data: RevisionCreate) -> Revision | None:
+    """The revision ``data`` reports again: of its title and commit, or of its commit under
+    another title (CI's full SHA and a webhook's 12 digits); a Conflict naming both commits when
+    its title is another commit's."""
+    component = get_component(session, data.component)
+    require_own_repository(component, data)
+    titled = session.scalar(
+        select(Revision).where(Revision.component_id == component.id, Revision.title == data.title)
+    )
+    if titled is None:
+        return revision_of_commit(session, component, data.commit)
+    if same_commit(titled.commit, data.commit):
+        return titled
+    raise Conflict(
+        f"component {data.component!r} already has a revision {data.title!r}, of commit "
+        f"{titled.commit!r}; this report says {data.commit!r}"
+    )
+
+
+def report_revision(session: Session, data: RevisionCreate) -> tuple[Revision, bool]:
+    """CI's report: the revision made (True), or the one reported before with the same commit
+    (False: a re-run pipeline, or CI and a webhook both reporting it, whose sort keys and titles
+    may differ in form: the first report's stand); a title taken by another commit is a
+    Conflict naming both."""
+    reported = _reported_before(session, data)
+    if reported is not None:
+        return reported, False
+    try:
+        return create_revision(session, data), True
+    except Conflict:  # reported meanwhile by another request
+        reported = _reported_before(session, data)
+        if reported is None:
+            raise
+        return reported, False
