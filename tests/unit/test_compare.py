@@ -26,6 +26,7 @@ def record(
     host_factor: float = 1.0,
     case: str = "load",
     seed: int = 0,
+    rates: tuple[int, ...] = RATES,
 ) -> Path:
     """A finished recording: a warm-up and a 'steady' phase per rate, 150 samples each, of
     component counters (cpu_percent, rss_bytes) and a host-wide cpu_percent."""
@@ -34,7 +35,7 @@ def record(
     t_ns = 1_000_000_000
     with RecordingWriter(path) as writer:
         writer.metadata("redline.run", {"component": "builder", "revision_title": path.stem})
-        for rate in RATES:
+        for rate in rates:
             for phase, warmup in (("warmup", True), ("steady", False)):
                 params = {"rate": rate}
                 writer.marker("begin", case, phase, params, warmup=warmup, t_ns=t_ns)
@@ -231,3 +232,24 @@ def test_a_missing_side_or_report_is_named_for_what_it_is(
         code, output = invoke(*args)
         assert code == 2 and f"Missing option '{missing}'" in output, output
     assert not junit.exists()
+
+
+def test_a_parameter_set_the_candidate_lost_is_an_error_one_it_added_is_skipped(
+    tmp_path: Path, baseline: list[Path]
+) -> None:
+    """A segment only the baseline recorded was a skipped testcase and exit 0: the gate passed
+    what it no longer measured. Now an error (exit 4); one only the candidate has is new."""
+    junit = tmp_path / "out.xml"
+    fewer = record(tmp_path / "fewer.mcap", seed=3, rates=(10,))
+    code, output = invoke("--baseline", *baseline, "--candidate", fewer, "--junit", junit)
+    assert code == 4, output
+    assert "load/steady[rate=20]: NOT JUDGED (2 only in the baseline)" in output
+    assert "builder.cpu_percent: not enough data (only in the baseline: " in output
+    error = _cases(junit)["load/steady[rate=20]"].find("error")
+    assert error is not None and error.get("type") == "NotJudged"
+    assert _cases(junit)["load/steady[rate=10]"].find("error") is None
+    more = record(tmp_path / "more.mcap", seed=4, rates=(10, 20, 40))
+    code, output = invoke("--baseline", *baseline, "--candidate", more, "--junit", junit)
+    assert code == 0, output
+    assert "load/steady[rate=40]: new (2 only in the candidate)" in output
+    assert _cases(junit)["load/steady[rate=40]"].find("skipped") is not None

@@ -6,10 +6,13 @@ from __future__ import annotations
 
 import json
 import math
+import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import numpy as np
 import pytest
+import typer
+from redline.commands.compare import register
 from redline.detect.compare import compare_files
 from redline.detect.count_rate import CountRate
 from redline.detect.counters import is_count, judged, kind, worse
@@ -19,19 +22,25 @@ from redline.recording.disturbance import OTHER_CPU, recording_disturbances
 from redline.recording.driver import DRIVER_PROCESS, report_values, series_name
 from redline.testing import Context, FixedRate, Parallel, Publish, Query, Sequence
 from redline.testing.paths import action_paths
+from typer.testing import CliRunner
 
 PARAMS = {"rate": 10}
 CANON = json.dumps(PARAMS, sort_keys=True, separators=(",", ":"))
 
 
-def _query_report(answered: int, timeouts: int, rtt_p50: float, t_ns: int) -> dict:
+QUERY_PATH = "FixedRate/Query(svc/get)"
+
+
+def _query_report(
+    answered: int, timeouts: int, rtt_p50: float, t_ns: int, path: str = QUERY_PATH
+) -> dict:
     return {
         "t_ns": t_ns,
         "case": "c",
         "phase": "steady",
         "params": PARAMS,
         "action": "Query",
-        "path": "FixedRate/Query(svc/get)",
+        "path": path,
         "key": "svc/get",
         "count": answered,
         "queries": answered + timeouts,
@@ -52,9 +61,11 @@ def record(
     own: float = 5.0,
     cores: int = 2,
     with_own: bool = True,
+    query_path: str = QUERY_PATH,
+    query: bool = True,
 ) -> Path:
     """One execution: a 2 s 'steady' segment with component, host and own CPU samples, and the
-    driver's Query and Publish reports."""
+    driver's Query (at ``query_path`` in the tree; none without ``query``) and Publish reports."""
     rng = np.random.default_rng(int(cpu * 10 + timeouts))
     begin, end = 1_000_000_000, 3_000_000_000
     with RecordingWriter(path) as writer:
@@ -69,9 +80,11 @@ def record(
             writer.counters("host", 0, {"cpu_percent": host, "cpu_steal_percent": 0.0}, t_ns)
             if with_own:
                 writer.counters("redline", 0, {"cpu_percent": own}, t_ns)
-        writer.write_json(
-            "@redline/driver/c/steady", _query_report(answered, timeouts, rtt_p50, end - 1000)
-        )
+        if query:
+            writer.write_json(
+                "@redline/driver/c/steady",
+                _query_report(answered, timeouts, rtt_p50, end - 1000, query_path),
+            )
         writer.write_json(
             "@redline/driver/c/steady",
             {
@@ -245,3 +258,55 @@ def test_compare_does_not_judge_a_phase_the_host_was_busy_in(tmp_path: Path) -> 
     (segment,) = [s for s in comparison.segments if s.phase == "steady"]
     assert segment.series == () and "not judged: the host was busy" in segment.note
     assert "other load" in segment.note and "h0.mcap" in segment.note
+
+
+def _compare(tmp_path: Path, base: list[Path], cand: list[Path]) -> tuple[int, str, ET.Element]:
+    """`redline compare` on the command line: its exit code, its output and its JUnit suite."""
+    app = typer.Typer()
+    app.callback()(lambda: None)
+    register(app)
+    junit = tmp_path / "out.xml"
+    args = ["compare", "--baseline", *map(str, base), "--candidate", *map(str, cand)]
+    result = CliRunner().invoke(app, [*args, "--junit", str(junit)])
+    suite = ET.parse(junit).getroot().find("testsuite")
+    assert suite is not None, result.output
+    return result.exit_code, result.output, suite
+
+
+def test_compare_does_not_pass_a_renamed_action_path(tmp_path: Path) -> None:
+    """A trial moved a Query into a Sequence and tripled its round trip: compare printed
+    "c/steady[rate=10]: ok", exited 0, and its JUnit counted 0 failures, judging only the series
+    both sides held. The old path's series are now not judged, saying why, and fail the gate."""
+    base = [record(tmp_path / f"b{i}.mcap", rtt_p50=500.0 + i) for i in range(3)]
+    moved = "Sequence/Query(svc/get)"
+    cand = [record(tmp_path / f"m{i}.mcap", rtt_p50=1500.0 + i, query_path=moved) for i in range(3)]
+    code, output, suite = _compare(tmp_path, base, cand)
+    assert code == 4, output
+    assert "c/steady[rate=10]: NOT JUDGED (" in output
+    assert (
+        f"driver.{QUERY_PATH}:rtt_p50_us: not enough data (only in the baseline: the action "
+        "path changed or the report is missing)"
+    ) in output
+    assert f"driver.{moved}:rtt_p50_us: not enough data (only in the candidate: " in output
+    assert (suite.get("failures"), suite.get("errors")) == ("0", "1")
+    (case,) = [c for c in suite.iter("testcase") if c.get("name") == "c/steady[rate=10]"]
+    error = case.find("error")
+    assert error is not None and error.get("type") == "NotJudged"
+    assert f"driver.{QUERY_PATH}:rtt_p50_us" in error.get("message", "")
+    lost = {v.key.counter: v.result for v in compare_files(base, cand).lost}
+    rtt = lost[f"{QUERY_PATH}:rtt_p50_us"]
+    assert rtt.verdict == "not enough data"
+    assert rtt.reason == "only in the baseline: the action path changed or the report is missing"
+
+
+def test_compare_does_not_pass_a_report_missing_from_every_candidate_run(tmp_path: Path) -> None:
+    base = [record(tmp_path / f"b{i}.mcap", rtt_p50=500.0 + i) for i in range(3)]
+    cand = [record(tmp_path / f"n{i}.mcap", query=False) for i in range(3)]
+    code, output, suite = _compare(tmp_path, base, cand)
+    assert code == 4, output
+    assert f"driver.{QUERY_PATH}:timeouts: not enough data (only in the baseline" in output
+    assert suite.get("errors") == "1"
+    # the same candidate with its reports back passes: the error is the missing report's
+    again = [record(tmp_path / f"q{i}.mcap", rtt_p50=505.0 - i) for i in range(3)]
+    code, output, suite = _compare(tmp_path, base, again)
+    assert code == 0 and suite.get("errors") == "0", output

@@ -3,8 +3,11 @@
     redline compare --baseline A.mcap [A2.mcap ...] --candidate B.mcap [B2.mcap ...]
                     --junit out.xml [--html out.html]
 
-Exit status: 1 when a change is found, 0 when none is, 2 on bad input (an unreadable or
-truncated recording, named; no series in common; a malformed command line).
+Exit status: 1 when a change for the worse is found; 4 when none is but a series only the
+baseline holds could not be judged (its action path changed, or its report is missing from every
+candidate run: the comparison lost a measurement, which must not pass); 0 otherwise; 2 on bad
+input (an unreadable or truncated recording, named; no series in common; a malformed command
+line). A series only the candidate holds (a new test or action) is listed, never a failure.
 
 The comparison (scipy) is imported where it runs, not here: every `redline` command line imports
 this module to build the CLI.
@@ -20,10 +23,10 @@ import typer
 from typer.core import TyperCommand, TyperOption
 
 if TYPE_CHECKING:
-    from redline.detect.compare import Comparison
+    from redline.detect.compare import Comparison, SegmentVerdict
     from typer._click.core import Context  # the Context typer vendors from click
 
-EXIT_CHANGE, EXIT_BAD_INPUT = 1, 2
+EXIT_CHANGE, EXIT_BAD_INPUT, EXIT_NOT_JUDGED = 1, 2, 4
 
 
 @dataclass
@@ -93,7 +96,8 @@ def compare_cmd(
 ) -> None:
     """Compare candidate recordings with baseline ones: KS per counter series, JUnit XML out.
 
-    Exit 1 when a change is found, 0 when none, 2 on bad input.
+    Exit 1 when a change for the worse is found; 4 when none is but a series only the baseline
+    holds was not judged (an action path changed, a report missing); 0 otherwise; 2 on bad input.
     """
     from redline.detect.compare import CompareError, compare_files
     from redline.detect.counters import CONTEXT_COUNTERS
@@ -118,19 +122,34 @@ def compare_cmd(
                 "measurements are not judged)",
                 err=True,
             )
-    changed = comparison.changed
+    changed, lost = comparison.changed, comparison.lost
     for segment in comparison.segments:
-        marks = [f"CHANGED ({len(segment.changed)})"] if segment.changed else []
-        marks += [f"improved ({len(segment.improved)})"] if segment.improved else []
-        typer.echo(f"{segment.name}: {', '.join(marks) or segment.note or 'ok'}")
+        typer.echo(f"{segment.name}: {segment_marks(segment)}")
+        for verdict in (*segment.lost, *segment.new):
+            key, result = verdict.key, verdict.result
+            typer.echo(f"  {key.process}.{key.counter}: {result.verdict} ({result.reason})")
     worse = sum(1 for segment in comparison.segments if segment.changed)
     typer.echo(
         f"{len(changed)} counter(s) changed for the worse in {worse} of "
-        f"{len(comparison.segments)} segment(s), {len(comparison.improved)} improved; "
-        f"JUnit: {args.junit}" + (f"; HTML: {args.html}" if args.html else "")
+        f"{len(comparison.segments)} segment(s), {len(comparison.improved)} improved"
+        + (f", {len(lost)} only in the baseline (not judged)" if lost else "")
+        + f"; JUnit: {args.junit}"
+        + (f"; HTML: {args.html}" if args.html else "")
     )
     if changed:
         raise typer.Exit(EXIT_CHANGE)
+    if lost:
+        raise typer.Exit(EXIT_NOT_JUDGED)
+
+
+def segment_marks(segment: SegmentVerdict) -> str:
+    """How the console shows a segment: ``CHANGED (1), improved (2)``, ``NOT JUDGED (3 only
+    in the baseline)``, ``ok`` or why it was not compared."""
+    marks = [f"CHANGED ({len(segment.changed)})"] if segment.changed else []
+    marks += [f"improved ({len(segment.improved)})"] if segment.improved else []
+    marks += [f"NOT JUDGED ({len(segment.lost)} only in the baseline)"] if segment.lost else []
+    marks += [f"new ({len(segment.new)} only in the candidate)"] if segment.new else []
+    return ", ".join(marks) or segment.note or "ok"
 
 
 def write_outputs(comparison: Comparison, args: CompareArgs) -> None:

@@ -34,12 +34,14 @@ def _segment_html(
     files: list[tuple[str, RecordedSeries]],
     figures: dict[str, dict[str, Any]],
 ) -> str:
-    changed = segment.changed
-    status = (
-        f'<span class="changed">{len(changed)} changed</span>'
-        if changed
-        else f'<span class="ok">{html.escape(segment.note or "no change")}</span>'
-    )
+    changed, lost = segment.changed, segment.lost
+    if changed or lost:
+        said = [f"{len(changed)} changed"] if changed else []
+        said += [f"{len(lost)} only in the baseline, not judged"] if lost else []
+        status = f'<span class="changed">{", ".join(said)}</span>'
+    else:
+        status = f'<span class="ok">{html.escape(segment.note or "no change")}</span>'
+
     parts = [f"<h2>{html.escape(segment.name)} — {status}</h2>"]
     if segment.series:
         lines = "\n".join(

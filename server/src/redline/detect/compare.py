@@ -5,13 +5,15 @@ per side (the paper: "the individual measurements ... of potentially multiple ex
 observation") and judged exactly as the service's KS judges them: `redline.detect.verdict`'s
 `judge_series` with `KolmogorovSmirnov` (the KS test, then the counter's absolute floor), the
 host-wide series and the user/system split of CPU left out (`redline.detect.counters`). Results
-are grouped into one verdict per test case × phase × parameter set. Reading the files is the
+are grouped into one verdict per test case × phase × parameter set. A series only one side holds
+is "not enough data" saying which side (`ONLY_IN`): never a silent pass. Reading the files is the
 only I/O here.
 """
 
 from __future__ import annotations
 
 import json
+import math
 from collections.abc import Collection, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -43,6 +45,14 @@ from redline.recording.disturbance import DEFAULT_THRESHOLD, recording_disturban
 Timeline = dict[SeriesKey, list[tuple[int, float]]]
 Segment = tuple[str, str, str]  # case, phase, canonical parameters
 
+#: the reason of a series only one side holds: a renamed action path leaves its old series only
+#: in the baseline and its new one only in the candidate, a report missing from every candidate
+#: run leaves its series only in the baseline. One only in the baseline makes its segment
+#: undecided (`SegmentVerdict.state`); one only in the candidate is new, listed
+ONLY_IN = "only in the {side}: {why}"
+_WHY_DRIVER = "the action path changed or the report is missing"
+_WHY_PROCESS = "the process, test case, phase or parameter set changed, or it was not measured"
+
 
 class CompareError(ValueError):
     """Input that cannot be compared; the message names the file or what is missing."""
@@ -67,11 +77,14 @@ class SeriesVerdict:
     candidate_mean: float
     baseline_n: int
     candidate_n: int
+    #: "baseline" or "candidate" for a series only that side holds (not judged), else ""
+    only_in: str = ""
 
 
 @dataclass(frozen=True)
 class SegmentVerdict:
-    """One test case × phase × parameter set; ``note`` says why it could not be compared."""
+    """One test case × phase × parameter set; ``note`` says why it could not be compared (the
+    host was busy)."""
 
     case: str
     phase: str
@@ -93,6 +106,32 @@ class SegmentVerdict:
         """The changes for the better: reported, never a failure."""
         return [v for v in self.series if v.result.flagged and not _for_the_worse(v)]
 
+    @property
+    def lost(self) -> list[SeriesVerdict]:
+        """The series only the baseline holds: measurements the comparison lost, not judged."""
+        return [v for v in self.series if v.only_in == "baseline"]
+
+    @property
+    def new(self) -> list[SeriesVerdict]:
+        """The series only the candidate holds: nothing to compare them with yet."""
+        return [v for v in self.series if v.only_in == "candidate"]
+
+    @property
+    def state(self) -> str:
+        """``failed`` (a change for the worse), ``undecided`` (no such change, but a series
+        only the baseline holds: what the candidate no longer measures cannot pass),
+        ``skipped`` (the host was busy, or a segment only the candidate recorded) or
+        ``passed``."""
+        if self.note:
+            return "skipped"
+        if self.changed:
+            return "failed"
+        if self.lost:
+            return "undecided"
+        if all(v.only_in for v in self.series):
+            return "skipped"
+        return "passed"
+
 
 @dataclass(frozen=True)
 class Comparison:
@@ -107,6 +146,10 @@ class Comparison:
     @property
     def improved(self) -> list[SeriesVerdict]:
         return [verdict for segment in self.segments for verdict in segment.improved]
+
+    @property
+    def lost(self) -> list[SeriesVerdict]:
+        return [verdict for segment in self.segments for verdict in segment.lost]
 
 
 def _for_the_worse(verdict: SeriesVerdict) -> bool:
@@ -216,6 +259,27 @@ def _verdict(
     )
 
 
+def _one_sided(key: SeriesKey, held: dict[SeriesKey, np.ndarray], side: str) -> SeriesVerdict:
+    """The verdict of a series only ``side`` holds (``held``: that side's samples)."""
+    why = _WHY_DRIVER if kind(key.process) in ("driver", "recorder") else _WHY_PROCESS
+    if is_count(key.process, key.counter):
+        method = CountRate.name
+    else:
+        method = RelativeChange.name if kind(key.process) != "counter" else KolmogorovSmirnov.name
+    values = held[key]
+    mean, size = (float(np.mean(values)) if values.size else math.nan), int(values.size)
+    first = side == "baseline"
+    return SeriesVerdict(
+        key=key,
+        result=not_enough(method, ONLY_IN.format(side=side, why=why)),
+        baseline_mean=mean if first else math.nan,
+        candidate_mean=math.nan if first else mean,
+        baseline_n=size if first else 0,
+        candidate_n=0 if first else size,
+        only_in=side,
+    )
+
+
 def _busy(recorded: Sequence[RecordedSeries], judged_segments: set[Segment]) -> dict[Segment, str]:
     """The segments left unjudged because the host was busy, with which recording said so."""
     found: dict[Segment, str] = {}
@@ -229,9 +293,12 @@ def _busy(recorded: Sequence[RecordedSeries], judged_segments: set[Segment]) -> 
 def compare_sides(
     baseline: tuple[RecordedSeries, ...], candidate: tuple[RecordedSeries, ...]
 ) -> Comparison:
-    """Judge every series both sides hold; CompareError when they hold none in common."""
+    """Judge every series both sides hold, and answer "not enough data" for each that only
+    one side holds (`ONLY_IN`) outside the segments the host was busy in; CompareError when
+    they hold none in common."""
     base, cand = pooled(baseline), pooled(candidate)
-    common = sorted(key for key in set(base) & set(cand) if not is_load(key.process, key.counter))
+    every = {key for key in base.keys() | cand.keys() if not is_load(key.process, key.counter)}
+    common = sorted(key for key in every if key in base and key in cand)
     if not common:
         raise CompareError(
             f"the baseline and the candidate have no series in common (baseline: "
@@ -241,13 +308,14 @@ def compare_sides(
     by_segment: dict[Segment, list[SeriesVerdict]] = {}
     for key in common:
         by_segment.setdefault(_segment(key), []).append(_verdict(key, base, cand))
-    segments = [SegmentVerdict(*ident, series=tuple(found)) for ident, found in by_segment.items()]
     busy = _busy(baseline + candidate, set(by_segment))
+    for key in sorted(every - set(common)):
+        if _segment(key) not in busy:  # a side busy in all its runs: said once, below
+            side, held = ("baseline", base) if key in base else ("candidate", cand)
+            by_segment.setdefault(_segment(key), []).append(_one_sided(key, held, side))
+    segments = [SegmentVerdict(*ident, series=tuple(found)) for ident, found in by_segment.items()]
     for ident, why in sorted(busy.items()):
         segments.append(SegmentVerdict(*ident, note=f"not judged: the host was busy ({why})"))
-    for side, only in (("baseline", base), ("candidate", cand)):
-        for ident in sorted({_segment(key) for key in only} - set(by_segment) - set(busy)):
-            segments.append(SegmentVerdict(*ident, note=f"recorded only in the {side}"))
     segments.sort(key=lambda s: (s.case, s.phase, s.params))
     return Comparison(baseline=baseline, candidate=candidate, segments=tuple(segments))
 

@@ -1,9 +1,12 @@
 """JUnit XML for `redline compare`: what Jenkins, GitLab and GitHub read as test results.
 
 One testcase per test case × phase × parameter set (classname: the test case; name:
-``case/phase[params]`` with the printable parameter-set name). A failure lists the counters that
-changed with their effect size, KS D and p; a segment only one side recorded is skipped; every
-compared counter is listed in the testcase's system-out.
+``case/phase[params]`` with the printable parameter-set name), by its `SegmentVerdict.state`: a
+failure lists the counters that changed for the worse with their effect size, KS D and p; an
+error (``NotJudged``) lists the series only the baseline holds, where nothing changed for the
+worse (a renamed action path, a report missing from the candidate: never a silent pass); a
+segment the host was busy in, or only the candidate recorded, is skipped; every series is listed
+in the testcase's system-out.
 """
 
 from __future__ import annotations
@@ -21,9 +24,16 @@ def series_line(verdict: SeriesVerdict) -> str:
     result, key = verdict.result, verdict.key
     p_value = "n/a" if result.p_value is None else f"{result.p_value:.3g}"
     reason = f" [{result.verdict}: {result.reason}]" if result.reason else ""
+    before, after = (
+        f"{mean:.6g}" if n else "-"
+        for mean, n in (
+            (verdict.baseline_mean, verdict.baseline_n),
+            (verdict.candidate_mean, verdict.candidate_n),
+        )
+    )
     return (
         f"{key.process}.{key.counter}: effect {result.effect:+.1%}, D {result.score:.3f}, "
-        f"p {p_value}; mean {verdict.baseline_mean:.6g} -> {verdict.candidate_mean:.6g} "
+        f"p {p_value}; mean {before} -> {after} "
         f"(n {verdict.baseline_n} -> {verdict.candidate_n}){reason}"
     )
 
@@ -33,7 +43,19 @@ def _testcase(parent: ET.Element, segment: SegmentVerdict) -> None:
     if segment.note:
         ET.SubElement(case, "skipped", message=segment.note)
         return
-    changed = segment.changed
+    changed, state = segment.changed, segment.state
+    if state == "undecided":
+        lost = segment.lost
+        error = ET.SubElement(
+            case,
+            "error",
+            type="NotJudged",
+            message=f"{len(lost)} series only in the baseline, not judged: "
+            + ", ".join(f"{v.key.process}.{v.key.counter}" for v in lost),
+        )
+        error.text = "\n".join(series_line(v) for v in lost)
+    elif state == "skipped":
+        ET.SubElement(case, "skipped", message="recorded only in the candidate: nothing to compare")
     if changed:
         names = ", ".join(
             f"{v.key.process}.{v.key.counter} {v.result.effect:+.1%}" for v in changed
@@ -56,9 +78,9 @@ def junit_xml(comparison: Comparison) -> str:
         "testsuite",
         name=SUITE_NAME,
         tests=str(len(segments)),
-        failures=str(sum(1 for s in segments if s.changed)),
-        errors="0",
-        skipped=str(sum(1 for s in segments if s.note)),
+        failures=str(sum(1 for s in segments if s.state == "failed")),
+        errors=str(sum(1 for s in segments if s.state == "undecided")),
+        skipped=str(sum(1 for s in segments if s.state == "skipped")),
         time="0",
     )
     properties = ET.SubElement(suite, "properties")
@@ -72,7 +94,7 @@ def junit_xml(comparison: Comparison) -> str:
         name=SUITE_NAME,
         tests=suite.get("tests", "0"),
         failures=suite.get("failures", "0"),
-        errors="0",
+        errors=suite.get("errors", "0"),
     )
     suites.append(suite)
     ET.indent(suites)
