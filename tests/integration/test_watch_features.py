@@ -17,6 +17,7 @@ import time
 import numpy as np
 import pytest
 from redline.agent.network import RunNetwork, open_client
+from redline.agent.runner import query_recorder
 from redline.commands.watch import listen
 from redline.predict.features import NS, FeatureSpec, extract
 from redline.predict.watch import EventWindow
@@ -47,7 +48,12 @@ def test_a_recording_and_a_live_watcher_give_the_same_feature_vectors(tmp_path) 
         ):
             subscribers = listen(watcher, window)
             publishers = {key: robot.declare_publisher(key) for key, _ in SPEC.channels}
-            time.sleep(0.5)  # the subscriptions have reached the router
+            # The recorder declares its status queryable after its subscribers, and a session's
+            # query follows its own declarations to the router: an answer to each session means
+            # the router holds every subscription (the runner waits for the recorder so too).
+            deadline = time.monotonic() + 30
+            while query_recorder(watcher, 0.5) is None or query_recorder(robot, 0.5) is None:
+                assert time.monotonic() < deadline, "the recorder never answered its status query"
             start = (time.time_ns() // NS + 1) * NS  # the next whole second
             steps = []
             for burst in range(BURSTS):
