@@ -86,9 +86,15 @@ def _record(
     return path
 
 
-def _revision(session, tmp_path: Path, number: int, **recorded: Any) -> list[Execution]:
-    """Revision r<number> with RUNS executions recorded by `_record` (not yet ingested)."""
-    runs = [dict(recorded, seed=number * 10 + index) for index in range(RUNS)]
+def _revision(
+    session, tmp_path: Path, number: int, each: tuple[dict[str, Any], ...] = (), **recorded: Any
+) -> list[Execution]:
+    """Revision r<number> with RUNS executions recorded by `_record` (not yet ingested), each
+    with ``recorded`` and its own part of ``each`` (when given)."""
+    runs = [
+        dict(recorded, seed=number * 10 + index, **(each[index] if each else {}))
+        for index in range(RUNS)
+    ]
     return add_executions(
         session,
         tmp_path,
@@ -186,6 +192,27 @@ def test_a_driver_report_missing_from_the_revision_is_not_measured_not_a_pass(
     rtt = found[("driver", f"{QUERY}:rtt_p50_us", "execution_shift")]
     assert rtt.verdict == "not enough data" and "not measured in this revision" in rtt.reason
     assert found[(NAME, "cpu_percent", "execution_shift")].verdict == "no change"
+
+
+def test_a_report_missing_from_one_execution_is_judged_on_the_others_saying_so(
+    session, database_url, tmp_path
+):
+    """A driver metric missing from one of a revision's three executions was judged on the
+    other two without a word: every verdict of it now says how many executions lacked it."""
+    create_component(session, ComponentCreate(name=NAME, executions=RUNS))
+    for number in range(1, 4):
+        ingest_and_detect(database_url, _revision(session, tmp_path, number))
+    one_lacks = ({"report": False}, {}, {})
+    ingest_and_detect(database_url, _revision(session, tmp_path, 4, each=one_lacks))
+    session.expire_all()
+    r4 = session.scalars(select(Revision).where(Revision.title == "r4")).one()
+    found = _verdicts(session, r4)
+    for method in ("execution_shift", "ks"):
+        rtt = found[("driver", f"{QUERY}:rtt_p50_us", method)]
+        assert "1 of 3 executions lacked this series" in rtt.reason, rtt.reason
+    assert "1 of 3 executions lacked" in found[("driver", f"{QUERY}:timeouts", "count_rate")].reason
+    cpu = found[(NAME, "cpu_percent", "execution_shift")]
+    assert cpu.verdict == "no change" and "lacked" not in cpu.reason  # every execution had it
 
 
 def test_a_new_action_path_has_no_baseline_yet_and_says_so(session, database_url, tmp_path):

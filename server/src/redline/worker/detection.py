@@ -80,6 +80,7 @@ def analyze(
     walk: Walk | None = None,
     unjudged: dict[int, str] | None = None,
     only: Callable[[int], bool] | None = None,
+    partial: dict[int, str] | None = None,
 ) -> tuple[list[dict[str, Any]], list[KsChange]]:
     """Every configured method on every judged series of the revision (nothing stored); counts
     of rare events by `CountRate`; a series no longer measured, "not enough data" saying so.
@@ -87,10 +88,12 @@ def analyze(
     ``candidate``: the revision's samples, when already read, and ``unjudged`` the series only
     executions not to be judged hold, with the reason (`read_samples`): each method answers
     "not enough data" with it. ``walk``: what a re-analysis carries from the earlier revisions;
-    ``only``: the series a re-analysis's part judges (a count's total is read all the same).
+    ``only``: the series a re-analysis's part judges (a count's total is read all the same);
+    ``partial``: the series some executions lacked, each verdict's reason then saying how many.
     """
     if candidate is None:
-        candidate, _, _, unjudged = read_samples(session, revision.id)
+        candidate, _, _, unjudged, partial = read_samples(session, revision.id)
+    partial = partial or {}
     unjudged = {s: why for s, why in (unjudged or {}).items() if s not in candidate}
     gone = no_longer_measured(
         session,
@@ -120,6 +123,7 @@ def analyze(
     for series_id in sorted(judged.keys() - absent.keys()):
         if series_id in counts:
             base, verdict = _judge_count(baselines, revision.id, series_id, totals.get(series_id))
+            verdict = _noted(verdict, partial.get(series_id))
             rows.append(detection_row(series_id, revision.id, base, verdict))
             continue
         for detector in detectors:
@@ -135,11 +139,20 @@ def analyze(
                 left = baselines.left_out(series_id, detector, len(base.values))
                 if left:
                     verdict = replace(verdict, reason=f"{verdict.reason}; {left} {LEFT_OUT}")
+            verdict = _noted(verdict, partial.get(series_id))
             rows.append(detection_row(series_id, revision.id, base, verdict))
             change = ks_change(rows[-1], verdict)
             if change is not None:
                 changes.append(change)
     return rows, changes
+
+
+def _noted(verdict: Verdict, note: str | None) -> Verdict:
+    """``verdict`` with ``note`` after its reason: a series judged on fewer executions than
+    the revision ran is never judged so silently."""
+    if not note:
+        return verdict
+    return replace(verdict, reason=f"{verdict.reason}; {note}" if verdict.reason else note)
 
 
 def _step(
@@ -287,7 +300,7 @@ def judge_revision(
     revision = session.get(Revision, revision_id)
     if revision is None:
         return None
-    candidate, read, executions, unjudged = read_samples(session, revision.id)
+    candidate, read, executions, unjudged, partial = read_samples(session, revision.id)
     if executions and not read:
         log.warning(
             "revision %s: the samples of its %d executions are gone (pruned?); "
@@ -302,7 +315,7 @@ def judge_revision(
     if walk is not None:
         config = walk.config
     config = config or component_config(session, revision.component_id)
-    rows, changes = analyze(session, revision, config, candidate, walk, unjudged, only)
+    rows, changes = analyze(session, revision, config, candidate, walk, unjudged, only, partial)
     if walk is not None:
         walk.judged(session, revision.id, candidate, rows, complete=read == len(executions))
     return Judged(revision.id, rows, changes, executions)

@@ -4,7 +4,8 @@ and a cache of them (with the values each detector level makes of them) for a wa
 from __future__ import annotations
 
 import logging
-from collections import defaultdict
+from collections import Counter, defaultdict
+from typing import NamedTuple
 
 import numpy as np
 import pyarrow.parquet as pq
@@ -49,20 +50,33 @@ def ingested_runs(session: Session, revision_id: int) -> list[tuple[int, str]]:
     ]
 
 
-def read_samples(
-    session: Session, revision_id: int
-) -> tuple[Samples, int, tuple[int, ...], dict[int, str]]:
+class RevisionSamples(NamedTuple):
+    """What `read_samples` read of a revision."""
+
+    samples: Samples
+    read: int  # the executions whose side tables were read
+    executions: tuple[int, ...]  # the ids of the revision's ingested executions
+    #: the series only executions not to be judged hold, with the reason
+    unjudged: dict[int, str]
+    #: the series judged on fewer executions than were read, saying how many lacked them
+    partial: dict[int, str]
+
+
+def read_samples(session: Session, revision_id: int) -> RevisionSamples:
     """Every ingested sample of the revision, per series id and execution; with how many of
     its ingested executions' side tables were read, the ids of those executions, and the
     series of those whose samples must not be judged, each with the reason: a run the
     component took no part in (`not_judged`), a phase the host was busy in (`disturbed_series`).
+    A series judged on only some of the executions (the others lacked it, or were busy in its
+    phase) is in ``partial``, saying so: "1 of 3 executions lacked this series".
 
     A side table that is gone (pruned) is left out with a warning: its series then lack data.
     """
     executions = ingested_runs(session, revision_id)
     samples: Samples = defaultdict(list)
     unjudged: dict[int, str] = {}
-    read = 0
+    busy_runs: Counter[int] = Counter()
+    read = judged_runs = 0
     for _, path in executions:
         try:
             table = pq.read_table(samples_path(path), columns=["series_id", "value"])
@@ -75,6 +89,7 @@ def read_samples(
         if reason is not None:  # a run the component took no part in: never a candidate
             unjudged.update(dict.fromkeys(np.unique(series).tolist(), reason))
             continue
+        judged_runs += 1
         values = table.column("value").to_numpy()
         order = np.argsort(series, kind="stable")
         ids, starts = np.unique(series[order], return_index=True)
@@ -82,9 +97,31 @@ def read_samples(
         for series_id, chunk in zip(ids.tolist(), np.split(values[order], starts[1:]), strict=True):
             if series_id in busy:  # measured while the host was busy: not this execution's say
                 unjudged.setdefault(series_id, busy[series_id])
+                busy_runs[series_id] += 1
                 continue
             samples[series_id].append(chunk)
-    return (dict(samples), read, tuple(execution_id for execution_id, _ in executions), unjudged)
+    partial = {
+        series_id: note
+        for series_id, chunks in samples.items()
+        if (note := _partial(judged_runs, len(chunks), busy_runs[series_id]))
+    }
+    return RevisionSamples(
+        dict(samples),
+        read,
+        tuple(execution_id for execution_id, _ in executions),
+        unjudged,
+        partial,
+    )
+
+
+def _partial(runs: int, held: int, busy: int) -> str:
+    """Why a series was judged on ``held`` of ``runs`` executions (``busy`` left out for a
+    busy host, the rest without it); "" when on all of them."""
+    lacked = runs - held - busy
+    said = [f"{lacked} of {runs} executions lacked this series"] if lacked > 0 else []
+    if busy:
+        said.append(f"{busy} of {runs} executions left out (measured while the host was busy)")
+    return "; ".join(said)
 
 
 def revision_samples(session: Session, revision_id: int) -> Samples:
