@@ -13,8 +13,6 @@ from pathlib import Path
 
 import pytest
 from fastapi.testclient import TestClient
-from redline.server.app import create_app
-from redline.server.core.config import Settings
 from redline.server.db import session_factory
 from redline.server.models import FigureCache
 from redline.server.services.errors import BadRequest, Conflict
@@ -22,8 +20,7 @@ from redline.server.services.signin import check_password, create_user
 from redline.server.services.tokens import issue_token
 from sqlalchemy import func, select
 
-from tests.support.api import emptied_with_tokens
-from tests.support.pages import form_token, history, trend_data
+from tests.support.pages import form_token, history, page_client, sign_in, trend_data
 from tests.support.servers import Services
 
 EVIL = '<a href="https://evil.example/phish">x</a>'
@@ -31,14 +28,7 @@ EVIL = '<a href="https://evil.example/phish">x</a>'
 
 @pytest.fixture
 def client(services: Services, database_url: str, tmp_path: Path) -> Iterator[TestClient]:
-    settings = Settings(
-        database_url=database_url,
-        redis_url=services.redis_url,
-        storage_dir=tmp_path / "storage",
-        queue=f"test-{uuid.uuid4().hex[:8]}",
-    )
-    emptied_with_tokens(database_url)
-    with TestClient(create_app(settings)) as client:
+    with page_client(services, database_url, tmp_path) as client:
         yield client
 
 
@@ -296,6 +286,7 @@ def test_home_page_lists_components_hosts_and_the_queue(client, database_url, tm
         "/api/v1/components/builder/changes",
         "/api/v1/components/builder/detections",
         "/api/v1/components/builder/regressions",
+        "/api/v1/components/builder/executions",
     ],
 )
 def test_lists_that_grow_with_history_are_paged(client, database_url, tmp_path, path):
@@ -336,11 +327,11 @@ def test_triage_in_the_page_needs_a_sign_in_and_the_form_token(client, database_
     refused = client.post(triage, data={"state": "confirmed", "csrf": "x"})
     assert refused.status_code == 403 and "sign in" in refused.text
     assert "Sign in</a> to triage" in client.get(f"/regressions/{number}").text
-    wrong = client.post("/signin", data={"name": "ada", "password": "wrong password!!"})
+    wrong = sign_in(client, {"name": "ada", "password": "wrong password!!"})
     assert wrong.status_code == 403 and "wrong name or password" in wrong.text
-    answer = client.post(
-        "/signin",
-        data={"name": "ada", "password": "correct horse battery", "next": "//evil.example/"},
+    answer = sign_in(
+        client,
+        {"name": "ada", "password": "correct horse battery", "next": "//evil.example/"},
         follow_redirects=False,
     )
     assert answer.status_code == 303 and answer.headers["location"] == "/"  # never off-site
@@ -364,7 +355,7 @@ def test_triage_in_the_page_needs_a_sign_in_and_the_form_token(client, database_
     ]
     client.post("/signout", data={"csrf": form_token(client.get("/").text)})
     assert client.post(triage, data={"state": "fixed", "csrf": form_token(page)}).status_code == 403
-    client.post("/signin", data={"name": "reader", "password": "correct horse battery"})
+    sign_in(client, {"name": "reader", "password": "correct horse battery"})
     reader = client.post(
         triage,
         data={"state": "fixed", "csrf": form_token(client.get(f"/regressions/{number}").text)},
@@ -384,7 +375,7 @@ def test_a_triage_to_no_state_names_the_field_and_the_states_not_pydantic(
     number = _regression(client, database_url, tmp_path)
     with session_factory(database_url)() as session:
         create_user(session, "ada", "correct horse battery", "ci")
-    client.post("/signin", data={"name": "ada", "password": "correct horse battery"})
+    sign_in(client, {"name": "ada", "password": "correct horse battery"})
     csrf = form_token(client.get(f"/regressions/{number}").text)
     for given, field in (({"state": "closed"}, "state"), ({"comment": "x" * 10_001}, "comment")):
         data = {"state": "confirmed", "csrf": csrf, **given}
@@ -402,10 +393,10 @@ def test_a_pasted_token_signs_in_with_its_own_scopes_only(client, database_url, 
     with session_factory(database_url)() as session:
         _, agent = issue_token(session, "perf-host", "agent")
         _, ci = issue_token(session, "gitlab", "ci")
-    refused = client.post("/signin", data={"token": agent})
+    refused = sign_in(client, {"token": agent})
     assert refused.status_code == 403 and "hosts" in refused.text
-    assert client.post("/signin", data={"token": "rl_nope"}).status_code == 403
-    client.post("/signin", data={"token": ci})
+    assert sign_in(client, {"token": "rl_nope"}).status_code == 403
+    sign_in(client, {"token": ci})
     page = client.get(f"/regressions/{number}").text
     done = client.post(
         f"/regressions/{number}/triage", data={"state": "acknowledged", "csrf": form_token(page)}
@@ -504,11 +495,11 @@ def test_settings_pages_are_for_administrators_and_change_what_the_api_does(
         create_user(session, "root", "correct horse battery", "admin")
         create_user(session, "ada", "correct horse battery", "ci")
     assert client.get("/settings").status_code == 403  # not signed in
-    client.post("/signin", data={"name": "ada", "password": "correct horse battery"})
+    sign_in(client, {"name": "ada", "password": "correct horse battery"})
     refused = client.get("/settings")
     assert refused.status_code == 403 and "admin" in refused.text
     client.post("/signout", data={"csrf": form_token(client.get("/").text)})
-    client.post("/signin", data={"name": "root", "password": "correct horse battery"})
+    sign_in(client, {"name": "root", "password": "correct horse battery"})
     page = client.get("/settings")
     assert page.status_code == 200 and 'href="/settings/components/builder"' in page.text
     csrf = form_token(page.text)
@@ -559,7 +550,7 @@ def test_the_component_settings_page_subscribes_lists_and_deletes_alerts(
     history(database_url, tmp_path, [20.0])
     with session_factory(database_url)() as session:
         create_user(session, "root", "correct horse battery", "admin")
-    client.post("/signin", data={"name": "root", "password": "correct horse battery"})
+    sign_in(client, {"name": "root", "password": "correct horse battery"})
     page = client.get("/settings/components/builder")
     assert "No one is subscribed yet." in page.text
     csrf = form_token(page.text)

@@ -17,6 +17,7 @@ from sqlalchemy import select
 
 from tests.support import ROOT
 from tests.support.api import Api, api_with
+from tests.support.pages import sign_in
 from tests.support.servers import Services
 
 
@@ -117,9 +118,9 @@ def test_a_browser_asking_for_a_page_under_read_access_token_is_sent_to_sign_in(
             assert refused.status_code == 401, path
             assert refused.json() == {"detail": "missing bearer token"}
         assert api.client.get("/", follow_redirects=False).status_code == 401  # not a browser
-        signed = api.client.post(
-            "/signin",
-            data={"name": "ada", "password": "correct horse battery", "next": "/regressions"},
+        signed = sign_in(
+            api.client,
+            {"name": "ada", "password": "correct horse battery", "next": "/regressions"},
             follow_redirects=False,
         )
         assert signed.headers["location"] == "/regressions"

@@ -72,6 +72,34 @@ def history(
     ingest_and_detect(database_url, executions)
 
 
+def emptied(services, database_url: str, folder: Path):  # noqa: ANN001, ANN201
+    """Settings of a server over ``database_url``, emptied (tokens made afresh), storing in
+    ``folder``, on a queue of its own."""
+    import uuid
+
+    from redline.server.core.config import Settings
+
+    from tests.support.api import emptied_with_tokens
+
+    emptied_with_tokens(database_url)
+    return Settings(
+        database_url=database_url,
+        redis_url=services.redis_url,
+        storage_dir=folder / "storage",
+        queue=f"test-{uuid.uuid4().hex[:8]}",
+    )
+
+
+@contextmanager
+def page_client(services, database_url: str, tmp_path: Path) -> Iterator[object]:  # noqa: ANN001
+    """The real app over an emptied database, as a TestClient."""
+    from fastapi.testclient import TestClient
+    from redline.server.app import create_app
+
+    with TestClient(create_app(emptied(services, database_url, tmp_path))) as client:
+        yield client
+
+
 def trend_data(page: str) -> dict:
     match = re.search(r'<script type="application/json" id="trend-data">(.*?)</script>', page, re.S)
     assert match, "the page carries its trend data"
@@ -82,6 +110,15 @@ def form_token(page: str) -> str:
     match = re.search(r'name="csrf" value="([^"]+)"', page)
     assert match, "a signed-in page carries its form token"
     return match.group(1)
+
+
+def sign_in(client, data: dict[str, str], **options):  # noqa: ANN001, ANN201 - a TestClient
+    """Post the sign-in form as a browser does: its page first, for the form's token (and the
+    cookie it goes with), then the form with ``data``."""
+    page = client.get("/signin").text
+    match = re.search(r'action="/signin".*?name="csrf" value="([^"]+)"', page, re.S)
+    assert match, "the sign-in form carries its token"
+    return client.post("/signin", data={**data, "csrf": match.group(1)}, **options)
 
 
 CHROMIUM = "/usr/bin/chromium"
@@ -127,10 +164,23 @@ class Watched:
         answer = self.page.goto(url)
         assert answer is not None and answer.status == 200, f"{url}: {answer and answer.status}"
         self.page.wait_for_load_state("networkidle")
+        if name:
+            self.shot(name)
+
+    def shot(self, name: str) -> None:
+        """With ``REDLINE_SCREENSHOTS=DIR``, a screenshot of the page as it is, as DIR/name.png."""
         folder = os.environ.get("REDLINE_SCREENSHOTS")
-        if folder and name:
+        if folder:
             Path(folder).mkdir(parents=True, exist_ok=True)
             self.page.screenshot(path=str(Path(folder) / f"{name}.png"), full_page=True)
+
+    def sign_in(self, base: str, name: str, password: str) -> None:
+        """Sign in through the sign-in form, as a person does."""
+        self.visit(f"{base}/signin")
+        self.page.fill("input[name=name]", name)
+        self.page.fill("input[name=password]", password)
+        self.page.click("form.signin button[type=submit]")
+        self.page.wait_for_load_state("networkidle")
 
     def first_chart_traces(self) -> int:
         """How many traces the page's first chart has, once one is drawn."""

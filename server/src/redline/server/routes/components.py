@@ -6,14 +6,16 @@ from fastapi import APIRouter, Depends, Request, Response, status
 from redline.server.api.deps import READ, SessionDep, SettingsDep, require
 from redline.server.api.paging import Cursor, PageSize, next_page
 from redline.server.core.bodies import JsonRoute
+from redline.server.models import JobState
 from redline.server.schemas.common import Problem, problems
 from redline.server.schemas.components import ComponentCreate, ComponentOut, ComponentSettings
-from redline.server.schemas.results import ChangeOut, Comparison, SeriesOut
+from redline.server.schemas.results import ChangeOut, Comparison, ExecutionListed, SeriesOut
 from redline.server.schemas.revisions import RevisionDetail, RevisionOut
-from redline.server.services import compare, components, read, results, revisions
+from redline.server.services import compare, components, executions, read, results, revisions
 
 router = APIRouter(prefix="/api/v1/components", tags=["components"], route_class=JsonRoute)
 NOT_FOUND = problems(404, description="unknown component or revision")
+BAD = problems(400, 404, description="a bad cursor; an unknown component, revision or host")
 
 
 @router.post(
@@ -81,6 +83,28 @@ def revision_detail(name: str, title: str, session: SessionDep) -> RevisionDetai
 def cancel_revision(name: str, title: str, session: SessionDep) -> RevisionDetail:
     """Cancel the revision's jobs that have not finished; results already stored stay."""
     return revisions.cancel_revision(session, name, title)
+
+
+@router.get("/{name}/executions", responses=BAD, dependencies=READ)
+def list_executions(
+    name: str,
+    session: SessionDep,
+    response: Response,
+    revision: str | None = None,
+    host: str | None = None,
+    state: JobState | None = None,
+    limit: PageSize = None,
+    cursor: Cursor = None,
+) -> list[ExecutionListed]:
+    """The component's executions (confirmation runs too, with their ``pair``), newest revision
+    first; ``?revision=`` (a title), ``?host=`` and ``?state=`` (the job's) filter, an unknown
+    revision or host is a 404 naming it. Paged with ``limit``: a full page carries
+    ``X-Next-Cursor``, passed back as ``cursor`` for the next; without ``limit``, all."""
+    found, following = executions.list_executions(
+        session, name, revision, host, state.value if state else None, limit, cursor
+    )
+    next_page(response, following)
+    return found
 
 
 @router.get("/{name}/series", responses=NOT_FOUND, dependencies=READ)

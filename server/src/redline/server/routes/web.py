@@ -3,10 +3,11 @@
 Addresses: ``/`` (components, hosts, the job queue); ``/components/{name}`` (trend charts by case
 and phase, filters kept in the address; ``/components/{name}/trends``, their data as JSON, for
 loading earlier history on zoom and pan); ``/components/{name}/revisions/{title}`` (jobs and
-verdicts); ``/components/{name}/compare?base=&candidate=``; ``/regressions`` and
-``/regressions/{id}`` (triage when signed in); ``/detections/{id}`` (why a change was flagged);
-``/executions/{id}`` (raw counters, counters against parameters, the recording); ``/signin``;
-``/settings/...`` (`redline.server.routes.settings_pages`). Each page reads through the same
+verdicts); ``/components/{name}/compare?base=&candidate=``; ``/components/{name}/executions``
+(paged, filtered by revision, host and state); ``/detections/{id}`` (why a change was flagged);
+``/executions/{id}`` (raw counters, counters against parameters, the recording). Elsewhere:
+``/regressions...`` (`regression_pages`), ``/signin`` and ``/signout`` (`signin_pages`),
+``/settings/...`` (`settings_pages`). Each page reads through the same
 services as the API; a page for something that does not exist is a 404 page naming it, a bad
 filter a 400 page naming it.
 """
@@ -16,56 +17,42 @@ from __future__ import annotations
 import json
 from collections import Counter
 from pathlib import Path
+from urllib.parse import urlencode
 
 import plotly
 from fastapi import FastAPI, Request, Response
 from fastapi.responses import FileResponse, HTMLResponse, RedirectResponse
 from fastapi.staticfiles import StaticFiles
 from fastapi.templating import Jinja2Templates
-from pydantic import ValidationError
 from redline.server.api.deps import SessionDep
 from redline.server.core.config import Settings
-from redline.server.models import RegressionState
-from redline.server.routes import settings_pages
-from redline.server.schemas.regressions import TriageRequest
+from redline.server.models import JobState
+from redline.server.routes import regression_pages, settings_pages, signin_pages
 from redline.server.services import (
     compare,
     components,
     dashboard,
     execution_view,
+    executions,
     home,
     learning,
     regressions,
+    revision_view,
     revisions,
-    signin,
     why,
 )
-from redline.server.services.errors import BadRequest, Forbidden, NotFound
+from redline.server.services.errors import BadRequest, NotFound
 from redline.server.services.revisions import WAITING
 from redline.server.ui.compare_figures import comparison_figure
 from redline.server.ui.detail_figures import execution_figures, why_figures
 from redline.server.ui.figures import trend_charts
 from redline.server.ui.model_figures import model_figures
-from redline.server.ui.pages import (
-    form_errors,
-    form_fields,
-    page,
-    page_router,
-    problem,
-    signed_in,
-)
+from redline.server.ui.pages import page, page_router, problem
 
 PLOTLY_JS = Path(plotly.__file__).parent / "package_data" / "plotly.min.js"
 router = page_router()
-auth_router = page_router(read=False)
 #: revisions and regressions listed on a component's page (the rest are a link away)
 LISTED = 20
-CONFIRMATIONS = ("suspected", "confirmed", "not_confirmed")
-
-
-def _local(target: str) -> str:
-    """Where to go after signing in: a path on this server only, never another host."""
-    return target if target.startswith("/") and not target.startswith("//") else "/"
 
 
 @router.get("/", response_class=HTMLResponse)
@@ -116,6 +103,49 @@ def component_page(name: str, request: Request, session: SessionDep) -> HTMLResp
             "regressions": regressions.list_regressions(session, name, limit=LISTED)[0],
             "models": learning.list_models(session, name)[:LISTED],
             "runtime_alerts": learning.list_alerts(session, name, LISTED),
+            "executions": executions.newest_executions(session, component, LISTED),
+        },
+    )
+
+
+#: executions on a page of the executions list (the API's page size, with its cursor)
+EXECUTIONS_PAGE = 100
+
+
+@router.get("/components/{name}/executions", response_class=HTMLResponse)
+def executions_page(
+    name: str,
+    request: Request,
+    session: SessionDep,
+    revision: str = "",
+    host: str = "",
+    state: str = "",
+    cursor: str = "",
+) -> HTMLResponse:
+    """The component's executions, newest revision first, filtered by revision, host and job
+    state, a page at a time (the API's list and cursor)."""
+    filters = {"revision": revision, "host": host, "state": state}
+    try:
+        component = components.get_component(session, name)
+        found, following = executions.list_executions(
+            session, name, revision or None, host or None, state or None, EXECUTIONS_PAGE, cursor
+        )
+    except (NotFound, BadRequest) as exc:
+        return problem(request, exc)
+    return page(
+        request,
+        "executions.html",
+        {
+            "component": component,
+            "executions": found,
+            "filters": filters,
+            "hosts": executions.host_names(session),
+            "states": list(JobState.__members__),
+            "cursor": cursor,
+            "following": following,
+            "query": lambda **changes: urlencode(
+                {k: v for k, v in {**filters, **changes}.items() if v}
+            ),
         },
     )
 
@@ -163,6 +193,8 @@ def revision_page(name: str, title: str, request: Request, session: SessionDep) 
             "revision": revision,
             "notes": revisions.execution_notes(session, revision.id),
             "detections": regressions.list_detections(session, name, revision=title)[0],
+            "values": revision_view.verdict_values(session, revision.id),
+            "facts": revision_view.execution_facts(session, revision.id),
         },
     )
 
@@ -171,71 +203,52 @@ def revision_page(name: str, title: str, request: Request, session: SessionDep) 
 COMPARE_CHOICES = 500
 
 
-@router.get("/components/{name}/compare", response_class=HTMLResponse)
+@router.get("/components/{name}/compare", response_class=HTMLResponse, response_model=None)
 def compare_page(
-    name: str, request: Request, session: SessionDep, base: str = "", candidate: str = ""
-) -> HTMLResponse:
-    """Any two revisions, chosen in the page: each series' change, KS's D, and a chart."""
+    name: str,
+    request: Request,
+    session: SessionDep,
+    base: str = "",
+    candidate: str = "",
+    base_through: str | None = None,
+    candidate_through: str | None = None,
+) -> HTMLResponse | RedirectResponse:
+    """Any two revisions or ranges (``a..b``, pooled), chosen in the page: each series' change,
+    KS's D, the candidate's stored verdicts, and a chart. The form's "through" choices make a
+    range: the page answers with the address that says it (``?base=a..b``)."""
+    if base_through is not None or candidate_through is not None:
+        sides = {
+            "base": f"{base}..{base_through}" if base_through and base_through != base else base,
+            "candidate": f"{candidate}..{candidate_through}"
+            if candidate_through and candidate_through != candidate
+            else candidate,
+        }
+        return RedirectResponse(f"?{urlencode(sides)}", status_code=303)
     try:
         component = components.get_component(session, name)
         choices = revisions.newest_revisions(session, name, COMPARE_CHOICES)
         found = compare.compare(session, name, base, candidate) if base and candidate else None
+        verdicts = compare.candidate_verdicts(session, name, candidate) if found else {}
     except (NotFound, BadRequest) as exc:
         return problem(request, exc)
     comparison = found if found is not None and found.series else None
+    base = base or (choices[1].title if len(choices) > 1 else "")
+    candidate = candidate or (choices[0].title if choices else "")
     return page(
         request,
         "compare.html",
         {
             "component": component,
             "revisions": choices,
-            "base": base or (choices[1].title if len(choices) > 1 else ""),
-            "candidate": candidate or (choices[0].title if choices else ""),
+            "base": found.base_revisions if found else [base],
+            "candidate": found.candidate_revisions if found else [candidate],
             "comparison": comparison,
+            "compared": found is not None,
+            "verdicts": verdicts,
+            "methods": sorted({method for by in verdicts.values() for method in by}),
             "figures": [comparison_figure(comparison)] if comparison else [],
         },
     )
-
-
-@router.get("/regressions", response_class=HTMLResponse)
-def regressions_page(
-    request: Request,
-    session: SessionDep,
-    component: str = "",
-    state: str = "",
-    confirmation: str = "",
-) -> HTMLResponse:
-    try:
-        if state and state not in RegressionState.__members__:
-            raise BadRequest(f"state: one of {', '.join(RegressionState.__members__)}")
-        if confirmation and confirmation not in CONFIRMATIONS:
-            raise BadRequest(f"confirmation: one of {', '.join(CONFIRMATIONS)}")
-        found, _ = regressions.list_regressions(
-            session, component or None, state or None, confirmation or None, limit=500
-        )
-    except (NotFound, BadRequest) as exc:
-        return problem(request, exc)
-    return page(
-        request,
-        "regressions.html",
-        {
-            "regressions": found,
-            "filters": {"component": component, "state": state, "confirmation": confirmation},
-            "components": [c.name for c in components.list_components(session)],
-            "states": list(RegressionState.__members__),
-            "confirmations": CONFIRMATIONS,
-        },
-    )
-
-
-@router.get("/regressions/{regression_id}", response_class=HTMLResponse)
-def regression_page(regression_id: int, request: Request, session: SessionDep) -> HTMLResponse:
-    try:
-        name = regressions.component_of(session, regression_id)
-        regression = regressions.regression_detail(session, name, regression_id)
-    except NotFound as exc:
-        return problem(request, exc)
-    return page(request, "regression.html", {"regression": regression})
 
 
 @router.get("/detections/{detection_id}", response_class=HTMLResponse)
@@ -274,62 +287,6 @@ def execution_recording(
     )
 
 
-@router.post("/regressions/{regression_id}/triage", response_class=HTMLResponse)
-async def triage_form(regression_id: int, request: Request, session: SessionDep) -> Response:
-    """The regression page's triage form: a signed-in session with ``ci`` (or ``admin``), and
-    the session's form token; the page again, with the outcome."""
-    form = await form_fields(request)
-    try:
-        who = signin.authorize(signed_in(request), form.get("csrf", ""), "ci")
-        name = regressions.component_of(session, regression_id)
-        change = TriageRequest(state=form.get("state", ""), comment=form.get("comment", ""))
-        regressions.triage(session, name, regression_id, change, who)
-    except (NotFound, BadRequest, Forbidden) as exc:
-        return problem(request, exc)
-    except ValidationError as exc:  # a state that is none, a comment too long
-        return problem(request, BadRequest(f"triage: {form_errors(exc)}"))
-    return RedirectResponse(f"/regressions/{regression_id}", status_code=303)
-
-
-@auth_router.get("/signin", response_class=HTMLResponse)
-def signinpage(request: Request, next: str = "/") -> HTMLResponse:
-    return page(request, "signin.html", {"next": _local(next), "message": ""})
-
-
-@auth_router.post("/signin", response_class=HTMLResponse)
-async def signin_form(request: Request, session: SessionDep) -> Response:
-    form = await form_fields(request)
-    target = _local(form.get("next", "/"))
-    try:
-        opened = signin.sign_in(
-            session, form.get("name", ""), form.get("password", ""), form.get("token", "")
-        )
-    except Forbidden as exc:
-        context = {"next": target, "message": exc.detail}
-        return page(request, "signin.html", context, status_code=403)
-    answer = RedirectResponse(target, status_code=303)
-    answer.set_cookie(
-        signin.SESSION_COOKIE,
-        opened.secret,
-        max_age=signin.SESSION_DAYS * 86400,
-        httponly=True,
-        samesite="strict",
-        secure=request.url.scheme == "https",
-    )
-    return answer
-
-
-@auth_router.post("/signout", response_class=HTMLResponse)
-async def signout_form(request: Request, session: SessionDep) -> Response:
-    form = await form_fields(request)
-    row = signed_in(request)
-    if row is not None and form.get("csrf") == row.csrf:
-        signin.sign_out(session, request.cookies.get(signin.SESSION_COOKIE))
-    answer = RedirectResponse("/", status_code=303)
-    answer.delete_cookie(signin.SESSION_COOKIE)
-    return answer
-
-
 @router.get("/static/plotly.min.js")
 def plotly_js() -> FileResponse:
     """plotly.js from the plotly package itself: the UI never loads code from a CDN."""
@@ -340,6 +297,7 @@ def mount(app: FastAPI, settings: Settings) -> None:
     """Add the UI's routes, templates (``web/templates``) and static files (``web/static``)."""
     app.state.templates = Jinja2Templates(directory=settings.web_dir / "templates")
     app.include_router(router)
-    app.include_router(auth_router)
+    app.include_router(regression_pages.router)
+    app.include_router(signin_pages.router)
     app.include_router(settings_pages.router)
     app.mount("/static", StaticFiles(directory=settings.web_dir / "static"), name="static")

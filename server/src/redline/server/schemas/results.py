@@ -99,6 +99,26 @@ class ExecutionDetail(BaseModel):
     series: int = Field(description="how many series this execution summarized")
 
 
+class ExecutionListed(BaseModel):
+    """One execution in a component's list (``GET /api/v1/components/{name}/executions``)."""
+
+    id: int
+    revision: str
+    sort_key: str
+    job_id: int
+    execution_index: int
+    pair: int = Field(description="a confirmation run's pair (1..n); 0 for the revision's own")
+    host: str | None
+    state: str = Field(description="its job's state: uploaded (being ingested), done, failed")
+    created: datetime
+    duration_s: float | None = Field(
+        description="from the run's start to its end as the agent (or an LNT report) recorded "
+        "them; null when the run does not say"
+    )
+    size: int
+    recording_pruned_at: datetime | None
+
+
 class Statistics(BaseModel):
     n: int
     mean: float
@@ -124,4 +144,10 @@ class Comparison(BaseModel):
     component: str
     base: str
     candidate: str
+    base_revisions: list[str] = Field(
+        default_factory=list, description="the revisions pooled as the baseline (a range a..b)"
+    )
+    candidate_revisions: list[str] = Field(
+        default_factory=list, description="the revisions pooled as the candidate"
+    )
     series: list[SeriesComparison]

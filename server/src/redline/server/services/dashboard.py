@@ -1,18 +1,21 @@
 """The component page's trend view: which series, which revisions, their points and their marks.
 
 A view is what the page's address says (`TrendView.from_query`): filters by case, phase,
-process, counter and parameter (``param.legs=8``), how many of the newest revisions (100 by
-default), where the history ends (``before``, to page back), log scale and a moving median. Only
+process, counter, parameter (``param.legs=8``) and the host that ran the executions, how many
+of the newest revisions (100 by default), where the history ends (``before``, to page back),
+log scale and a moving median. Only
 those revisions are read, so a page costs the same at 100 and at 10,000 revisions, and only the
 revisions' own executions: confirmation runs are not part of a trend.
 
-The figures of a view are cached in ``figure_cache`` under the component's data version (its
-newest analysis and its newest regression update), rendered by the worker after each analysis
+The figures of a view are cached in ``figure_cache`` under the view's data version (its
+revisions, their newest execution and analysis, the component's newest regression update: read
+from the view's revisions alone, see `data_version`), rendered by the worker after each analysis
 for the default view (`warm`), and by the page on a miss.
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 from collections.abc import Callable, Mapping
@@ -27,6 +30,7 @@ from redline.server.models import (
     Detection,
     Execution,
     FigureCache,
+    Host,
     Job,
     Regression,
     Revision,
@@ -36,9 +40,10 @@ from redline.server.models import (
 )
 from redline.server.schemas.results import SeriesRef
 from redline.server.services.errors import BadRequest
+from redline.server.services.executions import host_names
 from redline.server.services.read import FIELDS, matches, param_text
 from redline.server.services.results import series_ref
-from sqlalchemy import delete, exists, func, select
+from sqlalchemy import ColumnElement, delete, exists, func, select
 from sqlalchemy.dialects.postgresql import insert
 from sqlalchemy.orm import Session
 
@@ -55,6 +60,7 @@ class TrendView:
     phase: str = ""
     process: str = ""
     counter: str = ""
+    host: str = ""  # a performance host's name: only the executions it ran
     params: tuple[tuple[str, str], ...] = ()
     revisions: int = DEFAULT_REVISIONS
     before: str = ""  # a revision's title: the history up to, not including, it
@@ -81,6 +87,7 @@ class TrendView:
         )
         return cls(
             **{name: query.get(name, "") for name in FIELDS},
+            host=query.get("host", ""),
             params=params,
             revisions=int(raw),
             before=query.get("before", ""),
@@ -92,6 +99,7 @@ class TrendView:
         """The query string of this view with ``changes`` (defaults left out): shareable."""
         view = replace(self, **changes)
         pairs: list[tuple[str, str]] = [(n, getattr(view, n)) for n in FIELDS if getattr(view, n)]
+        pairs += [("host", view.host)] if view.host else []
         pairs += [(f"param.{name}", value) for name, value in view.params]
         if view.revisions != DEFAULT_REVISIONS:
             pairs.append(("revisions", str(view.revisions)))
@@ -178,14 +186,19 @@ def _numbers_first(value: str) -> tuple[bool, float, str]:
     return (False, number, value) if math.isfinite(number) else (True, 0.0, value)
 
 
-def trend_data(session: Session, component: Component, view: TrendView) -> TrendData:
-    """The series the view selects, with a point per revision among the newest it shows."""
-    every = list(session.scalars(select(Series).where(Series.component_id == component.id)))
-    refs = {series.id: series_ref(series) for series in every}
-    chosen = {sid: TrendSeries(ref) for sid, ref in refs.items() if view.selects(ref)}
-    own = exists().where(
-        Execution.revision_id == Revision.id, Job.id == Execution.job_id, Job.pair == 0
-    )
+@dataclass(frozen=True)
+class Window:
+    """The revisions a view shows, newest first, and one more when older ones exist: its own
+    executions' revisions (on the view's host), up to ``before``. Read by every request (for
+    the data version), in as many index steps as the view has revisions."""
+
+    revisions: list[Revision]
+    ran: list[ColumnElement[bool]]  # which executions count: the revisions' own, the host's
+
+
+def window(session: Session, component: Component, view: TrendView) -> Window:
+    ran = [Job.pair == 0] + ([Job.host_id == _host_id(session, view.host)] if view.host else [])
+    own = exists().where(Execution.revision_id == Revision.id, Job.id == Execution.job_id, *ran)
     query = select(Revision).where(Revision.component_id == component.id, own)
     if view.before:
         end = session.scalar(
@@ -196,11 +209,19 @@ def trend_data(session: Session, component: Component, view: TrendView) -> Trend
         if end is None:
             raise BadRequest(f"before: {component.name} has no revision {view.before!r}")
         query = query.where(Revision.order_key < end)
-    newest = list(
-        session.scalars(
-            query.order_by(Revision.order_key.desc(), Revision.id.desc()).limit(view.revisions + 1)
-        )
-    )
+    query = query.order_by(Revision.order_key.desc(), Revision.id.desc()).limit(view.revisions + 1)
+    return Window(list(session.scalars(query)), ran)
+
+
+def trend_data(
+    session: Session, component: Component, view: TrendView, shown_in: Window | None = None
+) -> TrendData:
+    """The series the view selects, with a point per revision among the newest it shows."""
+    every = list(session.scalars(select(Series).where(Series.component_id == component.id)))
+    refs = {series.id: series_ref(series) for series in every}
+    chosen = {sid: TrendSeries(ref) for sid, ref in refs.items() if view.selects(ref)}
+    found = shown_in or window(session, component, view)
+    newest, ran = found.revisions, found.ran
     earlier = newest[view.revisions - 1].title if len(newest) > view.revisions else None
     shown = newest[: view.revisions][::-1]
     ids = [revision.id for revision in shown]
@@ -209,11 +230,7 @@ def trend_data(session: Session, component: Component, view: TrendView) -> Trend
             select(Summary.series_id, Execution.revision_id, Summary.n, Summary.mean, Summary.std)
             .join(Execution, Execution.id == Summary.execution_id)
             .join(Job, Job.id == Execution.job_id)
-            .where(
-                Execution.revision_id.in_(ids),
-                Job.pair == 0,
-                Summary.series_id.in_(list(chosen)),
-            )
+            .where(Execution.revision_id.in_(ids), Summary.series_id.in_(list(chosen)), *ran)
         )
         for series_id, revision_id, n, mean, std in rows:
             chosen[series_id].points.setdefault(revision_id, Pooled()).add(n, mean, std)
@@ -247,21 +264,30 @@ def trend_data(session: Session, component: Component, view: TrendView) -> Trend
     )
 
 
-def data_version(session: Session, component_id: int) -> str:
-    """Changes whenever what a trend page shows may have: an execution stored, a revision
-    analysed (after every ingest and re-analysis), a regression updated (its confirmation)."""
-    stored = session.scalar(
-        select(func.max(Execution.id))
-        .join(Revision, Revision.id == Execution.revision_id)
-        .where(Revision.component_id == component_id)
+def _host_id(session: Session, name: str) -> int:
+    """The id of the performance host named ``name``; a `BadRequest` naming it otherwise."""
+    found = session.scalar(select(Host.id).where(Host.name == name))
+    if found is None:
+        raise BadRequest(f"host: no performance host {name!r}")
+    return found
+
+
+def data_version(session: Session, component_id: int, shown: Window) -> str:
+    """Changes whenever what a view's page shows may have: which revisions it shows (their
+    titles and commits), one of them analysed (after every ingest and re-analysis: its time
+    set, or cleared by a new ingest), an execution of theirs stored, a regression of the
+    component updated (its confirmation). Read from the view's revisions alone and the
+    component's regressions (a few per flagged change), not from the whole history: it costs
+    the same at 100 and at 10,000 revisions."""
+    seen = "\x00".join(
+        f"{r.id}|{r.title}|{r.commit}|{r.committed_at}|{r.analyzed_at}" for r in shown.revisions
     )
-    analysed = session.scalar(
-        select(func.max(Revision.analyzed_at)).where(Revision.component_id == component_id)
-    )
+    ids = [revision.id for revision in shown.revisions]
+    stored = session.scalar(select(func.max(Execution.id)).where(Execution.revision_id.in_(ids)))
     updated = session.scalar(
         select(func.max(Regression.updated)).where(Regression.component_id == component_id)
     )
-    return f"{stored}|{analysed}|{updated}"
+    return f"{hashlib.sha256(seen.encode()).hexdigest()[:32]}|{stored}|{updated}"
 
 
 #: renders a view's charts: `redline.server.ui.figures.trend_charts`
@@ -295,13 +321,14 @@ def cached_page(
     session: Session, component: Component, view: TrendView, render: Render
 ) -> TrendPage:
     """The view's page from the cache when it is current, else rendered now and stored."""
-    key, version = view.query(), data_version(session, component.id)
+    shown = window(session, component, view)
+    key, version = view.query(), data_version(session, component.id, shown)
     row = session.scalar(
         select(FigureCache).where(FigureCache.component_id == component.id, FigureCache.view == key)
     )
     if row is not None and row.version == version:
         return TrendPage(row.figures, row.earlier)
-    rendered = render_page(trend_data(session, component, view), view, render)
+    rendered = render_page(trend_data(session, component, view, shown), view, render)
     store(session, component.id, key, version, rendered)
     session.commit()
     return rendered
@@ -315,9 +342,11 @@ def warm(session: Session, component_id: int, render: Render) -> None:
 
 
 def choices(session: Session, component: Component) -> dict[str, list[str]]:
-    """The values each filter can take: every case, phase, process, counter, parameter."""
+    """The values each filter can take: every case, phase, process, counter, parameter, and
+    every performance host (a handful: which ran this component would cost a look at its whole
+    history)."""
     every = session.scalars(select(Series).where(Series.component_id == component.id))
-    return _choices([series_ref(series) for series in every])
+    return {**_choices([series_ref(series) for series in every]), "host": host_names(session)}
 
 
 #: views kept per component (each address is a view: the least recently rendered go first)

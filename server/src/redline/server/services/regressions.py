@@ -29,8 +29,8 @@ from redline.server.services.components import get_component, get_revision
 from redline.server.services.errors import BadRequest, NotFound
 from redline.server.services.paging import after_newest_first, decode_cursor, encode_cursor
 from redline.server.services.results import series_ref
-from sqlalchemy import Select, literal, select, tuple_
-from sqlalchemy.orm import Session, aliased
+from sqlalchemy import Select, exists, literal, select, tuple_
+from sqlalchemy.orm import Session, aliased, selectinload
 
 
 def _methods(session: Session, ids: list[int]) -> dict[int, tuple[list[str], int]]:
@@ -68,14 +68,17 @@ def list_regressions(
     confirmation: str | None = None,
     limit: int | None = None,
     cursor: str | None = None,
+    method: str | None = None,
 ) -> tuple[list[RegressionOut], str | None]:
     """The component's regressions, newest range first (every component's when None, newest
-    first); ``state`` (triage) and ``confirmation`` (suspected, confirmed, not_confirmed)
-    filter; ``limit`` of them after ``cursor``, and the next page's cursor (None after the
-    last)."""
-    query = select(Regression, Component.name).join(
-        Component, Component.id == Regression.component_id
-    )
+    first); ``state`` (triage), ``confirmation`` (suspected, confirmed, not_confirmed) and
+    ``method`` (one of the methods that flagged a change in it) filter; ``limit`` of them
+    after ``cursor``, and the next page's cursor (None after the last)."""
+    query = (
+        select(Regression, Component.name)
+        .join(Component, Component.id == Regression.component_id)
+        .options(selectinload(Regression.good_revision), selectinload(Regression.bad_revision))
+    )  # the ranges' revisions in two reads, not two a regression
     if component_name is not None:
         component = get_component(session, component_name)
         query = query.where(Regression.component_id == component.id).order_by(
@@ -96,6 +99,11 @@ def list_regressions(
         query = query.where(Regression.state == RegressionState(state))
     if confirmation is not None:
         query = query.where(Regression.confirmation == confirmation)
+    if method is not None:
+        flagged_by = exists().where(
+            Detection.regression_id == Regression.id, Detection.method == method
+        )
+        query = query.where(flagged_by)
     found = [(regression, name) for regression, name in session.execute(query.limit(limit))]
     following = None
     if limit is not None and len(found) == limit:

@@ -3,7 +3,10 @@
 Passwords are hashed with scrypt (n=2^15, r=8, p=1: about 32 MiB and 50-100 ms a check, OWASP's
 recommended floor), with a random salt, stored as ``scrypt$n$r$p$salt$hash``. A session is a
 random secret in an HttpOnly, SameSite=Strict cookie, stored only as its sha256, valid for
-`SESSION_DAYS`; each session has its own form token (CSRF), which every form posts back.
+`SESSION_DAYS`; each session has its own form token (CSRF), which every form posts back. The
+sign-in form, which has no session yet, posts back the random token of a cookie of its own
+(`SIGNIN_COOKIE`, HttpOnly, SameSite=Strict): another site can neither read nor send it, so it
+cannot sign a browser in to an account of its choosing (login CSRF).
 A session has the scopes of the user or of the token it was opened with, no more.
 """
 
@@ -30,6 +33,9 @@ SCRYPT_MEMORY = 64 * 1024 * 1024  # above the 32 MiB these parameters need
 MIN_PASSWORD = 12
 SESSION_DAYS = 7
 SESSION_COOKIE = "redline_session"
+#: the sign-in form's token, before any session: a cookie the form posts back (login CSRF)
+SIGNIN_COOKIE = "redline_signin"
+SIGNIN_HOURS = 24
 
 
 @cache
@@ -154,3 +160,15 @@ def authorize(row: WebSession | None, form_token: str, scope: str) -> str:
     if not grants(list(row.scopes), scope):
         raise Forbidden(f"{row.who} lacks the {scope!r} scope")
     return row.who
+
+
+def signin_token(cookie: str | None) -> str:
+    """The sign-in form's token: the browser's own (its `SIGNIN_COOKIE`), else a new one."""
+    return cookie if cookie and 32 <= len(cookie) <= 64 else secrets.token_urlsafe(32)
+
+
+def check_signin_form(cookie: str | None, form_token: str) -> None:
+    """`Forbidden` unless the sign-in form posts back the token of the browser's cookie: a form
+    posted from another site has neither."""
+    if not cookie or not hmac.compare_digest(form_token.encode(), cookie.encode()):
+        raise Forbidden("the sign-in form's token does not match: reload this page, then sign in")

@@ -68,7 +68,7 @@ def _values(session: Session, series_id: int, revision_ids: list[int]) -> list[E
     ]
 
 
-def _baseline_revisions(
+def baseline_revisions(
     session: Session, series_id: int, newest_id: int | None, count: int
 ) -> list[Revision]:
     """The ``count`` newest revisions up to ``newest_id`` with the series: the detection's
@@ -120,7 +120,7 @@ def why_flagged(session: Session, detection_id: int) -> WhyFlagged:
     detection, out = detection_by_id(session, detection_id)
     series = session.get_one(Series, detection.series_id)
     revision = session.get_one(Revision, detection.revision_id)
-    baseline = _baseline_revisions(
+    baseline = baseline_revisions(
         session, series.id, detection.baseline_revision_id, detection.baseline_revisions
     )
     config = component_config(session, revision.component_id)

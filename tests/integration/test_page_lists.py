@@ -1,0 +1,244 @@
+"""The lists and tables of the pages through the real app on real Postgres: the executions
+(API and pages), the trends' host filter, the regressions' method filter and pages, the revision
+page's values, durations and disturbed phases, compare's verdicts and ranges, and the sign-in
+form's own token."""
+
+from __future__ import annotations
+
+import html
+import json
+import re
+from collections.abc import Iterator
+from pathlib import Path
+
+import pyarrow.parquet as pq
+import pytest
+from fastapi.testclient import TestClient
+from redline.recording.format import canonical_params
+from redline.server.db import session_factory
+from redline.server.models import Execution, Host, Job, Revision, Series
+from redline.server.routes import regression_pages, web
+from redline.server.services import compare
+from redline.server.services.signin import SESSION_COOKIE, create_user
+from redline.server.storage import DISTURBED, samples_path
+from sqlalchemy import select, update
+
+from tests.support.pages import history, page_client, sign_in, trend_data
+from tests.support.servers import Services
+
+PASSWORD = "correct horse battery"
+API = "/api/v1/components/builder"
+
+
+@pytest.fixture
+def client(services: Services, database_url: str, tmp_path: Path) -> Iterator[TestClient]:
+    with page_client(services, database_url, tmp_path) as client:
+        yield client
+
+
+def _executions_of(database_url: str, title: str) -> list[Execution]:
+    with session_factory(database_url)() as session:
+        return list(
+            session.scalars(
+                select(Execution)
+                .join(Revision)
+                .where(Revision.title == title)
+                .order_by(Execution.id)
+            )
+        )
+
+
+def _ran_on(database_url: str, title: str, host: str) -> None:
+    """The revision's jobs ran on ``host`` (made if new)."""
+    with session_factory(database_url)() as session:
+        found = session.scalar(select(Host).where(Host.name == host)) or Host(name=host)
+        session.add(found)
+        session.flush()
+        ids = select(Revision.id).where(Revision.title == title).scalar_subquery()
+        session.execute(update(Job).where(Job.revision_id == ids).values(host_id=found.id))
+        session.commit()
+
+
+def _run_took(database_url: str, title: str, seconds: str) -> None:
+    """The revision's runs say they started at 10:00:00 and ended ``seconds`` later."""
+    meta = {"redline.run": {"started_at": "2026-11-20T10:00:00.000+00:00",
+                            "ended_at": f"2026-11-20T10:00:{seconds}+00:00"}}  # fmt: skip
+    with session_factory(database_url)() as session:
+        ids = select(Revision.id).where(Revision.title == title).scalar_subquery()
+        session.execute(update(Execution).where(Execution.revision_id == ids).values(meta=meta))
+        session.commit()
+
+
+def test_executions_are_listed_filtered_and_linked_by_their_pages(client, database_url, tmp_path):
+    history(database_url, tmp_path, [20.0, 20.0, 20.0])
+    _ran_on(database_url, "r2", "perf-a")
+    _run_took(database_url, "r2", "12.500")
+    (r2,) = _executions_of(database_url, "r2")
+    listed = client.get(f"{API}/executions").json()
+    assert [e["revision"] for e in listed] == ["r3", "r2", "r1"]  # newest revision first
+    assert listed[1]["id"] == r2.id and listed[1]["host"] == "perf-a"
+    assert listed[1]["duration_s"] == 12.5 and listed[0]["duration_s"] is None
+    assert [e["id"] for e in client.get(f"{API}/executions?host=perf-a").json()] == [r2.id]
+    assert [e["id"] for e in client.get(f"{API}/executions?revision=r2").json()] == [r2.id]
+    assert len(client.get(f"{API}/executions?state=done").json()) == 3
+    assert client.get(f"{API}/executions?state=queued").json() == []
+    assert client.get(f"{API}/executions?state=closed").status_code == 422
+    for query, named in (("host=nope", "no performance host 'nope'"), ("revision=r9", "r9")):
+        missing = client.get(f"{API}/executions?{query}")
+        assert missing.status_code == 404 and named in missing.json()["detail"], missing.text
+
+    page = client.get("/components/builder").text
+    section = page[page.index("<h2>Executions</h2>") :]
+    assert all(f'href="/executions/{e["id"]}"' in section for e in listed), section[:2000]
+    assert 'href="/components/builder/executions"' in section and "12.5 s" in section
+    chosen = client.get("/components/builder/executions?host=perf-a")
+    assert chosen.status_code == 200 and '<option value="perf-a" selected>' in chosen.text
+    assert re.findall(r'href="/executions/(\d+)"', chosen.text) == [str(r2.id)]
+    assert client.get("/components/builder/executions?state=closed").status_code == 400
+
+
+def test_the_executions_page_pages_with_the_apis_cursor(
+    client, database_url, tmp_path, monkeypatch
+):
+    history(database_url, tmp_path, [20.0, 20.0])
+    monkeypatch.setattr(web, "EXECUTIONS_PAGE", 1)
+    first = client.get("/components/builder/executions")
+    following = re.search(r'id="next-page" href="\?([^"]+)"', first.text)
+    assert following, "a full page links the next one"
+    second = client.get("/components/builder/executions?" + html.unescape(following.group(1)))
+    assert second.status_code == 200 and 'id="first-page"' in second.text
+    shown = [re.findall(r'href="/executions/(\d+)"', p.text) for p in (first, second)]
+    assert len(shown[0]) == len(shown[1]) == 1 and shown[0] != shown[1]
+
+
+def test_the_trends_filter_by_host_kept_in_the_address(client, database_url, tmp_path):
+    history(database_url, tmp_path, [20.0, 20.0, 20.0])
+    _ran_on(database_url, "r2", "perf-a")
+    _ran_on(database_url, "r3", "perf-b")
+    page = client.get("/components/builder?host=perf-a&counter=cpu")
+    assert page.status_code == 200
+    assert [r[0] for r in trend_data(page.text)["revisions"]] == ["r2"]  # perf-a's alone
+    assert '<option value="perf-a" selected>' in page.text and 'value="perf-b"' in page.text
+    assert 'data-view="counter=cpu&amp;host=perf-a"' in page.text  # the address keeps it
+    data = client.get("/components/builder/trends?host=perf-b").json()
+    assert [r[0] for r in data["page"]["revisions"]] == ["r3"] and data["view"] == "host=perf-b"
+    everyone = trend_data(client.get("/components/builder").text)["revisions"]
+    assert [r[0] for r in everyone] == ["r1", "r2", "r3"]
+    unknown = client.get("/components/builder?host=nope")
+    assert unknown.status_code == 400 and "host: no performance host" in html.unescape(unknown.text)
+
+
+def test_regressions_filter_by_method_and_come_a_page_at_a_time(
+    client, database_url, tmp_path, monkeypatch
+):
+    history(database_url, tmp_path, [20.0, 20.0, 200.0, 200.0, 800.0])
+    every = client.get(f"{API}/regressions").json()
+    assert len(every) >= 2 and all("ks" in r["methods"] for r in every)
+    assert client.get(f"{API}/regressions?method=ks").json() == every
+    assert client.get(f"{API}/regressions?method=welch_t").json() == []
+    numbers = [f'href="/regressions/{r["id"]}"' for r in every]
+    page = client.get("/regressions?method=ks").text
+    assert all(link in page for link in numbers) and '<option value="ks" selected>' in page
+    assert "No regression matches." in client.get("/regressions?method=welch_t").text
+    bad = client.get("/regressions?method=nonsense")
+    assert bad.status_code == 400 and "method: one of" in html.unescape(bad.text)
+
+    monkeypatch.setattr(regression_pages, "PAGE", 1)
+    seen, address = [], "/regressions?method=ks"
+    while address:
+        page = client.get(address).text
+        seen += re.findall(r'<a href="/regressions/(\d+)">#', page)
+        following = re.search(r'id="next-page" href="\?([^"]+)"', page)
+        address = f"/regressions?{html.unescape(following.group(1))}" if following else ""
+        assert not following or "method=ks" in address  # the filters go with the cursor
+    assert sorted(seen) == sorted(str(r["id"]) for r in every) and len(set(seen)) == len(seen)
+
+
+def _disturbed(database_url: str, title: str, legs: int, why: str) -> None:
+    """The revision's execution measured the phase at ``legs`` while the host was busy."""
+    (execution,) = _executions_of(database_url, title)
+    with session_factory(database_url)() as session:
+        legs_at = canonical_params({"legs": legs})
+        ids = session.scalars(select(Series.id).where(Series.params == legs_at))
+        path = samples_path(execution.recording_path)
+        table = pq.read_table(path)
+        busy = json.dumps({str(i): why for i in ids}).encode()
+        pq.write_table(table.replace_schema_metadata({DISTURBED: busy}), path)
+
+
+def _row(page: str, label: str, method: str) -> list[str]:
+    """The cells of the verdicts table's row of ``label`` by ``method``, as text."""
+    for row in re.findall(r"<tr[^>]*>(.*?)</tr>", page, re.S):
+        cells = [html.unescape(re.sub(r"<[^>]+>", "", c)).strip() for c in re.findall(
+            r"<td[^>]*>(.*?)</td>", row, re.S)]  # fmt: skip
+        if cells and cells[0] == label and method in cells:
+            return cells
+    raise AssertionError(f"no row of {label} by {method}")
+
+
+def test_the_revision_page_shows_both_values_and_each_runs_duration_and_disturbance(
+    client, database_url, tmp_path
+):
+    history(database_url, tmp_path, [20.0, 20.0, 200.0])
+    _run_took(database_url, "r3", "42.250")
+    _disturbed(database_url, "r3", 8, "host busy: 180 % of a core")
+    page = client.get("/components/builder/revisions/r3").text
+    assert "<th>baseline value</th>" in re.sub(r' title="[^"]*"', "", page)
+    cells = _row(page, "build/steady[legs=2] builder.cpu", "ks")
+    baseline, candidate = (float(cells[i]) for i in (2, 3))  # series, baseline, then the values
+    assert 18 < baseline < 22 and 180 < candidate < 220, cells
+    jobs = page[page.index('<table id="jobs">') : page.index("</table>")]
+    assert "42.2 s" in jobs, jobs  # 42.25 s as %.1f
+    assert "build/steady[legs=8]: host busy: 180 % of a core" in html.unescape(jobs), jobs
+    assert "build/steady[legs=2]" not in html.unescape(jobs)
+    plain = client.get("/components/builder/revisions/r2").text
+    quiet = plain[plain.index('<table id="jobs">') : plain.index("</table>")]
+    assert '<td class="disturbed">none</td>' in quiet and '<td class="duration">—</td>' in quiet
+
+
+def test_compare_shows_the_candidates_verdicts_and_pools_ranges(
+    client, database_url, tmp_path, monkeypatch
+):
+    history(database_url, tmp_path, [20.0, 20.0, 200.0])
+    one = client.get(f"{API}/compare?base=r2&candidate=r3").json()
+    pooled = client.get(f"{API}/compare?base=r1..r2&candidate=r3").json()
+    assert pooled["base_revisions"] == ["r1", "r2"] and pooled["candidate_revisions"] == ["r3"]
+    assert pooled["series"][0]["baseline"]["n"] == 2 * one["series"][0]["baseline"]["n"]
+    backwards = client.get(f"{API}/compare?base=r2..r1&candidate=r3").json()
+    assert backwards["base_revisions"] == ["r1", "r2"]  # a range in sort-key order
+    assert client.get(f"{API}/compare?base=r1..r9&candidate=r3").status_code == 404
+
+    page = client.get("/components/builder/compare?base=r1..r2&candidate=r3")
+    assert page.status_code == 200 and "Baseline: r1, r2 · candidate: r3" in page.text
+    assert "<th>ks verdict</th><th>ks score</th>" in page.text
+    cells = _row(page.text, "build/steady[legs=2] builder.cpu", "change (increase)")
+    assert cells[-1].startswith("ks: suspected") or cells[-1].startswith("ks: held"), cells
+    detections = client.get(f"{API}/detections?revision=r3&method=ks").json()
+    assert all(f'href="/detections/{d["id"]}"' in page.text for d in detections)
+    chosen = client.get(
+        "/components/builder/compare?base=r1&base_through=r2&candidate=r3&candidate_through=",
+        follow_redirects=False,
+    )
+    assert chosen.status_code == 303 and chosen.headers["location"] == "?base=r1..r2&candidate=r3"
+    monkeypatch.setattr(compare, "MAX_RANGE", 1)
+    wide = client.get("/components/builder/compare?base=r1..r2&candidate=r3")
+    assert wide.status_code == 400 and "spans more than 1 revisions" in html.unescape(wide.text)
+
+
+def test_a_sign_in_posted_from_elsewhere_is_refused(client, database_url):
+    """Login CSRF: another site's form signs a browser in to the other site's account, unless
+    the sign-in form carries a token of the browser's own."""
+    with session_factory(database_url)() as session:
+        create_user(session, "mallory", PASSWORD, "ci")
+    forged = client.post("/signin", data={"name": "mallory", "password": PASSWORD})
+    assert forged.status_code == 403 and "token does not match" in html.unescape(forged.text)
+    assert SESSION_COOKIE not in client.cookies
+    client.get("/signin")  # the browser has its sign-in cookie, the forger not its value
+    guessed = client.post(
+        "/signin", data={"name": "mallory", "password": PASSWORD, "csrf": "x" * 43}
+    )
+    assert guessed.status_code == 403 and SESSION_COOKIE not in client.cookies
+    signed = sign_in(client, {"name": "mallory", "password": PASSWORD}, follow_redirects=False)
+    assert signed.status_code == 303 and SESSION_COOKIE in client.cookies
+    cookie = client.get("/signin").headers["set-cookie"].lower()
+    assert "httponly" in cookie and "samesite=strict" in cookie and "path=/signin" in cookie
