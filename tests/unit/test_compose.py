@@ -1,5 +1,6 @@
 """docker-compose.yml runs commands the CLI accepts, and scales as issue 16 asks: the scalable
-workers run no periodic tasks (exactly one service does), the API runs several processes."""
+workers run no periodic tasks (exactly one service does), the API runs several processes, each
+agent replica has a work folder of its own, and Redline starts once Postgres and Redis answer."""
 
 from __future__ import annotations
 
@@ -46,3 +47,46 @@ def test_the_agent_holds_none_of_the_servers_settings_or_storage() -> None:
     assert set(agent["environment"]) == {"REDLINE_TOKEN"}  # no database or Redis URL
     assert COMPOSE["services"]["server"]["environment"]["REDLINE_DATABASE_URL"]  # they have it
     assert not [v for v in agent["volumes"] if v.startswith("storage:")]
+
+
+#: the services `docker compose up --scale worker=N --scale agent=M` replicates (issue 16)
+SCALED = ("worker", "agent")
+#: named volumes every replica shares by design: the storage folder (docs/operations.md)
+SHARED_BY_DESIGN = {"storage"}
+
+
+def _mounts(service: dict) -> list[tuple[str | None, str]]:
+    """(source, target) of each volume of ``service``; source None for an anonymous volume."""
+    mounts = []
+    for volume in service.get("volumes", []):
+        if isinstance(volume, dict):
+            mounts.append((volume.get("source"), volume["target"]))
+            continue
+        parts = volume.split(":")
+        mounts.append((None, parts[0]) if len(parts) == 1 else (parts[0], parts[1]))
+    return mounts
+
+
+def test_no_scaled_service_shares_a_named_volume_for_its_own_state() -> None:
+    for name in SCALED:  # a named volume or a host folder is one folder for every replica
+        shared = {source for source, _ in _mounts(COMPOSE["services"][name]) if source}
+        assert shared <= SHARED_BY_DESIGN, (name, shared)
+    work = str(parsed(COMPOSE["services"]["agent"]["command"])["work"])
+    # every replica's clones, recordings and spool in a volume of its own container
+    assert _mounts(COMPOSE["services"]["agent"]) == [(None, work)]
+
+
+def test_redline_waits_for_healthy_postgres_and_redis_and_restarts() -> None:
+    services = COMPOSE["services"]
+    postgres = services["postgres"]["healthcheck"]["test"]
+    # over TCP: a fresh volume's temporary init server answers on the unix socket only
+    assert "pg_isready" in postgres and "127.0.0.1" in postgres
+    assert "ping" in services["redis"]["healthcheck"]["test"]
+    assert "/healthz" in " ".join(services["server"]["healthcheck"]["test"])
+    for name in ("server", "worker", "alerts"):
+        depends = services[name]["depends_on"]
+        assert depends["postgres"]["condition"] == "service_healthy", name
+        assert depends["redis"]["condition"] == "service_healthy", name
+    assert services["agent"]["depends_on"] == {"server": {"condition": "service_healthy"}}
+    for name, service in services.items():
+        assert service.get("restart") == "unless-stopped", name
