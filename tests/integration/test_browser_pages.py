@@ -1,31 +1,31 @@
 """Every page in Debian's Chromium (Playwright), against a real server on real Postgres holding a
-judged history: no console error and no request to another host on any page, charts with their
-traces, filters that change the address and the charts, triage done in the page and stored, and
-every control of a page reachable with the keyboard.
+judged history: no console error and no request to another host on any page (the settings pages
+signed in), charts with their traces (the trend chart's by name), filters that change the address
+and the charts, triage done in the page and stored (and refused with a wrong form token), and
+every control of every page reachable with the keyboard.
 
-With ``REDLINE_SCREENSHOTS=DIR`` it saves screenshots of the regression and sign-in pages there,
-which the demo has none of (docs/ui.md: the other pages' are of the demo, by test_end_to_end).
+With ``REDLINE_SCREENSHOTS=DIR`` it saves screenshots of the regression page (signed out, and
+signed in with its triage form), the sign-in page and the settings page there, which the demo has
+none of (docs/ui.md: the other pages' are of the demo, by test_end_to_end).
 """
 
 from __future__ import annotations
 
-import uuid
 from collections.abc import Iterator
 
 import pytest
-from redline.server.core.config import Settings
 from redline.server.db import migrate, session_factory
 from redline.server.models import Revision
 from redline.server.services.signin import create_user
 from sqlalchemy import update
 
-from tests.support.api import emptied_with_tokens
-from tests.support.pages import Watched, chromium, history
+from tests.support.pages import Watched, chromium, emptied, history
 from tests.support.servers import Services, fresh_database, live_server
 
 PASSWORD = "correct horse battery"
-#: the pages whose screenshots (REDLINE_SCREENSHOTS) are taken here rather than of the demo
-ONLY_HERE = ("regression", "signin")
+#: the pages whose screenshots (REDLINE_SCREENSHOTS) are taken here rather than of the demo (the
+#: regression page's signed out and in, and the settings', are taken by the tests that sign in)
+ONLY_HERE = ("signin",)
 
 
 @pytest.fixture(scope="module")
@@ -35,13 +35,7 @@ def site(services: Services, tmp_path_factory: pytest.TempPathFactory) -> Iterat
     database_url, _ = fresh_database(services.database_url)
     migrate(database_url)
     tmp = tmp_path_factory.mktemp("browser")
-    settings = Settings(
-        database_url=database_url,
-        redis_url=services.redis_url,
-        storage_dir=tmp / "storage",
-        queue=f"test-{uuid.uuid4().hex[:8]}",
-    )
-    emptied_with_tokens(database_url)
+    settings = emptied(services, database_url, tmp)
     history(database_url, tmp, [20.0, 20.0, 20.0, 200.0, 200.0, 200.0])
     with session_factory(database_url)() as session:
         create_user(session, "ada", PASSWORD, "admin")
@@ -66,21 +60,32 @@ def _ids(site: tuple[str, str]) -> tuple[int, int, int]:
     return regression["id"], detail["flagged"][0]["id"], revision["jobs"][0]["execution"]["id"]
 
 
-def test_every_page_loads_clean_with_its_charts(site, browser):
-    base = site[0]
+def _pages(site: tuple[str, str]) -> dict[str, str]:
+    """Every page's address, by name; those after "signin" need an administrator's sign-in."""
     regression, detection, execution = _ids(site)
-    watched = Watched(browser, base)
-    pages = {
+    return {
         "home": "/",
         "component": "/components/builder",
+        "executions": "/components/builder/executions",
         "revision": "/components/builder/revisions/r4",
-        "compare": "/components/builder/compare?base=r3&candidate=r4",
+        "compare": "/components/builder/compare?base=r1..r3&candidate=r4",
         "regressions": "/regressions",
         "regression": f"/regressions/{regression}",
         "why-flagged": f"/detections/{detection}",
         "execution": f"/executions/{execution}",
         "signin": "/signin",
+        "settings": "/settings",
+        "component-settings": "/settings/components/builder",
     }
+
+
+SIGNED_IN = ("settings", "component-settings")
+
+
+def test_every_page_loads_clean_with_its_charts(site, browser):
+    base = site[0]
+    watched = Watched(browser, base)
+    pages = {k: v for k, v in _pages(site).items() if k not in SIGNED_IN}
     for name, path in pages.items():
         # docs/ui.md shows the demo's pages (test_end_to_end); the demo raises no regression
         watched.visit(base + path, name if name in ONLY_HERE else None)
@@ -88,6 +93,43 @@ def test_every_page_loads_clean_with_its_charts(site, browser):
             assert watched.first_chart_traces() > 0, name
     assert not watched.errors, watched.errors
     assert not watched.foreign, watched.foreign
+
+
+def test_the_settings_pages_load_clean_signed_in(site, browser):
+    base = site[0]
+    watched = Watched(browser, base)
+    watched.sign_in(base, "ada", PASSWORD)
+    watched.visit(f"{base}/settings", "settings")
+    listed = watched.page.locator("#settings-components a[href='/settings/components/builder']")
+    assert listed.count() == 1
+    watched.visit(f"{base}/settings/components/builder")
+    assert watched.page.locator("textarea[name=config]").count() == 1
+    assert not watched.errors, watched.errors
+    assert not watched.foreign, watched.foreign
+
+
+def test_the_trend_chart_has_its_mean_band_and_change_marks(site, browser):
+    import httpx
+
+    base = site[0]
+    regression = httpx.get(f"{base}/api/v1/components/builder/regressions").json()[0]
+    watched = Watched(browser, base)
+    watched.visit(f"{base}/components/builder?counter=cpu&process=builder")
+    watched.page.wait_for_selector(".js-plotly-plot .scatterlayer .trace", state="attached")
+    title, names = watched.page.evaluate(
+        """() => { const el = document.querySelector('.js-plotly-plot');
+                   return [el.layout.title.text, el.data.map(t => t.name || '')]; }"""
+    )
+    assert title == "build/steady builder.cpu"
+    for legs in ("legs=2", "legs=8"):  # each parameter set's mean and its band of one std
+        assert {legs, f"{legs}: mean + std", f"{legs}: mean - std"} <= set(names), names
+    mark = f"change ({regression['confirmation'].replace('_', ' ')})"
+    assert mark in names, names
+    flagged = watched.page.evaluate(
+        f"() => document.querySelector('.js-plotly-plot').data.find(t => t.name === '{mark}').x"
+    )
+    assert set(flagged) == {regression["bad_revision"]}, flagged
+    assert not watched.errors, watched.errors
 
 
 def test_filters_change_the_address_and_the_charts(site, browser):
@@ -189,6 +231,8 @@ def test_triage_in_the_page_is_stored_and_needs_a_sign_in(site, browser):
     watched.page.fill("input[name=password]", PASSWORD)
     watched.page.click("form.signin button[type=submit]")
     watched.page.wait_for_url(f"**/regressions/{regression}")
+    assert watched.page.locator("#triage").count() == 1
+    watched.shot("regression")  # signed in: with the triage form
     watched.page.check("input[name=state][value=acknowledged]")
     watched.page.fill("input[name=comment]", "looking at it")
     watched.page.click("#triage button[type=submit]")
@@ -200,30 +244,59 @@ def test_triage_in_the_page_is_stored_and_needs_a_sign_in(site, browser):
     assert not watched.errors, watched.errors
 
 
-def test_keyboard_reaches_every_control(site, browser):
+def test_a_triage_with_a_wrong_form_token_is_refused_in_the_browser(site, browser):
+    import httpx
+
     base = site[0]
     regression, _, _ = _ids(site)
+    address = f"{base}/api/v1/components/builder/regressions/{regression}"
+    before = httpx.get(address).json()
     watched = Watched(browser, base)
-    for path in ("/components/builder", f"/regressions/{regression}", "/signin"):
-        watched.visit(base + path)
-        # a group of radio buttons is one stop of the Tab key (arrows move within it)
-        controls = watched.page.evaluate(
-            """() => { const groups = new Set();
-                 return [...document.querySelectorAll(
-                   'a[href], button, select, input:not([type=hidden]), textarea')]
-                 .filter(el => el.offsetParent !== null && !el.disabled)
-                 .filter(el => el.type !== 'radio' || !groups.has(el.name) && groups.add(el.name))
-                 .map((el, i) => { el.dataset.control = i; return i; }); }"""
-        )
-        # Charts drawn after the count add their own stops (plotly's toolbar), so Tab on
-        # until every counted control has had the focus, within a generous bound.
-        reached: set[int] = set()
-        for _ in range(4 * len(controls) + 50):
-            watched.page.keyboard.press("Tab")
-            found = watched.page.evaluate("() => document.activeElement.dataset.control")
-            if found is not None:
-                reached.add(int(found))
-            if reached >= set(controls):
-                break
-        missed = sorted(set(controls) - reached)
-        assert not missed, f"{path}: controls {missed} of {len(controls)} never got the focus"
+    watched.sign_in(base, "ada", PASSWORD)
+    watched.visit(f"{base}/regressions/{regression}")
+    watched.page.evaluate(
+        "() => { document.querySelector('#triage input[name=csrf]').value = 'x'; }"
+    )
+    state = "ignored" if before["state"] != "ignored" else "fixed"
+    watched.page.check(f"input[name=state][value={state}]")
+    with watched.page.expect_navigation() as answered:
+        watched.page.click("#triage button[type=submit]")
+    assert answered.value is not None and answered.value.status == 403
+    assert "does not match this session" in watched.page.inner_text("main")
+    after = httpx.get(address).json()
+    assert (after["state"], len(after["history"])) == (before["state"], len(before["history"]))
+
+
+@pytest.mark.parametrize(
+    "name",
+    ["home", "component", "executions", "revision", "compare", "regressions", "regression",
+     "why-flagged", "execution", "signin", "settings", "component-settings"],
+)  # fmt: skip
+def test_keyboard_reaches_every_control(site, browser, name):
+    base = site[0]
+    path = _pages(site)[name]
+    watched = Watched(browser, base)
+    if name in SIGNED_IN:
+        watched.sign_in(base, "ada", PASSWORD)
+    watched.visit(base + path)
+    # a group of radio buttons is one stop of the Tab key (arrows move within it)
+    controls = watched.page.evaluate(
+        """() => { const groups = new Set();
+             return [...document.querySelectorAll(
+               'a[href], button, select, input:not([type=hidden]), textarea')]
+             .filter(el => el.offsetParent !== null && !el.disabled)
+             .filter(el => el.type !== 'radio' || !groups.has(el.name) && groups.add(el.name))
+             .map((el, i) => { el.dataset.control = i; return i; }); }"""
+    )
+    # Charts drawn after the count add their own stops (plotly's toolbar), so Tab on until
+    # every counted control has had the focus, within a generous bound.
+    reached: set[int] = set()
+    for _ in range(4 * len(controls) + 50):
+        watched.page.keyboard.press("Tab")
+        found = watched.page.evaluate("() => document.activeElement.dataset.control")
+        if found is not None:
+            reached.add(int(found))
+        if reached >= set(controls):
+            break
+    missed = sorted(set(controls) - reached)
+    assert not missed, f"{path}: controls {missed} of {len(controls)} never got the focus"

@@ -92,9 +92,10 @@ def _series_traces(
     name = plot_text(params_name(series.ref.params))
     band = {"mode": "lines", "line": {"width": 0}, "hoverinfo": "skip", "showlegend": False}
     traces: list[dict[str, Any]] = [
-        {"type": "scatter", "y": upper, "legendgroup": name, **band},
+        {"type": "scatter", "name": f"{name}: mean + std", "y": upper, "legendgroup": name, **band},
         {
             "type": "scatter",
+            "name": f"{name}: mean - std",
             "y": lower,
             "legendgroup": name,
             "fill": "tonexty",
