@@ -103,6 +103,42 @@ def test_component_ready_by_zenoh_key_runs_through(tmp_path: Path) -> None:
     assert result.workspace is not None and result.workspace.parent == tmp_path
 
 
+def test_a_suites_affinity_pins_the_component_and_is_recorded_in_the_run(tmp_path: Path) -> None:
+    (tmp_path / "component.py").write_text(
+        textwrap.dedent("""\
+        import os, signal, threading
+        open("cores", "w").write(str(sorted(os.sched_getaffinity(0))))
+        stop = threading.Event()
+        signal.signal(signal.SIGTERM, lambda *_: stop.set())
+        print("component ready", flush=True)
+        while not stop.wait(0.1):
+            pass
+        """)
+    )
+    (tmp_path / "test_it.py").write_text(
+        "from redline.testing import Phase, Sleep, TestCase\n"
+        "case = TestCase('idle', [Phase('idle', Sleep(0.3))])\n"
+    )
+    suite = tmp_path / "redline.toml"
+    suite.write_text(
+        textwrap.dedent("""\
+        name = "pinned"
+        tests = ["test_it.py"]
+        [affinity]
+        components = [0]
+        driver = [0]
+        monitor = [0]
+        [[component]]
+        name = "pinned"
+        command = ["python", "component.py"]
+        ready = { log = "component ready" }
+        """)
+    )
+    recording = read_recording(run_suite(suite, tmp_path / "out.mcap").recording)
+    assert recording.run["affinity"] == '{"components": [0], "driver": [0], "monitor": [0]}'
+    assert (tmp_path / "cores").read_text() == "[0]"
+
+
 def test_two_executions_restart_the_component_and_record_one_file_each(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:

@@ -1,12 +1,20 @@
-"""The agent's job loop against a server stand-in: a job whose lease was lost is not failed."""
+"""The agent's job loop against a server stand-in: a job whose lease was lost is not failed; an
+execution the host was busy in is run again, boundedly, and says so."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
 import pytest
+from redline.agent import daemon as daemon_module
 from redline.agent.client import LeaseLost
 from redline.agent.daemon import AgentDaemon, JobFailed
+from redline.agent.runner import RunResult
+from redline.recording import read_recording
+
+from tests.support.git import committed_repo
+from tests.support.recordings import write_recording
 
 
 class _LostLeaseClient:
@@ -48,3 +56,58 @@ def test_the_agent_does_not_fail_a_job_whose_lease_it_lost(
     monkeypatch.setattr(daemon, "_run", run)
     assert daemon.run_once() is True
     assert client.failed == []
+
+
+SUITE_FILES = {
+    "perf/redline.toml": 'name = "s"\ntests = ["test_s.py"]\n[[component]]\nname = "c"\n'
+    'command = ["python", "c.py"]\nready = { log = "ready" }\n',
+    "perf/c.py": "print('ready')\n",
+    "perf/test_s.py": "from redline.testing import Phase, Sleep, TestCase\n"
+    "case = TestCase('idle', [Phase('idle', Sleep(0.1))])\n",
+}
+
+
+@pytest.mark.parametrize(
+    ("busy", "retries", "runs"),
+    [
+        ((False,), 2, 1),  # a quiet host: run once
+        ((True, True, False), 2, 3),  # busy twice, quiet the third time
+        ((True, True, True), 1, 2),  # busy throughout: bounded, the last run is kept
+    ],
+)
+def test_an_execution_the_host_was_busy_in_is_run_again_boundedly_and_says_so(
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    busy: tuple[bool, ...],
+    retries: int,
+    runs: int,
+) -> None:
+    monkeypatch.delenv("REDLINE_DISTURBED_CPU_PERCENT", raising=False)
+    repo, commit = committed_repo(tmp_path / "repo", SUITE_FILES)
+    given: list[dict[str, str]] = []
+
+    def run_suite(suite_path: Path, out: Path, *, run_metadata: dict, only: object) -> RunResult:
+        """The run, as the recorder writes it: the host at 90 % of 2 cores while the run's own
+        processes used 24 % of one (156 % other load: busy), or at 20 % (16 %: quiet)."""
+        given.append(dict(run_metadata))
+        host = 90.0 if busy[len(given) - 1] else 20.0
+        cpu = {"cpu_percent": np.full(50, 20.0)}
+        write_recording(out, run_metadata, cpu, host_percent=host)
+        return RunResult(out, None, 1, run_metadata, {})
+
+    monkeypatch.setattr(daemon_module, "run_suite", run_suite)
+    daemon = AgentDaemon(
+        client=_LostLeaseClient(),  # type: ignore[arg-type]
+        workdir=tmp_path / "work",
+        allow_file_repos=True,
+        disturbed_retries=retries,
+    )
+    job = {**_LostLeaseClient().lease(), "repo": str(repo), "commit": commit}
+    out = daemon._run(job, "job-7")
+    assert len(given) == runs
+    assert "disturbed_runs" not in given[0]
+    for attempt, metadata in enumerate(given[1:], start=1):  # each retry says it is one
+        assert metadata["disturbed_runs"] == str(attempt)
+        assert metadata["disturbed_reason"].startswith("host busy: other load 156 % of a core")
+    uploaded = read_recording(out).run
+    assert uploaded.get("disturbed_runs") == (str(runs - 1) if runs > 1 else None)

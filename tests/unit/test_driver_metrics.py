@@ -12,11 +12,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 import typer
+from redline.agent.runner import RunResult
+from redline.cli import run_cmd
 from redline.commands.compare import register
 from redline.detect.compare import compare_files
 from redline.detect.count_rate import CountRate
 from redline.detect.counters import is_count, judged, kind, worse
 from redline.detect.relative_change import RelativeChange
+from redline.detect.verdict import judge_series
 from redline.recording import RecordingWriter, SeriesKey, read_recording
 from redline.recording.disturbance import OTHER_CPU, recording_disturbances
 from redline.recording.driver import DRIVER_PROCESS, report_values, series_name
@@ -310,3 +313,72 @@ def test_compare_does_not_pass_a_report_missing_from_every_candidate_run(tmp_pat
     again = [record(tmp_path / f"q{i}.mcap", rtt_p50=505.0 - i) for i in range(3)]
     code, output, suite = _compare(tmp_path, base, again)
     assert code == 0 and suite.get("errors") == "0", output
+
+
+def test_compares_junit_has_the_driver_series_a_changed_round_trip_failing(tmp_path: Path) -> None:
+    base = [record(tmp_path / f"b{i}.mcap", rtt_p50=500.0 + i) for i in range(3)]
+    slower = [record(tmp_path / f"s{i}.mcap", rtt_p50=600.0 + i) for i in range(3)]
+    code, output, suite = _compare(tmp_path, base, slower)
+    assert code == 1, output
+    (case,) = [c for c in suite.iter("testcase") if c.get("name") == "c/steady[rate=10]"]
+    failure = case.find("failure")
+    assert failure is not None and failure.text is not None
+    (line,) = failure.text.splitlines()  # only the round trip changed
+    assert line.startswith(f"driver.{QUERY_PATH}:rtt_p50_us: effect +20.0%")
+    assert f"driver.{QUERY_PATH}:rtt_p50_us +20.0%" in failure.get("message", "")
+    listed = (case.findtext("system-out") or "").splitlines()
+    for field_name in ("timeouts", "errors", "unanswered"):  # counts, judged as rates
+        assert [x for x in listed if x.startswith(f"driver.{QUERY_PATH}:{field_name}:")], listed
+    assert [x for x in listed if x.startswith("svc.cpu_us_per_op")], listed
+    assert not [x for x in listed if ":queries" in x or ":rtt_p99_us" in x]  # load, extreme
+
+
+@pytest.mark.parametrize(
+    ("counter", "before", "after"),
+    [
+        (f"{QUERY_PATH}:rtt_p50_us", 100.0, 115.0),  # +15 %, but 15 µs: under the 20 µs floor
+        ("FixedRate:lateness_p50_us", 50.0, 60.0),
+        ("FixedRate:rate_achieved", 5.0, 4.4),  # -12 %, but 0.6/s: under one per second
+        ("Listen[robot/odom]:rate", 4.0, 3.5),
+    ],
+)
+def test_a_driver_metric_moving_less_than_its_floor_is_no_change(
+    counter: str, before: float, after: float
+) -> None:
+    base = np.array([before * 0.999, before, before * 1.001])
+    cand = np.array([after * 0.999, after, after * 1.001])
+    assert RelativeChange().compare(base, cand).flagged  # a change by the median's rule alone
+    quiet = judge_series(RelativeChange(), counter, base, cand)
+    assert quiet.verdict == "no change" and "below the absolute floor" in quiet.reason
+
+
+def test_compare_does_not_fail_a_round_trip_that_moved_less_than_its_floor(tmp_path: Path) -> None:
+    base = [record(tmp_path / f"b{i}.mcap", rtt_p50=100.0 + i) for i in range(3)]
+    cand = [record(tmp_path / f"c{i}.mcap", rtt_p50=115.0 + i) for i in range(3)]
+    comparison = compare_files(base, cand)
+    assert comparison.changed == []
+    (rtt,) = [v for s in comparison.segments for v in s.series if v.key.counter.endswith("p50_us")]
+    assert rtt.result.verdict == "no change" and "absolute floor 20" in rtt.result.reason
+
+
+def test_redline_run_prints_the_driver_table_and_warns_of_a_busy_host(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    quiet = record(tmp_path / "run-1.mcap", rtt_p50=590.0, timeouts=3, host=15.0)
+    busy = record(tmp_path / "run-2.mcap", rtt_p50=610.0, host=95.0)  # 165 % other load
+    results = [RunResult(path, None, 1, {}, {}) for path in (quiet, busy)]
+    monkeypatch.setattr("redline.agent.runner.run_executions", lambda *a, **k: results)
+    monkeypatch.delenv("REDLINE_DISTURBED_CPU_PERCENT", raising=False)
+    monkeypatch.setenv("COLUMNS", "250")  # one table row a line
+    run_cmd._console.cache_clear()
+    try:
+        run_cmd.run(tmp_path / "redline.toml", tmp_path / "run.mcap", executions=2)
+    finally:
+        run_cmd._console.cache_clear()
+    said = capsys.readouterr().err
+    (row,) = [line for line in said.splitlines() if QUERY_PATH in line]
+    assert "c/steady [rate=10]" in row and "rtt p50 610 µs" in row  # the last recording's
+    (warning,) = [line for line in said.splitlines() if "WARNING" in line]
+    assert "c/steady" in warning and "host busy: other load 165 % of a core" in warning
+    assert "charted, not judged" in warning
+
