@@ -46,6 +46,19 @@ def send_github(api: Api, body: bytes, secret: str = SECRET, event: str = "push"
     )
 
 
+def send_gitlab(api: Api, body: bytes, token: str = SECRET) -> object:
+    """A GitLab push hook: its token is the secret itself (``X-Gitlab-Token``)."""
+    return api.client.post(
+        "/api/v1/webhooks/gitlab",
+        content=body,
+        headers={
+            "X-Gitlab-Token": token,
+            "X-Gitlab-Event": "Push Hook",
+            "Content-Type": "application/json",
+        },
+    )
+
+
 def counts(api: Api) -> tuple[int, int]:
     """How many revisions and jobs the database holds."""
     with session_factory(api.settings.database_url)() as session:
