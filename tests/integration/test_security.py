@@ -15,7 +15,7 @@ from sqlalchemy import update
 
 from tests.support.api import Api, api_with
 from tests.support.servers import Services
-from tests.support.webhooks import SECRET, counts, send_github
+from tests.support.webhooks import SECRET, counts, send_github, send_gitlab
 
 REPO = "https://github.com/org/builder.git"
 
@@ -139,6 +139,38 @@ def test_a_push_is_matched_by_its_clone_urls_never_its_homepage(api: Api):
     answer = send_github(api, body)
     assert answer.status_code == 202, answer.text
     assert counts(api) == (0, 0)
+
+
+def test_a_gitlab_push_is_matched_by_its_clone_urls_never_its_homepage(api: Api):
+    """GitLab sends ``homepage`` in both ``project`` and ``repository``: it names nothing."""
+
+    def push(own: str) -> bytes:
+        urls = {
+            "git_http_url": f"https://gitlab.com/{own}.git",
+            "git_ssh_url": f"git@gitlab.com:{own}.git",
+            "web_url": f"https://gitlab.com/{own}",
+            "homepage": "https://github.com/org/builder",
+        }
+        return json.dumps(
+            {
+                "object_kind": "push",
+                "ref": "refs/heads/main",
+                "commits": [{"id": "c" * 40, "message": "x", "timestamp": "2026-11-20T10:00:00Z"}],
+                "project": urls,
+                "repository": {"url": urls["git_ssh_url"], "homepage": urls["homepage"]},
+            }
+        ).encode()
+
+    answer = send_gitlab(api, push("mallory/tool"))
+    assert answer.status_code == 202, answer.text
+    assert counts(api) == (0, 0)
+    api.client.patch(  # the same push from the repository it names is recorded
+        "/api/v1/components/builder",
+        json={"repo": "https://gitlab.com/mallory/tool.git"},
+        headers=api.tokens["admin"],
+    ).raise_for_status()
+    assert send_gitlab(api, push("mallory/tool")).status_code == 200
+    assert counts(api)[0] == 1
 
 
 def test_a_ping_is_authenticated_by_a_components_own_secret(services: Services, tmp_path: Path):

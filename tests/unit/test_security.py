@@ -10,9 +10,11 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+import typer
+from redline.agent import checkout
 from redline.agent.checkout import CheckoutError, CloneCache, refused_repo
 from redline.server.core.logs import URL_LOGGERS
-from redline.server.schemas.results import SeriesOut
+from redline.server.schemas.results import SeriesOut, SeriesRef
 from redline.server.services.repos import repo_key
 
 from tests.support.git import committed_repo
@@ -31,6 +33,21 @@ def test_checkout_never_reads_a_repository_or_commit_as_a_git_option(tmp_path: P
     assert (tree / "file").read_text() == "x"
 
 
+def test_git_reads_a_repository_named_like_an_option_as_a_repository(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+):
+    """Past `refused_repo` (switched off here, as if one of its rules let a name through), the
+    ``--`` before the URL is what keeps git from reading it as an option: git clones the
+    repository of that name, and runs nothing it names."""
+    monkeypatch.chdir(tmp_path)
+    name = "--upload-pack=touch pwned"
+    _, head = committed_repo(tmp_path / name, {"file": "x"})
+    monkeypatch.setattr(checkout, "refused_repo", lambda url, allow_file: None)
+    tree = CloneCache(tmp_path / "cache", allow_file=True).checkout(name, head, "job-1")
+    assert (tree / "file").read_text() == "x"
+    assert not list(tmp_path.rglob("pwned"))
+
+
 def test_checkout_refuses_local_repositories_unless_allowed(tmp_path: Path):
     repo, head = committed_repo(tmp_path / "src", {"file": "x"})
     with pytest.raises(CheckoutError, match="file"):
@@ -47,25 +64,111 @@ def test_repository_rules_name_the_reason():
     assert refused_repo("/srv/x.git", allow_file=True) is None
 
 
-def test_chart_labels_are_text_not_markup():
-    from redline.server.ui.figures import trend_figure
+LINK = '<a href="https://evil.example/phish">click</a>'
 
-    link = '<a href="https://evil.example/phish">click</a>'
-    series = SeriesOut(
+
+def _ref(name: str) -> SeriesRef:
+    return SeriesRef(
         id=1,
-        label=f"{link} / main",
-        case=link,
+        label=f"{name} / main",
+        case=name,
         phase="main",
         params={},
-        process="p",
-        counter=link,
+        process=name,
+        counter=name,
         kind="counter",
         worse="increase",
         judged=True,
-        points=[{"revision": link, "sort_key": "1", "n": 3, "mean": 1.0, "std": 0.1}],
     )
-    figure = json.dumps(trend_figure(series, []))
-    assert "<a" not in figure and "&lt;a href" in figure
+
+
+def _markup_is_text(figures: object) -> None:
+    """Every name in ``figures`` escaped: no tag anywhere, and the name shown as text."""
+    shown = json.dumps(figures)
+    assert "<a" not in shown and "&lt;a href" in shown, shown[:500]
+
+
+def test_chart_labels_are_text_not_markup():
+    from redline.server.ui.figures import trend_figure
+
+    point = {"revision": LINK, "sort_key": "1", "n": 3, "mean": 1.0, "std": 0.1}
+    _markup_is_text(trend_figure(SeriesOut(**_ref(LINK).model_dump(), points=[point]), []))
+
+
+def test_why_flagged_labels_are_text_not_markup():
+    from redline.server.schemas.regressions import DetectionOut
+    from redline.server.services.why import ExecutionValue, WhyFlagged
+    from redline.server.ui.detail_figures import why_figures
+
+    def value(revision: str, median: float) -> ExecutionValue:
+        return ExecutionValue(revision, 1, median, median, 3, [median, median + 1])
+
+    detection = DetectionOut(
+        id=1, series=_ref(LINK), revision=LINK, baseline="r1", baseline_revisions=1,
+        method="execution_shift", verdict="change", reason="", score=1.0, p_value=0.01,
+        effect=0.5, direction="increase", flagged=True, confirmation="",
+        confirmation_reason="", regression_id=None,
+    )  # fmt: skip
+    why = WhyFlagged(
+        component="c", detection=detection, candidate=[value(LINK, 3.0)],
+        baseline=[value("r1", 2.0)], baseline_titles=["r1"], thresholds={}, floor=0.0, rule="",
+    )  # fmt: skip
+    _markup_is_text(why_figures(why))
+
+
+def test_compare_labels_are_text_not_markup():
+    from redline.detect.compare import RecordedSeries, SeriesVerdict
+    from redline.detect.result import Detection
+    from redline.recording import SeriesKey
+    from redline.server.schemas.results import Comparison, SeriesComparison, Statistics
+    from redline.server.ui.compare_figures import (
+        comparison_figure,
+        evolution_figure,
+        timeseries_figure,
+    )
+
+    stats = Statistics(n=3, mean=1.0, std=0.1, min=0.9, max=1.1, p50=1.0)
+    comparison = Comparison(
+        component="c", base=LINK, candidate=LINK,
+        series=[SeriesComparison(series=_ref(LINK), baseline=stats, candidate=stats, change=0.5,
+                                 ks_statistic=1.0, p_value=0.01, exact=True)],
+    )  # fmt: skip
+    _markup_is_text(comparison_figure(comparison))
+    key = SeriesKey(LINK, "main", "{}", LINK, LINK)
+    files = [
+        (side, RecordedSeries(Path("x.mcap"), LINK, {key: [(0, 1.0), (10**9, 2.0)]}))
+        for side in ("baseline", "candidate")
+    ]
+    verdict = SeriesVerdict(key, Detection("ks", "change", 1.0, 0.01, 0.5), 1.0, 2.0, 2, 2)
+    _markup_is_text(evolution_figure(key, files, verdict))
+    _markup_is_text(timeseries_figure(key, files))
+
+
+def test_execution_labels_are_text_not_markup():
+    from datetime import UTC, datetime
+
+    from redline.recording.reader import Segment
+    from redline.server.schemas.results import ExecutionDetail
+    from redline.server.services.execution_view import ExecutionView, SummaryRow
+    from redline.server.ui.detail_figures import execution_figures
+
+    detail = ExecutionDetail(
+        id=1, component="c", revision=LINK, sort_key="1", job_id=1, execution_index=1, host=None,
+        sha256="", size=0, created=datetime.now(UTC), metadata={}, recording_pruned_at=None,
+        series=1,
+    )  # fmt: skip
+    rows = [
+        SummaryRow(LINK, LINK, {LINK: n}, LINK, LINK, "counter", 3, float(n), float(n), float(n))
+        for n in (1, 2)
+    ]
+    view = ExecutionView(
+        detail=detail, recording=None, why_no_recording="",
+        segments=[Segment(LINK, LINK, {LINK: 1}, False, 0, 10**9)],
+        timelines={(LINK, LINK): [(0.0, 1.0), (1.0, 2.0)]}, summaries=rows,
+    )  # fmt: skip
+    charts = execution_figures(view)
+    assert len(charts) == 2  # the counter against time, its mean against the parameter
+    _markup_is_text(charts)
 
 
 @pytest.fixture
@@ -120,3 +223,35 @@ def test_repository_urls_normalize_across_https_ssh_and_dot_git():
     assert keys == {"github.com/org/repo"}
     assert repo_key("https://github.com/org/other") != "github.com/org/repo"
     assert repo_key("") == ""
+
+
+@pytest.mark.parametrize("mode", [0o644, 0o640, 0o604])
+def test_the_agent_refuses_a_token_file_other_users_can_read(tmp_path: Path, mode: int):
+    from redline.cli import agent_cmd
+    from typer.testing import CliRunner
+
+    app = typer.Typer()
+    agent_cmd.register(app)  # `redline agent` alone
+    token_file = tmp_path / "token"
+    token_file.write_text("rl_secret\n")
+    token_file.chmod(mode)
+    done = CliRunner().invoke(
+        app,
+        ["--server", "http://127.0.0.1:9", "--token-file", str(token_file)],
+        env={"COLUMNS": "200", "REDLINE_TOKEN": "rl_from_the_environment"},
+    )
+    assert done.exit_code == 2, done.output
+    assert "readable by other users" in done.output and "chmod 600" in done.output
+    assert "rl_secret" not in done.output
+
+
+def test_the_agent_reads_a_token_file_only_its_owner_can_read(tmp_path: Path):
+    from redline.cli.agent_cmd import read_token
+
+    token_file = tmp_path / "token"
+    token_file.write_text("rl_secret\n")
+    token_file.chmod(0o600)
+    assert read_token(token_file) == "rl_secret"
+    token_file.write_text("")
+    with pytest.raises(typer.BadParameter, match="empty"):
+        read_token(token_file)
