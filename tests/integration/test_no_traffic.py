@@ -36,6 +36,8 @@ COMPONENT = """\
     parser = argparse.ArgumentParser()
     parser.add_argument("--own-network", action="store_true")
     parser.add_argument("--serve", default="svc/ping")
+    parser.add_argument("--listen", help="subscribe to this key, publish nothing (a sink)")
+    parser.add_argument("--echo", action="store_true", help="put each svc/in sample on svc/out")
     args = parser.parse_args()
     if args.own_network:  # ignores ZENOH_CONFIG: a network of its own on another port
         with socket.socket() as probe:
@@ -55,6 +57,10 @@ COMPONENT = """\
 
     with zenoh.open(config) as session:
         session.declare_queryable(args.serve, answer)
+        if args.listen:
+            session.declare_subscriber(args.listen, lambda sample: None)
+        if args.echo:
+            session.declare_subscriber("svc/in", lambda s: session.put("svc/out", s.payload))
         print("svc ready", flush=True)
         while not stop.wait(0.1):
             pass
@@ -70,6 +76,12 @@ QUERIES = """\
 PUBLISHES = """\
     from redline.testing import FixedRate, Phase, Publish, TestCase
     case = TestCase("feed", [Phase("steady", FixedRate(50, 1.0, Publish("svc/in", b"x")))])
+    """
+
+WAITS = """\
+    from redline.testing import FixedRate, Phase, Publish, TestCase, WaitFor
+    ECHO = WaitFor("svc/out", 0.2, after=Publish("svc/in", b"x"))
+    case = TestCase("echo", [Phase("steady", FixedRate(5, 1.0, ECHO))])
     """
 
 
@@ -137,6 +149,39 @@ def test_a_component_off_the_network_is_no_traffic_without_any_query(tmp_path: P
     assert run["status"] == "no_traffic"
     assert run["warning"].startswith("no process of the suite joined the run's zenoh network")
     assert "queries" not in run["warning"]
+
+
+def test_a_component_on_the_network_that_publishes_and_hears_nothing_is_no_traffic(
+    tmp_path: Path,
+) -> None:
+    """It joins the run's network (a queryable nobody asks) but neither subscribes to what the
+    publish-only tests send nor puts a sample of its own: it took no part in them."""
+    suite = _suite(tmp_path / "deaf", PUBLISHES)
+    run = read_recording(run_suite(suite, tmp_path / "deaf.mcap").recording).run
+    assert run["status"] == "no_traffic"
+    assert run["warning"] == (
+        "the component published nothing on the run's network, nor subscribed to what the "
+        "tests published (svc/in)"
+    )
+
+
+def test_a_sink_that_subscribes_to_what_the_tests_publish_is_not_flagged(tmp_path: Path) -> None:
+    suite = _suite(tmp_path / "sink", PUBLISHES, "--listen", "svc/*")
+    run = read_recording(run_suite(suite, tmp_path / "sink.mcap").recording).run
+    assert run["status"] == "ok" and "warning" not in run
+
+
+def test_a_component_whose_samples_the_tests_wait_for_in_vain_is_no_traffic(
+    tmp_path: Path,
+) -> None:
+    silent = _suite(tmp_path / "silent", WAITS, "--listen", "svc/in")
+    result = run_suite(silent, tmp_path / "silent.mcap")
+    assert result.run_metadata["status"] == "no_traffic"
+    assert result.run_metadata["warning"] == (
+        "no sample arrived on svc/out, which the measured phases waited for 5 time(s)"
+    )
+    echo = _suite(tmp_path / "echo", WAITS, "--echo")
+    assert run_suite(echo, tmp_path / "echo.mcap").run_metadata["status"] == "ok"
 
 
 def test_a_good_run_has_no_warning(runs: dict[str, object]) -> None:

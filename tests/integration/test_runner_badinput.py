@@ -84,6 +84,7 @@ LIVELY = """\
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     with zenoh.open(zenoh.Config.from_env()) as session:
         token = session.liveliness().declare_token("lively/alive")
+        heard = session.declare_subscriber("x/y", lambda sample: None)  # takes part in the run
         while not stop.wait(0.1):
             pass
     """

@@ -15,9 +15,10 @@ Shared memory (zenoh's default, for payloads of ~3 KiB and more between local pr
 large-message throughput ~10x, so it is an explicit setting of the run, the same for every
 process, and the recorder writes it into the recording.
 
-The router notes the zenoh id of every session that connects to it (`RunNetwork.sessions_seen`);
-Redline's own processes get ids chosen for them (`session_id`), so any other id is a process of
-the suite that joined the network.
+The router notes the zenoh id of every session that connects to it (`RunNetwork.sessions_seen`)
+and, through its admin space (read-only, its own), who subscribed to what
+(`RunNetwork.subscriptions`); Redline's own processes get ids chosen for them (`session_id`), so
+any other id is a process of the suite that joined the network.
 """
 
 from __future__ import annotations
@@ -73,6 +74,8 @@ def config_from_dict(settings: dict[str, Any]) -> zenoh.Config:
         config.insert_json5("id", json.dumps(settings["id"]))
     if "transport" in settings:  # merged with zenoh's defaults for what it leaves out
         config.insert_json5("transport", json.dumps(settings["transport"]))
+    if "adminspace" in settings:
+        config.insert_json5("adminspace", json.dumps(settings["adminspace"]))
     return config
 
 
@@ -106,6 +109,8 @@ class RunNetwork:
 
     def open(self) -> RunNetwork:
         settings = _isolated("router", [self.endpoint], [], self.shared_memory)
+        # read-only, for the runner's own router session: who subscribed to what (`subscriptions`)
+        settings["adminspace"] = {"enabled": True, "permissions": {"read": True, "write": False}}
         self._router = zenoh.open(config_from_dict(settings))
         self._router.info.declare_transport_events_listener(  # lives as long as the router
             lambda event: self._seen.add(str(event.transport.zid)), history=True
@@ -116,6 +121,21 @@ class RunNetwork:
         """The ids of every zenoh session that has connected to the router since it opened
         (whether or not it is still connected)."""
         return set(self._seen)
+
+    def subscriptions(self) -> dict[str, set[str]]:
+        """Every key expression subscribed to on the network now, with the ids of the sessions
+        that subscribed to it (the router's admin space, less the router itself, which it lists
+        as the source of all it passes on)."""
+        assert self._router is not None, "the network is not open"
+        router = str(self._router.info.zid())
+        prefix = f"@/{router}/router/subscriber/"
+        found: dict[str, set[str]] = {}
+        for reply in self._router.get(prefix + "**", timeout=2.0):
+            if reply.ok is not None:  # {"routers": [zid, ...], "peers": [...], "clients": [...]}
+                sources = json.loads(reply.ok.payload.to_bytes())
+                zids = {str(zid) for group in sources.values() for zid in group} - {router}
+                found[str(reply.ok.key_expr).removeprefix(prefix)] = zids
+        return found
 
     def close(self) -> None:
         if self._router is not None:

@@ -8,7 +8,8 @@ in a bounded zenoh FIFO channel (filled without the GIL), Redline's own samples 
 queue from a callback; one writer thread drains both into the file (see `Recorder` for why, and
 for how what zenoh drops before the recorder is counted per key). Prints ``redline-recorder ready``
 once subscribed, and answers queries on ``@redline/recorder/status`` with its counts (the runner
-uses that as a barrier: a reply means the samples published before it have arrived). On SIGTERM
+uses that as a barrier: a reply means the samples published before it have arrived) and on
+``@redline/recorder/traffic`` with the samples recorded per key (the traffic check). On SIGTERM
 or SIGINT it drains the queues, writes the run and host metadata found in the ``--meta`` JSON
 file (read at that moment, so the runner can add the end time) and ``redline.recorder``: counts,
 per-key losses, whether zenoh shared memory was on; attaches the output of each process the
@@ -41,6 +42,8 @@ from redline.recording.format import (
 from redline.recording.writer import RecordingWriter
 
 STATUS_KEY = "@redline/recorder/status"
+#: answers with the samples recorded so far per key, Redline's own left out: ``{key: n}``
+TRAFFIC_KEY = "@redline/recorder/traffic"
 Item = tuple[str, str, bytes, int]
 IDLE_S = 0.001  # the writer's nap when nothing is queued
 
@@ -252,7 +255,12 @@ def record(out: Path, meta: Path, buffer_size: int, stop: threading.Event) -> di
                 with query:
                     query.reply(STATUS_KEY, json.dumps(recorder.counts()))
 
+            def traffic(query: zenoh.Query) -> None:
+                with query:
+                    query.reply(TRAFFIC_KEY, json.dumps(dict(recorder.traffic)))
+
             session.declare_queryable(STATUS_KEY, status)
+            session.declare_queryable(TRAFFIC_KEY, traffic)
             session.declare_queryable(RECORDER_SENT_KEY, recorder.take_sent)
             print("redline-recorder ready", flush=True)
             while not stop.wait(0.2):

@@ -33,12 +33,12 @@ from redline.agent.interrupts import SignalGuard, ending, signals_as_exceptions
 from redline.agent.loader import load_test_cases
 from redline.agent.network import RunNetwork, open_client, session_id
 from redline.agent.processes import ManagedProcess, RunError
-from redline.agent.recorder import STATUS_KEY
+from redline.agent.recorder import STATUS_KEY, TRAFFIC_KEY
 from redline.agent.selection import select_cases
 from redline.agent.suite import ProcessSpec, ReadyCheck, Suite, load_suite
-from redline.agent.traffic import TrafficCheck
+from redline.agent.traffic import NetworkView, TrafficCheck
 from redline.agent.workspace import fresh_logs, new_workspace, tidy
-from redline.recording.format import NO_TRAFFIC
+from redline.recording.format import NO_TRAFFIC, REDLINE_PREFIX
 from redline.testing import Link, Stop, TestCase, validate_cases
 
 Progress = Callable[[str], None]
@@ -75,6 +75,15 @@ def query_recorder(session: zenoh.Session, timeout: float = 1.0) -> dict[str, in
     return None
 
 
+def recorded_traffic(session: zenoh.Session, timeout: float = 5.0) -> dict[str, int] | None:
+    """The samples the recorder has recorded per key so far (Redline's own left out), or None
+    when it does not answer."""
+    for reply in session.get(TRAFFIC_KEY, timeout=timeout):
+        if reply.ok is not None:
+            return {str(k): int(n) for k, n in json.loads(reply.ok.payload.to_bytes()).items()}
+    return None
+
+
 class _Run:
     """One execution of a suite in a workspace; `execute` does it and cleans up after itself."""
 
@@ -97,6 +106,7 @@ class _Run:
         self.stop = Stop()
         self.segments = 0
         self.traffic = TrafficCheck()
+        self.driver_keys: frozenset[str] = frozenset()
 
     def _run_metadata(self, given: dict[str, str]) -> dict[str, str]:
         names = [spec.name for spec in self.suite.components]
@@ -178,7 +188,7 @@ class _Run:
                 self.say("recorder subscribed")
                 self._run_tests(network, session)
                 self.guard.raise_swallowed()
-                self._judge_traffic(network)
+                self._judge_traffic(network, session)
             except BaseException as exc:
                 self.meta["run"].update(ending(exc))
                 raise
@@ -187,9 +197,18 @@ class _Run:
                 self._shut_down(session)
         return self.segments
 
-    def _judge_traffic(self, network: RunNetwork) -> None:
+    def _judge_traffic(self, network: RunNetwork, session: zenoh.Session) -> None:
         """Every test ran: ``ok``, or ``no_traffic`` said loudly (`redline.agent.traffic`)."""
-        warnings = self.traffic.warnings(network.sessions_seen())
+        own, recorded = self.traffic.own_sessions, recorded_traffic(session)
+        seen: NetworkView | None = None
+        if recorded is not None:  # else the last rule cannot be applied
+            subscribed = network.subscriptions()
+            seen = NetworkView(
+                recorded=recorded,
+                driver_keys=self.driver_keys,
+                subscriptions=frozenset(key for key, zids in subscribed.items() if zids - own),
+            )
+        warnings = self.traffic.warnings(network.sessions_seen(), seen)
         if not warnings:
             self.meta["run"]["status"] = "ok"
             return
@@ -224,6 +243,9 @@ class _Run:
             )
         finally:
             self.stop.set()
+            self.driver_keys = frozenset(
+                key for key in link.published_keys() if not key.startswith(REDLINE_PREFIX)
+            )
             markers.close()
             link.close()
         for process in [*components, monitor]:

@@ -98,6 +98,11 @@ class Link:
         with self._lock:
             self._sent[key] = self._sent.get(key, 0) + samples
 
+    def published_keys(self) -> set[str]:
+        """Every key this link declared a publisher for (`Publish`, `Replay`, custom actions)."""
+        with self._lock:
+            return {key for key, _encoding in self._publishers}
+
     def sent(self) -> dict[str, int]:
         """Samples put per key through `Publish` on this link so far."""
         with self._lock:
