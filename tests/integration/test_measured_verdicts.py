@@ -21,9 +21,11 @@ from redline.server.models import (
     Series,
 )
 from redline.server.schemas.components import ComponentCreate
+from redline.server.schemas.regressions import DetectionConfigIn
 from redline.server.schemas.revisions import RevisionCreate
 from redline.server.services.ci_verdict import ci_verdict, junit_xml
 from redline.server.services.components import create_component
+from redline.server.services.detection_config import set_config
 from redline.server.services.jobs import lease_job
 from redline.server.services.revisions import create_revision
 from redline.worker.detection import detect_revision
@@ -52,6 +54,7 @@ def _record(
     path_in_tree: str = QUERY,
     counters: bool = True,
     cpu: float = 20.0,
+    split: bool = False,
 ) -> Path:
     """One execution's recording: a 2 s steady phase with the component's CPU, the host's and
     Redline's own, and the driver's report of its queries (as `redline.testing.Query` makes)."""
@@ -62,7 +65,10 @@ def _record(
         writer.metadata("redline.host", {"cpu_cores": "2"})
         writer.marker("begin", CASE, PHASE, PARAMS, warmup=False, t_ns=begin)
         for t_ns in range(begin + 50_000_000, end, 50_000_000) if counters else ():
-            writer.counters(NAME, 42, {"cpu_percent": rng.normal(cpu, cpu / 50)}, t_ns)
+            used = {"cpu_percent": rng.normal(cpu, cpu / 50)}
+            writer.counters(
+                NAME, 42, {**used, "cpu_user_percent": cpu / 2} if split else used, t_ns
+            )
             writer.counters("host", 0, {"cpu_percent": host_percent}, t_ns)
             writer.counters("redline", 0, {"cpu_percent": 4.0}, t_ns)
         if report:
@@ -156,6 +162,26 @@ def test_the_series_api_says_each_series_kind_direction_and_whether_it_is_judged
     assert shown[("driver", f"{QUERY}:queries")] == ("driver", "increase", False)  # load
     assert shown[("host", "other_cpu_percent")][0] == "host"
     assert shown[("redline", "cpu_percent")][0] == "redline"
+
+
+def test_the_series_api_says_judged_as_the_components_own_context_counters_say(
+    session, database_url, tmp_path, services
+):
+    """The API said the user/system split was not judged after a component had asked for it to
+    be (``"context_counters": []``): the worker judged it, the API went by the defaults."""
+    with api_with(services, tmp_path) as api:
+        create_component(session, ComponentCreate(name=NAME, executions=RUNS))
+        ingest_and_detect(database_url, _revision(session, tmp_path, 1, split=True))
+
+        def user_cpu_judged() -> bool:
+            answer = api.client.get(f"/api/v1/components/{NAME}/series")
+            assert answer.status_code == 200, answer.text
+            (found,) = [s for s in answer.json() if s["counter"] == "cpu_user_percent"]
+            return found["judged"]
+
+        assert user_cpu_judged() is False  # by default: charted, not judged
+        set_config(session, NAME, DetectionConfigIn(context_counters=[]))
+        assert user_cpu_judged() is True
 
 
 def test_a_faster_round_trip_is_a_change_but_not_a_regression(session, database_url, tmp_path):

@@ -382,3 +382,24 @@ def test_redline_run_prints_the_driver_table_and_warns_of_a_busy_host(
     assert "c/steady" in warning and "host busy: other load 165 % of a core" in warning
     assert "charted, not judged" in warning
 
+
+def test_cpu_per_op_counts_the_work_delivered_not_the_samples_listened_to(tmp_path: Path) -> None:
+    """Listen's `received` counts the component's output (judged by Listen's own rate and
+    losses), not work the driver delivered: counted too, a lost output would read as CPU per
+    unit of work rising, and a component fed one input per output would have its work doubled."""
+    path = tmp_path / "listen.mcap"
+    with RecordingWriter(path) as writer:
+        writer.metadata("redline.run", {"component": "svc"})
+        writer.marker("begin", "c", "steady", PARAMS, warmup=False, t_ns=1_000_000_000)
+        for t_ns in range(1_100_000_000, 3_000_000_000, 100_000_000):
+            writer.counters("svc", 42, {"cpu_percent": 20.0}, t_ns)
+        for action, counts in (("Publish", {"published": 100}), ("Listen", {"received": 300})):
+            report = {"t_ns": 2_999_000_000, "case": "c", "phase": "steady", "params": PARAMS}
+            writer.write_json(
+                "@redline/driver/c/steady",
+                {**report, "action": action, "path": action, "key": "svc/x", **counts},
+            )
+        writer.marker("end", "c", "steady", PARAMS, warmup=False, t_ns=3_000_000_000)
+    samples = read_recording(path).series_samples()
+    (per_op,) = [v for k, v in samples.items() if k.counter == "cpu_us_per_op"]
+    assert per_op[0] == pytest.approx(0.4e6 / 100)  # 0.4 CPU-s over the 100 published

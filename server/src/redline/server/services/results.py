@@ -5,9 +5,10 @@ from __future__ import annotations
 import json
 import math
 from collections import defaultdict
+from collections.abc import Collection
 
 from redline.detect.config import CHARTED_METHOD
-from redline.detect.counters import judged, kind, worse
+from redline.detect.counters import CONTEXT_COUNTERS, judged, kind, worse
 from redline.detect.result import NOT_ENOUGH_DATA
 from redline.detect.summary import Pooled
 from redline.recording import SeriesKey
@@ -15,12 +16,15 @@ from redline.recording.format import HOST_PROCESS
 from redline.server.models import Detection, Execution, Revision, Series, Summary
 from redline.server.schemas.results import ChangeOut, SeriesOut, SeriesPoint, SeriesRef
 from redline.server.services.components import get_component
+from redline.server.services.detection_config import component_config
 from redline.server.services.paging import after_newest_first, encode_cursor
 from sqlalchemy import select
 from sqlalchemy.orm import Session, aliased
 
 
-def series_ref(series: Series) -> SeriesRef:
+def series_ref(series: Series, context: Collection[str] = CONTEXT_COUNTERS) -> SeriesRef:
+    """The series as the API shows it; ``context``: the counters its component does not judge
+    (its detection settings' ``context_counters``)."""
     label = SeriesKey(
         series.case, series.phase, series.params, series.process, series.counter
     ).label()
@@ -34,13 +38,15 @@ def series_ref(series: Series) -> SeriesRef:
         counter=series.counter,
         kind=kind(series.process),
         worse=worse(series.process, series.counter),
-        judged=judged(series.process, series.counter),
+        judged=judged(series.process, series.counter, context),
     )
 
 
 def component_series(session: Session, component_name: str) -> list[SeriesOut]:
-    """Each series of the component with one point per revision, in sort-key order."""
+    """Each series of the component with one point per revision, in sort-key order; whether
+    it is judged as the component's own settings say."""
     component = get_component(session, component_name)
+    context = component_config(session, component.id).context_counters
     rows = session.execute(
         select(Series, Revision, Summary.n, Summary.mean, Summary.std)
         .join(Summary, Summary.series_id == Series.id)
@@ -63,7 +69,7 @@ def component_series(session: Session, component_name: str) -> list[SeriesOut]:
         pools[series].setdefault(revision, Pooled()).add(n, mean, std)
     return [
         SeriesOut(
-            **series_ref(series).model_dump(),
+            **series_ref(series, context).model_dump(),
             points=[
                 SeriesPoint(
                     revision=revision.title,
@@ -114,9 +120,10 @@ def component_changes(
     if limit is not None and len(rows) == limit:
         found, _, _, _, key = rows[-1]
         following = encode_cursor(key, found.flagged, found.id)
+    context = component_config(session, component.id).context_counters
     return [
         ChangeOut(
-            series=series_ref(series),
+            series=series_ref(series, context),
             revision=title,
             baseline=base,
             method=found.method,
