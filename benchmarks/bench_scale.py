@@ -6,7 +6,11 @@ with 1 and 2 Celery workers, each against a reference measured in the same run.
 **Leases.** For each number of API processes (`redline server --workers N`), a fresh database
 with 1,000 queued jobs (100 revisions x 10 executions) and 20 agents, each a process of its own
 with one HTTP client, leasing until nothing is left; every job must be leased exactly once.
-Leases per second, and the ratio to one process (goal: >= 1.7x with 2 on 2 cores).
+Leases per second, and the ratio to one process (goal: >= 1.7x with 2 on 2 cores). Beside each
+rate, who used the cores while the agents leased: CPU seconds of the API's processes, the
+agents', Postgres's (the postmaster and its backends; an embedded Postgres, or one on this
+host), this benchmark's own, and the rest of the host's busy time (others' processes: a host
+that was not quiet shows here), with the 1-minute load average as the run began.
 
 **Ingestion.** 120 stored executions (20 series x 300 samples each) queued for ingestion, then
 `redline worker --queues ingest` with 1, then 2 worker processes (`--concurrency`) until every
@@ -37,6 +41,7 @@ from collections import Counter
 from pathlib import Path
 
 import numpy as np
+import psutil
 from _service import api_server, database
 from redline.agent.client import ServerClient
 from redline.server.core.config import Settings
@@ -60,8 +65,10 @@ INGESTED, SERIES = 120, 20
 REDLINE = str(Path(sys.executable).parent / "redline")
 
 
-def _lease_all(args: tuple[str, str, str]) -> list[int]:
+def _lease_all(args: tuple[str, str, str]) -> tuple[list[int], float]:
+    """The jobs one agent leased until none was left, and the CPU seconds it spent on them."""
     server, token, host = args
+    began = time.process_time()
     client = ServerClient(server, token, host)
     client.register({}, [])
     leased = []
@@ -70,10 +77,84 @@ def _lease_all(args: tuple[str, str, str]) -> list[int]:
             leased.append(int(job["id"]))
     finally:
         client.close()
-    return leased
+    return leased, time.process_time() - began
 
 
-def leases(processes: int) -> float:
+def _tree_cpu(root: psutil.Process | None) -> float:
+    """CPU seconds the processes under ``root`` have used so far: each live one's own and that of
+    its children it has reaped (a Postgres backend that ended counts in the postmaster's)."""
+    if root is None:
+        return 0.0
+    total = 0.0
+    for process in [root, *root.children(recursive=True)]:
+        try:
+            used = process.cpu_times()
+        except psutil.NoSuchProcess:  # ended between the listing and now: in its parent's
+            continue
+        total += used.user + used.system + used.children_user + used.children_system
+    return total
+
+
+def _api_process(port: str) -> psutil.Process:
+    """The `redline server` this benchmark started on ``port`` (its API processes are children)."""
+    for child in psutil.Process().children():
+        command = child.cmdline()
+        if "server" in command and port in command:
+            return child
+    raise RuntimeError(f"no `redline server --port {port}` among this benchmark's children")
+
+
+def _postmaster(url: str) -> psutil.Process | None:
+    """The Postgres server of ``url`` when it runs on this host (a backend's parent), else None.
+    Every backend of it counts, other users' too: measure on the embedded one (no
+    ``REDLINE_DATABASE_URL``) for the benchmark's alone."""
+    with session_factory(url)() as session:
+        backend = session.scalar(select(func.pg_backend_pid()))
+    try:
+        process = psutil.Process(backend)
+        return process.parent() if process.name().startswith("postgres") else None
+    except psutil.NoSuchProcess:  # on another host: not counted
+        return None
+
+
+class CpuSplit:
+    """Who used this host's cores between `start` and `stop`, in CPU seconds."""
+
+    def __init__(self, api: psutil.Process, postgres: psutil.Process | None) -> None:
+        self.api, self.postgres = api, postgres
+
+    def _read(self) -> tuple[float, ...]:
+        host = psutil.cpu_times()  # Linux counts guest time in user time already
+        busy = host.user + host.nice + host.system + host.irq + host.softirq
+        idle, steal = host.idle + host.iowait, host.steal  # steal: the hypervisor ran others
+        api, postgres = _tree_cpu(self.api), _tree_cpu(self.postgres)
+        return busy, idle, steal, api, postgres, time.process_time()
+
+    def start(self) -> None:
+        self.load = os.getloadavg()[0]
+        self.before, self.began = self._read(), time.perf_counter()
+
+    def stop(self, agents: float) -> dict[str, float]:
+        after, seconds = self._read(), time.perf_counter() - self.began
+        busy, idle, steal, api, postgres, own = (
+            b - a for a, b in zip(self.before, after, strict=True)
+        )
+        return {
+            "seconds": seconds,
+            "cores": float(psutil.cpu_count() or 0),
+            "load_1min_before": self.load,
+            "api": api,
+            "agents": agents,
+            "postgres": postgres,
+            "benchmark": own,
+            "others": busy - api - agents - postgres - own,
+            "idle": idle,
+            "steal": steal,
+        }
+
+
+def leases(processes: int) -> tuple[float, dict[str, float]]:
+    """Leases per second with ``processes`` API processes, and who used the cores meanwhile."""
     with database() as url, api_server(url, workers=processes) as (server, tokens):
         with session_factory(url)() as session:
             create_component(session, ComponentCreate(name="bench", executions=EXECUTIONS))
@@ -84,15 +165,26 @@ def leases(processes: int) -> float:
                         component="bench", title=f"r{n}", sort_key=str(n), commit="main"
                     ),
                 )
+        split = CpuSplit(_api_process(server.rsplit(":", 1)[1]), _postmaster(url))
         agents = [(server, tokens["agent"], f"agent-{n}") for n in range(AGENTS)]
         with multiprocessing.get_context("spawn").Pool(AGENTS) as pool:
             pool.map(time.sleep, [0.0] * AGENTS)  # the agents' processes are up
-            start = time.perf_counter()
+            split.start()
             results = pool.map(_lease_all, agents, chunksize=1)
-            seconds = time.perf_counter() - start
-    counts = Counter(job for ids in results for job in ids)
+            cpu = split.stop(sum(spent for _, spent in results))
+    counts = Counter(job for ids, _ in results for job in ids)
     assert len(counts) == JOBS and set(counts.values()) == {1}, "a job was leased twice or never"
-    return JOBS / seconds
+    return JOBS / cpu["seconds"], cpu
+
+
+def _print_split(cpu: dict[str, float]) -> None:
+    groups = ("api", "agents", "postgres", "benchmark", "others", "idle", "steal")
+    print(
+        f"  CPU s over {cpu['seconds']:.1f} s x {cpu['cores']:.0f} cores "
+        f"(load {cpu['load_1min_before']:.2f} before): "
+        + ", ".join(f"{name} {cpu[name]:.1f}" for name in groups),
+        flush=True,
+    )
 
 
 def ingestion(workers: int) -> float:
@@ -235,17 +327,20 @@ def main() -> int:
     parser.add_argument("--json", type=Path)
     parser.add_argument("--only", choices=["leases", "ingestion", "reanalysis"])
     args = parser.parse_args()
-    report: dict[str, dict[str, float]] = {}
+    report: dict[str, dict] = {}
     if args.only in (None, "reanalysis"):
         report["reanalysis_s"] = times = reanalysis([(1, 1), (1, 2), (2, 2)])
         reference = times["1 process(es), 1 part(s)"]
         for name, took in times.items():
             print(f"  {name}: {took / reference:.2f}x the one walk's {reference:.1f} s")
     if args.only in (None, "leases"):
-        report["leases_per_s"] = {}
+        report["leases_per_s"], report["lease_cpu_s"] = {}, {}
         for processes in (1, 2, 4):
-            report["leases_per_s"][str(processes)] = rate = leases(processes)
+            rate, cpu = leases(processes)
+            report["leases_per_s"][str(processes)] = rate
+            report["lease_cpu_s"][str(processes)] = cpu
             print(f"{processes} API process(es), {AGENTS} agents: {rate:.0f} leases/s", flush=True)
+            _print_split(cpu)
         one = report["leases_per_s"]["1"]
         for processes in ("2", "4"):
             print(f"  {processes} / 1 process(es): {report['leases_per_s'][processes] / one:.2f}x")
