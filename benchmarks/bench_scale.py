@@ -355,11 +355,29 @@ def main() -> int:
     return 0
 
 
+def _measured_at() -> str:
+    """The code measured: this checkout's commit, and how many of Redline's source files differ
+    from it (the tree may hold uncommitted changes), with the date."""
+
+    def git(*args: str) -> str:
+        return subprocess.run(["git", *args], cwd=ROOT, capture_output=True, text=True).stdout
+
+    changed = git("status", "--porcelain", "--", "agent/src", "server/src").splitlines()
+    return (
+        f"{git('rev-parse', '--short', 'HEAD').strip()}"
+        + (f" + {len(changed)} uncommitted source file(s)" if changed else "")
+        + time.strftime(", %Y-%m-%d %H:%M UTC", time.gmtime())
+    )
+
+
 def _write(path: Path | None, report: dict) -> None:
-    """The figures into ``path``, merged with those an earlier run of other parts wrote."""
+    """The figures into ``path``, merged with those an earlier run of other parts wrote, each
+    part with the code and time it was measured at (``measured``)."""
     if path:
         earlier = json.loads(path.read_text()) if path.exists() else {}
-        path.write_text(json.dumps(earlier | report, indent=1))
+        at = _measured_at()
+        measured = earlier.get("measured", {}) | dict.fromkeys(report, at)
+        path.write_text(json.dumps(earlier | report | {"measured": measured}, indent=1))
 
 
 if __name__ == "__main__":
