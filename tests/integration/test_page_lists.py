@@ -16,7 +16,7 @@ import pytest
 from fastapi.testclient import TestClient
 from redline.recording.format import canonical_params
 from redline.server.db import session_factory
-from redline.server.models import Execution, Host, Job, Revision, Series
+from redline.server.models import Execution, FigureCache, Host, Job, Revision, Series, utcnow
 from redline.server.routes import regression_pages, web
 from redline.server.services import compare
 from redline.server.services.signin import SESSION_COOKIE, create_user
@@ -242,3 +242,30 @@ def test_a_sign_in_posted_from_elsewhere_is_refused(client, database_url):
     assert signed.status_code == 303 and SESSION_COOKIE in client.cookies
     cookie = client.get("/signin").headers["set-cookie"].lower()
     assert "httponly" in cookie and "samesite=strict" in cookie and "path=/signin" in cookie
+
+
+def _analysed_now(database_url: str, title: str) -> None:
+    with session_factory(database_url)() as session:
+        session.execute(
+            update(Revision).where(Revision.title == title).values(analyzed_at=utcnow())
+        )
+        session.commit()
+
+
+def _cached_versions(database_url: str) -> dict[str, str]:
+    with session_factory(database_url)() as session:
+        return dict(session.execute(select(FigureCache.view, FigureCache.version)).tuples().all())
+
+
+def test_a_views_data_version_is_read_from_its_own_revisions(client, database_url, tmp_path):
+    """The cache's version was the newest execution and analysis of the whole history, read on
+    every request: a page's cost grew with it. A view's is its revisions' (and the one before)."""
+    history(database_url, tmp_path, [20.0, 20.0, 20.0])
+    client.get("/components/builder?revisions=1")  # r3, and r2 to know there is earlier history
+    (first,) = _cached_versions(database_url).values()
+    _analysed_now(database_url, "r1")  # outside the view: its page stays as it was
+    client.get("/components/builder?revisions=1")
+    assert _cached_versions(database_url) == {"revisions=1": first}
+    _analysed_now(database_url, "r3")  # analysed again: its marks may have changed
+    client.get("/components/builder?revisions=1")
+    assert _cached_versions(database_url)["revisions=1"] != first

@@ -283,7 +283,10 @@ def data_version(session: Session, component_id: int, shown: Window) -> str:
         f"{r.id}|{r.title}|{r.commit}|{r.committed_at}|{r.analyzed_at}" for r in shown.revisions
     )
     ids = [revision.id for revision in shown.revisions]
-    stored = session.scalar(select(func.max(Execution.id)).where(Execution.revision_id.in_(ids)))
+    # each of their executions by its revision (an index step each), not max() over the table:
+    # the planner walked the executions newest first for that, past every later revision's
+    executions = session.scalars(select(Execution.id).where(Execution.revision_id.in_(ids)))
+    stored = max(executions, default=None)
     updated = session.scalar(
         select(func.max(Regression.updated)).where(Regression.component_id == component_id)
     )
