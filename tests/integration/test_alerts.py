@@ -7,21 +7,16 @@ from __future__ import annotations
 import hashlib
 import hmac
 import json
-import multiprocessing
-import time
 from datetime import timedelta
 from pathlib import Path
 
 import jsonschema
-import numpy as np
 import pytest
 import redis
 from redline.server.db import session_factory
 from redline.server.models import (
-    Alert,
     Component,
     Delivery,
-    DetectionConfigRow,
     Execution,
     RegressionState,
     Revision,
@@ -35,110 +30,30 @@ from redline.worker.alerts import (
     scan_component,
     send_digests,
 )
-from redline.worker.deliver import claim, deliver_due
-from redline.worker.detection import detect_revision
-from redline.worker.ingest import ingest_execution
+from redline.worker.deliver import deliver_due
 from redline.worker.reanalysis import reanalyze_component
 from redline.worker.sweeps import SWEEP_GRACE, failed_without_status, untold_runtime_alarms
 from sqlalchemy import delete, select, update
 
-from tests.support.api import Api, api_with
-from tests.support.history import add_execution
-from tests.support.receivers import Mailbox, Receiver, http_receiver, smtp_server
+from tests.support import alerting
+from tests.support.alerting import (
+    BASE,
+    a_period_later,
+    alert,
+    cpu_and_rss,
+    deliveries,
+    eager,
+    grow_by_rss,
+    killed_mid_send,
+    revisions,
+    scan,
+    subscribe,
+)
+from tests.support.api import Api
 
 SCHEMA = json.loads((Path(__file__).parents[2] / "docs" / "alerts.schema.json").read_text())
-BASE = "/api/v1/components/builder"
 SECRET = "hook-secret"
-
-
-@pytest.fixture
-def mailbox(tmp_path: Path):
-    with smtp_server(tmp_path) as box:
-        yield box
-
-
-@pytest.fixture
-def receiver():
-    with http_receiver() as found:
-        yield found
-
-
-@pytest.fixture
-def api(services, tmp_path: Path, mailbox: Mailbox):
-    with api_with(
-        services,
-        tmp_path,
-        public_url="https://redline.example",
-        smtp_host=mailbox.host,
-        smtp_port=mailbox.port,
-        smtp_user=mailbox.user,
-        smtp_password=mailbox.password,
-        smtp_tls="starttls",
-        smtp_ca_file=mailbox.ca_file,
-        alert_timeout_s=1.0,
-        alert_retry_s=0.01,
-        alert_max_attempts=5,
-    ) as driver:
-        driver.component()
-        with session_factory(driver.settings.database_url)() as session:
-            component = session.scalar(select(Component).where(Component.name == "builder"))
-            session.add(DetectionConfigRow(component_id=component.id, config={"methods": ["ks"]}))
-            session.commit()
-        yield driver
-
-
-def subscribe(api: Api, body: dict, component: str | None = "builder") -> dict:
-    path = f"/api/v1/components/{component}/subscriptions" if component else "/api/v1/subscriptions"
-    answer = api.post(path, "admin", body)
-    assert answer.status_code == 201, answer.text
-    return answer.json()
-
-
-def eager(receiver: Receiver, path: str) -> dict:
-    """A webhook subscription told of regressions as soon as they are flagged."""
-    return {"kind": "webhook", "url": receiver.url + path, "confirmed_only": False}
-
-
-def revisions(api: Api, tmp_path: Path, cpus: list[float], first: int = 1, seed: int = 5) -> None:
-    """Revisions r{first}.. of 'builder' with cpu series of these means, ingested and judged."""
-    rng = np.random.default_rng(seed + first)
-    database_url = api.settings.database_url
-    with session_factory(database_url)() as session:
-        executions = [
-            add_execution(
-                session,
-                tmp_path,
-                "builder",
-                f"r{n}",
-                f"{n:04d}",
-                {"cpu": rng.normal(cpu, cpu / 20, 60)},
-            )
-            for n, cpu in enumerate(cpus, start=first)
-        ]
-    for execution in executions:
-        ingest_execution(database_url, execution.id)
-        detect_revision(database_url, execution.revision_id)
-
-
-def alert(api: Api, rounds: int = 20) -> None:
-    """What the worker does after a detection: scan, then send until nothing is due."""
-    database_url = api.settings.database_url
-    with session_factory(database_url)() as session:
-        component = session.scalar(select(Component.id).where(Component.name == "builder"))
-        scan_component(session, component)
-        session.commit()
-    for _ in range(rounds):
-        done = deliver_due(database_url, api.settings)
-        if done["next"] is None:
-            return
-        time.sleep(0.05)
-
-
-def deliveries(api: Api, ident: int | None = None) -> list[dict]:
-    path = f"{BASE}/subscriptions/{ident}/deliveries" if ident else f"{BASE}/deliveries"
-    answer = api.client.get(path, headers=api.tokens["admin"])
-    assert answer.status_code == 200, answer.text
-    return answer.json()
+api, mailbox, receiver = alerting.api, alerting.mailbox, alerting.receiver  # the fixtures
 
 
 def test_a_confirmed_regression_is_told_once_by_mail_and_by_signed_webhook(
@@ -271,34 +186,15 @@ def test_an_smtp_server_that_is_down_is_retried_until_it_is_back(api, tmp_path, 
     assert deliveries(api, mail["id"])[0]["state"] == "delivered"
 
 
-def _send_and_hang(database_url: str, settings) -> None:
-    deliver_due(database_url, settings)
-
-
 def test_a_worker_killed_mid_send_leaves_it_to_be_sent_again_with_the_same_id(
     api, tmp_path, receiver
 ):
     receiver.delays["/hook"] = 30.0  # the first try hangs until the worker is killed
     subscribe(api, eager(receiver, "/hook"))
     revisions(api, tmp_path, [10.0] * 5 + [14.0])
-    with session_factory(api.settings.database_url)() as session:
-        scan_component(session, 1)
-        session.commit()
-    slow = api.settings.model_copy(update={"alert_timeout_s": 60.0})
-    worker = multiprocessing.get_context("spawn").Process(
-        target=_send_and_hang, args=(api.settings.database_url, slow)
-    )
-    worker.start()
-    deadline = time.monotonic() + 30
-    while not receiver.requests and time.monotonic() < deadline:
-        time.sleep(0.05)
-    worker.kill()
-    worker.join()
+    scan(api)
+    killed_mid_send(api, lambda: receiver.requests)
     (first,) = receiver.requests
-    assert claim(api.settings.database_url, 10, lease=timedelta(days=1)) == []  # leased
-    with session_factory(api.settings.database_url)() as session:  # its lease lapses
-        session.execute(update(Delivery).values(lease_until=Delivery.created))
-        session.commit()
     receiver.delays["/hook"] = 0.0
     alert(api)
     again = receiver.requests[1:]
@@ -334,43 +230,17 @@ def test_a_digest_gathers_the_alerts_of_its_period_into_one_message(api, tmp_pat
 def test_a_growing_regression_is_updated_once_a_period_with_its_new_series_only(
     api, tmp_path, receiver
 ):
-    database_url = api.settings.database_url
-    floor = {"methods": ["ks"], "thresholds": {"ks": {"min_effect": 0.05}}}
-    with session_factory(database_url)() as session:
-        session.execute(update(DetectionConfigRow).values(config=floor))
-        session.commit()
     subscribe(api, eager(receiver, "/hook"))
-    rng = np.random.default_rng(3)
-    with session_factory(database_url)() as session:
-        executions = [
-            add_execution(
-                session,
-                tmp_path,
-                "builder",
-                f"r{n}",
-                f"{n:04d}",
-                {"cpu": rng.normal(cpu, 0.2, 60), "rss": rng.normal(rss, 0.05, 60)},
-            )
-            for n, (cpu, rss) in enumerate([(10.0, 100.0)] * 5 + [(14.0, 103.0)], start=1)
-        ]
-    for execution in executions:
-        ingest_execution(database_url, execution.id)
-        detect_revision(database_url, execution.revision_id)
+    cpu_and_rss(api, tmp_path)
     alert(api)
     (first,) = receiver.requests
     assert [c["counter"] for c in json.loads(first.body)["alerts"][0]["changes"]] == ["cpu"]
 
     # rss's +3 % is flagged once the floor is lowered: the same regression grew
-    with session_factory(database_url)() as session:
-        lower = {"methods": ["ks"], "thresholds": {"ks": {"min_effect": 0.01}}}
-        session.execute(update(DetectionConfigRow).values(config=lower))
-        session.commit()
-    reanalyze_component(database_url, 1)
+    grow_by_rss(api)
     alert(api)
     assert len(receiver.requests) == 1  # within the period: told at the next one
-    with session_factory(database_url)() as session:
-        session.execute(update(Alert).values(created=Alert.created - timedelta(days=2)))
-        session.commit()
+    a_period_later(api)
     alert(api)
     alert(api)
     assert len(receiver.requests) == 2
@@ -420,6 +290,44 @@ def test_the_verdict_goes_to_the_commit_status_api(api, tmp_path, receiver, prov
         assert body["state"] == "failed" and body["name"] == "redline/builder"
     assert body["target_url"] == "https://redline.example/components/builder/revisions/r6"
     assert "1 change(s) for the worse" in body["description"]
+
+
+@pytest.mark.parametrize("provider", ["github", "gitlab"])
+def test_no_change_posts_success_and_a_revision_still_measured_posts_pending(
+    api, tmp_path, receiver, provider
+):
+    target = {"provider": provider, "api_url": receiver.url + "/api",
+              "repository": "robots/builder", "token": "tok-123"}  # fmt: skip
+    answer = api.client.put(f"{BASE}/commit-status", json=target, headers=api.tokens["admin"])
+    assert answer.status_code == 200, answer.text
+    revisions(api, tmp_path, [10.0] * 6)
+    waiting = api.revision("r7", "0007")  # its job waits for a performance host
+    database_url = api.settings.database_url
+    with session_factory(database_url)() as session:
+        session.execute(update(Revision).where(Revision.title == "r6").values(commit="b" * 40))
+        judged = session.scalar(select(Revision.id).where(Revision.title == "r6"))
+        assert len(commit_status(session, judged)) == 1
+        assert len(commit_status(session, waiting["revision_id"])) == 1
+        session.commit()
+    deliver_due(database_url, api.settings)
+    calls = {call.path.rsplit("/", 1)[1]: call for call in receiver.requests}
+    assert set(calls) == {"b" * 40, "abc123"}
+    done, pending = json.loads(calls["b" * 40].body), json.loads(calls["abc123"].body)
+    assert (done["state"], done["description"]) == ("success", "Redline: no change for the worse")
+    assert pending["state"] == "pending"
+    assert pending["description"] == "Redline: waiting for a performance host to take its jobs"
+    for sha, call in calls.items():
+        assert call.method == "POST"
+        if provider == "github":
+            assert call.path == f"/api/repos/robots/builder/statuses/{sha}"
+            assert call.headers["Authorization"] == "Bearer tok-123"
+            assert json.loads(call.body)["context"] == "redline/builder"
+        else:
+            assert call.path == f"/api/projects/robots%2Fbuilder/statuses/{sha}"
+            assert call.headers["Private-Token"] == "tok-123"
+            assert json.loads(call.body)["name"] == "redline/builder"
+        page = "/components/builder/revisions/" + ("r6" if sha == "b" * 40 else "r7")
+        assert json.loads(call.body)["target_url"] == "https://redline.example" + page
 
 
 def test_subscriptions_are_admin_only_checked_and_listed_changed_and_deleted(api, receiver):

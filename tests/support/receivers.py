@@ -1,9 +1,11 @@
 """Real receivers of what Redline sends: an HTTP server that records every request (and can be
 told to fail or be slow, path by path), and an SMTP server (aiosmtpd) that requires STARTTLS and a
-login, with a certificate from a test CA (trustme)."""
+login, with a certificate from a test CA (trustme), and can be told to refuse or be slow, command
+by command."""
 
 from __future__ import annotations
 
+import asyncio
 import ssl
 import threading
 import time
@@ -82,6 +84,11 @@ def http_receiver() -> Iterator[Receiver]:
 
 @dataclass
 class Mailbox:
+    """``messages``: the mails the server took (answered 250); ``arrived``: every mail whose
+    content came in, taken or not. ``answers[command]`` ("RCPT" or "DATA"): replies given in
+    turn (then "250 OK"); ``delays[command]``: seconds to wait before replying (the mail is in
+    ``arrived`` already while a DATA reply waits)."""
+
     host: str
     port: int
     ca_file: Path
@@ -89,6 +96,15 @@ class Mailbox:
     password: str
     messages: list[EmailMessage] = field(default_factory=list)
     recipients: list[list[str]] = field(default_factory=list)
+    arrived: list[EmailMessage] = field(default_factory=list)
+    answers: dict[str, list[str]] = field(default_factory=dict)
+    delays: dict[str, float] = field(default_factory=dict)
+
+    async def reply(self, command: str) -> str:
+        queue = self.answers.get(command)
+        answer = queue.pop(0) if queue else "250 OK"
+        await asyncio.sleep(self.delays.get(command, 0.0))  # cancelled if the client goes
+        return answer
 
 
 @contextmanager
@@ -106,12 +122,20 @@ def smtp_server(folder: Path, user: str = "redline", password: str = "s3cret") -
     box = Mailbox("127.0.0.1", free_port(), ca_file, user, password)
 
     class Handler:
+        async def handle_RCPT(self, server, session, envelope, address, options):  # noqa: N802
+            answer = await box.reply("RCPT")
+            if answer.startswith("250"):
+                envelope.rcpt_tos.append(address)  # aiosmtpd leaves it to a handler that has one
+            return answer
+
         async def handle_DATA(self, server, session, envelope):  # noqa: N802 (aiosmtpd's name)
-            box.messages.append(
-                message_from_bytes(envelope.content, policy=policy.default)  # type: ignore[arg-type]
-            )
-            box.recipients.append(list(envelope.rcpt_tos))
-            return "250 OK"
+            mail = message_from_bytes(envelope.content, policy=policy.default)  # type: ignore[arg-type]
+            box.arrived.append(mail)
+            answer = await box.reply("DATA")
+            if answer.startswith("250"):
+                box.messages.append(mail)
+                box.recipients.append(list(envelope.rcpt_tos))
+            return answer
 
     def authenticate(server, session, envelope, mechanism, auth_data):
         ok = isinstance(auth_data, LoginPassword) and (

@@ -4,10 +4,13 @@ outcome stored, each in its own transaction.
 A delivery is leased before it is sent (state ``sending`` until ``lease_until``), so a worker
 killed mid-send leaves it to be sent again once the lease lapses, with the same delivery id
 (header ``X-Redline-Delivery``, the mail's Message-ID) for the receiver to recognise. A failure
-is retried with exponential backoff and jitter until ``REDLINE_ALERT_MAX_ATTEMPTS``; a success
-is stored at once and never sent again. Sends run on a few threads with a timeout each
-(``REDLINE_ALERT_TIMEOUT_S``), so one slow receiver holds up neither the others nor ingestion
-and detection, which run in other workers' queues.
+is retried with exponential backoff and jitter until ``REDLINE_ALERT_MAX_ATTEMPTS``; a mail
+server's permanent refusal of the mail (a 5xx reply to its sender, recipient or content) is
+failed at once. A success is stored as soon as its send returns, even one whose lease lapsed
+meanwhile, and is never sent again. Sends run on a few threads with a timeout each
+(``REDLINE_ALERT_TIMEOUT_S``), each outcome stored as it comes and free threads given more work
+meanwhile, so one slow receiver holds up neither the others nor ingestion and detection, which
+run in other workers' queues.
 """
 
 from __future__ import annotations
@@ -20,7 +23,7 @@ import random
 import smtplib
 import socket
 import ssl
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import FIRST_COMPLETED, Future, ThreadPoolExecutor, wait
 from dataclasses import dataclass
 from datetime import datetime, timedelta
 from email.message import EmailMessage
@@ -38,13 +41,20 @@ from sqlalchemy import and_, or_, select, update
 log = logging.getLogger(__name__)
 #: the longest wait between two tries of one delivery
 MAX_BACKOFF = timedelta(hours=6)
+#: how often a run with sends in flight looks for deliveries that fell due meanwhile (seconds)
+POLL_S = 1.0
 SIGNATURE_HEADER = "X-Redline-Signature-256"
 DELIVERY_HEADER = "X-Redline-Delivery"
 EVENT_HEADER = "X-Redline-Event"
 
 
 class SendError(Exception):
-    """A try that failed; the message says why (status and the start of the answer)."""
+    """A try that failed; the message says why (status and the start of the answer).
+    ``permanent``: trying again cannot help (a mail server refused the mail with a 5xx)."""
+
+    def __init__(self, message: str, permanent: bool = False) -> None:
+        super().__init__(message)
+        self.permanent = permanent
 
 
 def sign(secret: str, body: bytes) -> str:
@@ -52,9 +62,11 @@ def sign(secret: str, body: bytes) -> str:
 
 
 def backoff(attempts: int, base: float) -> timedelta:
-    """The wait after the ``attempts``-th failed try: base x 2^(attempts-1), x 0.5..1.5."""
-    seconds = base * 2 ** max(attempts - 1, 0) * random.uniform(0.5, 1.5)
-    return min(timedelta(seconds=seconds), MAX_BACKOFF)
+    """The wait after the ``attempts``-th failed try: base x 2^(attempts-1), x 0.5..1.5, at
+    most `MAX_BACKOFF` (the jitter applies at the cap too, so retries stay spread out)."""
+    ceiling = MAX_BACKOFF.total_seconds() / 1.5
+    seconds = min(base * 2.0 ** min(max(attempts - 1, 0), 64), ceiling)
+    return timedelta(seconds=seconds * random.uniform(0.5, 1.5))
 
 
 def _post(
@@ -120,7 +132,35 @@ def _mail(delivery: Delivery, subscription: Subscription, settings: Settings) ->
                 client.login(settings.smtp_user, settings.smtp_password.get_secret_value())
             client.send_message(mail)
     except (OSError, smtplib.SMTPException) as error:
-        raise SendError(f"SMTP: {type(error).__name__}: {error}") from None
+        raise smtp_failure(error) from None
+
+
+def _said(reply: bytes | str) -> str:
+    return (reply.decode(errors="replace") if isinstance(reply, bytes) else reply).strip()
+
+
+def smtp_failure(error: Exception) -> SendError:
+    """A failed SMTP conversation as a `SendError` quoting the server's reply. A 5xx reply to
+    the mail itself (its sender, recipient or content) is permanent: the server refuses this
+    mail, and would refuse it again. Any other failure (down, slow, a 4xx, the greeting, TLS or
+    the login refused) is retried: an outage passes, and an operator can fix a setting."""
+    if isinstance(error, smtplib.SMTPRecipientsRefused):
+        replies = error.recipients.values()
+        said = "; ".join(
+            f"{address}: {code} {_said(text)}" for address, (code, text) in error.recipients.items()
+        )
+        permanent = bool(replies) and all(code >= 500 for code, _ in replies)
+        return SendError(f"SMTP: recipient refused: {said}", permanent=permanent)
+    if isinstance(error, smtplib.SMTPSenderRefused | smtplib.SMTPDataError):
+        what = "sender refused" if isinstance(error, smtplib.SMTPSenderRefused) else "mail refused"
+        return SendError(
+            f"SMTP: {what}: {error.smtp_code} {_said(error.smtp_error)}",
+            permanent=error.smtp_code >= 500,
+        )
+    if isinstance(error, smtplib.SMTPResponseException):
+        said = f"{error.smtp_code} {_said(error.smtp_error)}"
+        return SendError(f"SMTP: {type(error).__name__}: {said}")
+    return SendError(f"SMTP: {type(error).__name__}: {error}")
 
 
 def _status(
@@ -239,41 +279,55 @@ def claim(database_url: str, limit: int, lease: timedelta) -> list[Leased]:
     return [Leased(*row) for row in rows]
 
 
-def _try(client: httpx.Client, settings: Settings, leased: Leased) -> str:
-    """One try of one delivery: "" when it was taken, else why not."""
+def attempt(client: httpx.Client, settings: Settings, leased: Leased) -> SendError | None:
+    """One try of one delivery: None when it was taken, else why not."""
     try:
         send(client, leased.delivery, settings, leased.subscription, leased.component)
     except SendError as failure:
-        return str(failure)
+        return failure
     except Exception as failure:  # a bug in a renderer must not stop the other deliveries
         log.exception("delivery %s", leased.delivery.uid)
-        return f"{type(failure).__name__}: {failure}"
-    return ""
+        return SendError(f"{type(failure).__name__}: {failure}")
+    return None
 
 
-def record(database_url: str, settings: Settings, outcomes: list[tuple[int, str]]) -> None:
-    """Store a batch's outcomes (delivery id, error or "") in one transaction: delivered, or
-    pending again after a backoff, or failed for good. A delivery no longer ``sending`` (its
-    lease lapsed and another worker took it) is left to that worker."""
+def record(
+    database_url: str, settings: Settings, outcomes: list[tuple[Leased, SendError | None]]
+) -> None:
+    """Store tries' outcomes in one transaction: delivered, or pending again after a backoff,
+    or failed for good.
+
+    A success is stored whenever it comes: a late one (the lease lapsed, another worker may be
+    sending it again, with the same id) is still a success, and nothing sends it after. A
+    failure is left to whoever leased the delivery since (its ``attempts`` moved on), and a
+    delivered one stays delivered."""
     now = utcnow()
+    ours = {leased.delivery.id: (leased.delivery.attempts, error) for leased, error in outcomes}
     with session_scope(database_url) as session:
         found = session.scalars(
-            select(Delivery)
-            .where(Delivery.id.in_([ident for ident, _ in outcomes]))
-            .with_for_update()
+            select(Delivery).where(Delivery.id.in_(list(ours))).with_for_update()
         )
-        errors = dict(outcomes)
         for delivery in found:
-            if delivery.state != "sending":
+            attempt, error = ours[delivery.id]
+            if delivery.state == "delivered":
                 continue
-            error = errors[delivery.id]
-            delivery.lease_until = None
-            if not error:
+            if error is None:
+                if delivery.attempts != attempt:
+                    log.warning(
+                        "delivery %s sent after its lease lapsed; try %d may send it again "
+                        "(the same id: the receiver can tell)",
+                        delivery.uid,
+                        delivery.attempts,
+                    )
                 delivery.state, delivery.delivered, delivery.last_error = "delivered", now, ""
+                delivery.lease_until = None
                 log.info("delivery %s (%s %s) sent", delivery.uid, delivery.kind, delivery.event)
                 continue
-            delivery.last_error = error
-            if delivery.attempts >= settings.alert_max_attempts:
+            if delivery.attempts != attempt or delivery.state != "sending":
+                continue  # leased again since: the later try decides
+            delivery.lease_until = None
+            delivery.last_error = str(error)
+            if error.permanent or delivery.attempts >= settings.alert_max_attempts:
                 delivery.state = "failed"
                 log.error(
                     "delivery %s failed for good after %d tries: %s",
@@ -294,17 +348,28 @@ def record(database_url: str, settings: Settings, outcomes: list[tuple[int, str]
 
 
 def deliver_due(database_url: str, settings: Settings, threads: int = 8) -> dict[str, Any]:
-    """Send what is due now, a batch at a time (leased in one transaction, sent on ``threads``
-    threads, recorded in one), until nothing is; returns counts and the next due time."""
+    """Send what is due now until nothing is, on ``threads`` threads: leased a few at a time
+    (at most one more than each thread sends), each outcome stored as soon as its send ends,
+    and what falls due meanwhile taken on while slow sends run. Returns counts and the next
+    due time."""
     lease = timedelta(seconds=settings.alert_timeout_s * 3 + 30)
+    room = threads * 2
     sent = failed = 0
+    in_flight: dict[Future[SendError | None], Leased] = {}
     with http_client(threads) as client, ThreadPoolExecutor(threads) as pool:
-        while batch := claim(database_url, threads * 4, lease):
-            errors = list(pool.map(lambda leased: _try(client, settings, leased), batch))
-            ids = [leased.delivery.id for leased in batch]
-            record(database_url, settings, list(zip(ids, errors, strict=True)))
-            failed += sum(1 for error in errors if error)
-            sent += sum(1 for error in errors if not error)
+        while True:
+            if len(in_flight) <= threads:
+                for leased in claim(database_url, room - len(in_flight), lease):
+                    in_flight[pool.submit(attempt, client, settings, leased)] = leased
+            if not in_flight:
+                break
+            done, _ = wait(in_flight, timeout=POLL_S, return_when=FIRST_COMPLETED)
+            if not done:
+                continue  # slow sends: look for deliveries that fell due meanwhile
+            outcomes = [(in_flight.pop(future), future.result()) for future in done]
+            record(database_url, settings, outcomes)
+            failed += sum(1 for _, error in outcomes if error is not None)
+            sent += sum(1 for _, error in outcomes if error is None)
     return {"sent": sent, "failed": failed, "next": next_due(database_url)}
 
 

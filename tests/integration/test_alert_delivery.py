@@ -1,0 +1,163 @@
+"""Delivering alerts when the other end misbehaves, on real Postgres, a real SMTP server (aiosmtpd,
+STARTTLS and a login) and a real HTTP receiver: a mail server that answers 4xx, refuses for good
+(5xx), is slow, or loses its worker mid-mail; a webhook receiver whose port is closed; a success
+that comes in after its lease lapsed."""
+
+from __future__ import annotations
+
+from datetime import timedelta
+from pathlib import Path
+
+import pytest
+from redline.agent.network import free_port
+from redline.server.db import session_factory
+from redline.server.models import Delivery
+from redline.worker.deliver import attempt, claim, deliver_due, http_client, record
+from sqlalchemy import update
+
+from tests.support import alerting
+from tests.support.alerting import (
+    alert,
+    deliveries,
+    eager,
+    killed_mid_send,
+    revisions,
+    scan,
+    subscribe,
+)
+from tests.support.api import Api
+
+api, mailbox, receiver = alerting.api, alerting.mailbox, alerting.receiver  # the fixtures
+MAIL = {"kind": "email", "address": "ops@x.example", "confirmed_only": False}
+
+
+def failed_once(api: Api, tmp_path: Path, subscription: dict) -> tuple[int, str]:
+    """Subscribe, flag a regression at r6, and try its delivery once (a failure waits an hour:
+    nothing is tried twice), which must fail; then make it due again. Returns the
+    subscription's id and the try's error."""
+    ident = subscribe(api, subscription)["id"]
+    revisions(api, tmp_path, [10.0] * 5 + [14.0])
+    scan(api)
+    patient = api.settings.model_copy(update={"alert_retry_s": 3600.0})
+    deliver_due(api.settings.database_url, patient)
+    (log,) = deliveries(api, ident)
+    assert (log["state"], log["attempts"]) == ("pending", 1), log
+    with session_factory(api.settings.database_url)() as session:
+        session.execute(update(Delivery).values(next_try=Delivery.created))
+        session.commit()
+    return ident, log["last_error"]
+
+
+@pytest.mark.parametrize("command", ["RCPT", "DATA"])
+def test_an_smtp_server_answering_451_is_tried_again_and_the_mail_taken_once(
+    api, tmp_path, mailbox, command
+):
+    mailbox.answers[command] = ["451 4.7.1 greylisted, try again later"]
+    mail, error = failed_once(api, tmp_path, MAIL)
+    assert "451 4.7.1 greylisted, try again later" in error, error
+    assert not mailbox.messages
+    alert(api)
+    (log,) = deliveries(api, mail)
+    assert (log["state"], log["attempts"], log["last_error"]) == ("delivered", 2, "")
+    (taken,) = mailbox.messages
+    # refused at DATA, the mail came twice, the same Message-ID both times
+    assert len(mailbox.arrived) == (2 if command == "DATA" else 1)
+    assert {m["Message-ID"] for m in mailbox.arrived} == {taken["Message-ID"]}
+    alert(api)
+    assert len(mailbox.messages) == 1  # never again after the success
+
+
+@pytest.mark.parametrize(
+    ("command", "reply", "said"),
+    [
+        (
+            "RCPT",
+            "550 5.1.1 <ops@x.example>: no such user here",
+            "SMTP: recipient refused: ops@x.example: 550 5.1.1 <ops@x.example>: no such user here",
+        ),
+        ("DATA", "554 5.7.1 rejected as spam", "SMTP: mail refused: 554 5.7.1 rejected as spam"),
+    ],
+)
+def test_an_smtp_server_refusing_the_mail_for_good_fails_it_at_once_with_its_reply(
+    api, tmp_path, mailbox, command, reply, said
+):
+    """A 5xx to the mail is the server's last word: ten tries would be refused ten times."""
+    mailbox.answers[command] = [reply] * 10
+    mail = subscribe(api, MAIL)
+    revisions(api, tmp_path, [10.0] * 5 + [14.0])
+    alert(api)
+    (log,) = deliveries(api, mail["id"])
+    assert (log["state"], log["attempts"], log["last_error"]) == ("failed", 1, said)
+    assert not mailbox.messages
+    assert mailbox.answers[command] == [reply] * 9  # asked once
+
+
+def test_a_slow_smtp_server_times_out_and_is_tried_again(api, tmp_path, mailbox):
+    mailbox.delays["RCPT"] = 3.0  # the timeout is 1 s
+    mail, error = failed_once(api, tmp_path, MAIL)
+    assert "timed out" in error, error
+    assert not mailbox.arrived
+    mailbox.delays["RCPT"] = 0.0
+    alert(api)
+    (log,) = deliveries(api, mail)
+    assert (log["state"], log["attempts"]) == ("delivered", 2)
+    assert len(mailbox.messages) == 1
+
+
+def test_a_worker_killed_mid_mail_sends_it_again_with_the_same_message_id(api, tmp_path, mailbox):
+    mailbox.delays["DATA"] = 30.0  # the mail is in; the answer waits until the worker is killed
+    mail = subscribe(api, MAIL)
+    revisions(api, tmp_path, [10.0] * 5 + [14.0])
+    scan(api)
+    killed_mid_send(api, lambda: mailbox.arrived)
+    (first,) = mailbox.arrived
+    assert not mailbox.messages  # never answered
+    mailbox.delays["DATA"] = 0.0
+    alert(api)
+    assert len(mailbox.arrived) == 2
+    assert mailbox.arrived[1]["Message-ID"] == first["Message-ID"]  # the receiver can tell
+    (taken,) = mailbox.messages
+    assert taken["X-Redline-Delivery"] == first["X-Redline-Delivery"]
+    (log,) = deliveries(api, mail["id"])
+    assert (log["state"], log["attempts"]) == ("delivered", 2)
+
+
+def test_a_webhook_receiver_refusing_connections_is_tried_again_and_the_log_says_refused(
+    api, tmp_path
+):
+    closed = f"http://127.0.0.1:{free_port()}/hook"  # nothing listens there
+    hook, error = failed_once(api, tmp_path, {"kind": "webhook", "url": closed,
+                                              "confirmed_only": False})  # fmt: skip
+    assert error.startswith("ConnectError: ") and "refused" in error, error
+    alert(api, rounds=40)
+    (log,) = deliveries(api, hook)
+    assert (log["state"], log["attempts"]) == ("failed", 5)  # every try, then given up
+    assert "refused" in log["last_error"]
+
+
+def test_a_success_that_comes_after_its_lease_lapsed_is_kept_and_never_sent_again(
+    api, tmp_path, receiver
+):
+    """A slow batch outlived its lease: another worker took the delivery and failed, and the
+    first worker's success came in after that failure was stored. Before, that success was
+    thrown away and the receiver was sent the message again after taking it."""
+    hook = subscribe(api, eager(receiver, "/hook"))
+    revisions(api, tmp_path, [10.0] * 5 + [14.0])
+    scan(api)
+    database_url = api.settings.database_url
+    (first,) = claim(database_url, 10, lease=timedelta(0))  # lapses as soon as it is taken
+    with http_client(1) as client:
+        assert attempt(client, api.settings, first) is None  # taken; not yet stored
+        receiver.answers["/hook"] = [500]
+        (second,) = claim(database_url, 10, lease=timedelta(minutes=5))  # another worker
+        failure = attempt(client, api.settings, second)
+    assert failure is not None and str(failure).startswith("HTTP 500")
+    record(database_url, api.settings, [(second, failure)])
+    record(database_url, api.settings, [(first, None)])
+    (log,) = deliveries(api, hook["id"])
+    assert (log["state"], log["attempts"], log["last_error"]) == ("delivered", 2, "")
+    alert(api)
+    assert len(receiver.to("/hook")) == 2  # the success and the other worker's try; no more
+    # a failure stored after the success leaves it delivered
+    record(database_url, api.settings, [(second, failure)])
+    assert deliveries(api, hook["id"])[0]["state"] == "delivered"
