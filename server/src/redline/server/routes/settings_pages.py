@@ -1,5 +1,6 @@
-"""The settings pages, for administrators: a component's settings and detection configuration,
-API tokens (created, shown once, revoked) and the performance hosts.
+"""The settings pages, for administrators: a component's settings, detection configuration and
+alert subscriptions, the subscriptions to every component's alerts, API tokens (created, shown
+once, revoked) and the performance hosts. A webhook's secret, like a token, is never shown back.
 
 Reading them needs an ``admin`` sign-in (they show where code comes from and who holds tokens);
 every change posts the session's form token and needs ``admin``, as the API does.
@@ -14,7 +15,7 @@ from fastapi.responses import HTMLResponse, RedirectResponse
 from pydantic import ValidationError
 from redline.server.api.deps import SessionDep, SettingsDep
 from redline.server.core.security import grants
-from redline.server.schemas.alerts import SubscriptionCreate
+from redline.server.schemas.alerts import SubscriptionCreate, SubscriptionUpdate
 from redline.server.schemas.components import ComponentSettings
 from redline.server.schemas.regressions import DetectionConfigIn
 from redline.server.services import (
@@ -49,13 +50,66 @@ def _admin(request: Request) -> None:
 
 def _settings(request: Request, session: SessionDep, created: str | None) -> HTMLResponse:
     """The settings page; ``created``: a token just made, shown this once."""
+    everywhere = subscriptions.list_subscriptions(session, None)
     context = {
         "components": components.list_components(session),
+        "subscriptions": everywhere,
+        "deliveries": subscriptions.recent_deliveries(session, everywhere),
         "tokens": tokens.list_tokens(session),
         "hosts": home.list_hosts(session),
         "created": created,
     }
     return page(request, "settings.html", context)
+
+
+def _filters(form: dict[str, str]) -> dict[str, object]:
+    """A subscription form's filters, as the API takes them (minimum effect in %)."""
+    try:
+        min_effect = float(form.get("min_effect") or 0) / 100
+    except ValueError as exc:
+        raise BadRequest(f"minimum effect: a number ({exc})") from None
+    return {
+        "counters": [c.strip() for c in form.get("counters", "").split(",") if c.strip()],
+        "direction": form.get("direction") or None,
+        "min_effect": min_effect,
+        "confirmed_only": form.get("confirmed_only") == "1",
+        "delivery": form.get("delivery") or None,
+    }
+
+
+def _new_subscription(form: dict[str, str]) -> SubscriptionCreate:
+    kind = form.get("kind", "")
+    target = {
+        "kind": kind,
+        "address": form.get("address", "").strip() if kind == "email" else "",
+        "url": form.get("url", "").strip() if kind == "webhook" else "",
+        "secret": form.get("secret", "") if kind == "webhook" else "",
+        "format": form.get("format") or "redline",
+    }
+    try:
+        return SubscriptionCreate.model_validate({**target, **_filters(form)})
+    except ValidationError as exc:
+        raise BadRequest(form_errors(exc)) from None
+
+
+def _changed_subscription(form: dict[str, str]) -> SubscriptionUpdate:
+    """What an edit form changes: the target fields it has (an email's address; a webhook's
+    url and format, and its secret only when a new one is given or it is removed) and every
+    filter."""
+    fields: dict[str, object] = {
+        name: form[name].strip() for name in ("address", "url", "format") if name in form
+    }
+    if form.get("clear_secret") == "1":
+        fields["secret"] = ""
+    elif form.get("secret"):
+        fields["secret"] = form["secret"]
+    try:
+        return SubscriptionUpdate.model_validate({**fields, **_filters(form)})
+    except ValidationError as exc:
+        raise BadRequest(form_errors(exc)) from None
+
+
+SUBSCRIPTION_ERRORS = (Forbidden, NotFound, BadRequest, Unprocessable)
 
 
 @router.get("/settings", response_class=HTMLResponse)
@@ -75,50 +129,52 @@ def component_settings_page(name: str, request: Request, session: SessionDep) ->
     except (Forbidden, NotFound) as exc:
         return problem(request, exc)
     config = detection_config.get_config(session, name).model_dump()
-    recent: dict[int, list] = {}
-    for delivery in subscriptions.list_deliveries(session, name, None, 200):
-        if delivery.subscription is not None and len(recent.get(delivery.subscription, [])) < 3:
-            recent.setdefault(delivery.subscription, []).append(delivery)
+    listed = subscriptions.list_subscriptions(session, name)
     return page(
         request,
         "component_settings.html",
         {
             "component": component,
             "config": json.dumps(config, indent=2),
-            "subscriptions": subscriptions.list_subscriptions(session, name),
-            "deliveries": recent,
+            "subscriptions": listed,
+            "deliveries": subscriptions.recent_deliveries(session, listed),
         },
     )
+
+
+async def _subscription_form(
+    request: Request, session: SessionDep, component: str | None, ident: int | None, action: str
+) -> Response:
+    """Make (``ident`` None), change or delete one of the component's subscriptions (None:
+    one to every component's), as the API does, then back to the list."""
+    form = await form_fields(request)
+    try:
+        signin.authorize(signed_in(request), form.get("csrf", ""), ADMIN)
+        if ident is None:
+            subscriptions.create_subscription(session, component, _new_subscription(form))
+        elif action == "delete":
+            subscriptions.delete_subscription(session, component, ident)
+        else:
+            changed = _changed_subscription(form)
+            subscriptions.update_subscription(session, component, ident, changed)
+    except SUBSCRIPTION_ERRORS as exc:
+        return problem(request, exc)
+    where = f"/settings/components/{component}" if component else "/settings"
+    return RedirectResponse(f"{where}#alerts", status_code=303)
 
 
 @router.post("/settings/components/{name}/subscriptions", response_class=HTMLResponse)
 async def subscribe_form(name: str, request: Request, session: SessionDep) -> Response:
     """A subscription to the component's alerts, as the API's POST makes it."""
-    form = await form_fields(request)
-    try:
-        signin.authorize(signed_in(request), form.get("csrf", ""), ADMIN)
-        kind = form.get("kind", "")
-        try:
-            data = SubscriptionCreate(
-                kind=kind,
-                address=form.get("address", "").strip() if kind == "email" else "",
-                url=form.get("url", "").strip() if kind == "webhook" else "",
-                secret=form.get("secret", "") if kind == "webhook" else "",
-                format=form.get("format") or "redline",
-                counters=[c.strip() for c in form.get("counters", "").split(",") if c.strip()],
-                direction=form.get("direction") or None,
-                min_effect=float(form.get("min_effect") or 0) / 100,
-                confirmed_only=form.get("confirmed_only") == "1",
-                delivery=form.get("delivery") or None,
-            )
-        except ValidationError as exc:
-            raise BadRequest(form_errors(exc)) from None
-        except ValueError as exc:
-            raise BadRequest(f"minimum effect: a number ({exc})") from None
-        subscriptions.create_subscription(session, name, data)
-    except (Forbidden, NotFound, BadRequest, Unprocessable) as exc:
-        return problem(request, exc)
-    return RedirectResponse(f"/settings/components/{name}#alerts", status_code=303)
+    return await _subscription_form(request, session, name, None, "create")
+
+
+@router.post("/settings/components/{name}/subscriptions/{ident}", response_class=HTMLResponse)
+async def change_subscription_form(
+    name: str, ident: int, request: Request, session: SessionDep
+) -> Response:
+    """The component's subscription changed, as the API's PATCH changes it."""
+    return await _subscription_form(request, session, name, ident, "change")
 
 
 @router.post(
@@ -127,13 +183,25 @@ async def subscribe_form(name: str, request: Request, session: SessionDep) -> Re
 async def unsubscribe_form(
     name: str, ident: int, request: Request, session: SessionDep
 ) -> Response:
-    form = await form_fields(request)
-    try:
-        signin.authorize(signed_in(request), form.get("csrf", ""), ADMIN)
-        subscriptions.delete_subscription(session, name, ident)
-    except (Forbidden, NotFound) as exc:
-        return problem(request, exc)
-    return RedirectResponse(f"/settings/components/{name}#alerts", status_code=303)
+    return await _subscription_form(request, session, name, ident, "delete")
+
+
+@router.post("/settings/subscriptions", response_class=HTMLResponse)
+async def subscribe_everywhere_form(request: Request, session: SessionDep) -> Response:
+    """A subscription to every component's alerts."""
+    return await _subscription_form(request, session, None, None, "create")
+
+
+@router.post("/settings/subscriptions/{ident}", response_class=HTMLResponse)
+async def change_everywhere_form(ident: int, request: Request, session: SessionDep) -> Response:
+    return await _subscription_form(request, session, None, ident, "change")
+
+
+@router.post("/settings/subscriptions/{ident}/delete", response_class=HTMLResponse)
+async def unsubscribe_everywhere_form(
+    ident: int, request: Request, session: SessionDep
+) -> Response:
+    return await _subscription_form(request, session, None, ident, "delete")
 
 
 @router.post("/settings/components/{name}", response_class=HTMLResponse)

@@ -11,7 +11,7 @@ from redline.server.schemas.alerts import (
 )
 from redline.server.services.components import get_component
 from redline.server.services.errors import NotFound, Unprocessable
-from sqlalchemy import select
+from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
 #: what a subscription left unsaid gets
@@ -151,6 +151,32 @@ def list_deliveries(
     elif component is not None:
         query = query.where(Delivery.component_id == get_component(session, component).id)
     return [delivery_out(d) for d in session.scalars(query)]
+
+
+def recent_deliveries(
+    session: Session, subscriptions: list[SubscriptionOut], per: int = 3
+) -> dict[int, list[DeliveryOut]]:
+    """Each subscription's newest ``per`` deliveries, newest first (for the settings pages)."""
+    newest = (
+        func.row_number()
+        .over(partition_by=Delivery.subscription_id, order_by=Delivery.id.desc())
+        .label("newest")
+    )
+    ranked = (
+        select(Delivery.id, newest)
+        .where(Delivery.subscription_id.in_([s.id for s in subscriptions]))
+        .subquery()
+    )
+    found = session.scalars(
+        select(Delivery)
+        .join(ranked, ranked.c.id == Delivery.id)
+        .where(ranked.c.newest <= per)
+        .order_by(Delivery.id.desc())
+    )
+    recent: dict[int, list[DeliveryOut]] = {}
+    for delivery in found:
+        recent.setdefault(delivery.subscription_id or 0, []).append(delivery_out(delivery))
+    return recent
 
 
 def component_of(session: Session, subscription: Subscription) -> str | None:
