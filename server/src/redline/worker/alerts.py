@@ -4,7 +4,8 @@ subscriptions, each change told once per subscription.
 A scan runs after every detection and re-analysis (`redline.worker.tasks`). For each
 subscription it takes the changes its filters keep, drops those it was already told about
 (`AlertedChange`: series x revision, so re-analyses, regrouping and confirmation never tell
-twice), and writes an `Alert` for each regression with new changes: "regression" the first
+twice; and a change a re-analysis moved within the range it was told with, `redline.worker.told`),
+and writes an `Alert` for each regression with new changes: "regression" the first
 time, "regression.updated" when it grew, at most once per digest period. Immediate
 subscriptions get a `Delivery` per alert; digest ones collect their alerts until
 `send_digests`. Only revisions reported after the subscription was made are alerted (a new
@@ -43,6 +44,7 @@ from redline.server.models import (
 from redline.server.services.ci_verdict import ci_verdict
 from redline.server.services.detection_config import component_config
 from redline.worker import messages
+from redline.worker.told import Span, told_of, told_pairs
 from sqlalchemy import and_, or_, select
 from sqlalchemy.orm import Session, aliased
 
@@ -63,6 +65,7 @@ class Change:
     effect: float | None
     confirmation: str
     reported: datetime  # when its revision was reported
+    span: Span  # (newest baseline revision, its revision] as order keys
     body: dict[str, Any]
 
 
@@ -81,7 +84,7 @@ def flagged_changes(session: Session, component: Component, since: datetime) -> 
     alarming = component_config(session, component.id).alarming
     baseline = aliased(Revision)
     rows = session.execute(
-        select(Detection, Series, Revision, baseline.title)
+        select(Detection, Series, Revision, baseline.title, baseline.order_key)
         .join(Series, Series.id == Detection.series_id)
         .join(Revision, Revision.id == Detection.revision_id)
         .outerjoin(baseline, baseline.id == Detection.baseline_revision_id)
@@ -96,7 +99,7 @@ def flagged_changes(session: Session, component: Component, since: datetime) -> 
         .order_by(Detection.id)
     ).all()
     changes = []
-    for detection, series, revision, baseline_title in rows:
+    for detection, series, revision, baseline_title, baseline_key in rows:
         is_worse = detection.direction == worse(series.process, series.counter)
         if is_worse and detection.regression_id is None:
             continue  # not grouped (no span): nothing to point at yet
@@ -112,6 +115,7 @@ def flagged_changes(session: Session, component: Component, since: datetime) -> 
                 detection.effect,
                 detection.confirmation,
                 revision.created,
+                (baseline_key or "", revision.order_key),
                 body,
             )
         )
@@ -129,14 +133,40 @@ def wanted(subscription: Subscription, change: Change) -> bool:
     return abs(change.effect or 0.0) >= subscription.min_effect
 
 
-def _told(session: Session, subscription_id: int) -> set[tuple[int, int]]:
-    return set(
-        session.execute(
-            select(AlertedChange.series_id, AlertedChange.revision_id).where(
-                AlertedChange.subscription_id == subscription_id
-            )
+def _mark_told(session: Session, subscription: Subscription, change: Change, alert_id: int) -> None:
+    session.add(
+        AlertedChange(
+            subscription_id=subscription.id,
+            series_id=change.series_id,
+            revision_id=change.revision_id,
+            alert_id=alert_id,
         )
     )
+
+
+def _untold(
+    session: Session, component_id: int, subscription: Subscription, candidates: list[Change]
+) -> list[Change]:
+    """The candidates the subscription was not told before under another revision (a re-analysis
+    moved them within the range they were told with): those are marked told, as the alert that
+    told them, and that alert follows their regression if its own was deleted."""
+    if not candidates:
+        return []
+    told = told_of(session, component_id, subscription.id, {c.series_id for c in candidates})
+    fresh = []
+    for change in candidates:
+        direction = change.body["direction"]
+        match = next(
+            (t for t in told.get(change.series_id, []) if t.covers(direction, change.span)), None
+        )
+        if match is None:
+            fresh.append(change)
+            continue
+        _mark_told(session, subscription, change, match.alert_id)
+        if match.regression_id is None and change.regression_id is not None:
+            session.get_one(Alert, match.alert_id).regression_id = change.regression_id
+    session.flush()
+    return fresh
 
 
 def _last_alert(session: Session, subscription_id: int, regression_id: int) -> Alert | None:
@@ -180,14 +210,7 @@ def _alert(
     session.add(alert)
     session.flush()
     for change in changes:
-        session.add(
-            AlertedChange(
-                subscription_id=subscription.id,
-                series_id=change.series_id,
-                revision_id=change.revision_id,
-                alert_id=alert.id,
-            )
-        )
+        _mark_told(session, subscription, change, alert.id)
     if subscription.delivery == "immediate":
         delivery = new_delivery(subscription, kind, body, component.id)
         session.add(delivery)
@@ -220,14 +243,15 @@ def scan_component(session: Session, component_id: int) -> list[int]:
     made: list[Alert] = []
     now = utcnow()
     for subscription in subscriptions:
-        told = _told(session, subscription.id)
-        fresh = [
+        told = told_pairs(session, subscription.id)
+        candidates = [
             c
             for c in changes
             if (c.series_id, c.revision_id) not in told
             and wanted(subscription, c)
             and c.reported >= subscription.created
         ]
+        fresh = _untold(session, component_id, subscription, candidates)
         by_regression: dict[int, list[Change]] = defaultdict(list)
         by_revision: dict[int, list[Change]] = defaultdict(list)
         for change in fresh:

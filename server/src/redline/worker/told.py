@@ -1,0 +1,115 @@
+"""What a subscription was already told, so that no change is told twice.
+
+A change is first known by its series x revision (`AlertedChange`). A re-analysis can move a
+flagged change to another revision, such as a revision reported late between its baseline and
+the one it was found at, without it being another change. So a change is also one told before
+when the subscription was told a change of the same series, in the same direction, at a range
+of revisions that overlaps its own: the told change's (baseline, revision], or the range of the
+regression it was told in. A change that moves to a later revision past both ranges is told
+again: nothing tells it apart from a new step after a false alarm.
+"""
+
+from __future__ import annotations
+
+import json
+from collections import defaultdict
+from collections.abc import Collection
+from dataclasses import dataclass
+from typing import Any
+
+from redline.server.models import Alert, AlertedChange, Revision, Series
+from sqlalchemy import select
+from sqlalchemy.orm import Session
+
+#: a range of revisions (good, bad] as their order keys; "" is before every revision
+Span = tuple[str, str]
+
+
+def identity(change: dict[str, Any]) -> tuple[Any, ...]:
+    """What names a change's series in an alert's body (`redline.worker.messages.change_body`)."""
+    return (
+        change["case"],
+        change["phase"],
+        json.dumps(change["parameters"], sort_keys=True),
+        change["process"],
+        change["counter"],
+    )
+
+
+def _series_identity(series: Series) -> tuple[Any, ...]:
+    params = json.loads(series.params) if series.params.startswith("{") else {}
+    return (series.case, series.phase, json.dumps(params, sort_keys=True), series.process,
+            series.counter)  # fmt: skip
+
+
+def overlaps(one: Span, other: Span) -> bool:
+    return one[0] < other[1] and other[0] < one[1]
+
+
+@dataclass(frozen=True)
+class Told:
+    """A change a subscription was told: in which alert, which way, over which ranges."""
+
+    alert_id: int
+    regression_id: int | None  # the alert's regression; None once that was deleted
+    direction: str
+    spans: tuple[Span, ...]
+
+    def covers(self, direction: str, span: Span) -> bool:
+        return direction == self.direction and any(overlaps(span, told) for told in self.spans)
+
+
+def told_pairs(session: Session, subscription_id: int) -> set[tuple[int, int]]:
+    """The (series, revision) of every change the subscription was told."""
+    return set(
+        session.execute(
+            select(AlertedChange.series_id, AlertedChange.revision_id).where(
+                AlertedChange.subscription_id == subscription_id
+            )
+        )
+    )
+
+
+def told_of(
+    session: Session, component_id: int, subscription_id: int, series_ids: Collection[int]
+) -> dict[int, list[Told]]:
+    """By series, the changes of these series the subscription was told, with their ranges."""
+    rows = session.execute(
+        select(
+            Series, Revision.title, Revision.order_key, Alert.id, Alert.regression_id, Alert.body
+        )
+        .select_from(AlertedChange)
+        .join(Series, Series.id == AlertedChange.series_id)
+        .join(Revision, Revision.id == AlertedChange.revision_id)
+        .join(Alert, Alert.id == AlertedChange.alert_id)
+        .where(
+            AlertedChange.subscription_id == subscription_id,
+            AlertedChange.series_id.in_(series_ids),
+        )
+    ).all()
+    found: list[tuple[int, int, int | None, str, str, list[str]]] = []
+    for series, title, key, alert_id, regression_id, body in rows:
+        named = _series_identity(series)
+        for change in body.get("changes", []):
+            if change["revision"]["title"] == title and identity(change) == named:
+                regression = body.get("regression") or {}
+                bounds = [change.get("baseline") or "", title]
+                bounds += [regression.get(end, {}).get("title", "") for end in ("good", "bad")]
+                found.append((series.id, alert_id, regression_id, change["direction"], key, bounds))
+                break
+    titles = {title for *_, bounds in found for title in bounds if title}
+    keys = dict(
+        session.execute(
+            select(Revision.title, Revision.order_key).where(
+                Revision.component_id == component_id, Revision.title.in_(titles)
+            )
+        ).all()
+    )
+    told: dict[int, list[Told]] = defaultdict(list)
+    for series_id, alert_id, regression_id, direction, key, bounds in found:
+        baseline, _, good, bad = bounds
+        spans = [(keys.get(baseline, ""), key)]
+        if good in keys and bad in keys:
+            spans.append((keys[good], keys[bad]))
+        told[series_id].append(Told(alert_id, regression_id, direction, tuple(spans)))
+    return told
