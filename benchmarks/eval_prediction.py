@@ -26,6 +26,7 @@ import time
 from pathlib import Path
 
 from redline.predict.dataset import DataError, dataset, read_run
+from redline.predict.features import WINDOWS
 from redline.predict.model import ModelFile
 from redline.recording.reader import Segment
 
@@ -52,6 +53,13 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("recording", type=Path)
     parser.add_argument("--json", type=Path, help="write every result here")
+    parser.add_argument(
+        "--windows",
+        type=float,
+        nargs="+",
+        default=list(WINDOWS),
+        help="feature window lengths in seconds (default: %(default)s)",
+    )
     args = parser.parse_args()
     run = read_run(args.recording)
     print(
@@ -73,6 +81,7 @@ def main() -> int:
                         s, f"sweep_t{t}", *c
                     ),
                     keys=lambda key, p=prefix: key.startswith(p),
+                    windows=args.windows,
                 )
                 model = ModelFile.fit(train, targets=("cpu_percent",))
                 test = dataset(

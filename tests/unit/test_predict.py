@@ -8,6 +8,7 @@ from __future__ import annotations
 import joblib
 import numpy as np
 import pytest
+import sklearn.base
 from redline.predict.dataset import DataError, dataset, read_run
 from redline.predict.features import NS, FeatureSpec, _range_max, extract, unseen
 from redline.predict.model import ModelFile
@@ -67,6 +68,21 @@ def test_a_model_learns_cpu_from_the_traffic_and_predicts_segments_it_never_saw(
     assert again.score(test)["cpu_percent"] == found
     assert again.provenance["trained_on"] == "test" and again.provenance["groups"] == 10
     assert again.responses == ("robot/persons",)
+
+
+def test_a_feature_constant_in_training_leaves_the_prediction_alone_whatever_it_is_later():
+    # the sweep's pose messages were all 34 bytes and a replay's 35-49: scaled by a spread of 0,
+    # every replay step lay far from all training and was predicted as the training mean
+    rng = np.random.default_rng(3)
+    load = rng.uniform(0, 10, 200)
+    y = 3 * load + rng.normal(0, 0.3, 200)
+    model = sklearn.base.clone(SMALL).fit(
+        np.column_stack([load, np.full(200, 34.0)]), y, np.repeat(np.arange(20), 10)
+    )
+    later = model.predict(np.column_stack([load[:50], np.full(50, 45.0)]))
+    assert np.sqrt(np.mean((later - y[:50]) ** 2)) < 0.1 * np.std(y[:50])
+    with pytest.raises(DataError, match="nothing to learn from: each of the 2 features"):
+        sklearn.base.clone(SMALL).fit(np.full((40, 2), 1.0), y[:40], np.repeat(np.arange(4), 10))
 
 
 def test_bad_input_is_refused_naming_its_cause(tmp_path):

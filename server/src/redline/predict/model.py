@@ -30,7 +30,7 @@ from sklearn.model_selection import GridSearchCV, GroupKFold, LeaveOneGroupOut
 from sklearn.pipeline import Pipeline
 from sklearn.preprocessing import StandardScaler
 
-FORMAT = 1
+FORMAT = 2  # 2: features constant in training are left out (kept_)
 #: the grid, as small as keeps a fit on a laptop under a minute for a few thousand steps
 CLUSTERS = (4, 8, 16, 32)
 ALPHAS = (1e-3, 1e-2, 1e-1, 1.0)
@@ -66,12 +66,23 @@ class ResourceModel(RegressorMixin, BaseEstimator):
                 f"(execution x parameter set); the grid search needs at least {MIN_ROWS} steps "
                 f"in {MIN_GROUPS} groups"
             )
-        width = x.shape[1]
+        # a feature constant in training teaches nothing, and scaled by a spread of 0 any other
+        # value of it is an outlier of unbounded size (the sweep's pose messages were all 34
+        # bytes, a replay's 35-49: every replay step lay "far" from training): left out
+        self.kept_ = np.flatnonzero(np.var(x, axis=0) > 0)
+        width = len(self.kept_)
+        if width == 0:
+            raise DataError(
+                f"nothing to learn from: each of the {x.shape[1]} features has one value in "
+                "every training step (the tests sent the same traffic throughout)"
+            )
+        x = x[:, self.kept_]
         clusters = sorted({min(c, width) for c in self.clusters if c >= 1}) or [1]
         pipeline = Pipeline(
             [
                 ("scale", StandardScaler()),
-                ("reduce", FeatureAgglomeration()),
+                # agglomeration needs two features at least
+                ("reduce", FeatureAgglomeration() if width > 1 else "passthrough"),
                 ("regress", KernelRidge(kernel="rbf")),  # the default kernel is linear
             ]
         )
@@ -80,13 +91,11 @@ class ResourceModel(RegressorMixin, BaseEstimator):
         # as a few MB); centred, it falls back to the training mean instead
         model = TransformedTargetRegressor(regressor=pipeline, transformer=StandardScaler())
         grid = {
-            f"regressor__{name}": values
-            for name, values in (
-                ("reduce__n_clusters", clusters),
-                ("regress__alpha", list(self.alphas)),
-                ("regress__gamma", list(self.gammas)),
-            )
+            "regressor__regress__alpha": list(self.alphas),
+            "regressor__regress__gamma": list(self.gammas),
         }
+        if width > 1:
+            grid["regressor__reduce__n_clusters"] = clusters
         search = GridSearchCV(
             model,
             grid,
@@ -112,7 +121,7 @@ class ResourceModel(RegressorMixin, BaseEstimator):
     def predict(self, x: np.ndarray) -> np.ndarray:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)
-            return self.search_.best_estimator_.predict(np.asarray(x, float))
+            return self.search_.best_estimator_.predict(np.asarray(x, float)[:, self.kept_])
 
 
 def _held_out_residuals(
