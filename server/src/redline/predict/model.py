@@ -90,7 +90,7 @@ class ResourceModel(RegressorMixin, BaseEstimator):
         # uncentred target falls to 0 away from its training points (an RSS of 50 MB "predicted"
         # as a few MB); centred, it falls back to the training mean instead
         model = TransformedTargetRegressor(regressor=pipeline, transformer=StandardScaler())
-        grid = {
+        grid: dict[str, list[float] | list[int]] = {
             "regressor__regress__alpha": list(self.alphas),
             "regressor__regress__gamma": list(self.gammas),
         }
