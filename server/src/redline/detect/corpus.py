@@ -4,20 +4,23 @@ Format (see ``docs/detection.md``): a directory with ``measurements.parquet`` or
 ``measurements.csv`` (columns ``series``, ``build``, ``value`` and optionally ``execution``; one
 row per sample, builds ordered by ``build``) and ``labels.json`` (``{"name", "source",
 "license", "series": {id: {"label": str, "change_build": int | null}}}``, ``change_build`` being
-the first build after the change). The SAP data set (CC-BY-4.0, SAP/performance-regression-data-
-set, hana/small_2021) is read in its own layout and turned into the same in-memory `Corpus`.
+the first build after the change; optionally the ``process`` and ``counter`` the series measures,
+which `redline.detect.evaluate` judges as the service judges them). The SAP data set
+(CC-BY-4.0, SAP/performance-regression-data-set, hana/small_2021) is read in its own layout and
+turned into the same in-memory `Corpus`.
 """
 
 from __future__ import annotations
 
 import json
 import os
-from collections.abc import Iterator
+from collections.abc import Container, Iterator
 from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
+from redline.detect import counters
 
 SAP_ENV = "REDLINE_SAP_CORPUS"
 SAP_RELATIVE = Path("..") / "shared" / "data" / "sap-hana-small-2021"
@@ -38,12 +41,16 @@ class CorpusError(ValueError):
 class SeriesLabel:
     """A series' label and its labelled changes: ``change_build`` the first build after the
     first change, ``more`` the first builds after any further ones (each a positive unit);
-    ``directions`` says which way each moved (``increase``/``decrease``, "" when not labelled)."""
+    ``directions`` says which way each moved (``increase``/``decrease``, "" when not labelled).
+    ``process`` and ``counter``: what the series measures, as the service names it (``driver``
+    and ``Sequence/Query(key):rtt_p50_us`` for a test driver's metric); "" when not said."""
 
     label: str
     change_build: int | None = None
     more: tuple[int, ...] = ()
     directions: tuple[str, ...] = ()
+    process: str = ""
+    counter: str = ""
 
     @property
     def change_builds(self) -> tuple[int, ...]:
@@ -57,10 +64,12 @@ def _label(entry: dict) -> SeriesLabel:
     """One series' entry of labels.json: ``change_build`` (one change) or ``change_builds``
     (several: ints, or ``{"build": int, "direction": "increase" | "decrease"}``)."""
     label = str(entry["label"])
+    process, counter = str(entry.get("process", "")), str(entry.get("counter", ""))
     changes = entry.get("change_builds")
     if changes is None:
         first = entry.get("change_build")
-        return SeriesLabel(label, None if first is None else int(first))
+        first_build = None if first is None else int(first)
+        return SeriesLabel(label, first_build, process=process, counter=counter)
     builds, directions = [], []
     for change in changes:
         if isinstance(change, dict):
@@ -70,10 +79,17 @@ def _label(entry: dict) -> SeriesLabel:
             builds.append(int(change))
             directions.append("")
     if not builds:
-        return SeriesLabel(label)
+        return SeriesLabel(label, process=process, counter=counter)
     order = sorted(range(len(builds)), key=builds.__getitem__)
     ordered = [builds[i] for i in order]
-    return SeriesLabel(label, ordered[0], tuple(ordered[1:]), tuple(directions[i] for i in order))
+    return SeriesLabel(
+        label,
+        ordered[0],
+        tuple(ordered[1:]),
+        tuple(directions[i] for i in order),
+        process=process,
+        counter=counter,
+    )
 
 
 @dataclass(frozen=True)
@@ -85,15 +101,66 @@ class Corpus:
     license: str = ""
 
 
+def counter_of(series: str) -> str:
+    """The counter a series id names: its last ``/``-separated part (the whole id if none)."""
+    return series.rsplit("/", 1)[-1]
+
+
+@dataclass(frozen=True)
+class Measures:
+    """What the service makes of a corpus series (`measures`): the counter whose floor applies,
+    whether it is judged, which way is worse ("" either way) and whether it counts rare events."""
+
+    counter: str
+    judged: bool = True
+    worse: str = ""
+    count: bool = False
+
+
+def measures(series: str, label: SeriesLabel) -> Measures:
+    """From the label's ``process`` and ``counter`` (the id's last part when it names none)."""
+    counter = label.counter or counter_of(series)
+    process = label.process
+    if not process:
+        return Measures(counter)
+    return Measures(
+        counter,
+        counters.judged(process, counter),
+        counters.worse(process, counter),
+        counters.is_count(process, counter),
+    )
+
+
+def total_of(series: str, label: SeriesLabel, present: Container[str]) -> str | None:
+    """The series a count of rare events is counted out of, found as the worker finds it
+    (`redline.worker.history.count_totals`): the same place (the id before the counter) and the
+    first of the metric's ``of`` fields (queries, waits...) the corpus holds."""
+    metric = counters.driver_metric(label.process, label.counter)
+    if metric is None or not label.counter or not series.endswith(label.counter):
+        return None
+    place = series[: len(series) - len(label.counter)]
+    stem = label.counter.rpartition(":")[0]
+    for field in metric.of:
+        name = f"{place}{stem}:{field}" if stem else f"{place}{field}"
+        if name in present:
+            return name
+    return None
+
+
 @dataclass(frozen=True)
 class Unit:
-    """One evaluation case: a build of a series against the builds just before it."""
+    """One evaluation case: a build of a series against the builds just before it.
+
+    ``worse``: the direction a flag must take to be an alarm (``increase``/``decrease``; ""
+    either way); ``count``: the values are counts of rare events, judged as a rate."""
 
     series: str
     build: int
     baseline: np.ndarray
     candidate: np.ndarray
     positive: bool
+    worse: str = ""
+    count: bool = False
 
 
 def _repo_root() -> Path | None:
@@ -198,8 +265,13 @@ def load_corpus(name_or_path: str) -> Corpus:
 
 
 def _entry(label: SeriesLabel) -> dict:
+    measures = {
+        key: value
+        for key, value in (("process", label.process), ("counter", label.counter))
+        if value
+    }
     if not label.more and not any(label.directions):
-        return {"label": label.label, "change_build": label.change_build}
+        return {"label": label.label, "change_build": label.change_build, **measures}
     builds = [label.change_build, *label.more]
     directions = label.directions or ("",) * len(builds)
     return {
@@ -207,6 +279,7 @@ def _entry(label: SeriesLabel) -> dict:
         "change_builds": [
             {"build": b, "direction": d} for b, d in zip(builds, directions, strict=True)
         ],
+        **measures,
     }
 
 

@@ -6,6 +6,13 @@ method's own earlier verdicts on the series, so the history is walked in order p
 ROC-AUC ranks units by score (an abstention, "not enough data", scores 0); precision,
 recall and F1 count a unit as flagged when the method's verdict, at its default threshold
 and effect-size floor, is "change". Pure computation over a loaded `Corpus`.
+
+A series whose label names the ``process`` it measures (a test driver's metric: ``driver``) is
+judged as the service judges it (`redline.detect.counters`): a series the service asks no
+verdict of (a load the driver delivered, a round trip's p99) is no unit; a flag is an alarm only
+towards the worse (a shorter round trip is a change, not a regression); counts of rare events
+(timeouts) are judged by `CountRate` out of their totals, whatever the method. Series that name
+no process (SAP's, corpus 2's process counters) count a flag either way, as before.
 """
 
 from __future__ import annotations
@@ -20,11 +27,21 @@ from redline.detect.baseline import DEFAULT_WINDOW, recent_depth
 from redline.detect.changepoint import EDivisive
 from redline.detect.changepoint_f1 import MARGIN, binary_segmentation, f_measure
 from redline.detect.confirmation import HELD, hold
-from redline.detect.corpus import Corpus, Unit, series_builds
+from redline.detect.corpus import (
+    Corpus,
+    Measures,
+    SeriesLabel,
+    Unit,
+    measures,
+    series_builds,
+    total_of,
+)
+from redline.detect.corpus import counter_of as counter_of  # where benchmarks import it
+from redline.detect.count_rate import CountRate
 from redline.detect.execution_shift import values_for
 from redline.detect.methods import Detector
 from redline.detect.registry import CHANGE_POINT_METHOD, DEFAULT_METHOD, EVALUATED
-from redline.detect.result import Detection
+from redline.detect.result import Detection, direction_of, not_enough
 from redline.detect.verdict import judge_series
 from scipy.stats import rankdata
 
@@ -150,9 +167,23 @@ def snapped(changes: Sequence[int], builds: Sequence[int]) -> set[int]:
     return found
 
 
-def counter_of(series: str) -> str:
-    """The counter a series id names: its last ``/``-separated part (the whole id if none)."""
-    return series.rsplit("/", 1)[-1]
+def rate_verdict(
+    events: Sequence[np.ndarray], totals: Sequence[np.ndarray | None], k: int, depth: int
+) -> Detection:
+    """`CountRate` on build ``k``'s events against the ``depth`` builds before it, each side
+    summed over its executions, out of the totals of the same builds (as the worker judges)."""
+    judge = CountRate()
+    sides = (range(k - depth, k), range(k, k + 1))
+    if any(totals[j] is None for side in sides for j in side):
+        return not_enough(judge.name, "nothing says what these events are counted out of")
+
+    def summed(values: Sequence[np.ndarray | None], side: range) -> float:
+        return sum(float(np.sum(np.asarray(values[j]))) for j in side)
+
+    (base, cand) = sides
+    return judge.compare(
+        summed(events, base), summed(totals, base), summed(events, cand), summed(totals, cand)
+    )
 
 
 def walk(
@@ -163,35 +194,59 @@ def walk(
 ) -> Iterator[tuple[Unit, Detection]]:
     """Each unit of the corpus with ``detector``'s verdict on it, series by series in build
     order; the baseline follows the ``recent`` policy (it restarts where the detector flagged).
-    ``progress`` hears after each series."""
-    total = int(corpus.measurements["series"].nunique())
-    for done, (series, label, builds) in enumerate(series_builds(corpus), start=1):
-        values = [values_for(detector, executions) for _, executions in builds]
-        changes = snapped(label.change_builds, [build for build, _ in builds])
-        last_flagged: int | None = None
-        for k in range(1, len(builds)):
-            sizes = [len(values[j]) for j in range(k - 1, -1, -1)]
-            flagged_at = None if last_flagged is None else k - 1 - last_flagged
-            depth = recent_depth(sizes, detector.baseline_values, window, flagged_at)
-            baseline, candidate = np.concatenate(values[k - depth : k]), values[k]
-            build = builds[k][0]
-            unit = Unit(
-                series,
-                build,
-                baseline,
-                candidate,
-                build in changes,
-            )
+    Series the service does not judge are no units, and counts are judged by `CountRate`
+    (`measures`). ``progress`` hears after each series."""
+    every = list(series_builds(corpus))
+    present = {series: dict(builds) for series, _, builds in every}
+    for done, (series, label, builds) in enumerate(every, start=1):
+        kind = measures(series, label)
+        if kind.judged:
+            yield from _walk_series(detector, series, label, builds, kind, present, window)
+        if progress is not None:
+            progress(done, len(every))
+
+
+def _walk_series(
+    detector: Detector,
+    series: str,
+    label: SeriesLabel,
+    builds: list[tuple[int, list[np.ndarray]]],
+    kind: Measures,
+    present: dict[str, dict[int, list[np.ndarray]]],
+    window: int,
+) -> Iterator[tuple[Unit, Detection]]:
+    judge = CountRate() if kind.count else detector
+    values = [values_for(judge, executions) for _, executions in builds]
+    totals: list[np.ndarray | None] = []
+    if kind.count:
+        of = present.get(total_of(series, label, present) or "", {})
+        totals = [values_for(judge, of[b]) if b in of else None for b, _ in builds]
+    changes = snapped(label.change_builds, [build for build, _ in builds])
+    last_flagged: int | None = None
+    for k in range(1, len(builds)):
+        sizes = [len(values[j]) for j in range(k - 1, -1, -1)]
+        flagged_at = None if last_flagged is None else k - 1 - last_flagged
+        depth = recent_depth(sizes, judge.baseline_values, window, flagged_at)
+        baseline, candidate = np.concatenate(values[k - depth : k]), values[k]
+        build = builds[k][0]
+        unit = Unit(series, build, baseline, candidate, build in changes, kind.worse, kind.count)
+        if kind.count:
+            found = rate_verdict(values, totals, k, depth)
+        else:
             if detector.ndim == 2:
                 baseline, candidate = baseline[:, None], candidate[:, None]
             # as the worker judges: the detector, then the counter's absolute floor (a series
             # id ending in a known counter name, e.g. "leak/rss_bytes", gets that floor)
-            found = judge_series(detector, counter_of(series), baseline, candidate)
-            if found.flagged:
-                last_flagged = k
-            yield unit, found
-        if progress is not None:
-            progress(done, total)
+            found = judge_series(detector, kind.counter, baseline, candidate)
+        if found.flagged:  # the baseline restarts at any flag, a better or a worse one
+            last_flagged = k
+        yield unit, found
+
+
+def alarm(unit: Unit, flagged: bool, direction: str) -> bool:
+    """Whether a flag is an alarm: towards the worse where the series says which way that is
+    (a flagged improvement opens no regression in the service)."""
+    return flagged and unit.worse in ("", direction)
 
 
 def run_detector(
@@ -205,14 +260,16 @@ def run_detector(
     judged = list(walk(detector, corpus, progress=progress))
     outcomes = []
     for index, (unit, found) in enumerate(judged):
-        flagged, confirmation = found.flagged, ""
+        flagged, confirmation = alarm(unit, found.flagged, found.direction), ""
         if flagged and confirm > 0:
             after = [
                 later.candidate
                 for later, _ in judged[index + 1 : index + 1 + confirm]
                 if later.series == unit.series
             ]
-            confirmation = hold(unit.baseline, unit.candidate, after, confirm).state
+            confirmation = hold(
+                unit.baseline, unit.candidate, after, confirm, count=unit.count
+            ).state
             flagged = confirmation == HELD
         outcomes.append(
             Outcome(
@@ -246,7 +303,7 @@ def run_change_points(
     looks at the whole history, later builds included: it is a retrospective analysis.
     """
     detector = detector or EDivisive()
-    found: dict[tuple[str, int], tuple[float, bool]] = {}
+    found: dict[tuple[str, int], tuple[float, bool, str]] = {}
     undecided: set[str] = set()
     for series, frame in corpus.measurements.groupby("series", sort=True):
         medians = frame.groupby("build", sort=True)["value"].median()
@@ -257,11 +314,13 @@ def run_change_points(
             found[(str(series), int(medians.index[point.index]))] = (
                 1 - point.p_value,
                 point.reported,
+                direction_of(point.effect),
             )
     sizes = change_sizes(corpus)
     outcomes = []
     for unit in units:
-        score, flagged = found.get((unit.series, unit.build), (0.0, False))
+        score, reported, direction = found.get((unit.series, unit.build), (0.0, False, ""))
+        flagged = alarm(unit, reported, direction)
         decided = unit.series not in undecided
         outcomes.append(
             Outcome(
@@ -321,6 +380,8 @@ def change_point_f1(
     truth: dict[str, list[int]] = {}
     levels: dict[str, list[float]] = {}
     for series, label, builds in series_builds(corpus):
+        if not measures(series, label).judged:
+            continue  # no units: nothing to score
         positions[series] = {build: i for i, (build, _) in enumerate(builds)}
         changes = snapped(label.change_builds, list(positions[series]))
         truth[series] = sorted(positions[series][b] for b in changes)
