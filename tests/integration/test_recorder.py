@@ -14,7 +14,7 @@ import sys
 from pathlib import Path
 
 from redline.agent.network import RunNetwork, open_client
-from redline.agent.runner import query_recorder
+from redline.agent.recorder import query_recorder
 from redline.recording import read_recording
 from redline.testing import Context, Link, Loop, Publish
 

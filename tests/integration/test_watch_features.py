@@ -17,7 +17,7 @@ import time
 import numpy as np
 import pytest
 from redline.agent.network import RunNetwork, open_client
-from redline.agent.runner import query_recorder
+from redline.agent.recorder import query_recorder
 from redline.commands.watch import listen
 from redline.predict.features import NS, FeatureSpec, extract
 from redline.predict.watch import EventWindow

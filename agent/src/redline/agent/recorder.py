@@ -207,6 +207,23 @@ class Recorder:
         self.writer.close()
 
 
+def query_recorder(session: zenoh.Session, timeout: float = 1.0) -> dict[str, int] | None:
+    """The recorder's counts, or None when it does not answer (yet)."""
+    for reply in session.get(STATUS_KEY, timeout=timeout):
+        if reply.ok is not None:
+            return dict(json.loads(reply.ok.payload.to_bytes()))
+    return None
+
+
+def recorded_traffic(session: zenoh.Session, timeout: float = 5.0) -> dict[str, int] | None:
+    """The samples the recorder has recorded per key so far (Redline's own left out), or None
+    when it does not answer."""
+    for reply in session.get(TRAFFIC_KEY, timeout=timeout):
+        if reply.ok is not None:
+            return {str(k): int(n) for k, n in json.loads(reply.ok.payload.to_bytes()).items()}
+    return None
+
+
 def arrival_ns(sample: zenoh.Sample) -> int:
     """When the sample reached the run's router (which stamps every sample it routes), not when
     the writer got to it: the FIFO may hold a backlog. Now, for a sample without a stamp."""

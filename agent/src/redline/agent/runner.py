@@ -33,7 +33,7 @@ from redline.agent.interrupts import SignalGuard, ending, signals_as_exceptions
 from redline.agent.loader import load_test_cases
 from redline.agent.network import RunNetwork, open_client, session_id
 from redline.agent.processes import ManagedProcess, RunError
-from redline.agent.recorder import STATUS_KEY, TRAFFIC_KEY
+from redline.agent.recorder import query_recorder, recorded_traffic
 from redline.agent.selection import select_cases
 from redline.agent.suite import ProcessSpec, ReadyCheck, Suite, load_suite
 from redline.agent.traffic import NetworkView, TrafficCheck
@@ -65,23 +65,6 @@ def _version(distribution: str) -> str:
         return metadata.version(distribution)
     except metadata.PackageNotFoundError:
         return "unknown"
-
-
-def query_recorder(session: zenoh.Session, timeout: float = 1.0) -> dict[str, int] | None:
-    """The recorder's counts, or None when it does not answer (yet)."""
-    for reply in session.get(STATUS_KEY, timeout=timeout):
-        if reply.ok is not None:
-            return dict(json.loads(reply.ok.payload.to_bytes()))
-    return None
-
-
-def recorded_traffic(session: zenoh.Session, timeout: float = 5.0) -> dict[str, int] | None:
-    """The samples the recorder has recorded per key so far (Redline's own left out), or None
-    when it does not answer."""
-    for reply in session.get(TRAFFIC_KEY, timeout=timeout):
-        if reply.ok is not None:
-            return {str(k): int(n) for k, n in json.loads(reply.ok.payload.to_bytes()).items()}
-    return None
 
 
 class _Run:
