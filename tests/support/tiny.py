@@ -39,9 +39,33 @@ FILES = {
 }
 
 
-def tiny_repo(path: Path) -> tuple[Path, str]:
-    """The tiny component's repository at ``path``, and its commit."""
-    return committed_repo(path, {name: textwrap.dedent(text) for name, text in FILES.items()})
+#: the tiny component answering queries, and a suite that asks them: its runs take part in the
+#: network (status ok, not no_traffic), so their round trips and the component's CPU are judged
+ANSWERING = {
+    "perf/component.py": """\
+        import time, zenoh
+        with zenoh.open(zenoh.Config.from_env()) as session:
+            def answer(query):
+                with query:  # a query must be finished, or the caller waits for its timeout
+                    query.reply("tiny/ping", b"pong")
+            session.declare_queryable("tiny/ping", answer)
+            print("tiny ready", flush=True)
+            while True:
+                time.sleep(0.05)
+        """,
+    "perf/test_tiny.py": """\
+        from redline.testing import FixedRate, Message, Phase, Query, TestCase
+        PING = Query("tiny/ping", Message.raw(8), timeout=1.0)
+        ping = TestCase("ping", [Phase("steady", FixedRate(50, 2.0, PING))])
+        """,
+}
+
+
+def tiny_repo(path: Path, answering: bool = False) -> tuple[Path, str]:
+    """The tiny component's repository at ``path``, and its commit; ``answering``: the
+    component answers the suite's queries (`ANSWERING`) instead of idling unheard."""
+    files = {**FILES, **(ANSWERING if answering else {})}
+    return committed_repo(path, {name: textwrap.dedent(text) for name, text in files.items()})
 
 
 def agent_args(server: str, name: str, work: Path) -> list[str]:
