@@ -21,10 +21,11 @@ from dataclasses import replace
 from pathlib import Path
 
 from redline.detect.corpus import Corpus, first_executions, load_corpus
-from redline.detect.evaluate import MethodScores, run_detector, summarize
+from redline.detect.evaluate import run_detector
 from redline.detect.execution_shift import BuildShift, ExecutionShift
 from redline.detect.methods import Detector
 from redline.detect.registry import EVALUATED
+from redline.detect.scores import MethodScores, summarize
 
 HOLDOUT_EVENTS = ("cpu_plus_30", "extra_io", "cpu_plus_10b")
 GRID = {"threshold": (3.0, 4.0, 5.0, 6.0, 8.0), "min_effect": (0.03, 0.05, 0.08, 0.10)}

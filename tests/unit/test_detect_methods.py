@@ -15,9 +15,10 @@ from redline.detect.association_rules import FooRules
 from redline.detect.changepoint import EDivisive
 from redline.detect.corpus import Corpus, SeriesLabel, load_corpus, write_corpus
 from redline.detect.counter_clusters import ShangRegression
-from redline.detect.evaluate import precision_recall_f1, roc_auc, run_detector, summarize, walk
+from redline.detect.evaluate import run_detector, walk
 from redline.detect.methods import KolmogorovSmirnov, MannWhitney, WelchT
 from redline.detect.result import CHANGE, NO_CHANGE, NOT_ENOUGH_DATA
+from redline.detect.scores import precision_recall_f1, roc_auc, summarize
 
 SERIES_METHODS = [KolmogorovSmirnov, MannWhitney, WelchT]
 COUNTER_METHODS = [FooRules, ShangRegression]

@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Annotated
 import typer
 
 if TYPE_CHECKING:
-    from redline.detect.evaluate import MethodScores, Outcome
+    from redline.detect.scores import MethodScores, Outcome
 
 METRICS = ("roc_auc", "precision", "recall", "f1")
 

@@ -20,7 +20,6 @@ from __future__ import annotations
 import bisect
 import math
 from collections.abc import Callable, Iterator, Mapping, Sequence
-from dataclasses import asdict, dataclass
 
 import numpy as np
 from redline.detect.baseline import DEFAULT_WINDOW, recent_depth
@@ -42,95 +41,11 @@ from redline.detect.execution_shift import values_for
 from redline.detect.methods import Detector
 from redline.detect.registry import CHANGE_POINT_METHOD, DEFAULT_METHOD, EVALUATED
 from redline.detect.result import Detection, direction_of, not_enough
+from redline.detect.scores import MethodScores, Outcome, summarize
 from redline.detect.verdict import judge_series
-from scipy.stats import rankdata
-
-#: "Changes of 10 % or more" (the issue's recall goal), by the size `change_sizes` measures.
-LARGE_CHANGE = 0.10
-
-
-@dataclass(frozen=True)
-class Outcome:
-    positive: bool
-    score: float
-    flagged: bool
-    decided: bool
-    size: float = math.nan  # a positive's change size (`change_sizes`); NaN for a negative
-    series: str = ""
-    build: int = 0
-    verdict: str = ""
-    confirmation: str = ""  # with confirmation: suspected, held or dropped (flagged units)
-
 
 #: Called with (series done, series in all) as an evaluation walks a corpus.
 Progress = Callable[[int, int], None]
-
-
-@dataclass(frozen=True)
-class MethodScores:
-    roc_auc: float
-    precision: float
-    recall: float
-    f1: float
-    tp: int
-    fp: int
-    fn: int
-    units: int
-    decided: int
-    false_alarms_per_100: float = math.nan  # FP per 100 negative units (unchanged builds)
-    recall_large: float = math.nan  # recall of the positives whose change is >= LARGE_CHANGE
-    large: int = 0  # how many such positives there are
-
-    def as_dict(self) -> dict[str, float | int]:
-        return asdict(self)
-
-
-def roc_auc(positive: Sequence[bool], scores: Sequence[float]) -> float:
-    """Area under the ROC curve as P(score of a positive > score of a negative), ties 1/2.
-
-    NaN when the units hold no positive or no negative.
-    """
-    labels = np.asarray(positive, dtype=bool)
-    n_pos, n_neg = int(labels.sum()), int((~labels).sum())
-    if n_pos == 0 or n_neg == 0:
-        return math.nan
-    ranks = rankdata(np.asarray(scores, dtype=np.float64))
-    return float((ranks[labels].sum() - n_pos * (n_pos + 1) / 2) / (n_pos * n_neg))
-
-
-def precision_recall_f1(
-    positive: Sequence[bool], flagged: Sequence[bool]
-) -> tuple[float, float, float, int, int, int]:
-    """(precision, recall, F1, tp, fp, fn); a ratio with a zero denominator is 0."""
-    labels, flags = np.asarray(positive, dtype=bool), np.asarray(flagged, dtype=bool)
-    tp = int((labels & flags).sum())
-    fp = int((~labels & flags).sum())
-    fn = int((labels & ~flags).sum())
-    precision = tp / (tp + fp) if tp + fp else 0.0
-    recall = tp / (tp + fn) if tp + fn else 0.0
-    f1 = 2 * precision * recall / (precision + recall) if precision + recall else 0.0
-    return precision, recall, f1, tp, fp, fn
-
-
-def summarize(outcomes: Sequence[Outcome]) -> MethodScores:
-    positive = [o.positive for o in outcomes]
-    precision, recall, f1, tp, fp, fn = precision_recall_f1(positive, [o.flagged for o in outcomes])
-    negatives = len(outcomes) - sum(positive)
-    large = [o for o in outcomes if o.positive and o.size >= LARGE_CHANGE]
-    return MethodScores(
-        roc_auc=roc_auc(positive, [o.score for o in outcomes]),
-        precision=precision,
-        recall=recall,
-        f1=f1,
-        tp=tp,
-        fp=fp,
-        fn=fn,
-        units=len(outcomes),
-        decided=sum(o.decided for o in outcomes),
-        false_alarms_per_100=100 * fp / negatives if negatives else math.nan,
-        recall_large=(sum(o.flagged for o in large) / len(large) if large else math.nan),
-        large=len(large),
-    )
 
 
 def change_sizes(corpus: Corpus) -> dict[tuple[str, int], float]:
