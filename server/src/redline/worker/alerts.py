@@ -145,14 +145,20 @@ def _mark_told(session: Session, subscription: Subscription, change: Change, ale
 
 
 def _untold(
-    session: Session, component_id: int, subscription: Subscription, candidates: list[Change]
+    session: Session,
+    component_id: int,
+    subscription: Subscription,
+    candidates: list[Change],
+    told_series: set[int],
 ) -> list[Change]:
     """The candidates the subscription was not told before under another revision (a re-analysis
     moved them within the range they were told with): those are marked told, as the alert that
-    told them, and that alert follows their regression if its own was deleted."""
-    if not candidates:
-        return []
-    told = told_of(session, component_id, subscription.id, {c.series_id for c in candidates})
+    told them, and that alert follows their regression if its own was deleted. Only series it
+    was told a change of (``told_series``) are looked up."""
+    near = {c.series_id for c in candidates} & told_series
+    if not near:
+        return candidates
+    told = told_of(session, component_id, subscription.id, near)
     fresh = []
     for change in candidates:
         direction = change.body["direction"]
@@ -251,7 +257,9 @@ def scan_component(session: Session, component_id: int) -> list[int]:
             and wanted(subscription, c)
             and c.reported >= subscription.created
         ]
-        fresh = _untold(session, component_id, subscription, candidates)
+        fresh = _untold(
+            session, component_id, subscription, candidates, {series for series, _ in told}
+        )
         by_regression: dict[int, list[Change]] = defaultdict(list)
         by_revision: dict[int, list[Change]] = defaultdict(list)
         for change in fresh:
