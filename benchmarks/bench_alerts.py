@@ -206,7 +206,13 @@ def main() -> None:
     parser.add_argument("--regressions", type=int, default=1000)
     parser.add_argument("--components", type=int, default=100)
     parser.add_argument("--subscriptions", type=int, default=100)
-    parser.add_argument("--outage", type=float, default=20.0, help="seconds the failing half fails")
+    parser.add_argument(
+        "--outage",
+        type=float,
+        default=20.0,
+        help="seconds the failing half fails, from the first regression (the run lasts "
+        "regressions / rate seconds: 100 by default, so --outage 50 covers half of it)",
+    )
     parser.add_argument("--rate", type=float, default=10.0, help="regressions detected per second")
     parser.add_argument(
         "--drain", type=float, default=600.0, help="most seconds to wait at the end"
@@ -310,6 +316,7 @@ def main() -> None:
             "tries_received": receivers.tries,
             "outage_s": args.outage,
             "production_s": round(produced, 1),
+            "outage_share_of_production": round(args.outage / produced, 2),
             "reference_post_ms": round(floor * 1000, 2),
         }
         for kind, values in delays.items():
