@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import uuid
 from collections import defaultdict
-from dataclasses import dataclass
 from datetime import datetime, timedelta
 from typing import Any
 
@@ -28,7 +27,6 @@ from redline.detect.confirmation import DROPPED
 from redline.detect.counters import worse
 from redline.server.models import (
     Alert,
-    AlertedChange,
     Component,
     Delivery,
     Detection,
@@ -44,7 +42,7 @@ from redline.server.models import (
 from redline.server.services.ci_verdict import ci_verdict
 from redline.server.services.detection_config import component_config
 from redline.worker import messages
-from redline.worker.told import Span, told_of, told_pairs
+from redline.worker.told import Change, mark_told, told_pairs, untold
 from sqlalchemy import and_, or_, select
 from sqlalchemy.orm import Session, aliased
 
@@ -52,21 +50,6 @@ from sqlalchemy.orm import Session, aliased
 PERIOD = timedelta(days=1)
 #: triage that ends a regression's alerts: someone has looked and decided
 SILENCED = (RegressionState.fixed, RegressionState.ignored, RegressionState.false_positive)
-
-
-@dataclass(frozen=True)
-class Change:
-    """One flagged detection as an alert tells it."""
-
-    series_id: int
-    revision_id: int
-    regression_id: int | None
-    worse: bool
-    effect: float | None
-    confirmation: str
-    reported: datetime  # when its revision was reported
-    span: Span  # (newest baseline revision, its revision] as order keys
-    body: dict[str, Any]
 
 
 def _imported(session: Session, revision_ids: set[int]) -> set[int]:
@@ -133,48 +116,6 @@ def wanted(subscription: Subscription, change: Change) -> bool:
     return abs(change.effect or 0.0) >= subscription.min_effect
 
 
-def _mark_told(session: Session, subscription: Subscription, change: Change, alert_id: int) -> None:
-    session.add(
-        AlertedChange(
-            subscription_id=subscription.id,
-            series_id=change.series_id,
-            revision_id=change.revision_id,
-            alert_id=alert_id,
-        )
-    )
-
-
-def _untold(
-    session: Session,
-    component_id: int,
-    subscription: Subscription,
-    candidates: list[Change],
-    told_series: set[int],
-) -> list[Change]:
-    """The candidates the subscription was not told before under another revision (a re-analysis
-    moved them within the range they were told with): those are marked told, as the alert that
-    told them, and that alert follows their regression if its own was deleted. Only series it
-    was told a change of (``told_series``) are looked up."""
-    near = {c.series_id for c in candidates} & told_series
-    if not near:
-        return candidates
-    told = told_of(session, component_id, subscription.id, near)
-    fresh = []
-    for change in candidates:
-        direction = change.body["direction"]
-        match = next(
-            (t for t in told.get(change.series_id, []) if t.covers(direction, change.span)), None
-        )
-        if match is None:
-            fresh.append(change)
-            continue
-        _mark_told(session, subscription, change, match.alert_id)
-        if match.regression_id is None and change.regression_id is not None:
-            session.get_one(Alert, match.alert_id).regression_id = change.regression_id
-    session.flush()
-    return fresh
-
-
 def _last_alert(session: Session, subscription_id: int, regression_id: int) -> Alert | None:
     return session.scalar(
         select(Alert)
@@ -216,7 +157,7 @@ def _alert(
     session.add(alert)
     session.flush()
     for change in changes:
-        _mark_told(session, subscription, change, alert.id)
+        mark_told(session, subscription, change, alert.id)
     if subscription.delivery == "immediate":
         delivery = new_delivery(subscription, kind, body, component.id)
         session.add(delivery)
@@ -257,7 +198,7 @@ def scan_component(session: Session, component_id: int) -> list[int]:
             and wanted(subscription, c)
             and c.reported >= subscription.created
         ]
-        fresh = _untold(
+        fresh = untold(
             session, component_id, subscription, candidates, {series for series, _ in told}
         )
         by_regression: dict[int, list[Change]] = defaultdict(list)

@@ -15,9 +15,10 @@ import json
 from collections import defaultdict
 from collections.abc import Collection
 from dataclasses import dataclass
+from datetime import datetime
 from typing import Any
 
-from redline.server.models import Alert, AlertedChange, Revision, Series
+from redline.server.models import Alert, AlertedChange, Revision, Series, Subscription
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
@@ -44,6 +45,21 @@ def _series_identity(series: Series) -> tuple[Any, ...]:
 
 def overlaps(one: Span, other: Span) -> bool:
     return one[0] < other[1] and other[0] < one[1]
+
+
+@dataclass(frozen=True)
+class Change:
+    """One flagged detection as an alert tells it."""
+
+    series_id: int
+    revision_id: int
+    regression_id: int | None
+    worse: bool
+    effect: float | None
+    confirmation: str
+    reported: datetime  # when its revision was reported
+    span: Span  # (newest baseline revision, its revision] as order keys
+    body: dict[str, Any]
 
 
 @dataclass(frozen=True)
@@ -113,3 +129,45 @@ def told_of(
             spans.append((keys[good], keys[bad]))
         told[series_id].append(Told(alert_id, regression_id, direction, tuple(spans)))
     return told
+
+
+def mark_told(session: Session, subscription: Subscription, change: Change, alert_id: int) -> None:
+    session.add(
+        AlertedChange(
+            subscription_id=subscription.id,
+            series_id=change.series_id,
+            revision_id=change.revision_id,
+            alert_id=alert_id,
+        )
+    )
+
+
+def untold(
+    session: Session,
+    component_id: int,
+    subscription: Subscription,
+    candidates: list[Change],
+    told_series: set[int],
+) -> list[Change]:
+    """The candidates the subscription was not told before under another revision (a re-analysis
+    moved them within the range they were told with): those are marked told, as the alert that
+    told them, and that alert follows their regression if its own was deleted. Only series it
+    was told a change of (``told_series``) are looked up."""
+    near = {c.series_id for c in candidates} & told_series
+    if not near:
+        return candidates
+    told = told_of(session, component_id, subscription.id, near)
+    fresh = []
+    for change in candidates:
+        direction = change.body["direction"]
+        match = next(
+            (t for t in told.get(change.series_id, []) if t.covers(direction, change.span)), None
+        )
+        if match is None:
+            fresh.append(change)
+            continue
+        mark_told(session, subscription, change, match.alert_id)
+        if match.regression_id is None and change.regression_id is not None:
+            session.get_one(Alert, match.alert_id).regression_id = change.regression_id
+    session.flush()
+    return fresh
