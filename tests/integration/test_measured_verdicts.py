@@ -218,6 +218,13 @@ def test_a_driver_report_missing_from_the_revision_is_not_measured_not_a_pass(
     rtt = found[("driver", f"{QUERY}:rtt_p50_us", "execution_shift")]
     assert rtt.verdict == "not enough data" and "not measured in this revision" in rtt.reason
     assert found[(NAME, "cpu_percent", "execution_shift")].verdict == "no change"
+    # nor does CI's gate pass it: the case whose round trip vanished is undecided (it passed
+    # on its CPU alone), an error in the JUnit, as `redline compare` makes it
+    verdict = ci_verdict(session, NAME, "r4")
+    (case,) = [c for c in verdict.cases if c.state != "passed"]
+    assert case.state == "undecided" and "not measured in this revision" in case.reason, case
+    assert verdict.undecided == 1
+    assert "undecided: not enough data" in junit_xml(verdict)
 
 
 def test_a_report_missing_from_one_execution_is_judged_on_the_others_saying_so(

@@ -54,6 +54,12 @@ def not_enough(method: str, reason: str) -> Detection:
 #: how the "not enough data" reason of a method that raised begins (`redline.detect.verdict`)
 METHOD_FAILED = "method failed"
 
+#: why a series the newest earlier revision measured has no verdict of this one
+NOT_MEASURED = (
+    "not measured in this revision, though the revision before measured it (a test, "
+    "phase or action removed or renamed, or a driver report missing)"
+)
+
 #: how the "not enough data" reasons begin that more history lifts
 HISTORY_REASONS = ("missing baseline", "too few samples: baseline")
 

@@ -29,7 +29,7 @@ from redline.detect.config import DetectionConfig
 from redline.detect.count_rate import CountRate
 from redline.detect.counters import is_count
 from redline.detect.methods import Detector
-from redline.detect.result import SHORT_BASELINE, not_enough
+from redline.detect.result import NOT_MEASURED, SHORT_BASELINE, not_enough
 from redline.detect.result import Detection as Verdict
 from redline.detect.verdict import floored, judge_series
 from redline.server.db import bulk_insert, session_scope
@@ -63,12 +63,6 @@ if TYPE_CHECKING:
 LEFT_OUT = (
     "execution(s) of its revisions left out (measured while the host was busy, or without "
     "this series)"
-)
-
-#: why a series the newest earlier revision measured has no verdict of this one
-NOT_MEASURED = (
-    "not measured in this revision, though the revision before measured it (a test, "
-    "phase or action removed or renamed, or a driver report missing)"
 )
 
 

@@ -24,6 +24,7 @@ from redline.detect.result import (
     HISTORY_REASONS,
     METHOD_FAILED,
     NOT_ENOUGH_DATA,
+    NOT_MEASURED,
     waits_for_history,
 )
 from redline.recording.disturbance import names_busy_host
@@ -206,10 +207,12 @@ def ci_verdict(session: Session, component_name: str, title: str) -> CiVerdict:
 
 
 def _undecided(reason: str) -> bool:
-    """A "not enough data" no wait lifts: the host was busy in every run (and a fresh one), or
-    the method failed (a trial's threshold of the wrong kind made every verdict fail, and its
-    fourfold CPU rise "passed")."""
-    return names_busy_host(reason) or reason.startswith(METHOD_FAILED)
+    """A "not enough data" no wait lifts: the host was busy in every run (and a fresh one), the
+    method failed (a trial's threshold of the wrong kind made every verdict fail, and its
+    fourfold CPU rise "passed"), or a series the revision before measured is gone (a driver
+    report missing, an action renamed: a gate that lost a measurement does not pass, as
+    `redline compare` does not)."""
+    return names_busy_host(reason) or reason.startswith(METHOD_FAILED) or NOT_MEASURED in reason
 
 
 def _charted_note(flagged: list[tuple[Detection, Series]]) -> str:
