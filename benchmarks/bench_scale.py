@@ -125,36 +125,40 @@ class CpuSplit:
 
     def _read(self) -> tuple[float, ...]:
         host = psutil.cpu_times()  # Linux counts guest time in user time already
-        busy = host.user + host.nice + host.system + host.irq + host.softirq
-        idle, steal = host.idle + host.iowait, host.steal  # steal: the hypervisor ran others
+        busy = host.user + host.nice + host.system  # what processes ran
+        # interrupts (the loopback network's softirq among them) are no process's; idle; and
+        # steal: the hypervisor ran other machines
+        interrupts, idle, steal = host.irq + host.softirq, host.idle + host.iowait, host.steal
         api, postgres = _tree_cpu(self.api), _tree_cpu(self.postgres)
-        return busy, idle, steal, api, postgres, time.process_time()
+        return busy, interrupts, idle, steal, api, postgres, time.process_time()
 
     def start(self) -> None:
-        self.load = os.getloadavg()[0]
         self.before, self.began = self._read(), time.perf_counter()
 
     def stop(self, agents: float) -> dict[str, float]:
         after, seconds = self._read(), time.perf_counter() - self.began
-        busy, idle, steal, api, postgres, own = (
+        busy, interrupts, idle, steal, api, postgres, own = (
             b - a for a, b in zip(self.before, after, strict=True)
         )
         return {
             "seconds": seconds,
             "cores": float(psutil.cpu_count() or 0),
-            "load_1min_before": self.load,
             "api": api,
             "agents": agents,
             "postgres": postgres,
             "benchmark": own,
             "others": busy - api - agents - postgres - own,
+            "interrupts": interrupts,
             "idle": idle,
             "steal": steal,
         }
 
 
 def leases(processes: int) -> tuple[float, dict[str, float]]:
-    """Leases per second with ``processes`` API processes, and who used the cores meanwhile."""
+    """Leases per second with ``processes`` API processes, and who used the cores meanwhile
+    (with the 1-minute load average before this run started anything: its 20 agents' start
+    raises it by several)."""
+    load = os.getloadavg()[0]
     with database() as url, api_server(url, workers=processes) as (server, tokens):
         with session_factory(url)() as session:
             create_component(session, ComponentCreate(name="bench", executions=EXECUTIONS))
@@ -174,17 +178,23 @@ def leases(processes: int) -> tuple[float, dict[str, float]]:
             cpu = split.stop(sum(spent for _, spent in results))
     counts = Counter(job for ids, _ in results for job in ids)
     assert len(counts) == JOBS and set(counts.values()) == {1}, "a job was leased twice or never"
-    return JOBS / cpu["seconds"], cpu
+    return JOBS / cpu["seconds"], {"load_1min_before": load, **cpu}
+
+
+#: others' share of the cores over which a lease run was not on a quiet host
+NOT_QUIET = 0.10
 
 
 def _print_split(cpu: dict[str, float]) -> None:
-    groups = ("api", "agents", "postgres", "benchmark", "others", "idle", "steal")
+    groups = ("api", "agents", "postgres", "benchmark", "others", "interrupts", "idle", "steal")
     print(
         f"  CPU s over {cpu['seconds']:.1f} s x {cpu['cores']:.0f} cores "
         f"(load {cpu['load_1min_before']:.2f} before): "
         + ", ".join(f"{name} {cpu[name]:.1f}" for name in groups),
         flush=True,
     )
+    if (share := cpu["others"] / (cpu["seconds"] * cpu["cores"])) > NOT_QUIET:
+        print(f"  NOT QUIET: other processes used {share:.0%} of the cores", flush=True)
 
 
 def ingestion(workers: int) -> float:
