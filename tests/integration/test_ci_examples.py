@@ -2,8 +2,9 @@
 Jenkins examples, in order, in bash, with the variables each CI system would set, against a live
 server on real Postgres. The test plays the performance host between the report and the wait
 steps (a recording stored for the revision's job, ingested and judged), and checks each wait
-step's exit code and the JUnit file it leaves. The GitHub example runs a second time as with a
-push webhook: the signed push reports the revision, the report step is left out."""
+step's exit code and the JUnit file it leaves. The GitHub and GitLab examples run a second time
+as with their forge's push webhook: the push reports the revision, the report step is left
+out."""
 
 from __future__ import annotations
 
@@ -121,7 +122,7 @@ def play_host(api, tmp: Path, title: str, cpu: float) -> None:
         detect_revision(database_url, revision.id)
 
 
-def run_example(server, name: str, number: int, cpu: float, webhook: bool = False) -> int:
+def run_example(server, name: str, number: int, cpu: float, webhook: str = "") -> int:
     """Every step of the example in order, as its CI system would; returns the wait step's exit
     code (the JUnit file is checked by the caller)."""
     url, api, tmp, wheel = server
@@ -156,19 +157,7 @@ def run_example(server, name: str, number: int, cpu: float, webhook: bool = Fals
         branch_var: "main",
     }
     if webhook:
-        push = json.dumps(
-            {
-                "ref": "refs/heads/main",
-                "commits": [{"id": sha, "message": "m", "timestamp": "2026-11-22T10:00:00Z"}],
-                "repository": {"clone_url": "https://github.com/robots/builder.git"},
-            }
-        ).encode()
-        signature = "sha256=" + hmac.new(SECRET.encode(), push, hashlib.sha256).hexdigest()
-        answer = httpx.post(
-            f"{url}/api/v1/webhooks/github",
-            content=push,
-            headers={"X-Hub-Signature-256": signature, "X-GitHub-Event": "push"},
-        )
+        answer = send_push(url, webhook, sha)
         assert answer.status_code == 200 and answer.json()["created"], answer.text
         play_host(api, tmp, sha[:12], cpu)
     waited = None
@@ -194,6 +183,37 @@ def run_example(server, name: str, number: int, cpu: float, webhook: bool = Fals
     return waited
 
 
+def send_push(url: str, forge: str, sha: str) -> httpx.Response:
+    """The push webhook ``forge`` (github or gitlab) sends for one commit, as docs/ci.md section
+    3 sets it up: GitHub signs the body with the secret, GitLab sends the secret as its token."""
+    commits = [{"id": sha, "message": "m", "timestamp": "2026-11-22T10:00:00Z"}]
+    if forge == "github":
+        push = json.dumps(
+            {
+                "ref": "refs/heads/main",
+                "commits": commits,
+                "repository": {"clone_url": "https://github.com/robots/builder.git"},
+            }
+        ).encode()
+        signature = "sha256=" + hmac.new(SECRET.encode(), push, hashlib.sha256).hexdigest()
+        headers = {"X-Hub-Signature-256": signature, "X-GitHub-Event": "push"}
+    else:
+        push = json.dumps(
+            {
+                "object_kind": "push",
+                "ref": "refs/heads/main",
+                "commits": commits,
+                "project": {"git_http_url": "https://github.com/robots/builder.git"},
+            }
+        ).encode()
+        headers = {"X-Gitlab-Token": SECRET, "X-Gitlab-Event": "Push Hook"}
+    return httpx.post(
+        f"{url}/api/v1/webhooks/{forge}",
+        content=push,
+        headers={**headers, "Content-Type": "application/json"},
+    )
+
+
 def junit(server, name: str, number: int) -> ElementTree.Element:
     return ElementTree.parse(server[2] / f"{name}-{number}" / "redline.xml").getroot()
 
@@ -208,6 +228,10 @@ def test_each_example_reports_waits_and_leaves_its_junit_report(server):
     assert run_example(server, "jenkins", 8, cpu=15.0) == 1
     assert junit(server, "jenkins", 8).get("failures") == "1"
     # with the push webhook instead of the report step: the same level as r8, no change
-    assert run_example(server, "github", 9, cpu=15.0, webhook=True) == 0
+    assert run_example(server, "github", 9, cpu=15.0, webhook="github") == 0
     suite = junit(server, "github", 9)
     assert (suite.get("tests"), suite.get("failures")) == ("1", "0")
+    # GitLab's push hook reporting the revision, the GitLab CI example waiting: a change
+    # for the worse fails the pipeline
+    assert run_example(server, "gitlab", 10, cpu=25.0, webhook="gitlab") == 1
+    assert junit(server, "gitlab", 10).get("failures") == "1"
