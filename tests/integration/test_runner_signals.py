@@ -63,8 +63,20 @@ def mark() -> Iterator[str]:
 def _start(argv: list[str], mark: str, cwd: Path) -> subprocess.Popen[str]:
     env = {**os.environ, "COLUMNS": "200", MARK: mark, "REDLINE_WORK_DIR": str(cwd)}
     return subprocess.Popen(
-        argv, cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env
+        argv,
+        cwd=cwd,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        env=env,
+        # as from a terminal: a suite started under nohup inherits an ignored SIGHUP, which the
+        # run rightly leaves ignored (redline.agent.interrupts), and its SIGHUP case would pass 0
+        preexec_fn=_hangup_by_default,
     )
+
+
+def _hangup_by_default() -> None:
+    signal.signal(signal.SIGHUP, signal.SIG_DFL)
 
 
 def _wait_until_measuring(run: subprocess.Popen[str]) -> list[str]:

@@ -10,6 +10,15 @@ import pytest
 from redline.agent.interrupts import Terminated, signals_as_exceptions
 
 
+@pytest.fixture(autouse=True)
+def hangup_by_default():
+    """SIGHUP as a terminal leaves it: a suite started under nohup inherits it ignored, which
+    the guard rightly keeps (`test_an_ignored_signal_stays_ignored`)."""
+    before = signal.signal(signal.SIGHUP, signal.SIG_DFL)
+    yield
+    signal.signal(signal.SIGHUP, before)
+
+
 def test_the_guard_raises_in_the_main_thread_and_restores_the_handlers() -> None:
     before = signal.getsignal(signal.SIGTERM)
     with pytest.raises(Terminated) as caught, signals_as_exceptions():
