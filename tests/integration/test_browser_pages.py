@@ -132,6 +132,21 @@ def test_the_trend_chart_has_its_mean_band_and_change_marks(site, browser):
     assert not watched.errors, watched.errors
 
 
+def test_the_first_chart_is_drawn_at_once_the_others_as_they_come_into_view(site, browser):
+    """A longer history lists more regressions above the charts: at 1,000 revisions the first
+    chart sat past the fold and its margin, and was never drawn until scrolled to."""
+    base = site[0]
+    watched = Watched(browser, base)
+    watched.page.set_viewport_size({"width": 1280, "height": 40})  # every chart below the fold
+    watched.visit(f"{base}/components/builder")
+    watched.page.wait_for_selector("#chart-1.js-plotly-plot .scatterlayer .trace", state="attached")
+    charts = watched.page.locator("#charts .chart")
+    assert charts.count() > 1 and charts.last.evaluate("el => el.data === undefined")
+    charts.last.scroll_into_view_if_needed()
+    watched.page.wait_for_function("el => el.data !== undefined", arg=charts.last.element_handle())
+    assert not watched.errors, watched.errors
+
+
 def test_filters_change_the_address_and_the_charts(site, browser):
     base = site[0]
     watched = Watched(browser, base)

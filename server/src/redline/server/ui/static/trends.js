@@ -1,6 +1,8 @@
-// The component page's trend charts: grouped by case and phase, drawn when they come into view,
-// a mark's click opens its regression, the hovered revision's commit and time shown below the
-// filters. The data is the page's own <script type="application/json" id="trend-data">.
+// The component page's trend charts: grouped by case and phase, the first drawn at once (the
+// regressions listed above it push it below the fold on a longer history), the others when they
+// come into view; a mark's click opens its regression, the hovered revision's commit and time
+// shown below the filters. The data is the page's own
+// <script type="application/json" id="trend-data">.
 //
 // Earlier history on zoom and pan: when a chart's x axis is moved past its oldest revision and
 // older ones exist, the same view with twice as many revisions (at most data-most) is fetched
@@ -82,6 +84,7 @@
   // the new data lacks is taken away. ``added``: revisions added before the oldest shown (null
   // when the history changed otherwise: the charts then show it all).
   function place(charts, added) {
+    let eager = null; // the page's first chart: drawn at once, wherever the layout puts it
     let previous = null;
     let group = null;
     const wanted = new Set();
@@ -104,8 +107,12 @@
         element.id = `chart-${++made}`;
         element.setAttribute("aria-label", chart.title);
         elements.set(chart.key, element);
-        pending.set(element, chart);
-        observer.observe(element);
+        if (made === 1) {
+          eager = [element, chart];
+        } else {
+          pending.set(element, chart);
+          observer.observe(element);
+        }
       } else if (pending.has(element)) {
         pending.set(element, chart);
       } else {
@@ -122,6 +129,7 @@
       headings.delete(key);
       node.remove();
     }
+    if (eager) draw(...eager);
   }
 
   // A drawn chart given a longer history: a range the user chose is kept on the same revisions.
