@@ -5,9 +5,8 @@ the network. A history of revisions goes through while one agent is SIGKILLed mi
 worker is SIGKILLed while it holds a task: every job ends with exactly one execution, the task
 the worker held is run by the other, and the verdicts the workers stored (decided ones: the
 component answers the suite's queries, so its round trips and CPU are judged) are those detection
-on one host gives for the same data; those of revisions after the one run last, on a baseline
-pooled from several revisions, fall short of that: a known gap (`SURE`) the test reports as an
-expected failure.
+on one host gives for the same data, judging it revision by revision: the killed agent's
+revision, run again last, has the later revisions judged again in order (`redline.worker.onward`).
 
 The machine is shared with other tests: waits give up when nothing moved for minutes, not after a
 fixed time, and say what every process was doing (`tests.support.progress`); leases and the
@@ -59,12 +58,6 @@ LEASE_S = 15
 VISIBILITY_S = 15  # a killed worker's task, likewise; a live worker's longer task runs twice
 #: other load, in % of a core, over which a phase is not judged (and run again): never, here
 NEVER_BUSY = {"REDLINE_DISTURBED_CPU_PERCENT": "1000000"}
-#: Known gap: a revision ingested after later ones (the killed agent's r1, run again last) has
-#: its next revision judged again, not the revisions after that whose baseline pools it too
-#: (execution_shift's 6 executions, a count's totals, KS on a series of one value a run): they
-#: keep verdicts judged without it. r1 and r2 must be the same as one host's; a difference from
-#: r3 on is the gap, an expected failure until ingestion judges those again too.
-SURE = ("r1", "r2")
 
 
 def _database_relay(url: str, gateway: str) -> tuple[Relay, str]:
@@ -317,13 +310,7 @@ def _check(database_url: str, held: int) -> None:
     judged = _verdicts(database_url)
     assert len(judged) == len(stored)
     differ = [(was, now) for was, now in zip(stored, judged, strict=True) if was != now]
-    assert not [pair for pair in differ if pair[0][0] in SURE], differ
-    if differ:  # the known gap (SURE), not a pass: said in every run's summary
-        stale = sorted({(was[0], was[2]) for was, _ in differ})
-        pytest.xfail(
-            f"known gap: {len(differ)} verdicts judged before an earlier revision came, "
-            f"(revision, method): {stale}; the first (stored, one host's): {differ[0]}"
-        )
+    assert not differ, f"{len(differ)} verdicts differ, the first (stored, one host's): {differ[0]}"
 
 
 def _answers(url: str, api: subprocess.Popen) -> bool:

@@ -16,6 +16,7 @@ from redline.server.services.revisions import list_revisions
 from redline.server.storage import samples_path
 from redline.worker.detection import detect_revision
 from redline.worker.ingest import ingest_execution
+from redline.worker.onward import judge_onward
 from sqlalchemy import func, select
 
 from tests.support.history import add_execution, ingest_and_detect
@@ -172,14 +173,16 @@ def test_detect_again_replaces_its_changes(session, database_url, tmp_path):
     assert len(_changes(session)) == 2
 
 
-def test_ingesting_an_earlier_revision_late_asks_to_redetect_its_successor(
+def test_ingesting_an_earlier_revision_late_judges_its_successor_again(
     session, database_url, tmp_path
 ):
     first, second = _history(session, tmp_path, [1.0, 3.0])
     assert ingest_execution(database_url, second.id) == [second.revision_id]
     assert detect_revision(database_url, second.revision_id) == []  # no baseline with data yet
-    assert ingest_execution(database_url, first.id) == [first.revision_id, second.revision_id]
-    detect_revision(database_url, second.revision_id)
+    assert ingest_execution(database_url, first.id) == [first.revision_id]
+    session.expire_all()
+    assert session.get_one(Revision, second.revision_id).analyzed_at is None  # pending again
+    assert judge_onward(database_url, first.revision_id) == [first.revision_id, second.revision_id]
     assert _changes(session)[("cpu", "r2")].flagged
 
 

@@ -34,7 +34,7 @@ def test_a_passing_database_outage_leaves_the_job_uploaded_for_a_retry(
     def outage(*_args):
         raise OperationalError("SELECT 1", {}, Exception("server closed the connection"))
 
-    monkeypatch.setattr(ingest_module, "successor_with_data", outage)
+    monkeypatch.setattr(ingest_module, "in_reach", outage)
     with pytest.raises(OperationalError):
         ingest_execution(database_url, execution.id)
     job = _job(session, execution)

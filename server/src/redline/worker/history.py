@@ -1,5 +1,6 @@
 """What detection asks of a component's stored history: the earlier revisions with samples of a
-series, the next revision with data, the verdicts flagged so far, the configuration in force."""
+series, the verdicts flagged so far, the configuration in force (the later revisions a late
+arrival reaches: `redline.worker.onward`)."""
 
 from __future__ import annotations
 
@@ -45,22 +46,6 @@ def summarized_series(session: Session, revision_id: int) -> frozenset[int]:
 
 def earlier_than(revision: Revision):  # noqa: ANN202 - an SQL expression
     return tuple_(Revision.order_key, Revision.id) < (revision.order_key, revision.id)
-
-
-def successor_with_data(session: Session, revision_id: int) -> int | None:
-    """The next revision (by sort key) of the same component that has ingested results."""
-    revision = session.get_one(Revision, revision_id)
-    return session.scalar(
-        select(Revision.id)
-        .join(Execution, Execution.revision_id == Revision.id)
-        .where(
-            Revision.component_id == revision.component_id,
-            tuple_(Revision.order_key, Revision.id) > (revision.order_key, revision.id),
-            Execution.id.in_(ingested_executions()),
-        )
-        .order_by(Revision.order_key, Revision.id)
-        .limit(1)
-    )
 
 
 def judged_counters(

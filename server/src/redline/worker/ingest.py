@@ -16,7 +16,7 @@ from redline.recording.format import no_traffic_reason
 from redline.server.db import session_scope
 from redline.server.models import Execution, Job, JobState, Revision, utcnow
 from redline.server.services.ingestion import store_samples
-from redline.worker.history import successor_with_data
+from redline.worker.onward import in_reach
 from redline.worker.remeasure import waiting_on
 from sqlalchemy import select, update
 from sqlalchemy.orm import Session
@@ -53,11 +53,12 @@ def _fail(database_url: str, execution_id: int, reason: str) -> None:
 def ingest_execution(database_url: str, execution_id: int) -> list[int]:
     """Ingest one execution in one transaction and mark its job done.
 
-    Returns the revisions whose changes should be detected now: the execution's own, and the
-    next revision (by sort key) that already has data, whose baseline this one may have become;
+    Returns the revisions to judge, the first to judge onward from (`redline.worker.onward`:
+    the later revisions its results are a baseline of follow, in order): the execution's own;
     for a confirmation run, the revision it confirms (`redline.worker.confirm_runs`); for a
     fresh run of a baseline the host was busy in, also the revisions that lacked it
-    (`redline.worker.remeasure`).
+    (`redline.worker.remeasure`). Those and the later revisions in reach are marked as not yet
+    analysed.
     A bad recording (`RecordingError`, or another ValueError from its data) marks the job
     failed with the reason and is raised again. Any other error (a database or broker outage,
     storage) is raised leaving the job `uploaded`, for the task's retries or the periodic
@@ -74,13 +75,13 @@ def ingest_execution(database_url: str, execution_id: int) -> list[int]:
                 # a confirmation run: the revision it confirms judges its pairs again
                 revisions = [job.confirms_revision_id]
             else:
-                later = successor_with_data(session, execution.revision_id)
-                revisions = [execution.revision_id] + ([later] if later is not None else [])
+                revisions = [execution.revision_id]
                 if job.remeasures_job_id is not None:  # a fresh run: who waited for it
                     revisions += waiting_on(session, execution.revision_id)
                 revisions = list(dict.fromkeys(revisions))
+            pending = [*revisions, *in_reach(session, revisions[0])]
             session.execute(
-                update(Revision).where(Revision.id.in_(revisions)).values(analyzed_at=None)
+                update(Revision).where(Revision.id.in_(pending)).values(analyzed_at=None)
             )
             return revisions
     except ValueError as exc:  # RecordingError is one

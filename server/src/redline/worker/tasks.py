@@ -31,9 +31,9 @@ from redline.worker import reanalysis, reanalysis_finish
 from redline.worker.alerts import commit_status, runtime_alerts, scan_component, send_digests
 from redline.worker.app import celery_app
 from redline.worker.deliver import deliver_due
-from redline.worker.detection import detect_revision as run_detection
 from redline.worker.ingest import ingest_execution as run_ingest
 from redline.worker.ingest import stale_uploads
+from redline.worker.onward import judge_onward
 from redline.worker.sweeps import failed_without_status, untold_runtime_alarms
 from redline.worker.training import train_model as run_training
 from redline.worker.trends import render_component_trends, render_revision_trends
@@ -75,26 +75,24 @@ def _settings() -> Settings:
 
 @celery_app.task(name=INGEST_TASK, acks_late=True, **RETRY)
 def ingest_execution(execution_id: int) -> None:
-    """Summarize one uploaded execution, then detect changes for its revision (and the next)."""
+    """Summarize one uploaded execution, then detect changes for its revision and onward."""
     with analysing():
         revisions = run_ingest(_settings().database_url, execution_id)
-    for revision_id in revisions:
-        detect_revision.delay(revision_id)
+    if revisions:
+        detect_revision.delay(*revisions)
 
 
 @celery_app.task(name=DETECT_TASK, acks_late=True, **RETRY)
-def detect_revision(revision_id: int) -> None:
-    """Compare a revision with its baseline, series by series (KS), replacing earlier results."""
+def detect_revision(revision_id: int, *also: int) -> None:
+    """Compare a revision with its baseline, series by series, replacing earlier results; then
+    the later revisions its results are a baseline of, and ``also``, in order
+    (`redline.worker.onward`)."""
     with analysing():
-        changes = run_detection(_settings().database_url, revision_id)
-    log.info(
-        "revision %s: %d series compared, %d flagged",
-        revision_id,
-        len(changes),
-        sum(change.flagged for change in changes),
-    )
-    render_trends.delay(revision_id)
-    scan_alerts.delay(None, revision_id)
+        judged = judge_onward(_settings().database_url, revision_id, also)
+    for judged_id in judged:
+        scan_alerts.delay(None, judged_id)
+    if judged:
+        render_trends.delay(judged[-1])
 
 
 @celery_app.task(name=RENDER_TASK, acks_late=True, **RETRY)
