@@ -10,14 +10,14 @@ import threading
 
 import numpy as np
 import pytest
-from redline.server.models import Detection, Revision
+from redline.server.models import Detection, Execution, Revision, utcnow
 from redline.worker import onward
-from redline.worker.detection import detect_revision
+from redline.worker.detection import detect_and_store, detect_revision
 from redline.worker.ingest import ingest_execution
 from redline.worker.onward import judge_onward
-from sqlalchemy import select
+from sqlalchemy import select, update
 
-from tests.support.history import cpu_history
+from tests.support.history import add_execution, cpu_history
 
 #: a noisy level, a step up at r8 (one revision with few samples: r5's arrival moves it)
 LEVELS = [20.0, 21.0, 19.0, 20.5, 27.0, 20.0, 19.5, 30.0, 30.5, 29.0, 30.0, 31.0, 30.0, 29.5]
@@ -68,7 +68,9 @@ def test_a_revision_ingested_late_leaves_the_verdicts_judging_in_order_gives(
         judge_onward(database_url, *_split(ingest_execution(database_url, execution.id)))
     without = _verdicts(session)
     (late,) = ingest_execution(database_url, executions[4].id)
-    judged = judge_onward(database_url, late)
+    told: list[int] = []
+    judged = judge_onward(database_url, late, told=told.append)
+    assert told == judged  # each revision's alerts as it is judged, not after the walk
     after = _verdicts(session)
     expected = _in_order(session, database_url, executions)
     assert after == expected
@@ -96,9 +98,9 @@ def test_two_walks_of_a_component_take_turns(session, database_url, tmp_path, mo
         if name == "from-r3":
             first_in.set()
             assert go_on.wait(30), "the test never let the first walk go on"
-        return detect_revision(database_url, revision_id)
+        return detect_and_store(database_url, revision_id)
 
-    monkeypatch.setattr(onward, "detect_revision", judged)
+    monkeypatch.setattr(onward, "detect_and_store", judged)
     errors: list[BaseException] = []
 
     def walk(index: int) -> None:
@@ -145,6 +147,63 @@ def test_the_reach_follows_the_baseline(session, database_url, tmp_path, baselin
     revisions = [e.revision_id for e in executions]
     if baseline == "previous":
         assert judge_onward(database_url, revisions[3]) == revisions[3:5]
-    else:  # the pinned revision is every later one's baseline; another is none's
+    else:  # the pinned revision is every later one's baseline; another only the next one's
         assert judge_onward(database_url, revisions[1]) == revisions[1:]
-        assert judge_onward(database_url, revisions[3]) == [revisions[3]]
+        assert judge_onward(database_url, revisions[3]) == revisions[3:5]
+
+
+def test_the_next_revision_says_what_a_late_one_measured_that_it_does_not(
+    session, database_url, tmp_path
+):
+    """Even when the late revision is in no baseline (pinned elsewhere), the next one's "not
+    measured in this revision" verdicts read it."""
+    config = {"baseline": "pinned", "pinned": "r1"}
+    executions = cpu_history(session, tmp_path, [20.0] * 3, config=config)
+    extra = add_execution(
+        session, tmp_path, "builder", "r4", "4", {"cpu": np.full(60, 20.0), "rss": np.full(60, 9.0)}
+    )
+    late = add_execution(session, tmp_path, "builder", "r5", "5", {"cpu": np.full(60, 20.0)})
+    for execution in [*executions, late, extra]:  # r4, which measured rss, comes last
+        judge_onward(database_url, *_split(ingest_execution(database_url, execution.id)))
+    reasons = {
+        reason
+        for revision, reason in session.execute(select(Detection.revision_id, Detection.reason))
+        if revision == late.revision_id
+    }
+    assert any("not measured in this revision" in reason for reason in reasons), reasons
+
+
+def test_a_confirmation_run_walks_on_only_when_its_revision_s_verdicts_moved(
+    session, database_url, tmp_path
+):
+    executions = cpu_history(session, tmp_path, [20.0] * 6)
+    _arrive(database_url, executions, late=[])
+    revisions = [e.revision_id for e in executions]
+    # nothing new for the confirmed revision: its later ones read nothing new either
+    assert judge_onward(database_url, revisions[2], confirmation=True) == [revisions[2]]
+    session.execute(Detection.__table__.delete().where(Detection.revision_id == revisions[2]))
+    session.commit()  # as if its verdicts were other before: they move, the walk goes on
+    assert judge_onward(database_url, revisions[2], confirmation=True) == revisions[2:]
+
+
+def test_a_pruned_revision_is_left_out_of_a_walk_and_never_left_pending(
+    session, database_url, tmp_path
+):
+    executions = cpu_history(session, tmp_path, [20.0] * 5)
+    _arrive(database_url, executions[1:], late=[])
+    pruned = executions[2]
+    session.execute(update(Execution).where(Execution.id == pruned.id).values(pruned_at=utcnow()))
+    session.commit()
+    (first,) = ingest_execution(database_url, executions[0].id)
+    session.expire_all()
+    pending = [r.title for r in session.scalars(select(Revision).order_by(Revision.order_key))
+               if r.analyzed_at is None]  # fmt: skip
+    assert pending == ["r1", "r2", "r4", "r5"]
+    revisions = [e.revision_id for e in executions]
+    assert judge_onward(database_url, first) == [revisions[0], revisions[1], *revisions[3:]]
+    session.expire_all()
+    assert all(
+        r.analyzed_at is not None
+        for r in session.scalars(select(Revision))
+        if r.id != pruned.revision_id
+    )

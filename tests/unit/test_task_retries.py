@@ -9,20 +9,26 @@ import pytest
 from kombu.exceptions import OperationalError as BrokerError
 from redline.agent import quiet
 from redline.worker import tasks
+from redline.worker.ingest import Ingested
 from sqlalchemy.exc import InterfaceError, OperationalError
 
-TASKS = [(tasks.ingest_execution, "run_ingest"), (tasks.detect_revision, "run_detection")]
+TASKS = [(tasks.ingest_execution, "run_ingest"), (tasks.detect_revision, "judge_onward")]
 
 
 def _failing(times: int, error: Callable[[], Exception]) -> tuple[Callable, list[int]]:
-    """The task's work, failing with ``error`` its first ``times`` calls; and the calls made."""
+    """The task's work, failing with ``error`` its first ``times`` calls; and the calls made.
+    As ingestion, it asks nothing to be judged; as a walk (`judge_onward`), it judges the
+    revision alone, telling it."""
     calls: list[int] = []
 
-    def work(_database_url: str, ident: int) -> list[int]:
+    def work(_database_url: str, ident: int, *_args: object, told=None, **_kwargs: object):
         calls.append(ident)
         if len(calls) <= times:
             raise error()
-        return []  # no further revision to detect
+        if told is None:
+            return Ingested([])
+        told(ident)
+        return [ident]
 
     return work, calls
 
@@ -60,7 +66,7 @@ def test_a_passing_database_outage_is_retried_until_the_task_succeeds(
     assert result.successful(), result.traceback
     assert calls == [7, 7, 7]
     if task is tasks.detect_revision:  # once done, its component's trend charts are rendered
-        assert renders == [7, (None, 7)]  # and its alerts scanned
+        assert renders == [(None, 7), 7]  # its alerts scanned as it is judged
 
 
 @pytest.mark.parametrize(("task", "work"), TASKS)

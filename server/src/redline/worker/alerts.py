@@ -42,6 +42,7 @@ from redline.server.models import (
 from redline.server.services.ci_verdict import ci_verdict
 from redline.server.services.detection_config import component_config
 from redline.worker import messages
+from redline.worker.statuses import status_key
 from redline.worker.told import Change, mark_told, told_pairs, untold
 from sqlalchemy import and_, or_, select
 from sqlalchemy.orm import Session, aliased
@@ -309,7 +310,7 @@ def send_digests(session: Session, now: datetime | None = None) -> list[int]:
 
 def commit_status(session: Session, revision_id: int) -> list[int]:
     """The revision's verdict as a commit status, when its component has a target and the
-    revision a commit: once per revision and state (pending, success, failure, error)."""
+    revision a commit: once per change of its state (pending, success, failure, error)."""
     revision = session.get(Revision, revision_id)
     if revision is None or not revision.commit:
         return []
@@ -331,8 +332,8 @@ def commit_status(session: Session, revision_id: int) -> list[int]:
             "no change for the worse"
             + (f" ({verdict.skipped} test case(s) without enough data)" if verdict.skipped else ""),
         )
-    key = f"status:{revision.id}:{state}"
-    if session.scalar(select(Delivery.id).where(Delivery.key == key)) is not None:
+    key = status_key(session, revision.id, state)
+    if key is None:
         return []
     delivery = Delivery(
         uid=str(uuid.uuid4()),

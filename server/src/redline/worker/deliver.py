@@ -36,6 +36,7 @@ from redline.server.core.config import Settings
 from redline.server.db import session_scope
 from redline.server.models import Component, Delivery, Subscription, utcnow
 from redline.worker import messages
+from redline.worker.statuses import in_flight_before, supersede
 from sqlalchemy import and_, or_, select, update
 
 log = logging.getLogger(__name__)
@@ -248,13 +249,15 @@ def claim(database_url: str, limit: int, lease: timedelta) -> list[Leased]:
     each with its subscription and component, in one transaction."""
     now = utcnow()
     with session_scope(database_url) as session:
+        supersede(session, now)
         ids = session.scalars(
             select(Delivery.id)
             .where(
                 or_(
                     and_(Delivery.state == "pending", Delivery.next_try <= now),
                     and_(Delivery.state == "sending", Delivery.lease_until < now),
-                )
+                ),
+                ~in_flight_before(now),
             )
             .order_by(Delivery.next_try)
             .limit(limit)

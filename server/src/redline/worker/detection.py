@@ -327,10 +327,23 @@ def detect_revision(database_url: str, revision_id: int) -> list[KsChange]:
     enough data: missing baseline"). Reading and storing happen under the revision's lock, in
     one transaction; a revision whose samples were all pruned keeps its stored results.
     """
+    judged = detect_and_store(database_url, revision_id)
+    return [] if judged is None else judged.changes
+
+
+def detect_and_store(database_url: str, revision_id: int) -> Judged | None:
+    """`detect_revision`, returning all it stored (None: nothing): the rows of earlier
+    revisions a step was found at among them."""
     with session_scope(database_url) as session:
         lock_revision(session, revision_id)
         judged = judge_revision(session, revision_id)
         if judged is None:
-            return []
+            return None
         store(session, session.get_one(Revision, revision_id), judged.rows, rerun=True)
-        return judged.changes
+    log.info(
+        "revision %s: %d series compared, %d flagged",
+        revision_id,
+        len(judged.changes),
+        sum(change.flagged for change in judged.changes),
+    )
+    return judged

@@ -8,6 +8,7 @@ for one execution take turns on its job row), so a lost or doubled queue message
 from __future__ import annotations
 
 import logging
+from dataclasses import dataclass
 from datetime import timedelta
 
 from redline.recording import read_recording
@@ -50,15 +51,30 @@ def _fail(database_url: str, execution_id: int, reason: str) -> None:
             job.state, job.reason = JobState.failed, reason
 
 
+@dataclass(frozen=True)
+class Ingested:
+    """What an ingestion asks detection to judge: ``revisions``, the first to judge onward from
+    (`redline.worker.onward`); ``confirmation``: the execution was a confirmation run, whose
+    samples are in no baseline (the later revisions read only its revision's verdicts)."""
+
+    revisions: list[int]
+    confirmation: bool = False
+
+
 def ingest_execution(database_url: str, execution_id: int) -> list[int]:
+    """`ingest`'s revisions to judge."""
+    return ingest(database_url, execution_id).revisions
+
+
+def ingest(database_url: str, execution_id: int) -> Ingested:
     """Ingest one execution in one transaction and mark its job done.
 
-    Returns the revisions to judge, the first to judge onward from (`redline.worker.onward`:
+    Says which revisions to judge, the first to judge onward from (`redline.worker.onward`:
     the later revisions its results are a baseline of follow, in order): the execution's own;
     for a confirmation run, the revision it confirms (`redline.worker.confirm_runs`); for a
     fresh run of a baseline the host was busy in, also the revisions that lacked it
-    (`redline.worker.remeasure`). Those and the later revisions in reach are marked as not yet
-    analysed.
+    (`redline.worker.remeasure`). Those, and for new results the later revisions in reach, are
+    marked as not yet analysed.
     A bad recording (`RecordingError`, or another ValueError from its data) marks the job
     failed with the reason and is raised again. Any other error (a database or broker outage,
     storage) is raised leaving the job `uploaded`, for the task's retries or the periodic
@@ -69,21 +85,22 @@ def ingest_execution(database_url: str, execution_id: int) -> list[int]:
             execution = session.get(Execution, execution_id)
             if execution is None:
                 log.warning("execution %s no longer exists; nothing to ingest", execution_id)
-                return []
+                return Ingested([])
             job = _ingest(session, execution)
             if job.confirms_revision_id is not None:
                 # a confirmation run: the revision it confirms judges its pairs again
-                revisions = [job.confirms_revision_id]
+                found = Ingested([job.confirms_revision_id], confirmation=True)
+                pending = found.revisions
             else:
                 revisions = [execution.revision_id]
                 if job.remeasures_job_id is not None:  # a fresh run: who waited for it
                     revisions += waiting_on(session, execution.revision_id)
-                revisions = list(dict.fromkeys(revisions))
-            pending = [*revisions, *in_reach(session, revisions[0])]
+                found = Ingested(list(dict.fromkeys(revisions)))
+                pending = [*found.revisions, *in_reach(session, execution.revision_id)]
             session.execute(
                 update(Revision).where(Revision.id.in_(pending)).values(analyzed_at=None)
             )
-            return revisions
+            return found
     except ValueError as exc:  # RecordingError is one
         _fail(database_url, execution_id, f"ingest failed: {exc}")
         raise

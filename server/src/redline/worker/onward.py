@@ -9,22 +9,32 @@ happened to arrive (a trial with four agents saw it); here the later revisions a
 oldest first, as if the results had come in order:
 
 - at least the ``window`` revisions with results after it (its samples are in their baselines;
-  one for ``previous``; under ``pinned``, every later one when it is the pinned revision);
-- then on while any verdict a later revision reads (flagged, or "not enough data": a step may be
-  found there) came out different, until ``window`` revisions in a row come out unchanged.
+  one for ``previous``, or ``pinned`` unless it is the pinned revision, when every later one
+  is: the next one always reads what it measured, to say what is no longer measured);
+- then on while anything a later revision reads came out different — a flagged or "not enough
+  data" verdict (a step may be found there), or a step found at an earlier revision — until
+  ``window`` revisions in a row come out unchanged;
+- for a confirmation run (in no baseline), the later revisions only if the confirmed revision's
+  verdicts changed.
 
 Walks of one component take turns (a transaction-scoped advisory lock held by a connection of
-its own for the walk, which also holds under PgBouncer's transaction pooling), so two late
-arrivals judged at once still end as in order: the later walk reads what the earlier stored.
-Known limit: a later revision that lacks a series reaches further back for it than ``window``
-revisions with results; such a revision beyond the reach is not judged again unless a verdict
-change carries the walk to it.
+its own for the walk, which also holds under PgBouncer's transaction pooling; a waiting walk
+holds no connection), so two late arrivals judged at once still end as in order: the later walk
+reads what the earlier stored.
+
+Known limits, where stored results can still differ from judging in order: a later revision
+that lacks a series reaches further back for it than ``window`` revisions with results, and one
+beyond the walk is not judged again unless a changed verdict carries the walk to it; a step
+found (`redline.worker.detection`) at a revision before the late one, by a revision judged
+without it, stays stored; confirmation by history and the ranges of regressions are settled as
+verdicts come and are not undone. A re-analysis of the component judges everything again.
 """
 
 from __future__ import annotations
 
 import logging
-from collections.abc import Iterable, Iterator
+import time
+from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
 
 from redline.detect.config import DetectionConfig
@@ -32,7 +42,7 @@ from redline.detect.result import NOT_ENOUGH_DATA
 from redline.server.db import get_engine, session_scope
 from redline.server.models import Detection, Execution, Revision
 from redline.server.services.detection_config import component_config
-from redline.worker.detection import detect_revision
+from redline.worker.detection import detect_and_store
 from redline.worker.samples import ingested_executions
 from sqlalchemy import func, select, tuple_
 from sqlalchemy.orm import Session
@@ -40,26 +50,34 @@ from sqlalchemy.orm import Session
 log = logging.getLogger(__name__)
 #: the first key of the advisory lock a component's walk holds
 WALK_LOCK = 0x524F  # "RO"
+#: how often a walk waiting for its turn tries again
+TURN_POLL_S = 0.2
 
 Fingerprint = frozenset[tuple[int, str, bool, bool]]
 
 
 def reach(config: DetectionConfig, revision: Revision) -> int | None:
-    """How many later revisions with results hold ``revision`` in their baselines (None: all)."""
+    """How many later revisions with results read ``revision`` (None: all of them): those whose
+    baselines hold it; at least the next, which says what it no longer measures."""
     if config.baseline == "pinned":
-        return None if revision.title == config.pinned else 0
+        return None if revision.title == config.pinned else 1
     return 1 if config.baseline == "previous" else config.window
 
 
 def later_with_results(session: Session, revision: Revision, limit: int | None) -> list[int]:
-    """The ids of the later revisions of the component with ingested results, oldest first."""
+    """The ids of the later revisions of the component with ingested results whose samples are
+    kept (a pruned revision keeps its verdicts), oldest first."""
     query = (
         select(Revision.id)
         .where(
             Revision.component_id == revision.component_id,
             tuple_(Revision.order_key, Revision.id) > (revision.order_key, revision.id),
             select(Execution.id)
-            .where(Execution.revision_id == Revision.id, Execution.id.in_(ingested_executions()))
+            .where(
+                Execution.revision_id == Revision.id,
+                Execution.id.in_(ingested_executions()),
+                Execution.pruned_at.is_(None),
+            )
             .exists(),
         )
         .order_by(Revision.order_key, Revision.id)
@@ -92,44 +110,76 @@ def fingerprint(session: Session, revision_id: int) -> Fingerprint:
 @contextmanager
 def taking_turns(database_url: str, component_id: int) -> Iterator[None]:
     """One walk of the component at a time: a lock held, for the walk, by a transaction on a
-    connection of its own (the walk's detections commit on others)."""
-    with get_engine(database_url).connect() as connection, connection.begin():
-        connection.execute(select(func.pg_advisory_xact_lock(WALK_LOCK, component_id)))
-        yield
+    connection of its own (the walk's detections commit on others). A walk waiting for its
+    turn holds no connection between tries: under PgBouncer a waiter holding a server
+    connection could starve the walk it waits for of one."""
+    engine = get_engine(database_url)
+    while True:
+        with engine.connect() as connection, connection.begin():
+            if connection.scalar(select(func.pg_try_advisory_xact_lock(WALK_LOCK, component_id))):
+                yield
+                return
+        time.sleep(TURN_POLL_S)
 
 
-def judge_onward(database_url: str, revision_id: int, also: Iterable[int] = ()) -> list[int]:
+def _judge(database_url: str, revision_id: int) -> bool:
+    """Judge and store the revision: whether anything a later revision reads changed (its
+    flagged or undecided verdicts, or a step found at an earlier revision)."""
+    with session_scope(database_url) as session:
+        before = fingerprint(session, revision_id)
+    judged = detect_and_store(database_url, revision_id)
+    if judged is None:
+        return False
+    if any(row["revision_id"] != revision_id for row in judged.rows):
+        return True
+    with session_scope(database_url) as session:
+        return fingerprint(session, revision_id) != before
+
+
+def judge_onward(
+    database_url: str,
+    revision_id: int,
+    also: Iterable[int] = (),
+    confirmation: bool = False,
+    told: Callable[[int], object] | None = None,
+) -> list[int]:
     """Judge ``revision_id``, then the later revisions its results reach, oldest first (the
-    module's rules), and every revision of ``also`` (later revisions waiting for it) on the way.
+    module's rules), and every later revision of ``also`` (waiting for it) on the way.
 
-    Returns the ids judged, in order. Each revision is judged and stored in a transaction of its
-    own (`detect_revision`); a walk interrupted (a worker lost) is done again whole.
+    ``confirmation``: its new results are a confirmation run's, in no baseline: the later
+    revisions are judged only if its own verdicts changed. ``told`` is called with each
+    revision as soon as it is judged (its alerts and commit status need not wait for the
+    walk). Returns the ids judged, in order. Each revision is judged and stored in a
+    transaction of its own (`detect_and_store`); a walk interrupted (a worker lost) is done
+    again whole.
     """
     with session_scope(database_url) as session:
         revision = session.get(Revision, revision_id)
         if revision is None:
             return []
         component_id = revision.component_id
+    judged: list[int] = []
     with taking_turns(database_url, component_id):
         with session_scope(database_url) as session:
             revision = session.get_one(Revision, revision_id)
-            config = component_config(session, component_id)
-            depth = reach(config, revision)
+            depth = reach(component_config(session, component_id), revision)
             later = later_with_results(session, revision, None)
-            waiting = set(also) - {revision_id}
-        detect_revision(database_url, revision_id)
-        judged, unchanged = [revision_id], 0
+            waiting = set(also) & set(later)
+        moved = _judge(database_url, revision_id)
+        judged.append(revision_id)
+        if told is not None:
+            told(revision_id)
+        if confirmation and not moved:
+            depth = 0
+        unchanged = 0
         for later_id in later:
             if not waiting and depth is not None and unchanged >= depth:
                 break
-            with session_scope(database_url) as session:
-                before = fingerprint(session, later_id)
-            detect_revision(database_url, later_id)
-            with session_scope(database_url) as session:
-                after = fingerprint(session, later_id)
+            unchanged = 0 if _judge(database_url, later_id) else unchanged + 1
             judged.append(later_id)
             waiting.discard(later_id)
-            unchanged = unchanged + 1 if before == after else 0
+            if told is not None:
+                told(later_id)
     if len(judged) > 1:
         log.info("revision %s judged, then %d later ones", revision_id, len(judged) - 1)
     return judged

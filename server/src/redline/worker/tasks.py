@@ -31,7 +31,7 @@ from redline.worker import reanalysis, reanalysis_finish
 from redline.worker.alerts import commit_status, runtime_alerts, scan_component, send_digests
 from redline.worker.app import celery_app
 from redline.worker.deliver import deliver_due
-from redline.worker.ingest import ingest_execution as run_ingest
+from redline.worker.ingest import ingest as run_ingest
 from redline.worker.ingest import stale_uploads
 from redline.worker.onward import judge_onward
 from redline.worker.sweeps import failed_without_status, untold_runtime_alarms
@@ -77,20 +77,27 @@ def _settings() -> Settings:
 def ingest_execution(execution_id: int) -> None:
     """Summarize one uploaded execution, then detect changes for its revision and onward."""
     with analysing():
-        revisions = run_ingest(_settings().database_url, execution_id)
-    if revisions:
-        detect_revision.delay(*revisions)
+        found = run_ingest(_settings().database_url, execution_id)
+    if found.revisions:
+        detect_revision.apply_async(
+            args=found.revisions, kwargs={"confirmation": found.confirmation}
+        )
 
 
 @celery_app.task(name=DETECT_TASK, acks_late=True, **RETRY)
-def detect_revision(revision_id: int, *also: int) -> None:
+def detect_revision(revision_id: int, *also: int, confirmation: bool = False) -> None:
     """Compare a revision with its baseline, series by series, replacing earlier results; then
     the later revisions its results are a baseline of, and ``also``, in order
-    (`redline.worker.onward`)."""
+    (`redline.worker.onward`). Each revision's alerts and commit status are queued as soon as
+    it is judged."""
     with analysing():
-        judged = judge_onward(_settings().database_url, revision_id, also)
-    for judged_id in judged:
-        scan_alerts.delay(None, judged_id)
+        judged = judge_onward(
+            _settings().database_url,
+            revision_id,
+            also,
+            confirmation,
+            told=lambda judged_id: scan_alerts.delay(None, judged_id),
+        )
     if judged:
         render_trends.delay(judged[-1])
 

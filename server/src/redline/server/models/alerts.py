@@ -103,7 +103,9 @@ class Delivery(Base):
 
     ``uid`` goes out with it (the X-Redline-Delivery header, the mail's Message-ID), so a
     receiver that got it before a worker died can tell the retry apart. States: pending (due at
-    ``next_try``), sending (leased until ``lease_until``), delivered, failed (no tries left).
+    ``next_try``), sending (leased until ``lease_until``), delivered, failed (no tries left),
+    superseded (a commit status a newer one of its revision replaced before it was sent:
+    `redline.worker.statuses`).
     """
 
     __tablename__ = "delivery"

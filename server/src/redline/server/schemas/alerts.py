@@ -87,7 +87,7 @@ class DeliveryOut(BaseModel):
     subscription: int | None
     kind: str
     event: str
-    state: Literal["pending", "sending", "delivered", "failed"]
+    state: Literal["pending", "sending", "delivered", "failed", "superseded"]
     attempts: int
     last_error: str
     next_try: datetime | None = Field(description="when it is tried again (pending only)")
