@@ -292,50 +292,6 @@ def test_the_verdict_goes_to_the_commit_status_api(api, tmp_path, receiver, prov
     assert "1 change(s) for the worse" in body["description"]
 
 
-def test_a_revision_judged_again_gets_its_status_back_after_pending(api, tmp_path, receiver):
-    """A late arrival has r6 judged again (pending meanwhile): once per revision and state
-    would leave its commit at pending for good; and statuses of one commit made faster than
-    they are sent must not land out of order: the older ones not sent yet are superseded."""
-    target = {"provider": "github", "api_url": receiver.url + "/api",
-              "repository": "robots/builder", "token": "tok-123"}  # fmt: skip
-    answer = api.client.put(f"{BASE}/commit-status", json=target, headers=api.tokens["admin"])
-    assert answer.status_code == 200, answer.text
-    revisions(api, tmp_path, [10.0] * 6)
-    database_url = api.settings.database_url
-
-    def judged_again(title: str, analysed: list[bool], send_each: bool) -> list[int]:
-        made = []
-        with session_factory(database_url)() as session:
-            session.execute(update(Revision).values(commit="c" * 40))
-            revision = session.scalar(select(Revision.id).where(Revision.title == title))
-            for done in analysed:
-                at = utcnow() if done else None
-                session.execute(
-                    update(Revision).where(Revision.id == revision).values(analyzed_at=at)
-                )
-                made += [len(commit_status(session, revision))]
-                session.commit()
-                if send_each:
-                    deliver_due(database_url, api.settings)
-        return made
-
-    # sent as they come: success, pending, success again, each change once
-    assert judged_again("r6", [True, True, False, False, True, True], True) == [1, 0, 1, 0, 1, 0]
-    said = [json.loads(call.body)["state"] for call in receiver.requests]
-    assert said == ["success", "pending", "success"]
-    # made faster than sent (one delivery run after all three): only the last one goes out
-    receiver.requests.clear()
-    assert judged_again("r5", [True, False, True], False) == [1, 1, 1]
-    deliver_due(database_url, api.settings)
-    said = [json.loads(call.body)["state"] for call in receiver.requests]
-    assert said == ["success"]
-    with session_factory(database_url)() as session:
-        states = session.scalars(
-            select(Delivery.state).where(Delivery.key.startswith("status:5:")).order_by(Delivery.id)
-        ).all()
-    assert states == ["superseded", "superseded", "delivered"]
-
-
 @pytest.mark.parametrize("provider", ["github", "gitlab"])
 def test_no_change_posts_success_and_a_revision_still_measured_posts_pending(
     api, tmp_path, receiver, provider

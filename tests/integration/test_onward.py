@@ -125,13 +125,16 @@ def test_two_walks_of_a_component_take_turns(session, database_url, tmp_path, mo
     assert _verdicts(session) == expected
 
 
-def test_a_walk_stops_a_window_past_the_last_verdict_it_changed(session, database_url, tmp_path):
+def test_a_walk_that_changes_nothing_stops_a_window_past_its_revision(
+    session, database_url, tmp_path
+):
     rng = np.random.default_rng(5)
     executions = cpu_history(session, tmp_path, [rng.normal(20.0, 1.0, 60) for _ in range(30)])
     _arrive(database_url, executions, late=[19])
     revisions = [e.revision_id for e in executions]
-    # nothing flagged or undecided moves in a level history: r20 and the 10 after it
-    assert judge_onward(database_url, revisions[19]) == revisions[19:30]
+    # nothing flagged or undecided moves in a level history: r6 and the 10 after it (window),
+    # not the 13 more after those
+    assert judge_onward(database_url, revisions[5]) == revisions[5:16]
     assert judge_onward(database_url, revisions[29]) == [revisions[29]]
     session.expire_all()
     assert all(revision.analyzed_at is not None for revision in session.scalars(select(Revision)))

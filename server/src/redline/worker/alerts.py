@@ -311,7 +311,9 @@ def send_digests(session: Session, now: datetime | None = None) -> list[int]:
 def commit_status(session: Session, revision_id: int) -> list[int]:
     """The revision's verdict as a commit status, when its component has a target and the
     revision a commit: once per change of its state (pending, success, failure, error)."""
-    revision = session.get(Revision, revision_id)
+    # Statuses of one revision take turns on its row: two scans at once would read the same
+    # statuses told, pick the same key, and the one that read the older verdict could land last.
+    revision = session.get(Revision, revision_id, with_for_update=True)
     if revision is None or not revision.commit:
         return []
     component = session.get_one(Component, revision.component_id)

@@ -69,7 +69,7 @@ def status_key(session: Session, revision_id: int, state: str) -> str | None:
     again (`redline.worker.onward`: pending meanwhile): once per revision and state would leave
     the commit at pending. The first status of each state is keyed ``status:{id}:{state}``
     (what `redline.worker.sweeps` looks for), a repeat with how many were told before.
-    Scans of one component take turns (`scan_component`), so two never pick the same key."""
+    The caller holds the revision's row (`commit_status`), so two never pick the same key."""
     told = (
         session.execute(
             select(Delivery.event)
