@@ -62,9 +62,11 @@ STABLE_COUNTERS = ("cpu_percent", "rss_bytes", "uss_bytes", "threads", "io_write
 DRIVER_CASE, DRIVER_RATE = "locate_short", 500.0
 RTT = ("rtt_p50_us", "rtt_p90_us")
 TIMEOUTS = ("timeouts",)
-#: a fifth of the round trip's p50 of unchanged code (~880 µs by ``--driver --probe``, 6 runs on
-#: 2026-11-25), less the ~70 µs time.sleep overshoots a wait this short: ~180 µs added
-REPLY_DELAY_US = 110
+#: about a fifth of the round trip's p50 of unchanged code on a quiet host: ``--driver --probe
+#: --reply-delay-us 25`` on 2026-11-27 gave 468-483 µs unchanged, 554-563 µs with the wait
+#: (time.sleep overshoots a wait this short by ~60 µs): +17.6 %. (On 2026-11-25's busy host the
+#: p50 was ~880 µs and 110 µs made the fifth.)
+REPLY_DELAY_US = 25
 
 
 @dataclass(frozen=True)
