@@ -261,3 +261,76 @@ def test_a_later_spike_that_was_dropped_does_not_stop_an_earlier_change_being_co
     session.expire_all()
     again = {key: d.confirmation for key, d in _flagged_by_counter(session).items()}
     assert again == before  # as the incremental path settled them
+
+
+def test_revisions_with_one_sort_key_keep_their_reported_order_and_one_regression(
+    session, database_url, tmp_path
+):
+    """Commits of one second share the sort key CI gives them (`git log --format=%ct`): r5, a
+    change of two counters, shares r4's key and ran first (the agent took it first). It must
+    stay after r4, be confirmed by r6 and r7, and make one regression, not one per series (its
+    (r4, r5] range was empty by keys alone; ordered by runs, r4 read as r5 returning)."""
+    from redline.server.schemas.revisions import RevisionCreate
+    from redline.server.services.revisions import create_revision
+
+    from tests.support.history import uploaded
+    from tests.support.recordings import run_metadata, write_recording
+
+    _component(session)
+    rng = np.random.default_rng(7)
+
+    def runs(level: float) -> list[dict]:
+        return [
+            {c: rng.normal(level * scale, level * scale * 0.02, 40) for c, scale in COUNTERS}
+            for _ in range(RUNS)
+        ]
+
+    def report(number: int, key: str):
+        return create_revision(
+            session, RevisionCreate(component=NAME, title=f"r{number}", sort_key=key, commit="main")
+        )
+
+    def upload(revision, key: str, level: float) -> list:
+        done = []
+        for job, counters in zip(
+            sorted(revision.jobs, key=lambda j: j.execution_index), runs(level), strict=True
+        ):
+            name = f"{NAME}-{revision.title}-{job.execution_index}"
+            meta = run_metadata(job, NAME, revision.title, key)
+            done.append(
+                uploaded(session, job, write_recording(tmp_path / name, meta, counters), name)
+            )
+        session.commit()
+        return done
+
+    for number in range(1, 4):
+        ingest_and_detect(database_url, upload(report(number, str(number)), str(number), 20.0))
+    r4, r5 = report(4, "4"), report(5, "4")
+    later_runs = upload(r5, "4", 30.0)  # the agent ran r5's jobs before r4's
+    earlier_runs = upload(r4, "4", 20.0)
+    ingest_and_detect(database_url, earlier_runs + later_runs)
+    for number in (6, 7):
+        ingest_and_detect(database_url, upload(report(number, str(number)), str(number), 30.0))
+    session.expire_all()
+    flagged = {
+        (title, d.series_id): d
+        for title, d in (
+            (t, d)
+            for d, t in session.execute(
+                select(Detection, Revision.title)
+                .join(Revision, Revision.id == Detection.revision_id)
+                .where(Detection.flagged, Detection.method == "execution_shift")
+            )
+        )
+    }
+    assert {title for title, _ in flagged} == {"r5"}, flagged
+    assert len(flagged) == len(COUNTERS)
+    assert all(d.confirmation == "held" for d in flagged.values()), [
+        d.confirmation_reason for d in flagged.values()
+    ]
+    (regression,) = session.scalars(select(Regression))
+    assert regression.confirmation == "confirmed", regression.confirmation_reason
+    assert (regression.good_revision_id, regression.bad_revision_id) == (r4.id, r5.id)
+
+
+COUNTERS = (("cpu", 1.0), ("rss", 1000.0))

@@ -29,7 +29,7 @@ from redline.server.models import (
     Summary,
 )
 from redline.worker.samples import ingested_executions
-from sqlalchemy import exists, func, select
+from sqlalchemy import exists, func, select, tuple_
 from sqlalchemy.orm import Session
 
 CONFIRMED, NOT_CONFIRMED = "confirmed", "not_confirmed"
@@ -42,14 +42,17 @@ UNDECIDED = "re-runs could not decide"
 
 
 def _levels(session: Session, series_id: int, count: bool) -> list[tuple[str, int, np.ndarray]]:
-    """The series' revisions in order: (sort key, revision id, one value per execution)."""
+    """The series' revisions in order, (sort key, revision id) as everywhere: (sort key,
+    revision id, one value per execution). Ordered by execution within a sort key, revisions
+    with one key (commits of one second) came in the order their runs did: a regression's
+    revision after the unchanged one it followed read as a spike that returned."""
     value = Summary.mean if count else Summary.p50
     rows = session.execute(
         select(Revision.order_key, Revision.id, value)
         .join(Execution, Execution.id == Summary.execution_id)
         .join(Revision, Revision.id == Execution.revision_id)
         .where(Summary.series_id == series_id, Execution.id.in_(ingested_executions()))
-        .order_by(Revision.order_key, Execution.id)
+        .order_by(Revision.order_key, Revision.id, Execution.id)
     )
     grouped: dict[tuple[str, int], list[float]] = defaultdict(list)
     for key, revision_id, number in rows:
@@ -57,8 +60,9 @@ def _levels(session: Session, series_id: int, count: bool) -> list[tuple[str, in
     return [(key, rid, np.asarray(v, dtype=float)) for (key, rid), v in grouped.items()]
 
 
-def _later_revisions(session: Session, order_key: str, detection: Detection) -> int:
-    """How many revisions of the detection's component after ``order_key`` have results."""
+def _later_revisions(session: Session, key: str, revision_id: int, detection: Detection) -> int:
+    """How many revisions of the detection's component after (``key``, ``revision_id``) have
+    results."""
     return int(
         session.scalar(
             select(func.count(func.distinct(Execution.revision_id)))
@@ -66,7 +70,7 @@ def _later_revisions(session: Session, order_key: str, detection: Detection) -> 
             .join(Series, Series.component_id == Revision.component_id)
             .where(
                 Series.id == detection.series_id,
-                Revision.order_key > order_key,
+                tuple_(Revision.order_key, Revision.id) > (key, revision_id),
                 Execution.id.in_(ingested_executions()),
             )
         )
@@ -111,7 +115,11 @@ def settle(
                 f"{wait} revision(s) could confirm it; re-runs (confirm_pairs) or triage decide"
             )
         return  # what follows the next change says nothing of this one
-    later = _later_revisions(session, levels[at][0], detection) if found.state == SUSPECTED else 0
+    later = (
+        _later_revisions(session, levels[at][0], levels[at][1], detection)
+        if found.state == SUSPECTED
+        else 0
+    )
     if found.state == SUSPECTED and later >= GONE_AFTER * wait:
         # the component went on without measuring it (a test renamed or removed): it cannot hold
         found = Hold(

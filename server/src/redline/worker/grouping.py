@@ -24,7 +24,7 @@ from redline.server.models import (
     Revision,
     Series,
 )
-from sqlalchemy import delete, exists, select
+from sqlalchemy import delete, exists, select, tuple_
 from sqlalchemy.orm import Session
 
 
@@ -39,13 +39,16 @@ def _span(
 def _overlapping(
     session: Session, component_id: int, good: Revision, bad: Revision
 ) -> Regression | None:
-    """The oldest regression whose (good, bad] range overlaps this one."""
+    """The oldest regression whose (good, bad] range overlaps this one. Revisions are ordered
+    by (sort key, id), as everywhere: two with one sort key (commits of one second, keyed by
+    their time) span a range that their keys alone make empty, which overlapped nothing and
+    opened a regression per flagged series."""
     return session.scalar(
         select(Regression)
         .where(
             Regression.component_id == component_id,
-            Regression.good_key < bad.order_key,
-            Regression.bad_key > good.order_key,
+            tuple_(Regression.good_key, Regression.good_revision_id) < (bad.order_key, bad.id),
+            tuple_(Regression.bad_key, Regression.bad_revision_id) > (good.order_key, good.id),
         )
         .order_by(Regression.id)
         .limit(1)
@@ -53,9 +56,9 @@ def _overlapping(
 
 
 def _widen(regression: Regression, good: Revision, bad: Revision) -> None:
-    if good.order_key < regression.good_key:
+    if (good.order_key, good.id) < (regression.good_key, regression.good_revision_id):
         regression.good_revision_id, regression.good_key = good.id, good.order_key
-    if bad.order_key > regression.bad_key:
+    if (bad.order_key, bad.id) > (regression.bad_key, regression.bad_revision_id):
         regression.bad_revision_id, regression.bad_key = bad.id, bad.order_key
 
 

@@ -43,7 +43,7 @@ from redline.server.services.errors import BadRequest
 from redline.server.services.executions import host_names
 from redline.server.services.read import FIELDS, matches, param_text
 from redline.server.services.results import series_ref
-from sqlalchemy import ColumnElement, delete, exists, func, select
+from sqlalchemy import ColumnElement, delete, exists, func, select, tuple_
 from sqlalchemy.dialects.postgresql import insert
 from sqlalchemy.orm import Session
 
@@ -201,14 +201,14 @@ def window(session: Session, component: Component, view: TrendView) -> Window:
     own = exists().where(Execution.revision_id == Revision.id, Job.id == Execution.job_id, *ran)
     query = select(Revision).where(Revision.component_id == component.id, own)
     if view.before:
-        end = session.scalar(
-            select(Revision.order_key).where(
+        end = session.execute(
+            select(Revision.order_key, Revision.id).where(
                 Revision.component_id == component.id, Revision.title == view.before
             )
-        )
+        ).first()
         if end is None:
             raise BadRequest(f"before: {component.name} has no revision {view.before!r}")
-        query = query.where(Revision.order_key < end)
+        query = query.where(tuple_(Revision.order_key, Revision.id) < tuple(end))
     query = query.order_by(Revision.order_key.desc(), Revision.id.desc()).limit(view.revisions + 1)
     return Window(list(session.scalars(query)), ran)
 

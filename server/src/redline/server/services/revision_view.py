@@ -22,7 +22,7 @@ from redline.server.models import Detection, Execution, Job, Revision, Series, S
 from redline.server.services.executions import run_seconds
 from redline.server.services.why import baseline_revisions
 from redline.server.storage import DISTURBED, samples_path
-from sqlalchemy import select
+from sqlalchemy import select, tuple_
 from sqlalchemy.orm import Session
 
 #: how many revisions before a baseline's newest are read for it, per revision it pools: a
@@ -111,7 +111,7 @@ def _revisions_up_to(session: Session, newest_id: int, count: int) -> list[int]:
             select(Revision.id)
             .where(
                 Revision.component_id == newest.component_id,
-                Revision.order_key <= newest.order_key,
+                tuple_(Revision.order_key, Revision.id) <= (newest.order_key, newest.id),
             )
             .order_by(Revision.order_key.desc(), Revision.id.desc())
             .limit(count)

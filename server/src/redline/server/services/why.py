@@ -22,7 +22,7 @@ from redline.server.models import Detection, Execution, Job, JobState, Revision,
 from redline.server.schemas.regressions import DetectionOut
 from redline.server.services.detection_config import component_config
 from redline.server.services.regressions import detection_by_id
-from sqlalchemy import select
+from sqlalchemy import select, tuple_
 from sqlalchemy.orm import Session
 
 
@@ -88,7 +88,7 @@ def baseline_revisions(
         select(Revision)
         .where(
             Revision.component_id == newest.component_id,
-            Revision.order_key <= newest.order_key,
+            tuple_(Revision.order_key, Revision.id) <= (newest.order_key, newest.id),
             Revision.id.in_(measured),
         )
         .order_by(Revision.order_key.desc(), Revision.id.desc())
