@@ -276,6 +276,22 @@ def _compare(tmp_path: Path, base: list[Path], cand: list[Path]) -> tuple[int, s
     return result.exit_code, result.output, suite
 
 
+def test_compare_does_not_pass_what_a_busy_host_kept_it_from_judging(tmp_path: Path) -> None:
+    """A trial compared a round trip ten times longer while another job loaded the host: every
+    segment was left out, and compare printed "0 counter(s) changed", exited 0, and wrote a
+    JUnit of skips. Not measured is never a pass, as `redline ci wait` says (exit 4)."""
+    base = [record(tmp_path / f"b{i}.mcap", rtt_p50=500.0 + i) for i in range(3)]
+    busy = [record(tmp_path / f"h{i}.mcap", rtt_p50=5000.0 + i, host=95.0) for i in range(3)]
+    code, output, suite = _compare(tmp_path, base, busy)
+    assert code == 4, output
+    assert "segment(s) not judged (the host was busy)" in output
+    assert suite.get("errors") != "0" and suite.get("skipped") == "0"
+    (case,) = [c for c in suite.iter("testcase") if c.get("name") == "c/steady[rate=10]"]
+    error = case.find("error")
+    assert error is not None and error.get("type") == "NotJudged"
+    assert "the host was busy" in error.get("message", "")
+
+
 def test_compare_does_not_pass_a_renamed_action_path(tmp_path: Path) -> None:
     """A trial moved a Query into a Sequence and tripled its round trip: compare printed
     "c/steady[rate=10]: ok", exited 0, and its JUnit counted 0 failures, judging only the series

@@ -3,9 +3,10 @@
     redline compare --baseline A.mcap [A2.mcap ...] --candidate B.mcap [B2.mcap ...]
                     --junit out.xml [--html out.html]
 
-Exit status: 1 when a change for the worse is found; 4 when none is but a series only the
-baseline holds could not be judged (its action path changed, or its report is missing from every
-candidate run: the comparison lost a measurement, which must not pass); 0 otherwise; 2 on bad
+Exit status: 1 when a change for the worse is found; 4 when none is but something could not be
+judged: a series only the baseline holds (its action path changed, or its report is missing from
+every candidate run: the comparison lost a measurement), or a segment the host was busy in (as
+`redline ci wait`: what was not measured must not pass); 0 otherwise; 2 on bad
 input (an unreadable or truncated recording, named; no series in common; a malformed command
 line). A series only the candidate holds (a new test or action) is listed, never a failure.
 
@@ -96,8 +97,8 @@ def compare_cmd(
 ) -> None:
     """Compare candidate recordings with baseline ones: KS per counter series, JUnit XML out.
 
-    Exit 1 when a change for the worse is found; 4 when none is but a series only the baseline
-    holds was not judged (an action path changed, a report missing); 0 otherwise; 2 on bad input.
+    Exit 1 when a change for the worse is found; 4 when none is but something was not judged (a
+    series only the baseline holds, a segment the host was busy in); 0 otherwise; 2 on bad input.
     """
     from redline.detect.compare import CompareError, compare_files
     from redline.detect.counters import CONTEXT_COUNTERS
@@ -133,12 +134,17 @@ def compare_cmd(
         f"{len(changed)} counter(s) changed for the worse in {worse} of "
         f"{len(comparison.segments)} segment(s), {len(comparison.improved)} improved"
         + (f", {len(lost)} only in the baseline (not judged)" if lost else "")
+        + (
+            f", {len(comparison.busy)} segment(s) not judged (the host was busy)"
+            if comparison.busy
+            else ""
+        )
         + f"; JUnit: {args.junit}"
         + (f"; HTML: {args.html}" if args.html else "")
     )
     if changed:
         raise typer.Exit(EXIT_CHANGE)
-    if lost:
+    if lost or comparison.busy:
         raise typer.Exit(EXIT_NOT_JUDGED)
 
 

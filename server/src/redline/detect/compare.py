@@ -118,12 +118,11 @@ class SegmentVerdict:
 
     @property
     def state(self) -> str:
-        """``failed`` (a change for the worse), ``undecided`` (no such change, but a series
-        only the baseline holds: what the candidate no longer measures cannot pass),
-        ``skipped`` (the host was busy, or a segment only the candidate recorded) or
-        ``passed``."""
+        """``failed`` (a change for the worse), ``undecided`` (no such change, but the host
+        was busy, or a series only the baseline holds: what was not measured cannot pass),
+        ``skipped`` (a segment only the candidate recorded) or ``passed``."""
         if self.note:
-            return "skipped"
+            return "undecided"
         if self.changed:
             return "failed"
         if self.lost:
@@ -150,6 +149,11 @@ class Comparison:
     @property
     def lost(self) -> list[SeriesVerdict]:
         return [verdict for segment in self.segments for verdict in segment.lost]
+
+    @property
+    def busy(self) -> list[SegmentVerdict]:
+        """The segments not judged because the host was busy in them."""
+        return [segment for segment in self.segments if segment.note]
 
 
 def _for_the_worse(verdict: SeriesVerdict) -> bool:

@@ -4,9 +4,9 @@ One testcase per test case × phase × parameter set (classname: the test case; 
 ``case/phase[params]`` with the printable parameter-set name), by its `SegmentVerdict.state`: a
 failure lists the counters that changed for the worse with their effect size, KS D and p; an
 error (``NotJudged``) lists the series only the baseline holds, where nothing changed for the
-worse (a renamed action path, a report missing from the candidate: never a silent pass); a
-segment the host was busy in, or only the candidate recorded, is skipped; every series is listed
-in the testcase's system-out.
+worse (a renamed action path, a report missing from the candidate), and a segment the host
+was busy in: never a silent pass; a segment only the candidate recorded is skipped; every series
+is listed in the testcase's system-out.
 """
 
 from __future__ import annotations
@@ -40,8 +40,8 @@ def series_line(verdict: SeriesVerdict) -> str:
 
 def _testcase(parent: ET.Element, segment: SegmentVerdict) -> None:
     case = ET.SubElement(parent, "testcase", classname=segment.case, name=segment.name, time="0")
-    if segment.note:
-        ET.SubElement(case, "skipped", message=segment.note)
+    if segment.note:  # the host was busy: not measured, never a pass
+        ET.SubElement(case, "error", type="NotJudged", message=segment.note)
         return
     changed, state = segment.changed, segment.state
     if state == "undecided":
