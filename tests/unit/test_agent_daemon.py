@@ -86,7 +86,7 @@ def test_an_execution_the_host_was_busy_in_is_run_again_boundedly_and_says_so(
     repo, commit = committed_repo(tmp_path / "repo", SUITE_FILES)
     given: list[dict[str, str]] = []
 
-    def run_suite(suite_path: Path, out: Path, *, run_metadata: dict, only: object) -> RunResult:
+    def run_isolated(suite_path: Path, out: Path, run_metadata: dict, only: object) -> RunResult:
         """The run, as the recorder writes it: the host at 90 % of 2 cores while the run's own
         processes used 24 % of one (156 % other load: busy), or at 20 % (16 %: quiet)."""
         given.append(dict(run_metadata))
@@ -95,7 +95,7 @@ def test_an_execution_the_host_was_busy_in_is_run_again_boundedly_and_says_so(
         write_recording(out, run_metadata, cpu, host_percent=host)
         return RunResult(out, None, 1, run_metadata, {})
 
-    monkeypatch.setattr(daemon_module, "run_suite", run_suite)
+    monkeypatch.setattr(daemon_module, "run_isolated", run_isolated)
     daemon = AgentDaemon(
         client=_LostLeaseClient(),  # type: ignore[arg-type]
         workdir=tmp_path / "work",

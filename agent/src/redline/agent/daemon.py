@@ -22,8 +22,8 @@ from redline.agent.checkout import CloneCache
 from redline.agent.client import LeaseLost, ServerClient, ServerUnavailable, UploadRejected
 from redline.agent.governor import governor_files
 from redline.agent.host import host_fingerprint
+from redline.agent.isolated import ChildFailed, run_isolated
 from redline.agent.quiet import measuring
-from redline.agent.runner import run_suite
 from redline.agent.spool import Spool, SpoolSender
 from redline.agent.suite import load_suite
 from redline.recording import read_recording
@@ -181,12 +181,15 @@ class AgentDaemon:
         retried: dict[str, str] = {}
         for attempt in range(self.disturbed_retries + 1):
             with measuring():  # on a shared machine, the worker's analysis waits meanwhile
-                result = run_suite(
-                    suite_path,
-                    out,
-                    run_metadata={**_run_metadata(job), **retried},
-                    only=job.get("cases") or (),  # a confirmation run: the flagged cases
-                )
+                try:  # in a process of its own, which takes what the run left with it
+                    result = run_isolated(
+                        suite_path,
+                        out,
+                        {**_run_metadata(job), **retried},
+                        job.get("cases") or (),  # a confirmation run: the flagged cases
+                    )
+                except ChildFailed as exc:
+                    raise JobFailed(str(exc)) from None
             busy = recording_disturbances(
                 read_recording(out, strict=False).series_samples(), threshold()
             )

@@ -1,0 +1,85 @@
+"""A job's run in a process of its own, which ends with it.
+
+The test driver runs in the process that calls `run_suite`, and what a run leaves behind in
+that process stays for the process's lifetime. Zenoh keeps every shared-memory segment a
+process has read from mapped (and locked) until that process exits (eclipse-zenoh/zenoh#2787):
+a driver that heard a component's payloads of 3 KiB or more kept that component's pool, and the
+agent daemon, which lived on from job to job, grew by about 50 MB a job (measured on a trial's
+component, 2026-11-27) until, under a lock limit, samples would be dropped without a word. Each
+job's run therefore happens in a child process (spawned, in a session of its own, so that a
+terminal's Ctrl-C reaches the agent, which decides), and everything it mapped goes with it.
+
+The agent's signals keep their meaning: the first lets the run finish; the second (or the end
+of the grace period) raises in the agent while it waits, which sends the child SIGTERM, and the
+child's runner stops every process and finishes the recording as ``terminated``, as a run in
+the agent's own process did.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import os
+import signal
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from redline.agent.runner import RunResult, run_suite
+
+#: how long a child told to stop may take to stop the run's processes and finish its recording
+STOP_WAIT_S = 60.0
+
+
+class ChildFailed(RuntimeError):
+    """The child's run raised: the message names the exception as the agent's own run did."""
+
+
+def _child(conn: Any, suite_path: Path, out: Path, meta: dict[str, str], only: list[str]) -> None:
+    os.setsid()  # a terminal's signals reach the agent, not the run behind its back
+    try:
+        result = run_suite(suite_path, out, run_metadata=meta, only=only)
+    except Exception as exc:  # the agent fails the job with it
+        conn.send(("error", f"{type(exc).__name__}: {exc}"))
+    except BaseException as exc:  # stopped by the agent: the recording says so
+        conn.send(("stopped", f"{type(exc).__name__}: {exc}"))
+    else:
+        conn.send(("done", result))
+    finally:
+        conn.close()
+
+
+def run_isolated(
+    suite_path: Path, out: Path, run_metadata: dict[str, str], only: Sequence[str] = ()
+) -> RunResult:
+    """`run_suite` in a child process; raises `ChildFailed` with the run's error."""
+    context = multiprocessing.get_context("spawn")
+    receive, send = context.Pipe(duplex=False)
+    child = context.Process(
+        target=_child,
+        args=(send, suite_path, out, run_metadata, list(only)),
+        name="redline-run",
+    )
+    child.start()
+    send.close()
+    try:
+        answer = receive.recv()  # EOFError when the child died without a word
+    except EOFError:
+        child.join()
+        raise ChildFailed(
+            f"the run's process ended without a result (exit {child.exitcode})"
+        ) from None
+    except BaseException:  # the agent is stopping: the run ends, its processes with it
+        if child.is_alive() and child.pid is not None:
+            os.kill(child.pid, signal.SIGTERM)
+        child.join(STOP_WAIT_S)
+        if child.is_alive():
+            child.kill()
+        raise
+    finally:
+        receive.close()
+    child.join()
+    state, value = answer
+    if state != "done":
+        raise ChildFailed(value)
+    result: RunResult = value
+    return result

@@ -1,0 +1,88 @@
+"""A job's run in a process of its own (`redline.agent.isolated`): what the run maps (zenoh's
+shared-memory segments of the component it heard, eclipse-zenoh/zenoh#2787) goes when it ends,
+so an agent does not grow from job to job; its errors and a stop keep their meaning."""
+
+from __future__ import annotations
+
+import os
+import signal
+import textwrap
+from pathlib import Path
+
+import pytest
+from redline.agent.isolated import ChildFailed, run_isolated
+from redline.recording import read_recording
+
+pytestmark = pytest.mark.usefixtures("workspaces_in_tmp_path")
+
+COMPONENT = """\
+    import signal, threading, zenoh
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    with zenoh.open(zenoh.Config.from_env()) as session:
+        sub = session.declare_subscriber("x/y", lambda sample: None)
+        print("ready", flush=True)
+        stop.wait()
+    """
+
+
+def _suite(tmp_path: Path, test: str) -> Path:
+    (tmp_path / "component.py").write_text(textwrap.dedent(COMPONENT))
+    (tmp_path / "test_it.py").write_text(textwrap.dedent(test))
+    path = tmp_path / "redline.toml"
+    path.write_text(
+        'name = "isolated"\ntests = ["test_it.py"]\n[[component]]\nname = "c"\n'
+        'command = ["python", "component.py"]\nready = { log = "ready" }\nstop_timeout = 2\n'
+    )
+    return path
+
+
+def test_a_jobs_run_happens_in_a_process_that_ends_with_it(tmp_path: Path) -> None:
+    test = f"""\
+        import os
+        from pathlib import Path
+        from redline.testing import FixedRate, Phase, Publish, TestCase
+        Path({str(tmp_path / "pid")!r}).write_text(str(os.getpid()))
+        case = TestCase("short", [Phase("p", FixedRate(20, 0.3, Publish("x/y", b"1" * 8192)))])
+        """
+    result = run_isolated(_suite(tmp_path, test), tmp_path / "out.mcap", {"job": "7"})
+    driver = int((tmp_path / "pid").read_text())
+    assert driver != os.getpid()
+    with pytest.raises(ProcessLookupError):
+        os.kill(driver, 0)  # gone, and what it mapped with it
+    recording = read_recording(result.recording)
+    assert result.segments == 1 and recording.run["status"] == "ok"
+    assert recording.run["job"] == "7" and recording.traffic["x/y"] == 6
+
+
+def test_a_run_that_cannot_start_fails_naming_why(tmp_path: Path) -> None:
+    suite = _suite(tmp_path, "raise RuntimeError('no such robot')\n")
+    with pytest.raises(ChildFailed, match="no such robot"):
+        run_isolated(suite, tmp_path / "out.mcap", {})
+
+
+def test_an_agent_that_stops_mid_run_ends_the_run_and_its_recording_says_so(
+    tmp_path: Path,
+) -> None:
+    """The agent's second signal raises while it waits: the child is told to stop, stops the
+    component and finishes the recording as ``terminated`` before the agent goes on."""
+    test = """\
+        from redline.testing import FixedRate, Phase, Publish, TestCase
+        case = TestCase("long", [Phase("p", FixedRate(20, 60.0, Publish("x/y", b"1")))])
+        """
+
+    class Stopping(BaseException):
+        pass
+
+    def stop(*_: object) -> None:
+        raise Stopping
+
+    previous = signal.signal(signal.SIGALRM, stop)
+    signal.setitimer(signal.ITIMER_REAL, 8.0)
+    try:
+        with pytest.raises(Stopping):
+            run_isolated(_suite(tmp_path, test), tmp_path / "out.mcap", {})
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, previous)
+    assert read_recording(tmp_path / "out.mcap", strict=False).run["status"] == "terminated"
