@@ -253,3 +253,29 @@ def test_a_parameter_set_the_candidate_lost_is_an_error_one_it_added_is_skipped(
     assert code == 0, output
     assert "load/steady[rate=40]: new (2 only in the candidate)" in output
     assert _cases(junit)["load/steady[rate=40]"].find("skipped") is not None
+
+
+def test_values_apart_but_too_few_for_ks_are_undecided_not_a_pass() -> None:
+    """A trial tripled its component's work per message and compared 3 runs a side: its CPU per
+    unit of work (one value a run) rose 37 % with the sides apart, KS's smallest p with 3 and 3
+    values is 0.1, and compare passed it as "no change". Now: not enough data, saying why, and
+    the segment is undecided (exit 4); with 5 a side KS calls it; an overlap stays no change."""
+    from redline.detect.compare import Comparison, SegmentVerdict, SeriesVerdict, _judge
+    from redline.detect.compare_junit import junit_xml
+    from redline.recording.format import SeriesKey
+
+    key = SeriesKey("stream", "steady", '{"rate":50}', "range_filter", "cpu_us_per_op")
+    three = {key: np.array([100.0, 104.0, 98.0])}
+    found = _judge(key, three, {key: np.array([137.0, 140.0, 135.0])})
+    assert found.verdict == "not enough data" and not found.flagged
+    assert "do not overlap" in found.reason and "smallest p here: 0.1" in found.reason
+    verdict = SeriesVerdict(key, found, 100.7, 137.3, 3, 3)
+    segment = SegmentVerdict("stream", "steady", '{"rate":50}', (verdict,))
+    assert segment.state == "undecided" and segment.too_few == [verdict]
+    xml = junit_xml(Comparison((), (), (segment,)))
+    assert 'type="NotJudged"' in xml and "too few values a side to decide" in xml
+    five = {key: np.array([100.0, 104.0, 98.0, 101.0, 99.0])}
+    called = _judge(key, five, {key: np.array([137.0, 140.0, 135.0, 138.0, 136.0])})
+    assert called.flagged and called.verdict == "change"
+    overlap = _judge(key, three, {key: np.array([103.0, 99.0, 101.0])})
+    assert overlap.verdict == "no change"

@@ -101,6 +101,7 @@ def compare_cmd(
     series only the baseline holds, a segment the host was busy in); 0 otherwise; 2 on bad input.
     """
     from redline.detect.compare import CompareError, compare_files
+    from redline.detect.compare_junit import series_line
     from redline.detect.counters import CONTEXT_COUNTERS
     from redline.recording.disturbance import threshold
 
@@ -126,7 +127,9 @@ def compare_cmd(
     changed, lost = comparison.changed, comparison.lost
     for segment in comparison.segments:
         typer.echo(f"{segment.name}: {segment_marks(segment)}")
-        for verdict in (*segment.lost, *segment.new):
+        for verdict in segment.changed:  # which counters, by how much
+            typer.echo(f"  {series_line(verdict)}")
+        for verdict in (*segment.lost, *segment.too_few, *segment.new):
             key, result = verdict.key, verdict.result
             typer.echo(f"  {key.process}.{key.counter}: {result.verdict} ({result.reason})")
     worse = sum(1 for segment in comparison.segments if segment.changed)
@@ -144,7 +147,7 @@ def compare_cmd(
     )
     if changed:
         raise typer.Exit(EXIT_CHANGE)
-    if lost or comparison.busy:
+    if lost or comparison.busy or comparison.too_few:
         raise typer.Exit(EXIT_NOT_JUDGED)
 
 
@@ -154,6 +157,7 @@ def segment_marks(segment: SegmentVerdict) -> str:
     marks = [f"CHANGED ({len(segment.changed)})"] if segment.changed else []
     marks += [f"improved ({len(segment.improved)})"] if segment.improved else []
     marks += [f"NOT JUDGED ({len(segment.lost)} only in the baseline)"] if segment.lost else []
+    marks += [f"NOT JUDGED ({len(segment.too_few)} too few to decide)"] if segment.too_few else []
     marks += [f"new ({len(segment.new)} only in the candidate)"] if segment.new else []
     return ", ".join(marks) or segment.note or "ok"
 

@@ -29,6 +29,8 @@ from redline.detect.counters import (
     kind,
     worse,
 )
+from redline.detect.floors import absolute_floor
+from redline.detect.ks import DEFAULT_ALPHA, DEFAULT_MIN_EFFECT
 from redline.detect.methods import KolmogorovSmirnov
 from redline.detect.relative_change import RelativeChange
 from redline.detect.result import Detection, not_enough
@@ -67,6 +69,10 @@ class RecordedSeries:
     timeline: Timeline
     #: (case, phase, params) → why: the segments the host was busy in (a warning, not a verdict)
     disturbed: dict[Segment, str] = field(default_factory=dict)
+
+
+#: how the reason of a series KS saw apart but could not call begins (`_too_few`)
+TOO_FEW = "too few values to decide:"
 
 
 @dataclass(frozen=True)
@@ -112,6 +118,11 @@ class SegmentVerdict:
         return [v for v in self.series if v.only_in == "baseline"]
 
     @property
+    def too_few(self) -> list[SeriesVerdict]:
+        """The series whose sides did not overlap, too few values a side for KS to call it."""
+        return [v for v in self.series if (v.result.reason or "").startswith(TOO_FEW)]
+
+    @property
     def new(self) -> list[SeriesVerdict]:
         """The series only the candidate holds: nothing to compare them with yet."""
         return [v for v in self.series if v.only_in == "candidate"]
@@ -119,13 +130,14 @@ class SegmentVerdict:
     @property
     def state(self) -> str:
         """``failed`` (a change for the worse), ``undecided`` (no such change, but the host
-        was busy, or a series only the baseline holds: what was not measured cannot pass),
+        was busy, a series only the baseline holds, or one too few values a side kept KS from
+        calling: what was not measured, or not enough, cannot pass),
         ``skipped`` (a segment only the candidate recorded) or ``passed``."""
         if self.note:
             return "undecided"
         if self.changed:
             return "failed"
-        if self.lost:
+        if self.lost or self.too_few:
             return "undecided"
         if all(v.only_in for v in self.series):
             return "skipped"
@@ -149,6 +161,10 @@ class Comparison:
     @property
     def lost(self) -> list[SeriesVerdict]:
         return [verdict for segment in self.segments for verdict in segment.lost]
+
+    @property
+    def too_few(self) -> list[SeriesVerdict]:
+        return [verdict for segment in self.segments for verdict in segment.too_few]
 
     @property
     def busy(self) -> list[SegmentVerdict]:
@@ -246,8 +262,36 @@ def _judge(
             float(cand[key].sum()),
             float(cand[total].sum()),
         )
-    detector = RelativeChange() if kind(key.process) != "counter" else KolmogorovSmirnov()
-    return judge_series(detector, key.counter, base[key], cand[key])
+    if kind(key.process) != "counter":
+        return judge_series(RelativeChange(), key.counter, base[key], cand[key])
+    found = judge_series(KolmogorovSmirnov(), key.counter, base[key], cand[key])
+    return _too_few(found, key.counter, base[key], cand[key]) or found
+
+
+def _too_few(
+    found: Detection, counter: str, base: np.ndarray, cand: np.ndarray
+) -> Detection | None:
+    """ "Not enough data" where KS saw the sides apart by more than its floors but could not
+    call it: with one value an execution (CPU per unit of work) and 3 executions a side, the
+    smallest p KS can give is 0.1 (a trial's tripled work per message passed as "no change")."""
+    n, m = base.size, cand.size
+    smallest_p = 2 / math.comb(n + m, n)
+    moved = abs(float(np.mean(cand)) - float(np.mean(base)))
+    if (
+        found.flagged
+        or found.score != 1.0  # the sides overlap: KS's "no change" stands
+        or smallest_p < DEFAULT_ALPHA
+        or abs(found.effect or 0.0) < DEFAULT_MIN_EFFECT
+        or moved < absolute_floor(counter)
+    ):
+        return None
+    return not_enough(
+        KolmogorovSmirnov.name,
+        f"{TOO_FEW} the {n} and {m} values do not overlap (effect {found.effect:+.1%}), but "
+        "with so few "
+        f"KS cannot reach p < {DEFAULT_ALPHA:g} (its smallest p here: {smallest_p:.2g}): record "
+        "more executions a side (5 and 5 suffice)",
+    )
 
 
 def _verdict(

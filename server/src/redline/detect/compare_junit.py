@@ -45,15 +45,17 @@ def _testcase(parent: ET.Element, segment: SegmentVerdict) -> None:
         return
     changed, state = segment.changed, segment.state
     if state == "undecided":
-        lost = segment.lost
+        lost, few = segment.lost, segment.too_few
+        said = [f"{len(lost)} series only in the baseline"] if lost else []
+        said += [f"{len(few)} with too few values a side to decide"] if few else []
         error = ET.SubElement(
             case,
             "error",
             type="NotJudged",
-            message=f"{len(lost)} series only in the baseline, not judged: "
-            + ", ".join(f"{v.key.process}.{v.key.counter}" for v in lost),
+            message=f"{', '.join(said)}, not judged: "
+            + ", ".join(f"{v.key.process}.{v.key.counter}" for v in (*lost, *few)),
         )
-        error.text = "\n".join(series_line(v) for v in lost)
+        error.text = "\n".join(series_line(v) for v in (*lost, *few))
     elif state == "skipped":
         ET.SubElement(case, "skipped", message="recorded only in the candidate: nothing to compare")
     if changed:
