@@ -338,7 +338,8 @@ def test_a_baseline_the_host_was_busy_in_is_run_afresh_and_the_next_verdict_wait
     r1 = session.scalars(select(Revision).where(Revision.title == "r1")).one()
     fresh = [job for job in r1.jobs if job.remeasures_job_id is not None]
     assert len(fresh) == 1, "one fresh run per revision, however many runs were disturbed"
-    assert fresh[0].cases == [CASE] and fresh[0].execution_index == RUNS
+    # the whole suite: a case's counters depend on the cases the component ran before it
+    assert fresh[0].cases == [] and fresh[0].execution_index == RUNS
     assert fresh[0].state == JobState.queued and fresh[0].pair == 0
     waiting = ci_verdict(session, NAME, "r2")
     assert waiting.state == "pending", waiting

@@ -1,8 +1,12 @@
 """A fresh run of a baseline the host was busy in: when a revision's new results cannot be
 judged because every run of its baseline revision was measured while other work loaded the host
 (`redline.recording.disturbance`; the agent already ran each of them again, at once), the
-baseline revision gets one fresh run of the test cases concerned, at most `REMEASURE_LIMIT` per
-revision, and the revision is judged again once it is ingested (`waiting_on`).
+baseline revision gets one fresh run of its whole suite, at most `REMEASURE_LIMIT` per revision,
+and the revision is judged again once it is ingested (`waiting_on`). The whole suite, not the
+test cases concerned: the component runs the cases one after another without a restart, so what
+one case measures depends on those before it (a trial's fresh run of only its `stats` case found
+the component's RSS at 26 MB against 92 MB after its `stream` case, and the next, README-only
+revision was flagged for memory against it).
 
 Without it a busy host silences detection: a disturbed phase is charted, never judged, so the
 revision after one measured only while the host was busy had no verdict — a trial from outside
@@ -58,8 +62,9 @@ def queue_for_baselines(
 
 
 def queue_remeasure(session: Session, revision_id: int, cases: Iterable[str]) -> Job | None:
-    """Queue a fresh run of the revision's ``cases``; None when it had its fresh runs, or when
-    no agent measured it (imported results: none runs them again)."""
+    """Queue a fresh run of the revision's whole suite, for the ``cases`` concerned; None when
+    none are, when it had its fresh runs, or when no agent measured it (imported results: none
+    runs them again)."""
     wanted = sorted(set(cases))
     revision = session.get_one(Revision, revision_id)
     jobs = [job for job in revision.jobs if job.pair == 0]
@@ -72,7 +77,7 @@ def queue_remeasure(session: Session, revision_id: int, cases: Iterable[str]) ->
         execution_index=max(job.execution_index for job in jobs) + 1,
         remeasures_job_id=min(measured, key=lambda job: job.execution_index).id,
         labels=list(measured[0].labels or []),
-        cases=wanted,
+        cases=[],  # every case, in the suite's order: a case's state depends on those before
     )
     session.add(job)
     session.flush()
