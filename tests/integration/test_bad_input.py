@@ -555,3 +555,17 @@ def test_a_body_sent_as_a_form_is_415_asking_for_json(api: Api):
     assert counts(api) == (0, 0)
     fine = _post_raw(api, "/api/v1/revisions", body, **{"Content-Type": "application/json"})
     assert fine.status_code == 201, fine.text
+
+
+def test_a_422_quotes_a_body_as_the_json_it_came_as_with_secrets_masked(api: Api):
+    """A trial's revision without its title answered ``"input": "{'commit': 'abc1234', ...}"``:
+    the body quoted as a Python dict. It is quoted as JSON, cut short, secrets masked."""
+    body = {"component": "nope", "sort_key": "1", "commit": "abc1234"}
+    answer = api.client.post("/api/v1/revisions", json=body, headers=api.tokens["ci"])
+    assert answer.status_code == 422, answer.text
+    (error,) = [e for e in answer.json()["detail"] if e["loc"] == ["body", "title"]]
+    assert error["input"].startswith('{"component": "nope"'), error
+    assert "'" not in error["input"]
+    secret = {"name": "x", "repo": "https://h/x.git", "webhook_secret": "s3cr3t", "bad": 1}
+    answer = api.client.post("/api/v1/components", json=secret, headers=api.tokens["admin"])
+    assert answer.status_code == 422 and "s3cr3t" not in answer.text, answer.text

@@ -279,3 +279,17 @@ def test_values_apart_but_too_few_for_ks_are_undecided_not_a_pass() -> None:
     assert called.flagged and called.verdict == "change"
     overlap = _judge(key, three, {key: np.array([103.0, 99.0, 101.0])})
     assert overlap.verdict == "no change"
+
+
+def test_a_driver_metric_s_line_names_its_method_s_score_not_a_ks_d() -> None:
+    """A trial read ``rtt_p50_us: effect +1176.9%, D 117.688``: a D of KS lies in 0..1; the
+    round trip is judged by the change of its median, whose score is another thing."""
+    from redline.detect.compare import SeriesVerdict, _judge
+    from redline.detect.compare_junit import series_line
+    from redline.recording.format import SeriesKey
+
+    key = SeriesKey("stats", "steady", '{"rate":50}', "driver", "FixedRate/Query(s):rtt_p50_us")
+    base, cand = np.array([430.0, 436.0, 441.0]), np.array([5560.0, 5570.0, 5590.0])
+    found = _judge(key, {key: base}, {key: cand})
+    line = series_line(SeriesVerdict(key, found, 435.7, 5573.3, 3, 3))
+    assert found.flagged and " D " not in line and f"{found.method} score" in line, line

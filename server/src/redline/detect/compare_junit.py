@@ -31,8 +31,14 @@ def series_line(verdict: SeriesVerdict) -> str:
             (verdict.candidate_mean, verdict.candidate_n),
         )
     )
+    # KS's score is its D (0..1); the driver's metrics are judged by another method's score
+    score = (
+        f"D {result.score:.3f}"
+        if result.method == "ks"
+        else f"{result.method} score {result.score:.3g}"
+    )
     return (
-        f"{key.process}.{key.counter}: effect {result.effect:+.1%}, D {result.score:.3f}, "
+        f"{key.process}.{key.counter}: effect {result.effect:+.1%}, {score}, "
         f"p {p_value}; mean {before} -> {after} "
         f"(n {verdict.baseline_n} -> {verdict.candidate_n}){reason}"
     )

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import math
 import reprlib
 from typing import Any
@@ -85,7 +86,22 @@ def _excerpt(value: Any) -> Any:
         return value if math.isfinite(value) else str(value)
     if isinstance(value, str):
         return value if len(value) <= 80 else value[:77] + "..."
+    if isinstance(value, dict | list):  # quoted as the JSON it came as, not as Python
+        text = json.dumps(_shallow(value, 2), default=str, ensure_ascii=False)
+        return text if len(text) <= 80 else text[:77] + "..."
     return _EXCERPT.repr(value)
+
+
+def _shallow(value: Any, depth: int) -> Any:
+    """``value`` with at most 4 items a level and ``depth`` levels: what an excerpt can show."""
+    if isinstance(value, dict):
+        items = list(value.items())
+        kept = {str(k): _shallow(v, depth - 1) if depth else "..." for k, v in items[:4]}
+        return {**kept, "...": f"{len(items) - 4} more"} if len(items) > 4 else kept
+    if isinstance(value, list):
+        kept_list = [_shallow(v, depth - 1) if depth else "..." for v in value[:4]]
+        return [*kept_list, f"... {len(value) - 4} more"] if len(value) > 4 else kept_list
+    return value
 
 
 #: fields whose values a 422 never quotes (a webhook's signing secret, a token, a password)
