@@ -86,3 +86,62 @@ def test_an_agent_that_stops_mid_run_ends_the_run_and_its_recording_says_so(
         signal.setitimer(signal.ITIMER_REAL, 0)
         signal.signal(signal.SIGALRM, previous)
     assert read_recording(tmp_path / "out.mcap", strict=False).run["status"] == "terminated"
+
+
+def test_a_run_whose_agent_is_killed_stops_and_takes_its_component_with_it(
+    tmp_path: Path,
+) -> None:
+    """An agent SIGKILLed mid-run (out of memory, a supervisor's last word) leaves no suite
+    running unsupervised beside the next agent: the run's process is told by the kernel
+    (PR_SET_PDEATHSIG), and its runner stops the component."""
+    import subprocess
+    import sys
+    import time
+
+    suite = _suite(
+        tmp_path,
+        f"""\
+        import os
+        from pathlib import Path
+        from redline.testing import FixedRate, Phase, Publish, TestCase
+        Path({str(tmp_path / "driver.pid")!r}).write_text(str(os.getpid()))
+        case = TestCase("long", [Phase("p", FixedRate(20, 60.0, Publish("x/y", b"1")))])
+        """,
+    )
+    # _suite wrote the plain component: this one also says its pid, to see it end
+    (tmp_path / "component.py").write_text(
+        textwrap.dedent(COMPONENT).replace(
+            'print("ready", flush=True)',
+            f'open({str(tmp_path / "component.pid")!r}, "w").write(str(__import__("os").getpid()))'
+            '\n    print("ready", flush=True)',
+        )
+    )
+    agent = subprocess.Popen(
+        [sys.executable, "-c", "import sys; from pathlib import Path; "
+         "from redline.agent.isolated import run_isolated; "
+         "run_isolated(Path(sys.argv[1]), Path(sys.argv[2]), {})",
+         str(suite), str(tmp_path / "out.mcap")]
+    )  # fmt: skip
+    try:
+        deadline = time.monotonic() + 60
+        while not (tmp_path / "driver.pid").exists() and time.monotonic() < deadline:
+            time.sleep(0.2)
+        while not (tmp_path / "component.pid").exists() and time.monotonic() < deadline:
+            time.sleep(0.2)
+        driver = int((tmp_path / "driver.pid").read_text())
+        component = int((tmp_path / "component.pid").read_text())
+        time.sleep(1.0)  # the phase is under way
+        agent.kill()
+        agent.wait()
+        for pid in (driver, component):
+            while time.monotonic() < deadline:
+                try:
+                    os.kill(pid, 0)
+                except ProcessLookupError:
+                    break
+                time.sleep(0.2)
+            else:
+                os.kill(pid, signal.SIGKILL)
+                raise AssertionError(f"process {pid} outlived the killed agent")
+    finally:
+        agent.kill()

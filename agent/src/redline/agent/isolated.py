@@ -17,6 +17,7 @@ the agent's own process did.
 
 from __future__ import annotations
 
+import ctypes
 import multiprocessing
 import os
 import signal
@@ -26,16 +27,31 @@ from typing import Any
 
 from redline.agent.runner import RunResult, run_suite
 
-#: how long a child told to stop may take to stop the run's processes and finish its recording
+#: how long a child told to stop may take to stop the run's processes and finish its recording,
+#: and how long one that answered may take to exit
 STOP_WAIT_S = 60.0
+PR_SET_PDEATHSIG = 1  # linux/prctl.h
 
 
 class ChildFailed(RuntimeError):
     """The child's run raised: the message names the exception as the agent's own run did."""
 
 
+def _die_with_parent() -> None:
+    """SIGTERM to this process when the agent dies (Linux): its runner then stops the run's
+    processes, instead of a suite running on unsupervised beside the agent's next one."""
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
+    except (OSError, AttributeError):  # not Linux: the agent's own stop still ends the run
+        return
+    if os.getppid() == 1:  # the agent died before the request was made
+        os.kill(os.getpid(), signal.SIGTERM)
+
+
 def _child(conn: Any, suite_path: Path, out: Path, meta: dict[str, str], only: list[str]) -> None:
     os.setsid()  # a terminal's signals reach the agent, not the run behind its back
+    _die_with_parent()
     try:
         result = run_suite(suite_path, out, run_metadata=meta, only=only)
     except Exception as exc:  # the agent fails the job with it
@@ -64,22 +80,29 @@ def run_isolated(
     try:
         answer = receive.recv()  # EOFError when the child died without a word
     except EOFError:
-        child.join()
+        _reap(child, stop=False)
         raise ChildFailed(
             f"the run's process ended without a result (exit {child.exitcode})"
         ) from None
     except BaseException:  # the agent is stopping: the run ends, its processes with it
-        if child.is_alive() and child.pid is not None:
-            os.kill(child.pid, signal.SIGTERM)
-        child.join(STOP_WAIT_S)
-        if child.is_alive():
-            child.kill()
+        _reap(child, stop=True)
         raise
     finally:
         receive.close()
-    child.join()
+    _reap(child, stop=False)
     state, value = answer
     if state != "done":
         raise ChildFailed(value)
     result: RunResult = value
     return result
+
+
+def _reap(child: Any, stop: bool) -> None:
+    """Wait for the child to exit (``stop``: after SIGTERM, which its runner turns into a
+    clean stop), at most `STOP_WAIT_S`; then kill it, so the agent never waits for ever."""
+    if stop and child.is_alive() and child.pid is not None:
+        os.kill(child.pid, signal.SIGTERM)
+    child.join(STOP_WAIT_S)
+    if child.is_alive():
+        child.kill()
+        child.join(STOP_WAIT_S)

@@ -87,7 +87,7 @@ def _excerpt(value: Any) -> Any:
     if isinstance(value, str):
         return value if len(value) <= 80 else value[:77] + "..."
     if isinstance(value, dict | list):  # quoted as the JSON it came as, not as Python
-        text = json.dumps(_shallow(value, 2), default=str, ensure_ascii=False)
+        text = json.dumps(_shallow(value, 1), default=str, ensure_ascii=False)
         return text if len(text) <= 80 else text[:77] + "..."
     return _EXCERPT.repr(value)
 

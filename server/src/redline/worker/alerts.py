@@ -68,7 +68,7 @@ def flagged_changes(session: Session, component: Component, since: datetime) -> 
     alarming = component_config(session, component.id).alarming
     baseline = aliased(Revision)
     rows = session.execute(
-        select(Detection, Series, Revision, baseline.title, baseline.order_key)
+        select(Detection, Series, Revision, baseline.title, baseline.order_key, baseline.id)
         .join(Series, Series.id == Detection.series_id)
         .join(Revision, Revision.id == Detection.revision_id)
         .outerjoin(baseline, baseline.id == Detection.baseline_revision_id)
@@ -83,7 +83,7 @@ def flagged_changes(session: Session, component: Component, since: datetime) -> 
         .order_by(Detection.id)
     ).all()
     changes = []
-    for detection, series, revision, baseline_title, baseline_key in rows:
+    for detection, series, revision, baseline_title, baseline_key, baseline_id in rows:
         is_worse = detection.direction == worse(series.process, series.counter)
         if is_worse and detection.regression_id is None:
             continue  # not grouped (no span): nothing to point at yet
@@ -99,7 +99,7 @@ def flagged_changes(session: Session, component: Component, since: datetime) -> 
                 detection.effect,
                 detection.confirmation,
                 revision.created,
-                (baseline_key or "", revision.order_key),
+                ((baseline_key or "", baseline_id or 0), (revision.order_key, revision.id)),
                 body,
             )
         )

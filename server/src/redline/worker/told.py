@@ -23,7 +23,10 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 #: a range of revisions (good, bad] as their order keys; "" is before every revision
-Span = tuple[str, str]
+#: (newest baseline revision, revision], each end as (sort key, id): revisions of one sort key
+#: keep their reported order, as everywhere (a span by keys alone could be empty)
+Place = tuple[str, int]
+Span = tuple[Place, Place]
 
 
 def identity(change: dict[str, Any]) -> tuple[Any, ...]:
@@ -58,7 +61,7 @@ class Change:
     effect: float | None
     confirmation: str
     reported: datetime  # when its revision was reported
-    span: Span  # (newest baseline revision, its revision] as order keys
+    span: Span  # (newest baseline revision, its revision]
     body: dict[str, Any]
 
 
@@ -92,7 +95,13 @@ def told_of(
     """By series, the changes of these series the subscription was told, with their ranges."""
     rows = session.execute(
         select(
-            Series, Revision.title, Revision.order_key, Alert.id, Alert.regression_id, Alert.body
+            Series,
+            Revision.title,
+            Revision.order_key,
+            Revision.id,
+            Alert.id,
+            Alert.regression_id,
+            Alert.body,
         )
         .select_from(AlertedChange)
         .join(Series, Series.id == AlertedChange.series_id)
@@ -103,8 +112,9 @@ def told_of(
             AlertedChange.series_id.in_(series_ids),
         )
     ).all()
-    found: list[tuple[int, int, int | None, str, str, list[str]]] = []
-    for series, title, key, alert_id, regression_id, body in rows:
+    found: list[tuple[int, int, int | None, str, Place, list[str]]] = []
+    for series, title, order_key, revision_id, alert_id, regression_id, body in rows:
+        key = (order_key, revision_id)
         named = _series_identity(series)
         for change in body.get("changes", []):
             if change["revision"]["title"] == title and identity(change) == named:
@@ -114,17 +124,18 @@ def told_of(
                 found.append((series.id, alert_id, regression_id, change["direction"], key, bounds))
                 break
     titles = {title for *_, bounds in found for title in bounds if title}
-    keys = dict(
-        session.execute(
-            select(Revision.title, Revision.order_key).where(
+    keys: dict[str, Place] = {
+        title: (order_key, revision_id)
+        for title, order_key, revision_id in session.execute(
+            select(Revision.title, Revision.order_key, Revision.id).where(
                 Revision.component_id == component_id, Revision.title.in_(titles)
             )
-        ).all()
-    )
+        )
+    }
     told: dict[int, list[Told]] = defaultdict(list)
     for series_id, alert_id, regression_id, direction, key, bounds in found:
         baseline, _, good, bad = bounds
-        spans = [(keys.get(baseline, ""), key)]
+        spans = [(keys.get(baseline, ("", 0)), key)]
         if good in keys and bad in keys:
             spans.append((keys[good], keys[bad]))
         told[series_id].append(Told(alert_id, regression_id, direction, tuple(spans)))

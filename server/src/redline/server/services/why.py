@@ -60,7 +60,7 @@ def _values(session: Session, series_id: int, revision_ids: list[int]) -> list[E
             Execution.revision_id.in_(revision_ids),
             Job.pair == 0,
         )
-        .order_by(Revision.order_key, Execution.id)
+        .order_by(Revision.order_key, Revision.id, Execution.id)
     )
     return [
         ExecutionValue(title, ident, p50, mean, n, list(sketch or []))
