@@ -99,7 +99,7 @@ def flagged_changes(session: Session, component: Component, since: datetime) -> 
                 detection.effect,
                 detection.confirmation,
                 revision.created,
-                ((baseline_key or "", baseline_id or 0), (revision.order_key, revision.id)),
+                ((baseline_key or "", baseline_id or 0), revision.place),
                 body,
             )
         )

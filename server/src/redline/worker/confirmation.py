@@ -27,9 +27,10 @@ from redline.server.models import (
     Revision,
     Series,
     Summary,
+    revision_place,
 )
 from redline.worker.samples import ingested_executions
-from sqlalchemy import exists, func, select, tuple_
+from sqlalchemy import exists, func, select
 from sqlalchemy.orm import Session
 
 CONFIRMED, NOT_CONFIRMED = "confirmed", "not_confirmed"
@@ -70,7 +71,7 @@ def _later_revisions(session: Session, key: str, revision_id: int, detection: De
             .join(Series, Series.component_id == Revision.component_id)
             .where(
                 Series.id == detection.series_id,
-                tuple_(Revision.order_key, Revision.id) > (key, revision_id),
+                revision_place() > (key, revision_id),
                 Execution.id.in_(ingested_executions()),
             )
         )

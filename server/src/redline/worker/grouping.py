@@ -47,8 +47,8 @@ def _overlapping(
         select(Regression)
         .where(
             Regression.component_id == component_id,
-            tuple_(Regression.good_key, Regression.good_revision_id) < (bad.order_key, bad.id),
-            tuple_(Regression.bad_key, Regression.bad_revision_id) > (good.order_key, good.id),
+            tuple_(Regression.good_key, Regression.good_revision_id) < bad.place,
+            tuple_(Regression.bad_key, Regression.bad_revision_id) > good.place,
         )
         .order_by(Regression.id)
         .limit(1)
@@ -56,9 +56,9 @@ def _overlapping(
 
 
 def _widen(regression: Regression, good: Revision, bad: Revision) -> None:
-    if (good.order_key, good.id) < (regression.good_key, regression.good_revision_id):
+    if good.place < (regression.good_key, regression.good_revision_id):
         regression.good_revision_id, regression.good_key = good.id, good.order_key
-    if (bad.order_key, bad.id) > (regression.bad_key, regression.bad_revision_id):
+    if bad.place > (regression.bad_key, regression.bad_revision_id):
         regression.bad_revision_id, regression.bad_key = bad.id, bad.order_key
 
 

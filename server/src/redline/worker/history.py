@@ -15,9 +15,10 @@ from redline.server.models import (
     Revision,
     Series,
     Summary,
+    revision_place,
 )
 from redline.worker.samples import ingested_executions
-from sqlalchemy import ColumnElement, func, select, tuple_
+from sqlalchemy import ColumnElement, func, select
 from sqlalchemy.orm import Session
 
 
@@ -45,7 +46,7 @@ def summarized_series(session: Session, revision_id: int) -> frozenset[int]:
 
 
 def earlier_than(revision: Revision):  # noqa: ANN202 - an SQL expression
-    return tuple_(Revision.order_key, Revision.id) < (revision.order_key, revision.id)
+    return revision_place() < revision.place
 
 
 def judged_counters(

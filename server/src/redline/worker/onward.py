@@ -40,11 +40,11 @@ from contextlib import contextmanager
 from redline.detect.config import DetectionConfig
 from redline.detect.result import NOT_ENOUGH_DATA
 from redline.server.db import get_engine, session_scope
-from redline.server.models import Detection, Execution, Revision
+from redline.server.models import Detection, Execution, Revision, revision_place
 from redline.server.services.detection_config import component_config
 from redline.worker.detection import detect_and_store
 from redline.worker.samples import ingested_executions
-from sqlalchemy import func, select, tuple_
+from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
 log = logging.getLogger(__name__)
@@ -71,7 +71,7 @@ def later_with_results(session: Session, revision: Revision, limit: int | None) 
         select(Revision.id)
         .where(
             Revision.component_id == revision.component_id,
-            tuple_(Revision.order_key, Revision.id) > (revision.order_key, revision.id),
+            revision_place() > revision.place,
             select(Execution.id)
             .where(
                 Execution.revision_id == Revision.id,

@@ -19,7 +19,15 @@ from redline.server.models.detection import (
 from redline.server.models.learning import ResourceModelRow, RuntimeAlarm
 from redline.server.models.results import FigureCache, Series, Summary
 from redline.server.models.tokens import ApiToken, User, WebSession
-from redline.server.models.work import Component, Execution, Host, Job, JobState, Revision
+from redline.server.models.work import (
+    Component,
+    Execution,
+    Host,
+    Job,
+    JobState,
+    Revision,
+    revision_place,
+)
 
 __all__ = [
     "Alert",
@@ -45,6 +53,7 @@ __all__ = [
     "RegressionEvent",
     "RegressionState",
     "Revision",
+    "revision_place",
     "StagedDetection",
     "StagedRevision",
     "Series",

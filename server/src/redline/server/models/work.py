@@ -16,7 +16,9 @@ from sqlalchemy import (
     Integer,
     String,
     Text,
+    Tuple,
     UniqueConstraint,
+    tuple_,
 )
 from sqlalchemy.orm import Mapped, mapped_column, relationship
 
@@ -74,6 +76,18 @@ class Revision(Base):
     jobs: Mapped[list[Job]] = relationship(
         back_populates="revision", order_by="Job.execution_index", foreign_keys="Job.revision_id"
     )
+
+    @property
+    def place(self) -> tuple[str, int]:
+        """Where the revision stands in its component's history (`revision_place`)."""
+        return (self.order_key, self.id)
+
+
+def revision_place() -> Tuple:
+    """A revision's place in its component's history, in SQL: its sort key, then the order it was
+    reported in, so revisions of one key (commits of one second) keep that order everywhere;
+    compare it with `Revision.place`, never with the sort key alone."""
+    return tuple_(Revision.order_key, Revision.id)
 
 
 class Job(Base):

@@ -29,12 +29,12 @@ from redline.detect.result import (
 )
 from redline.recording.disturbance import names_busy_host
 from redline.recording.driver import DRIVER_PROCESS as DRIVER
-from redline.server.models import Detection, Job, JobState, Revision, Series
+from redline.server.models import Detection, Job, JobState, Revision, Series, revision_place
 from redline.server.schemas.alerts import CaseVerdict, CiVerdict
 from redline.server.services.components import get_component, get_revision
 from redline.server.services.detection_config import component_config
 from redline.server.services.revisions import own_jobs, revision_state
-from sqlalchemy import or_, select, tuple_
+from sqlalchemy import or_, select
 from sqlalchemy.orm import Session
 
 FINISHED = (JobState.done, JobState.failed, JobState.cancelled)
@@ -105,7 +105,7 @@ def _earlier_unmeasured(session: Session, revision: Revision) -> str | None:
         .join(Job, Job.revision_id == Revision.id)
         .where(
             Revision.component_id == revision.component_id,
-            tuple_(Revision.order_key, Revision.id) < (revision.order_key, revision.id),
+            revision_place() < revision.place,
             Job.pair == 0,
             Job.state.not_in(FINISHED),
         )

@@ -16,7 +16,7 @@ import numpy as np
 import pyarrow.parquet as pq
 from redline.detect.ks import ks
 from redline.detect.summary import describe
-from redline.server.models import Component, Execution, Revision, Series, Summary
+from redline.server.models import Component, Execution, Revision, Series, Summary, revision_place
 from redline.server.schemas.regressions import DetectionOut
 from redline.server.schemas.results import Comparison, SeriesComparison, Statistics
 from redline.server.services.components import get_component, get_revision
@@ -86,7 +86,7 @@ def revision_range(session: Session, component: Component, spec: str, side: str)
         key=lambda r: (r.order_key, r.id),
     )
     low, high = (tuple_(literal(r.order_key, Revision.order_key.type), literal(r.id)) for r in ends)
-    key = tuple_(Revision.order_key, Revision.id)
+    key = revision_place()
     found = list(
         session.scalars(
             select(Revision)

@@ -36,6 +36,7 @@ from redline.server.models import (
     Revision,
     Series,
     Summary,
+    revision_place,
     utcnow,
 )
 from redline.server.schemas.results import SeriesRef
@@ -43,7 +44,7 @@ from redline.server.services.errors import BadRequest
 from redline.server.services.executions import host_names
 from redline.server.services.read import FIELDS, matches, param_text
 from redline.server.services.results import series_ref
-from sqlalchemy import ColumnElement, delete, exists, func, select, tuple_
+from sqlalchemy import ColumnElement, delete, exists, func, select
 from sqlalchemy.dialects.postgresql import insert
 from sqlalchemy.orm import Session
 
@@ -208,7 +209,7 @@ def window(session: Session, component: Component, view: TrendView) -> Window:
         ).first()
         if end is None:
             raise BadRequest(f"before: {component.name} has no revision {view.before!r}")
-        query = query.where(tuple_(Revision.order_key, Revision.id) < tuple(end))
+        query = query.where(revision_place() < tuple(end))
     query = query.order_by(Revision.order_key.desc(), Revision.id.desc()).limit(view.revisions + 1)
     return Window(list(session.scalars(query)), ran)
 

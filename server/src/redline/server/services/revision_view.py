@@ -18,11 +18,19 @@ from dataclasses import dataclass
 
 import pyarrow.parquet as pq
 from redline.recording import params_name
-from redline.server.models import Detection, Execution, Job, Revision, Series, Summary
+from redline.server.models import (
+    Detection,
+    Execution,
+    Job,
+    Revision,
+    Series,
+    Summary,
+    revision_place,
+)
 from redline.server.services.executions import run_seconds
 from redline.server.services.why import baseline_revisions
 from redline.server.storage import DISTURBED, samples_path
-from sqlalchemy import select, tuple_
+from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 #: how many revisions before a baseline's newest are read for it, per revision it pools: a
@@ -111,7 +119,7 @@ def _revisions_up_to(session: Session, newest_id: int, count: int) -> list[int]:
             select(Revision.id)
             .where(
                 Revision.component_id == newest.component_id,
-                tuple_(Revision.order_key, Revision.id) <= (newest.order_key, newest.id),
+                revision_place() <= newest.place,
             )
             .order_by(Revision.order_key.desc(), Revision.id.desc())
             .limit(count)

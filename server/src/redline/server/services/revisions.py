@@ -11,7 +11,15 @@ from typing import Any
 
 from redline.detect.result import waits_for_history
 from redline.recording.format import META_RUN
-from redline.server.models import Component, Detection, Execution, Job, JobState, Revision
+from redline.server.models import (
+    Component,
+    Detection,
+    Execution,
+    Job,
+    JobState,
+    Revision,
+    revision_place,
+)
 from redline.server.schemas.revisions import (
     ExecutionOut,
     JobOut,
@@ -204,8 +212,7 @@ def page_revisions(
     if cursor:
         key, ident = _decode_cursor(cursor)
         query = query.where(
-            tuple_(Revision.order_key, Revision.id)
-            > tuple_(literal(key, Revision.order_key.type), literal(ident))
+            revision_place() > tuple_(literal(key, Revision.order_key.type), literal(ident))
         )
     if limit is not None:
         query = query.limit(limit)

@@ -18,11 +18,20 @@ from typing import Any
 
 from redline.detect.floors import absolute_floor
 from redline.detect.registry import DETECTORS
-from redline.server.models import Detection, Execution, Job, JobState, Revision, Series, Summary
+from redline.server.models import (
+    Detection,
+    Execution,
+    Job,
+    JobState,
+    Revision,
+    Series,
+    Summary,
+    revision_place,
+)
 from redline.server.schemas.regressions import DetectionOut
 from redline.server.services.detection_config import component_config
 from redline.server.services.regressions import detection_by_id
-from sqlalchemy import select, tuple_
+from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 
@@ -88,7 +97,7 @@ def baseline_revisions(
         select(Revision)
         .where(
             Revision.component_id == newest.component_id,
-            tuple_(Revision.order_key, Revision.id) <= (newest.order_key, newest.id),
+            revision_place() <= newest.place,
             Revision.id.in_(measured),
         )
         .order_by(Revision.order_key.desc(), Revision.id.desc())
