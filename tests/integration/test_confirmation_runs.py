@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 from redline.detect.config import DetectionConfig
 from redline.server.models import (
+    Component,
     Detection,
     DetectionConfigRow,
     Execution,
@@ -24,6 +25,7 @@ from redline.server.models import (
 from redline.server.schemas.components import ComponentCreate
 from redline.server.schemas.jobs import RegisterRequest
 from redline.server.services.components import create_component
+from redline.server.services.dashboard import TrendView, trend_data
 from redline.server.services.jobs import lease_job, leased_job, register_host
 from redline.server.services.revisions import cancel_revision, revision_detail
 from redline.worker.confirm_runs import queue_confirmations
@@ -172,6 +174,31 @@ def test_pairs_that_do_not_show_it_leave_the_regression_not_confirmed(
     assert "not confirmed: the change showed in 0 of 1 pairs" in detection.confirmation_reason
     assert "1 more pair(s) not needed" in detection.confirmation_reason
     assert session.scalars(select(Regression)).one().confirmation == "not_confirmed"
+
+
+def test_a_change_the_pairs_dropped_is_drawn_not_confirmed_whatever_its_regression_says(
+    session, database_url, tmp_path
+):
+    """A regression is confirmed when one of its changes held; a flag the re-runs dropped in it
+    (an unchanged revision's, grouped with the next revision's real change) was drawn confirmed
+    on the trend chart, as if the re-runs had shown it."""
+    _flagged_history(session, database_url, tmp_path)
+    while (job := lease_job(session, "perf-1", 60, 3)) is not None:
+        _run(session, database_url, tmp_path, job, 20.0)
+    detection = _r5_detection(session)
+    assert detection.confirmation == "dropped"
+    regression = session.get_one(Regression, detection.regression_id)
+    regression.confirmation = "confirmed"  # as when another change it groups held
+    session.commit()
+    component = session.scalars(select(Component).where(Component.name == NAME)).one()
+    data = trend_data(session, component, TrendView())
+    marks = [
+        mark
+        for series in data.series
+        for mark in series.marks.values()
+        if mark.method == "execution_shift"
+    ]
+    assert [mark.confirmation for mark in marks] == ["not_confirmed"], marks
 
 
 def test_pairs_that_already_decide_the_change_spare_the_pairs_left_to_run(

@@ -19,6 +19,28 @@ def test_the_demo_prints_a_change_whose_effect_is_undefined():
     )
 
 
+def test_the_demo_says_what_confirmation_made_of_each_flagged_change():
+    """A CI run's demo flagged its README-only revision at +61 %: printed as a bare "change",
+    it read as a regression though the re-runs did not show it."""
+    dropped = {
+        "revision": "r2",
+        "series": {"label": "legs_and_rate/steady[legs=8,rate=10] objectbuilder.cpu_percent"},
+        "effect": 0.61,
+        "score": 0.95,
+        "confirmation": "dropped",
+        "confirmation_reason": "not confirmed: the change showed in 0 of 2 pairs",
+    }
+    assert demo.change_kind(dropped) == "not confirmed"
+    assert demo.change_line(dropped).endswith(
+        "(KS D=0.95); not confirmed: the change showed in 0 of 2 pairs"
+    )
+    held = {**dropped, "confirmation": "held", "confirmation_reason": "confirmed by 2 of 2 pairs"}
+    assert demo.change_kind(held) == "regression"
+    assert demo.change_kind({**dropped, "confirmation": ""}) == "change"  # does not alarm
+    assert demo.DEMO_DETECTION["confirm_pairs"] >= 2
+    assert demo.DEMO_DETECTION["alarm_methods"] == ["ks"]
+
+
 def test_the_demos_wait_ends_at_once_when_stopped():
     stop = threading.Event()
     stop.set()  # Ctrl-C while the revisions run: the demo must stop waiting, not finish them

@@ -90,11 +90,17 @@ def demo(data: Path = DataOption, port: int = PortOption) -> None:
         )
         if not example.wait_for_results(stack.url, console.print, stop=stop):
             return  # stopped before the results were in
-        changes = httpx.get(f"{stack.url}/api/v1/components/{example.COMPONENT}/changes").json()
-        for change in (c for c in changes if c.get("flagged")):
+        flagged = httpx.get(
+            f"{stack.url}/api/v1/components/{example.COMPONENT}/detections",
+            params={"method": "ks", "limit": 10_000},
+        ).json()
+        for change in reversed([d for d in flagged if d["flagged"]]):  # oldest revision first
+            kind = example.change_kind(change)
+            colour = {"regression": "red", "not confirmed": "dim"}.get(kind, "yellow")
             # one line each, however narrow the terminal (or a log file: no terminal at all)
             console.print(
-                f"[yellow]change[/yellow] {escape(example.change_line(change))}", soft_wrap=True
+                f"[{colour}]{kind}[/{colour}] {escape(example.change_line(change))}",
+                soft_wrap=True,
             )
         newest = httpx.get(
             f"{stack.url}/api/v1/components/{example.COMPONENT}/detections",

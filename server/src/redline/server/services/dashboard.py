@@ -24,6 +24,7 @@ from datetime import datetime
 from typing import Any
 from urllib.parse import urlencode
 
+from redline.detect.confirmation import DROPPED, HELD, SUSPECTED
 from redline.detect.summary import Pooled
 from redline.server.models import (
     Component,
@@ -141,6 +142,10 @@ class TrendRevision:
     when: datetime | None
 
 
+#: a flagged change's own confirmation (`Detection.confirmation`) as its mark's
+MARKED = {HELD: "confirmed", DROPPED: "not_confirmed", SUSPECTED: "suspected"}
+
+
 @dataclass(frozen=True)
 class Mark:
     """A flagged change, drawn on the revision it was flagged at: in a regression (its
@@ -241,6 +246,7 @@ def trend_data(
                 Detection.revision_id,
                 Regression.id,
                 Regression.confirmation,
+                Detection.confirmation,
                 Detection.method,
                 Detection.effect,
             )
@@ -252,9 +258,12 @@ def trend_data(
             )
             .order_by(Detection.regression_id.is_(None), Detection.id)  # regressions first
         )
-        for series_id, revision_id, regression_id, confirmation, method, effect in marks:
+        for series_id, revision_id, regression_id, grouped, own, method, effect in marks:
+            # the change's own confirmation before its regression's: a flag the re-runs dropped
+            # is not drawn confirmed for a later change grouped with it
+            confirmation = MARKED.get(own) or grouped or "flagged"
             chosen[series_id].marks.setdefault(
-                revision_id, Mark(regression_id, confirmation or "flagged", method, effect)
+                revision_id, Mark(regression_id, confirmation, method, effect)
             )
     return TrendData(
         revisions=[
