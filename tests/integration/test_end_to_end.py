@@ -139,6 +139,16 @@ def test_confirmation_runs_stay_out_of_the_revisions_own_executions(history: His
     # two agreeing pairs decide, the third is spared (cancelled as not needed) or ran
     assert {job["confirms"] for job in pairs} == {history.regressed.title}, detail["jobs"]
     assert len([job for job in pairs if job["state"] == "done"]) >= 2, detail["jobs"]
+    # a pair the ones before it made unneeded never started (its baseline's run is on r2)
+    baseline = httpx.get(
+        f"{history.stack.url}/api/v1/components/objectbuilder/revisions/{history.unchanged.title}"
+    ).json()
+    spared = [
+        job
+        for job in [*pairs, *baseline["jobs"]]
+        if job["confirms"] == history.regressed.title and job["reason"].startswith("not needed")
+    ]
+    assert all(job["attempts"] == 0 and job["execution"] is None for job in spared), spared
 
 
 @pytest.fixture(scope="module")

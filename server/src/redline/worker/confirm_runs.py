@@ -3,8 +3,9 @@
 What no peer does on its own (Perfherder waits for a person to retrigger; Pinpoint bisects on
 request): when a revision's change is flagged and the component asks for ``confirm_pairs``, the
 worker queues that many pairs of jobs, the baseline revision's then the candidate's, pinned to
-the host that measured the candidate, which leases them in that order (`services.jobs`) and runs
-only the test cases with a suspected change. Their
+the host that measured the candidate, which leases them in that order (`services.jobs`; a pair
+after the first once the pairs before it are judged, so that pairs that decide spare the rest
+unrun) and runs only the test cases with a suspected change. Their
 executions are not the revisions' own (they never enter the revisions' verdicts or baselines);
 once every pair has run, each suspected change of the candidate is judged on the pairs
 (`redline.detect.confirmation.pairs_hold`): "confirmed by k of n pairs", or not confirmed with

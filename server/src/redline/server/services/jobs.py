@@ -7,9 +7,9 @@ from datetime import datetime, timedelta
 from redline.server.models import Component, Host, Job, JobState, Revision, utcnow
 from redline.server.schemas.jobs import LeasedJob, LeasedRevision, RegisterRequest
 from redline.server.services.errors import Conflict, NotFound
-from sqlalchemy import and_, case, cast, or_, select, update
+from sqlalchemy import ColumnElement, and_, case, cast, or_, select, update
 from sqlalchemy.dialects.postgresql import JSONB, insert
-from sqlalchemy.orm import Session
+from sqlalchemy.orm import Session, aliased
 
 HELD = (JobState.leased, JobState.running)
 #: jobs that have not ended: their revision's verdict may still change
@@ -104,7 +104,7 @@ def lease_job(
         select(Job)
         .join(Revision, Revision.id == Job.revision_id)
         .join(Component, Component.id == Revision.component_id)
-        .where(available, in_pool, pinned)
+        .where(available, in_pool, pinned, _pair_may_start())
         .order_by(
             case((ahead, 0), else_=1),
             case((ahead, Job.id), else_=0),
@@ -124,6 +124,31 @@ def lease_job(
         _served(session, job.revision.component_id, now)
     session.commit()
     return job
+
+
+def _pair_may_start() -> ColumnElement[bool]:
+    """A confirmation pair after the first starts once the pairs before it have ended and been
+    judged (the revision it confirms analysed since): those may decide every change, and then
+    it is cancelled as not needed instead of run. Leased as soon as queued, the third pair's
+    baseline run was under way when the second pair decided, a run for nothing (issue 12's
+    cost; the demo ran 5 confirmation runs where 4 decided)."""
+    earlier = aliased(Job)
+    confirmed = aliased(Revision)
+    unended = (
+        select(earlier.id)
+        .where(
+            earlier.confirms_revision_id == Job.confirms_revision_id,
+            earlier.pair < Job.pair,
+            earlier.state.in_(UNENDED),
+        )
+        .exists()
+    )
+    judged = (
+        select(confirmed.id)
+        .where(confirmed.id == Job.confirms_revision_id, confirmed.analyzed_at.is_not(None))
+        .exists()
+    )
+    return or_(Job.confirms_revision_id.is_(None), Job.pair <= 1, and_(~unended, judged))
 
 
 def leased_job(job: Job) -> LeasedJob:
