@@ -5,6 +5,7 @@ so an agent does not grow from job to job; its errors and a stop keep their mean
 from __future__ import annotations
 
 import os
+import re
 import signal
 import textwrap
 from pathlib import Path
@@ -35,6 +36,29 @@ def _suite(tmp_path: Path, test: str) -> Path:
         'command = ["python", "component.py"]\nready = { log = "ready" }\nstop_timeout = 2\n'
     )
     return path
+
+
+def _long_suite_saying_pids(tmp_path: Path) -> Path:
+    """A suite of a minute's phase whose driver and component write their pids to
+    ``driver.pid`` and ``component.pid``, to see them end."""
+    suite = _suite(
+        tmp_path,
+        f"""\
+        import os
+        from pathlib import Path
+        from redline.testing import FixedRate, Phase, Publish, TestCase
+        Path({str(tmp_path / "driver.pid")!r}).write_text(str(os.getpid()))
+        case = TestCase("long", [Phase("p", FixedRate(20, 60.0, Publish("x/y", b"1")))])
+        """,
+    )
+    (tmp_path / "component.py").write_text(
+        textwrap.dedent(COMPONENT).replace(
+            'print("ready", flush=True)',
+            f'open({str(tmp_path / "component.pid")!r}, "w").write(str(__import__("os").getpid()))'
+            '\n    print("ready", flush=True)',
+        )
+    )
+    return suite
 
 
 def test_a_jobs_run_happens_in_a_process_that_ends_with_it(tmp_path: Path) -> None:
@@ -98,24 +122,7 @@ def test_a_run_whose_agent_is_killed_stops_and_takes_its_component_with_it(
     import sys
     import time
 
-    suite = _suite(
-        tmp_path,
-        f"""\
-        import os
-        from pathlib import Path
-        from redline.testing import FixedRate, Phase, Publish, TestCase
-        Path({str(tmp_path / "driver.pid")!r}).write_text(str(os.getpid()))
-        case = TestCase("long", [Phase("p", FixedRate(20, 60.0, Publish("x/y", b"1")))])
-        """,
-    )
-    # _suite wrote the plain component: this one also says its pid, to see it end
-    (tmp_path / "component.py").write_text(
-        textwrap.dedent(COMPONENT).replace(
-            'print("ready", flush=True)',
-            f'open({str(tmp_path / "component.pid")!r}, "w").write(str(__import__("os").getpid()))'
-            '\n    print("ready", flush=True)',
-        )
-    )
+    suite = _long_suite_saying_pids(tmp_path)
     agent = subprocess.Popen(
         [sys.executable, "-c", "import sys; from pathlib import Path; "
          "from redline.agent.isolated import run_isolated; "
@@ -145,3 +152,56 @@ def test_a_run_whose_agent_is_killed_stops_and_takes_its_component_with_it(
                 raise AssertionError(f"process {pid} outlived the killed agent")
     finally:
         agent.kill()
+
+
+def _alive(pid: int) -> bool:
+    """Whether ``pid`` runs (a zombie, dead but not reaped, does not)."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return False
+    return stat.rsplit(")", 1)[1].split()[0] != "Z"
+
+
+def test_a_run_killed_outright_leaves_no_process_behind_it(tmp_path: Path) -> None:
+    """A run's process SIGKILLed (out of memory) cannot stop what it started: its component,
+    in a session of its own, ran on under init beside the agent's next job. The agent adopts
+    the orphans and ends them; the job fails naming that."""
+    import subprocess
+    import sys
+    import time
+
+    suite = _long_suite_saying_pids(tmp_path)
+    said = tmp_path / "said"
+    agent = subprocess.Popen(
+        [sys.executable, "-c", "import sys, time; from pathlib import Path; "
+         "from redline.agent.isolated import ChildFailed, adopt_orphans, run_isolated\n"
+         "assert adopt_orphans()\n"
+         "try: run_isolated(Path(sys.argv[1]), Path(sys.argv[2]), {})\n"
+         "except ChildFailed as exc: Path(sys.argv[3]).write_text(str(exc))\n"
+         "time.sleep(60)",
+         str(suite), str(tmp_path / "out.mcap"), str(said)]
+    )  # fmt: skip
+    try:
+        deadline = time.monotonic() + 60
+        for name in ("driver.pid", "component.pid"):
+            while not (tmp_path / name).exists() and time.monotonic() < deadline:
+                time.sleep(0.2)
+        driver = int((tmp_path / "driver.pid").read_text())
+        component = int((tmp_path / "component.pid").read_text())
+        time.sleep(1.0)  # the phase is under way
+        os.kill(driver, signal.SIGKILL)
+        while not said.exists() and time.monotonic() < deadline:
+            time.sleep(0.2)
+        assert "ended without a result" in said.read_text()
+        # the component, and the run's own helpers (its recorder's)
+        assert re.search(r"; [1-9][0-9]* process\(es\) it had started ended", said.read_text())
+        assert not _alive(component), "the component outlived its killed run"
+        assert Path(f"/proc/{component}").exists() is False  # reaped, not a zombie
+    finally:
+        agent.kill()
+        agent.wait()
+        if (tmp_path / "component.pid").exists():
+            component = int((tmp_path / "component.pid").read_text())
+            if _alive(component):
+                os.kill(component, signal.SIGKILL)

@@ -22,7 +22,7 @@ from redline.agent.checkout import CloneCache
 from redline.agent.client import LeaseLost, ServerClient, ServerUnavailable, UploadRejected
 from redline.agent.governor import governor_files
 from redline.agent.host import host_fingerprint
-from redline.agent.isolated import ChildFailed, run_isolated
+from redline.agent.isolated import ChildFailed, adopt_orphans, run_isolated
 from redline.agent.quiet import measuring
 from redline.agent.spool import Spool, SpoolSender
 from redline.agent.suite import load_suite
@@ -73,6 +73,8 @@ class AgentDaemon:
         self.sender = SpoolSender(self.spool, self.client, self.stop)
 
     def run_forever(self) -> None:
+        if not adopt_orphans():
+            log.warning("cannot adopt orphans here: a run killed outright may leave processes")
         self._register()
         self.sender.start()
         log.info("agent %s registered; waiting for jobs", self.client.host)

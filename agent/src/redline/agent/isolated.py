@@ -13,6 +13,12 @@ The agent's signals keep their meaning: the first lets the run finish; the secon
 of the grace period) raises in the agent while it waits, which sends the child SIGTERM, and the
 child's runner stops every process and finishes the recording as ``terminated``, as a run in
 the agent's own process did.
+
+A child killed outright (SIGKILL: out of memory, an operator) cannot stop what it started: the
+component, in a session of its own, ran on under init beside the agent's next job. The agent
+is therefore the reaper of its descendants' orphans (`adopt_orphans`, PR_SET_CHILD_SUBREAPER):
+what the run left is adopted by the agent, which ends it (its process group, SIGTERM, then
+SIGKILL) and reaps it once the child is gone.
 """
 
 from __future__ import annotations
@@ -21,6 +27,7 @@ import ctypes
 import multiprocessing
 import os
 import signal
+import time
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -30,7 +37,75 @@ from redline.agent.runner import RunResult, run_suite
 #: how long a child told to stop may take to stop the run's processes and finish its recording,
 #: and how long one that answered may take to exit
 STOP_WAIT_S = 60.0
+#: how long an orphan of the run has to end on SIGTERM before SIGKILL
+ORPHAN_WAIT_S = 5.0
 PR_SET_PDEATHSIG = 1  # linux/prctl.h
+PR_SET_CHILD_SUBREAPER = 36
+
+
+def _prctl(option: int, value: int) -> bool:
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        return int(libc.prctl(option, value, 0, 0, 0)) == 0
+    except (OSError, AttributeError):  # not Linux
+        return False
+
+
+def adopt_orphans() -> bool:
+    """Make this process (the agent) the parent of its descendants' orphans, so that a run
+    whose process was killed leaves nothing behind it (`run_isolated`); False where the system
+    cannot (not Linux): such orphans then run on under init, as before."""
+    return _prctl(PR_SET_CHILD_SUBREAPER, 1)
+
+
+def _children() -> set[int]:
+    """This process's children (adopted orphans included), from /proc."""
+    found: set[int] = set()
+    for task in Path("/proc/self/task").glob("*"):
+        try:
+            found.update(int(pid) for pid in (task / "children").read_text().split())
+        except (OSError, ValueError):
+            continue
+    return found
+
+
+def _signal_group(pid: int, sig: int) -> None:
+    """``sig`` to the process group of ``pid`` (a component's own helpers go with it), or to
+    ``pid`` alone when that group is this process's own."""
+    try:
+        group = os.getpgid(pid)
+        if group == os.getpgrp():
+            os.kill(pid, sig)
+        else:
+            os.killpg(group, sig)
+    except (ProcessLookupError, PermissionError):
+        return  # ended meanwhile: reaped by the caller
+
+
+def _end_orphans(before: set[int]) -> list[int]:
+    """End and reap the children this process has gained since ``before`` (the orphans a
+    killed run left to it): each one's process group SIGTERM, then SIGKILL after
+    `ORPHAN_WAIT_S`. Returns their pids (an orphan's own children, adopted as it ends, too)."""
+    ended: list[int] = []
+    for sig in (signal.SIGTERM, signal.SIGKILL):
+        orphans = _children() - before
+        for pid in orphans:
+            _signal_group(pid, sig)
+        deadline = time.monotonic() + ORPHAN_WAIT_S
+        while orphans and time.monotonic() < deadline:
+            for pid in list(orphans):
+                try:
+                    done = os.waitpid(pid, os.WNOHANG)[0] == pid
+                except ChildProcessError:  # reaped elsewhere
+                    done = True
+                if done:
+                    orphans.discard(pid)
+                    ended.append(pid)
+            orphans |= _children() - before - set(ended)  # adopted as their parents ended
+            time.sleep(0.05)
+        if not orphans:
+            break
+    return ended
 
 
 class ChildFailed(RuntimeError):
@@ -40,11 +115,8 @@ class ChildFailed(RuntimeError):
 def _die_with_parent() -> None:
     """SIGTERM to this process when the agent dies (Linux): its runner then stops the run's
     processes, instead of a suite running on unsupervised beside the agent's next one."""
-    try:
-        libc = ctypes.CDLL(None, use_errno=True)
-        libc.prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
-    except (OSError, AttributeError):  # not Linux: the agent's own stop still ends the run
-        return
+    if not _prctl(PR_SET_PDEATHSIG, signal.SIGTERM):
+        return  # not Linux: the agent's own stop still ends the run
     if os.getppid() == 1:  # the agent died before the request was made
         os.kill(os.getpid(), signal.SIGTERM)
 
@@ -69,6 +141,7 @@ def run_isolated(
 ) -> RunResult:
     """`run_suite` in a child process; raises `ChildFailed` with the run's error."""
     context = multiprocessing.get_context("spawn")
+    before = _children()
     receive, send = context.Pipe(duplex=False)
     child = context.Process(
         target=_child,
@@ -80,16 +153,17 @@ def run_isolated(
     try:
         answer = receive.recv()  # EOFError when the child died without a word
     except EOFError:
-        _reap(child, stop=False)
+        left = _reap(child, before, stop=False)
+        ended = f"; {len(left)} process(es) it had started ended with it" if left else ""
         raise ChildFailed(
-            f"the run's process ended without a result (exit {child.exitcode})"
+            f"the run's process ended without a result (exit {child.exitcode}){ended}"
         ) from None
     except BaseException:  # the agent is stopping: the run ends, its processes with it
-        _reap(child, stop=True)
+        _reap(child, before, stop=True)
         raise
     finally:
         receive.close()
-    _reap(child, stop=False)
+    _reap(child, before, stop=False)
     state, value = answer
     if state != "done":
         raise ChildFailed(value)
@@ -97,12 +171,14 @@ def run_isolated(
     return result
 
 
-def _reap(child: Any, stop: bool) -> None:
+def _reap(child: Any, before: set[int], stop: bool) -> list[int]:
     """Wait for the child to exit (``stop``: after SIGTERM, which its runner turns into a
-    clean stop), at most `STOP_WAIT_S`; then kill it, so the agent never waits for ever."""
+    clean stop), at most `STOP_WAIT_S`; then kill it, so the agent never waits for ever. Then
+    end what it left (`_end_orphans`: nothing, unless it was killed); returns their pids."""
     if stop and child.is_alive() and child.pid is not None:
         os.kill(child.pid, signal.SIGTERM)
     child.join(STOP_WAIT_S)
     if child.is_alive():
         child.kill()
         child.join(STOP_WAIT_S)
+    return _end_orphans(before | {child.pid or 0})
