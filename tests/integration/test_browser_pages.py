@@ -95,6 +95,21 @@ def test_every_page_loads_clean_with_its_charts(site, browser):
     assert not watched.foreign, watched.foreign
 
 
+def test_series_labels_wrap_between_words_not_letter_by_letter(site, browser):
+    """Left to the table's layout, the revision page's labels were squeezed to a few letters a
+    line ("legs_and_rat / e/steady[leg / s=8,rate=1 / 0]"), the demo's page 15,800 px high."""
+    watched = Watched(browser, site[0])
+    watched.page.set_viewport_size({"width": 900, "height": 800})
+    watched.visit(site[0] + "/components/builder/revisions/r4")
+    widths = watched.page.evaluate(
+        """() => Array.from(document.querySelectorAll('#detections td.label'))
+               .map(td => [td.textContent, td.getBoundingClientRect().width])"""
+    )
+    rem = watched.page.evaluate("parseFloat(getComputedStyle(document.documentElement).fontSize)")
+    assert widths and all(width >= 16 * rem - 1 for _, width in widths), widths
+    assert not watched.errors, watched.errors
+
+
 def test_the_settings_pages_load_clean_signed_in(site, browser):
     base = site[0]
     watched = Watched(browser, base)

@@ -196,6 +196,20 @@ def test_the_revision_page_shows_both_values_and_each_runs_duration_and_disturba
     assert '<td class="disturbed">none</td>' in quiet and '<td class="duration">—</td>' in quiet
 
 
+def test_the_revision_page_folds_the_series_without_a_verdict(client, database_url, tmp_path):
+    """On a young history the "not enough data" rows outnumbered the verdicts (the demo's newest
+    revision: 56 of 81 rows) and buried them; they are folded, each with its reason."""
+    history(database_url, tmp_path, [20.0, 20.0, 200.0])
+    first = client.get("/components/builder/revisions/r1").text
+    assert 'id="detections"' not in first  # nothing judged: no baseline yet
+    folded = first[first.index('<details id="waiting" open>') : first.index("</details>")]
+    assert "series without a verdict yet (not enough data)" in folded
+    assert folded.count('<tr><td class="label">') == 4 and "missing baseline" in folded
+    judged = client.get("/components/builder/revisions/r3").text
+    assert 'id="detections"' in judged and '<details id="waiting"' not in judged
+    assert judged.count('<a href="/detections/') == 4  # each verdict's why
+
+
 def test_compare_shows_the_candidates_verdicts_and_pools_ranges(
     client, database_url, tmp_path, monkeypatch
 ):
