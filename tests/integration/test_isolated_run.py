@@ -175,10 +175,12 @@ def test_a_run_killed_outright_leaves_no_process_behind_it(tmp_path: Path) -> No
     said = tmp_path / "said"
     agent = subprocess.Popen(
         [sys.executable, "-c", "import sys, time; from pathlib import Path; "
+         "from redline.agent import isolated\n"
          "from redline.agent.isolated import ChildFailed, adopt_orphans, run_isolated\n"
          "assert adopt_orphans()\n"
          "try: run_isolated(Path(sys.argv[1]), Path(sys.argv[2]), {})\n"
-         "except ChildFailed as exc: Path(sys.argv[3]).write_text(str(exc))\n"
+         "except ChildFailed as exc: Path(sys.argv[3]).write_text(str(exc) + "
+         "' / children left: ' + str(len(isolated._children())))\n"
          "time.sleep(60)",
          str(suite), str(tmp_path / "out.mcap"), str(said)]
     )  # fmt: skip
@@ -196,6 +198,9 @@ def test_a_run_killed_outright_leaves_no_process_behind_it(tmp_path: Path) -> No
         assert "ended without a result" in said.read_text()
         # the component, and the run's own helpers (its recorder's)
         assert re.search(r"; [1-9][0-9]* process\(es\) it had started ended", said.read_text())
+        # what the agent itself started lives on: multiprocessing's resource tracker, which the
+        # spawn of the run's process started, was taken for an orphan and killed
+        assert said.read_text().endswith(" / children left: 1"), said.read_text()
         assert not _alive(component), "the component outlived its killed run"
         assert Path(f"/proc/{component}").exists() is False  # reaped, not a zombie
     finally:

@@ -141,7 +141,6 @@ def run_isolated(
 ) -> RunResult:
     """`run_suite` in a child process; raises `ChildFailed` with the run's error."""
     context = multiprocessing.get_context("spawn")
-    before = _children()
     receive, send = context.Pipe(duplex=False)
     child = context.Process(
         target=_child,
@@ -149,6 +148,9 @@ def run_isolated(
         name="redline-run",
     )
     child.start()
+    # after the start: spawning starts multiprocessing's resource tracker, a child of ours that
+    # must outlive the run (killed, it was started again, and killed again, job after job)
+    before = _children()
     send.close()
     try:
         answer = receive.recv()  # EOFError when the child died without a word
