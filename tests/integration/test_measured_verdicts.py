@@ -55,6 +55,7 @@ def _record(
     counters: bool = True,
     cpu: float = 20.0,
     split: bool = False,
+    case: str = CASE,
 ) -> Path:
     """One execution's recording: a 2 s steady phase with the component's CPU, the host's and
     Redline's own, and the driver's report of its queries (as `redline.testing.Query` makes)."""
@@ -63,7 +64,7 @@ def _record(
     with RecordingWriter(path) as writer:
         writer.metadata("redline.run", run)
         writer.metadata("redline.host", {"cpu_cores": "2"})
-        writer.marker("begin", CASE, PHASE, PARAMS, warmup=False, t_ns=begin)
+        writer.marker("begin", case, PHASE, PARAMS, warmup=False, t_ns=begin)
         for t_ns in range(begin + 50_000_000, end, 50_000_000) if counters else ():
             used = {"cpu_percent": rng.normal(cpu, cpu / 50)}
             writer.counters(
@@ -75,7 +76,7 @@ def _record(
             answered = queries - timeouts
             message: dict[str, Any] = {
                 "t_ns": end - 1000,
-                "case": CASE,
+                "case": case,
                 "phase": PHASE,
                 "params": PARAMS,
                 "action": "Query",
@@ -87,8 +88,8 @@ def _record(
             }
             if timeouts:
                 message["timeouts"] = timeouts
-            writer.write_json(f"@redline/driver/{CASE}/{PHASE}", message)
-        writer.marker("end", CASE, PHASE, PARAMS, warmup=False, t_ns=end)
+            writer.write_json(f"@redline/driver/{case}/{PHASE}", message)
+        writer.marker("end", case, PHASE, PARAMS, warmup=False, t_ns=end)
     return path
 
 
@@ -225,6 +226,23 @@ def test_a_driver_report_missing_from_the_revision_is_not_measured_not_a_pass(
     assert case.state == "undecided" and "not measured in this revision" in case.reason, case
     assert verdict.undecided == 1
     assert "undecided: not enough data" in junit_xml(verdict)
+
+
+def test_a_test_case_this_revision_did_not_run_is_no_measurement_it_lost(
+    session, database_url, tmp_path
+):
+    """A trial imported results of another suite (its own case) sorting between agent-run
+    revisions: the next one's verdict, passed, became undecided (exit 4), its "lost"
+    measurements being the import's. Only a series of a test case the revision ran counts."""
+    _history(session, database_url, tmp_path, {"case": "imported"})
+    r5 = _revision(session, tmp_path, 5)  # the suite's own case again, after the other
+    ingest_and_detect(database_url, r5)
+    session.expire_all()
+    for title in ("r4", "r5"):
+        verdict = ci_verdict(session, NAME, title)
+        assert verdict.undecided == 0, [c.reason for c in verdict.cases]
+        revision = session.scalars(select(Revision).where(Revision.title == title)).one()
+        assert not [d for d in _verdicts(session, revision).values() if "not measured" in d.reason]
 
 
 def test_a_report_missing_from_one_execution_is_judged_on_the_others_saying_so(

@@ -154,3 +154,34 @@ def test_a_run_stopped_before_anything_was_recorded_says_so(
     assert stopped.value.exit_code == 143
     said = " ".join(capsys.readouterr().err.split())
     assert "terminated by SIGTERM" in said and "before anything was recorded" in said
+
+
+def test_ci_waits_undecided_exit_names_each_cases_own_reason():
+    """A trial's verdict, undecided because a measurement went missing, was said to be a busy
+    host or a failed method."""
+    from redline.cli.ci_cmd import _undecided_message
+
+    missing = (
+        "not enough data (1 of 1 verdicts): benchmark execution_time: not measured in this "
+        "revision, though the revision before measured it"
+    )
+    verdict = {
+        "undecided": 1,
+        "cases": [
+            {
+                "case": "t",
+                "phase": "lnt",
+                "parameters": "{}",
+                "state": "undecided",
+                "reason": missing,
+            },
+            {"case": "u", "phase": "main", "parameters": "{}", "state": "passed", "reason": ""},
+        ],
+    }
+    said = _undecided_message(verdict)
+    assert said == f"1 test case(s) undecided: t / lnt {{}}: {missing}; see the page"
+    many = {"undecided": 5, "cases": [dict(verdict["cases"][0], reason="x" * 400)] * 5}
+    long = _undecided_message(many)
+    assert (
+        long.count("x" * 280) == 3 and "…" in long and long.endswith("; and 2 more; see the page")
+    )

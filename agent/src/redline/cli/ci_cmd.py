@@ -5,8 +5,8 @@ table, and says by its exit code whether the revision passes.
 Exit codes: 0 no change (per ``--fail-on``), 1 a change, 2 bad input or timeout (unknown
 component or revision, refused token, no verdict in time), 3 the revision's jobs failed, 4 no
 change found but some test case undecided: the host was busy in every run of it or of its
-baseline, even after a fresh run, or its method failed (never a silent pass; ``--fail-on none``
-passes it).
+baseline, even after a fresh run, its method failed, or a measurement the revision before made
+in it is missing (never a silent pass; ``--fail-on none`` passes it); the message names which.
 Only httpx is needed, so CI machines install the light `redline-agent` distribution.
 """
 
@@ -82,12 +82,32 @@ def _table(verdict: dict[str, Any], fail_on: FailOn) -> str:
         f"the worse, {verdict['improvements']} for the better, {verdict['skipped']} test "
         f"case(s) without enough data"
         + (
-            f", {verdict['undecided']} undecided (the host was busy, or a method failed)"
+            f", {verdict['undecided']} undecided (each case says why)"
             if verdict.get("undecided")
             else ""
         )
     )
     return "\n".join(lines)
+
+
+#: how much of each undecided case's reason the exit message quotes
+REASON_CHARS = 300
+
+
+def _undecided_message(verdict: dict[str, Any]) -> str:
+    """Why the revision is undecided, in its own cases' words (a trial's verdict, undecided
+    because a measurement was missing, was said to be a busy host or a failed method)."""
+    reasons = [
+        f"{case['case']} / {case['phase']} {case['parameters']}: {case['reason']}"
+        for case in verdict.get("cases", [])
+        if case.get("state") == "undecided"
+    ]
+    said = "; ".join(
+        reason if len(reason) <= REASON_CHARS else reason[: REASON_CHARS - 1] + "…"
+        for reason in reasons[:3]
+    )
+    more = f"; and {len(reasons) - 3} more" if len(reasons) > 3 else ""
+    return f"{verdict['undecided']} test case(s) undecided: {said}{more}; see the page"
 
 
 def _junit_error(path: Path, component: str, revision: str, message: str) -> None:
@@ -133,8 +153,8 @@ def wait(
     poll: Annotated[float, typer.Option(min=0.1, help="seconds between two looks")] = 10.0,
 ) -> None:
     """Wait for a revision's verdict; write JUnit XML; exit 0 (no change), 1 (change), 2 (bad
-    input or timeout), 3 (its jobs failed), 4 (undecided: the host was busy, or a method
-    failed)."""
+    input or timeout), 3 (its jobs failed), 4 (undecided: the host was busy, a method
+    failed, or a measurement went missing)."""
     if urlsplit(server).scheme not in ("http", "https") or not urlsplit(server).hostname:
         _stop(BAD_INPUT, f"--server {server!r}: not an http:// or https:// URL")
     if junit is not None:
@@ -198,12 +218,7 @@ def wait(
     if changed:
         raise typer.Exit(CHANGED)
     if verdict.get("undecided") and fail_on != FailOn.none:
-        _stop(
-            UNDECIDED,
-            f"{verdict['undecided']} test case(s) undecided: the host was busy in every run of "
-            "them or of their baseline, even after a fresh run, or a method failed; see the "
-            "page",
-        )
+        _stop(UNDECIDED, _undecided_message(verdict))
     raise typer.Exit(PASSED)
 
 

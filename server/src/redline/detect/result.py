@@ -55,9 +55,12 @@ def not_enough(method: str, reason: str) -> Detection:
 METHOD_FAILED = "method failed"
 
 #: why a series the newest earlier revision measured has no verdict of this one
+NOT_MEASURED_MARK = "not measured in this revision, though the revision before measured it"
+#: (what a stored reason is known by: `NOT_MEASURED_MARK`, the same in reasons stored before
+#: its explanation was worded as now)
 NOT_MEASURED = (
-    "not measured in this revision, though the revision before measured it (a test, "
-    "phase or action removed or renamed, or a driver report missing)"
+    f"{NOT_MEASURED_MARK} (a phase or action of the test removed or renamed, or a driver "
+    "report missing)"
 )
 
 #: how the "not enough data" reasons begin that more history lifts

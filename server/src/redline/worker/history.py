@@ -246,10 +246,13 @@ def no_longer_measured(
     context: Collection[str],
     known: Sequence[tuple[int, frozenset[int]]] | None = None,
 ) -> list[int]:
-    """The judged series that the newest earlier revision with results measured and this one
-    does not (a test, phase or action removed or renamed, or a driver report missing): each is
-    reported once, where it disappears. ``known``: a re-analysis's memory of the newest earlier
-    revisions (newest first, with their series)."""
+    """The judged series that the newest earlier revision with results measured, in a test case
+    this one measured too, and this one does not (a phase or action removed or renamed, or a
+    driver report missing): each is reported once, where it disappears. A test case this
+    revision did not run at all is another suite's, not a measurement it lost: results imported
+    between agent-run revisions (a trial's LNT import sorting before them) made the next one's
+    CI verdict undecided. ``known``: a re-analysis's memory of the newest earlier revisions
+    (newest first, with their series)."""
     if known is not None:
         previous = known[0][1] if known else frozenset()
     else:
@@ -258,4 +261,12 @@ def no_longer_measured(
     gone = sorted(previous - set(candidate))
     if not gone:
         return []
-    return sorted(judged_counters(session, gone, context))
+    cases = {
+        series_id: case
+        for series_id, case in session.execute(
+            select(Series.id, Series.case).where(Series.id.in_([*gone, *candidate]))
+        )
+    }
+    ran = {cases[series_id] for series_id in candidate if series_id in cases}
+    lost = [series_id for series_id in gone if cases.get(series_id) in ran]
+    return sorted(judged_counters(session, lost, context)) if lost else []

@@ -24,7 +24,7 @@ from redline.detect.result import (
     HISTORY_REASONS,
     METHOD_FAILED,
     NOT_ENOUGH_DATA,
-    NOT_MEASURED,
+    NOT_MEASURED_MARK,
     waits_for_history,
 )
 from redline.recording.disturbance import names_busy_host
@@ -212,7 +212,9 @@ def _undecided(reason: str) -> bool:
     fourfold CPU rise "passed"), or a series the revision before measured is gone (a driver
     report missing, an action renamed: a gate that lost a measurement does not pass, as
     `redline compare` does not)."""
-    return names_busy_host(reason) or reason.startswith(METHOD_FAILED) or NOT_MEASURED in reason
+    return (
+        names_busy_host(reason) or reason.startswith(METHOD_FAILED) or NOT_MEASURED_MARK in reason
+    )
 
 
 def _charted_note(flagged: list[tuple[Detection, Series]]) -> str:
