@@ -573,3 +573,25 @@ def test_a_422_quotes_a_body_as_the_json_it_came_as_with_secrets_masked(api: Api
     (error,) = [e for e in answer.json()["detail"] if e["loc"] == ["body", "name"]]
     assert error["input"].startswith('{"webhook_secret": "***"'), error
     assert "s3cr3t" not in answer.text
+
+
+@pytest.mark.parametrize("field", ["case", "phase"])
+def test_an_imported_test_name_the_sdk_would_refuse_is_422_naming_it(api: Api, field: str):
+    """A trial's import of case "a/b*" was stored, and its JUnit said classname ".../a/b*"."""
+    body = _results()
+    body["results"][0][field] = "a/b*"
+    answer = _post_raw(api, "/api/v1/import/results", json.dumps(body).encode())
+    assert answer.status_code == 422, answer.text
+    assert answer.json()["detail"][0]["loc"] == ["body", "results", 0, field], answer.text
+    assert counts(api) == (0, 0)
+
+
+def test_a_sort_key_given_as_a_whole_number_is_taken_as_its_text(api: Api):
+    """The README says numeric keys compare as numbers; a trial's "sort_key": 12 was 422."""
+    created = _revision(api, title="r12", sort_key=12)
+    assert created.status_code == 201, created.text
+    revision = api.client.get("/api/v1/components/builder/revisions/r12").json()
+    assert revision["sort_key"] == "12"
+    for bad in (True, 1.5, None):
+        answer = _revision(api, title="rx", sort_key=bad)
+        assert answer.status_code == 422 and "sort_key" in answer.text, (bad, answer.text)

@@ -10,7 +10,7 @@ import re
 from datetime import UTC, datetime, timedelta
 from typing import Annotated
 
-from pydantic import AfterValidator, Field
+from pydantic import AfterValidator, BeforeValidator, Field
 
 #: commit times accepted: from the Unix epoch to a year ahead (a skewed clock, not a typo)
 EARLIEST = datetime(1970, 1, 1, tzinfo=UTC)
@@ -78,3 +78,17 @@ RunCommit = Annotated[str, Field(min_length=1, max_length=200, pattern=r"^[A-Za-
 CommitTime = Annotated[datetime, AfterValidator(commit_time)]
 #: a suite file's path inside a component's repository
 SuitePath = Annotated[str, Field(max_length=500), AfterValidator(inside_repository)]
+
+
+def whole_number_as_text(value: object) -> object:
+    """A sort key given as a whole number (``12``, a CI build number) is its text (``"12"``,
+    compared as a number: '9' < '10'); a trial's ``"sort_key": 12`` was refused."""
+    if isinstance(value, int) and not isinstance(value, bool):
+        return str(value)
+    return value
+
+
+#: what orders a component's revisions: text, or a whole number taken as its text
+SortKey = Annotated[str, BeforeValidator(whole_number_as_text), Field(min_length=1, max_length=200)]
+#: a test case's or phase's name, as the SDK allows it (`redline.testing.cases`)
+TestName = Annotated[str, Field(min_length=1, max_length=200, pattern=r"^[A-Za-z0-9_.-]+$")]

@@ -5,7 +5,7 @@ from __future__ import annotations
 from typing import Annotated, Any
 
 from pydantic import BaseModel, ConfigDict, Field
-from redline.server.schemas.fields import Commit, Title
+from redline.server.schemas.fields import Commit, SortKey, TestName, Title
 
 
 class ImportResult(BaseModel):
@@ -22,8 +22,8 @@ class ResultValue(BaseModel):
 
     model_config = ConfigDict(extra="forbid")  # a misspelt field is refused, never ignored
 
-    case: str = Field(min_length=1, max_length=200)
-    phase: str = Field(default="main", min_length=1, max_length=200)
+    case: TestName = Field(description="letters, digits, '_', '.' or '-', as the SDK's")
+    phase: TestName = "main"
     params: dict[str, Any] = Field(default_factory=dict)
     process: str = Field(default="benchmark", min_length=1, max_length=200)
     counter: str = Field(min_length=1, max_length=200)
@@ -39,7 +39,7 @@ class ResultsImport(BaseModel):
 
     component: str = Field(min_length=1, max_length=200)
     revision: Title = Field(description="the revision's title")
-    sort_key: str = Field(min_length=1, max_length=200)
+    sort_key: SortKey
     commit: Commit = ""
     host: str = Field(default="", max_length=200, description="where it was measured")
     results: list[ResultValue] = Field(min_length=1)

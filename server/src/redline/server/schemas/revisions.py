@@ -5,14 +5,14 @@ from __future__ import annotations
 from datetime import datetime
 
 from pydantic import BaseModel, ConfigDict, Field
-from redline.server.schemas.fields import CommitTime, RunCommit, Title
+from redline.server.schemas.fields import CommitTime, RunCommit, SortKey, Title
 
 
 class RevisionCreate(BaseModel):
     model_config = ConfigDict(extra="forbid")  # a misspelt field is refused, never ignored
     component: str = Field(min_length=1, max_length=200)
     title: Title
-    sort_key: str = Field(min_length=1, max_length=200, description="orders revisions; '9' < '10'")
+    sort_key: SortKey = Field(description="orders revisions; '9' < '10' (a whole number: its text)")
     commit: RunCommit = Field(description="what the performance hosts check out and build")
     repo: str = Field(
         default="",
