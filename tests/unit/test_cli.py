@@ -185,3 +185,24 @@ def test_ci_waits_undecided_exit_names_each_cases_own_reason():
     assert (
         long.count("x" * 280) == 3 and "…" in long and long.endswith("; and 2 more; see the page")
     )
+
+
+def test_a_run_written_to_a_log_keeps_every_name_whole(monkeypatch: pytest.MonkeyPatch):
+    """Piped into a CI log, rich took 80 columns and cut a trial's action names to
+    "FixedRate/Query(odom/la…"."""
+    from redline.cli import run_cmd
+    from rich.table import Table
+
+    monkeypatch.delenv("COLUMNS", raising=False)
+    monkeypatch.setattr("sys.stderr.isatty", lambda: False)
+    run_cmd._console.cache_clear()
+    try:
+        console = run_cmd._console()
+        name = "legs_and_rate/steady Sequence/FixedRate/Query(odom/latest_estimate)/Receive"
+        table = Table("segment", "action", "measured")
+        table.add_row(name, name, "rtt p50 412 us, 0 timeouts of 400 queries, rate achieved 40.0/s")
+        with console.capture() as captured:
+            console.print(table)
+        assert captured.get().count(name) == 2, captured.get()
+    finally:
+        run_cmd._console.cache_clear()

@@ -19,11 +19,22 @@ if TYPE_CHECKING:
     from rich.console import Console
 
 
+#: the width written to a file or a CI log: wide enough that no table cuts a name short
+LOG_WIDTH = 1000
+
+
 @cache
 def _console() -> Console:
+    """The console the run reports to (stderr). Not a terminal (a CI log, a pipe), rich took
+    80 columns and cut the action names of a trial's table ("FixedRate/Query(odom/la…"): it is
+    given room for every name then, unless COLUMNS says otherwise."""
+    import os
+    import sys
+
     from rich.console import Console
 
-    return Console(stderr=True, highlight=False)
+    wide = None if sys.stderr.isatty() or os.environ.get("COLUMNS") else LOG_WIDTH
+    return Console(stderr=True, highlight=False, width=wide)
 
 
 def run(
