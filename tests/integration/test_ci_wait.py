@@ -141,6 +141,10 @@ def test_failed_jobs_exit_3(server):
     api.revision("r9", "0009")
     with session_factory(api.settings.database_url)() as session:
         revision = session.query(Revision).filter_by(title="r9").one()
+        jobs = session.query(Job).filter_by(revision_id=revision.id).all()
+        second = max(job.execution_index for job in jobs) + 1  # a second execution, as 2 asks
+        session.add(Job(revision_id=revision.id, execution_index=second, labels=[]))
+        session.flush()
         for job in session.query(Job).filter_by(revision_id=revision.id):
             job.state, job.reason = JobState.failed, "build failed"
         session.commit()
@@ -152,6 +156,10 @@ def test_failed_jobs_exit_3(server):
         str(Path(server[2].settings.storage_dir).parent / "r9.xml"),
     )
     assert done.returncode == 3 and "build failed" in done.stderr, done.stderr
+    # one line for one reason, whatever the jobs that failed with it; and no table of counts,
+    # which read as a verdict ("0 change(s) for the worse ...") where there is none
+    assert done.stderr.count("build failed") == 1, done.stderr
+    assert "change(s) for the worse" not in done.stdout, done.stdout
     suite = ElementTree.parse(Path(server[2].settings.storage_dir).parent / "r9.xml").getroot()
     assert suite.get("errors") == "1"  # not an empty, green report
     assert "build failed" in suite.find("testcase/error").get("message", "")

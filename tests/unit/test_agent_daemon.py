@@ -111,3 +111,40 @@ def test_an_execution_the_host_was_busy_in_is_run_again_boundedly_and_says_so(
         assert metadata["disturbed_reason"].startswith("host busy: other load 156 % of a core")
     uploaded = read_recording(out).run
     assert uploaded.get("disturbed_runs") == (str(runs - 1) if runs > 1 else None)
+
+
+class _FailingClient(_LostLeaseClient):
+    """A server that keeps the lease and records what a failed job is failed with."""
+
+    def __init__(self, repo: Path, commit: str) -> None:
+        super().__init__()
+        self.job = {**super().lease(), "repo": str(repo), "commit": commit}
+        self.reasons: list[str] = []
+
+    def lease(self, wait: int = 0) -> dict:
+        return self.job
+
+    def heartbeat(self, job_id: int) -> None:
+        return None
+
+    def fail(self, job_id: int, reason: str) -> None:
+        self.reasons.append(reason)
+
+
+def test_a_broken_suite_file_is_named_as_in_the_repository_not_where_the_host_checked_it_out(
+    tmp_path: Path,
+) -> None:
+    """A trial's three executions failed with one error said with three paths of the agent's
+    cache ('.../agent/cache/trees/job-13/perf/redline.toml:4:20')."""
+    broken = {**SUITE_FILES, "perf/redline.toml": 'name = "s"\ntests = [\n'}
+    repo, commit = committed_repo(tmp_path / "repo", broken)
+    client = _FailingClient(repo, commit)
+    daemon = AgentDaemon(
+        client=client,  # type: ignore[arg-type]
+        workdir=tmp_path / "work",
+        allow_file_repos=True,
+    )
+    assert daemon.run_once() is True
+    (reason,) = client.reasons
+    assert reason.startswith("SuiteError: perf/redline.toml:"), reason
+    assert str(tmp_path / "work") not in reason

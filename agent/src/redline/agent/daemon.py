@@ -137,7 +137,7 @@ class AgentDaemon:
                 log.info("job %s: uploaded as execution %s", job["id"], execution)
         except (JobFailed, UploadRejected) as exc:
             log.error("job %s failed: %s", job["id"], exc)
-            self.client.fail(job["id"], str(exc))
+            self.client.fail(job["id"], self._in_repository(str(exc), job))
         except LeaseLost as exc:
             log.warning("job %s: lease lost, abandoning it (%s)", job["id"], exc)
         except AgentStopping:
@@ -145,6 +145,15 @@ class AgentDaemon:
             self.client.release(job["id"])
             raise
         return True
+
+    def _in_repository(self, reason: str, job: dict[str, Any]) -> str:
+        """``reason`` with the job's work tree left out of its paths: a repository's file is
+        named as in the repository ("perf/redline.toml:4:20"), not where this host checked it
+        out (a trial's three executions failed with three paths of one error)."""
+        tree = self.cache.root / "trees" / f"job-{job['id']}"
+        for path in dict.fromkeys((str(tree.resolve()), str(tree))):
+            reason = reason.replace(f"{path}/", "")
+        return reason
 
     def _process(self, job: dict[str, Any]) -> int | None:
         name = f"job-{job['id']}"

@@ -205,10 +205,11 @@ def wait(
                 junit.write_text(xml.text)
             except OSError as error:
                 _stop(BAD_INPUT, f"--junit {junit}: {error}")
+    if verdict["state"] == "failed":  # no verdict: no table of counts that would read as one
+        typer.echo(f"page: {server.rstrip('/')}{verdict['page']}")
+        _stop(JOBS_FAILED, f"the revision's performance jobs failed: {verdict['reason']}")
     typer.echo(_table(verdict, fail_on))
     typer.echo(f"page: {server.rstrip('/')}{verdict['page']}")
-    if verdict["state"] == "failed":
-        _stop(JOBS_FAILED, f"the revision's performance jobs failed: {verdict['reason']}")
     changed = {
         FailOn.regression: verdict["regressions"],
         FailOn.any: verdict["regressions"] + verdict["improvements"],

@@ -45,10 +45,15 @@ def _pending(session: Session, revision: Revision) -> tuple[str, str]:
     own = own_jobs(revision)
     state = revision_state([job.state for job in own], analyzed=revision.analyzed_at is not None)
     if state in ("failed", "cancelled"):
+        alike: dict[tuple[str, str], list[int]] = defaultdict(list)
+        for job in own:
+            if job.state in (JobState.failed, JobState.cancelled):
+                alike[(job.state.value, job.reason or "no reason given")].append(job.id)
+        # one line a reason: a broken suite file failed a trial's 3 executions with one error,
+        # said three times
         why = [
-            f"job {job.id} {job.state.value}: {job.reason or 'no reason given'}"
-            for job in own
-            if job.state in (JobState.failed, JobState.cancelled)
+            f"{'job' if len(ids) == 1 else 'jobs'} {', '.join(map(str, ids))} {state}: {reason}"
+            for (state, reason), ids in alike.items()
         ]
         return "failed", "; ".join(why)
     if state != "done":
