@@ -3,6 +3,7 @@ its exit codes, the JUnit XML it writes, and the verdict endpoints behind it."""
 
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 import time
@@ -163,3 +164,28 @@ def test_failed_jobs_exit_3(server):
     suite = ElementTree.parse(Path(server[2].settings.storage_dir).parent / "r9.xml").getroot()
     assert suite.get("errors") == "1"  # not an empty, green report
     assert "build failed" in suite.find("testcase/error").get("message", "")
+
+
+def test_a_cases_parameters_are_an_object_as_everywhere_else(server):
+    """A trial's CI script read "parameters": "{\\"legs\\":2}" (JSON text inside JSON) from the
+    verdict and "params": {"legs": 2} from the series."""
+    import httpx
+
+    url, read, _ = server
+    answer = httpx.get(
+        f"{url}/api/v1/components/builder/revisions/r6/verdict",
+        headers={"Authorization": f"Bearer {read}"},
+    )
+    cases = answer.json()["cases"]
+    assert cases and all(isinstance(case["parameters"], dict) for case in cases), cases
+    junit = httpx.get(
+        f"{url}/api/v1/components/builder/revisions/r6/junit",
+        headers={"Authorization": f"Bearer {read}"},
+    ).text
+    names = [t.get("name") for t in ElementTree.fromstring(junit).iter("testcase")]
+    # JUnit names are kept as they were (CI systems track tests by name): canonical JSON
+    expected = [
+        f"{c['phase']} {json.dumps(c['parameters'], sort_keys=True, separators=(',', ':'))}"
+        for c in cases
+    ]
+    assert sorted(names) == sorted(expected), (names, expected)

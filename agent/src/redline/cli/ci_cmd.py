@@ -12,6 +12,7 @@ Only httpx is needed, so CI machines install the light `redline-agent` distribut
 
 from __future__ import annotations
 
+import json
 import os
 import sys
 import time
@@ -61,6 +62,14 @@ def _counted(change: dict[str, Any], fail_on: FailOn) -> bool:
     return fail_on == FailOn.any or (fail_on == FailOn.regression and change["worse"])
 
 
+def _params_text(params: object) -> str:
+    """A case's parameter set as the JUnit names it (canonical JSON); a server before
+    2026-11-27 sent that text itself."""
+    if isinstance(params, str):
+        return params
+    return json.dumps(params, sort_keys=True, separators=(",", ":"), default=str)
+
+
 def _table(verdict: dict[str, Any], fail_on: FailOn) -> str:
     rows = [("test case / phase [parameters]", "verdict", "changes")]
     for case in verdict["cases"]:
@@ -73,7 +82,7 @@ def _table(verdict: dict[str, Any], fail_on: FailOn) -> str:
             + ("" if c["worse"] else " (better)")
             for c in case["changes"]
         )
-        name = f"{case['case']} / {case['phase']} {case['parameters']}".strip()
+        name = f"{case['case']} / {case['phase']} {_params_text(case['parameters'])}".strip()
         rows.append((name, case["state"], changes or case["reason"]))
     width = [max(len(row[i]) for row in rows) for i in range(2)]
     lines = [f"{a:<{width[0]}}  {b:<{width[1]}}  {c}" for a, b, c in rows]
@@ -98,7 +107,7 @@ def _undecided_message(verdict: dict[str, Any]) -> str:
     """Why the revision is undecided, in its own cases' words (a trial's verdict, undecided
     because a measurement was missing, was said to be a busy host or a failed method)."""
     reasons = [
-        f"{case['case']} / {case['phase']} {case['parameters']}: {case['reason']}"
+        f"{case['case']} / {case['phase']} {_params_text(case['parameters'])}: {case['reason']}"
         for case in verdict.get("cases", [])
         if case.get("state") == "undecided"
     ]

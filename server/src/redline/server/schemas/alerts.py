@@ -4,7 +4,7 @@ and the CI verdict of a revision."""
 from __future__ import annotations
 
 from datetime import datetime
-from typing import Annotated, Literal
+from typing import Annotated, Any, Literal
 from urllib.parse import urlsplit
 
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field
@@ -119,7 +119,10 @@ class CommitStatusOut(BaseModel):
 class CaseVerdict(BaseModel):
     case: str
     phase: str
-    parameters: str
+    parameters: dict[str, Any] = Field(
+        description="the parameter set, an object as everywhere else (the JUnit testcase's "
+        "name holds it as canonical JSON text)"
+    )
     state: Literal["passed", "failed", "skipped", "undecided"] = Field(
         description="skipped: no verdict yet (a history too short); undecided: none because "
         "the host was busy in every run of it or of its baseline, even after a fresh run, or "

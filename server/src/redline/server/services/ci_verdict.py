@@ -12,6 +12,7 @@ never a silent pass.
 
 from __future__ import annotations
 
+import json
 from collections import defaultdict
 from typing import Any
 from urllib.parse import quote
@@ -29,6 +30,7 @@ from redline.detect.result import (
 )
 from redline.recording.disturbance import names_busy_host
 from redline.recording.driver import DRIVER_PROCESS as DRIVER
+from redline.recording.format import canonical_params
 from redline.server.models import Detection, Job, JobState, Revision, Series, revision_place
 from redline.server.schemas.alerts import CaseVerdict, CiVerdict
 from redline.server.services.components import get_component, get_revision
@@ -181,7 +183,7 @@ def ci_verdict(session: Session, component_name: str, title: str) -> CiVerdict:
             verdict = CaseVerdict(
                 case=case,
                 phase=phase,
-                parameters=params,
+                parameters=json.loads(params),
                 state="undecided" if busy else "skipped",
                 reason=f"not enough data{some}: {series.process} {series.counter}: {first.reason}"
                 + _charted_note(charted[(case, phase, params)]),
@@ -191,7 +193,7 @@ def ci_verdict(session: Session, component_name: str, title: str) -> CiVerdict:
             verdict = CaseVerdict(
                 case=case,
                 phase=phase,
-                parameters=params,
+                parameters=json.loads(params),
                 state="failed" if worse_count else "passed",
                 changes=changes,
             )
@@ -271,7 +273,7 @@ def junit_xml(verdict: CiVerdict, fail_on: str = "regression") -> str:
             suite,
             "testcase",
             classname=f"redline.{verdict.component}.{case.case}",
-            name=f"{case.phase} {case.parameters}".strip(),
+            name=f"{case.phase} {canonical_params(case.parameters)}".strip(),
         )
         if case.state == "skipped":
             skipped += 1
