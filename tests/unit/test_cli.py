@@ -69,11 +69,13 @@ LOADED = """
 import sys
 from redline.cli.main import main
 sys.argv = ["redline", *sys.argv[1:]]
+code = 0
 try:
     main()
-except SystemExit:
-    pass
+except SystemExit as exc:
+    code = exc.code
 print("loaded:", *sorted({name.partition(".")[0] for name in sys.modules}), file=sys.stderr)
+sys.exit(code)
 """
 ECHO_SUITE = ROOT / "examples" / "echo" / "perf" / "redline.toml"
 
@@ -108,6 +110,7 @@ def test_a_bad_suite_is_reported_with_its_line_before_any_service_library_loads(
     loaded, done = _loaded("run", str(suite), "--out", str(tmp_path / "x.mcap"))
     error = " ".join(done.stderr.split())
     assert re.search(rf"{re.escape(str(suite))}:\d+: unknown field 'sampling_rate'", error), error
+    assert done.returncode == 2, done.returncode  # bad input, as compare and ci wait say it
     assert set(loaded) <= {"zenoh"}, f"a bad suite file imported {loaded}"
 
 

@@ -71,7 +71,7 @@ def test_redline_run_names_an_unknown_case_and_parameter_and_starts_nothing(tmp_
             "sped=2",
         ],
     )
-    assert result.exit_code == 1
+    assert result.exit_code == 2  # bad input: nothing ran
     assert "--only 'pong': no such test case (the suite has: ping, relay, replay)" in result.output
     assert "--param 'sped'" in result.output
     assert not (tmp_path / "x.mcap").exists()

@@ -19,6 +19,8 @@ if TYPE_CHECKING:
     from rich.console import Console
 
 
+#: the exit code of a suite file or tests that cannot be used (as `compare`'s and `ci wait`'s)
+BAD_INPUT = 2
 #: the width written to a file or a CI log: wide enough that no table cuts a name short
 LOG_WIDTH = 1000
 
@@ -84,7 +86,9 @@ def run(
     good run unless --keep. The workspace (run metadata, the components' zenoh configuration)
     is made in --work and removed after every run unless --keep.
 
-    Exit codes: 0 every test ran; 1 an error (the run is recorded as failed); 3 every test ran
+    Exit codes: 0 every test ran; 1 an error during the run (recorded as failed); 2 bad input
+    (the suite file or its tests cannot be used: nothing ran), as `compare` and `ci wait` say
+    it; 3 every test ran
     but the component took no part (it never joined the run's zenoh network, or no query was
     answered: recorded as no_traffic, with the reason); 130, 143, 129 stopped by SIGINT,
     SIGTERM, SIGHUP.
@@ -118,7 +122,7 @@ def run(
         )
     except (SuiteError, ValidationError, RunError) as exc:
         console.print(f"[bold red]error:[/bold red] {escape(str(exc))}")
-        raise typer.Exit(1) from None
+        raise typer.Exit(1 if isinstance(exc, RunError) else BAD_INPUT) from None
     except (KeyboardInterrupt, Terminated) as exc:
         signum = exc.signum if isinstance(exc, Terminated) else signal.SIGINT
         _stopped_by(signum, out, started)
