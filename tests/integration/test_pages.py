@@ -406,6 +406,17 @@ def test_a_pasted_token_signs_in_with_its_own_scopes_only(client, database_url, 
     assert detail["history"][0]["who"] == "token gitlab"
 
 
+def test_a_page_offers_triage_only_to_whom_may_triage(client, database_url, tmp_path):
+    """A trial signed in with a read token was shown the triage form; its save answered 403."""
+    number = _regression(client, database_url, tmp_path)
+    with session_factory(database_url)() as session:
+        _, read = issue_token(session, "reader", "read")
+    sign_in(client, {"token": read})
+    page = client.get(f"/regressions/{number}").text
+    assert 'id="triage"' not in page and 'name="state"' not in page
+    assert "Triage needs the <code>ci</code> scope; token reader has read." in page
+
+
 def test_passwords_are_stored_as_scrypt_hashes_and_short_ones_refused(database_url):
     with session_factory(database_url)() as session:
         user = create_user(session, "grace", "a long enough secret", "admin")

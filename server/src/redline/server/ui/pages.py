@@ -12,6 +12,7 @@ from fastapi.templating import Jinja2Templates
 from pydantic import ValidationError
 from redline.server.api.deps import READ, SessionDep
 from redline.server.core.bodies import JsonRoute
+from redline.server.core.security import grants
 from redline.server.models import WebSession
 from redline.server.services import signin
 from redline.server.services.errors import ServiceError
@@ -37,11 +38,19 @@ def signed_in(request: Request) -> WebSession | None:
     return getattr(request.state, "web_session", None)
 
 
+def may(who: WebSession | None, scope: str) -> bool:
+    """Whether the signed-in browser ``who`` may do what ``scope`` allows (a page offers only
+    the forms it may use: a trial signed in with a read token was shown the triage form, and
+    its save answered 403)."""
+    return who is not None and grants(list(who.scopes), scope)
+
+
 def page(
     request: Request, template: str, context: dict[str, Any], status_code: int = 200
 ) -> HTMLResponse:
     templates: Jinja2Templates = request.app.state.templates
-    context = {"signed_in": signed_in(request), **context}
+    who = signed_in(request)
+    context = {"signed_in": who, "may": lambda scope: may(who, scope), **context}
     return templates.TemplateResponse(request, template, context, status_code=status_code)
 
 
