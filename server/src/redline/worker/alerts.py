@@ -112,9 +112,16 @@ def wanted(subscription: Subscription, change: Change) -> bool:
         return False
     if subscription.direction == "improvement" and change.worse:
         return False
-    if subscription.counters and change.body["counter"] not in subscription.counters:
+    if subscription.counters and not told_of(change.body["counter"], subscription.counters):
         return False
     return abs(change.effect or 0.0) >= subscription.min_effect
+
+
+def told_of(counter: str, counters: list[str]) -> bool:
+    """Whether a subscription to ``counters`` hears of ``counter``: by its name, or a driver
+    metric's by the metric alone ("rtt_p90_us" hears of "FixedRate/Query(svc/get):rtt_p90_us",
+    whatever the action's path)."""
+    return counter in counters or counter.rpartition(":")[2] in counters
 
 
 def _last_alert(session: Session, subscription_id: int, regression_id: int) -> Alert | None:
