@@ -18,6 +18,8 @@ from redline.server.models import (
     Component,
     Delivery,
     Execution,
+    Job,
+    JobState,
     RegressionState,
     Revision,
     utcnow,
@@ -520,3 +522,24 @@ def test_a_revision_whose_jobs_all_failed_gets_its_commit_status_too(api, receiv
         session.execute(update(Component).values(commit_status={}))
         session.commit()
         assert failed_without_status(session, now=later) == []
+
+
+def test_a_change_is_told_once_every_execution_of_its_revision_is_in(api, tmp_path, receiver):
+    """A trial's regression was told with 6 series; the revision's third execution, in 12 s
+    later, made it 7, and the 7th was left to a daily update."""
+    subscribe(api, eager(receiver, "/hook"))
+    revisions(api, tmp_path, [10.0] * 5 + [14.0])
+    with session_factory(api.settings.database_url)() as session:
+        r6 = session.scalars(select(Revision).where(Revision.title == "r6")).one()
+        third = Job(revision_id=r6.id, execution_index=9, labels=[])  # still to run
+        session.add(third)
+        session.commit()
+        third_id = third.id
+    alert(api)
+    assert not receiver.requests  # r6 is still being measured
+    with session_factory(api.settings.database_url)() as session:
+        session.execute(update(Job).where(Job.id == third_id).values(state=JobState.failed))
+        session.commit()
+    alert(api)
+    (told,) = receiver.to("/hook")
+    assert json.loads(told.body)["alerts"][0]["changes"][0]["revision"]["title"] == "r6"

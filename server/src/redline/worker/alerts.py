@@ -31,6 +31,7 @@ from redline.server.models import (
     Delivery,
     Detection,
     Execution,
+    Job,
     Regression,
     RegressionState,
     Revision,
@@ -41,6 +42,7 @@ from redline.server.models import (
 )
 from redline.server.services.ci_verdict import ci_verdict
 from redline.server.services.detection_config import component_config
+from redline.server.services.jobs import UNENDED
 from redline.worker import messages
 from redline.worker.statuses import status_key
 from redline.worker.told import Change, mark_told, told_pairs, untold
@@ -60,6 +62,19 @@ def _imported(session: Session, revision_ids: set[int]) -> set[int]:
         select(Execution.revision_id, Execution.meta).where(Execution.revision_id.in_(revision_ids))
     )
     return {revision for revision, meta in rows if (meta or {}).get("imported")}
+
+
+def _measuring(session: Session, revision_ids: set[int]) -> set[int]:
+    """The revisions with own jobs still to run or to ingest: their changes are told once every
+    execution is in (a trial's regression was told with 6 series, and grew to 7 when the
+    revision's third execution came 12 s later, the 7th left to a daily update)."""
+    return set(
+        session.scalars(
+            select(Job.revision_id).where(
+                Job.revision_id.in_(revision_ids), Job.pair == 0, Job.state.in_(UNENDED)
+            )
+        )
+    )
 
 
 def flagged_changes(session: Session, component: Component, since: datetime) -> list[Change]:
@@ -195,6 +210,12 @@ def scan_component(session: Session, component_id: int) -> list[int]:
         )
     }
     imported = _imported(session, {c.revision_id for c in changes})
+    measuring = _measuring(session, {c.revision_id for c in changes})
+    # a regression, or an improvement, is told once every execution of its revisions is in
+    waiting = {c.regression_id for c in changes if c.revision_id in measuring}
+    changes = [
+        c for c in changes if c.revision_id not in measuring and c.regression_id not in waiting
+    ]
     made: list[Alert] = []
     now = utcnow()
     for subscription in subscriptions:
