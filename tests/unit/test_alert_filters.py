@@ -14,3 +14,26 @@ def test_a_counter_is_heard_of_by_its_name_and_a_driver_metric_by_the_metric_alo
     metric = "FixedRate/Query(svc/get):rtt_p90_us"
     assert told_of(metric, ["rtt_p90_us"]) and told_of(metric, [metric])
     assert not told_of(metric, ["rtt_p50_us"]) and not told_of("rss_bytes", ["rtt_p90_us"])
+
+
+def test_an_alerts_summary_names_its_largest_change_with_its_parameters():
+    """A trial's subject named the first series (+139.4 %) where +158.1 % was the largest, and
+    the component twice: "objectbuilder: regression: objectbuilder cpu_percent ..."."""
+    from redline.worker.messages import _summary
+
+    def change(effect: float, legs: int, process: str = "objectbuilder") -> dict:
+        return {
+            "process": process,
+            "counter": "cpu_percent",
+            "effect": effect,
+            "parameters": {"legs": legs, "rate": 40},
+            "revision": {"title": "df29d8d18358"},
+        }
+
+    said = _summary("objectbuilder", "regression", [change(1.394, 2), change(1.581, 8)])
+    assert said == (
+        "objectbuilder: regression: cpu_percent +158.1 % [legs=8,rate=40] at df29d8d18358 "
+        "and 1 more series"
+    )
+    other = _summary("objectbuilder", "improvement", [change(-0.2, 2, process="driver")])
+    assert other.startswith("objectbuilder: improvement: driver cpu_percent -20.0 % [legs=2")
