@@ -145,6 +145,8 @@ def test_gitlab_push_with_its_token_creates_revisions(api: Api):
         "/api/v1/webhooks/gitlab", content=body, headers={**headers, "X-Gitlab-Token": "nope"}
     )
     assert wrong.status_code == 401 and counts(api) == (0, 0)
+    # GitLab sends the secret itself: a trial's wrong token was told the "signature" mismatched
+    assert wrong.json()["detail"] == "webhook token (X-Gitlab-Token) does not match", wrong.text
     answer = api.client.post(
         "/api/v1/webhooks/gitlab", content=body, headers={**headers, "X-Gitlab-Token": SECRET}
     )

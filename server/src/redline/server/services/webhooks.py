@@ -42,7 +42,17 @@ class Unauthorized(ServiceError):
     status_code = 401
 
 
-Verifier = Callable[[str], bool]  # does this secret authenticate the delivery?
+@dataclass(frozen=True)
+class Verifier:
+    """Whether a secret authenticates the delivery, and what the delivery proves itself with
+    (a refusal names it: a trial's wrong GitLab token was told the signature did not match,
+    where GitLab sends the secret itself)."""
+
+    check: Callable[[str], bool]
+    proof: str = "webhook signature"
+
+    def __call__(self, secret: str) -> bool:
+        return self.check(secret)
 
 
 def github_verifier(body: bytes, signature: str | None) -> Verifier:
@@ -54,13 +64,16 @@ def github_verifier(body: bytes, signature: str | None) -> Verifier:
         expected = hmac.new(secret.encode(), body, hashlib.sha256).hexdigest().encode()
         return bool(secret) and hmac.compare_digest(expected, given)
 
-    return verify
+    return Verifier(verify, "webhook signature (X-Hub-Signature-256)")
 
 
 def gitlab_verifier(token: str | None) -> Verifier:
     """``X-Gitlab-Token`` is the secret itself, compared in constant time."""
     given = (token or "").encode()
-    return lambda secret: bool(secret) and hmac.compare_digest(secret.encode(), given)
+    return Verifier(
+        lambda secret: bool(secret) and hmac.compare_digest(secret.encode(), given),
+        "webhook token (X-Gitlab-Token)",
+    )
 
 
 @dataclass
@@ -171,11 +184,11 @@ def _record(session: Session, components: list[Component], push: Push) -> Webhoo
     return result
 
 
-def _unverified(secrets: set[str]) -> str:
+def _unverified(secrets: set[str], proof: str) -> str:
     """Why a delivery is refused: no secret to check it with, or none it was signed with (the
     same answer whatever the body holds: a trial saw a malformed body told "does not match"
     where a well-formed one was told no secret is configured)."""
-    return "webhook signature does not match" if any(secrets) else "no webhook secret is configured"
+    return f"{proof} does not match" if any(secrets) else "no webhook secret is configured"
 
 
 def authenticate_push(
@@ -193,14 +206,15 @@ def authenticate_push(
         if not verify(default_secret):
             # a component's own secret is found through the repository the push names
             raise Unauthorized(
-                f"{_unverified({default_secret})}: the body is no push Redline can read "
-                f"({unreadable.detail[:200]}), so only the server-wide secret could sign it"
+                f"{_unverified({default_secret}, verify.proof)}: the body is no push Redline "
+                f"can read ({unreadable.detail[:200]}), so only the server-wide secret could "
+                "sign it"
             ) from None
         raise
     candidates = _of_repository(session, push)
     secrets = {c.webhook_secret or default_secret for c in candidates} or {default_secret}
     if not any(verify(secret) for secret in secrets):
-        raise Unauthorized(_unverified(secrets))
+        raise Unauthorized(_unverified(secrets, verify.proof))
     return push, [
         c
         for c in candidates
