@@ -136,7 +136,7 @@ class CloneCache:
                 f"commit {commit!r} refused: it must name a revision and must not start with '-'"
             )
         mirror = self.mirror(repo)
-        tree = self.root / "trees" / name
+        tree = self.tree(name)
         shutil.rmtree(tree, ignore_errors=True)
         _git("clone", "--quiet", "--shared", "--no-checkout", "--", str(mirror), str(tree))
         try:
@@ -160,5 +160,9 @@ class CloneCache:
         _git("-c", "advice.detachedHead=false", "checkout", "--quiet", "--detach", sha, cwd=tree)
         return tree
 
+    def tree(self, name: str) -> Path:
+        """Where the work tree ``name`` is checked out."""
+        return self.root / "trees" / name
+
     def discard(self, name: str) -> None:
-        shutil.rmtree(self.root / "trees" / name, ignore_errors=True)
+        shutil.rmtree(self.tree(name), ignore_errors=True)

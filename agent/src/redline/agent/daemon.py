@@ -150,7 +150,7 @@ class AgentDaemon:
         """``reason`` with the job's work tree left out of its paths: a repository's file is
         named as in the repository ("perf/redline.toml:4:20"), not where this host checked it
         out (a trial's three executions failed with three paths of one error)."""
-        tree = self.cache.root / "trees" / f"job-{job['id']}"
+        tree = self.cache.tree(f"job-{job['id']}")
         for path in dict.fromkeys((str(tree.resolve()), str(tree))):
             reason = reason.replace(f"{path}/", "")
         return reason

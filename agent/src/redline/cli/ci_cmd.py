@@ -63,8 +63,9 @@ def _counted(change: dict[str, Any], fail_on: FailOn) -> bool:
 
 
 def _params_text(params: object) -> str:
-    """A case's parameter set as the JUnit names it (canonical JSON); a server before
-    2026-11-27 sent that text itself."""
+    """A case's parameter set as the JUnit names it (`redline.recording.format.
+    canonical_params`'s text, written out: importing redline.recording loads the MCAP reader,
+    which `ci wait` does without); a server before 2026-11-27 sent that text itself."""
     if isinstance(params, str):
         return params
     return json.dumps(params, sort_keys=True, separators=(",", ":"), default=str)
