@@ -54,8 +54,13 @@ ON_S, OFF_S = 4.0, 6.0
 
 
 def spin() -> subprocess.Popen[bytes]:
-    """Another job on the host: one process keeping one core busy."""
-    return subprocess.Popen([sys.executable, "-c", "while True: pass"])
+    """Another job on the host: one process keeping one core busy.
+
+    In a session of its own: in the benchmark's process group, the kernel continues it
+    (SIGHUP, then SIGCONT) whenever that group is orphaned with it stopped, which happens when
+    the benchmark was started in the background from a shell that then exits, and the load the
+    benchmarks switch off with SIGSTOP then runs throughout."""
+    return subprocess.Popen([sys.executable, "-c", "while True: pass"], start_new_session=True)
 
 
 class Switched:
