@@ -6,12 +6,17 @@ of ours; they are used only when no `REDLINE_DATABASE_URL` / `REDLINE_REDIS_URL`
 
 from __future__ import annotations
 
+import fcntl
+import os
 import shutil
+import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 DATABASE_NAME = "redline"
+#: the system user pgserver runs Postgres as when we are root (Postgres refuses to run as root)
+PGSERVER_USER = "pgserver"
 
 
 #: the file in a data folder naming the database and Redis its `redline up` uses (mode 600), so
@@ -56,11 +61,27 @@ class EmbeddedServices:
             self.postgres = None
 
 
+def _ensure_pgserver_user() -> None:
+    """As root, make pgserver's system user once, under a lock: pgserver makes it itself
+    (``useradd``) when it is missing, and several processes starting at once on a new machine
+    (the test suite's parallel workers) raced, one running ``initdb`` as a user id another's
+    ``useradd`` had replaced ("initdb: could not look up effective user ID 1002")."""
+    if os.geteuid() != 0:
+        return
+    from pgserver.utils import ensure_user_exists
+
+    lock = Path(tempfile.gettempdir()) / "redline-pgserver-user.lock"
+    with open(lock, "a") as held:
+        fcntl.flock(held, fcntl.LOCK_EX)
+        ensure_user_exists(PGSERVER_USER)
+
+
 def start_postgres(folder: Path, database: str = DATABASE_NAME) -> tuple[str, Any]:
     """Start (or reuse) a Postgres cluster in ``folder``; return a SQLAlchemy URL and a handle."""
     import pgserver
 
     folder.mkdir(parents=True, exist_ok=True)
+    _ensure_pgserver_user()
     server = pgserver.get_server(folder, cleanup_mode="stop")
     exists = server.psql(f"SELECT 1 FROM pg_database WHERE datname = '{database}';")
     if "1 row" not in exists:
