@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 from redline.detect.config import DetectionConfig
+from redline.detect.confirmation import DEFAULT_CONFIRM_PAIRS
 from redline.server.models import (
     Component,
     Detection,
@@ -122,11 +123,14 @@ def test_pairs_are_queued_interleaved_and_pinned_to_the_host_that_measured_the_r
     ]
     assert {j.pinned_host_id for j in jobs} == {host.id}
     assert all(j.execution_index >= 1000 for j in jobs)
-    # only the test case with the suspected change runs again, and the agent is told so
+    # only the test case and parameter set with the suspected change run again, and the agent
+    # is told so
     assert {tuple(j.cases) for j in jobs} == {("throughput",)}
+    assert all(j.parameter_sets == {"throughput": ['{"rate":10}']} for j in jobs)
     first = jobs[0]
     first.lease_expires_at = utcnow()  # as leased: what the agent is told
     assert leased_job(first).cases == ["throughput"]
+    assert leased_job(first).parameter_sets == {"throughput": ['{"rate":10}']}
     first.lease_expires_at = None
     shown = revision_detail(session, NAME, "r4").jobs  # as the API shows the baseline's jobs
     assert [(j.pair, j.confirms) for j in shown] == [(0, None)] * RUNS + [(1, "r5"), (2, "r5")]
@@ -177,6 +181,53 @@ def test_pairs_that_show_the_change_confirm_it_and_stay_out_of_the_verdicts(
     assert (detection.effect, detection.baseline_revisions) == (effect, own)
     regression = session.scalars(select(Regression)).one()
     assert regression.confirmation == "confirmed"
+
+
+def test_a_late_baseline_queues_pairs_against_it_and_the_earlier_ones_are_superseded(
+    session, database_url, tmp_path
+):
+    """r5's pairs were queued against r4; then r4b (sort key 4.5, between them) arrives late and
+    r5 is judged again against it (as `redline.worker.onward` does). The pairs against r4 no
+    longer measure r5's change against its baseline: they are superseded and pairs against r4b
+    queued. Before, the old pairs were cancelled as "not needed" (no change left that they
+    judged), and r5 stayed suspected with "no confirmation pair could run ()", failing its CI
+    verdict, as the end-to-end test saw when the demo's r2 was ingested after r3's pairs."""
+    host = _flagged_history(session, database_url, tmp_path)
+    first = lease_job(session, "perf-1", 60, 3)
+    _run(session, database_url, tmp_path, first, 20.0)  # r4's first run came back
+    runs = [_cpu(20.0, 450 + i) for i in range(RUNS)]
+    late = add_executions(session, tmp_path, NAME, "r4b", "4.5", runs)
+    for execution in late:
+        job = session.get_one(Job, execution.job_id)
+        job.host_id, job.attempts = host.id, 1
+    session.commit()
+    ingest_and_detect(database_url, late)
+    detect_revision(database_url, _r5_detection(session).revision_id)
+    session.expire_all()
+    detection = _r5_detection(session)
+    assert detection.baseline_revision.title == "r4b"
+    jobs = session.scalars(
+        select(Job).where(Job.confirms_revision_id.is_not(None)).order_by(Job.id)
+    ).all()
+    assert [(j.revision.title, j.pair, j.state) for j in jobs] == [
+        ("r4", 1, "done"),
+        ("r5", 1, "cancelled"),
+        ("r4", 2, "cancelled"),
+        ("r5", 2, "cancelled"),
+        ("r4b", 3, "queued"),
+        ("r5", 3, "queued"),
+        ("r4b", 4, "queued"),
+        ("r5", 4, "queued"),
+    ]
+    assert all(
+        j.reason.startswith("superseded: r5 was judged again against r4b") for j in jobs[1:4]
+    )
+    while (job := lease_job(session, "perf-1", 60, 3)) is not None:
+        _run(session, database_url, tmp_path, job, 30.0 if job.revision.title == "r5" else 20.0)
+    detection = _r5_detection(session)
+    assert detection.confirmation == "held", detection.confirmation_reason
+    assert detection.confirmation_reason.startswith("confirmed by 2 of 2 pairs")
+    assert "superseded" not in detection.confirmation_reason  # the old pairs are not this one's
 
 
 def test_pairs_that_do_not_show_it_leave_the_regression_not_confirmed(
@@ -305,10 +356,23 @@ def test_a_superseded_revision_cancels_its_pairs_and_says_so(session, database_u
     assert revision_detail(session, NAME, "r4").state == "done"
 
 
-def test_no_pairs_are_queued_without_the_setting_or_for_results_no_agent_measured(
+def test_a_component_with_no_detection_settings_gets_the_default_pairs(
     session, database_url, tmp_path
 ):
     create_component(session, ComponentCreate(name=NAME, executions=RUNS))
+    host = register_host(session, RegisterRequest(name="perf-1"))
+    _measured(session, database_url, tmp_path, [20.0] * 4 + [30.0], host)
+    assert _r5_detection(session).flagged
+    pairs = session.scalars(select(Job.pair).where(Job.confirms_revision_id.is_not(None))).all()
+    assert sorted(pairs) == sorted(list(range(1, DEFAULT_CONFIRM_PAIRS + 1)) * 2)
+
+
+def test_no_pairs_are_queued_when_turned_off_or_for_results_no_agent_measured(
+    session, database_url, tmp_path
+):
+    component = create_component(session, ComponentCreate(name=NAME, executions=RUNS))
+    session.add(DetectionConfigRow(component_id=component.id, config={"confirm_pairs": 0}))
+    session.commit()
     host = register_host(session, RegisterRequest(name="perf-1"))
     _measured(session, database_url, tmp_path, [20.0] * 4 + [30.0], host)
     assert _r5_detection(session).flagged

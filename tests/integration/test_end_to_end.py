@@ -24,6 +24,7 @@ import httpx
 import pytest
 from redline.commands import demo
 from redline.commands.stack import Stack
+from redline.recording.format import canonical_params
 
 from tests.support.pages import Watched, chromium
 from tests.support.servers import Services, fresh_database
@@ -149,6 +150,39 @@ def test_confirmation_runs_stay_out_of_the_revisions_own_executions(history: His
         if job["confirms"] == history.regressed.title and job["reason"].startswith("not needed")
     ]
     assert all(job["attempts"] == 0 and job["execution"] is None for job in spared), spared
+    # each ran only the parameter sets with a suspected change, not the whole suite
+    changes = httpx.get(
+        f"{history.stack.url}/api/v1/components/objectbuilder/detections",
+        params={"revision": history.regressed.title},
+    ).json()
+    flagged = {  # the changes that were suspected, which the pairs were queued for
+        (c["series"]["case"], canonical_params(c["series"]["params"]))
+        for c in changes
+        if c["flagged"] and c["confirmation"]
+    }
+    ran = _sets_run(history, [job["id"] for job in pairs if job["state"] == "done"])
+    assert ran and ran <= flagged, (ran, flagged)
+
+
+def _sets_run(history: History, jobs: list[int]) -> set[tuple[str, str]]:
+    """(case, parameter set) of the measured phases of these jobs' executions."""
+    from redline.server.models import Execution, Series, Summary
+    from sqlalchemy import create_engine, select
+    from sqlalchemy.orm import Session
+
+    engine = create_engine(os.environ["REDLINE_DATABASE_URL"])
+    try:
+        with Session(engine) as session:
+            rows = session.execute(
+                select(Series.case, Series.params)
+                .join(Summary, Summary.series_id == Series.id)
+                .join(Execution, Execution.id == Summary.execution_id)
+                .where(Execution.job_id.in_(jobs), Series.process == "objectbuilder")
+                .distinct()
+            )
+            return {(case, params) for case, params in rows}
+    finally:
+        engine.dispose()
 
 
 @pytest.fixture(scope="module")

@@ -230,6 +230,15 @@ class _History:
             json={"name": "tiny", "repo": str(repo), "suite": "perf/redline.toml"},
             timeout=60,
         ).raise_for_status()
+        # no confirmation runs: this test's subject is leases and late results across hosts,
+        # and a run pinned to the killed agent's host would wait for it (confirmation runs on
+        # real agents: test_end_to_end; their bad input: test_confirmation_runs)
+        httpx.put(
+            f"{url}/api/v1/components/tiny/detection-config",
+            headers={"Authorization": f"Bearer {tokens['admin']}"},
+            json={"confirm_pairs": 0, "reanalyze": False},
+            timeout=60,
+        ).raise_for_status()
 
     def report(self, first: int, last: int | None = None) -> None:
         """Revisions r<first> to r<last> (agents lease the newest first)."""

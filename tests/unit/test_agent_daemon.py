@@ -86,7 +86,9 @@ def test_an_execution_the_host_was_busy_in_is_run_again_boundedly_and_says_so(
     repo, commit = committed_repo(tmp_path / "repo", SUITE_FILES)
     given: list[dict[str, str]] = []
 
-    def run_isolated(suite_path: Path, out: Path, run_metadata: dict, only: object) -> RunResult:
+    def run_isolated(
+        suite_path: Path, out: Path, run_metadata: dict, only: object, sets: object
+    ) -> RunResult:
         """The run, as the recorder writes it: the host at 90 % of 2 cores while the run's own
         processes used 24 % of one (156 % other load: busy), or at 20 % (16 %: quiet)."""
         given.append(dict(run_metadata))

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 from redline.agent.runner import execution_paths
-from redline.agent.selection import parse_overrides, select_cases
+from redline.agent.selection import choose_sets, parse_overrides, select_cases
 from redline.testing import Cartesian, Param, Phase, Static, TestCase, ValidationError
 
 from tests.support import ROOT
@@ -46,6 +46,25 @@ def test_override_replaces_a_value_in_every_set_and_runs_equal_sets_once() -> No
     load, idle = select_cases([LOAD, IDLE], overrides={"rate": 25})
     assert [s.name for s in load.parameter_sets()] == ["legs=2,rate=25", "legs=8,rate=25"]
     assert idle is IDLE  # it does not use 'rate', so it is left as it is
+
+
+def test_a_confirmation_run_keeps_only_the_named_parameter_sets_in_suite_order() -> None:
+    """A confirmation run's job names the sets with a suspected change, as series name them."""
+    sets = {"load": ['{"legs":8,"rate":40}', '{"legs":2,"rate":10}']}
+    (load, idle) = choose_sets([LOAD, IDLE], sets)
+    assert load.parameter_sets() == [{"legs": 2, "rate": 10}, {"legs": 8, "rate": 40}]
+    assert len(idle.parameter_sets()) == 1  # a case not named runs every set
+    assert [len(c.parameter_sets()) for c in choose_sets([LOAD, IDLE], {})] == [4, 1]
+
+
+def test_a_parameter_set_or_case_the_commit_lacks_is_named() -> None:
+    """The baseline's commit may have other tests: the job fails saying what is missing."""
+    with pytest.raises(ValidationError) as caught:
+        choose_sets([LOAD], {"load": ['{"legs":4,"rate":10}'], "gone": ["{}"]})
+    assert caught.value.problems == [
+        "parameter sets of 'gone': no such test case",
+        'test case \'load\' has no parameter set {"legs":4,"rate":10}',
+    ]
 
 
 def test_execution_paths_number_the_recordings_when_there_are_several() -> None:

@@ -198,6 +198,7 @@ class AgentDaemon:
                         out,
                         {**_run_metadata(job), **retried},
                         job.get("cases") or (),  # a confirmation run: the flagged cases
+                        job.get("parameter_sets") or {},  # and their flagged sets
                     )
                 except ChildFailed as exc:
                     raise JobFailed(str(exc)) from None

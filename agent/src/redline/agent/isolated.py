@@ -28,7 +28,7 @@ import multiprocessing
 import os
 import signal
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -121,11 +121,18 @@ def _die_with_parent() -> None:
         os.kill(os.getpid(), signal.SIGTERM)
 
 
-def _child(conn: Any, suite_path: Path, out: Path, meta: dict[str, str], only: list[str]) -> None:
+def _child(
+    conn: Any,
+    suite_path: Path,
+    out: Path,
+    meta: dict[str, str],
+    only: list[str],
+    sets: dict[str, list[str]] | None = None,
+) -> None:
     os.setsid()  # a terminal's signals reach the agent, not the run behind its back
     _die_with_parent()
     try:
-        result = run_suite(suite_path, out, run_metadata=meta, only=only)
+        result = run_suite(suite_path, out, run_metadata=meta, only=only, parameter_sets=sets)
     except Exception as exc:  # the agent fails the job with it
         conn.send(("error", f"{type(exc).__name__}: {exc}"))
     except BaseException as exc:  # stopped by the agent: the recording says so
@@ -137,14 +144,20 @@ def _child(conn: Any, suite_path: Path, out: Path, meta: dict[str, str], only: l
 
 
 def run_isolated(
-    suite_path: Path, out: Path, run_metadata: dict[str, str], only: Sequence[str] = ()
+    suite_path: Path,
+    out: Path,
+    run_metadata: dict[str, str],
+    only: Sequence[str] = (),
+    sets: Mapping[str, Sequence[str]] | None = None,
 ) -> RunResult:
-    """`run_suite` in a child process; raises `ChildFailed` with the run's error."""
+    """`run_suite` in a child process (``only`` its cases, ``sets`` their parameter sets);
+    raises `ChildFailed` with the run's error."""
     context = multiprocessing.get_context("spawn")
     receive, send = context.Pipe(duplex=False)
+    chosen = {case: list(idents) for case, idents in (sets or {}).items()}
     child = context.Process(
         target=_child,
-        args=(send, suite_path, out, run_metadata, list(only)),
+        args=(send, suite_path, out, run_metadata, list(only), chosen),
         name="redline-run",
     )
     child.start()

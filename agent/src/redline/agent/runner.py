@@ -16,7 +16,7 @@ import os
 import sys
 import threading
 import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Collection, Mapping, Sequence
 from contextlib import ExitStack
 from dataclasses import dataclass
 from datetime import UTC, datetime
@@ -34,7 +34,7 @@ from redline.agent.loader import load_test_cases
 from redline.agent.network import RunNetwork, open_client, session_id
 from redline.agent.processes import ManagedProcess, RunError
 from redline.agent.recorder import query_recorder, recorded_traffic
-from redline.agent.selection import select_cases
+from redline.agent.selection import choose_sets, select_cases
 from redline.agent.suite import ProcessSpec, ReadyCheck, Suite, load_suite
 from redline.agent.traffic import NetworkView, TrafficCheck
 from redline.agent.workspace import fresh_logs, new_workspace, tidy
@@ -301,12 +301,15 @@ def run_suite(
     only: Sequence[str] = (),
     overrides: Mapping[str, Any] | None = None,
     work_dir: str | Path | None = None,
+    parameter_sets: Mapping[str, Collection[str]] | None = None,
 ) -> RunResult:
     """Run a suite once (one execution) and write its recording to ``out``.
 
-    ``only`` restricts the run to the named test cases; ``overrides`` replaces parameter values
-    in every parameter set (``{"rate": 40}``). The workspace is made in ``work_dir`` (default:
-    ``$REDLINE_WORK_DIR``, else the system's temporary folder) and removed afterwards unless
+    ``only`` restricts the run to the named test cases, and ``parameter_sets`` the cases it
+    names to those sets (canonical JSON, `choose_sets`: a confirmation run's); ``overrides``
+    replaces parameter values in every parameter set (``{"rate": 40}``). The workspace is made
+    in ``work_dir`` (default: ``$REDLINE_WORK_DIR``, else the system's temporary folder) and
+    removed afterwards unless
     ``keep_workspace``; every process logs to ``<out without suffix>.logs/``, kept when the run
     fails (or with ``keep_workspace``). Raises `SuiteError` for a bad suite file,
     `ValidationError` for tests that cannot run, and `RunError` (e.g. `ProcessExited`, with exit
@@ -328,6 +331,8 @@ def run_suite(
     cases = load_test_cases(suite.tests)
     validate_cases(cases)
     cases = select_cases(cases, only, overrides)
+    if parameter_sets:
+        cases = choose_sets(cases, parameter_sets)
     validate_cases(cases)
     out = Path(out).resolve()
     out.parent.mkdir(parents=True, exist_ok=True)

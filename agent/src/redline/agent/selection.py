@@ -1,9 +1,10 @@
-"""Choosing what a run executes: ``--only CASE`` and ``--param name=value`` overrides."""
+"""Choosing what a run executes: ``--only CASE`` and ``--param name=value`` overrides, and a
+confirmation run's parameter sets."""
 
 from __future__ import annotations
 
 import json
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Collection, Iterator, Mapping, Sequence
 from typing import Any
 
 from redline.recording.format import canonical_params
@@ -42,6 +43,49 @@ class Overridden:
 
     def __repr__(self) -> str:
         return f"Overridden({self.base.params!r}, {self.overrides!r})"
+
+
+class Chosen:
+    """A case's parameter sets, only those whose canonical text is one of ``idents``."""
+
+    def __init__(self, base: TestCase, idents: Collection[str]) -> None:
+        self.base = base
+        self.idents = set(idents)
+
+    def __iter__(self) -> Iterator[ParameterSet]:
+        for params in self.base.parameter_sets():
+            if canonical_params(params) in self.idents:
+                yield params
+
+    def __repr__(self) -> str:
+        return f"Chosen({self.base.params!r}, {sorted(self.idents)!r})"
+
+
+def choose_sets(cases: Sequence[TestCase], sets: Mapping[str, Collection[str]]) -> list[TestCase]:
+    """Each case named in ``sets`` with only those of its parameter sets (canonical JSON, as
+    `canonical_params` writes them and series name them); the others as they are. Raises
+    `ValidationError` naming each named set or case the suite does not have (a confirmation
+    run of a commit whose tests changed since)."""
+    known = {case.name: case for case in cases}
+    problems = [
+        f"parameter sets of {name!r}: no such test case" for name in sets if name not in known
+    ]
+    for name, idents in sets.items():
+        if name in known:
+            have = {canonical_params(params) for params in known[name].parameter_sets()}
+            problems += [
+                f"test case {name!r} has no parameter set {ident}"
+                for ident in sorted(idents)
+                if ident not in have
+            ]
+    if problems:
+        raise ValidationError(problems)
+    return [
+        TestCase(case.name, case.phases, Chosen(case, sets[case.name]))
+        if case.name in sets
+        else case
+        for case in cases
+    ]
 
 
 def _names_of(case: TestCase) -> set[str]:

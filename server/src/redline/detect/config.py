@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from redline.detect.baseline import DEFAULT_WINDOW
-from redline.detect.confirmation import DEFAULT_CONFIRM_REVISIONS
+from redline.detect.confirmation import DEFAULT_CONFIRM_PAIRS, DEFAULT_CONFIRM_REVISIONS
 from redline.detect.count_rate import CountRate
 from redline.detect.counters import CONTEXT_COUNTERS
 from redline.detect.methods import Detector
@@ -81,7 +81,7 @@ class DetectionConfig:
     regression is confirmed (`redline.detect.confirmation`; 0: confirmed when flagged).
     ``confirm_pairs``: when a revision's change is flagged, run it and its baseline revision
     again this many times each, interleaved on one host, and judge the pairs
-    (`redline.worker.confirm_runs`; 0: off, the history confirms).
+    (`redline.worker.confirm_runs`; 0: off, the history confirms; `DEFAULT_CONFIRM_PAIRS`).
     """
 
     methods: tuple[str, ...] = DEFAULT_METHODS
@@ -92,7 +92,7 @@ class DetectionConfig:
     context_counters: tuple[str, ...] = CONTEXT_COUNTERS
     confirm_revisions: int = DEFAULT_CONFIRM_REVISIONS
     alarm_methods: tuple[str, ...] = ()
-    confirm_pairs: int = 0
+    confirm_pairs: int = DEFAULT_CONFIRM_PAIRS
 
     @classmethod
     def parse(cls, data: Mapping[str, Any] | None) -> DetectionConfig:
@@ -120,7 +120,9 @@ class DetectionConfig:
             thresholds={str(k): dict(v) for k, v in thresholds.items()},
             context_counters=tuple(str(c) for c in data.get("context_counters", CONTEXT_COUNTERS)),
             alarm_methods=tuple(str(m) for m in data.get("alarm_methods") or ()),
-            confirm_pairs=_integer(data.get("confirm_pairs", 0), "confirm_pairs"),
+            confirm_pairs=_integer(
+                data.get("confirm_pairs", DEFAULT_CONFIRM_PAIRS), "confirm_pairs"
+            ),
             confirm_revisions=_integer(
                 data.get("confirm_revisions", DEFAULT_CONFIRM_REVISIONS), "confirm_revisions"
             ),

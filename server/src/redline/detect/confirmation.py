@@ -24,6 +24,11 @@ import numpy as np
 #: Later revisions a flagged change must hold over before it is a regression (the default of a
 #: component's ``confirm_revisions``; 0 makes every flagged change a regression at once).
 DEFAULT_CONFIRM_REVISIONS = 2
+#: Pairs of re-runs (baseline, candidate) a flagged revision gets when its component says nothing
+#: (the default of ``confirm_pairs``; 0 confirms by the later revisions alone). Two: a first pair
+#: that does not show the change drops it after two runs, a change holds when both show it.
+#: Chosen by `bench_verdicts` (docs/detection.md, "End to end through the service").
+DEFAULT_CONFIRM_PAIRS = 2
 #: The share of the flagged step the later revisions must keep.
 HOLD_SHARE = 0.5
 

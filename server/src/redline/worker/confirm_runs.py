@@ -5,7 +5,7 @@ request): when a revision's change is flagged and the component asks for ``confi
 worker queues that many pairs of jobs, the baseline revision's then the candidate's, pinned to
 the host that measured the candidate, which leases them in that order (`services.jobs`; a pair
 after the first once the pairs before it are judged, so that pairs that decide spare the rest
-unrun) and runs only the test cases with a suspected change. Their
+unrun) and runs only the test cases and parameter sets with a suspected change. Their
 executions are not the revisions' own (they never enter the revisions' verdicts or baselines);
 once every pair has run, each suspected change of the candidate is judged on the pairs
 (`redline.detect.confirmation.pairs_hold`): "confirmed by k of n pairs", or not confirmed with
@@ -36,6 +36,7 @@ from redline.server.models import (
     Summary,
     utcnow,
 )
+from redline.server.services.revisions import CANCELLED
 from redline.worker.confirmation import UNDECIDED
 from sqlalchemy import exists, func, select
 from sqlalchemy.orm import Session
@@ -49,6 +50,9 @@ HOST_GONE = timedelta(minutes=30)
 DID_NOT_RUN = (JobState.failed, JobState.cancelled)
 #: the reason of a confirmation job cancelled because the pairs before it decided every change
 NOT_NEEDED = "not needed: the pairs that ran before it decided every suspected change"
+#: the reason's start of one cancelled because its revision was judged again against another
+#: baseline (a revision arriving late), against which new pairs were queued
+SUPERSEDED = "superseded"
 
 
 def _suspected(session: Session, revision_id: int) -> list[tuple[Detection, str, str]]:
@@ -63,11 +67,23 @@ def _suspected(session: Session, revision_id: int) -> list[tuple[Detection, str,
     ]
 
 
+def current_pairs(jobs: list[Job], candidate_id: int) -> tuple[int | None, list[Job]]:
+    """The baseline of a revision's newest confirmation pairs, and the jobs of every pair run
+    against it (None, [] without pairs). Pairs against another baseline were queued before the
+    revision was judged again: a revision arriving late between them became its baseline."""
+    baseline_of = {job.pair: job.revision_id for job in jobs if job.revision_id != candidate_id}
+    if not baseline_of:
+        return None, []
+    baseline = baseline_of[max(baseline_of)]
+    pairs = {pair for pair, of in baseline_of.items() if of == baseline}
+    return baseline, [job for job in jobs if job.pair in pairs]
+
+
 def queue_confirmations(session: Session, revision: Revision, config: DetectionConfig) -> int:
-    """Queue the pairs for a revision with suspected changes, once; returns the jobs queued."""
+    """Queue the pairs for a revision with suspected changes, once per baseline (judged again
+    against a revision that arrived late, its pairs against the old one are superseded);
+    returns the jobs queued."""
     if config.confirm_pairs <= 0:
-        return 0
-    if session.scalar(select(func.count()).where(Job.confirms_revision_id == revision.id)):
         return 0
     # counts of rare events (timeouts) are confirmed by the later revisions, not by a few
     # pairs (`settle_pairs`): a revision whose only suspects are counts runs nothing again
@@ -98,13 +114,30 @@ def queue_confirmations(session: Session, revision: Revision, config: DetectionC
     for detection in suspected:
         counts[detection.baseline_revision_id or 0] += 1
     baseline = max(counts, key=counts.__getitem__)  # the baseline most changes share
+    earlier = list(session.scalars(select(Job).where(Job.confirms_revision_id == revision.id)))
+    queued_against, current = current_pairs(earlier, revision.id)
+    if queued_against == baseline or any(job.reason == CANCELLED for job in earlier):
+        return 0  # once per baseline; none for a revision whose runs were cancelled
+    if current:
+        against = session.get_one(Revision, baseline).title
+        for job in current:
+            if job.state not in FINISHED:  # an agent running one gets 409 at its next heartbeat
+                job.state, job.lease_expires_at = JobState.cancelled, None
+                job.reason = f"{SUPERSEDED}: {revision.title} was judged again against {against}"
+    first = max((job.pair for job in earlier), default=0) + 1
     labels = list(revision.component.host_labels or [])
-    # only the test cases with a suspected change run again: the rest would cost machine time
-    # and confirm nothing
+    # only the test cases and parameter sets with a suspected change run again: the rest would
+    # cost machine time and confirm nothing
     series = [detection.series_id for detection in suspected]
-    cases = sorted(set(session.scalars(select(Series.case).where(Series.id.in_(series)))))
+    sets: dict[str, set[str]] = defaultdict(set)
+    for case, params in session.execute(
+        select(Series.case, Series.params).where(Series.id.in_(series))
+    ):
+        sets[case].add(params)
+    cases = sorted(sets)
+    parameter_sets = {case: sorted(sets[case]) for case in cases}
     queued = 0
-    for pair in range(1, config.confirm_pairs + 1):
+    for pair in range(first, first + config.confirm_pairs):
         for revision_id in (baseline, revision.id):  # baseline first, then the candidate
             index = session.scalar(
                 select(func.coalesce(func.max(Job.execution_index) + 1, FIRST_INDEX)).where(
@@ -120,6 +153,7 @@ def queue_confirmations(session: Session, revision: Revision, config: DetectionC
                     pinned_host_id=host_id,
                     labels=labels,
                     cases=cases,
+                    parameter_sets=parameter_sets,
                 )
             )
             session.flush()
@@ -159,12 +193,12 @@ def _measured(
 def settle_pairs(session: Session, revision: Revision) -> bool:
     """Judge the revision's suspected changes on its confirmation pairs once they all ran;
     False (nothing settled) when it has none. While they run, the reason says how far."""
-    jobs = list(session.scalars(select(Job).where(Job.confirms_revision_id == revision.id)))
-    if not jobs:
+    every = list(session.scalars(select(Job).where(Job.confirms_revision_id == revision.id)))
+    baseline, jobs = current_pairs(every, revision.id)
+    if baseline is None:
         return False
     suspected = _suspected(session, revision.id)
     running = [job for job in jobs if job.state not in FINISHED]
-    baseline = next(job.revision_id for job in jobs if job.revision_id != revision.id)
     values = _values(session, jobs)
     if running and _decided(revision, jobs, suspected, baseline, values):
         for job in running:  # an agent running one gets 409 at its next heartbeat

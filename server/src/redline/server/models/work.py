@@ -120,6 +120,9 @@ class Job(Base):
     )
     #: the test cases to run (a confirmation run's: those with a suspected change); []: all
     cases: Mapped[list[str]] = mapped_column(JSON, default=list)
+    #: of those cases, the parameter sets to run (canonical, as `Series.params`), per case; a
+    #: case not named runs every set (a confirmation run's: the sets with a suspected change)
+    parameter_sets: Mapped[dict[str, list[str]]] = mapped_column(JSON, default=dict)
     created: Mapped[datetime] = mapped_column(default=utcnow)
     updated: Mapped[datetime] = mapped_column(default=utcnow, onupdate=utcnow)
     revision: Mapped[Revision] = relationship(back_populates="jobs", foreign_keys=[revision_id])

@@ -41,6 +41,12 @@ class LeasedJob(BaseModel):
         description="run only these test cases of the suite (a confirmation run: those with a "
         "suspected change); empty: every case",
     )
+    parameter_sets: dict[str, list[str]] = Field(
+        default_factory=dict,
+        description="of those cases, run only these parameter sets (canonical JSON with sorted "
+        'keys, as series name them: {"legs_and_rate": [\'{"legs":8,"rate":10}\']}; a '
+        "confirmation run: those with a suspected change); a case not named runs every set",
+    )
 
 
 class HeartbeatResponse(BaseModel):

@@ -8,7 +8,7 @@ from typing import Literal
 from pydantic import BaseModel, ConfigDict, Field
 from redline.detect.baseline import DEFAULT_WINDOW
 from redline.detect.config import MAX_CONFIRM_PAIRS, MAX_CONFIRM_REVISIONS, MAX_WINDOW
-from redline.detect.confirmation import DEFAULT_CONFIRM_REVISIONS
+from redline.detect.confirmation import DEFAULT_CONFIRM_PAIRS, DEFAULT_CONFIRM_REVISIONS
 from redline.detect.counters import CONTEXT_COUNTERS
 from redline.server.models import RegressionState
 from redline.server.schemas.results import SeriesRef
@@ -113,11 +113,12 @@ class DetectionConfigIn(BaseModel):
         "others are stored and charted); [] : the first method (execution_shift by default)",
     )
     confirm_pairs: int = Field(
-        default=0,
+        default=DEFAULT_CONFIRM_PAIRS,
         ge=0,
         le=MAX_CONFIRM_PAIRS,
         description="on a flagged change, run the revision and its baseline again this many "
-        "times each, interleaved on one host, and confirm by the pairs (0: off)",
+        "times each, interleaved on one host, and confirm by the pairs (0: off, the later "
+        "revisions confirm)",
     )
     confirm_revisions: int = Field(
         default=DEFAULT_CONFIRM_REVISIONS,

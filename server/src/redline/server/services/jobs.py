@@ -165,6 +165,7 @@ def leased_job(job: Job) -> LeasedJob:
         execution_index=job.execution_index,
         lease_expires_at=job.lease_expires_at,
         cases=list(job.cases or []),
+        parameter_sets=dict(job.parameter_sets or {}),
     )
 
 

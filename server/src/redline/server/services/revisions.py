@@ -40,6 +40,8 @@ _DIGITS = re.compile(r"\d+")
 WAITING = "not enough data yet"
 _UNDER_WAY = (JobState.queued, JobState.leased, JobState.running, JobState.uploaded)
 _DID_NOT_RUN = (JobState.failed, JobState.cancelled)
+#: the reason of the jobs `cancel_revision` cancels
+CANCELLED = "cancelled"
 
 
 def order_key(sort_key: str) -> str:
@@ -253,7 +255,7 @@ def cancel_revision(session: Session, component_name: str, title: str) -> Revisi
         .with_for_update()
     )
     for job in jobs:
-        job.state, job.reason = JobState.cancelled, "cancelled"
+        job.state, job.reason = JobState.cancelled, CANCELLED
     session.commit()
     return revision_detail(session, component_name, title)
 
