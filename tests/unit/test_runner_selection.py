@@ -62,7 +62,7 @@ def test_a_parameter_set_or_case_the_commit_lacks_is_named() -> None:
     with pytest.raises(ValidationError) as caught:
         choose_sets([LOAD], {"load": ['{"legs":4,"rate":10}'], "gone": ["{}"]})
     assert caught.value.problems == [
-        "parameter sets of 'gone': no such test case",
+        "parameter sets of 'gone': no such test case in this run",
         'test case \'load\' has no parameter set {"legs":4,"rate":10}',
     ]
 

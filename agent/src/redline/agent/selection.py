@@ -68,7 +68,9 @@ def choose_sets(cases: Sequence[TestCase], sets: Mapping[str, Collection[str]]) 
     run of a commit whose tests changed since)."""
     known = {case.name: case for case in cases}
     problems = [
-        f"parameter sets of {name!r}: no such test case" for name in sets if name not in known
+        f"parameter sets of {name!r}: no such test case in this run"
+        for name in sets
+        if name not in known
     ]
     for name, idents in sets.items():
         if name in known:

@@ -12,8 +12,10 @@ once every pair has run, each suspected change of the candidate is judged on the
 the figures. A pair that could not run (the baseline's commit is gone, the host went away and
 the lease ran out, the revision was cancelled as superseded) is named in the reason; when no
 pair could run, the later revisions confirm the change instead (`redline.worker.confirmation`).
-Machine time is spent only on flagged revisions, once per revision, and only where an agent
-measured it (imported results are confirmed by history).
+Machine time is spent only on flagged revisions, once per revision and baseline (judged again
+against a revision that arrived late, its unfinished pairs against the old baseline are
+cancelled as superseded and pairs against the new one queued), and only where an agent measured
+it (imported results are confirmed by history).
 """
 
 from __future__ import annotations
@@ -36,7 +38,8 @@ from redline.server.models import (
     Summary,
     utcnow,
 )
-from redline.server.services.revisions import CANCELLED
+from redline.server.services.jobs import current_pairs
+from redline.server.services.revisions import CANCELLED, UNFINISHED
 from redline.worker.confirmation import UNDECIDED
 from sqlalchemy import exists, func, select
 from sqlalchemy.orm import Session
@@ -67,18 +70,6 @@ def _suspected(session: Session, revision_id: int) -> list[tuple[Detection, str,
     ]
 
 
-def current_pairs(jobs: list[Job], candidate_id: int) -> tuple[int | None, list[Job]]:
-    """The baseline of a revision's newest confirmation pairs, and the jobs of every pair run
-    against it (None, [] without pairs). Pairs against another baseline were queued before the
-    revision was judged again: a revision arriving late between them became its baseline."""
-    baseline_of = {job.pair: job.revision_id for job in jobs if job.revision_id != candidate_id}
-    if not baseline_of:
-        return None, []
-    baseline = baseline_of[max(baseline_of)]
-    pairs = {pair for pair, of in baseline_of.items() if of == baseline}
-    return baseline, [job for job in jobs if job.pair in pairs]
-
-
 def queue_confirmations(session: Session, revision: Revision, config: DetectionConfig) -> int:
     """Queue the pairs for a revision with suspected changes, once per baseline (judged again
     against a revision that arrived late, its pairs against the old one are superseded);
@@ -97,17 +88,7 @@ def queue_confirmations(session: Session, revision: Revision, config: DetectionC
     own = select(Job).where(Job.revision_id == revision.id, Job.pair == 0)
     if session.scalar(own.where(Job.state.not_in(FINISHED)).limit(1)) is not None:
         return 0  # its own executions first: a flag on part of them may not stand
-    host_id = session.scalar(
-        select(Job.host_id)
-        .where(
-            Job.revision_id == revision.id,
-            Job.pair == 0,
-            Job.host_id.is_not(None),
-            Job.attempts > 0,  # leased by an agent: an import names hosts no agent serves
-        )
-        .order_by(Job.execution_index)
-        .limit(1)
-    )
+    host_id = _measured_on(session, revision)
     if host_id is None:
         return 0  # imported results: no agent measured them, the history confirms them
     counts: dict[int, int] = defaultdict(int)
@@ -116,26 +97,14 @@ def queue_confirmations(session: Session, revision: Revision, config: DetectionC
     baseline = max(counts, key=counts.__getitem__)  # the baseline most changes share
     earlier = list(session.scalars(select(Job).where(Job.confirms_revision_id == revision.id)))
     queued_against, current = current_pairs(earlier, revision.id)
-    if queued_against == baseline or any(job.reason == CANCELLED for job in earlier):
-        return 0  # once per baseline; none for a revision whose runs were cancelled
-    if current:
-        against = session.get_one(Revision, baseline).title
-        for job in current:
-            if job.state not in FINISHED:  # an agent running one gets 409 at its next heartbeat
-                job.state, job.lease_expires_at = JobState.cancelled, None
-                job.reason = f"{SUPERSEDED}: {revision.title} was judged again against {against}"
+    cancelled = any(j.revision_id == revision.id and j.reason == CANCELLED for j in earlier)
+    if queued_against == baseline or cancelled:
+        return 0  # once per baseline; none for a revision whose runs were cancelled with it
+    _supersede(session, revision, current, baseline)
     first = max((job.pair for job in earlier), default=0) + 1
     labels = list(revision.component.host_labels or [])
-    # only the test cases and parameter sets with a suspected change run again: the rest would
-    # cost machine time and confirm nothing
-    series = [detection.series_id for detection in suspected]
-    sets: dict[str, set[str]] = defaultdict(set)
-    for case, params in session.execute(
-        select(Series.case, Series.params).where(Series.id.in_(series))
-    ):
-        sets[case].add(params)
-    cases = sorted(sets)
-    parameter_sets = {case: sorted(sets[case]) for case in cases}
+    parameter_sets = _flagged_sets(session, suspected)
+    cases = sorted(parameter_sets)
     queued = 0
     for pair in range(first, first + config.confirm_pairs):
         for revision_id in (baseline, revision.id):  # baseline first, then the candidate
@@ -159,6 +128,46 @@ def queue_confirmations(session: Session, revision: Revision, config: DetectionC
             session.flush()
             queued += 1
     return queued
+
+
+def _measured_on(session: Session, revision: Revision) -> int | None:
+    """The host an agent measured the revision's own executions on (None: imported results,
+    whose host no agent serves)."""
+    return session.scalar(
+        select(Job.host_id)
+        .where(
+            Job.revision_id == revision.id,
+            Job.pair == 0,
+            Job.host_id.is_not(None),
+            Job.attempts > 0,  # leased by an agent: an import names hosts no agent serves
+        )
+        .order_by(Job.execution_index)
+        .limit(1)
+    )
+
+
+def _supersede(session: Session, revision: Revision, current: list[Job], baseline: int) -> None:
+    """Cancel the unfinished runs of pairs queued against another baseline (an agent running
+    one gets 409 at its next heartbeat; one already uploaded is kept, in no baseline)."""
+    if not current:
+        return
+    against = session.get_one(Revision, baseline).title
+    for job in current:
+        if job.state in UNFINISHED:
+            job.state, job.lease_expires_at = JobState.cancelled, None
+            job.reason = f"{SUPERSEDED}: {revision.title} was judged again against {against}"
+
+
+def _flagged_sets(session: Session, suspected: list[Detection]) -> dict[str, list[str]]:
+    """Per test case, the parameter sets (canonical, as series name them) with a suspected
+    change: only those run again, the rest would cost machine time and confirm nothing."""
+    series = [detection.series_id for detection in suspected]
+    sets: dict[str, set[str]] = defaultdict(set)
+    for case, params in session.execute(
+        select(Series.case, Series.params).where(Series.id.in_(series))
+    ):
+        sets[case].add(params)
+    return {case: sorted(sets[case]) for case in sorted(sets)}
 
 
 def _values(session: Session, jobs: list[Job]) -> dict[tuple[int, int, int], tuple[float, float]]:

@@ -106,8 +106,9 @@ class Job(Base):
     host_id: Mapped[int | None] = mapped_column(ForeignKey("host.id"), default=None)
     reason: Mapped[str] = mapped_column(Text, default="")
     labels: Mapped[list[str]] = mapped_column(JSON, default=list)  # the host pool: all required
-    #: a confirmation run (`redline.worker.confirm_runs`): its pair (1..n; 0 for a revision's
-    #: own executions), the flagged revision it confirms, and the host it must run on
+    #: a confirmation run (`redline.worker.confirm_runs`): its pair (from 1, numbered on for the
+    #: pairs queued anew against another baseline; 0 for a revision's own executions), the
+    #: flagged revision it confirms, and the host it must run on
     pair: Mapped[int] = mapped_column(Integer, default=0)
     confirms_revision_id: Mapped[int | None] = mapped_column(
         ForeignKey("revision.id"), default=None, index=True

@@ -107,7 +107,10 @@ class ExecutionListed(BaseModel):
     sort_key: str
     job_id: int
     execution_index: int
-    pair: int = Field(description="a confirmation run's pair (1..n); 0 for the revision's own")
+    pair: int = Field(
+        description="a confirmation run's pair (from 1, numbered on when the revision is judged "
+        "again against another baseline and pairs are queued anew); 0 for the revision's own"
+    )
     host: str | None
     state: str = Field(description="its job's state: uploaded (being ingested), done, failed")
     created: datetime

@@ -49,7 +49,9 @@ class JobOut(BaseModel):
     lease_expires_at: datetime | None
     execution: ExecutionOut | None
     pair: int = Field(
-        default=0, description="a confirmation run's pair (1..n); 0 for the revision's own"
+        default=0,
+        description="a confirmation run's pair (from 1, numbered on when the revision is judged "
+        "again against another baseline and pairs are queued anew); 0 for the revision's own",
     )
     confirms: str | None = Field(
         default=None, description="the revision a confirmation run confirms (its title)"

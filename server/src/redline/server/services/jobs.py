@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from datetime import datetime, timedelta
 
 from redline.server.models import Component, Host, Job, JobState, Revision, utcnow
@@ -124,6 +125,20 @@ def lease_job(
         _served(session, job.revision.component_id, now)
     session.commit()
     return job
+
+
+def current_pairs(jobs: Sequence[Job], candidate_id: int) -> tuple[int | None, list[Job]]:
+    """The baseline of a revision's newest confirmation pairs and the jobs of the pairs queued
+    against it since the last against another ((None, []) without pairs). The pairs are queued
+    once per baseline (`redline.worker.confirm_runs`): those before were queued before the
+    revision was judged again, a revision that arrived late having become its baseline, and
+    measure another comparison (also when the baseline went back to an earlier one)."""
+    baseline_of = {job.pair: job.revision_id for job in jobs if job.revision_id != candidate_id}
+    if not baseline_of:
+        return None, []
+    baseline = baseline_of[max(baseline_of)]
+    cut = max((pair for pair, of in baseline_of.items() if of != baseline), default=0)
+    return baseline, [job for job in jobs if job.pair > cut]
 
 
 def _pair_may_start() -> ColumnElement[bool]:

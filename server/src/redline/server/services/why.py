@@ -30,6 +30,7 @@ from redline.server.models import (
 )
 from redline.server.schemas.regressions import DetectionOut
 from redline.server.services.detection_config import component_config
+from redline.server.services.jobs import current_pairs
 from redline.server.services.regressions import detection_by_id
 from sqlalchemy import select
 from sqlalchemy.orm import Session
@@ -107,13 +108,17 @@ def baseline_revisions(
 
 
 def _pairs(session: Session, detection: Detection) -> list[tuple[int, float | None, float | None]]:
-    """(pair, baseline's median, candidate's median) of each confirmation pair that ran."""
+    """(pair, baseline's median, candidate's median) of each of the newest confirmation pairs
+    that ran (`current_pairs`: those queued against another baseline measured another
+    comparison)."""
+    jobs = session.scalars(select(Job).where(Job.confirms_revision_id == detection.revision_id))
+    _, newest = current_pairs(list(jobs), detection.revision_id)
     rows = session.execute(
         select(Job.pair, Job.revision_id, Summary.p50)
         .join(Execution, Execution.job_id == Job.id)
         .join(Summary, Summary.execution_id == Execution.id)
         .where(
-            Job.confirms_revision_id == detection.revision_id,
+            Job.id.in_([job.id for job in newest]),
             Job.state == JobState.done,
             Summary.series_id == detection.series_id,
         )
