@@ -48,12 +48,14 @@ def test_override_replaces_a_value_in_every_set_and_runs_equal_sets_once() -> No
     assert idle is IDLE  # it does not use 'rate', so it is left as it is
 
 
-def test_a_confirmation_run_keeps_only_the_named_parameter_sets_in_suite_order() -> None:
-    """A confirmation run's job names the sets with a suspected change, as series name them."""
-    sets = {"load": ['{"legs":8,"rate":40}', '{"legs":2,"rate":10}']}
-    (load, idle) = choose_sets([LOAD, IDLE], sets)
-    assert load.parameter_sets() == [{"legs": 2, "rate": 10}, {"legs": 8, "rate": 40}]
-    assert len(idle.parameter_sets()) == 1  # a case not named runs every set
+def test_a_confirmation_run_runs_the_suite_as_far_as_the_last_named_parameter_set() -> None:
+    """A confirmation run's job names the sets with a suspected change, as series name them;
+    what ran before them in the flagged run runs before them again (a leak grows over a run,
+    so a set measured first would not show what it showed third), what came after does not."""
+    (load,) = choose_sets([LOAD, IDLE], {"load": ['{"legs":2,"rate":40}']})
+    assert load.parameter_sets() == [{"legs": 2, "rate": 10}, {"legs": 2, "rate": 40}]
+    (load, idle) = choose_sets([LOAD, IDLE], {"idle": ["{}"], "load": ['{"legs":2,"rate":10}']})
+    assert len(load.parameter_sets()) == 4 and len(idle.parameter_sets()) == 1
     assert [len(c.parameter_sets()) for c in choose_sets([LOAD, IDLE], {})] == [4, 1]
 
 

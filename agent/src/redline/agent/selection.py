@@ -45,27 +45,32 @@ class Overridden:
         return f"Overridden({self.base.params!r}, {self.overrides!r})"
 
 
-class Chosen:
-    """A case's parameter sets, only those whose canonical text is one of ``idents``."""
+class Through:
+    """A case's parameter sets up to and including the one whose canonical text is ``last``."""
 
-    def __init__(self, base: TestCase, idents: Collection[str]) -> None:
+    def __init__(self, base: TestCase, last: str) -> None:
         self.base = base
-        self.idents = set(idents)
+        self.last = last
 
     def __iter__(self) -> Iterator[ParameterSet]:
         for params in self.base.parameter_sets():
-            if canonical_params(params) in self.idents:
-                yield params
+            yield params
+            if canonical_params(params) == self.last:
+                return
 
     def __repr__(self) -> str:
-        return f"Chosen({self.base.params!r}, {sorted(self.idents)!r})"
+        return f"Through({self.base.params!r}, {self.last!r})"
 
 
 def choose_sets(cases: Sequence[TestCase], sets: Mapping[str, Collection[str]]) -> list[TestCase]:
-    """Each case named in ``sets`` with only those of its parameter sets (canonical JSON, as
-    `canonical_params` writes them and series name them); the others as they are. Raises
-    `ValidationError` naming each named set or case the suite does not have (a confirmation
-    run of a commit whose tests changed since)."""
+    """The run as far as the last of the named parameter sets (per case, canonical JSON, as
+    `canonical_params` writes them and series name them), in the suite's order: every case and
+    set before it as it is, nothing after it (a confirmation run: the flagged sets measured
+    after what ran before them in the flagged run, since a component's counters depend on
+    that: a leak grows over the run, a cache warms). Raises `ValidationError` naming each named
+    set or case the suite does not have (a confirmation run of a commit whose tests changed
+    since)."""
+    sets = {name: idents for name, idents in sets.items() if idents}
     known = {case.name: case for case in cases}
     problems = [
         f"parameter sets of {name!r}: no such test case in this run"
@@ -82,12 +87,13 @@ def choose_sets(cases: Sequence[TestCase], sets: Mapping[str, Collection[str]]) 
             ]
     if problems:
         raise ValidationError(problems)
-    return [
-        TestCase(case.name, case.phases, Chosen(case, sets[case.name]))
-        if case.name in sets
-        else case
-        for case in cases
-    ]
+    if not sets:
+        return list(cases)
+    end = max(index for index, case in enumerate(cases) if case.name in sets)
+    case = cases[end]
+    named = set(sets[case.name])
+    last = [canonical_params(p) for p in case.parameter_sets() if canonical_params(p) in named][-1]
+    return [*cases[:end], TestCase(case.name, case.phases, Through(case, last))]
 
 
 def _names_of(case: TestCase) -> set[str]:

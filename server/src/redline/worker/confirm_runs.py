@@ -5,7 +5,7 @@ request): when a revision's change is flagged and the component asks for ``confi
 worker queues that many pairs of jobs, the baseline revision's then the candidate's, pinned to
 the host that measured the candidate, which leases them in that order (`services.jobs`; a pair
 after the first once the pairs before it are judged, so that pairs that decide spare the rest
-unrun) and runs only the test cases and parameter sets with a suspected change. Their
+unrun) and runs the suite as far as its last parameter set with a suspected change. Their
 executions are not the revisions' own (they never enter the revisions' verdicts or baselines);
 once every pair has run, each suspected change of the candidate is judged on the pairs
 (`redline.detect.confirmation.pairs_hold`): "confirmed by k of n pairs", or not confirmed with
@@ -104,7 +104,6 @@ def queue_confirmations(session: Session, revision: Revision, config: DetectionC
     first = max((job.pair for job in earlier), default=0) + 1
     labels = list(revision.component.host_labels or [])
     parameter_sets = _flagged_sets(session, suspected)
-    cases = sorted(parameter_sets)
     queued = 0
     for pair in range(first, first + config.confirm_pairs):
         for revision_id in (baseline, revision.id):  # baseline first, then the candidate
@@ -121,7 +120,6 @@ def queue_confirmations(session: Session, revision: Revision, config: DetectionC
                     confirms_revision_id=revision.id,
                     pinned_host_id=host_id,
                     labels=labels,
-                    cases=cases,
                     parameter_sets=parameter_sets,
                 )
             )
@@ -160,7 +158,9 @@ def _supersede(session: Session, revision: Revision, current: list[Job], baselin
 
 def _flagged_sets(session: Session, suspected: list[Detection]) -> dict[str, list[str]]:
     """Per test case, the parameter sets (canonical, as series name them) with a suspected
-    change: only those run again, the rest would cost machine time and confirm nothing."""
+    change: the agent runs the suite as far as the last of them (`selection.choose_sets`),
+    what ran before them in the flagged run included (a leak grows over a run), and what came
+    after them not, which would cost machine time and confirm nothing."""
     series = [detection.series_id for detection in suspected]
     sets: dict[str, set[str]] = defaultdict(set)
     for case, params in session.execute(

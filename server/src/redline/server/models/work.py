@@ -121,8 +121,8 @@ class Job(Base):
     )
     #: the test cases to run (a confirmation run's: those with a suspected change); []: all
     cases: Mapped[list[str]] = mapped_column(JSON, default=list)
-    #: of those cases, the parameter sets to run (canonical, as `Series.params`), per case; a
-    #: case not named runs every set (a confirmation run's: the sets with a suspected change)
+    #: run the suite as far as the last of these parameter sets (canonical, as `Series.params`),
+    #: per case; {}: all of it (a confirmation run's: the sets with a suspected change)
     parameter_sets: Mapped[dict[str, list[str]]] = mapped_column(JSON, default=dict)
     created: Mapped[datetime] = mapped_column(default=utcnow)
     updated: Mapped[datetime] = mapped_column(default=utcnow, onupdate=utcnow)

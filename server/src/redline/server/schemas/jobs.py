@@ -43,9 +43,10 @@ class LeasedJob(BaseModel):
     )
     parameter_sets: dict[str, list[str]] = Field(
         default_factory=dict,
-        description="of those cases, run only these parameter sets (canonical JSON with sorted "
-        'keys, as series name them: {"legs_and_rate": [\'{"legs":8,"rate":10}\']}; a '
-        "confirmation run: those with a suspected change); a case not named runs every set",
+        description="run the suite as far as the last of these parameter sets, per case "
+        '(canonical JSON with sorted keys, as series name them: {"legs_and_rate": '
+        '[\'{"legs":8,"rate":10}\']}; a confirmation run: those with a suspected change), '
+        "everything before it as usual; empty: the whole suite",
     )
 
 
