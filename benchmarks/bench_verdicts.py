@@ -388,6 +388,12 @@ def main() -> int:
     parser.add_argument("--seed", type=int, default=1, help="of the background load's switching")
     parser.add_argument("--json", type=Path, help="write every figure here")
     parser.add_argument(
+        "--keep",
+        type=Path,
+        help="work in this new folder and keep it (the repository, the logs of the server, "
+        "worker and agent), to find out afterwards why a change was judged as it was",
+    )
+    parser.add_argument(
         "--rescore", type=Path, help="score a run saved with --json again, and run nothing"
     )
     args = parser.parse_args()
@@ -398,8 +404,12 @@ def main() -> int:
         return 0
     # a SIGTERM stops the service and the load as Ctrl-C does, rather than orphaning them
     signal.signal(signal.SIGTERM, signal.default_int_handler)
-    with tempfile.TemporaryDirectory(prefix="redline-verdicts-") as folder:
-        result = run(args, Path(folder))
+    if args.keep:  # the service's logs (the agent's: every job's start, retries, end) stay
+        args.keep.mkdir(parents=True, exist_ok=False)
+        result = run(args, args.keep)
+    else:
+        with tempfile.TemporaryDirectory(prefix="redline-verdicts-") as folder:
+            result = run(args, Path(folder))
     text = json.dumps(result, indent=1)
     if args.json:
         args.json.write_text(text + "\n")
