@@ -197,8 +197,8 @@ class AgentDaemon:
                         suite_path,
                         out,
                         {**_run_metadata(job), **retried},
-                        job.get("cases") or (),  # a confirmation run: the flagged cases
-                        job.get("parameter_sets") or {},  # and their flagged sets
+                        job.get("cases") or (),
+                        job.get("parameter_sets") or {},  # a confirmation run: its flagged sets
                     )
                 except ChildFailed as exc:
                     raise JobFailed(str(exc)) from None

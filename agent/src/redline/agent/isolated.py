@@ -150,8 +150,8 @@ def run_isolated(
     only: Sequence[str] = (),
     sets: Mapping[str, Sequence[str]] | None = None,
 ) -> RunResult:
-    """`run_suite` in a child process (``only`` its cases, ``sets`` their parameter sets);
-    raises `ChildFailed` with the run's error."""
+    """`run_suite` in a child process (``only`` its cases, ``sets`` the parameter sets it ends
+    after); raises `ChildFailed` with the run's error."""
     context = multiprocessing.get_context("spawn")
     receive, send = context.Pipe(duplex=False)
     chosen = {case: list(idents) for case, idents in (sets or {}).items()}

@@ -305,18 +305,17 @@ def run_suite(
 ) -> RunResult:
     """Run a suite once (one execution) and write its recording to ``out``.
 
-    ``only`` restricts the run to the named test cases, and ``parameter_sets`` the cases it
-    names to those sets (canonical JSON, `choose_sets`: a confirmation run's); ``overrides``
+    ``only`` restricts the run to the named test cases, and ``parameter_sets`` ends it after
+    the last of those sets (canonical JSON, `choose_sets`: a confirmation run's); ``overrides``
     replaces parameter values in every parameter set (``{"rate": 40}``). The workspace is made
     in ``work_dir`` (default: ``$REDLINE_WORK_DIR``, else the system's temporary folder) and
-    removed afterwards unless
-    ``keep_workspace``; every process logs to ``<out without suffix>.logs/``, kept when the run
-    fails (or with ``keep_workspace``). Raises `SuiteError` for a bad suite file,
-    `ValidationError` for tests that cannot run, and `RunError` (e.g. `ProcessExited`, with exit
-    code, log path and log tail) when the run fails. Called from the main thread, SIGTERM and
-    SIGHUP raise `Terminated` during the run as SIGINT raises `KeyboardInterrupt` (see
-    `redline.agent.interrupts`): every process is stopped and the recording finished as
-    ``terminated`` or ``interrupted`` first.
+    removed afterwards unless ``keep_workspace``; every process logs to
+    ``<out without suffix>.logs/``, kept when the run fails (or with ``keep_workspace``).
+    Raises `SuiteError` for a bad suite file, `ValidationError` for tests that cannot run, and
+    `RunError` (e.g. `ProcessExited`, with exit code, log path and log tail) when the run
+    fails. Called from the main thread, SIGTERM and SIGHUP raise `Terminated` during the run as
+    SIGINT raises `KeyboardInterrupt` (see `redline.agent.interrupts`): every process is
+    stopped and the recording finished as ``terminated`` or ``interrupted`` first.
     """
     say = progress or (lambda _message: None)
     suite = load_suite(suite_path)

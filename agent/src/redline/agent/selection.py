@@ -91,9 +91,10 @@ def choose_sets(cases: Sequence[TestCase], sets: Mapping[str, Collection[str]]) 
         return list(cases)
     end = max(index for index, case in enumerate(cases) if case.name in sets)
     case = cases[end]
-    named = set(sets[case.name])
-    last = [canonical_params(p) for p in case.parameter_sets() if canonical_params(p) in named][-1]
-    return [*cases[:end], TestCase(case.name, case.phases, Through(case, last))]
+    last = [
+        ident for ident in map(canonical_params, case.parameter_sets()) if ident in sets[case.name]
+    ]
+    return [*cases[:end], TestCase(case.name, case.phases, Through(case, last[-1]))]
 
 
 def _names_of(case: TestCase) -> set[str]:

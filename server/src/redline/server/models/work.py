@@ -119,7 +119,8 @@ class Job(Base):
     remeasures_job_id: Mapped[int | None] = mapped_column(
         ForeignKey("job.id", ondelete="SET NULL"), default=None
     )
-    #: the test cases to run (a confirmation run's: those with a suspected change); []: all
+    #: the test cases to run; []: all (no job the server makes names any since 2026-11-27: a
+    #: confirmation run names its `parameter_sets`, which end the run, earlier cases included)
     cases: Mapped[list[str]] = mapped_column(JSON, default=list)
     #: run the suite as far as the last of these parameter sets (canonical, as `Series.params`),
     #: per case; {}: all of it (a confirmation run's: the sets with a suspected change)

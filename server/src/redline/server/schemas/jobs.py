@@ -38,8 +38,8 @@ class LeasedJob(BaseModel):
     lease_expires_at: datetime
     cases: list[str] = Field(
         default_factory=list,
-        description="run only these test cases of the suite (a confirmation run: those with a "
-        "suspected change); empty: every case",
+        description="run only these test cases of the suite; empty: every case (a "
+        "confirmation run names its parameter_sets instead)",
     )
     parameter_sets: dict[str, list[str]] = Field(
         default_factory=dict,
