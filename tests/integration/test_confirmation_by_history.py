@@ -84,7 +84,8 @@ def test_a_spike_that_returns_is_not_confirmed_and_keeps_its_figures(
     _judge(session, database_url, tmp_path, [20.0] * 4 + [30.0, 20.0, 20.2])
     regression = session.scalars(select(Regression)).one()
     assert regression.confirmation == "not_confirmed", regression.confirmation_reason
-    assert "returned to the old level" in regression.confirmation_reason
+    assert "none of the 1 flagged change(s) held" in regression.confirmation_reason
+    assert "returned towards the old level" in regression.confirmation_reason
     r5 = _flagged(session)["r5"]
     assert r5.confirmation == "dropped" and r5.effect is not None and r5.effect > 0.4
     assert "returned towards the old level" in r5.confirmation_reason
@@ -95,6 +96,22 @@ def test_without_a_wait_a_flagged_change_is_confirmed_at_once(session, database_
     _component(session, {"confirm_revisions": 0})
     _judge(session, database_url, tmp_path, [20.0] * 4 + [30.0])
     assert session.scalars(select(Regression)).one().confirmation == "confirmed"
+
+
+def test_a_level_the_series_kept_returning_to_is_not_confirmed(session, database_url, tmp_path):
+    """A bimodal series: three one-revision visits to 30 before, each a spike that returned;
+    the fourth stays, but at a level the series was at again and again, so it is no new one."""
+    _component(session)
+    visits = ([20.0] * 5 + [30.0]) * 3 + [20.0] * 5
+    _judge(session, database_url, tmp_path, visits + [30.0, 30.0, 30.5])
+    last = f"r{len(visits) + 1}"
+    flagged = _flagged(session)
+    assert [flagged[f"r{6 * k}"].confirmation for k in (1, 2, 3)] == ["dropped"] * 3
+    assert flagged[last].confirmation == "dropped", flagged[last].confirmation_reason
+    assert "the level is not new" in flagged[last].confirmation_reason
+    assert "in 3 separate stretches" in flagged[last].confirmation_reason
+    regressions = session.scalars(select(Regression)).all()
+    assert {r.confirmation for r in regressions} == {"not_confirmed"}
 
 
 def test_a_reanalysis_settles_changes_as_the_incremental_path_did(session, database_url, tmp_path):

@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 from redline.detect.config import ConfigError, DetectionConfig
-from redline.detect.confirmation import DROPPED, HELD, SUSPECTED, hold
+from redline.detect.confirmation import DROPPED, HELD, SUSPECTED, hold, seen_before
 
 BASE = [100.0, 101.0, 99.0, 100.5, 99.5, 100.0]
 UP = [130.0, 131.0, 129.0]
@@ -52,6 +52,55 @@ def test_waiting_for_no_revision_confirms_at_once_and_nothing_comparable_is_drop
     assert hold(BASE, UP, [], wait=0).state == HELD
     assert hold([math.nan], UP, [[1.0], [1.0]]).state == DROPPED
     assert hold(BASE, BASE, [[1.0], [1.0]]).state == DROPPED  # no step to confirm
+
+
+def _visits(stretches: int, each: int, between: int) -> list[float]:
+    """A past at the old level (100) that went to 130 ``stretches`` times, ``each`` values long."""
+    return ([100.0] * between + [130.0] * each) * stretches + [100.0] * between
+
+
+def test_a_level_the_series_kept_returning_to_is_not_new() -> None:
+    # a bimodal series (SAP's "High deviation"): the later revisions keep the "new" level,
+    # as they did several times before
+    past = _visits(stretches=4, each=2, between=8)
+    found = hold(BASE, UP, [[130.0], [129.0]], wait=2, past=past)
+    assert found.state == DROPPED and found.kept > 0.9
+    assert "the level is not new" in found.reason
+    assert "17 % of the 48 values" in found.reason and "4 separate stretches" in found.reason
+    assert "+30.0 %" in found.reason  # the figures stay
+    assert hold(BASE, UP, [[130.0], [129.0]], wait=2).state == HELD  # without a past: held
+
+
+def test_a_level_visited_once_or_rarely_is_new_again() -> None:
+    # an improvement that was reverted: 130 once, for a long stretch, then 100, then 130 again
+    reverted = [130.0] * 20 + [100.0] * 12
+    assert hold(BASE, UP, [[130.0], [129.0]], wait=2, past=reverted).state == HELD
+    # two short visits, or many visits that are a small share of the past
+    assert hold(BASE, UP, [[130.0], [129.0]], past=_visits(2, 3, 8)).state == HELD
+    assert hold(BASE, UP, [[130.0], [129.0]], past=_visits(3, 1, 30)).state == HELD
+    assert hold(BASE, UP, [[130.0], [129.0]], past=_visits(3, 5, 30)).state == DROPPED  # 11 %
+
+
+def test_the_old_levels_own_noise_does_not_make_a_level_old() -> None:
+    # a noisy series with a small step: many past values beyond half-way, all within three
+    # robust standard deviations of the baseline
+    rng = np.random.default_rng(3)
+    baseline = rng.normal(100.0, 8.0, 15)
+    past = rng.normal(100.0, 8.0, 60)
+    spread = 1.4826 * np.median(np.abs(baseline - np.median(baseline)))
+    seen = seen_before(past, baseline, 112.0)
+    beyond_half = np.mean(past > (np.median(baseline) + 112.0) / 2)
+    assert beyond_half > 0.2 and 3 * spread > 6  # half-way alone would call it old
+    assert seen.share < 0.05 and not seen.before
+    assert hold(baseline, [112.0], [[112.0], [113.0]], past=past).state == HELD
+
+
+def test_counts_and_an_empty_past_ignore_the_rule() -> None:
+    before, flagged = [0.0] * 9, [0.0, 3.0, 4.0]
+    bursty = [0.0, 0.0, 3.0] * 20  # timeouts came and went before: still a rate judged as such
+    assert hold(before, flagged, [[2.0, 3.0], [4.0]], count=True, past=bursty).state == HELD
+    assert seen_before([], BASE, 130.0).stretches == 0
+    assert not seen_before([130.0] * 10, BASE, float(np.median(BASE))).before  # no step
 
 
 def test_the_wait_is_part_of_a_components_configuration() -> None:

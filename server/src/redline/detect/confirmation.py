@@ -8,6 +8,9 @@ the revision again (imported results, a commit that no longer builds, a team tha
 the machine time): a flagged change is *suspected* until ``wait`` later revisions measured the
 series, then it *holds* when those revisions stay on the new side of the old level, at least
 half-way to the flagged one, and is *dropped* (a spike, its figures kept) when they do not.
+A change is dropped too when its new level is not new (`seen_before`): the series moved between
+the two levels again and again in the revisions before it, as a bimodal benchmark does (SAP's
+"High deviation" series), so later revisions at the new level say nothing.
 
 Levels are medians of one value per execution (`redline.detect.execution_shift`'s view of a
 revision), or means for counts of rare events, which are mostly zero.
@@ -20,6 +23,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
+from redline.detect.median_shift import MAD_TO_SD, median
 
 #: Later revisions a flagged change must hold over before it is a regression (the default of a
 #: component's ``confirm_revisions``; 0 makes every flagged change a regression at once).
@@ -31,6 +35,19 @@ DEFAULT_CONFIRM_REVISIONS = 2
 DEFAULT_CONFIRM_PAIRS = 2
 #: The share of the flagged step the later revisions must keep.
 HOLD_SHARE = 0.5
+#: Revisions before a flagged one that `seen_before` looks at.
+LOOKBACK = 30
+#: A new level is not new when at least this share of the values of the `LOOKBACK` revisions
+#: before it were already beyond half-way to it, in at least `SEEN_STRETCHES` separate
+#: stretches (a level the series visited once, as before an improvement that was reverted, is
+#: new again). Chosen between the changes that the corpora's defaults find (at most 5.5 % of
+#: such values, in at most 2 stretches; SAP's too) and the false alarms that history
+#: confirmation let through on SAP's bimodal series (14-75 %, in 2-38 stretches; those at 15 %
+#: or more in 12 or more are dropped). docs/detection.md, "As change points".
+SEEN_SHARE = 0.10
+SEEN_STRETCHES = 3
+#: ... and further from the old level than this many robust standard deviations of the baseline
+NOISE_SDS = 3.0
 
 SUSPECTED, HELD, DROPPED = "suspected", "held", "dropped"
 
@@ -57,6 +74,45 @@ def _pct(value: float, base: float) -> str:
     return f"{100 * (value - base) / abs(base):+.1f} %" if base else f"{value - base:+.3g}"
 
 
+@dataclass(frozen=True)
+class Seen:
+    """How much of a series' past was already at a flagged new level: ``values`` looked at,
+    the ``share`` of them beyond half-way from the old level to the new, in ``stretches``
+    separate runs."""
+
+    values: int
+    share: float
+    stretches: int
+
+    @property
+    def before(self) -> bool:
+        return self.share >= SEEN_SHARE and self.stretches >= SEEN_STRETCHES
+
+
+def seen_before(
+    past: Sequence[float] | np.ndarray, baseline: Sequence[float] | np.ndarray, new: float
+) -> Seen:
+    """Where ``past`` (the values of the revisions before the flagged one, in order) stood
+    against the step from the ``baseline``'s level to ``new``: a value counts when it is
+    beyond half-way to the new level and further from the old than `NOISE_SDS` robust standard
+    deviations of the baseline, so that the old level's own noise does not count (a noisy
+    series' small real step has many past values beyond half-way; a bimodal one's large
+    step has them in its other mode)."""
+    values = np.asarray(past, dtype=float)
+    values = values[np.isfinite(values)]
+    base = np.asarray(baseline, dtype=float)
+    base = base[np.isfinite(base)]
+    if not values.size or not base.size:
+        return Seen(int(values.size), 0.0, 0)
+    old = median(base)
+    if new == old:
+        return Seen(int(values.size), 0.0, 0)
+    reach = max(abs(new - old) / 2, NOISE_SDS * MAD_TO_SD * median(np.abs(base - old)))
+    beyond = values > old + reach if new > old else values < old - reach
+    starts = np.flatnonzero(np.diff(np.concatenate([[0], beyond.astype(np.int8)])) == 1)
+    return Seen(int(values.size), float(beyond.mean()), int(starts.size))
+
+
 def hold(
     baseline: Sequence[float] | np.ndarray,
     flagged: Sequence[float] | np.ndarray,
@@ -64,10 +120,13 @@ def hold(
     wait: int = DEFAULT_CONFIRM_REVISIONS,
     *,
     count: bool = False,
+    past: Sequence[float] | np.ndarray = (),
 ) -> Hold:
     """Whether a change from ``baseline`` (its execution values) to ``flagged`` (the flagged
     revision's) holds over the revisions after it, ``following`` (each one's execution values,
-    oldest first; only the first ``wait`` count)."""
+    oldest first; only the first ``wait`` count), and is new: ``past``, the execution values of
+    the `LOOKBACK` revisions before the flagged one, oldest first, did not keep returning to
+    the new level (`seen_before`; not for counts of rare events, whose level is a rate)."""
     if wait <= 0:
         return Hold(HELD, "confirmation by history is off (confirm_revisions = 0)", 1.0)
     after = [np.asarray(v, dtype=float) for v in following[:wait] if len(v)]
@@ -87,9 +146,19 @@ def hold(
         f"flagged at {_pct(new, old)}, the next {wait} revision(s) at {_pct(later, old)} "
         f"of the old level ({100 * kept:.0f} % of the step kept)"
     )
-    if kept >= HOLD_SHARE:
-        return Hold(HELD, f"held: {figures}", kept)
-    return Hold(DROPPED, f"not confirmed, returned towards the old level: {figures}", kept)
+    if kept < HOLD_SHARE:
+        return Hold(DROPPED, f"not confirmed, returned towards the old level: {figures}", kept)
+    seen = seen_before(() if count else past, baseline, new)
+    if seen.before:
+        return Hold(
+            DROPPED,
+            f"not confirmed, the level is not new: {figures}, but {100 * seen.share:.0f} % of "
+            f"the {seen.values} values of the revisions before it were there already (beyond "
+            f"half-way, and beyond the old level's noise), in {seen.stretches} separate "
+            "stretches: the series moves between levels",
+            kept,
+        )
+    return Hold(HELD, f"held: {figures}", kept)
 
 
 #: The share of complete pairs that must show the change for it to be confirmed by re-runs.

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import json
 import os
-from collections.abc import Container, Iterator
+from collections.abc import Container, Iterator, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -152,7 +152,9 @@ class Unit:
     """One evaluation case: a build of a series against the builds just before it.
 
     ``worse``: the direction a flag must take to be an alarm (``increase``/``decrease``; ""
-    either way); ``count``: the values are counts of rare events, judged as a rate."""
+    either way); ``count``: the values are counts of rare events, judged as a rate;
+    ``history``: the executions of every build of the series (shared by its units, not
+    copied) and ``at`` this build's place in it, for `past`."""
 
     series: str
     build: int
@@ -161,6 +163,15 @@ class Unit:
     positive: bool
     worse: str = ""
     count: bool = False
+    history: Sequence[Sequence[np.ndarray]] = ()
+    at: int = 0
+
+    def past(self, builds: int) -> np.ndarray:
+        """One value per execution (its median, as the service summarizes it) of the
+        ``builds`` builds before this one, oldest first, whatever level a detector judges."""
+        before = self.history[max(0, self.at - builds) : self.at]
+        medians = [np.median(e) if len(e) else np.nan for build in before for e in build]
+        return np.asarray(medians, dtype=np.float64)
 
 
 def _repo_root() -> Path | None:

@@ -25,7 +25,7 @@ import numpy as np
 from redline.detect.baseline import DEFAULT_WINDOW, recent_depth
 from redline.detect.changepoint import EDivisive
 from redline.detect.changepoint_f1 import MARGIN, binary_segmentation, f_measure
-from redline.detect.confirmation import HELD, hold
+from redline.detect.confirmation import HELD, LOOKBACK, hold
 from redline.detect.corpus import (
     Corpus,
     Measures,
@@ -137,6 +137,7 @@ def _walk_series(
         of = present.get(total_of(series, label, present) or "", {})
         totals = [values_for(judge, of[b]) if b in of else None for b, _ in builds]
     changes = snapped(label.change_builds, [build for build, _ in builds])
+    runs = [executions for _, executions in builds]
     last_flagged: int | None = None
     for k in range(1, len(builds)):
         sizes = [len(values[j]) for j in range(k - 1, -1, -1)]
@@ -144,7 +145,9 @@ def _walk_series(
         depth = recent_depth(sizes, judge.baseline_values, window, flagged_at)
         baseline, candidate = np.concatenate(values[k - depth : k]), values[k]
         build = builds[k][0]
-        unit = Unit(series, build, baseline, candidate, build in changes, kind.worse, kind.count)
+        unit = Unit(
+            series, build, baseline, candidate, build in changes, kind.worse, kind.count, runs, k
+        )
         if kind.count:
             found = rate_verdict(values, totals, k, depth)
         else:
@@ -183,7 +186,12 @@ def run_detector(
                 if later.series == unit.series
             ]
             confirmation = hold(
-                unit.baseline, unit.candidate, after, confirm, count=unit.count
+                unit.baseline,
+                unit.candidate,
+                after,
+                confirm,
+                count=unit.count,
+                past=unit.past(LOOKBACK),
             ).state
             flagged = confirmation == HELD
         outcomes.append(

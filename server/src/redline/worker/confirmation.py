@@ -16,7 +16,7 @@ from collections import defaultdict
 from collections.abc import Collection
 
 import numpy as np
-from redline.detect.confirmation import DROPPED, HELD, SUSPECTED, Hold, hold
+from redline.detect.confirmation import DROPPED, HELD, LOOKBACK, SUSPECTED, Hold, hold
 from redline.detect.counters import is_count
 from redline.server.models import (
     Detection,
@@ -108,7 +108,9 @@ def settle(
     baseline = np.concatenate([values for _, _, values in levels[first : newest + 1]])
     end = next((i for i in range(at + 1, len(levels)) if levels[i][1] in changed), len(levels))
     following = [values for _, _, values in levels[at + 1 : end]]
-    found = hold(baseline, levels[at][2], following, wait, count=count)
+    before = [values for _, _, values in levels[max(0, at - LOOKBACK) : at]]
+    past = np.concatenate(before) if before else np.array([])
+    found = hold(baseline, levels[at][2], following, wait, count=count, past=past)
     if found.state == SUSPECTED and end < len(levels):
         if not detection.confirmation_reason.startswith(UNDECIDED):
             detection.confirmation_reason = (
@@ -132,6 +134,16 @@ def settle(
     if found.state == SUSPECTED and detection.confirmation_reason.startswith(UNDECIDED):
         return  # what the re-runs said stands until the history decides
     detection.confirmation, detection.confirmation_reason = found.state, found.reason
+
+
+def _newest_reason(session: Session, regression_id: int, state: str) -> str | None:
+    """The reason of the regression's newest detection in ``state``: what its summary quotes."""
+    return session.scalar(
+        select(Detection.confirmation_reason)
+        .where(Detection.regression_id == regression_id, Detection.confirmation == state)
+        .order_by(Detection.id.desc())
+        .limit(1)
+    )
 
 
 def _summarize_regressions(session: Session, component_id: int) -> None:
@@ -158,18 +170,11 @@ def _summarize_regressions(session: Session, component_id: int) -> None:
             reason = f"{held} of {total} flagged change(s) held over the later revisions"
         elif total and dropped == total:
             confirmation = NOT_CONFIRMED
-            reason = f"all {total} flagged change(s) returned to the old level (a spike)"
+            example = _newest_reason(session, regression.id, DROPPED)
+            reason = f"none of the {total} flagged change(s) held: {example}"
         else:
             confirmation = SUSPECTED
-            example = session.scalar(
-                select(Detection.confirmation_reason)
-                .where(
-                    Detection.regression_id == regression.id,
-                    Detection.confirmation == SUSPECTED,
-                )
-                .order_by(Detection.id.desc())
-                .limit(1)
-            )
+            example = _newest_reason(session, regression.id, SUSPECTED)
             reason = f"{total - dropped} flagged change(s) still suspected: {example}"
         if (regression.confirmation, regression.confirmation_reason) != (confirmation, reason):
             regression.confirmation, regression.confirmation_reason = confirmation, reason
