@@ -67,6 +67,23 @@ def test_score_is_one_exactly_where_both_margins_are_met() -> None:
 def test_a_constant_count_that_moves_by_one_is_a_change() -> None:
     found = ExecutionShift().compare(np.full(15, 12.0), np.full(5, 13.0))  # one more thread
     assert found.verdict == CHANGE and found.effect == pytest.approx(1 / 12)
+    # one execution of 15 threads against 15 of 14 (bench_verdicts' extra thread): with the
+    # relative floor alone (0.14 of a thread) z was 6.9, under the threshold of 8
+    one = ExecutionShift().compare(np.full(15, 14.0), np.array([15.0]))
+    assert one.verdict == CHANGE and one.parts[0] == pytest.approx(1 / (0.1 * math.sqrt(16 / 15)))
+    # a level that is no whole number, or a baseline that varies, keeps its relative floor
+    assert ExecutionShift().compare(np.full(15, 14.5), np.array([15.5])).verdict == NO_CHANGE
+    varied = np.array([14.0] * 14 + [15.0])
+    assert ExecutionShift().compare(varied, np.array([15.0])).verdict == NO_CHANGE
+    # and the effect floor still decides: one more of 30 is 3 %
+    assert ExecutionShift().compare(np.full(15, 30.0), np.array([31.0])).verdict == NO_CHANGE
+
+
+def test_a_step_between_two_constant_counts_is_found() -> None:
+    detector = ExecutionShift()
+    found = detector.step(np.full(6, 14.0), np.full(3, 15.0))
+    assert found.verdict == CHANGE  # z = 1 / (0.1 * 0.71) = 14 against 8 * 1.25
+    assert detector.step(np.full(6, 14.0), np.array([15.0, 14.0, 15.0])).verdict == NO_CHANGE
 
 
 @pytest.mark.parametrize(

@@ -18,7 +18,13 @@ from collections.abc import Sequence
 from typing import ClassVar
 
 import numpy as np
-from redline.detect.median_shift import MAD_TO_SD, median, median_shift, relative_effect
+from redline.detect.median_shift import (
+    MAD_TO_SD,
+    median,
+    median_shift,
+    relative_effect,
+    spread_floor,
+)
 from redline.detect.methods import Detector, Levelled
 from redline.detect.result import CHANGE, NO_CHANGE, Detection, direction_of, not_enough
 
@@ -65,8 +71,9 @@ class ExecutionShift(Detector):
     (``|effect| >= min_effect``), so ``score >= 1`` exactly when the verdict is "change", and
     ranking by score ranks by the weaker of the two margins: a tiny but very regular shift of
     a quiet memory counter does not outrank a real CPU change. The MAD ignores a disturbed
-    execution or two in the baseline; ``rel_scale`` keeps a constant baseline (a thread count)
-    from making every difference infinite.
+    execution or two in the baseline; ``rel_scale`` keeps a constant baseline from making every
+    difference infinite (a tenth of one for a baseline of one whole number, a thread count:
+    `redline.detect.median_shift.spread_floor`).
 
     Defaults (ours): ``threshold = 8`` and ``min_effect = 0.05`` were chosen on the tuning half
     of corpus 2 (the setting with <= 1 false alarm per 100 unchanged revisions and the best
@@ -130,7 +137,8 @@ class ExecutionShift(Detector):
         The noise of both stretches counts: the spread is the larger of the robust spread of
         their residuals (each value less its stretch's median) and their standard deviation
         (conservative on a few values, whose MAD can be near 0 by chance), at least ``rel_scale``
-        of the level before; ``z``, ``effect`` and ``score`` as `_detect`'s, against
+        of the level before (`spread_floor`, where both stretches are one whole number each);
+        ``z``, ``effect`` and ``score`` as `_detect`'s, against
         ``threshold`` times `STEP_MARGIN` and ``min_effect``. Each stretch needs `STEP_SIDE`
         values, both together ``min_baseline``."""
         before, after = before[np.isfinite(before)], after[np.isfinite(after)]
@@ -145,7 +153,9 @@ class ExecutionShift(Detector):
         spread = max(
             MAD_TO_SD * median(np.abs(residuals)),
             float(np.std(residuals, ddof=2)),
-            self.rel_scale * abs(old),
+            min(
+                spread_floor(before, old, self.rel_scale), spread_floor(after, new, self.rel_scale)
+            ),
             1e-12,
         )
         z = abs(new - old) / (spread * math.sqrt(1 / len(after) + 1 / len(before)))

@@ -24,6 +24,13 @@ from scipy import stats
 
 #: 1.4826 * MAD estimates the standard deviation of normal data (Rousseeuw & Croux 1993).
 MAD_TO_SD = 1.4826
+#: The spread floor of a baseline that is one whole number throughout (a count of threads,
+#: processes or descriptors, which does not vary by chance): a tenth of one, where that is below
+#: ``rel_scale`` of its level. One more thread on 14 was z = 1 / (0.01 * 14 * 1.03) = 6.9 at one
+#: execution against 15, under `ExecutionShift`'s threshold of 8, with the relative floor alone
+#: (`bench_verdicts`, 2026-11-27); it is 9.7 with this. The effect floors (5 %, and one thread in
+#: `redline.detect.floors`) still decide whether the change is worth reporting.
+WHOLE_SPREAD = 0.1
 
 
 @dataclass(frozen=True)
@@ -32,7 +39,7 @@ class Shift:
 
     before: float  # median of the baseline
     after: float  # median of the candidate
-    spread: float  # 1.4826 MAD of the baseline, at least rel_scale of its median (and > 0)
+    spread: float  # 1.4826 MAD of the baseline, at least `spread_floor` (and > 0)
     effect: float  # (after - before) / |before|; +-inf when only the baseline's median is 0
 
 
@@ -49,10 +56,19 @@ def median(values: np.ndarray) -> float:
     return float((ordered[middle - 1] + ordered[middle]) / 2)
 
 
+def spread_floor(base: np.ndarray, level: float, rel_scale: float) -> float:
+    """The least spread a baseline is taken to have: ``rel_scale`` of its ``level``, or
+    `WHOLE_SPREAD` where that is smaller and every value of the baseline is one whole number."""
+    relative = rel_scale * abs(level)
+    if relative > WHOLE_SPREAD and level == math.floor(level) and np.all(base == level):
+        return WHOLE_SPREAD
+    return relative
+
+
 def median_shift(base: np.ndarray, cand: np.ndarray, rel_scale: float) -> Shift:
     before, after = median(base), median(cand)
     mad = MAD_TO_SD * median(np.abs(base - before))
-    spread = max(mad, rel_scale * abs(before), 1e-12)
+    spread = max(mad, spread_floor(base, before, rel_scale), 1e-12)
     return Shift(before, after, spread, relative_effect(before, after))
 
 
