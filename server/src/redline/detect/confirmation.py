@@ -77,8 +77,7 @@ def _pct(value: float, base: float) -> str:
 @dataclass(frozen=True)
 class Seen:
     """How much of a series' past was already at a flagged new level: ``values`` looked at,
-    the ``share`` of them beyond half-way from the old level to the new, in ``stretches``
-    separate runs."""
+    the ``share`` of them there (`seen_before`), in ``stretches`` separate runs."""
 
     values: int
     share: float

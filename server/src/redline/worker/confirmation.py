@@ -31,6 +31,7 @@ from redline.server.models import (
 )
 from redline.worker.samples import ingested_executions
 from sqlalchemy import exists, func, select
+from sqlalchemy.dialects.postgresql import distinct_on
 from sqlalchemy.orm import Session
 
 CONFIRMED, NOT_CONFIRMED = "confirmed", "not_confirmed"
@@ -136,14 +137,21 @@ def settle(
     detection.confirmation, detection.confirmation_reason = found.state, found.reason
 
 
-def _newest_reason(session: Session, regression_id: int, state: str) -> str | None:
-    """The reason of the regression's newest detection in ``state``: what its summary quotes."""
-    return session.scalar(
-        select(Detection.confirmation_reason)
-        .where(Detection.regression_id == regression_id, Detection.confirmation == state)
-        .order_by(Detection.id.desc())
-        .limit(1)
+def _newest_reasons(session: Session, component_id: int) -> dict[tuple[int, str], str]:
+    """Per (regression, state) of the component's suspected and dropped detections, the newest
+    one's reason: what a regression's summary quotes (one query for the component, not one per
+    regression on every revision stored)."""
+    rows = session.execute(
+        select(Detection.regression_id, Detection.confirmation, Detection.confirmation_reason)
+        .join(Regression, Regression.id == Detection.regression_id)
+        .where(
+            Regression.component_id == component_id,
+            Detection.confirmation.in_((SUSPECTED, DROPPED)),
+        )
+        .ext(distinct_on(Detection.regression_id, Detection.confirmation))
+        .order_by(Detection.regression_id, Detection.confirmation, Detection.id.desc())
     )
+    return {(rid, state): reason for rid, state, reason in rows if rid is not None}
 
 
 def _summarize_regressions(session: Session, component_id: int) -> None:
@@ -157,6 +165,7 @@ def _summarize_regressions(session: Session, component_id: int) -> None:
     ):
         if regression_id is not None:  # joined to a regression: typed as nullable all the same
             states[regression_id][state] = number
+    reasons = _newest_reasons(session, component_id)
     for regression in session.scalars(
         select(Regression).where(Regression.component_id == component_id)
     ):
@@ -170,11 +179,11 @@ def _summarize_regressions(session: Session, component_id: int) -> None:
             reason = f"{held} of {total} flagged change(s) held over the later revisions"
         elif total and dropped == total:
             confirmation = NOT_CONFIRMED
-            example = _newest_reason(session, regression.id, DROPPED)
+            example = reasons.get((regression.id, DROPPED))
             reason = f"none of the {total} flagged change(s) held: {example}"
         else:
             confirmation = SUSPECTED
-            example = _newest_reason(session, regression.id, SUSPECTED)
+            example = reasons.get((regression.id, SUSPECTED))
             reason = f"{total - dropped} flagged change(s) still suspected: {example}"
         if (regression.confirmation, regression.confirmation_reason) != (confirmation, reason):
             regression.confirmation, regression.confirmation_reason = confirmation, reason
