@@ -164,7 +164,9 @@ def targets(event: Event, series: dict[str, Any]) -> bool:
 
 def first_pairs(reason: str, effect: float, pairs: int) -> str | None:
     """What the first ``pairs`` confirmation pairs would have decided, from the figures the
-    confirmation wrote ("… host: +3.1 %, -0.4 %, +5.0 %; flagged +6.0 %)"); None without."""
+    confirmation wrote ("… host: +3.1 %, -0.4 %, +5.0 %; flagged +6.0 %; a pair shows it
+    beyond +4.2 %, …)"; before 2026-11-28 without the bar, which was half the flagged step);
+    None without."""
     from redline.detect.confirmation import HOLD_SHARE, PAIRS_SHARE
 
     match = re.search(r"host: ([^;)]*); flagged", reason)
@@ -172,7 +174,9 @@ def first_pairs(reason: str, effect: float, pairs: int) -> str | None:
         return None
     moves = [float(part.strip(" %")) / 100 for part in match.group(1).split(",")][:pairs]
     sign = -1.0 if "flagged -" in reason else 1.0
-    shown = sum(sign * move >= HOLD_SHARE * abs(effect) for move in moves)
+    beyond = re.search(r"shows it beyond [+-]?([0-9.]+) %", reason)
+    bar = float(beyond.group(1)) / 100 if beyond else HOLD_SHARE * abs(effect)
+    shown = sum(sign * move >= bar for move in moves)
     return "held" if shown >= max(1, math.ceil(PAIRS_SHARE * len(moves))) else "dropped"
 
 

@@ -4,6 +4,7 @@ could not run is named, and the runs never enter the revisions' own verdicts."""
 
 from __future__ import annotations
 
+import re
 from datetime import timedelta
 from pathlib import Path
 
@@ -296,6 +297,22 @@ def test_pairs_that_already_decide_the_change_spare_the_pairs_left_to_run(
     assert detection.confirmation_reason.endswith("1 more pair(s) not needed: these decided it")
     assert "did not run" not in detection.confirmation_reason
     assert "failed" not in detection.confirmation_reason
+
+
+def test_pairs_are_judged_against_the_baseline_noise_not_half_the_flagged_step(
+    session, database_url, tmp_path
+):
+    """r5 was flagged +50 % on its own executions; its re-runs show +20 % against r4's, far
+    beyond r4's noise of about 1 % a value, though under half the flagged step (the winner's
+    curse of a flag on few executions): confirmed, with the bar it passed."""
+    _flagged_history(session, database_url, tmp_path)
+    while (job := lease_job(session, "perf-1", 60, 3)) is not None:
+        _run(session, database_url, tmp_path, job, 24.0 if job.revision.title == "r5" else 20.0)
+    detection = _r5_detection(session)
+    assert detection.confirmation == "held", detection.confirmation_reason
+    assert detection.confirmation_reason.startswith("confirmed by 2 of 2 pairs")
+    assert re.search(r"flagged \+(4[5-9]|5[0-5])\.\d %", detection.confirmation_reason)
+    assert "sd of a pair's noise" in detection.confirmation_reason
 
 
 def test_pairs_that_disagree_run_the_third(session, database_url, tmp_path):

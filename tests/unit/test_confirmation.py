@@ -131,6 +131,42 @@ def test_pairs_confirm_a_change_most_of_them_show_and_name_what_did_not_run() ->
     assert none.state == DROPPED and "none of the 2 confirmation pair(s) ran" in none.reason
 
 
+def test_a_pair_shows_a_change_beyond_its_noise_not_beyond_half_the_flagged_step() -> None:
+    """The winner's curse: a change flagged on one execution was flagged because its noise
+    pushed it up. CPU +30 % flagged +52.5 % showed +14.5 % in its pair and was dropped against
+    half the flagged step; against a pair's noise (3 % a value: a bar of 6.4 %) it holds, while
+    one pair of an unchanged revision past it (+7 %, -2 %) does not confirm it."""
+    from redline.detect.confirmation import pair_bar, pairs_hold
+
+    cursed = [(100.0, 114.5), (100.0, 112.0)]
+    assert pairs_hold(cursed, "increase", 0.525, 2).state == DROPPED  # half the step: 26 %
+    held = pairs_hold(cursed, "increase", 0.525, 2, noise=0.03)
+    assert held.state == HELD, held.reason
+    assert "a pair shows it beyond +6.4 %, 1.5 sd of a pair's noise" in held.reason
+    unchanged = pairs_hold([(100.0, 107.0), (100.0, 98.0)], "increase", 0.2, 2, noise=0.03)
+    assert unchanged.state == DROPPED and "showed in 1 of 2 pairs" in unchanged.reason
+    fall = pairs_hold([(100.0, 90.0), (100.0, 91.0)], "decrease", -0.3, 2, noise=0.03)
+    assert fall.state == HELD and "beyond -6.4 %" in fall.reason
+    # a series with next to no noise still needs a move worth reporting
+    assert pair_bar(0.3, 0.0001) == 0.025
+    assert pairs_hold([(100.0, 102.0)] * 2, "increase", 0.06, 2, noise=0.0001).state == DROPPED
+    # no baseline values to measure the noise by: half the flagged step, as it says
+    assert "half the flagged step" in pairs_hold(cursed, "increase", 0.525, 2).reason
+
+
+def test_relative_noise_is_the_robust_spread_of_the_baseline_over_its_level() -> None:
+    from redline.detect.confirmation import relative_noise
+
+    rng = np.random.default_rng(5)
+    noisy = rng.normal(200.0, 6.0, 2_000)
+    assert relative_noise(noisy) == pytest.approx(0.03, rel=0.1)
+    assert relative_noise([100.5] * 10) == pytest.approx(0.01)  # the floor: 1 % of the level
+    assert relative_noise([14.0] * 15) == pytest.approx(0.1 / 14)  # a thread count: 0.1
+    assert math.isnan(relative_noise([]))
+    assert math.isnan(relative_noise([math.nan, math.inf]))
+    assert math.isnan(relative_noise([0.0, 0.0, 0.0]))
+
+
 def test_two_pairs_that_agree_decide_three_and_the_decision_is_what_all_would_give() -> None:
     from redline.detect.confirmation import pairs_decided, pairs_hold
 

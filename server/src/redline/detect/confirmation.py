@@ -23,7 +23,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from redline.detect.median_shift import MAD_TO_SD, median
+from redline.detect.median_shift import MAD_TO_SD, median, spread_floor
 
 #: Later revisions a flagged change must hold over before it is a regression (the default of a
 #: component's ``confirm_revisions``; 0 makes every flagged change a regression at once).
@@ -162,6 +162,42 @@ def hold(
 
 #: The share of complete pairs that must show the change for it to be confirmed by re-runs.
 PAIRS_SHARE = 2 / 3
+#: A pair shows a change when its candidate moved the flagged way by more than this many
+#: standard deviations of a pair's difference: two executions' noise, sqrt(2) times the robust
+#: spread of the baseline's execution values (`relative_noise`). With unchanged code one pair
+#: in 15 passes that bar (normal noise), two in a row one in 225. The flagged step itself is no
+#: bar: a change flagged on one execution is flagged *because* its noise pushed it up (the
+#: winner's curse), and half of it is often more than the change. At a threshold of 4, CPU
+#: +30 % was flagged +52.5 % on one execution and dropped when its pair showed +14.5 %
+#: (`bench_verdicts`, verdicts-threshold4-pairs2-sets.json).
+PAIR_SDS = 1.5
+#: ... and by at least this much (half of `ExecutionShift`'s least effect worth reporting), so
+#: that a series with next to no noise (a memory size) does not confirm a move of a few bytes.
+PAIR_FLOOR = 0.025
+
+
+def relative_noise(baseline: np.ndarray | Sequence[float], rel_scale: float = 0.01) -> float:
+    """The noise of one execution value of ``baseline`` relative to its level: the robust
+    spread `ExecutionShift` judges against (at least its floor), over the median; NaN without
+    finite values or with a level of 0."""
+    values = np.asarray(baseline, dtype=float)
+    values = values[np.isfinite(values)]
+    if not values.size:
+        return math.nan
+    level = median(values)
+    if level == 0:
+        return math.nan
+    mad = MAD_TO_SD * median(np.abs(values - level))
+    return max(mad, spread_floor(values, level, rel_scale)) / abs(level)
+
+
+def pair_bar(effect: float, noise: float) -> float:
+    """How far (relative, the flagged way) a pair's candidate must move from its baseline to
+    show a change flagged by ``effect``: `PAIR_SDS` pair noises, at least `PAIR_FLOOR`, where
+    the baseline's ``noise`` is known (`relative_noise`); else `HOLD_SHARE` of the flagged step."""
+    if not math.isfinite(noise):
+        return HOLD_SHARE * abs(effect)
+    return max(PAIR_SDS * math.sqrt(2) * noise, PAIR_FLOOR)
 
 
 def _complete(pairs: Sequence[tuple[float, float]]) -> list[tuple[float, float]]:
@@ -172,10 +208,11 @@ def _moves(complete: Sequence[tuple[float, float]]) -> list[float]:
     return [(c - b) / abs(b) for b, c in complete]
 
 
-def _shows(move: float, direction: str, effect: float) -> bool:
-    """Whether one pair's relative move shows the change flagged ``direction`` by ``effect``."""
+def _shows(move: float, direction: str, bar: float) -> bool:
+    """Whether one pair's relative move shows a change flagged ``direction``: beyond ``bar``
+    (`pair_bar`) that way."""
     sign = 1.0 if direction == "increase" else -1.0
-    return sign * move >= HOLD_SHARE * abs(effect)
+    return sign * move >= bar
 
 
 def _holds(shown: int, complete: int) -> bool:
@@ -183,13 +220,18 @@ def _holds(shown: int, complete: int) -> bool:
 
 
 def pairs_decided(
-    pairs: Sequence[tuple[float, float]], direction: str, effect: float, pending: int
+    pairs: Sequence[tuple[float, float]],
+    direction: str,
+    effect: float,
+    pending: int,
+    noise: float = math.nan,
 ) -> bool:
     """Whether the ``pairs`` that ran decide `pairs_hold` whatever the ``pending`` ones show,
     or whether they run at all: then those need not run (with 3 pairs, two that agree decide).
     The verdict is the one all the pairs would give; only machine time is saved."""
     complete = _complete(pairs)
-    shown = sum(_shows(move, direction, effect) for move in _moves(complete))
+    bar = pair_bar(effect, noise)
+    shown = sum(_shows(move, direction, bar) for move in _moves(complete))
     outcomes = {
         _holds(shown + more_shown, len(complete) + more)
         for more in range(pending + 1)
@@ -199,24 +241,32 @@ def pairs_decided(
 
 
 def pairs_hold(
-    pairs: Sequence[tuple[float, float]], direction: str, effect: float, wanted: int
+    pairs: Sequence[tuple[float, float]],
+    direction: str,
+    effect: float,
+    wanted: int,
+    noise: float = math.nan,
 ) -> Hold:
     """Confirmation by re-running: ``pairs`` of (baseline, candidate) values, each pair run
-    back to back on one host, against a change flagged ``direction`` by ``effect`` (relative).
-    A pair shows the change when the candidate moved the flagged way by at least `HOLD_SHARE`
-    of the effect; the change holds when at least `PAIRS_SHARE` of the complete pairs show it.
-    ``wanted``: the pairs that were queued (a missing one is named in the reason)."""
+    back to back on one host, against a change flagged ``direction`` by ``effect`` (relative),
+    on a series whose execution values vary by ``noise`` (relative, `relative_noise` of the
+    baseline; NaN: unknown). A pair shows the change when the candidate moved the flagged way
+    beyond `pair_bar`; the change holds when at least `PAIRS_SHARE` of the complete pairs show
+    it. ``wanted``: the pairs that were queued (a missing one is named in the reason)."""
     complete = _complete(pairs)
     if not complete:
         return Hold(DROPPED, f"not confirmed: none of the {wanted} confirmation pair(s) ran", 0.0)
     sign = 1.0 if direction == "increase" else -1.0
+    bar = pair_bar(effect, noise)
     moves = _moves(complete)
-    shown = sum(_shows(move, direction, effect) for move in moves)
+    shown = sum(_shows(move, direction, bar) for move in moves)
     moved = ", ".join(f"{100 * move:+.1f} %" for move in moves)
     missing = f"; {wanted - len(complete)} pair(s) did not run" if len(complete) < wanted else ""
+    why = f"{PAIR_SDS:g} sd of a pair's noise" if math.isfinite(noise) else "half the flagged step"
     figures = (
         f"{shown} of {len(complete)} pairs (candidate against baseline, back to back on one "
-        f"host: {moved}; flagged {100 * sign * abs(effect):+.1f} %){missing}"
+        f"host: {moved}; flagged {100 * sign * abs(effect):+.1f} %; a pair shows it beyond "
+        f"{100 * sign * bar:+.1f} %, {why}){missing}"
     )
     if _holds(shown, len(complete)):
         return Hold(HELD, f"confirmed by {figures}", shown / len(complete))

@@ -40,7 +40,7 @@ from redline.server.models import (
 )
 from redline.server.services.jobs import current_pairs
 from redline.server.services.revisions import CANCELLED, UNFINISHED
-from redline.worker.confirmation import UNDECIDED
+from redline.worker.confirmation import UNDECIDED, baseline_noise
 from sqlalchemy import exists, func, select
 from sqlalchemy.orm import Session
 
@@ -209,7 +209,7 @@ def settle_pairs(session: Session, revision: Revision) -> bool:
     suspected = _suspected(session, revision.id)
     running = [job for job in jobs if job.state not in FINISHED]
     values = _values(session, jobs)
-    if running and _decided(revision, jobs, suspected, baseline, values):
+    if running and _decided(session, revision, jobs, suspected, baseline, values):
         for job in running:  # an agent running one gets 409 at its next heartbeat
             job.state, job.reason, job.lease_expires_at = JobState.cancelled, NOT_NEEDED, None
         running = []
@@ -252,7 +252,13 @@ def settle_pairs(session: Session, revision: Revision) -> bool:
                 "later revisions will confirm it instead"
             )
             continue
-        found = pairs_hold(measured, detection.direction, detection.effect or 0.0, len(pairs))
+        found = pairs_hold(
+            measured,
+            detection.direction,
+            detection.effect or 0.0,
+            len(pairs),
+            baseline_noise(session, detection),
+        )
         reason = found.reason + (f" (failed: {'; '.join(failed)})" if failed else "")
         if spared:
             reason += f"; {len(spared)} more pair(s) not needed: these decided it"
@@ -261,6 +267,7 @@ def settle_pairs(session: Session, revision: Revision) -> bool:
 
 
 def _decided(
+    session: Session,
     revision: Revision,
     jobs: list[Job],
     suspected: list[tuple[Detection, str, str]],
@@ -278,7 +285,10 @@ def _decided(
         if is_count(process, counter) or detection.baseline_revision_id != baseline:
             continue  # the pairs do not judge it (`settle_pairs`)
         measured = _measured(values, detection.series_id, complete, baseline, revision.id)
-        if not pairs_decided(measured, detection.direction, detection.effect or 0.0, pending):
+        noise = baseline_noise(session, detection)
+        if not pairs_decided(
+            measured, detection.direction, detection.effect or 0.0, pending, noise
+        ):
             return False
     return True
 

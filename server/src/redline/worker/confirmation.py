@@ -12,11 +12,20 @@ order with the later ones already ingested, settles each change as the increment
 
 from __future__ import annotations
 
+import math
 from collections import defaultdict
 from collections.abc import Collection
 
 import numpy as np
-from redline.detect.confirmation import DROPPED, HELD, LOOKBACK, SUSPECTED, Hold, hold
+from redline.detect.confirmation import (
+    DROPPED,
+    HELD,
+    LOOKBACK,
+    SUSPECTED,
+    Hold,
+    hold,
+    relative_noise,
+)
 from redline.detect.counters import is_count
 from redline.server.models import (
     Detection,
@@ -62,6 +71,27 @@ def _levels(session: Session, series_id: int, count: bool) -> list[tuple[str, in
     return [(key, rid, np.asarray(v, dtype=float)) for (key, rid), v in grouped.items()]
 
 
+def _baseline(levels: list[tuple[str, int, np.ndarray]], newest: int, pooled: int) -> np.ndarray:
+    """The execution values of the baseline a detection was judged against: its ``pooled``
+    revisions (at least one) up to the one at ``newest`` in ``levels`` (`_levels`)."""
+    first = max(0, newest + 1 - max(1, pooled))
+    return np.concatenate([values for _, _, values in levels[first : newest + 1]])
+
+
+def baseline_noise(session: Session, detection: Detection) -> float:
+    """How much one execution value of the detection's baseline varies, relative to its level
+    (`redline.detect.confirmation.relative_noise`); NaN when its baseline's summaries are gone.
+    The bar a confirmation pair must pass (`redline.detect.confirmation.pair_bar`)."""
+    levels = _levels(session, detection.series_id, count=False)
+    newest = next(
+        (i for i, (_, rid, _) in enumerate(levels) if rid == detection.baseline_revision_id),
+        None,
+    )
+    if newest is None:
+        return math.nan
+    return relative_noise(_baseline(levels, newest, detection.baseline_revisions))
+
+
 def _later_revisions(session: Session, key: str, revision_id: int, detection: Detection) -> int:
     """How many revisions of the detection's component after (``key``, ``revision_id``) have
     results."""
@@ -105,8 +135,7 @@ def settle(
             "not confirmed: the revision's or its baseline's summaries are gone",
         )
         return
-    first = max(0, newest + 1 - max(1, detection.baseline_revisions))
-    baseline = np.concatenate([values for _, _, values in levels[first : newest + 1]])
+    baseline = _baseline(levels, newest, detection.baseline_revisions)
     end = next((i for i in range(at + 1, len(levels)) if levels[i][1] in changed), len(levels))
     following = [values for _, _, values in levels[at + 1 : end]]
     before = [values for _, _, values in levels[max(0, at - LOOKBACK) : at]]
