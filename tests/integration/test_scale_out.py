@@ -138,7 +138,10 @@ def test_a_worker_killed_mid_reanalysis_loses_nothing_and_the_redelivered_task_f
             re.findall(r"redline\.reanalyze_part\[[^\]]+\] received", p.read_text()) for p in logs
         ]
         assert all(taken), taken  # each worker took a part: the work was split between them
-        assert len(taken[1]) == 2  # its own, and the killed worker's, redelivered
+        # the second ran its own part and the killed worker's, redelivered. Counted as distinct
+        # tasks: on a loaded host a part that outlives the visibility timeout is delivered
+        # again while it runs (a CI run saw one task received twice), which the parts survive
+        assert set(taken[0]) < set(taken[1]) and len(set(taken[1])) == 2, taken
         row = _progress(database_url, component_id)
         assert row is not None and row.state == "done", log.read_text()[-3000:]
         # every unit once: a unit per revision and part, and one per revision stored

@@ -281,13 +281,24 @@ def test_redlines_own_messages_are_put_whole_when_a_signal_comes_during_the_put(
     heard: list[bytes] = []
     got = threading.Event()
 
+    probed = threading.Event()
+
     def hear(sample: zenoh.Sample) -> None:
+        if sample.payload.to_bytes() == b"probe":
+            probed.set()  # the declaration arrived; a probe is not a message under test
+            return
         heard.append(sample.payload.to_bytes())
         got.set()
 
     subscribers = [
         peers.component.declare_subscriber(k, hear) for k in (MARKERS_KEY, "@redline/driver/**")
     ]
+    # the declarations need a moment to reach the other peer: a put before that goes nowhere
+    # (a CI run under load saw "the message never arrived")
+    for probe in (MARKERS_KEY, "@redline/driver/probe"):
+        probed.clear()
+        _until(lambda probe=probe: peers.link.session.put(probe, b"probe"), probed)
+        assert probed.is_set(), f"the subscriber of {probe} never heard a probe"
     for put in (
         lambda hold: Markers(peers.link.session, hold).publish(
             "begin", "c", Phase("steady", Param("x")), {}
