@@ -161,6 +161,10 @@ def submit(
             answer.raise_for_status()
 
 
+#: how often `wait_for_results` asks the server
+POLL_S = 2.0
+
+
 def wait_for_results(
     url: str,
     say: Callable[[str], None],
@@ -169,31 +173,35 @@ def wait_for_results(
 ) -> list[dict]:
     """Report revision states as they change until every one is done or failed and no verdict
     waits any more (for confirmation runs, say: what it waits for is reported too); an empty
-    list at once when ``stop`` is set (Ctrl-C)."""
+    list at once when ``stop`` is set (Ctrl-C).
+
+    It asks every `POLL_S` over one connection: the waiting shares the host with the runs it
+    waits for, and a new client per request (as ``httpx.get`` makes) cost it and the server a
+    fifth of a core, enough for the agent to see "other load" and repeat runs."""
     seen: dict[str, str] = {}  # each revision's state, as said
     told: dict[str, str] = {}  # what each revision's verdict waits for, as said
     stop = stop or threading.Event()
     deadline = time.monotonic() + timeout
-    api = f"{url}/api/v1/components/{COMPONENT}"
-    while time.monotonic() < deadline and not stop.is_set():
-        revisions = httpx.get(f"{api}/revisions").json()
-        for revision in revisions:
-            if seen.get(revision["title"]) != revision["state"]:
-                seen[revision["title"]] = revision["state"]
-                say(f"revision {revision['title']}: {revision['state']}")
-        if revisions and all(r["state"] in ("done", "failed") for r in revisions):
-            pending = False
+    with httpx.Client(base_url=f"{url}/api/v1/components/{COMPONENT}") as api:
+        while time.monotonic() < deadline and not stop.is_set():
+            revisions = api.get("/revisions").json()
             for revision in revisions:
-                verdict = httpx.get(f"{api}/revisions/{revision['title']}/verdict").json()
-                if verdict["state"] == "pending":
-                    pending = True
-                    waits = f"waits for {verdict['waiting_for']}"
-                    if told.get(revision["title"]) != waits:
-                        told[revision["title"]] = waits
-                        say(f"revision {revision['title']}: {waits}")
-            if not pending:
-                return list(revisions)
-        stop.wait(1.0)
+                if seen.get(revision["title"]) != revision["state"]:
+                    seen[revision["title"]] = revision["state"]
+                    say(f"revision {revision['title']}: {revision['state']}")
+            if revisions and all(r["state"] in ("done", "failed") for r in revisions):
+                pending = False
+                for revision in revisions:
+                    verdict = api.get(f"/revisions/{revision['title']}/verdict").json()
+                    if verdict["state"] == "pending":
+                        pending = True
+                        waits = f"waits for {verdict['waiting_for']}"
+                        if told.get(revision["title"]) != waits:
+                            told[revision["title"]] = waits
+                            say(f"revision {revision['title']}: {waits}")
+                if not pending:
+                    return list(revisions)
+            stop.wait(POLL_S)
     if stop.is_set():
         return []
     raise TimeoutError(f"revisions not finished after {timeout:.0f}s: {seen}")
