@@ -23,7 +23,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from redline.detect.median_shift import MAD_TO_SD, median, spread_floor
+from redline.detect.median_shift import MAD_TO_SD, median, median_shift
 
 #: Later revisions a flagged change must hold over before it is a regression (the default of a
 #: component's ``confirm_revisions``; 0 makes every flagged change a regression at once).
@@ -184,11 +184,8 @@ def relative_noise(baseline: np.ndarray | Sequence[float], rel_scale: float = 0.
     values = values[np.isfinite(values)]
     if not values.size:
         return math.nan
-    level = median(values)
-    if level == 0:
-        return math.nan
-    mad = MAD_TO_SD * median(np.abs(values - level))
-    return max(mad, spread_floor(values, level, rel_scale)) / abs(level)
+    shift = median_shift(values, values, rel_scale)
+    return shift.spread / abs(shift.before) if shift.before else math.nan
 
 
 def pair_bar(effect: float, noise: float) -> float:

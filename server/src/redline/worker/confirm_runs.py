@@ -209,7 +209,8 @@ def settle_pairs(session: Session, revision: Revision) -> bool:
     suspected = _suspected(session, revision.id)
     running = [job for job in jobs if job.state not in FINISHED]
     values = _values(session, jobs)
-    if running and _decided(session, revision, jobs, suspected, baseline, values):
+    noises = {d.id: baseline_noise(session, d) for d, _, _ in suspected}  # one query each
+    if running and _decided(revision, jobs, suspected, baseline, values, noises):
         for job in running:  # an agent running one gets 409 at its next heartbeat
             job.state, job.reason, job.lease_expires_at = JobState.cancelled, NOT_NEEDED, None
         running = []
@@ -257,7 +258,7 @@ def settle_pairs(session: Session, revision: Revision) -> bool:
             detection.direction,
             detection.effect or 0.0,
             len(pairs),
-            baseline_noise(session, detection),
+            noises[detection.id],
         )
         reason = found.reason + (f" (failed: {'; '.join(failed)})" if failed else "")
         if spared:
@@ -267,12 +268,12 @@ def settle_pairs(session: Session, revision: Revision) -> bool:
 
 
 def _decided(
-    session: Session,
     revision: Revision,
     jobs: list[Job],
     suspected: list[tuple[Detection, str, str]],
     baseline: int,
     values: dict[tuple[int, int, int], tuple[float, float]],
+    noises: dict[int, float],
 ) -> bool:
     """Whether the pairs complete so far decide every suspected change that the pairs judge,
     whatever the pairs still to run would show (`pairs_decided`): then those need not run."""
@@ -285,7 +286,7 @@ def _decided(
         if is_count(process, counter) or detection.baseline_revision_id != baseline:
             continue  # the pairs do not judge it (`settle_pairs`)
         measured = _measured(values, detection.series_id, complete, baseline, revision.id)
-        noise = baseline_noise(session, detection)
+        noise = noises[detection.id]
         if not pairs_decided(
             measured, detection.direction, detection.effect or 0.0, pending, noise
         ):
