@@ -26,6 +26,7 @@ from redline.server.models import (
 )
 from redline.server.schemas.components import ComponentCreate
 from redline.server.schemas.jobs import RegisterRequest
+from redline.server.services.ci_verdict import ci_verdict
 from redline.server.services.components import create_component
 from redline.server.services.dashboard import TrendView, trend_data
 from redline.server.services.jobs import lease_job, leased_job, register_host
@@ -33,6 +34,7 @@ from redline.server.services.revisions import cancel_revision, revision_detail
 from redline.worker.confirm_runs import queue_confirmations
 from redline.worker.detection import detect_revision
 from redline.worker.ingest import ingest_execution
+from redline.worker.reanalysis import reanalyze_component
 from sqlalchemy import select
 
 from tests.support.history import add_executions, ingest_and_detect
@@ -313,6 +315,86 @@ def test_pairs_are_judged_against_the_baseline_noise_not_half_the_flagged_step(
     assert detection.confirmation_reason.startswith("confirmed by 2 of 2 pairs")
     assert re.search(r"flagged \+(4[5-9]|5[0-5])\.\d %", detection.confirmation_reason)
     assert "sd of a pair's noise" in detection.confirmation_reason
+
+
+def _detection(session, title: str) -> Detection:
+    return session.scalars(
+        select(Detection)
+        .join(Revision, Revision.id == Detection.revision_id)
+        .where(Revision.title == title, Detection.method == "execution_shift")
+    ).one()
+
+
+def _missed_then_flagged(session, database_url, tmp_path) -> None:
+    """r1-r5 at 20 % CPU, r6 at 30 %: r6 flagged against r1-r5, its pairs queued. r5's own runs
+    said 20 %, but r5 made the change (its runs missed it, as one execution's noise can): its
+    re-runs are at 30 %."""
+    component = create_component(session, ComponentCreate(name=NAME, executions=RUNS))
+    session.add(DetectionConfigRow(component_id=component.id, config={"confirm_pairs": PAIRS}))
+    session.commit()
+    host = register_host(session, RegisterRequest(name="perf-1"))
+    _measured(session, database_url, tmp_path, [20.0] * 5 + [30.0], host)
+    assert _detection(session, "r5").verdict == "no change"
+    assert _detection(session, "r6").flagged
+
+
+def test_a_change_found_a_revision_late_is_moved_to_its_revision_and_confirmed_there(
+    session, database_url, tmp_path
+):
+    """r6's pair runs r5 and r6 both at 30 %: r6 changed nothing and its flag is dropped, but r5's
+    runs sit +50 % on r5's own baseline, so r5's verdict becomes a suspected change, whose own
+    pairs against r4 confirm it: the regression is r5's, and r6's CI verdict passes."""
+    _missed_then_flagged(session, database_url, tmp_path)
+    runs = []
+    while (job := lease_job(session, "perf-1", 60, 3)) is not None:
+        runs.append((job.pair, job.revision.title, job.confirms_revision.title))
+        _run(session, database_url, tmp_path, job, 20.0 if job.revision.title == "r4" else 30.0)
+    # r6's first pair decided it; then r5's two pairs against r4
+    assert runs == [(1, "r5", "r6"), (1, "r6", "r6"), (1, "r4", "r5"), (1, "r5", "r5")] + [
+        (2, "r4", "r5"),
+        (2, "r5", "r5"),
+    ], runs
+    late, moved = _detection(session, "r6"), _detection(session, "r5")
+    assert late.confirmation == "dropped", late.confirmation_reason
+    assert "r5's runs in these pairs were already at the new level (+" in late.confirmation_reason
+    assert moved.flagged and moved.verdict == "change"
+    assert moved.reason.startswith("found a revision late: r6's confirmation pairs ran it +")
+    assert moved.confirmation == "held", moved.confirmation_reason
+    assert moved.confirmation_reason.startswith("confirmed by 2 of 2 pairs")
+    regressions = {
+        (r.good_revision.title, r.bad_revision.title): r.confirmation
+        for r in session.scalars(select(Regression))
+    }
+    assert regressions == {("r4", "r5"): "confirmed", ("r5", "r6"): "not_confirmed"}
+    assert ci_verdict(session, NAME, "r6").regressions == 0
+    assert ci_verdict(session, NAME, "r5").regressions == 1
+    # a re-analysis judges r5 afresh (no change, on its own runs), then r6's pairs move it again
+    said = {
+        (d.revision.title, d.confirmation, d.reason, d.confirmation_reason) for d in (late, moved)
+    }
+    reanalyze_component(database_url, moved.revision.component_id)
+    session.expire_all()
+    again = (_detection(session, "r6"), _detection(session, "r5"))
+    assert {
+        (d.revision.title, d.confirmation, d.reason, d.confirmation_reason) for d in again
+    } == said
+    assert not session.scalars(select(Job).where(Job.state == JobState.queued)).all()
+
+
+def test_a_change_moved_back_once_is_not_moved_again(session, database_url, tmp_path):
+    """Everything re-run at 30 % (a host that slowed since the history was measured): r6's flag
+    is moved to r5, whose pairs against r4 show nothing, and it stops there: r4 stays unchanged
+    and no pair runs r3."""
+    _missed_then_flagged(session, database_url, tmp_path)
+    titles = []
+    while (job := lease_job(session, "perf-1", 60, 3)) is not None:
+        titles.append(job.revision.title)
+        _run(session, database_url, tmp_path, job, 30.0)
+    assert titles == ["r5", "r6", "r4", "r5"], titles
+    moved = _detection(session, "r5")
+    assert moved.confirmation == "dropped", moved.confirmation_reason
+    assert "already at the new level" not in moved.confirmation_reason
+    assert _detection(session, "r4").verdict == "no change"
 
 
 def test_pairs_that_disagree_run_the_third(session, database_url, tmp_path):

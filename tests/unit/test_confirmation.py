@@ -8,7 +8,14 @@ import math
 import numpy as np
 import pytest
 from redline.detect.config import ConfigError, DetectionConfig
-from redline.detect.confirmation import DROPPED, HELD, SUSPECTED, hold, seen_before
+from redline.detect.confirmation import (
+    DROPPED,
+    HELD,
+    SUSPECTED,
+    already_moved,
+    hold,
+    seen_before,
+)
 
 BASE = [100.0, 101.0, 99.0, 100.5, 99.5, 100.0]
 UP = [130.0, 131.0, 129.0]
@@ -188,3 +195,25 @@ def test_two_pairs_that_agree_decide_three_and_the_decision_is_what_all_would_gi
             if pairs_decided(pairs[:ran], direction, effect, pending=wanted - ran):
                 decided = pairs_hold(pairs[:ran], direction, effect, wanted).state
                 assert pairs_hold(pairs, direction, effect, wanted).state == decided, pairs
+
+
+def test_a_baseline_revision_rerun_at_the_new_level_already_moved() -> None:
+    """CPU +10 % missed by its own revision's run, flagged at the next: the pair's run of the
+    changed revision sits +10 % on its own baseline (2 % noise), beyond the bar; one at the old
+    level, one moved the other way, or one within the noise, does not."""
+    rng = np.random.default_rng(7)
+    own = 100 * (1 + rng.normal(0, 0.02, 15))
+    found = already_moved([110.0], own, "increase")
+    assert found is not None
+    assert found.moved == pytest.approx(0.10, abs=0.02)
+    assert 0.025 <= found.bar < found.moved
+    assert already_moved([100.5], own, "increase") is None
+    assert already_moved([110.0], own, "decrease") is None
+    assert already_moved([90.0], own, "decrease") is not None
+    assert already_moved([100.0 + 100 * found.bar * 0.8], own, "increase") is None
+
+
+def test_already_moved_needs_values_on_both_sides() -> None:
+    assert already_moved([math.nan], [100.0] * 5, "increase") is None
+    assert already_moved([110.0], [], "increase") is None
+    assert already_moved([110.0], [0.0] * 5, "increase") is None

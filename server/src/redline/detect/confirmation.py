@@ -197,6 +197,46 @@ def pair_bar(effect: float, noise: float) -> float:
     return max(PAIR_SDS * math.sqrt(2) * noise, PAIR_FLOOR)
 
 
+@dataclass(frozen=True)
+class Earlier:
+    """Where a flagged revision's pairs put its baseline revision: their runs of it ``moved``
+    (relative) from the level of its own baseline, beyond ``bar``."""
+
+    moved: float
+    bar: float
+
+
+def already_moved(
+    reruns: Sequence[float] | np.ndarray,
+    own_baseline: Sequence[float] | np.ndarray,
+    direction: str,
+    rel_scale: float = 0.01,
+) -> Earlier | None:
+    """Whether a change flagged at a revision, which its pairs did not show against its baseline
+    revision, came at that baseline revision instead: whether the pairs' runs of it (``reruns``)
+    sit the flagged way beyond `pair_bar` of the noise of *its* baseline (``own_baseline``, its
+    execution values), their median against that baseline's. None when they do not, or when
+    either has no finite value.
+
+    With one execution a revision, a change's own run can miss it (its noise pulled it back);
+    the change then pools into the baseline and is flagged at the next, unchanged revision,
+    whose pairs rightly show nothing: both of their revisions have it (`bench_verdicts`: CPU
+    +10 % and +30 % were each flagged a revision late and dropped)."""
+    runs = np.asarray(reruns, dtype=float)
+    runs = runs[np.isfinite(runs)]
+    base = np.asarray(own_baseline, dtype=float)
+    base = base[np.isfinite(base)]
+    if not runs.size or not base.size:
+        return None
+    level = median(base)
+    noise = relative_noise(base, rel_scale)
+    if not level or not math.isfinite(noise):
+        return None
+    moved = (median(runs) - level) / abs(level)
+    bar = pair_bar(moved, noise)
+    return Earlier(moved, bar) if _shows(moved, direction, bar) else None
+
+
 def _complete(pairs: Sequence[tuple[float, float]]) -> list[tuple[float, float]]:
     return [(b, c) for b, c in pairs if math.isfinite(b) and math.isfinite(c) and b != 0]
 

@@ -25,7 +25,7 @@ from collections import defaultdict
 from datetime import timedelta
 
 from redline.detect.config import DetectionConfig
-from redline.detect.confirmation import SUSPECTED, pairs_decided, pairs_hold
+from redline.detect.confirmation import DROPPED, SUSPECTED, pairs_decided, pairs_hold
 from redline.detect.counters import is_count
 from redline.server.models import (
     Detection,
@@ -38,9 +38,12 @@ from redline.server.models import (
     Summary,
     utcnow,
 )
+from redline.server.services.detection_config import component_config
 from redline.server.services.jobs import current_pairs
 from redline.server.services.revisions import CANCELLED, UNFINISHED
 from redline.worker.confirmation import UNDECIDED, baseline_noise
+from redline.worker.found_late import move_back
+from redline.worker.history import reanalysing
 from sqlalchemy import exists, func, select
 from sqlalchemy.orm import Session
 
@@ -237,6 +240,7 @@ def settle_pairs(session: Session, revision: Revision) -> bool:
                 "revisions will confirm it instead"
             )
         return True
+    moved: list[Revision] = []
     for detection, process, counter in suspected:
         if is_count(process, counter):
             detection.confirmation_reason = (
@@ -264,7 +268,22 @@ def settle_pairs(session: Session, revision: Revision) -> bool:
         if spared:
             reason += f"; {len(spared)} more pair(s) not needed: these decided it"
         detection.confirmation, detection.confirmation_reason = found.state, reason
+        if found.state == DROPPED:  # perhaps because its baseline revision made the change
+            earlier = move_back(session, detection, revision, [b for b, _ in measured])
+            if earlier is not None:
+                moved.append(earlier)
+    for earlier in moved:
+        _confirm_moved(session, earlier)
     return True
+
+
+def _confirm_moved(session: Session, revision: Revision) -> None:
+    """Pairs for a revision a change was moved back to (`redline.worker.found_late`), against its
+    own baseline revision, unless a re-analysis is storing (the pairs queued when the change was
+    first moved are judged then); judged as far as they ran."""
+    if not reanalysing(session, revision.component_id):
+        queue_confirmations(session, revision, component_config(session, revision.component_id))
+    settle_pairs(session, revision)
 
 
 def _decided(

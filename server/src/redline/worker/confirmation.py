@@ -78,18 +78,23 @@ def _baseline(levels: list[tuple[str, int, np.ndarray]], newest: int, pooled: in
     return np.concatenate([values for _, _, values in levels[first : newest + 1]])
 
 
-def baseline_noise(session: Session, detection: Detection) -> float:
-    """How much one execution value of the detection's baseline varies, relative to its level
-    (`redline.detect.confirmation.relative_noise`); NaN when its baseline's summaries are gone.
-    The bar a confirmation pair must pass (`redline.detect.confirmation.pair_bar`)."""
+def baseline_values(session: Session, detection: Detection) -> np.ndarray | None:
+    """The execution values (medians) of the baseline the detection was judged against, from
+    the stored summaries; None when they are gone."""
     levels = _levels(session, detection.series_id, count=False)
     newest = next(
         (i for i, (_, rid, _) in enumerate(levels) if rid == detection.baseline_revision_id),
         None,
     )
-    if newest is None:
-        return math.nan
-    return relative_noise(_baseline(levels, newest, detection.baseline_revisions))
+    return None if newest is None else _baseline(levels, newest, detection.baseline_revisions)
+
+
+def baseline_noise(session: Session, detection: Detection) -> float:
+    """How much one execution value of the detection's baseline varies, relative to its level
+    (`redline.detect.confirmation.relative_noise`); NaN when its baseline's summaries are gone.
+    The bar a confirmation pair must pass (`redline.detect.confirmation.pair_bar`)."""
+    values = baseline_values(session, detection)
+    return math.nan if values is None else relative_noise(values)
 
 
 def _later_revisions(session: Session, key: str, revision_id: int, detection: Detection) -> int:

@@ -33,16 +33,18 @@ from redline.detect.result import NOT_MEASURED, SHORT_BASELINE, not_enough
 from redline.detect.result import Detection as Verdict
 from redline.detect.verdict import floored, judge_series
 from redline.server.db import bulk_insert, session_scope
-from redline.server.models import Component, Detection, Reanalysis, Revision, utcnow
+from redline.server.models import Component, Detection, Revision, utcnow
 from redline.server.services.detection_config import component_config
 from redline.worker.baselines import Baseline, Baselines
 from redline.worker.confirm_runs import queue_confirmations, settle_pending_pairs
 from redline.worker.confirmation import confirm_by_history
+from redline.worker.found_late import still_moved
 from redline.worker.grouping import group_revision
 from redline.worker.history import (
     count_totals,
     judged_counters,
     no_longer_measured,
+    reanalysing,
 )
 from redline.worker.remeasure import queue_for_baselines
 from redline.worker.rows import Judged, KsChange, detection_row, ks_change
@@ -229,14 +231,17 @@ def store(
     config = config or component_config(session, revision.component_id)
     own = [row for row in rows if row["revision_id"] == revision.id]
     _store_steps(session, [row for row in rows if row["revision_id"] != revision.id], config)
-    session.execute(delete(Detection).where(Detection.revision_id == revision.id))
+    own, kept = still_moved(session, revision, own)
+    session.execute(
+        delete(Detection).where(Detection.revision_id == revision.id, Detection.id.not_in(kept))
+    )
     bulk_insert(session, cast(Table, Detection.__table__), own)
     group_revision(session, revision, config.alarming)
     if rerun:  # new results only: a re-analysis never queues machine time for old revisions
         queue_confirmations(session, revision, config)
         queue_for_baselines(session, revision, own)
     settle_pending_pairs(session, revision.component_id)
-    if not _reanalysing(session, revision.component_id):
+    if not reanalysing(session, revision.component_id):
         confirm_by_history(
             session, revision.component_id, config.confirm_revisions, config.alarming
         )
@@ -265,15 +270,6 @@ def _store_steps(session: Session, rows: list[dict[str, Any]], config: Detection
     )
     for revision in earlier:
         group_revision(session, revision, config.alarming)
-
-
-def _reanalysing(session: Session, component_id: int) -> bool:
-    """A re-analysis of the component is storing its verdicts: the later revisions' verdicts
-    are a mix of old and new, so settling by history waits for the run's end, which settles
-    once for the component (`redline.worker.reanalysis_finish.finish`; the component's row,
-    locked by both, orders the two)."""
-    state = session.scalar(select(Reanalysis.state).where(Reanalysis.component_id == component_id))
-    return state == "running"
 
 
 def judge_revision(

@@ -95,27 +95,32 @@ def group_revision(session: Session, revision: Revision, alarming: Collection[st
         .order_by(Detection.id)
     )
     for detection, process, counter in flagged:
-        if detection.direction != worse(process, counter):
-            continue  # an improvement
-        span = _span(session, detection, revision)
-        if span is None:
-            continue
-        good, bad = span
-        regression = _overlapping(session, revision.component_id, good, bad)
-        if regression is None:
-            regression = Regression(
-                component_id=revision.component_id,
-                good_revision_id=good.id,
-                bad_revision_id=bad.id,
-                good_key=good.order_key,
-                bad_key=bad.order_key,
-                state=RegressionState.new,
-            )
-            session.add(regression)
-            session.flush()
-        else:
-            _widen(regression, good, bad)
-        detection.regression_id = regression.id
-        detection.confirmation = SUSPECTED  # until the later revisions settle it
+        if detection.direction == worse(process, counter):  # not an improvement
+            group_detection(session, detection, revision)
     session.flush()
     _drop_untriaged_empty(session, revision.component_id)
+
+
+def group_detection(session: Session, detection: Detection, revision: Revision) -> None:
+    """Attach one flagged change for the worse of ``revision`` to the regression its span
+    overlaps (widened to it), else to a new one; suspected until it is settled."""
+    span = _span(session, detection, revision)
+    if span is None:
+        return
+    good, bad = span
+    regression = _overlapping(session, revision.component_id, good, bad)
+    if regression is None:
+        regression = Regression(
+            component_id=revision.component_id,
+            good_revision_id=good.id,
+            bad_revision_id=bad.id,
+            good_key=good.order_key,
+            bad_key=bad.order_key,
+            state=RegressionState.new,
+        )
+        session.add(regression)
+        session.flush()
+    else:
+        _widen(regression, good, bad)
+    detection.regression_id = regression.id
+    detection.confirmation = SUSPECTED  # until the later revisions settle it

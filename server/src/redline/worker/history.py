@@ -12,6 +12,7 @@ from redline.detect.result import NOT_ENOUGH_DATA
 from redline.server.models import (
     Detection,
     Execution,
+    Reanalysis,
     Revision,
     Series,
     Summary,
@@ -270,3 +271,12 @@ def no_longer_measured(
     ran = {cases[series_id] for series_id in candidate if series_id in cases}
     lost = [series_id for series_id in gone if cases.get(series_id) in ran]
     return sorted(judged_counters(session, lost, context)) if lost else []
+
+
+def reanalysing(session: Session, component_id: int) -> bool:
+    """A re-analysis of the component is storing its verdicts: the later revisions' verdicts
+    are a mix of old and new, so settling by history waits for the run's end, which settles
+    once for the component (`redline.worker.reanalysis_finish.finish`; the component's row,
+    locked by both, orders the two), and no machine time is queued for old revisions."""
+    state = session.scalar(select(Reanalysis.state).where(Reanalysis.component_id == component_id))
+    return state == "running"
