@@ -1,7 +1,7 @@
 """Delivering alerts when the other end misbehaves, on real Postgres, a real SMTP server (aiosmtpd,
 STARTTLS and a login) and a real HTTP receiver: a mail server that answers 4xx, refuses for good
 (5xx), is slow, or loses its worker mid-mail; a webhook receiver whose port is closed; a success
-that comes in after its lease lapsed."""
+that comes in after its lease lapsed; a URL aimed at the cloud's metadata service."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 from redline.agent.network import free_port
 from redline.server.db import session_factory
-from redline.server.models import Delivery
+from redline.server.models import Delivery, Subscription
 from redline.worker.deliver import attempt, claim, deliver_due, http_client, record
 from sqlalchemy import update
 
@@ -161,3 +161,31 @@ def test_a_success_that_comes_after_its_lease_lapsed_is_kept_and_never_sent_agai
     # a failure stored after the success leaves it delivered
     record(database_url, api.settings, [(second, failure)])
     assert deliveries(api, hook["id"])[0]["state"] == "delivered"
+
+
+METADATA = "http://169.254.169.254/latest/meta-data/iam/security-credentials/"
+
+
+def test_a_url_aimed_at_the_metadata_service_is_refused_when_set_and_never_asked(
+    api, tmp_path, receiver
+):
+    """What a webhook's receiver answers lands in the delivery log: a URL aimed at the host's
+    metadata service would read its credentials there. The API refuses one (422, naming it); one
+    stored before that check, or a name that resolves there, fails at once, never asked."""
+    for url in (METADATA, "http://[fe80::1]/hook", "http://[::ffff:169.254.169.254]/"):
+        answer = api.post("/api/v1/components/builder/subscriptions", "admin",
+                          {"kind": "webhook", "url": url})  # fmt: skip
+        assert answer.status_code == 422, answer.text
+        assert "link-local or cloud metadata address" in answer.text, answer.text
+    hook = subscribe(api, eager(receiver, "/hook"))["id"]
+    with session_factory(api.settings.database_url)() as session:  # as stored before the check
+        session.execute(update(Subscription).values(url=METADATA))
+        session.commit()
+    revisions(api, tmp_path, [10.0] * 5 + [14.0])
+    alert(api)
+    (log,) = deliveries(api, hook)
+    assert (log["state"], log["attempts"]) == ("failed", 1), log
+    assert log["last_error"] == (
+        "refused: 169.254.169.254 is a link-local or cloud metadata address"
+    ), log
+    assert not receiver.to("/hook")

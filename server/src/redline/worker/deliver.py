@@ -2,15 +2,15 @@
 outcome stored, each in its own transaction.
 
 A delivery is leased before it is sent (state ``sending`` until ``lease_until``), so a worker
-killed mid-send leaves it to be sent again once the lease lapses, with the same delivery id
-(header ``X-Redline-Delivery``, the mail's Message-ID) for the receiver to recognise. A failure
-is retried with exponential backoff and jitter until ``REDLINE_ALERT_MAX_ATTEMPTS``; a mail
-server's permanent refusal of the mail (a 5xx reply to its sender, recipient or content) is
-failed at once. A success is stored as soon as its send returns, even one whose lease lapsed
-meanwhile, and is never sent again. Sends run on a few threads with a timeout each
-(``REDLINE_ALERT_TIMEOUT_S``), each outcome stored as it comes and free threads given more work
-meanwhile, so one slow receiver holds up neither the others nor ingestion and detection, which
-run in other workers' queues.
+killed mid-send leaves it to be sent again once the lease lapses, with the same delivery id (header
+``X-Redline-Delivery``, the mail's Message-ID) for the receiver to recognise. A failure is retried
+with exponential backoff and jitter until ``REDLINE_ALERT_MAX_ATTEMPTS``; a mail server's permanent
+refusal of the mail (a 5xx reply to its sender, recipient or content) is failed at once, as is a
+URL whose host is a link-local or metadata address (`redline.server.core.targets`), which is never
+asked. A success is stored as soon as its send returns, even one whose lease lapsed meanwhile, and
+is never sent again. Sends run on a few threads with a timeout each (``REDLINE_ALERT_TIMEOUT_S``),
+each outcome stored as it comes and free threads given more work meanwhile, so one slow receiver
+holds up neither the others nor ingestion and detection, which run in other workers' queues.
 """
 
 from __future__ import annotations
@@ -29,10 +29,11 @@ from datetime import datetime, timedelta
 from email.message import EmailMessage
 from email.utils import formatdate
 from typing import Any
-from urllib.parse import quote
+from urllib.parse import quote, urlsplit
 
 import httpx
 from redline.server.core.config import Settings
+from redline.server.core.targets import refused_host
 from redline.server.db import session_scope
 from redline.server.models import Component, Delivery, Subscription, utcnow
 from redline.worker import messages
@@ -73,6 +74,9 @@ def backoff(attempts: int, base: float) -> timedelta:
 def _post(
     client: httpx.Client, url: str, body: bytes, headers: dict[str, str], timeout: float
 ) -> None:
+    refused = refused_host(urlsplit(url).hostname or "")
+    if refused is not None:  # its answer would land in the delivery log: never asked
+        raise SendError(f"refused: {refused}", permanent=True)
     try:
         answer = client.post(url, content=body, headers=headers, timeout=timeout)
     except httpx.HTTPError as error:
