@@ -7,13 +7,19 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-from redline.server.models import Detection, DetectionConfigRow, Regression, Revision
+from redline.server.models import (
+    Detection,
+    DetectionConfigRow,
+    Regression,
+    Revision,
+    Summary,
+)
 from redline.server.schemas.components import ComponentCreate
 from redline.server.services.components import create_component
 from redline.worker.detection import detect_revision
 from redline.worker.ingest import ingest_execution
 from redline.worker.reanalysis import reanalyze_component
-from sqlalchemy import select
+from sqlalchemy import func, select
 
 from tests.support.api import api_with
 from tests.support.history import add_executions, ingest_and_detect
@@ -28,16 +34,20 @@ def _judge(
     levels: list[float],
     start: int = 1,
     counter: str = "cpu",
+    **recorded,
 ):
     """Revisions r<start>.. with RUNS executions each around ``levels`` (2 % noise) of
-    ``counter``, ingested and judged one by one, as the service does."""
+    ``counter``, ingested and judged one by one, as the service does; ``recorded``: what
+    `write_recording` takes besides (``host_percent``)."""
     rng = np.random.default_rng(start)
     for number, level in enumerate(levels, start=start):
         runs = [
             {counter: rng.normal(level * (1 + rng.normal(0, 0.01)), level * 0.02, 40)}
             for _ in range(RUNS)
         ]
-        executions = add_executions(session, tmp_path, NAME, f"r{number}", str(number), runs)
+        executions = add_executions(
+            session, tmp_path, NAME, f"r{number}", str(number), runs, **recorded
+        )
         ingest_and_detect(database_url, executions)
     session.expire_all()
 
@@ -90,6 +100,29 @@ def test_a_spike_that_returns_is_not_confirmed_and_keeps_its_figures(
     assert r5.confirmation == "dropped" and r5.effect is not None and r5.effect > 0.4
     assert "returned towards the old level" in r5.confirmation_reason
     assert r5.regression_id == regression.id  # its figures stay with the regression
+
+
+def test_revisions_measured_while_the_host_was_busy_neither_hold_a_change_nor_drop_it(
+    session, database_url, tmp_path
+):
+    """r5 a spike at 30 % CPU; r6 and r7 at 30 % too, but measured while the host was busy (the
+    load's share): detection does not judge them, and confirmation did not leave them out, so
+    they held r5's spike as a regression. Now r5 waits for revisions measured in quiet, and r8
+    and r9, back at 20 %, drop it."""
+    _component(session)
+    _judge(session, database_url, tmp_path, [20.0] * 4 + [30.0])
+    _judge(session, database_url, tmp_path, [30.0, 30.0], start=6, host_percent=90.0)
+    busy = select(func.count(func.distinct(Summary.execution_id))).where(Summary.disturbed)
+    assert session.scalar(busy) == 2 * RUNS  # r6's and r7's, every series of them
+    r5 = _flagged(session)["r5"]
+    assert r5.confirmation == "suspected", r5.confirmation_reason
+    assert "still suspected: waiting for 2 more revision(s)" in (
+        session.scalars(select(Regression)).one().confirmation_reason
+    )
+    _judge(session, database_url, tmp_path, [20.0, 20.2], start=8)
+    r5 = _flagged(session)["r5"]
+    assert r5.confirmation == "dropped", r5.confirmation_reason
+    assert "returned towards the old level" in r5.confirmation_reason
 
 
 def test_without_a_wait_a_flagged_change_is_confirmed_at_once(session, database_url, tmp_path):

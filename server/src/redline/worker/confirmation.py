@@ -56,13 +56,19 @@ def _levels(session: Session, series_id: int, count: bool) -> list[tuple[str, in
     """The series' revisions in order, (sort key, revision id) as everywhere: (sort key,
     revision id, one value per execution). Ordered by execution within a sort key, revisions
     with one key (commits of one second) came in the order their runs did: a regression's
-    revision after the unchanged one it followed read as a spike that returned."""
+    revision after the unchanged one it followed read as a spike that returned. A phase measured
+    while the host was busy is left out, as detection leaves it out: a busy spell after a flag
+    would hold it, and one in the baseline would widen the bar a confirmation pair must pass."""
     value = Summary.mean if count else Summary.p50
     rows = session.execute(
         select(Revision.order_key, Revision.id, value)
         .join(Execution, Execution.id == Summary.execution_id)
         .join(Revision, Revision.id == Execution.revision_id)
-        .where(Summary.series_id == series_id, Execution.id.in_(ingested_executions()))
+        .where(
+            Summary.series_id == series_id,
+            Summary.disturbed.is_(False),
+            Execution.id.in_(ingested_executions()),
+        )
         .order_by(Revision.order_key, Revision.id, Execution.id)
     )
     grouped: dict[tuple[str, int], list[float]] = defaultdict(list)

@@ -8,6 +8,7 @@ from datetime import datetime
 from redline.server.models.base import Base, utcnow
 from sqlalchemy import (
     JSON,
+    Boolean,
     Float,
     ForeignKey,
     Integer,
@@ -50,6 +51,9 @@ class Summary(Base):
     max: Mapped[float] = mapped_column(Float)
     # quantiles at SKETCH_LEVELS (redline.detect.summary): the distribution in 32 numbers
     sketch: Mapped[list[float] | None] = mapped_column(JSON, default=None)
+    #: measured while the host was busy (`redline.recording.disturbance`): charted, never judged,
+    #: and left out of the levels confirmation reads (`redline.worker.confirmation`)
+    disturbed: Mapped[bool] = mapped_column(Boolean, default=False, server_default="false")
 
 
 class FigureCache(Base):

@@ -96,22 +96,23 @@ def store_samples(
     the fault). ``not_judged``: the run must not be judged (the component took no part): its
     samples are kept, but no series gets a summary, so it makes no trend point and no baseline.
     ``disturbed``: (case, phase, params) → why: the series of those segments are summarized and
-    charted, but not judged in this execution (`redline.recording.disturbance`).
+    charted, but not judged in this execution (`redline.recording.disturbance`); their summaries
+    say so (``disturbed``), and confirmation leaves them out.
     """
     samples = {key: values for key, values in samples.items() if len(values)}
     ids = series_ids(session, component_id, sorted(samples))
     session.execute(delete(Summary).where(Summary.execution_id == execution.id))
     summaries = {key: summarize(np.asarray(samples[key], dtype=np.float64)) for key in ids}
-    rows = [
-        Summary(execution_id=execution.id, series_id=ids[key], **stats)
-        for key, stats in summaries.items()
-        if stats is not None and not_judged is None
-    ]
-    session.add_all(rows)
     bad = {
         ids[key]: disturbed[(key.case, key.phase, key.params)]
         for key in ids
         if disturbed and (key.case, key.phase, key.params) in disturbed
     }
+    rows = [
+        Summary(execution_id=execution.id, series_id=ids[key], disturbed=ids[key] in bad, **stats)
+        for key, stats in summaries.items()
+        if stats is not None and not_judged is None
+    ]
+    session.add_all(rows)
     write_samples(samples_path(execution.recording_path), ids, samples, not_judged, bad)
     return len(rows)
