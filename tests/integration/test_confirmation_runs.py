@@ -103,6 +103,18 @@ def _run(session, database_url: str, tmp_path: Path, job: Job, level: float) -> 
     session.expire_all()
 
 
+def _run_r4_gone(session, database_url: str, tmp_path: Path) -> None:
+    """Every confirmation run leased, at 30 % CPU, but r4's: its commit is gone."""
+    while (job := lease_job(session, "perf-1", 60, 3)) is not None:
+        if job.revision.title == "r4":  # what the agent reports when the commit is gone
+            job.state, job.reason = JobState.failed, "checkout failed: commit abc123 not found"
+            session.commit()
+            detect_revision(database_url, job.confirms_revision_id)
+            session.expire_all()
+        else:
+            _run(session, database_url, tmp_path, job, 30.0)
+
+
 def _r5_detection(session) -> Detection:
     return session.scalars(
         select(Detection)
@@ -368,9 +380,13 @@ def test_a_change_found_a_revision_late_is_moved_to_its_revision_and_confirmed_t
     assert regressions == {("r4", "r5"): "confirmed", ("r5", "r6"): "not_confirmed"}
     assert ci_verdict(session, NAME, "r6").regressions == 0
     assert ci_verdict(session, NAME, "r5").regressions == 1
-    # a re-analysis judges r5 afresh (no change, on its own runs), then r6's pairs move it again
+    # a re-analysis judges r5 afresh (no change, on its own runs): the moved verdict stays, its
+    # regression keeps its id (alerts link to it), and r6's reason still says where it went
     said = {
         (d.revision.title, d.confirmation, d.reason, d.confirmation_reason) for d in (late, moved)
+    }
+    ids = {
+        (r.id, r.good_revision_id, r.bad_revision_id) for r in session.scalars(select(Regression))
     }
     reanalyze_component(database_url, moved.revision.component_id)
     session.expire_all()
@@ -378,7 +394,27 @@ def test_a_change_found_a_revision_late_is_moved_to_its_revision_and_confirmed_t
     assert {
         (d.revision.title, d.confirmation, d.reason, d.confirmation_reason) for d in again
     } == said
+    assert {
+        (r.id, r.good_revision_id, r.bad_revision_id) for r in session.scalars(select(Regression))
+    } == ids
     assert not session.scalars(select(Job).where(Job.state == JobState.queued)).all()
+
+
+def test_a_moved_change_whose_own_pairs_cannot_run_is_dropped_not_settled_by_its_own_runs(
+    session, database_url, tmp_path
+):
+    """r5's own runs missed the change, so the later revisions cannot settle it as they settle a
+    flag (they would compare them with r5's own, unchanged level): when its pairs cannot run it
+    is dropped, saying why."""
+    _missed_then_flagged(session, database_url, tmp_path)
+    _run_r4_gone(session, database_url, tmp_path)
+    moved = _detection(session, "r5")
+    assert moved.reason.startswith("found a revision late")
+    assert moved.confirmation == "dropped", moved.confirmation_reason
+    assert moved.confirmation_reason.startswith(
+        "not confirmed: found a revision late, and its own pairs could not decide it (re-runs "
+        "could not decide: no confirmation pair could run (r4: checkout failed"
+    ), moved.confirmation_reason
 
 
 def test_a_change_moved_back_once_is_not_moved_again(session, database_url, tmp_path):
@@ -413,14 +449,7 @@ def test_a_baseline_that_can_no_longer_run_is_named_and_the_history_decides_inst
     session, database_url, tmp_path
 ):
     host = _flagged_history(session, database_url, tmp_path)
-    while (job := lease_job(session, "perf-1", 60, 3)) is not None:
-        if job.revision.title == "r4":  # what the agent reports when the commit is gone
-            job.state, job.reason = JobState.failed, "checkout failed: commit abc123 not found"
-            session.commit()
-            detect_revision(database_url, job.confirms_revision_id)
-            session.expire_all()
-        else:
-            _run(session, database_url, tmp_path, job, 30.0)
+    _run_r4_gone(session, database_url, tmp_path)
     detection = _r5_detection(session)
     assert detection.confirmation == "suspected"
     assert detection.confirmation_reason == (

@@ -26,7 +26,25 @@ from redline.server.schemas.alerts import CommitStatusTarget, SubscriptionCreate
 )
 def test_link_local_metadata_multicast_and_unspecified_addresses_are_refused(address) -> None:
     said = refused_address(address)
-    assert said is not None and said.startswith(f"{address} is a ")
+    assert said is not None and said.startswith(address) and " is a " in said
+
+
+@pytest.mark.parametrize(
+    "address",
+    [
+        "2852039166",  # decimal
+        "0251.0376.0251.0376",  # octal
+        "0xa9fea9fe",  # hex
+        "169.254.43518",  # short
+        "::169.254.169.254",  # IPv4-compatible
+        "64:ff9b::a9fe:a9fe",  # NAT64
+        "2002:a9fe:a9fe::",  # 6to4
+    ],
+)
+def test_the_metadata_address_in_any_form_a_resolver_reads_is_refused(address) -> None:
+    assert refused_address(address) == (
+        f"{address} (169.254.169.254) is a link-local or cloud metadata address"
+    )
 
 
 @pytest.mark.parametrize(
@@ -42,6 +60,8 @@ def test_a_name_is_judged_by_what_it_resolves_to() -> None:
     assert refused_host("169.254.169.254") == (
         "169.254.169.254 is a link-local or cloud metadata address"
     )
+    # the resolver's own reading, as a delivery checks a name (no network needed for it)
+    assert refused_host("2852039166") is not None
 
 
 def test_subscriptions_and_commit_status_targets_refuse_such_a_url_naming_it() -> None:
@@ -51,4 +71,6 @@ def test_subscriptions_and_commit_status_targets_refuse_such_a_url_naming_it() -
         CommitStatusTarget(
             provider="github", repository="a/b", api_url="http://[fe80::1]/api", token="t"
         )
+    with pytest.raises(ValidationError, match=r"2852039166 \(169.254.169.254\) is a link-local"):
+        SubscriptionCreate(kind="webhook", url="http://2852039166/latest/meta-data/")
     assert SubscriptionCreate(kind="webhook", url="http://127.0.0.1:8080/hook").url

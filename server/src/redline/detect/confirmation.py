@@ -197,6 +197,11 @@ def pair_bar(effect: float, noise: float) -> float:
     return max(PAIR_SDS * math.sqrt(2) * noise, PAIR_FLOOR)
 
 
+#: how the reason of a verdict moved back to the revision that made the change begins
+#: (`redline.worker.found_late`), and the mark that it is not moved again
+FOUND_LATE = "found a revision late"
+
+
 @dataclass(frozen=True)
 class Earlier:
     """Where a flagged revision's pairs put its baseline revision: their runs of it ``moved``

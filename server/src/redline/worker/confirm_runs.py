@@ -174,12 +174,17 @@ def _flagged_sets(session: Session, suspected: list[Detection]) -> dict[str, lis
 
 
 def _values(session: Session, jobs: list[Job]) -> dict[tuple[int, int, int], tuple[float, float]]:
-    """(series, pair, revision) -> (median, mean) of each confirmation execution that ran."""
+    """(series, pair, revision) -> (median, mean) of each confirmation execution that ran, but
+    of no phase measured while the host was busy: that pair is then incomplete for the series."""
     rows = session.execute(
         select(Summary.series_id, Job.pair, Job.revision_id, Summary.p50, Summary.mean)
         .join(Execution, Execution.id == Summary.execution_id)
         .join(Job, Job.id == Execution.job_id)
-        .where(Job.id.in_([job.id for job in jobs]), Job.state == JobState.done)
+        .where(
+            Job.id.in_([job.id for job in jobs]),
+            Job.state == JobState.done,
+            Summary.disturbed.is_(False),
+        )
     )
     return {(s, pair, rid): (p50, mean) for s, pair, rid, p50, mean in rows}
 
@@ -241,6 +246,7 @@ def settle_pairs(session: Session, revision: Revision) -> bool:
             )
         return True
     moved: list[Revision] = []
+    rerunnable = _rerunnable(session, session.get_one(Revision, baseline))
     for detection, process, counter in suspected:
         if is_count(process, counter):
             detection.confirmation_reason = (
@@ -268,13 +274,24 @@ def settle_pairs(session: Session, revision: Revision) -> bool:
         if spared:
             reason += f"; {len(spared)} more pair(s) not needed: these decided it"
         detection.confirmation, detection.confirmation_reason = found.state, reason
-        if found.state == DROPPED:  # perhaps because its baseline revision made the change
+        if found.state == DROPPED and rerunnable:  # perhaps its baseline revision changed it
             earlier = move_back(session, detection, revision, [b for b, _ in measured])
             if earlier is not None:
                 moved.append(earlier)
     for earlier in moved:
         _confirm_moved(session, earlier)
     return True
+
+
+def _rerunnable(session: Session, revision: Revision) -> bool:
+    """Whether a change moved back to the revision (`redline.worker.found_late`) can have pairs
+    of its own: its pairs ran already, or, where no re-analysis is storing (which queues no
+    machine time), an agent measured it."""
+    if session.scalar(select(exists().where(Job.confirms_revision_id == revision.id))):
+        return True
+    return not reanalysing(session, revision.component_id) and (
+        _measured_on(session, revision) is not None
+    )
 
 
 def _confirm_moved(session: Session, revision: Revision) -> None:

@@ -19,6 +19,7 @@ from collections.abc import Collection
 import numpy as np
 from redline.detect.confirmation import (
     DROPPED,
+    FOUND_LATE,
     HELD,
     LOOKBACK,
     SUSPECTED,
@@ -135,6 +136,14 @@ def settle(
     evidence for an earlier one. (A
     trial's README commit was flagged on a noisy counter and "held" because the next revision
     raised CPU threefold, and that counter with it.)"""
+    if detection.reason.startswith(FOUND_LATE):
+        # its own runs missed the change (so it was found late): the history cannot settle it
+        detection.confirmation, detection.confirmation_reason = (
+            DROPPED,
+            "not confirmed: found a revision late, and its own pairs could not decide it ("
+            f"{detection.confirmation_reason or 'none ran'}); its own runs missed the change",
+        )
+        return
     count = is_count(process, counter)
     levels = _levels(session, detection.series_id, count)
     position = {rid: i for i, (_, rid, _) in enumerate(levels)}

@@ -231,9 +231,14 @@ def store(
     config = config or component_config(session, revision.component_id)
     own = [row for row in rows if row["revision_id"] == revision.id]
     _store_steps(session, [row for row in rows if row["revision_id"] != revision.id], config)
-    own, kept = still_moved(session, revision, own)
+    kept = still_moved(
+        session, revision.id, ((r["series_id"], r["method"], r["verdict"]) for r in own)
+    )
+    own = [row for row in own if (row["series_id"], row["method"]) not in kept]
     session.execute(
-        delete(Detection).where(Detection.revision_id == revision.id, Detection.id.not_in(kept))
+        delete(Detection).where(
+            Detection.revision_id == revision.id, Detection.id.not_in(list(kept.values()))
+        )
     )
     bulk_insert(session, cast(Table, Detection.__table__), own)
     group_revision(session, revision, config.alarming)

@@ -8,33 +8,30 @@ revision and rightly show nothing, so the flag is dropped and the change is lost
 revision do say where the change is (`redline.detect.confirmation.already_moved`): when they sit
 beyond the noise of *its* baseline, the flagged way, its verdict of the series becomes a
 suspected change, grouped into a regression of its own and confirmed by pairs against its own
-baseline revision, as any flagged change is (queued here unless a re-analysis is storing, which
-queues no machine time; the pairs queued when the change was first moved are judged then).
+baseline revision, as any flagged change is (`redline.worker.confirm_runs`). Only where such
+pairs can be had (an agent measured the revision): its own runs missed the change, so the later
+revisions cannot settle it by history, which drops it if its pairs could not run.
 
-The moved verdict outlives the revision's own verdicts being stored again (each of its
-confirmation runs has it judged again, on its own executions, which did not show the change):
-`still_moved` keeps it, except in a re-analysis, whose later revisions' pairs move it again.
+The moved verdict outlives the revision's own verdicts being stored again, by new results or a
+re-analysis (both judge it on its own executions, which did not show the change): `still_moved`
+keeps it unless it is now judged a change on its own. A regression it opened keeps its id.
 
-Once only: a change moved back is not moved again, or a host that slowed down since the
-history was measured would walk every dropped flag back through it, two runs a revision.
+Once only: a change moved back (its reason begins `FOUND_LATE`) is not moved again, or a host
+that slowed down since the history was measured would walk every dropped flag back through it,
+two runs a revision.
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-from typing import Any
+from collections.abc import Iterable, Sequence
 
-from redline.detect.confirmation import PAIR_SDS, already_moved
+from redline.detect.confirmation import FOUND_LATE, PAIR_SDS, already_moved
 from redline.detect.result import CHANGE, NO_CHANGE
 from redline.server.models import Detection, Revision
 from redline.worker.confirmation import baseline_values
 from redline.worker.grouping import group_detection
-from redline.worker.history import reanalysing
 from sqlalchemy import select
 from sqlalchemy.orm import Session
-
-#: how the reason of a verdict moved back begins (and the mark that it is not moved again)
-FOUND_LATE = "found a revision late"
 
 
 def move_back(
@@ -42,8 +39,9 @@ def move_back(
 ) -> Revision | None:
     """The baseline revision of ``detection`` (a change of ``candidate`` its pairs dropped) when
     the pairs' runs of it (``reruns``) show the change there: its verdict of the series is then
-    a suspected change in a regression, and ``detection``'s reason says where the change went.
-    None when they do not, or when it was moved once already or judged a change already."""
+    a suspected change in a regression, and ``detection``'s reason says where the change went
+    (as it does again when these pairs moved it before). None when they do not, or when it was
+    moved once already or judged a change already."""
     if detection.reason.startswith(FOUND_LATE) or detection.baseline_revision_id is None:
         return None
     earlier = session.scalar(
@@ -53,7 +51,12 @@ def move_back(
             Detection.method == detection.method,
         )
     )
-    if earlier is None or earlier.verdict != NO_CHANGE:
+    if earlier is None:
+        return None
+    if earlier.reason.startswith(f"{FOUND_LATE}: {candidate.title}'s ") and earlier.effect:
+        _went(detection, earlier.revision, earlier.effect)  # moved by these pairs before
+        return None
+    if earlier.verdict != NO_CHANGE:
         return None  # a change already (its own confirmation decides), or never judged
     own = baseline_values(session, earlier)
     found = None if own is None else already_moved(reruns, own, detection.direction)
@@ -61,7 +64,8 @@ def move_back(
         return None
     revision = earlier.revision
     was = f"{100 * earlier.effect:+.1f} %" if earlier.effect is not None else "no figure"
-    moved, bar = f"{100 * found.moved:+.1f} %", f"{100 * found.bar:+.1f} %"
+    sign = 1.0 if detection.direction == "increase" else -1.0
+    moved, bar = f"{100 * found.moved:+.1f} %", f"{100 * sign * found.bar:+.1f} %"
     earlier.verdict, earlier.flagged, earlier.direction = CHANGE, True, detection.direction
     earlier.effect, earlier.score, earlier.p_value = found.moved, abs(found.moved / found.bar), None
     earlier.reason = (
@@ -70,34 +74,37 @@ def move_back(
         f"further; its own run(s) had shown {was}, no change"
     )
     group_detection(session, earlier, revision)
-    detection.confirmation_reason += (
-        f"; {revision.title}'s runs in these pairs were already at the new level ({moved} on its "
-        f"own baseline): the change is {revision.title}'s, re-run against its own baseline"
-    )
+    _went(detection, revision, found.moved)
     return revision
 
 
+def _went(detection: Detection, revision: Revision, moved: float) -> None:
+    detection.confirmation_reason += (
+        f"; {revision.title}'s runs in these pairs were already at the new level "
+        f"({100 * moved:+.1f} % on its own baseline): the change is {revision.title}'s, re-run "
+        "against its own baseline"
+    )
+
+
 def still_moved(
-    session: Session, revision: Revision, rows: list[dict[str, Any]]
-) -> tuple[list[dict[str, Any]], list[int]]:
-    """``rows``, the revision's fresh verdicts, less those a change moved back to it stands in
-    for (a fresh "no change" of its series and method), and the ids of those moved verdicts,
-    which storing keeps. Nothing is kept in a re-analysis."""
-    if reanalysing(session, revision.component_id):
-        return rows, []
+    session: Session, revision_id: int, fresh: Iterable[tuple[int, str, str]]
+) -> dict[tuple[int, str], int]:
+    """Of the revision's verdicts moved back to it, those that storing its ``fresh`` verdicts
+    ((series id, method, verdict) each) keeps, by (series id, method): those it judges "no
+    change" again on its own executions, which missed the change. The fresh verdicts of those
+    series and methods are not stored."""
     moved = {
         (series_id, method): ident
         for ident, series_id, method in session.execute(
             select(Detection.id, Detection.series_id, Detection.method).where(
-                Detection.revision_id == revision.id, Detection.reason.startswith(FOUND_LATE)
+                Detection.revision_id == revision_id, Detection.reason.startswith(FOUND_LATE)
             )
         )
     }
     if not moved:  # nearly always
-        return rows, []
-    kept = {
-        key
-        for row in rows
-        if (key := (row["series_id"], row["method"])) in moved and row["verdict"] == NO_CHANGE
+        return {}
+    return {
+        (series_id, method): moved[(series_id, method)]
+        for series_id, method, verdict in fresh
+        if (series_id, method) in moved and verdict == NO_CHANGE
     }
-    return [r for r in rows if (r["series_id"], r["method"]) not in kept], [moved[k] for k in kept]

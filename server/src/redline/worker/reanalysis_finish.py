@@ -33,6 +33,7 @@ from redline.server.services.detection_config import component_config
 from redline.worker.confirm_runs import settle_pending_pairs
 from redline.worker.confirmation import confirm_by_history
 from redline.worker.detection import judge_revision, lock_revision, store
+from redline.worker.found_late import still_moved
 from redline.worker.grouping import group_revision
 from redline.worker.samples import ingested_executions
 from sqlalchemy import delete, select, text, update
@@ -287,16 +288,29 @@ def _store_staged(
     order (the order detection stores the flagged ones in, which grouping follows), and group
     its changes into regressions: when it has ``flagged`` ones, or when the verdicts replaced
     belonged to regressions (which may be left empty); otherwise grouping finds nothing to do."""
+    staged = select(StagedDetection).where(
+        StagedDetection.component_id == revision.component_id,
+        StagedDetection.run == run,
+        StagedDetection.revision_id == revision.id,
+    )
+    fresh = session.execute(
+        staged.with_only_columns(
+            StagedDetection.series_id, StagedDetection.method, StagedDetection.verdict
+        )
+    )
+    kept = still_moved(session, revision.id, fresh.tuples())  # its regression keeps its id
     emptied = session.scalars(
         delete(Detection)
-        .where(Detection.revision_id == revision.id)
+        .where(Detection.revision_id == revision.id, Detection.id.not_in(list(kept.values())))
         .returning(Detection.regression_id)
     ).all()
-    session.execute(
+    session.execute(  # all but the kept verdicts' series and methods
         text(
             f"INSERT INTO detection ({DETECTION_COLUMNS}) SELECT {DETECTION_COLUMNS} "
-            "FROM staged_detection WHERE component_id = :component AND run = :run "
-            "AND revision_id = :revision ORDER BY series_id, id"
+            "FROM staged_detection s WHERE component_id = :component AND run = :run "
+            "AND revision_id = :revision AND NOT EXISTS (SELECT 1 FROM detection d WHERE "
+            "d.revision_id = s.revision_id AND d.series_id = s.series_id AND d.method = s.method) "
+            "ORDER BY series_id, id"
         ),
         {"component": revision.component_id, "run": run, "revision": revision.id},
     )

@@ -5,11 +5,13 @@ start of what comes back are kept in the delivery log, which makes a URL aimed a
 services a way to read them. Refused: link-local addresses (169.254.169.254 and fe80::/10, where
 clouds serve instance metadata and credentials), the other known metadata addresses, multicast
 and unspecified ones. Loopback and private addresses stay allowed: a team's chat server or CI is
-often on its own network, and tests and `redline up` post to receivers on this host.
+often on its own network, and tests and `redline up` post to receivers on this host. An address
+is judged in every form a resolver reads as one (decimal, octal, hex IPv4; IPv4 inside IPv6).
 
 Checked twice: on the literal address of a URL when it is set (a clear 422), and on every address
 its host name resolves to before each delivery (a name can point anywhere). A name that resolves
-to another address between the check and the connection (DNS rebinding) is not caught.
+to another address between the check and the connection (DNS rebinding), or that the resolver
+and httpx spell differently (IDNA 2003 against 2008), is not caught.
 """
 
 from __future__ import annotations
@@ -19,16 +21,35 @@ import socket
 
 #: metadata services not on link-local addresses: AWS's over IPv6, Alibaba Cloud's
 METADATA = frozenset(map(ipaddress.ip_address, ("fd00:ec2::254", "100.100.100.200")))
+#: the well-known NAT64 prefix: its last 32 bits are the IPv4 address reached
+NAT64 = ipaddress.IPv6Network("64:ff9b::/96")
+
+
+def _ip(address: str) -> ipaddress.IPv4Address | ipaddress.IPv6Address | None:
+    """``address`` as an IP, in any form a resolver takes as one (``2852039166``, ``0251.0376``
+    and ``0xa9fea9fe`` are 169.254.169.254 to ``getaddrinfo``); IPv4 carried inside IPv6
+    (mapped, compatible, NAT64, 6to4) as the IPv4 it reaches; None for a name."""
+    plain = address.split("%", 1)[0]  # fe80::1%eth0: its zone dropped
+    try:
+        ip: ipaddress.IPv4Address | ipaddress.IPv6Address = ipaddress.ip_address(plain)
+    except ValueError:
+        try:  # inet_aton reads the numeric forms resolvers accept: decimal, octal, hex, short
+            ip = ipaddress.IPv4Address(socket.inet_aton(plain))
+        except (OSError, UnicodeError):
+            return None
+    if isinstance(ip, ipaddress.IPv6Address):
+        carried = ip.ipv4_mapped or ip.sixtofour
+        if carried is None and (int(ip) >> 32 == 0 or ip in NAT64):
+            carried = ipaddress.IPv4Address(int(ip) & 0xFFFFFFFF)
+        return carried or ip
+    return ip
 
 
 def _kind(address: str) -> str | None:
-    """What kind of refused address the IP ``address`` is; None when it is allowed (or no IP)."""
-    try:
-        ip = ipaddress.ip_address(address.split("%", 1)[0])  # fe80::1%eth0: its zone dropped
-    except ValueError:
+    """What kind of refused address ``address`` is; None when it is allowed (or a name)."""
+    ip = _ip(address)
+    if ip is None:
         return None
-    if isinstance(ip, ipaddress.IPv6Address) and ip.ipv4_mapped is not None:
-        ip = ip.ipv4_mapped
     if ip in METADATA or ip.is_link_local:
         return "a link-local or cloud metadata address"
     if ip.is_multicast or ip.is_unspecified:
@@ -39,7 +60,12 @@ def _kind(address: str) -> str | None:
 def refused_address(address: str) -> str | None:
     """Why nothing may be sent to the literal IP ``address``; None when it may (or is no IP)."""
     kind = _kind(address)
-    return None if kind is None else f"{address} is {kind}"
+    if kind is None:
+        return None
+    ip = str(_ip(address))
+    return (
+        f"{address} is {kind}" if ip == address.split("%", 1)[0] else f"{address} ({ip}) is {kind}"
+    )
 
 
 def refused_host(host: str) -> str | None:
