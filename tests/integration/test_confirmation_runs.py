@@ -56,12 +56,16 @@ def _measured(
     host: Host,
     start: int = 1,
     leased: bool = True,
+    **recorded,
 ) -> None:
     """Revisions r<start>.. measured on ``host`` (as an agent's uploads, or an import's when
-    not ``leased``), ingested and judged."""
+    not ``leased``), ingested and judged; ``recorded``: what `write_recording` takes besides
+    (``host_percent``)."""
     for number, level in enumerate(levels, start=start):
         runs = [_cpu(level, number * 10 + i) for i in range(RUNS)]
-        executions = add_executions(session, tmp_path, NAME, f"r{number}", str(number), runs)
+        executions = add_executions(
+            session, tmp_path, NAME, f"r{number}", str(number), runs, **recorded
+        )
         for execution in executions:
             job = session.get_one(Job, execution.job_id)
             job.host_id, job.attempts = host.id, 1 if leased else 0
@@ -431,6 +435,41 @@ def test_a_change_moved_back_once_is_not_moved_again(session, database_url, tmp_
     assert moved.confirmation == "dropped", moved.confirmation_reason
     assert "already at the new level" not in moved.confirmation_reason
     assert _detection(session, "r4").verdict == "no change"
+
+
+def test_a_change_after_a_revision_the_host_was_busy_in_waits_for_its_fresh_run(
+    session, database_url, tmp_path
+):
+    """r5 made the change, but the host was busy in all its runs, so it was not judged, and r6,
+    unchanged, was flagged against r4: a regression of r6's (`bench_verdicts`, twice). Now r5 is
+    run afresh first, r6's pairs and CI verdict wait for it, and judged again in order, the
+    change is r5's, confirmed by its own pairs; r6 passes."""
+    component = create_component(session, ComponentCreate(name=NAME, executions=RUNS))
+    session.add(DetectionConfigRow(component_id=component.id, config={"confirm_pairs": PAIRS}))
+    session.commit()
+    host = register_host(session, RegisterRequest(name="perf-1"))
+    _measured(session, database_url, tmp_path, [20.0] * 4, host)
+    _measured(session, database_url, tmp_path, [30.0], host, start=5, host_percent=90.0)
+    _measured(session, database_url, tmp_path, [30.0], host, start=6)
+    assert _detection(session, "r6").flagged
+    assert not session.scalars(select(Job).where(Job.confirms_revision_id.is_not(None))).all()
+    waiting = ci_verdict(session, NAME, "r6")
+    assert waiting.state == "pending", waiting
+    assert waiting.waiting_for.startswith("a fresh run of r5, whose runs the host was busy in")
+    fresh = lease_job(session, "perf-1", 60, 3)
+    assert (fresh.revision.title, fresh.remeasures_job_id is not None) == ("r5", True)
+    _run(session, database_url, tmp_path, fresh, 30.0)  # quiet this time
+    detect_revision(database_url, _detection(session, "r6").revision_id)  # onward, in order
+    session.expire_all()
+    assert not _detection(session, "r6").flagged
+    while (job := lease_job(session, "perf-1", 60, 3)) is not None:
+        assert job.confirms_revision.title == "r5", job.confirms_revision.title
+        _run(session, database_url, tmp_path, job, 20.0 if job.revision.title == "r4" else 30.0)
+    r5 = _detection(session, "r5")
+    assert r5.confirmation == "held", r5.confirmation_reason
+    verdict = ci_verdict(session, NAME, "r6")
+    assert (verdict.state, verdict.regressions) == ("done", 0), verdict
+    assert ci_verdict(session, NAME, "r5").regressions == 1
 
 
 def test_pairs_that_disagree_run_the_third(session, database_url, tmp_path):

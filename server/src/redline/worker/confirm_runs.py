@@ -39,7 +39,7 @@ from redline.server.models import (
     utcnow,
 )
 from redline.server.services.detection_config import component_config
-from redline.server.services.jobs import current_pairs
+from redline.server.services.jobs import current_pairs, fresh_run_between
 from redline.server.services.revisions import CANCELLED, UNFINISHED
 from redline.worker.confirmation import UNDECIDED, baseline_noise
 from redline.worker.found_late import move_back
@@ -94,6 +94,8 @@ def queue_confirmations(session: Session, revision: Revision, config: DetectionC
     host_id = _measured_on(session, revision)
     if host_id is None:
         return 0  # imported results: no agent measured them, the history confirms them
+    if fresh_run_between(session, revision, [d.baseline_revision_id for d in suspected]):
+        return 0  # the change may be that revision's: judged again once it ran, then queued
     counts: dict[int, int] = defaultdict(int)
     for detection in suspected:
         counts[detection.baseline_revision_id or 0] += 1

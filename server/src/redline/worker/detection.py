@@ -243,8 +243,8 @@ def store(
     bulk_insert(session, cast(Table, Detection.__table__), own)
     group_revision(session, revision, config.alarming)
     if rerun:  # new results only: a re-analysis never queues machine time for old revisions
+        queue_for_baselines(session, revision, own)  # first: the pairs wait for a fresh run
         queue_confirmations(session, revision, config)
-        queue_for_baselines(session, revision, own)
     settle_pending_pairs(session, revision.component_id)
     if not reanalysing(session, revision.component_id):
         confirm_by_history(

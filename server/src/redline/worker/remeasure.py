@@ -10,7 +10,10 @@ revision was flagged for memory against it).
 
 Without it a busy host silences detection: a disturbed phase is charted, never judged, so the
 revision after one measured only while the host was busy had no verdict — a trial from outside
-saw a 4x CPU regression pass `redline ci wait` that way. Machine time is spent only where a
+saw a 4x CPU regression pass `redline ci wait` that way. The same goes for a revision between
+a flagged change and its baseline that the host was busy in: the change may be its, and the
+flagged revision's confirmation runs and CI verdict wait for its fresh run, after which both
+are judged again in order. Machine time is spent only where a
 verdict waits for it: a revision's own disturbed runs are not run again by the server (its
 verdict is "undecided", `redline.server.services.ci_verdict`) unless a later revision needs
 them as its baseline. The fresh run is one of the baseline revision's own (`Job.pair` 0; a
@@ -24,10 +27,20 @@ from __future__ import annotations
 from collections.abc import Iterable
 from typing import Any
 
+from redline.detect.confirmation import SUSPECTED
 from redline.detect.result import NOT_ENOUGH_DATA
 from redline.recording.disturbance import names_busy_host
-from redline.server.models import Detection, Job, Revision, Series
-from sqlalchemy import select
+from redline.server.models import (
+    Detection,
+    Execution,
+    Job,
+    Revision,
+    Series,
+    Summary,
+    revision_place,
+)
+from redline.worker.samples import ingested_executions
+from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
 #: fresh runs a revision may have in all: a host that stays busy leaves the verdict undecided
@@ -38,7 +51,11 @@ def queue_for_baselines(
     session: Session, revision: Revision, rows: list[dict[str, Any]]
 ) -> list[Job]:
     """A fresh run of each baseline revision that ``rows`` (the revision's new verdicts) could
-    not be judged against because the host was busy in all its runs. Not for a revision that
+    not be judged against because the host was busy in all its runs, and of each revision
+    between a suspected change's baseline and this one whose runs of its series the host was
+    busy in (`busy_between`): the change may be theirs, and without it this revision would be
+    blamed for it (`bench_verdicts`: the timeouts injected at r24, all of whose runs were
+    disturbed, made a regression of r25, whose code had not changed). Not for a revision that
     was itself run afresh: its verdicts are judged again for the revision that waited for it,
     and its own baseline's runs are no one's wait (one level, never a walk back through a busy
     history)."""
@@ -52,6 +69,15 @@ def queue_for_baselines(
             and names_busy_host(row["reason"])
         ):
             wanted.setdefault(row["baseline_revision_id"], set()).add(row["series_id"])
+    for series_id, baseline_id in session.execute(
+        select(Detection.series_id, Detection.baseline_revision_id).where(
+            Detection.revision_id == revision.id,
+            Detection.confirmation == SUSPECTED,
+            Detection.baseline_revision_id.is_not(None),
+        )
+    ):
+        for revision_id in busy_between(session, series_id, baseline_id, revision):
+            wanted.setdefault(revision_id, set()).add(series_id)
     queued = []
     for revision_id, series in sorted(wanted.items()):
         cases = session.scalars(select(Series.case).where(Series.id.in_(series)).distinct())
@@ -59,6 +85,33 @@ def queue_for_baselines(
         if job is not None:
             queued.append(job)
     return queued
+
+
+def busy_between(
+    session: Session, series_id: int, baseline_id: int | None, revision: Revision
+) -> list[int]:
+    """The revisions between a change's baseline revision and ``revision`` (where it was
+    flagged) whose every run of the series was measured while the host was busy: unjudged,
+    so the change may be theirs."""
+    if baseline_id is None:
+        return []
+    baseline = session.get_one(Revision, baseline_id)
+    return list(
+        session.scalars(
+            select(Execution.revision_id)
+            .join(Summary, Summary.execution_id == Execution.id)
+            .join(Revision, Revision.id == Execution.revision_id)
+            .where(
+                Summary.series_id == series_id,
+                Revision.component_id == revision.component_id,
+                revision_place() > baseline.place,
+                revision_place() < revision.place,
+                Execution.id.in_(ingested_executions()),
+            )
+            .group_by(Execution.revision_id)
+            .having(func.bool_and(Summary.disturbed))
+        )
+    )
 
 
 def queue_remeasure(session: Session, revision_id: int, cases: Iterable[str]) -> Job | None:

@@ -19,7 +19,7 @@ from urllib.parse import quote
 from xml.etree import ElementTree
 
 from redline.detect.config import CHARTED_METHOD
-from redline.detect.confirmation import DROPPED
+from redline.detect.confirmation import DROPPED, SUSPECTED
 from redline.detect.counters import worse
 from redline.detect.result import (
     HISTORY_REASONS,
@@ -35,6 +35,7 @@ from redline.server.models import Detection, Job, JobState, Revision, Series, re
 from redline.server.schemas.alerts import CaseVerdict, CiVerdict
 from redline.server.services.components import get_component, get_revision
 from redline.server.services.detection_config import component_config
+from redline.server.services.jobs import fresh_run_between
 from redline.server.services.revisions import own_jobs, revision_state
 from sqlalchemy import or_, select
 from sqlalchemy.orm import Session
@@ -87,6 +88,17 @@ def _pending(session: Session, revision: Revision) -> tuple[str, str]:
     )
     if fresh is not None:
         return "pending", f"a fresh run of its baseline {fresh}, whose runs the host was busy in"
+    suspected = session.scalars(
+        select(Detection.baseline_revision_id).where(
+            Detection.revision_id == revision.id, Detection.confirmation == SUSPECTED
+        )
+    ).all()
+    between = fresh_run_between(session, revision, suspected)
+    if between is not None:
+        return "pending", (
+            f"a fresh run of {between}, whose runs the host was busy in: the change flagged "
+            "here may be its"
+        )
     earlier = _earlier_unmeasured(session, revision)
     if earlier is not None:
         return "pending", f"an earlier revision, {earlier}, to be measured: its baseline"

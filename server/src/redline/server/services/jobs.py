@@ -5,7 +5,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from datetime import datetime, timedelta
 
-from redline.server.models import Component, Host, Job, JobState, Revision, utcnow
+from redline.server.models import Component, Host, Job, JobState, Revision, revision_place, utcnow
 from redline.server.schemas.jobs import LeasedJob, LeasedRevision, RegisterRequest
 from redline.server.services.errors import Conflict, NotFound
 from sqlalchemy import ColumnElement, and_, case, cast, or_, select, update
@@ -253,3 +253,27 @@ def fail_job(session: Session, job_id: int, host_name: str, reason: str) -> Job:
     job.lease_expires_at = None
     session.commit()
     return job
+
+
+def fresh_run_between(
+    session: Session, revision: Revision, baselines: Sequence[int | None]
+) -> str | None:
+    """The title of a revision after the oldest of ``baselines`` (the baseline revisions of
+    ``revision``'s suspected changes) and before ``revision`` that is being run afresh because
+    the host was busy in all its runs (`redline.worker.remeasure`): the change may be its, so
+    the suspected revision's confirmation runs and CI verdict wait for it. None when none is."""
+    places = [session.get_one(Revision, b).place for b in baselines if b is not None]
+    if not places:
+        return None
+    return session.scalar(
+        select(Revision.title)
+        .join(Job, Job.revision_id == Revision.id)
+        .where(
+            Revision.component_id == revision.component_id,
+            revision_place() > min(places),
+            revision_place() < revision.place,
+            Job.remeasures_job_id.is_not(None),
+            Job.state.not_in((JobState.done, JobState.failed, JobState.cancelled)),
+        )
+        .limit(1)
+    )
