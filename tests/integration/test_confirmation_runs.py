@@ -472,6 +472,31 @@ def test_a_change_after_a_revision_the_host_was_busy_in_waits_for_its_fresh_run(
     assert ci_verdict(session, NAME, "r5").regressions == 1
 
 
+def test_the_history_too_waits_for_the_fresh_run_of_a_revision_the_host_was_busy_in(
+    session, database_url, tmp_path
+):
+    """Without pairs, r7 and r8 would have held r6's change (r5's, unjudged) as r6's regression
+    before r5's fresh run came in: settling waits for it, and then the change is r5's."""
+    component = create_component(session, ComponentCreate(name=NAME, executions=RUNS))
+    session.add(DetectionConfigRow(component_id=component.id, config={"confirm_pairs": 0}))
+    session.commit()
+    host = register_host(session, RegisterRequest(name="perf-1"))
+    _measured(session, database_url, tmp_path, [20.0] * 4, host)
+    _measured(session, database_url, tmp_path, [30.0], host, start=5, host_percent=90.0)
+    _measured(session, database_url, tmp_path, [30.0] * 3, host, start=6)
+    r6 = _detection(session, "r6")
+    assert r6.flagged and r6.confirmation == "suspected", r6.confirmation_reason
+    fresh = lease_job(session, "perf-1", 60, 3)
+    assert (fresh.revision.title, fresh.remeasures_job_id is not None) == ("r5", True)
+    _run(session, database_url, tmp_path, fresh, 30.0)
+    for title in ("r6", "r7", "r8"):  # onward, in order
+        detect_revision(database_url, _detection(session, title).revision_id)
+        session.expire_all()
+    assert not _detection(session, "r6").flagged
+    r5 = _detection(session, "r5")
+    assert r5.confirmation == "held", r5.confirmation_reason
+
+
 def test_pairs_that_disagree_run_the_third(session, database_url, tmp_path):
     _flagged_history(session, database_url, tmp_path, pairs=3)
     levels = {("r5", 1): 30.0, ("r5", 2): 20.0, ("r5", 3): 30.0}  # a fluke in the second

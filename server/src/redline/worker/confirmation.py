@@ -39,6 +39,7 @@ from redline.server.models import (
     Summary,
     revision_place,
 )
+from redline.server.services.jobs import fresh_run_between
 from redline.worker.samples import ingested_executions
 from sqlalchemy import exists, func, select
 from sqlalchemy.dialects.postgresql import distinct_on
@@ -144,6 +145,8 @@ def settle(
             f"{detection.confirmation_reason or 'none ran'}); its own runs missed the change",
         )
         return
+    if fresh_run_between(session, detection.revision, [detection.baseline_revision_id]):
+        return  # the change may be that revision's: settled once it has run again
     count = is_count(process, counter)
     levels = _levels(session, detection.series_id, count)
     position = {rid: i for i, (_, rid, _) in enumerate(levels)}
