@@ -93,6 +93,18 @@ def test_an_unreadable_or_absurd_commit_date_is_422_naming_the_field(api: Api, w
     assert api.client.get("/components/builder").status_code == 200
 
 
+@pytest.mark.parametrize("commit", ["--upload-pack=touch x", "-x", ".hidden", "a b"])
+def test_a_commit_git_would_misread_is_422_saying_what_a_commit_may_be(api: Api, commit: str):
+    """A trial from outside got pydantic's regular expression back ("String should match
+    pattern '^[A-Za-z0-9_][\\w./@+-]*$'"); now the rule, in words, without "Value error"."""
+    answer = _revision(api, commit=commit)
+    assert answer.status_code == 422, answer.text
+    (error,) = answer.json()["detail"]
+    assert error["loc"][-1] == "commit"
+    assert error["msg"].startswith("must be a commit hash, tag or branch: letters, digits"), error
+    assert _revision(api, commit="release/v1.2+build@3").status_code == 201
+
+
 def test_a_plausible_commit_date_is_stored_and_read_back(api: Api):
     assert _revision(api, committed_at="2026-11-20T10:00:00+01:00").status_code == 201
     shown = api.client.get("/api/v1/components/builder/revisions/r1").json()

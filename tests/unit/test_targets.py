@@ -65,7 +65,9 @@ def test_a_name_is_judged_by_what_it_resolves_to() -> None:
 
 
 def test_subscriptions_and_commit_status_targets_refuse_such_a_url_naming_it() -> None:
-    with pytest.raises(ValidationError, match="must not point at 169.254.169.254 is a link-local"):
+    with pytest.raises(
+        ValidationError, match="must not point at this host: 169.254.169.254 is a link-local"
+    ):
         SubscriptionCreate(kind="webhook", url="http://169.254.169.254/latest/meta-data/")
     with pytest.raises(ValidationError, match="fe80::1 is a link-local"):
         CommitStatusTarget(

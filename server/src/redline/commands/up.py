@@ -19,6 +19,14 @@ if TYPE_CHECKING:
     from redline.commands.stack import Stack
     from rich.console import Console
 
+#: what a new user does next, said once the service is up
+NEXT = (
+    "your own component: register it with the admin token (POST /api/v1/components, its repo a "
+    "git URL or a local path), report each commit with the ci token (POST /api/v1/revisions) "
+    "and wait for its verdict with `redline ci wait`: docs/ci.md; its tests: "
+    "docs/writing-tests.md"
+)
+
 DataOption = typer.Option(
     Path(".redline"), "--data", help="folder for the database, recordings, logs"
 )
@@ -48,7 +56,10 @@ def _serve(
         stack.start()
         console.print(f"Redline is up at [bold]{stack.url}[/bold]")
         console.print(f"admin token: in {stack.data / 'admin-token'} (readable by you only)")
+        stack.token("ci", "ci")  # what CI reports revisions and waits for verdicts with
+        console.print(f"ci token: in {stack.data / 'ci-token'} (readable by you only)")
         console.print(f"logs: {stack.data / 'logs'}   stop with Ctrl-C")
+        console.print(NEXT, soft_wrap=True)
         if then is not None:
             then(stack, stop)
         while not stop.wait(1.0):
@@ -57,9 +68,12 @@ def _serve(
         console.print(f"[red]error:[/red] {exc}")
         raise typer.Exit(1) from exc
     finally:
-        if stack.children or stack.embedded is not None:  # a refused start started nothing
+        started = bool(stack.children) or stack.embedded is not None  # a refused start: none
+        if started:
             console.print("stopping…")
         stack.stop()
+        if started:
+            console.print("stopped: no process of it is left")
 
 
 def up(data: Path = DataOption, port: int = PortOption) -> None:

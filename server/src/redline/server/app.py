@@ -160,7 +160,12 @@ async def _invalid(request: Request, exc: Exception) -> Response:
         return _invalid_page(request, exc)
     found = exc.errors()
     errors = [
-        {**error, "input": _excerpt(_unquoted(tuple(error["loc"]), error.get("input")))}
+        {
+            **error,
+            # our validators' own words, without pydantic's "Value error, " before them
+            "msg": str(error["msg"]).removeprefix("Value error, "),
+            "input": _excerpt(_unquoted(tuple(error["loc"]), error.get("input"))),
+        }
         for error in found[:MAX_ERRORS]
     ]
     if len(found) > MAX_ERRORS:

@@ -22,7 +22,7 @@ def http_url(value: str) -> str:
         raise ValueError("must be an http:// or https:// URL with a host")
     refused = refused_address(parts.hostname)
     if refused is not None:
-        raise ValueError(f"must not point at {refused}")
+        raise ValueError(f"must not point at this host: {refused}")
     return value
 
 

@@ -71,10 +71,24 @@ ComponentName = Annotated[
 ]
 #: a revision's title: one path segment (a commit hash, a tag, "v1.2 rc1"...)
 Title = Annotated[str, Field(min_length=1, max_length=200), AfterValidator(path_segment)]
+_COMMIT = re.compile(r"[A-Za-z0-9_][\w./@+-]*")
+
+
+def git_commit(value: str) -> str:
+    """``value`` if git can name a commit by it and will not read it as an option ("" passes:
+    none given), else a ValueError that says what a commit may be."""
+    if value and not _COMMIT.fullmatch(value):
+        raise ValueError(
+            "must be a commit hash, tag or branch: letters, digits and _ . / @ + -, not "
+            "starting with . / @ + or - (git would read a leading '-' as an option)"
+        )
+    return value
+
+
 #: a commit as git names it (a hash, a tag, a branch); never starting with '-'
-Commit = Annotated[str, Field(max_length=200, pattern=r"^(?:[A-Za-z0-9_][\w./@+-]*)?$")]
+Commit = Annotated[str, Field(max_length=200), AfterValidator(git_commit)]
 #: the same, where a performance host will check it out: never empty
-RunCommit = Annotated[str, Field(min_length=1, max_length=200, pattern=r"^[A-Za-z0-9_][\w./@+-]*$")]
+RunCommit = Annotated[str, Field(min_length=1, max_length=200), AfterValidator(git_commit)]
 CommitTime = Annotated[datetime, AfterValidator(commit_time)]
 #: a suite file's path inside a component's repository
 SuitePath = Annotated[str, Field(max_length=500), AfterValidator(inside_repository)]
