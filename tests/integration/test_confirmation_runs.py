@@ -34,6 +34,7 @@ from redline.server.services.revisions import cancel_revision, revision_detail
 from redline.worker.confirm_runs import queue_confirmations
 from redline.worker.detection import detect_revision
 from redline.worker.ingest import ingest_execution
+from redline.worker.onward import judge_onward
 from redline.worker.reanalysis import reanalyze_component
 from sqlalchemy import select
 
@@ -84,7 +85,9 @@ def _flagged_history(session, database_url, tmp_path, pairs: int = PAIRS):
     return host
 
 
-def _run(session, database_url: str, tmp_path: Path, job: Job, level: float) -> None:
+def _run(
+    session, database_url: str, tmp_path: Path, job: Job, level: float, onward: bool = False
+) -> None:
     """What the host's agent does with a leased job: record, upload; then the worker ingests
     and judges the revision ingestion names (the one confirmed, for a confirmation run)."""
     revision = job.revision
@@ -102,8 +105,12 @@ def _run(session, database_url: str, tmp_path: Path, job: Job, level: float) -> 
     job.state = JobState.uploaded
     session.commit()
     execution_id = session.scalar(select(Execution.id).where(Execution.job_id == job.id))
-    for revision_id in ingest_execution(database_url, execution_id):
-        detect_revision(database_url, revision_id)
+    revisions = ingest_execution(database_url, execution_id)
+    if onward:  # as the worker's task does: then the later revisions in reach and those named
+        judge_onward(database_url, revisions[0], revisions[1:])
+    else:
+        for revision_id in revisions:
+            detect_revision(database_url, revision_id)
     session.expire_all()
 
 
@@ -458,9 +465,7 @@ def test_a_change_after_a_revision_the_host_was_busy_in_waits_for_its_fresh_run(
     assert waiting.waiting_for.startswith("a fresh run of r5, whose runs the host was busy in")
     fresh = lease_job(session, "perf-1", 60, 3)
     assert (fresh.revision.title, fresh.remeasures_job_id is not None) == ("r5", True)
-    _run(session, database_url, tmp_path, fresh, 30.0)  # quiet this time
-    detect_revision(database_url, _detection(session, "r6").revision_id)  # onward, in order
-    session.expire_all()
+    _run(session, database_url, tmp_path, fresh, 30.0, onward=True)  # quiet this time
     assert not _detection(session, "r6").flagged
     while (job := lease_job(session, "perf-1", 60, 3)) is not None:
         assert job.confirms_revision.title == "r5", job.confirms_revision.title
@@ -488,13 +493,30 @@ def test_the_history_too_waits_for_the_fresh_run_of_a_revision_the_host_was_busy
     assert r6.flagged and r6.confirmation == "suspected", r6.confirmation_reason
     fresh = lease_job(session, "perf-1", 60, 3)
     assert (fresh.revision.title, fresh.remeasures_job_id is not None) == ("r5", True)
-    _run(session, database_url, tmp_path, fresh, 30.0)
-    for title in ("r6", "r7", "r8"):  # onward, in order
-        detect_revision(database_url, _detection(session, title).revision_id)
-        session.expire_all()
+    _run(session, database_url, tmp_path, fresh, 30.0, onward=True)
     assert not _detection(session, "r6").flagged
     r5 = _detection(session, "r5")
     assert r5.confirmation == "held", r5.confirmation_reason
+
+
+def test_the_fresh_run_names_every_revision_whose_suspected_change_spans_it(
+    session, database_url, tmp_path
+):
+    """However far after it (beyond the walk's reach), a revision whose suspected change spans
+    the one run afresh is judged again once that is in: its ingestion names it."""
+    from redline.worker.remeasure import waiting_on
+
+    component = create_component(session, ComponentCreate(name=NAME, executions=RUNS))
+    session.add(DetectionConfigRow(component_id=component.id, config={"confirm_pairs": PAIRS}))
+    session.commit()
+    host = register_host(session, RegisterRequest(name="perf-1"))
+    _measured(session, database_url, tmp_path, [20.0] * 4, host)
+    _measured(session, database_url, tmp_path, [30.0], host, start=5, host_percent=90.0)
+    _measured(session, database_url, tmp_path, [30.0], host, start=6)
+    r5 = session.scalars(select(Revision).where(Revision.title == "r5")).one()
+    assert waiting_on(session, r5.id) == [_detection(session, "r6").revision_id]
+    r4 = session.scalars(select(Revision).where(Revision.title == "r4")).one()
+    assert waiting_on(session, r4.id) == []  # the baseline itself is no part of the span
 
 
 def test_pairs_that_disagree_run_the_third(session, database_url, tmp_path):

@@ -130,11 +130,13 @@ def settle(
     counter: str,
     wait: int,
     changed: Collection[int] = (),
+    fresh_runs: bool = True,
 ) -> None:
     """Settle one suspected detection if enough later revisions measured its series, counting
     only the revisions before the next one that itself changed (``changed``: the revisions with
     a flagged change of an alarming method, of any series, not dropped): a later change is no
-    evidence for an earlier one. (A
+    evidence for an earlier one; ``fresh_runs``: whether the component has a revision being
+    run afresh, which a change spanning it waits for. (A
     trial's README commit was flagged on a noisy counter and "held" because the next revision
     raised CPU threefold, and that counter with it.)"""
     if detection.reason.startswith(FOUND_LATE):
@@ -145,7 +147,9 @@ def settle(
             f"{detection.confirmation_reason or 'none ran'}); its own runs missed the change",
         )
         return
-    if fresh_run_between(session, detection.revision, [detection.baseline_revision_id]):
+    if fresh_runs and fresh_run_between(
+        session, detection.revision, [detection.baseline_revision_id]
+    ):
         return  # the change may be that revision's: settled once it has run again
     count = is_count(process, counter)
     levels = _levels(session, detection.series_id, count)
@@ -283,8 +287,19 @@ def confirm_by_history(
         ):
             standing[revision_id].add(detection_id)
     changed = set(standing)
+    # a revision being run afresh (`redline.worker.remeasure`): nearly always none
+    fresh = session.scalar(
+        select(Job.id)
+        .join(Revision, Revision.id == Job.revision_id)
+        .where(
+            Revision.component_id == component_id,
+            Job.remeasures_job_id.is_not(None),
+            Job.state.not_in((JobState.done, JobState.failed, JobState.cancelled)),
+        )
+        .limit(1)
+    )
     for detection, process, counter in suspected:
-        settle(session, detection, process, counter, wait, changed)
+        settle(session, detection, process, counter, wait, changed, fresh is not None)
         if detection.confirmation == DROPPED and detection.revision_id in standing:
             standing[detection.revision_id].discard(detection.id)
             if not standing[detection.revision_id]:

@@ -243,7 +243,7 @@ def store(
     bulk_insert(session, cast(Table, Detection.__table__), own)
     group_revision(session, revision, config.alarming)
     if rerun:  # new results only: a re-analysis never queues machine time for old revisions
-        queue_for_baselines(session, revision, own)  # first: the pairs wait for a fresh run
+        queue_for_baselines(session, revision, own, config.baseline)  # first: pairs wait on it
         queue_confirmations(session, revision, config)
     settle_pending_pairs(session, revision.component_id)
     if not reanalysing(session, revision.component_id):

@@ -34,21 +34,22 @@ from redline.server.models import (
     Detection,
     Execution,
     Job,
+    JobState,
     Revision,
     Series,
     Summary,
     revision_place,
 )
 from redline.worker.samples import ingested_executions
-from sqlalchemy import func, select
-from sqlalchemy.orm import Session
+from sqlalchemy import func, select, tuple_
+from sqlalchemy.orm import Session, aliased
 
 #: fresh runs a revision may have in all: a host that stays busy leaves the verdict undecided
 REMEASURE_LIMIT = 1
 
 
 def queue_for_baselines(
-    session: Session, revision: Revision, rows: list[dict[str, Any]]
+    session: Session, revision: Revision, rows: list[dict[str, Any]], baseline: str = "recent"
 ) -> list[Job]:
     """A fresh run of each baseline revision that ``rows`` (the revision's new verdicts) could
     not be judged against because the host was busy in all its runs, and of each revision
@@ -69,13 +70,21 @@ def queue_for_baselines(
             and names_busy_host(row["reason"])
         ):
             wanted.setdefault(row["baseline_revision_id"], set()).add(row["series_id"])
-    for series_id, baseline_id in session.execute(
-        select(Detection.series_id, Detection.baseline_revision_id).where(
-            Detection.revision_id == revision.id,
-            Detection.confirmation == SUSPECTED,
-            Detection.baseline_revision_id.is_not(None),
-        )
-    ):
+    spans = (
+        session.execute(
+            select(Detection.series_id, Detection.baseline_revision_id)
+            .where(
+                Detection.revision_id == revision.id,
+                Detection.confirmation == SUSPECTED,
+                Detection.baseline_revision_id.is_not(None),
+            )
+            .distinct()
+        ).all()
+        # a pinned baseline never takes in the revisions after it, nor "previous" those between
+        if baseline in ("recent", "window")
+        else []
+    )
+    for series_id, baseline_id in spans:
         for revision_id in busy_between(session, series_id, baseline_id, revision):
             wanted.setdefault(revision_id, set()).add(series_id)
     queued = []
@@ -96,6 +105,11 @@ def busy_between(
     if baseline_id is None:
         return []
     baseline = session.get_one(Revision, baseline_id)
+    unfinished = select(Job.id).where(
+        Job.revision_id == Execution.revision_id,
+        Job.pair == 0,
+        Job.state.not_in((JobState.done, JobState.failed, JobState.cancelled)),
+    )
     return list(
         session.scalars(
             select(Execution.revision_id)
@@ -107,6 +121,7 @@ def busy_between(
                 revision_place() > baseline.place,
                 revision_place() < revision.place,
                 Execution.id.in_(ingested_executions()),
+                ~unfinished.exists(),  # its own runs not all in: its fresh run would be early
             )
             .group_by(Execution.revision_id)
             .having(func.bool_and(Summary.disturbed))
@@ -138,16 +153,25 @@ def queue_remeasure(session: Session, revision_id: int, cases: Iterable[str]) ->
 
 
 def waiting_on(session: Session, revision_id: int) -> list[int]:
-    """The revisions whose "not enough data" verdicts name this one as their baseline: judged
-    again once its fresh run is ingested."""
-    return list(
-        session.scalars(
-            select(Detection.revision_id)
-            .where(
-                Detection.baseline_revision_id == revision_id,
-                Detection.verdict == NOT_ENOUGH_DATA,
-                Detection.revision_id != revision_id,
-            )
-            .distinct()
+    """The revisions judged again once this one's fresh run is ingested: those whose "not
+    enough data" verdicts name it as their baseline, and those with a suspected change whose
+    span (baseline, revision) holds it (`busy_between`), however far after it they are."""
+    revision = session.get_one(Revision, revision_id)
+    baseline, flagged = aliased(Revision), aliased(Revision)
+    spanning = (
+        select(Detection.revision_id)
+        .join(baseline, baseline.id == Detection.baseline_revision_id)
+        .join(flagged, flagged.id == Detection.revision_id)
+        .where(
+            flagged.component_id == revision.component_id,
+            Detection.confirmation == SUSPECTED,
+            tuple_(baseline.order_key, baseline.id) < revision.place,
+            tuple_(flagged.order_key, flagged.id) > revision.place,
         )
     )
+    lacking = select(Detection.revision_id).where(
+        Detection.baseline_revision_id == revision_id,
+        Detection.verdict == NOT_ENOUGH_DATA,
+        Detection.revision_id != revision_id,
+    )
+    return list(session.scalars(lacking.union(spanning)))
