@@ -444,6 +444,18 @@ def test_a_change_moved_back_once_is_not_moved_again(session, database_url, tmp_
     assert _detection(session, "r4").verdict == "no change"
 
 
+def _busy_r5(session, database_url: str, tmp_path: Path, pairs: int, after: list[float]) -> None:
+    """r1-r4 at 20 % CPU; r5 at 30 %, every run measured while the host was busy (so never
+    judged); then ``after`` from r6 on, on a quiet host."""
+    component = create_component(session, ComponentCreate(name=NAME, executions=RUNS))
+    session.add(DetectionConfigRow(component_id=component.id, config={"confirm_pairs": pairs}))
+    session.commit()
+    host = register_host(session, RegisterRequest(name="perf-1"))
+    _measured(session, database_url, tmp_path, [20.0] * 4, host)
+    _measured(session, database_url, tmp_path, [30.0], host, start=5, host_percent=90.0)
+    _measured(session, database_url, tmp_path, after, host, start=6)
+
+
 def test_a_change_after_a_revision_the_host_was_busy_in_waits_for_its_fresh_run(
     session, database_url, tmp_path
 ):
@@ -451,13 +463,7 @@ def test_a_change_after_a_revision_the_host_was_busy_in_waits_for_its_fresh_run(
     unchanged, was flagged against r4: a regression of r6's (`bench_verdicts`, twice). Now r5 is
     run afresh first, r6's pairs and CI verdict wait for it, and judged again in order, the
     change is r5's, confirmed by its own pairs; r6 passes."""
-    component = create_component(session, ComponentCreate(name=NAME, executions=RUNS))
-    session.add(DetectionConfigRow(component_id=component.id, config={"confirm_pairs": PAIRS}))
-    session.commit()
-    host = register_host(session, RegisterRequest(name="perf-1"))
-    _measured(session, database_url, tmp_path, [20.0] * 4, host)
-    _measured(session, database_url, tmp_path, [30.0], host, start=5, host_percent=90.0)
-    _measured(session, database_url, tmp_path, [30.0], host, start=6)
+    _busy_r5(session, database_url, tmp_path, PAIRS, [30.0])
     assert _detection(session, "r6").flagged
     assert not session.scalars(select(Job).where(Job.confirms_revision_id.is_not(None))).all()
     waiting = ci_verdict(session, NAME, "r6")
@@ -482,13 +488,7 @@ def test_the_history_too_waits_for_the_fresh_run_of_a_revision_the_host_was_busy
 ):
     """Without pairs, r7 and r8 would have held r6's change (r5's, unjudged) as r6's regression
     before r5's fresh run came in: settling waits for it, and then the change is r5's."""
-    component = create_component(session, ComponentCreate(name=NAME, executions=RUNS))
-    session.add(DetectionConfigRow(component_id=component.id, config={"confirm_pairs": 0}))
-    session.commit()
-    host = register_host(session, RegisterRequest(name="perf-1"))
-    _measured(session, database_url, tmp_path, [20.0] * 4, host)
-    _measured(session, database_url, tmp_path, [30.0], host, start=5, host_percent=90.0)
-    _measured(session, database_url, tmp_path, [30.0] * 3, host, start=6)
+    _busy_r5(session, database_url, tmp_path, 0, [30.0] * 3)
     r6 = _detection(session, "r6")
     assert r6.flagged and r6.confirmation == "suspected", r6.confirmation_reason
     fresh = lease_job(session, "perf-1", 60, 3)
@@ -506,13 +506,7 @@ def test_the_fresh_run_names_every_revision_whose_suspected_change_spans_it(
     the one run afresh is judged again once that is in: its ingestion names it."""
     from redline.worker.remeasure import waiting_on
 
-    component = create_component(session, ComponentCreate(name=NAME, executions=RUNS))
-    session.add(DetectionConfigRow(component_id=component.id, config={"confirm_pairs": PAIRS}))
-    session.commit()
-    host = register_host(session, RegisterRequest(name="perf-1"))
-    _measured(session, database_url, tmp_path, [20.0] * 4, host)
-    _measured(session, database_url, tmp_path, [30.0], host, start=5, host_percent=90.0)
-    _measured(session, database_url, tmp_path, [30.0], host, start=6)
+    _busy_r5(session, database_url, tmp_path, PAIRS, [30.0])
     r5 = session.scalars(select(Revision).where(Revision.title == "r5")).one()
     assert waiting_on(session, r5.id) == [_detection(session, "r6").revision_id]
     r4 = session.scalars(select(Revision).where(Revision.title == "r4")).one()
