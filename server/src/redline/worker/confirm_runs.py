@@ -39,7 +39,7 @@ from redline.server.models import (
     utcnow,
 )
 from redline.server.services.detection_config import component_config
-from redline.server.services.jobs import current_pairs, fresh_run_between
+from redline.server.services.jobs import FINISHED, current_pairs, fresh_run_between
 from redline.server.services.revisions import CANCELLED, UNFINISHED
 from redline.worker.confirmation import UNDECIDED, baseline_noise
 from redline.worker.found_late import move_back
@@ -49,7 +49,6 @@ from sqlalchemy.orm import Session
 
 #: confirmation jobs take execution indices from here up, apart from a revision's own
 FIRST_INDEX = 1000
-FINISHED = (JobState.done, JobState.failed, JobState.cancelled)
 #: a pinned host silent this long is taken for gone: its confirmation runs fail with the reason
 HOST_GONE = timedelta(minutes=30)
 #: confirmation jobs that will never give a value: their revision falls back to the history

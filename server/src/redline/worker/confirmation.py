@@ -32,14 +32,13 @@ from redline.server.models import (
     Detection,
     Execution,
     Job,
-    JobState,
     Regression,
     Revision,
     Series,
     Summary,
     revision_place,
 )
-from redline.server.services.jobs import fresh_run_between
+from redline.server.services.jobs import FINISHED, fresh_run_between, fresh_runs_under_way
 from redline.worker.samples import ingested_executions
 from sqlalchemy import exists, func, select
 from sqlalchemy.dialects.postgresql import distinct_on
@@ -259,7 +258,7 @@ def confirm_by_history(
     # (`redline.worker.confirm_runs`, which leaves suspected what no complete pair can settle)
     rerun = exists().where(
         Job.confirms_revision_id == Detection.revision_id,
-        Job.state.not_in((JobState.done, JobState.failed, JobState.cancelled)),
+        Job.state.not_in(FINISHED),
     )
     suspected = session.execute(
         select(Detection, Series.process, Series.counter)
@@ -288,16 +287,7 @@ def confirm_by_history(
             standing[revision_id].add(detection_id)
     changed = set(standing)
     # a revision being run afresh (`redline.worker.remeasure`): nearly always none
-    fresh = session.scalar(
-        select(Job.id)
-        .join(Revision, Revision.id == Job.revision_id)
-        .where(
-            Revision.component_id == component_id,
-            Job.remeasures_job_id.is_not(None),
-            Job.state.not_in((JobState.done, JobState.failed, JobState.cancelled)),
-        )
-        .limit(1)
-    )
+    fresh = session.scalar(fresh_runs_under_way(component_id).limit(1))
     for detection, process, counter in suspected:
         settle(session, detection, process, counter, wait, changed, fresh is not None)
         if detection.confirmation == DROPPED and detection.revision_id in standing:

@@ -34,12 +34,12 @@ from redline.server.models import (
     Detection,
     Execution,
     Job,
-    JobState,
     Revision,
     Series,
     Summary,
     revision_place,
 )
+from redline.server.services.jobs import FINISHED
 from redline.worker.samples import ingested_executions
 from sqlalchemy import func, select, tuple_
 from sqlalchemy.orm import Session, aliased
@@ -108,7 +108,7 @@ def busy_between(
     unfinished = select(Job.id).where(
         Job.revision_id == Execution.revision_id,
         Job.pair == 0,
-        Job.state.not_in((JobState.done, JobState.failed, JobState.cancelled)),
+        Job.state.not_in(FINISHED),
     )
     return list(
         session.scalars(

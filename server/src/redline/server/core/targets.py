@@ -45,9 +45,8 @@ def _ip(address: str) -> ipaddress.IPv4Address | ipaddress.IPv6Address | None:
     return ip
 
 
-def _kind(address: str) -> str | None:
-    """What kind of refused address ``address`` is; None when it is allowed (or a name)."""
-    ip = _ip(address)
+def _kind(ip: ipaddress.IPv4Address | ipaddress.IPv6Address | None) -> str | None:
+    """What kind of refused address ``ip`` is; None when it is allowed (or no IP: a name)."""
     if ip is None:
         return None
     if ip in METADATA or ip.is_link_local:
@@ -59,13 +58,12 @@ def _kind(address: str) -> str | None:
 
 def refused_address(address: str) -> str | None:
     """Why nothing may be sent to the literal IP ``address``; None when it may (or is no IP)."""
-    kind = _kind(address)
+    ip = _ip(address)
+    kind = _kind(ip)
     if kind is None:
         return None
-    ip = str(_ip(address))
-    return (
-        f"{address} is {kind}" if ip == address.split("%", 1)[0] else f"{address} ({ip}) is {kind}"
-    )
+    plain = address.split("%", 1)[0]
+    return f"{address} is {kind}" if str(ip) == plain else f"{address} ({ip}) is {kind}"
 
 
 def refused_host(host: str) -> str | None:
@@ -80,7 +78,7 @@ def refused_host(host: str) -> str | None:
     except (OSError, UnicodeError):
         return None
     for *_, sockaddr in found:
-        kind = _kind(str(sockaddr[0]))
+        kind = _kind(_ip(str(sockaddr[0])))
         if kind is not None:
             return f"{host} resolves to {sockaddr[0]}, {kind}"
     return None

@@ -35,12 +35,10 @@ from redline.server.models import Detection, Job, JobState, Revision, Series, re
 from redline.server.schemas.alerts import CaseVerdict, CiVerdict
 from redline.server.services.components import get_component, get_revision
 from redline.server.services.detection_config import component_config
-from redline.server.services.jobs import fresh_run_between
+from redline.server.services.jobs import FINISHED, fresh_run_between, fresh_runs_under_way
 from redline.server.services.revisions import own_jobs, revision_state
 from sqlalchemy import or_, select
 from sqlalchemy.orm import Session
-
-FINISHED = (JobState.done, JobState.failed, JobState.cancelled)
 
 
 def _pending(session: Session, revision: Revision) -> tuple[str, str]:
@@ -73,16 +71,13 @@ def _pending(session: Session, revision: Revision) -> tuple[str, str]:
     if reruns is not None:
         return "pending", "confirmation runs of it and its baseline"
     fresh = session.scalar(  # a baseline all of whose runs were disturbed, being run afresh
-        select(Revision.title)
-        .join(Job, Job.revision_id == Revision.id)
+        fresh_runs_under_way(revision.component_id)
         .where(
             Revision.id.in_(
                 select(Detection.baseline_revision_id).where(
                     Detection.revision_id == revision.id, Detection.verdict == NOT_ENOUGH_DATA
                 )
-            ),
-            Job.remeasures_job_id.is_not(None),
-            Job.state.not_in(FINISHED),
+            )
         )
         .limit(1)
     )

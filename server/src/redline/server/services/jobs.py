@@ -255,6 +255,24 @@ def fail_job(session: Session, job_id: int, host_name: str, reason: str) -> Job:
     return job
 
 
+#: a job in these states runs no more
+FINISHED = (JobState.done, JobState.failed, JobState.cancelled)
+
+
+def fresh_runs_under_way(component_id: int):  # noqa: ANN201 - a query to narrow
+    """The titles of the component's revisions being run afresh because the host was busy in
+    all their runs (`redline.worker.remeasure`), as a query."""
+    return (
+        select(Revision.title)
+        .join(Job, Job.revision_id == Revision.id)
+        .where(
+            Revision.component_id == component_id,
+            Job.remeasures_job_id.is_not(None),
+            Job.state.not_in(FINISHED),
+        )
+    )
+
+
 def fresh_run_between(
     session: Session, revision: Revision, baselines: Sequence[int | None]
 ) -> str | None:
@@ -262,18 +280,11 @@ def fresh_run_between(
     ``revision``'s suspected changes) and before ``revision`` that is being run afresh because
     the host was busy in all its runs (`redline.worker.remeasure`): the change may be its, so
     the suspected revision's confirmation runs and CI verdict wait for it. None when none is."""
-    places = [session.get_one(Revision, b).place for b in baselines if b is not None]
+    places = [session.get_one(Revision, b).place for b in set(baselines) if b is not None]
     if not places:
         return None
     return session.scalar(
-        select(Revision.title)
-        .join(Job, Job.revision_id == Revision.id)
-        .where(
-            Revision.component_id == revision.component_id,
-            revision_place() > min(places),
-            revision_place() < revision.place,
-            Job.remeasures_job_id.is_not(None),
-            Job.state.not_in((JobState.done, JobState.failed, JobState.cancelled)),
-        )
+        fresh_runs_under_way(revision.component_id)
+        .where(revision_place() > min(places), revision_place() < revision.place)
         .limit(1)
     )
