@@ -12,7 +12,6 @@ from pathlib import Path
 
 import jsonschema
 import pytest
-import redis
 from redline.server.db import session_factory
 from redline.server.models import (
     Component,
@@ -51,7 +50,6 @@ from tests.support.alerting import (
     scan,
     subscribe,
 )
-from tests.support.api import Api
 
 SCHEMA = json.loads((Path(__file__).parents[2] / "docs" / "alerts.schema.json").read_text())
 SECRET = "hook-secret"
@@ -473,14 +471,6 @@ def test_a_runtime_fault_reaches_the_subscriptions_that_want_its_target_once(
     assert not receiver.to("/later")
 
 
-def _queued_tasks(api: Api) -> list[tuple[str, str]]:
-    """(task name, its arguments) of the messages waiting in the detection queue (no worker
-    runs in these tests: what the API sent stays in Redis)."""
-    broker = redis.Redis.from_url(api.settings.redis_url)
-    messages = [json.loads(m) for m in broker.lrange(api.settings.queue, 0, -1)]
-    return [(m["headers"]["task"], m["headers"]["argsrepr"]) for m in messages]
-
-
 def test_a_revision_whose_jobs_all_failed_gets_its_commit_status_too(api, receiver):
     api.client.put(
         f"{BASE}/commit-status",
@@ -501,7 +491,7 @@ def test_a_revision_whose_jobs_all_failed_gets_its_commit_status_too(api, receiv
     answer = api.post(f"/api/v1/jobs/{job['id']}/fail", "agent", {"host": "perf1", "reason": "x"})
     assert answer.status_code == 200, answer.text
     # no ingest follows a failed job: the API itself queues the verdict's scan ...
-    assert ("redline.scan_alerts", f"[None, {revision['revision_id']}]") in _queued_tasks(api)
+    assert ("redline.scan_alerts", f"[None, {revision['revision_id']}]") in api.queued_tasks()
     later = utcnow() + SWEEP_GRACE + timedelta(seconds=5)
     with session_factory(database_url)() as session:
         # ... and the periodic sweep finds it too, should that message be lost (once the

@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 from redline.detect.config import DetectionConfig
 from redline.detect.confirmation import DEFAULT_CONFIRM_PAIRS
+from redline.server.core.tasks import DETECT_TASK
 from redline.server.models import (
     Component,
     Detection,
@@ -29,15 +30,22 @@ from redline.server.schemas.jobs import RegisterRequest
 from redline.server.services.ci_verdict import ci_verdict
 from redline.server.services.components import create_component
 from redline.server.services.dashboard import TrendView, trend_data
-from redline.server.services.jobs import lease_job, leased_job, register_host
+from redline.server.services.jobs import (
+    lease_job,
+    leased_job,
+    register_host,
+    waiting_on,
+)
 from redline.server.services.revisions import cancel_revision, revision_detail
 from redline.worker.confirm_runs import queue_confirmations
 from redline.worker.detection import detect_revision
 from redline.worker.ingest import ingest_execution
 from redline.worker.onward import judge_onward
 from redline.worker.reanalysis import reanalyze_component
+from redline.worker.sweeps import SWEEP_GRACE, unjudged_after_fresh_runs
 from sqlalchemy import select
 
+from tests.support.api import api_with
 from tests.support.history import add_executions, ingest_and_detect
 from tests.support.recordings import run_metadata, write_recording
 
@@ -456,6 +464,15 @@ def _busy_r5(session, database_url: str, tmp_path: Path, pairs: int, after: list
     _measured(session, database_url, tmp_path, after, host, start=6)
 
 
+def _pairs_run(session, database_url: str, tmp_path: Path, flagged: str) -> Detection:
+    """Every pair queued, all of them of the ``flagged`` revision's change, run on a quiet
+    host (r4 at 20 % CPU, the revision after it at 30 %): the flagged revision's detection."""
+    while (job := lease_job(session, "perf-1", 60, 3)) is not None:
+        assert job.confirms_revision.title == flagged, job.confirms_revision.title
+        _run(session, database_url, tmp_path, job, 20.0 if job.revision.title == "r4" else 30.0)
+    return _detection(session, flagged)
+
+
 def test_a_change_after_a_revision_the_host_was_busy_in_waits_for_its_fresh_run(
     session, database_url, tmp_path
 ):
@@ -473,10 +490,7 @@ def test_a_change_after_a_revision_the_host_was_busy_in_waits_for_its_fresh_run(
     assert (fresh.revision.title, fresh.remeasures_job_id is not None) == ("r5", True)
     _run(session, database_url, tmp_path, fresh, 30.0, onward=True)  # quiet this time
     assert not _detection(session, "r6").flagged
-    while (job := lease_job(session, "perf-1", 60, 3)) is not None:
-        assert job.confirms_revision.title == "r5", job.confirms_revision.title
-        _run(session, database_url, tmp_path, job, 20.0 if job.revision.title == "r4" else 30.0)
-    r5 = _detection(session, "r5")
+    r5 = _pairs_run(session, database_url, tmp_path, "r5")
     assert r5.confirmation == "held", r5.confirmation_reason
     verdict = ci_verdict(session, NAME, "r6")
     assert (verdict.state, verdict.regressions) == ("done", 0), verdict
@@ -504,13 +518,65 @@ def test_the_fresh_run_names_every_revision_whose_suspected_change_spans_it(
 ):
     """However far after it (beyond the walk's reach), a revision whose suspected change spans
     the one run afresh is judged again once that is in: its ingestion names it."""
-    from redline.worker.remeasure import waiting_on
-
     _busy_r5(session, database_url, tmp_path, PAIRS, [30.0])
     r5 = session.scalars(select(Revision).where(Revision.title == "r5")).one()
     assert waiting_on(session, r5.id) == [_detection(session, "r6").revision_id]
     r4 = session.scalars(select(Revision).where(Revision.title == "r4")).one()
     assert waiting_on(session, r4.id) == []  # the baseline itself is no part of the span
+
+
+def _titles(session, ids: list[int]) -> list[str]:
+    return [session.get_one(Revision, i).title for i in ids]
+
+
+def test_a_fresh_run_that_fails_leaves_the_change_after_it_to_its_own_pairs(
+    services, session, database_url, tmp_path
+):
+    """r5's fresh run fails (its build broke): r6's change, which waited for it, must neither
+    stay suspected with no pairs ever queued nor fail CI meanwhile: the API has r6 judged
+    again, and its own pairs decide it (the change may still be r5's; none can tell now)."""
+    with api_with(services, tmp_path) as api:
+        _busy_r5(session, database_url, tmp_path, PAIRS, [30.0])
+        fresh = api.lease("perf-1")
+        failed = api.post(
+            f"/api/v1/jobs/{fresh['id']}/fail",
+            "agent",
+            {"host": "perf-1", "reason": "build failed: the compiler was killed"},
+        )
+        assert failed.status_code == 200, failed.text
+        queued = api.queued_tasks()
+    r5, r6 = (_detection(session, title).revision_id for title in ("r5", "r6"))
+    assert session.get_one(Job, fresh["id"]).remeasures_job_id is not None
+    assert (DETECT_TASK, f"[{r5}, {r6}]") in queued  # r5, then r6 that waited for it
+    verdict = ci_verdict(session, NAME, "r6")
+    assert verdict.state == "pending", verdict
+    assert verdict.waiting_for.startswith("to be judged again: the fresh run of r5"), verdict
+    judge_onward(database_url, r5, [r6])  # what the worker does with that task
+    session.expire_all()
+    assert ci_verdict(session, NAME, "r6").waiting_for == "confirmation runs of it and its baseline"
+    r6_change = _pairs_run(session, database_url, tmp_path, "r6")
+    assert r6_change.confirmation == "held", r6_change.confirmation_reason
+    verdict = ci_verdict(session, NAME, "r6")
+    assert (verdict.state, verdict.regressions) == ("done", 1), verdict
+
+
+def test_a_cancelled_fresh_run_is_found_by_the_sweep_and_the_revisions_after_it_judged(
+    session, database_url, tmp_path
+):
+    """No host tells the API of a fresh run cancelled with its revision (or one whose leases
+    lapsed until it was failed): the periodic sweep finds it, once, and r6 gets its pairs."""
+    _busy_r5(session, database_url, tmp_path, PAIRS, [30.0])
+    cancel_revision(session, NAME, "r5")
+    later = utcnow() + SWEEP_GRACE + timedelta(seconds=5)
+    assert unjudged_after_fresh_runs(session) == []  # the message may still be on its way
+    (again,) = unjudged_after_fresh_runs(session, now=later)
+    assert _titles(session, again) == ["r5", "r6"]
+    assert ci_verdict(session, NAME, "r6").waiting_for.startswith("to be judged again")
+    judge_onward(database_url, again[0], again[1:])
+    session.expire_all()
+    assert unjudged_after_fresh_runs(session, now=later) == []  # judged since: once
+    pairs = session.scalars(select(Job).where(Job.confirms_revision_id.is_not(None))).all()
+    assert {job.confirms_revision.title for job in pairs} == {"r6"}
 
 
 def test_pairs_that_disagree_run_the_third(session, database_url, tmp_path):

@@ -7,9 +7,8 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-import redis
 from redline.recording import SeriesKey, canonical_params
-from redline.server.core.tasks import DETECT_TASK, QUEUE_KINDS, queue_of
+from redline.server.core.tasks import DETECT_TASK
 from redline.server.db import session_factory
 from redline.server.services.imports import ImportedRun, store_import
 
@@ -184,21 +183,11 @@ def test_a_series_without_a_finite_value_gets_no_summary(api: Api):
     assert result.created and result.series == 1
 
 
-def _queued_tasks(api: Api) -> list[tuple[str, str]]:
-    broker = redis.Redis.from_url(api.settings.redis_url)
-    messages = [
-        json.loads(raw)
-        for kind in QUEUE_KINDS
-        for raw in broker.lrange(queue_of(api.settings, kind), 0, -1)
-    ]
-    return [(m["headers"]["task"], m["headers"]["argsrepr"]) for m in messages]
-
-
 def test_an_import_queues_detection_of_its_revision_once(api: Api):
     first = send_lnt(api, lnt_report())
     assert first.status_code == 201
     queued = [(DETECT_TASK, f"[{first.json()['revision_id']}]")]
-    assert _queued_tasks(api) == queued  # the task waits in the real broker
+    assert api.queued_tasks() == queued  # the task waits in the real broker
     assert send_lnt(api, lnt_report()).status_code == 200  # imported before: nothing new
     results = {
         "component": "clang",
@@ -209,4 +198,4 @@ def test_an_import_queues_detection_of_its_revision_once(api: Api):
     second = api.post("/api/v1/import/results", "ci", results)
     assert second.status_code == 201
     queued.append((DETECT_TASK, f"[{second.json()['revision_id']}]"))
-    assert sorted(_queued_tasks(api)) == sorted(queued)
+    assert sorted(api.queued_tasks()) == sorted(queued)

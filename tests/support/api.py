@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import hashlib
+import json
 import uuid
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -12,9 +13,11 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import redis
 from fastapi.testclient import TestClient
 from redline.server.app import create_app
 from redline.server.core.config import Settings
+from redline.server.core.tasks import QUEUE_KINDS, queue_of
 from redline.server.db import migrate, session_factory
 from redline.server.models import Job, utcnow
 from redline.server.services.tokens import issue_token
@@ -80,6 +83,17 @@ class Api:
             "X-Redline-Sha256": sha256 or hashlib.sha256(data).hexdigest(),
         }
         return self.client.put(f"/api/v1/jobs/{job_id}/recording", content=data, headers=headers)
+
+    def queued_tasks(self) -> list[tuple[str, str]]:
+        """(task name, its arguments) of the messages the API sent, waiting in the real broker's
+        queues (no worker runs in these tests)."""
+        broker = redis.Redis.from_url(self.settings.redis_url)
+        messages = [
+            json.loads(raw)
+            for kind in QUEUE_KINDS
+            for raw in broker.lrange(queue_of(self.settings, kind), 0, -1)
+        ]
+        return [(m["headers"]["task"], m["headers"]["argsrepr"]) for m in messages]
 
     def job(self, job_id: int) -> dict:
         with session_factory(self.settings.database_url)() as session:

@@ -39,7 +39,12 @@ from redline.server.models import (
     utcnow,
 )
 from redline.server.services.detection_config import component_config
-from redline.server.services.jobs import FINISHED, current_pairs, fresh_run_between
+from redline.server.services.jobs import (
+    DID_NOT_RUN,
+    FINISHED,
+    current_pairs,
+    fresh_run_between,
+)
 from redline.server.services.revisions import CANCELLED, UNFINISHED
 from redline.worker.confirmation import UNDECIDED, baseline_noise
 from redline.worker.found_late import move_back
@@ -52,7 +57,6 @@ FIRST_INDEX = 1000
 #: a pinned host silent this long is taken for gone: its confirmation runs fail with the reason
 HOST_GONE = timedelta(minutes=30)
 #: confirmation jobs that will never give a value: their revision falls back to the history
-DID_NOT_RUN = (JobState.failed, JobState.cancelled)
 #: the reason of a confirmation job cancelled because the pairs before it decided every change
 NOT_NEEDED = "not needed: the pairs that ran before it decided every suspected change"
 #: the reason's start of one cancelled because its revision was judged again against another

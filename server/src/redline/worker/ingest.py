@@ -17,8 +17,8 @@ from redline.recording.format import no_traffic_reason
 from redline.server.db import session_scope
 from redline.server.models import Execution, Job, JobState, Revision, utcnow
 from redline.server.services.ingestion import store_samples
+from redline.server.services.jobs import waiting_on
 from redline.worker.onward import in_reach
-from redline.worker.remeasure import waiting_on
 from sqlalchemy import select, update
 from sqlalchemy.orm import Session
 

@@ -2,7 +2,8 @@
 judged because every run of its baseline revision was measured while other work loaded the host
 (`redline.recording.disturbance`; the agent already ran each of them again, at once), the
 baseline revision gets one fresh run of its whole suite, at most `REMEASURE_LIMIT` per revision,
-and the revision is judged again once it is ingested (`waiting_on`). The whole suite, not the
+and the revision is judged again once it is ingested (`redline.server.services.jobs.waiting_on`)
+or, without it, once it has failed or was cancelled (`judged_again`). The whole suite, not the
 test cases concerned: the component runs the cases one after another without a restart, so what
 one case measures depends on those before it (a trial's fresh run of only its `stats` case found
 the component's RSS at 26 MB against 92 MB after its `stream` case, and the next, README-only
@@ -41,8 +42,8 @@ from redline.server.models import (
 )
 from redline.server.services.jobs import FINISHED
 from redline.worker.samples import ingested_executions
-from sqlalchemy import func, select, tuple_
-from sqlalchemy.orm import Session, aliased
+from sqlalchemy import func, select
+from sqlalchemy.orm import Session
 
 #: fresh runs a revision may have in all: a host that stays busy leaves the verdict undecided
 REMEASURE_LIMIT = 1
@@ -150,28 +151,3 @@ def queue_remeasure(session: Session, revision_id: int, cases: Iterable[str]) ->
     session.add(job)
     session.flush()
     return job
-
-
-def waiting_on(session: Session, revision_id: int) -> list[int]:
-    """The revisions judged again once this one's fresh run is ingested: those whose "not
-    enough data" verdicts name it as their baseline, and those with a suspected change whose
-    span (baseline, revision) holds it (`busy_between`), however far after it they are."""
-    revision = session.get_one(Revision, revision_id)
-    baseline, flagged = aliased(Revision), aliased(Revision)
-    spanning = (
-        select(Detection.revision_id)
-        .join(baseline, baseline.id == Detection.baseline_revision_id)
-        .join(flagged, flagged.id == Detection.revision_id)
-        .where(
-            flagged.component_id == revision.component_id,
-            Detection.confirmation == SUSPECTED,
-            tuple_(baseline.order_key, baseline.id) < revision.place,
-            tuple_(flagged.order_key, flagged.id) > revision.place,
-        )
-    )
-    lacking = select(Detection.revision_id).where(
-        Detection.baseline_revision_id == revision_id,
-        Detection.verdict == NOT_ENOUGH_DATA,
-        Detection.revision_id != revision_id,
-    )
-    return list(session.scalars(lacking.union(spanning)))

@@ -1,6 +1,7 @@
 """What a lost message would leave undone, found again by the periodic re-queue task
 (`redline.worker.tasks.requeue_stale_uploads`): the commit status of revisions whose jobs ended
-failed (no ingest follows them), and the alerts of run-time alarms whose task never ran.
+failed (no ingest follows them), the revisions that waited for a fresh run that ended without a
+recording, and the alerts of run-time alarms whose task never ran.
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ from redline.server.models import (
     Subscription,
     utcnow,
 )
-from redline.server.services.jobs import UNENDED
+from redline.server.services.jobs import DID_NOT_RUN, UNENDED, judged_again
 from redline.worker.alerts import runtime_listeners
 from sqlalchemy import cast, func, select
 from sqlalchemy.dialects.postgresql import JSONB
@@ -60,6 +61,28 @@ def failed_without_status(session: Session, now: datetime | None = None) -> list
             .distinct()
         )
     )
+
+
+def unjudged_after_fresh_runs(session: Session, now: datetime | None = None) -> list[list[int]]:
+    """What to judge again (`judged_again`: the revision, then those that waited for it) for
+    each fresh run of a busy revision that ended without a recording (in the last
+    `SWEEP_WITHIN`, `SWEEP_GRACE` ago at least) while a revision waiting for it has not been
+    judged since: its leases lapsed until it was failed, or it was cancelled, and no ingest
+    follows. The API asks at once when a host fails one; this finds the rest, and a lost
+    message."""
+    now = now or utcnow()
+    found = []
+    for job in session.scalars(
+        select(Job)
+        .where(Job.remeasures_job_id.is_not(None), Job.state.in_(DID_NOT_RUN))
+        .where(Job.updated.between(now - SWEEP_WITHIN, now - SWEEP_GRACE))
+        .order_by(Job.id)
+    ):
+        revision_id, *waiting = judged_again(session, job)
+        judged = session.scalars(select(Revision.analyzed_at).where(Revision.id.in_(waiting)))
+        if any(at is None or at < job.updated for at in judged):
+            found.append([revision_id, *waiting])
+    return found
 
 
 def untold_runtime_alarms(session: Session, now: datetime | None = None) -> list[int]:

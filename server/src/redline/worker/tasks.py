@@ -34,7 +34,11 @@ from redline.worker.deliver import deliver_due
 from redline.worker.ingest import ingest as run_ingest
 from redline.worker.ingest import stale_uploads
 from redline.worker.onward import judge_onward
-from redline.worker.sweeps import failed_without_status, untold_runtime_alarms
+from redline.worker.sweeps import (
+    failed_without_status,
+    unjudged_after_fresh_runs,
+    untold_runtime_alarms,
+)
 from redline.worker.training import train_model as run_training
 from redline.worker.trends import render_component_trends, render_revision_trends
 from sqlalchemy import select
@@ -113,15 +117,19 @@ def render_trends(revision_id: int) -> None:
 def requeue_stale_uploads() -> int:
     """Queue again the ingestion of executions left `uploaded` (beat schedule: every 5 min);
     and what a message lost on its way would have left undone: the commit status of revisions
-    whose jobs ended failed (which no ingest follows), the alerts of run-time alarms."""
+    whose jobs ended failed (which no ingest follows), the judging of revisions that waited
+    for a fresh run that ended so, the alerts of run-time alarms."""
     with session_scope(_settings().database_url) as session:
         executions = stale_uploads(session)
         revisions = failed_without_status(session)
+        unjudged = unjudged_after_fresh_runs(session)
         alarms = untold_runtime_alarms(session)
     for execution_id in executions:
         ingest_execution.delay(execution_id)
     for revision_id in revisions:
         scan_alerts.delay(None, revision_id)
+    for again in unjudged:
+        detect_revision.apply_async(args=again)
     for alarm_id in alarms:
         runtime_alert.delay(alarm_id)
     if executions:

@@ -112,8 +112,9 @@ class TaskSender:
     def ingest(self, execution_id: int) -> bool:
         return self.send(INGEST_TASK, execution_id)
 
-    def detect(self, revision_id: int) -> bool:
-        return self.send(DETECT_TASK, revision_id)
+    def detect(self, revision_id: int, *also: int) -> bool:
+        """Judge the revision, then those after it its results reach, and ``also``."""
+        return self.send(DETECT_TASK, revision_id, *also)
 
     def reanalyze(self, component_id: int) -> bool:
         return self.send(REANALYZE_TASK, component_id)

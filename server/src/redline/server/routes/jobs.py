@@ -67,6 +67,8 @@ def fail(
     job = jobs.fail_job(session, job_id, data.host, data.reason)
     if jobs.ended(session, job.revision_id):  # no ingest follows: the verdict is posted now
         request.app.state.tasks.revision_ended(job.revision_id)
+    if again := jobs.judged_again(session, job):  # a fresh run others waited for
+        request.app.state.tasks.detect(*again)
     return JobStateOut(id=job.id, state=job.state.value, reason=job.reason)
 
 

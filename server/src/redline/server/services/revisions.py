@@ -30,6 +30,7 @@ from redline.server.schemas.revisions import (
 from redline.server.services.components import get_component, get_revision
 from redline.server.services.detection_config import component_config
 from redline.server.services.errors import BadRequest, Conflict, Forbidden, NotFound
+from redline.server.services.jobs import DID_NOT_RUN, UNENDED
 from redline.server.services.repos import repo_key
 from sqlalchemy import func, literal, or_, select, tuple_
 from sqlalchemy.exc import IntegrityError
@@ -38,8 +39,6 @@ from sqlalchemy.orm import Session, selectinload
 _DIGITS = re.compile(r"\d+")
 #: what a revision without a verdict yet is said to have (`revision_verdicts`)
 WAITING = "not enough data yet"
-_UNDER_WAY = (JobState.queued, JobState.leased, JobState.running, JobState.uploaded)
-_DID_NOT_RUN = (JobState.failed, JobState.cancelled)
 #: the reason of the jobs `cancel_revision` cancels
 CANCELLED = "cancelled"
 
@@ -118,7 +117,7 @@ def own_jobs(revision: Revision) -> list[Job]:
     return [
         job
         for job in revision.jobs
-        if job.pair == 0 and not (job.remeasures_job_id is not None and job.state in _DID_NOT_RUN)
+        if job.pair == 0 and not (job.remeasures_job_id is not None and job.state in DID_NOT_RUN)
     ]
 
 
@@ -134,7 +133,7 @@ def revision_state(states: list[JobState], analyzed: bool = True) -> str:
         return "empty"
     if counts[JobState.queued] == len(states):
         return "queued"
-    if any(counts[state] for state in _UNDER_WAY):
+    if any(counts[state] for state in UNENDED):
         return "running"
     if counts[JobState.failed]:
         return "failed"
