@@ -9,6 +9,7 @@ from datetime import timedelta
 from pathlib import Path
 
 import numpy as np
+import pytest
 from redline.detect.config import DetectionConfig
 from redline.detect.confirmation import DEFAULT_CONFIRM_PAIRS
 from redline.server.core.tasks import DETECT_TASK
@@ -30,12 +31,8 @@ from redline.server.schemas.jobs import RegisterRequest
 from redline.server.services.ci_verdict import ci_verdict
 from redline.server.services.components import create_component
 from redline.server.services.dashboard import TrendView, trend_data
-from redline.server.services.jobs import (
-    lease_job,
-    leased_job,
-    register_host,
-    waiting_on,
-)
+from redline.server.services.fresh_runs import waiting_on
+from redline.server.services.jobs import lease_job, leased_job, register_host
 from redline.server.services.revisions import cancel_revision, revision_detail
 from redline.worker.confirm_runs import queue_confirmations
 from redline.worker.detection import detect_revision
@@ -538,45 +535,66 @@ def test_a_fresh_run_that_fails_leaves_the_change_after_it_to_its_own_pairs(
     with api_with(services, tmp_path) as api:
         _busy_r5(session, database_url, tmp_path, PAIRS, [30.0])
         fresh = api.lease("perf-1")
-        failed = api.post(
-            f"/api/v1/jobs/{fresh['id']}/fail",
-            "agent",
-            {"host": "perf-1", "reason": "build failed: the compiler was killed"},
-        )
-        assert failed.status_code == 200, failed.text
+        for _ in range(2):  # the host reports it twice: it is judged again once
+            failed = api.post(
+                f"/api/v1/jobs/{fresh['id']}/fail",
+                "agent",
+                {"host": "perf-1", "reason": "build failed: the compiler was killed"},
+            )
+            assert failed.status_code == 200, failed.text
         queued = api.queued_tasks()
     r5, r6 = (_detection(session, title).revision_id for title in ("r5", "r6"))
     assert session.get_one(Job, fresh["id"]).remeasures_job_id is not None
-    assert (DETECT_TASK, f"[{r5}, {r6}]") in queued  # r5, then r6 that waited for it
+    assert [task for task in queued if task[0] == DETECT_TASK] == [(DETECT_TASK, f"[{r5}, {r6}]")]
     verdict = ci_verdict(session, NAME, "r6")
-    assert verdict.state == "pending", verdict
-    assert verdict.waiting_for.startswith("to be judged again: the fresh run of r5"), verdict
+    assert (verdict.state, verdict.waiting_for) == ("pending", "detection to judge its results")
     judge_onward(database_url, r5, [r6])  # what the worker does with that task
     session.expire_all()
     assert ci_verdict(session, NAME, "r6").waiting_for == "confirmation runs of it and its baseline"
+    later = utcnow() + SWEEP_GRACE + timedelta(seconds=5)
+    assert unjudged_after_fresh_runs(session, now=later) == []  # nothing left for the sweep
     r6_change = _pairs_run(session, database_url, tmp_path, "r6")
     assert r6_change.confirmation == "held", r6_change.confirmation_reason
     verdict = ci_verdict(session, NAME, "r6")
     assert (verdict.state, verdict.regressions) == ("done", 1), verdict
 
 
-def test_a_cancelled_fresh_run_is_found_by_the_sweep_and_the_revisions_after_it_judged(
-    session, database_url, tmp_path
-):
-    """No host tells the API of a fresh run cancelled with its revision (or one whose leases
-    lapsed until it was failed): the periodic sweep finds it, once, and r6 gets its pairs."""
-    _busy_r5(session, database_url, tmp_path, PAIRS, [30.0])
+def _lapsed(session, database_url: str, tmp_path: Path) -> None:
+    """The host took r5's fresh run and went quiet, three times: the next lease fails it."""
+    fresh = lease_job(session, "perf-1", 60, 3)
+    assert fresh.remeasures_job_id is not None
+    fresh.attempts, fresh.lease_expires_at = 3, utcnow() - timedelta(seconds=1)
+    session.commit()
+    assert lease_job(session, "perf-1", 60, 3) is None
+    assert fresh.state == JobState.failed, fresh.state
+
+
+def _cancelled(session, database_url: str, tmp_path: Path) -> None:
     cancel_revision(session, NAME, "r5")
+
+
+@pytest.mark.parametrize("ending", [_lapsed, _cancelled], ids=["lapsed", "cancelled"])
+def test_a_fresh_run_that_no_host_reports_ended_is_found_by_the_sweep(
+    session, database_url, tmp_path, ending
+):
+    """No host tells the API of a fresh run whose leases lapsed until it was failed, or that
+    was cancelled with its revision: its ending marks r6 not yet analysed (its CI verdict
+    waits), the periodic sweep finds it, once, and r6's own pairs decide."""
+    _busy_r5(session, database_url, tmp_path, PAIRS, [30.0])
+    ending(session, database_url, tmp_path)
+    verdict = ci_verdict(session, NAME, "r6")
+    assert (verdict.state, verdict.waiting_for) == ("pending", "detection to judge its results")
     later = utcnow() + SWEEP_GRACE + timedelta(seconds=5)
-    assert unjudged_after_fresh_runs(session) == []  # the message may still be on its way
+    assert unjudged_after_fresh_runs(session) == []  # within the grace the sweep leaves it
     (again,) = unjudged_after_fresh_runs(session, now=later)
     assert _titles(session, again) == ["r5", "r6"]
-    assert ci_verdict(session, NAME, "r6").waiting_for.startswith("to be judged again")
     judge_onward(database_url, again[0], again[1:])
     session.expire_all()
-    assert unjudged_after_fresh_runs(session, now=later) == []  # judged since: once
-    pairs = session.scalars(select(Job).where(Job.confirms_revision_id.is_not(None))).all()
-    assert {job.confirms_revision.title for job in pairs} == {"r6"}
+    assert unjudged_after_fresh_runs(session, now=later) == []  # judged: once
+    r6_change = _pairs_run(session, database_url, tmp_path, "r6")
+    assert r6_change.confirmation == "held", r6_change.confirmation_reason
+    verdict = ci_verdict(session, NAME, "r6")
+    assert (verdict.state, verdict.regressions) == ("done", 1), verdict
 
 
 def test_pairs_that_disagree_run_the_third(session, database_url, tmp_path):

@@ -9,8 +9,17 @@ from pathlib import Path
 from typing import Any
 
 from redline.server.core.config import PACKAGE, get_settings
-from sqlalchemy import Engine, NullPool, String, Table, create_engine, text
+from sqlalchemy import Engine, NullPool, String, Table, create_engine, func, select, text
 from sqlalchemy.orm import Session, sessionmaker
+
+#: the first key of the transaction-scoped advisory lock one revision's detection holds
+DETECT_LOCK = 0x5244  # "RD"
+
+
+def lock_revision(session: Session, revision_id: int) -> None:
+    """Detections of one revision take turns, and with what changes the revisions they wait
+    for: a lock for the transaction."""
+    session.execute(select(func.pg_advisory_xact_lock(DETECT_LOCK, revision_id)))
 
 
 @lru_cache

@@ -26,6 +26,7 @@ from typing import Any
 from redline.detect.confirmation import DROPPED
 from redline.detect.counters import worse
 from redline.server.models import (
+    UNENDED,
     Alert,
     Component,
     Delivery,
@@ -42,7 +43,6 @@ from redline.server.models import (
 )
 from redline.server.services.ci_verdict import ci_verdict
 from redline.server.services.detection_config import component_config
-from redline.server.services.jobs import UNENDED
 from redline.worker import messages
 from redline.worker.statuses import status_key
 from redline.worker.told import Change, mark_told, told_pairs, untold

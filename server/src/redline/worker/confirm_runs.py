@@ -28,6 +28,8 @@ from redline.detect.config import DetectionConfig
 from redline.detect.confirmation import DROPPED, SUSPECTED, pairs_decided, pairs_hold
 from redline.detect.counters import is_count
 from redline.server.models import (
+    DID_NOT_RUN,
+    FINISHED,
     Detection,
     Execution,
     Host,
@@ -39,12 +41,8 @@ from redline.server.models import (
     utcnow,
 )
 from redline.server.services.detection_config import component_config
-from redline.server.services.jobs import (
-    DID_NOT_RUN,
-    FINISHED,
-    current_pairs,
-    fresh_run_between,
-)
+from redline.server.services.fresh_runs import fresh_run_between
+from redline.server.services.jobs import current_pairs
 from redline.server.services.revisions import CANCELLED, UNFINISHED
 from redline.worker.confirmation import UNDECIDED, baseline_noise
 from redline.worker.found_late import move_back
@@ -56,7 +54,6 @@ from sqlalchemy.orm import Session
 FIRST_INDEX = 1000
 #: a pinned host silent this long is taken for gone: its confirmation runs fail with the reason
 HOST_GONE = timedelta(minutes=30)
-#: confirmation jobs that will never give a value: their revision falls back to the history
 #: the reason of a confirmation job cancelled because the pairs before it decided every change
 NOT_NEEDED = "not needed: the pairs that ran before it decided every suspected change"
 #: the reason's start of one cancelled because its revision was judged again against another

@@ -29,6 +29,7 @@ from redline.detect.confirmation import (
 )
 from redline.detect.counters import is_count
 from redline.server.models import (
+    FINISHED,
     Detection,
     Execution,
     Job,
@@ -38,7 +39,7 @@ from redline.server.models import (
     Summary,
     revision_place,
 )
-from redline.server.services.jobs import FINISHED, fresh_run_between, fresh_runs_under_way
+from redline.server.services.fresh_runs import fresh_run_between, fresh_runs_under_way
 from redline.worker.samples import ingested_executions
 from sqlalchemy import exists, func, select
 from sqlalchemy.dialects.postgresql import distinct_on

@@ -32,7 +32,7 @@ from redline.detect.methods import Detector
 from redline.detect.result import NOT_MEASURED, SHORT_BASELINE, not_enough
 from redline.detect.result import Detection as Verdict
 from redline.detect.verdict import floored, judge_series
-from redline.server.db import bulk_insert, session_scope
+from redline.server.db import bulk_insert, lock_revision, session_scope
 from redline.server.models import Component, Detection, Revision, utcnow
 from redline.server.services.detection_config import component_config
 from redline.worker.baselines import Baseline, Baselines
@@ -49,12 +49,10 @@ from redline.worker.history import (
 from redline.worker.remeasure import queue_for_baselines
 from redline.worker.rows import Judged, KsChange, detection_row, ks_change
 from redline.worker.samples import Samples, read_samples
-from sqlalchemy import Table, delete, func, select
+from sqlalchemy import Table, delete, select
 from sqlalchemy.orm import Session
 
 log = logging.getLogger(__name__)
-#: the first key of the transaction-scoped advisory lock one revision's detection holds
-DETECT_LOCK = 0x5244  # "RD"
 
 if TYPE_CHECKING:
     from redline.worker.reanalysis import Walk
@@ -314,11 +312,6 @@ def judge_revision(
     if walk is not None:
         walk.judged(session, revision.id, candidate, rows, complete=read == len(executions))
     return Judged(revision.id, rows, changes, executions)
-
-
-def lock_revision(session: Session, revision_id: int) -> None:
-    """Detections of one revision take turns: a lock for the transaction."""
-    session.execute(select(func.pg_advisory_xact_lock(DETECT_LOCK, revision_id)))
 
 
 def detect_revision(database_url: str, revision_id: int) -> list[KsChange]:

@@ -18,7 +18,7 @@ from collections import defaultdict
 from collections.abc import Collection
 
 from redline.detect.config import DetectionConfig
-from redline.server.db import session_scope
+from redline.server.db import lock_revision, session_scope
 from redline.server.models import (
     Component,
     Detection,
@@ -32,7 +32,7 @@ from redline.server.models import (
 from redline.server.services.detection_config import component_config
 from redline.worker.confirm_runs import settle_pending_pairs
 from redline.worker.confirmation import confirm_by_history
-from redline.worker.detection import judge_revision, lock_revision, store
+from redline.worker.detection import judge_revision, store
 from redline.worker.found_late import still_moved
 from redline.worker.grouping import group_revision
 from redline.worker.samples import ingested_executions

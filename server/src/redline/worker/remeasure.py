@@ -2,8 +2,8 @@
 judged because every run of its baseline revision was measured while other work loaded the host
 (`redline.recording.disturbance`; the agent already ran each of them again, at once), the
 baseline revision gets one fresh run of its whole suite, at most `REMEASURE_LIMIT` per revision,
-and the revision is judged again once it is ingested (`redline.server.services.jobs.waiting_on`)
-or, without it, once it has failed or was cancelled (`judged_again`). The whole suite, not the
+and the revision is judged again once it is ingested (`redline.server.services.fresh_runs`),
+or without it once it has ended without results.  The whole suite, not the
 test cases concerned: the component runs the cases one after another without a restart, so what
 one case measures depends on those before it (a trial's fresh run of only its `stats` case found
 the component's RSS at 26 MB against 92 MB after its `stream` case, and the next, README-only
@@ -32,6 +32,7 @@ from redline.detect.confirmation import SUSPECTED
 from redline.detect.result import NOT_ENOUGH_DATA
 from redline.recording.disturbance import names_busy_host
 from redline.server.models import (
+    FINISHED,
     Detection,
     Execution,
     Job,
@@ -40,7 +41,6 @@ from redline.server.models import (
     Summary,
     revision_place,
 )
-from redline.server.services.jobs import FINISHED
 from redline.worker.samples import ingested_executions
 from sqlalchemy import func, select
 from sqlalchemy.orm import Session

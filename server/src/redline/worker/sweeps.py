@@ -9,6 +9,8 @@ from __future__ import annotations
 from datetime import datetime, timedelta
 
 from redline.server.models import (
+    DID_NOT_RUN,
+    UNENDED,
     Alert,
     Component,
     Delivery,
@@ -19,7 +21,7 @@ from redline.server.models import (
     Subscription,
     utcnow,
 )
-from redline.server.services.jobs import DID_NOT_RUN, UNENDED, judged_again
+from redline.server.services.fresh_runs import waiting_on
 from redline.worker.alerts import runtime_listeners
 from sqlalchemy import cast, func, select
 from sqlalchemy.dialects.postgresql import JSONB
@@ -64,23 +66,27 @@ def failed_without_status(session: Session, now: datetime | None = None) -> list
 
 
 def unjudged_after_fresh_runs(session: Session, now: datetime | None = None) -> list[list[int]]:
-    """What to judge again (`judged_again`: the revision, then those that waited for it) for
-    each fresh run of a busy revision that ended without a recording (in the last
-    `SWEEP_WITHIN`, `SWEEP_GRACE` ago at least) while a revision waiting for it has not been
-    judged since: its leases lapsed until it was failed, or it was cancelled, and no ingest
-    follows. The API asks at once when a host fails one; this finds the rest, and a lost
-    message."""
+    """What to judge again, in order (the revision, then those that waited for it), for each
+    fresh run of a busy revision that ended without results (in the last `SWEEP_WITHIN`,
+    `SWEEP_GRACE` ago at least) while a revision that waited for it is still marked not yet
+    analysed (`redline.server.services.fresh_runs.fresh_run_ended`): its leases lapsed until
+    it was failed, its upload or ingestion was refused, it was cancelled, or the API's message
+    for a host's failure got lost. Once judged, a revision is left alone; one that cannot be
+    judged is asked for again at each sweep, within the window."""
     now = now or utcnow()
     found = []
-    for job in session.scalars(
-        select(Job)
+    for revision_id in session.scalars(
+        select(Job.revision_id)
         .where(Job.remeasures_job_id.is_not(None), Job.state.in_(DID_NOT_RUN))
         .where(Job.updated.between(now - SWEEP_WITHIN, now - SWEEP_GRACE))
-        .order_by(Job.id)
+        .distinct()
+        .order_by(Job.revision_id)
     ):
-        revision_id, *waiting = judged_again(session, job)
-        judged = session.scalars(select(Revision.analyzed_at).where(Revision.id.in_(waiting)))
-        if any(at is None or at < job.updated for at in judged):
+        waiting = waiting_on(session, revision_id)
+        unjudged = select(Revision.id).where(
+            Revision.id.in_(waiting), Revision.analyzed_at.is_(None)
+        )
+        if waiting and session.scalar(select(unjudged.exists())):
             found.append([revision_id, *waiting])
     return found
 

@@ -20,6 +20,10 @@ from redline.server.models.learning import ResourceModelRow, RuntimeAlarm
 from redline.server.models.results import FigureCache, Series, Summary
 from redline.server.models.tokens import ApiToken, User, WebSession
 from redline.server.models.work import (
+    DID_NOT_RUN,
+    FINISHED,
+    HELD,
+    UNENDED,
     Component,
     Execution,
     Host,
@@ -30,6 +34,10 @@ from redline.server.models.work import (
 )
 
 __all__ = [
+    "DID_NOT_RUN",
+    "FINISHED",
+    "HELD",
+    "UNENDED",
     "Alert",
     "AlertedChange",
     "Delivery",

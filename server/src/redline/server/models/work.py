@@ -33,6 +33,16 @@ class JobState(enum.StrEnum):
     cancelled = "cancelled"
 
 
+#: a job in these states is held by a host
+HELD = (JobState.leased, JobState.running)
+#: jobs that have not ended: their revision's verdict may still change
+UNENDED = (JobState.queued, *HELD, JobState.uploaded)
+#: a job in these states gave no results: it failed (its ingestion too) or was cancelled
+DID_NOT_RUN = (JobState.failed, JobState.cancelled)
+#: a job in these states runs no more
+FINISHED = (JobState.done, *DID_NOT_RUN)
+
+
 class Component(Base):
     __tablename__ = "component"
     id: Mapped[int] = mapped_column(primary_key=True)

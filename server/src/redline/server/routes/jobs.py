@@ -64,10 +64,10 @@ def fail(
 ) -> JobStateOut:
     """Fail the job with the agent's reason; 409 when this host does not hold it."""
     ensure_own_host(token, data.host)
-    job = jobs.fail_job(session, job_id, data.host, data.reason)
+    job, again = jobs.fail_job(session, job_id, data.host, data.reason)
     if jobs.ended(session, job.revision_id):  # no ingest follows: the verdict is posted now
         request.app.state.tasks.revision_ended(job.revision_id)
-    if again := jobs.judged_again(session, job):  # a fresh run others waited for
+    if again:  # a fresh run others waited for: they are judged without it
         request.app.state.tasks.detect(*again)
     return JobStateOut(id=job.id, state=job.state.value, reason=job.reason)
 

@@ -31,16 +31,19 @@ from redline.detect.result import (
 from redline.recording.disturbance import names_busy_host
 from redline.recording.driver import DRIVER_PROCESS as DRIVER
 from redline.recording.format import canonical_params
-from redline.server.models import Detection, Job, JobState, Revision, Series, revision_place
+from redline.server.models import (
+    FINISHED,
+    Detection,
+    Job,
+    JobState,
+    Revision,
+    Series,
+    revision_place,
+)
 from redline.server.schemas.alerts import CaseVerdict, CiVerdict
 from redline.server.services.components import get_component, get_revision
 from redline.server.services.detection_config import component_config
-from redline.server.services.jobs import (
-    FINISHED,
-    fresh_run_between,
-    fresh_run_ended_unjudged,
-    fresh_runs_under_way,
-)
+from redline.server.services.fresh_runs import fresh_run_between, fresh_runs_under_way
 from redline.server.services.revisions import own_jobs, revision_state
 from sqlalchemy import or_, select
 from sqlalchemy.orm import Session
@@ -98,12 +101,6 @@ def _pending(session: Session, revision: Revision) -> tuple[str, str]:
         return "pending", (
             f"a fresh run of {between}, whose runs the host was busy in: the change flagged "
             "here may be its"
-        )
-    ended = fresh_run_ended_unjudged(session, revision, suspected)
-    if ended is not None:  # its failure is news to this verdict: the change waited for it
-        return "pending", (
-            f"to be judged again: the fresh run of {ended}, which the change flagged here "
-            "waited for, ended without a recording"
         )
     earlier = _earlier_unmeasured(session, revision)
     if earlier is not None:

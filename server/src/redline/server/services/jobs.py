@@ -5,27 +5,22 @@ from __future__ import annotations
 from collections.abc import Sequence
 from datetime import datetime, timedelta
 
-from redline.detect.confirmation import SUSPECTED
-from redline.detect.result import NOT_ENOUGH_DATA
 from redline.server.models import (
+    HELD,
+    UNENDED,
     Component,
-    Detection,
     Host,
     Job,
     JobState,
     Revision,
-    revision_place,
     utcnow,
 )
 from redline.server.schemas.jobs import LeasedJob, LeasedRevision, RegisterRequest
 from redline.server.services.errors import Conflict, NotFound
-from sqlalchemy import ColumnElement, and_, case, cast, or_, select, tuple_, update
+from redline.server.services.fresh_runs import fresh_run_ended
+from sqlalchemy import ColumnElement, and_, case, cast, or_, select, update
 from sqlalchemy.dialects.postgresql import JSONB, insert
 from sqlalchemy.orm import Session, aliased
-
-HELD = (JobState.leased, JobState.running)
-#: jobs that have not ended: their revision's verdict may still change
-UNENDED = (JobState.queued, *HELD, JobState.uploaded)
 
 
 def register_host(session: Session, data: RegisterRequest) -> Host:
@@ -50,8 +45,10 @@ def _host(session: Session, name: str) -> Host:
 
 
 def _fail_exhausted(session: Session, now: datetime, max_attempts: int) -> None:
-    """Jobs whose lease lapsed ``max_attempts`` times are failed instead of handed out again."""
-    session.execute(
+    """Jobs whose lease lapsed ``max_attempts`` times are failed instead of handed out again;
+    a fresh run's failure marks the revisions that waited for it (`fresh_run_ended`), which
+    the periodic sweep then has judged."""
+    failed = session.execute(
         update(Job)
         .where(Job.state.in_(HELD), Job.lease_expires_at < now, Job.attempts >= max_attempts)
         .values(
@@ -60,7 +57,11 @@ def _fail_exhausted(session: Session, now: datetime, max_attempts: int) -> None:
             updated=now,
             reason=f"lease expired {max_attempts} times without a recording",
         )
+        .returning(Job.revision_id, Job.remeasures_job_id)
     )
+    for revision_id, remeasures in failed.all():
+        if remeasures is not None:
+            fresh_run_ended(session, revision_id)
 
 
 #: how recent a component's mark may be left: the turns need no finer grain (jobs take
@@ -251,119 +252,18 @@ def ended(session: Session, revision_id: int) -> bool:
     )
 
 
-def fail_job(session: Session, job_id: int, host_name: str, reason: str) -> Job:
+def fail_job(session: Session, job_id: int, host_name: str, reason: str) -> tuple[Job, list[int]]:
     """Mark a job this host holds failed with its reason; the same host failing it again
-    changes nothing. Another host (one whose lease lapsed, say) gets a Conflict."""
+    changes nothing. Another host (one whose lease lapsed, say) gets a Conflict. Returns the
+    job, and for a fresh run others waited for, what to judge now (`fresh_run_ended`)."""
     job = _locked_job(session, job_id)
     if job.state == JobState.failed and holder(job) == host_name:
         session.commit()
-        return job
+        return job, []
     ensure_held(job, host_name)
     job.state = JobState.failed
     job.reason = reason
     job.lease_expires_at = None
+    again = fresh_run_ended(session, job.revision_id) if job.remeasures_job_id else []
     session.commit()
-    return job
-
-
-#: a job in these states ended without a recording: no ingest follows it
-DID_NOT_RUN = (JobState.failed, JobState.cancelled)
-#: a job in these states runs no more
-FINISHED = (JobState.done, *DID_NOT_RUN)
-
-
-def fresh_runs_under_way(component_id: int):  # noqa: ANN201 - a query to narrow
-    """The titles of the component's revisions being run afresh because the host was busy in
-    all their runs (`redline.worker.remeasure`), as a query."""
-    return (
-        select(Revision.title)
-        .join(Job, Job.revision_id == Revision.id)
-        .where(
-            Revision.component_id == component_id,
-            Job.remeasures_job_id.is_not(None),
-            Job.state.not_in(FINISHED),
-        )
-    )
-
-
-def _span(
-    session: Session, revision: Revision, baselines: Sequence[int | None]
-) -> ColumnElement[bool] | None:
-    """Revisions after the oldest of ``baselines`` and before ``revision``; None when there
-    are no baselines."""
-    places = [session.get_one(Revision, b).place for b in set(baselines) if b is not None]
-    if not places:
-        return None
-    return and_(revision_place() > min(places), revision_place() < revision.place)
-
-
-def fresh_run_between(
-    session: Session, revision: Revision, baselines: Sequence[int | None]
-) -> str | None:
-    """The title of a revision after the oldest of ``baselines`` (the baseline revisions of
-    ``revision``'s suspected changes) and before ``revision`` that is being run afresh because
-    the host was busy in all its runs (`redline.worker.remeasure`): the change may be its, so
-    the suspected revision's confirmation runs and CI verdict wait for it. None when none is."""
-    span = _span(session, revision, baselines)
-    if span is None:
-        return None
-    return session.scalar(fresh_runs_under_way(revision.component_id).where(span).limit(1))
-
-
-def fresh_run_ended_unjudged(
-    session: Session, revision: Revision, baselines: Sequence[int | None]
-) -> str | None:
-    """The title of a revision in the same span whose fresh run ended without a recording (its
-    build failed, its leases lapsed, it was cancelled) after ``revision`` was last judged:
-    ``revision`` is judged again and its confirmation runs queued once the worker hears of it
-    (`judged_again`), and until then its suspected change is no verdict yet."""
-    span = _span(session, revision, baselines)
-    if span is None or revision.analyzed_at is None:
-        return None
-    return session.scalar(
-        select(Revision.title)
-        .join(Job, Job.revision_id == Revision.id)
-        .where(
-            Revision.component_id == revision.component_id,
-            span,
-            Job.remeasures_job_id.is_not(None),
-            Job.state.in_(DID_NOT_RUN),
-            Job.updated > revision.analyzed_at,
-        )
-        .limit(1)
-    )
-
-
-def waiting_on(session: Session, revision_id: int) -> list[int]:
-    """The revisions judged again once this one's fresh run has ended: those whose "not
-    enough data" verdicts name it as their baseline, and those with a suspected change whose
-    span (baseline, revision) holds it (`redline.worker.remeasure.busy_between`), however far
-    after it they are."""
-    revision = session.get_one(Revision, revision_id)
-    baseline, flagged = aliased(Revision), aliased(Revision)
-    spanning = (
-        select(Detection.revision_id)
-        .join(baseline, baseline.id == Detection.baseline_revision_id)
-        .join(flagged, flagged.id == Detection.revision_id)
-        .where(
-            flagged.component_id == revision.component_id,
-            Detection.confirmation == SUSPECTED,
-            tuple_(baseline.order_key, baseline.id) < revision.place,
-            tuple_(flagged.order_key, flagged.id) > revision.place,
-        )
-    )
-    lacking = select(Detection.revision_id).where(
-        Detection.baseline_revision_id == revision_id,
-        Detection.verdict == NOT_ENOUGH_DATA,
-        Detection.revision_id != revision_id,
-    )
-    return list(session.scalars(lacking.union(spanning)))
-
-
-def judged_again(session: Session, job: Job) -> list[int]:
-    """What to judge once ``job`` has ended without a recording, in order: for a fresh run,
-    its revision and those that waited for it (`waiting_on`), which may now be judged
-    without it; nothing for any other job."""
-    if job.remeasures_job_id is None or job.state not in DID_NOT_RUN:
-        return []
-    return [job.revision_id, *waiting_on(session, job.revision_id)]
+    return job, again

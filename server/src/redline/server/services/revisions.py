@@ -12,6 +12,8 @@ from typing import Any
 from redline.detect.result import waits_for_history
 from redline.recording.format import META_RUN
 from redline.server.models import (
+    DID_NOT_RUN,
+    UNENDED,
     Component,
     Detection,
     Execution,
@@ -30,7 +32,7 @@ from redline.server.schemas.revisions import (
 from redline.server.services.components import get_component, get_revision
 from redline.server.services.detection_config import component_config
 from redline.server.services.errors import BadRequest, Conflict, Forbidden, NotFound
-from redline.server.services.jobs import DID_NOT_RUN, UNENDED
+from redline.server.services.fresh_runs import fresh_run_ended
 from redline.server.services.repos import repo_key
 from sqlalchemy import func, literal, or_, select, tuple_
 from sqlalchemy.exc import IntegrityError
@@ -255,6 +257,8 @@ def cancel_revision(session: Session, component_name: str, title: str) -> Revisi
     )
     for job in jobs:
         job.state, job.reason = JobState.cancelled, CANCELLED
+        if job.remeasures_job_id is not None:  # the sweep has those that waited judged
+            fresh_run_ended(session, job.revision_id)
     session.commit()
     return revision_detail(session, component_name, title)
 
