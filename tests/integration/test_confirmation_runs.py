@@ -478,7 +478,9 @@ def test_a_change_after_a_revision_the_host_was_busy_in_waits_for_its_fresh_run(
     run afresh first, r6's pairs and CI verdict wait for it, and judged again in order, the
     change is r5's, confirmed by its own pairs; r6 passes."""
     _busy_r5(session, database_url, tmp_path, PAIRS, [30.0])
-    assert _detection(session, "r6").flagged
+    r6 = _detection(session, "r6")
+    assert r6.flagged and r6.confirmation == "suspected", r6.confirmation_reason
+    assert r6.confirmation_reason.startswith("waiting for a fresh run of r5, whose runs the host")
     assert not session.scalars(select(Job).where(Job.confirms_revision_id.is_not(None))).all()
     waiting = ci_verdict(session, NAME, "r6")
     assert waiting.state == "pending", waiting
@@ -502,6 +504,7 @@ def test_the_history_too_waits_for_the_fresh_run_of_a_revision_the_host_was_busy
     _busy_r5(session, database_url, tmp_path, 0, [30.0] * 3)
     r6 = _detection(session, "r6")
     assert r6.flagged and r6.confirmation == "suspected", r6.confirmation_reason
+    assert r6.confirmation_reason.startswith("waiting for a fresh run of r5, whose runs the host")
     fresh = lease_job(session, "perf-1", 60, 3)
     assert (fresh.revision.title, fresh.remeasures_job_id is not None) == ("r5", True)
     _run(session, database_url, tmp_path, fresh, 30.0, onward=True)

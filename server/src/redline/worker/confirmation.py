@@ -147,10 +147,15 @@ def settle(
             f"{detection.confirmation_reason or 'none ran'}); its own runs missed the change",
         )
         return
-    if fresh_runs and fresh_run_between(
+    between = fresh_runs and fresh_run_between(
         session, detection.revision, [detection.baseline_revision_id]
-    ):
-        return  # the change may be that revision's: settled once it has run again
+    )
+    if between:  # the change may be that revision's: settled once it has run again
+        detection.confirmation_reason = (
+            f"waiting for a fresh run of {between}, whose runs the host was busy in: the "
+            "change may be its"
+        )
+        return
     count = is_count(process, counter)
     levels = _levels(session, detection.series_id, count)
     position = {rid: i for i, (_, rid, _) in enumerate(levels)}
