@@ -19,10 +19,11 @@ from redline.server.core.config import Settings
 from redline.server.db import session_factory
 from redline.server.schemas.imports import ResultsImport
 from redline.server.services.imports import from_results, store_import
-from sqlalchemy import event, text
+from sqlalchemy import text
 from sqlalchemy.orm import Session
 
 from tests.support.api import Api, api_with
+from tests.support.concurrency import interleave
 from tests.support.servers import Services
 from tests.support.webhooks import SECRET, counts, github_push, send_github, send_gitlab
 
@@ -410,60 +411,6 @@ def test_a_title_with_url_characters_is_reachable_url_encoded(api: Api):
 
 
 # --- 9: concurrent get-or-create -----------------------------------------------------------------
-
-
-def _pause_before_commit(session: Session, reached: threading.Event, go: threading.Event) -> None:
-    def hold(held: Session) -> None:
-        held.flush()  # its writes made, its locks held: only the commit is left
-        reached.set()
-        assert go.wait(30), "never released"
-
-    event.listen(session, "before_commit", hold)
-
-
-def _waiting_on_a_lock(database_url: str) -> bool:
-    with session_factory(database_url)() as session:
-        return bool(
-            session.scalar(
-                text(
-                    "SELECT count(*) FROM pg_stat_activity WHERE wait_event_type = 'Lock' "
-                    "AND datname = current_database()"
-                )
-            )
-        )
-
-
-def interleave(
-    database_url: str, first: Callable[[Session], object], second: Callable[[Session], object]
-) -> list[object]:
-    """``first`` runs up to its commit; ``second`` then runs until it waits on a lock that
-    ``first`` holds (or ends); then ``first`` commits and both finish. What each returned or
-    raised, in that order: the interleaving that turns select-then-insert into a duplicate."""
-    results: list[object] = [None, None]
-    reached, go = threading.Event(), threading.Event()
-
-    def run(index: int, work: Callable[[Session], object], hold: bool) -> None:
-        with session_factory(database_url)() as session:
-            if hold:
-                _pause_before_commit(session, reached, go)
-            try:
-                results[index] = work(session)
-            except Exception as exc:  # the duplicate key error is the bug being shown
-                results[index] = exc
-
-    one = threading.Thread(target=run, args=(0, first, True))
-    one.start()
-    assert reached.wait(30), "the first transaction never reached its commit"
-    two = threading.Thread(target=run, args=(1, second, False))
-    two.start()
-    for _ in range(300):
-        if not two.is_alive() or _waiting_on_a_lock(database_url):
-            break
-        two.join(0.05)
-    go.set()
-    one.join(30)
-    two.join(30)
-    return results
 
 
 def test_two_imports_naming_a_new_host_and_revision_at_once_both_store(api: Api):

@@ -13,6 +13,7 @@ import pytest
 from redline.detect.config import DetectionConfig
 from redline.detect.confirmation import DEFAULT_CONFIRM_PAIRS
 from redline.server.core.tasks import DETECT_TASK
+from redline.server.db import lock_component
 from redline.server.models import (
     Component,
     Detection,
@@ -32,7 +33,7 @@ from redline.server.services.ci_verdict import ci_verdict
 from redline.server.services.components import create_component
 from redline.server.services.dashboard import TrendView, trend_data
 from redline.server.services.fresh_runs import waiting_on
-from redline.server.services.jobs import lease_job, leased_job, register_host
+from redline.server.services.jobs import fail_job, lease_job, leased_job, register_host
 from redline.server.services.revisions import cancel_revision, revision_detail
 from redline.worker.confirm_runs import queue_confirmations
 from redline.worker.detection import detect_revision
@@ -41,8 +42,10 @@ from redline.worker.onward import judge_onward
 from redline.worker.reanalysis import reanalyze_component
 from redline.worker.sweeps import SWEEP_GRACE, unjudged_after_fresh_runs
 from sqlalchemy import select
+from sqlalchemy.orm import Session
 
 from tests.support.api import api_with
+from tests.support.concurrency import interleave
 from tests.support.history import add_executions, ingest_and_detect
 from tests.support.recordings import run_metadata, write_recording
 
@@ -511,6 +514,32 @@ def test_the_history_too_waits_for_the_fresh_run_of_a_revision_the_host_was_busy
     assert not _detection(session, "r6").flagged
     r5 = _detection(session, "r5")
     assert r5.confirmation == "held", r5.confirmation_reason
+
+
+def test_a_fresh_run_ending_while_a_later_revision_is_stored_finds_that_change_too(
+    session, database_url, tmp_path
+):
+    """r7's verdicts are being stored, its change suspected and held back (r5's fresh run is
+    under way), as the host fails r5's fresh run: the ending waits for that store (both lock
+    the component first), then finds r7's change among those to judge again. Reading before
+    the store committed, it would miss it, and r7 would stay suspected with no pairs."""
+    _busy_r5(session, database_url, tmp_path, PAIRS, [30.0, 30.0])
+    fresh = lease_job(session, "perf-1", 60, 3)
+    r6, r7 = _detection(session, "r6"), _detection(session, "r7")
+    component_id, r7_id = fresh.revision.component_id, r7.id
+
+    def store_r7(held: Session) -> None:  # the part of `store` that matters here
+        lock_component(held, component_id)
+        change = held.get_one(Detection, r7_id)
+        change.confirmation, change.baseline_revision_id = "suspected", r6.baseline_revision_id
+        held.commit()
+
+    def fail(held: Session) -> list[int]:
+        return fail_job(held, fresh.id, "perf-1", "build failed: out of disk")[1]
+
+    stored, again = interleave(database_url, store_r7, fail)
+    assert stored is None, stored
+    assert _titles(session, again) == ["r5", "r6", "r7"]
 
 
 def test_the_fresh_run_names_every_revision_whose_suspected_change_spans_it(

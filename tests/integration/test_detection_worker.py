@@ -248,6 +248,27 @@ def test_baseline_samples_gone_is_missing_baseline_not_an_exception(
     assert verdict.verdict == "not enough data" and "missing baseline" in verdict.reason
 
 
+def test_a_revision_whose_samples_are_gone_keeps_its_verdicts_and_is_not_left_pending(
+    session, database_url, tmp_path
+):
+    """Marked not yet analysed (a fresh run it waited for ended without results, say), a
+    revision whose samples were pruned is judged again: its stored verdicts stand, and it is
+    analysed again, not pending for ever (its CI verdict would wait for ever)."""
+    executions = cpu_history(session, tmp_path, [20.0, 60.0])
+    for execution in executions:
+        ingest_execution(database_url, execution.id)
+        detect_revision(database_url, execution.revision_id)
+    before = {key: d.verdict for key, d in _verdicts(session).items()}
+    samples_path(executions[1].recording_path).unlink()  # pruned
+    revision = session.get_one(Revision, executions[1].revision_id)
+    revision.analyzed_at = None
+    session.commit()
+    assert detect_revision(database_url, revision.id) == []
+    session.expire_all()
+    assert revision.analyzed_at is not None
+    assert {key: d.verdict for key, d in _verdicts(session).items()} == before
+
+
 def test_window_baseline_pools_the_previous_revisions(session, database_url, tmp_path):
     config = {"methods": ["ks"], "baseline": "window", "window": 3}
     ingest_and_detect(

@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import Any
 
 from redline.server.core.config import PACKAGE, get_settings
+from redline.server.models import Component
 from sqlalchemy import Engine, NullPool, String, Table, create_engine, func, select, text
 from sqlalchemy.orm import Session, sessionmaker
 
@@ -17,9 +18,16 @@ DETECT_LOCK = 0x5244  # "RD"
 
 
 def lock_revision(session: Session, revision_id: int) -> None:
-    """Detections of one revision take turns, and with what changes the revisions they wait
-    for: a lock for the transaction."""
+    """Detections of one revision take turns: a lock for the transaction."""
     session.execute(select(func.pg_advisory_xact_lock(DETECT_LOCK, revision_id)))
+
+
+def lock_component(session: Session, component_id: int) -> None:
+    """The component's row, locked for the transaction, before any of its jobs' rows: storing
+    a revision's verdicts updates other revisions' and jobs' rows (`redline.worker.detection`),
+    and so does a fresh run's ending (`redline.server.services.fresh_runs`); taking this lock
+    first, they take turns and never deadlock."""
+    session.execute(select(Component.id).where(Component.id == component_id).with_for_update())
 
 
 @lru_cache

@@ -147,14 +147,17 @@ def settle(
             f"{detection.confirmation_reason or 'none ran'}); its own runs missed the change",
         )
         return
-    between = fresh_runs and fresh_run_between(
-        session, detection.revision, [detection.baseline_revision_id]
+    between = (
+        fresh_run_between(session, detection.revision, [detection.baseline_revision_id])
+        if fresh_runs
+        else None
     )
-    if between:  # the change may be that revision's: settled once it has run again
-        detection.confirmation_reason = (
-            f"waiting for a fresh run of {between}, whose runs the host was busy in: the "
-            "change may be its"
-        )
+    if between is not None:  # the change may be that revision's: settled once it ran again
+        if not detection.confirmation_reason.startswith(UNDECIDED):  # what the re-runs said
+            detection.confirmation_reason = (
+                f"waiting for a fresh run of {between}, whose runs the host was busy in: the "
+                "change may be its"
+            )
         return
     count = is_count(process, counter)
     levels = _levels(session, detection.series_id, count)

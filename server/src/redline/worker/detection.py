@@ -32,8 +32,8 @@ from redline.detect.methods import Detector
 from redline.detect.result import NOT_MEASURED, SHORT_BASELINE, not_enough
 from redline.detect.result import Detection as Verdict
 from redline.detect.verdict import floored, judge_series
-from redline.server.db import bulk_insert, lock_revision, session_scope
-from redline.server.models import Component, Detection, Revision, utcnow
+from redline.server.db import bulk_insert, lock_component, lock_revision, session_scope
+from redline.server.models import Detection, Revision, utcnow
 from redline.server.services.detection_config import component_config
 from redline.worker.baselines import Baseline, Baselines
 from redline.worker.confirm_runs import queue_confirmations, settle_pending_pairs
@@ -223,9 +223,7 @@ def store(
     """
     # the component's row first: grouping and confirmation update other revisions' rows, and
     # two stores of one component taking their locks in different orders would deadlock
-    session.execute(
-        select(Component.id).where(Component.id == revision.component_id).with_for_update()
-    )
+    lock_component(session, revision.component_id)
     config = config or component_config(session, revision.component_id)
     own = [row for row in rows if row["revision_id"] == revision.id]
     _store_steps(session, [row for row in rows if row["revision_id"] != revision.id], config)
@@ -331,7 +329,10 @@ def detect_and_store(database_url: str, revision_id: int) -> Judged | None:
     with session_scope(database_url) as session:
         lock_revision(session, revision_id)
         judged = judge_revision(session, revision_id)
-        if judged is None:
+        if judged is None:  # its samples are gone: its stored results stand, as analysed
+            revision = session.get(Revision, revision_id)
+            if revision is not None:
+                revision.analyzed_at = utcnow()
             return None
         store(session, session.get_one(Revision, revision_id), judged.rows, rerun=True)
     log.info(

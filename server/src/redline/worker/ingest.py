@@ -16,7 +16,7 @@ from redline.recording.disturbance import recording_disturbances, threshold
 from redline.recording.format import no_traffic_reason
 from redline.server.db import session_scope
 from redline.server.models import Execution, Job, JobState, Revision, utcnow
-from redline.server.services.fresh_runs import fresh_run_ended, waiting_on
+from redline.server.services.fresh_runs import mark_waiting, waiting_on
 from redline.server.services.ingestion import store_samples
 from redline.worker.onward import in_reach
 from sqlalchemy import select, update
@@ -50,7 +50,7 @@ def _fail(database_url: str, execution_id: int, reason: str) -> None:
             job = session.get_one(Job, execution.job_id)
             job.state, job.reason = JobState.failed, reason
             if job.remeasures_job_id is not None:  # the sweep has those that waited judged
-                fresh_run_ended(session, job.revision_id)
+                mark_waiting(session, job.revision_id)
 
 
 @dataclass(frozen=True)

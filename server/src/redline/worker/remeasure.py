@@ -3,7 +3,7 @@ judged because every run of its baseline revision was measured while other work 
 (`redline.recording.disturbance`; the agent already ran each of them again, at once), the
 baseline revision gets one fresh run of its whole suite, at most `REMEASURE_LIMIT` per revision,
 and the revision is judged again once it is ingested (`redline.server.services.fresh_runs`),
-or without it once it has ended without results.  The whole suite, not the
+or without it once it has ended without results. The whole suite, not the
 test cases concerned: the component runs the cases one after another without a restart, so what
 one case measures depends on those before it (a trial's fresh run of only its `stats` case found
 the component's RSS at 26 MB against 92 MB after its `stream` case, and the next, README-only

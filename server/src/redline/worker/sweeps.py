@@ -69,7 +69,7 @@ def unjudged_after_fresh_runs(session: Session, now: datetime | None = None) -> 
     """What to judge again, in order (the revision, then those that waited for it), for each
     fresh run of a busy revision that ended without results (in the last `SWEEP_WITHIN`,
     `SWEEP_GRACE` ago at least) while a revision that waited for it is still marked not yet
-    analysed (`redline.server.services.fresh_runs.fresh_run_ended`): its leases lapsed until
+    analysed (`redline.server.services.fresh_runs.mark_waiting`): its leases lapsed until
     it was failed, its upload or ingestion was refused, it was cancelled, or the API's message
     for a host's failure got lost. Once judged, a revision is left alone; one that cannot be
     judged is asked for again at each sweep, within the window."""
@@ -82,12 +82,14 @@ def unjudged_after_fresh_runs(session: Session, now: datetime | None = None) -> 
         .distinct()
         .order_by(Job.revision_id)
     ):
-        waiting = waiting_on(session, revision_id)
-        unjudged = select(Revision.id).where(
-            Revision.id.in_(waiting), Revision.analyzed_at.is_(None)
-        )
-        if waiting and session.scalar(select(unjudged.exists())):
-            found.append([revision_id, *waiting])
+        unjudged = session.scalars(
+            select(Revision.id)
+            .where(Revision.id.in_(waiting_on(session, revision_id)))
+            .where(Revision.analyzed_at.is_(None))
+            .order_by(Revision.id)
+        ).all()
+        if unjudged:
+            found.append([revision_id, *unjudged])
     return found
 
 

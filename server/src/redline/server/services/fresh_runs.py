@@ -5,7 +5,7 @@ suspected change whose span holds it), and what becomes of those when it ends wi
 A fresh run that ends with a recording is ingested, and its ingestion has the revisions that
 waited judged again (`redline.worker.ingest`). One that ends without (its host failed it, its
 leases lapsed until it was failed, its upload or its ingestion was refused, it was cancelled
-with its revision) marks them not yet analysed in the same transaction (`fresh_run_ended`):
+with its revision) marks them not yet analysed in the same transaction (`mark_waiting`):
 their CI verdicts wait, and they are judged again without it, at once when the API hears of it
 from the host, else by the periodic sweep (`redline.worker.sweeps.unjudged_after_fresh_runs`);
 a suspected change then gets the confirmation runs it was held back from. Before, a failed
@@ -19,7 +19,7 @@ from collections.abc import Sequence
 
 from redline.detect.confirmation import SUSPECTED
 from redline.detect.result import NOT_ENOUGH_DATA
-from redline.server.db import lock_revision
+from redline.server.db import lock_component
 from redline.server.models import (
     FINISHED,
     Detection,
@@ -95,16 +95,18 @@ def waiting_on(session: Session, revision_id: int) -> list[int]:
     return list(session.scalars(lacking.union(spanning)))
 
 
-def fresh_run_ended(session: Session, revision_id: int) -> list[int]:
+def mark_waiting(session: Session, revision_id: int) -> list[int]:
     """In the transaction that ends a fresh run of ``revision_id`` without results: the
-    revisions that waited for it (`waiting_on`) are marked not yet analysed, each under its
-    detection lock (a judging of it under way finishes first; one after reads the ending), so
-    their CI verdicts wait. Returns what to judge, in order: the revision, then those; nothing
-    when none waited."""
+    revisions that waited for it (`waiting_on`) are marked not yet analysed, so that their CI
+    verdicts wait, and returned after it, in the order to judge them; nothing when none waited.
+
+    The component's row is locked first (`lock_component`), as every store of a revision's
+    verdicts does before it reads whether a fresh run is under way: a store under way finishes
+    first, and its suspected change is among those found; a store after this one reads the
+    fresh run as ended and queues its confirmation runs itself."""
+    lock_component(session, session.get_one(Revision, revision_id).component_id)
     waiting = waiting_on(session, revision_id)
     if not waiting:
         return []
-    for waiting_id in sorted(waiting):
-        lock_revision(session, waiting_id)
     session.execute(update(Revision).where(Revision.id.in_(waiting)).values(analyzed_at=None))
     return [revision_id, *waiting]

@@ -5,6 +5,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from datetime import datetime, timedelta
 
+from redline.server.db import lock_component
 from redline.server.models import (
     HELD,
     UNENDED,
@@ -17,7 +18,7 @@ from redline.server.models import (
 )
 from redline.server.schemas.jobs import LeasedJob, LeasedRevision, RegisterRequest
 from redline.server.services.errors import Conflict, NotFound
-from redline.server.services.fresh_runs import fresh_run_ended
+from redline.server.services.fresh_runs import mark_waiting
 from sqlalchemy import ColumnElement, and_, case, cast, or_, select, update
 from sqlalchemy.dialects.postgresql import JSONB, insert
 from sqlalchemy.orm import Session, aliased
@@ -46,11 +47,21 @@ def _host(session: Session, name: str) -> Host:
 
 def _fail_exhausted(session: Session, now: datetime, max_attempts: int) -> None:
     """Jobs whose lease lapsed ``max_attempts`` times are failed instead of handed out again;
-    a fresh run's failure marks the revisions that waited for it (`fresh_run_ended`), which
-    the periodic sweep then has judged."""
+    a fresh run's failure marks the revisions that waited for it (`mark_waiting`), which
+    the periodic sweep then has judged. The components of such fresh runs are locked before
+    any job's row (`lock_component`)."""
+    exhausted = (Job.state.in_(HELD), Job.lease_expires_at < now, Job.attempts >= max_attempts)
+    for component_id in session.scalars(
+        select(Revision.component_id)
+        .join(Job, Job.revision_id == Revision.id)
+        .where(*exhausted, Job.remeasures_job_id.is_not(None))
+        .distinct()
+        .order_by(Revision.component_id)
+    ):
+        lock_component(session, component_id)
     failed = session.execute(
         update(Job)
-        .where(Job.state.in_(HELD), Job.lease_expires_at < now, Job.attempts >= max_attempts)
+        .where(*exhausted)
         .values(
             state=JobState.failed,
             lease_expires_at=None,
@@ -61,7 +72,7 @@ def _fail_exhausted(session: Session, now: datetime, max_attempts: int) -> None:
     )
     for revision_id, remeasures in failed.all():
         if remeasures is not None:
-            fresh_run_ended(session, revision_id)
+            mark_waiting(session, revision_id)
 
 
 #: how recent a component's mark may be left: the turns need no finer grain (jobs take
@@ -255,7 +266,7 @@ def ended(session: Session, revision_id: int) -> bool:
 def fail_job(session: Session, job_id: int, host_name: str, reason: str) -> tuple[Job, list[int]]:
     """Mark a job this host holds failed with its reason; the same host failing it again
     changes nothing. Another host (one whose lease lapsed, say) gets a Conflict. Returns the
-    job, and for a fresh run others waited for, what to judge now (`fresh_run_ended`)."""
+    job, and for a fresh run others waited for, what to judge now (`mark_waiting`)."""
     job = _locked_job(session, job_id)
     if job.state == JobState.failed and holder(job) == host_name:
         session.commit()
@@ -264,6 +275,6 @@ def fail_job(session: Session, job_id: int, host_name: str, reason: str) -> tupl
     job.state = JobState.failed
     job.reason = reason
     job.lease_expires_at = None
-    again = fresh_run_ended(session, job.revision_id) if job.remeasures_job_id else []
+    again = mark_waiting(session, job.revision_id) if job.remeasures_job_id else []
     session.commit()
     return job, again

@@ -11,6 +11,7 @@ from typing import Any
 
 from redline.detect.result import waits_for_history
 from redline.recording.format import META_RUN
+from redline.server.db import lock_component
 from redline.server.models import (
     DID_NOT_RUN,
     UNENDED,
@@ -32,7 +33,7 @@ from redline.server.schemas.revisions import (
 from redline.server.services.components import get_component, get_revision
 from redline.server.services.detection_config import component_config
 from redline.server.services.errors import BadRequest, Conflict, Forbidden, NotFound
-from redline.server.services.fresh_runs import fresh_run_ended
+from redline.server.services.fresh_runs import mark_waiting
 from redline.server.services.repos import repo_key
 from sqlalchemy import func, literal, or_, select, tuple_
 from sqlalchemy.exc import IntegrityError
@@ -247,6 +248,7 @@ def cancel_revision(session: Session, component_name: str, title: str) -> Revisi
     and an agent running one learns it at its next heartbeat (409) and abandons it. Jobs
     already uploaded or finished keep their results."""
     revision = get_revision(session, get_component(session, component_name), title)
+    lock_component(session, revision.component_id)  # before its jobs' rows: `mark_waiting`
     jobs = session.scalars(
         select(Job)
         .where(
@@ -258,7 +260,7 @@ def cancel_revision(session: Session, component_name: str, title: str) -> Revisi
     for job in jobs:
         job.state, job.reason = JobState.cancelled, CANCELLED
         if job.remeasures_job_id is not None:  # the sweep has those that waited judged
-            fresh_run_ended(session, job.revision_id)
+            mark_waiting(session, job.revision_id)
     session.commit()
     return revision_detail(session, component_name, title)
 

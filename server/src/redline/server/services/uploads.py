@@ -17,7 +17,7 @@ from pathlib import Path
 from redline.recording import Recording, RecordingError, read_recording
 from redline.server.models import Execution, Job, JobState
 from redline.server.services.errors import BadRequest, Conflict, NotFound, TooLarge
-from redline.server.services.fresh_runs import fresh_run_ended
+from redline.server.services.fresh_runs import mark_waiting
 from redline.server.services.jobs import ensure_held, holder
 from sqlalchemy import select
 from sqlalchemy.orm import Session
@@ -147,7 +147,7 @@ def accept_recording(
     if problem or recording is None:
         job.state, job.reason, job.lease_expires_at = JobState.failed, problem, None
         if job.remeasures_job_id is not None:  # the sweep has those that waited judged
-            fresh_run_ended(session, job.revision_id)
+            mark_waiting(session, job.revision_id)
         session.commit()
         raise BadRequest(problem)
     final = storage_dir / "recordings" / f"{staged.sha256}.mcap"
