@@ -542,6 +542,34 @@ def test_a_fresh_run_ending_while_a_later_revision_is_stored_finds_that_change_t
     assert _titles(session, again) == ["r5", "r6", "r7"]
 
 
+def test_a_change_made_in_a_busy_spell_longer_than_the_window_is_still_found(
+    session, database_url, tmp_path
+):
+    """The host was busy in every run of r4-r6 (a window of 3), and r4 made the change: r7,
+    quiet, found no undisturbed revision in its window, so its verdict was "too few samples"
+    and nothing ever flagged the change (`bench_verdicts`: a leak and CPU +30 % went into the
+    baseline so after six busy revisions). Disturbed revisions do not use up the window: r7 is
+    judged against r1-r3, and the busy revisions between are run afresh."""
+    component = create_component(session, ComponentCreate(name=NAME, executions=RUNS))
+    config = {"confirm_pairs": PAIRS, "window": 3}
+    session.add(DetectionConfigRow(component_id=component.id, config=config))
+    session.commit()
+    host = register_host(session, RegisterRequest(name="perf-1"))
+    _measured(session, database_url, tmp_path, [20.0] * 3, host)
+    _measured(session, database_url, tmp_path, [30.0] * 3, host, start=4, host_percent=90.0)
+    _measured(session, database_url, tmp_path, [30.0], host, start=7)
+    r7 = _detection(session, "r7")
+    assert r7.flagged and r7.confirmation == "suspected", r7.reason
+    fresh = session.scalars(select(Job).where(Job.remeasures_job_id.is_not(None))).all()
+    assert sorted(job.revision.title for job in fresh) == ["r4", "r5", "r6"]
+    for _ in fresh:  # quiet this time: the change is r4's, and r7 passes
+        job = lease_job(session, "perf-1", 60, 3)
+        assert job.remeasures_job_id is not None, job.revision.title
+        _run(session, database_url, tmp_path, job, 30.0, onward=True)
+    assert _detection(session, "r4").flagged
+    assert not _detection(session, "r7").flagged
+
+
 def test_the_fresh_run_names_every_revision_whose_suspected_change_spans_it(
     session, database_url, tmp_path
 ):

@@ -20,6 +20,17 @@ DEFAULT_WINDOW = 10
 T = TypeVar("T")
 
 
+def lookback(window: int) -> int:
+    """How many earlier revisions with results a baseline of at most ``window`` revisions may
+    look through: a revision whose every run of a series was measured while the host was busy
+    gives it no values and does not use the window up. Without it, six busy revisions in a row
+    filled a window of 10 (`bench_verdicts`, 2026-11-28): the quiet revision after them had
+    "too few samples", and a leak and CPU +30 % made during the busy spell went into the
+    baseline unflagged. Twice the window: a longer busy spell leaves the revision after it
+    undecided rather than judged against a baseline that old."""
+    return 2 * window
+
+
 def take_recent(
     newest_first: Iterable[tuple[T, int, bool]], need: int, window: int = DEFAULT_WINDOW
 ) -> list[T]:

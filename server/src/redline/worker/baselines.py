@@ -5,10 +5,11 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass
+from itertools import islice
 from typing import TYPE_CHECKING
 
 import numpy as np
-from redline.detect.baseline import take_recent
+from redline.detect.baseline import lookback, take_recent
 from redline.detect.config import DetectionConfig
 from redline.detect.execution_shift import ExecutionShift, strongest_step
 from redline.detect.methods import Levelled
@@ -64,7 +65,7 @@ class Baselines:
         self.session, self.config = session, config
         #: per earlier revision, its series no execution may be judged by, with why
         self._unjudged: dict[int, dict[int, str]] = {}
-        self.cache = walk.cache if walk else SampleCache(config.window + 1)
+        self.cache = walk.cache if walk else SampleCache(lookback(config.window) + 1)
         self.pinned: int | None = None
         self.flagged: set[tuple[int, str, int]] = walk.flagged if walk else set()
         #: the earlier (series, method, revision) judged "not enough data": a step may be there
@@ -79,7 +80,7 @@ class Baselines:
             )
             self.previous: dict[int, list[int]] = {}
             return
-        depth = 1 if config.baseline == "previous" else config.window
+        depth = 1 if config.baseline == "previous" else lookback(config.window)
         self.previous = previous_revisions(
             session, revision, series_ids, depth, walk.newest_first() if walk else None
         )
@@ -100,6 +101,8 @@ class Baselines:
         present = (
             (i, values) for i in ids if (values := self.values(i, series_id, detector)) is not None
         )
+        if self.config.baseline == "window":  # the last ``window`` that give it values
+            return list(islice(present, self.config.window))
         if self.config.baseline != "recent":
             return list(present)
         return take_recent(

@@ -23,7 +23,9 @@ holds no connection), so two late arrivals judged at once still end as in order:
 reads what the earlier stored.
 
 Known limits, where stored results can still differ from judging in order: a later revision
-that lacks a series reaches further back for it than ``window`` revisions with results, and one
+that lacks a series, or follows revisions the host was busy in throughout
+(`redline.detect.baseline.lookback`), reaches further back for it than ``window`` revisions with
+results, and one
 beyond the walk is not judged again unless a changed verdict carries the walk to it; a step
 found (`redline.worker.detection`) at a revision before the late one, by a revision judged
 without it, stays stored; confirmation by history and the ranges of regressions are settled as

@@ -27,6 +27,7 @@ from dataclasses import dataclass, field
 from typing import Any, cast
 
 import numpy as np
+from redline.detect.baseline import lookback
 from redline.detect.config import DetectionConfig
 from redline.detect.result import NOT_ENOUGH_DATA
 from redline.server.db import bulk_insert, session_scope
@@ -87,8 +88,8 @@ class Walk:
     @classmethod
     def over(cls, config: DetectionConfig) -> Walk:
         """A walk judging with ``config``, which it keeps throughout."""
-        window = config.window
-        return cls(config, SampleCache(window + 1), recent=deque(maxlen=window))
+        depth = lookback(config.window)
+        return cls(config, SampleCache(depth + 1), recent=deque(maxlen=depth))
 
     def newest_first(self) -> list[tuple[int, frozenset[int]]]:
         return list(reversed(self.recent))
