@@ -23,6 +23,7 @@ from redline.server.models import (
 )
 from redline.server.schemas.components import ComponentCreate
 from redline.server.services.components import create_component
+from redline.server.services.why import baseline_revisions
 from redline.server.storage import samples_path
 from redline.worker.detection import detect_revision
 from redline.worker.ingest import ingest_execution
@@ -428,6 +429,43 @@ def test_reanalysis_with_a_pruned_revision_keeps_its_verdicts_and_matches_detect
     component = session.scalar(select(Component))
     assert reanalyze_component(database_url, component.id, parts=3) == 11
     assert keyed() == by_detection
+
+
+def test_reanalysis_across_a_busy_spell_longer_than_the_window_matches_detection(
+    session, database_url, tmp_path
+):
+    """Revisions the host was busy in throughout (r7-r10) give no values, but count among the
+    revisions a baseline looks through (`lookback`: 6 for a window of 3), in a re-analysis's
+    memory as in the database: r11 pools r6 and r5, and a re-analysis stores what judging in
+    order stored (its memory skipped them, and pooled r6-r4)."""
+    component = create_component(session, ComponentCreate(name=NAME, executions=3))
+    config = {"window": 3, "confirm_pairs": 0}
+    session.add(DetectionConfigRow(component_id=component.id, config=config))
+    session.commit()
+    rng = np.random.default_rng(4)
+    executions = []
+    for number in range(1, 13):
+        busy = {"host_percent": 90.0} if 7 <= number <= 10 else {}
+        runs = [{"cpu": rng.normal(20 * (1 + rng.normal(0, 0.03)), 2, 40)} for _ in range(3)]
+        executions += add_executions(
+            session, tmp_path, NAME, f"r{number}", str(number), runs, **busy
+        )
+    ingest_and_detect(database_url, executions)
+
+    def keyed():
+        return {
+            key: (d.verdict, d.score, d.baseline_revisions, d.baseline_revision_id)
+            for key, d in _verdicts(session).items()
+        }
+
+    by_detection = keyed()
+    assert by_detection[("r11", "execution_shift")][2:] == (2, executions[17].revision_id)
+    assert reanalyze_component(database_url, component.id, parts=2) == 12
+    assert keyed() == by_detection
+    # and the pages name the revisions it pooled: r12's are r11 and r6, not r11 and r10
+    r12 = _verdicts(session)[("r12", "execution_shift")]
+    pooled = baseline_revisions(session, r12.series_id, r12.baseline_revision_id, 2)
+    assert [revision.title for revision in pooled] == ["r6", "r11"]
 
 
 def test_a_failure_while_storing_fails_the_reanalysis_with_the_error(

@@ -132,9 +132,9 @@ def test_a_walk_that_changes_nothing_stops_a_window_past_its_revision(
     executions = cpu_history(session, tmp_path, [rng.normal(20.0, 1.0, 60) for _ in range(30)])
     _arrive(database_url, executions, late=[19])
     revisions = [e.revision_id for e in executions]
-    # nothing flagged or undecided moves in a level history: r6 and the 10 after it (window),
-    # not the 13 more after those
-    assert judge_onward(database_url, revisions[5]) == revisions[5:16]
+    # nothing flagged or undecided moves in a level history: r6 and the 20 after it (twice the
+    # window: a baseline may reach past busy revisions, `lookback`), not the 4 more after those
+    assert judge_onward(database_url, revisions[5]) == revisions[5:26]
     assert judge_onward(database_url, revisions[29]) == [revisions[29]]
     session.expire_all()
     assert all(revision.analyzed_at is not None for revision in session.scalars(select(Revision)))

@@ -308,7 +308,7 @@ def judge_revision(
     config = config or component_config(session, revision.component_id)
     rows, changes = analyze(session, revision, config, candidate, walk, unjudged, only, partial)
     if walk is not None:
-        walk.judged(session, revision.id, candidate, rows, complete=read == len(executions))
+        walk.judged(session, revision.id, candidate, rows, read == len(executions), set(unjudged))
     return Judged(revision.id, rows, changes, executions)
 
 

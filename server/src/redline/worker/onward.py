@@ -8,12 +8,13 @@ next revision again left the others with verdicts that depended on the order in 
 happened to arrive (a trial with four agents saw it); here the later revisions are judged again,
 oldest first, as if the results had come in order:
 
-- at least the ``window`` revisions with results after it (its samples are in their baselines;
+- at least the ``2 x window`` revisions with results after it (its samples may be in their
+  baselines, which reach past revisions the host was busy in: `redline.detect.baseline.lookback`;
   one for ``previous``, or ``pinned`` unless it is the pinned revision, when every later one
   is: the next one always reads what it measured, to say what is no longer measured);
 - then on while anything a later revision reads came out different — a flagged or "not enough
   data" verdict (a step may be found there), or a step found at an earlier revision — until
-  ``window`` revisions in a row come out unchanged;
+  as many revisions in a row come out unchanged;
 - for a confirmation run (in no baseline), the later revisions only if the confirmed revision's
   verdicts changed.
 
@@ -39,6 +40,7 @@ import time
 from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
 
+from redline.detect.baseline import lookback
 from redline.detect.config import DetectionConfig
 from redline.detect.result import NOT_ENOUGH_DATA
 from redline.server.db import get_engine, session_scope
@@ -60,10 +62,12 @@ Fingerprint = frozenset[tuple[int, str, bool, bool]]
 
 def reach(config: DetectionConfig, revision: Revision) -> int | None:
     """How many later revisions with results read ``revision`` (None: all of them): those whose
-    baselines hold it; at least the next, which says what it no longer measures."""
+    baselines may hold it, reaching past revisions the host was busy in
+    (`redline.detect.baseline.lookback`); at least the next, which says what it no longer
+    measures."""
     if config.baseline == "pinned":
         return None if revision.title == config.pinned else 1
-    return 1 if config.baseline == "previous" else config.window
+    return 1 if config.baseline == "previous" else lookback(config.window)
 
 
 def later_with_results(session: Session, revision: Revision, limit: int | None) -> list[int]:

@@ -23,6 +23,7 @@ import logging
 import queue
 import threading
 from collections import deque
+from collections.abc import Collection
 from dataclasses import dataclass, field
 from typing import Any, cast
 
@@ -101,10 +102,14 @@ class Walk:
         samples: Samples,
         rows: list[dict[str, Any]],
         complete: bool,
+        busy: Collection[int] = (),
     ) -> None:
         """``complete``: every ingested execution's samples were read; else the revision's
-        series are those its summaries name, as the database sees them. ``rows`` may hold the
-        verdict of an earlier revision a step was found at, which its baselines then start at."""
+        series are those its summaries name, as the database sees them. ``busy``: the series
+        only runs measured while the host was busy have (no values, but summaries: they count
+        among the revisions a baseline looks through, as the database counts them). ``rows``
+        may hold the verdict of an earlier revision a step was found at, which its baselines
+        then start at."""
         for row in rows:
             key = (row["series_id"], row["method"], row["revision_id"])
             if row["flagged"]:
@@ -119,7 +124,8 @@ class Walk:
                     series_id
                     for series_id, runs in samples.items()
                     if any(np.isfinite(run).any() for run in runs)
-                ),
+                )
+                | frozenset(busy),
             )
         else:
             self._add(revision_id, summarized_series(session, revision_id))

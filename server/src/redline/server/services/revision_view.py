@@ -86,7 +86,8 @@ def _disturbed_ids(recording_path: str, kept: bool) -> dict[int, str] | None:
 def _medians(
     session: Session, series_ids: set[int], revision_ids: list[int]
 ) -> dict[tuple[int, int], list[float]]:
-    """(series, revision) -> the medians of the revision's own executions of the series."""
+    """(series, revision) -> the medians of the revision's own executions of the series, those
+    measured while the host was busy left out, as the verdicts leave them out."""
     found: dict[tuple[int, int], list[float]] = defaultdict(list)
     if not series_ids or not revision_ids:
         return found
@@ -98,6 +99,7 @@ def _medians(
             Summary.series_id.in_(series_ids),
             Execution.revision_id.in_(revision_ids),
             Job.pair == 0,
+            Summary.disturbed.is_(False),
         )
     )
     for series_id, revision_id, p50 in rows:

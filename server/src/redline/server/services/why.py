@@ -81,8 +81,9 @@ def _values(session: Session, series_id: int, revision_ids: list[int]) -> list[E
 def baseline_revisions(
     session: Session, series_id: int, newest_id: int | None, count: int
 ) -> list[Revision]:
-    """The ``count`` newest revisions up to ``newest_id`` with the series: the detection's
-    baseline as it pooled it (a ``recent`` or ``window`` baseline; one for ``previous``)."""
+    """The ``count`` newest revisions up to ``newest_id`` with the series measured undisturbed:
+    the detection's baseline as it pooled it (a ``recent`` or ``window`` baseline; one for
+    ``previous``), which passed over the revisions the host was busy in throughout."""
     if newest_id is None or count <= 0:
         return []
     newest = session.get(Revision, newest_id)
@@ -92,7 +93,7 @@ def baseline_revisions(
         select(Execution.revision_id)
         .join(Summary, Summary.execution_id == Execution.id)
         .join(Job, Job.id == Execution.job_id)
-        .where(Summary.series_id == series_id, Job.pair == 0)
+        .where(Summary.series_id == series_id, Job.pair == 0, Summary.disturbed.is_(False))
     )
     rows = session.scalars(
         select(Revision)
