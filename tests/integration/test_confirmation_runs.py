@@ -497,6 +497,12 @@ def test_a_change_after_a_revision_the_host_was_busy_in_waits_for_its_fresh_run(
     verdict = ci_verdict(session, NAME, "r6")
     assert (verdict.state, verdict.regressions) == ("done", 0), verdict
     assert ci_verdict(session, NAME, "r5").regressions == 1
+    # the regression says what confirmed it: its pairs, not later revisions (a trial saw
+    # "held over the later revisions" where none existed)
+    regression = session.get_one(Regression, r5.regression_id)
+    assert (
+        "flagged change(s) confirmed (confirmed by 2 of 2 pairs" in regression.confirmation_reason
+    )
 
 
 def test_the_history_too_waits_for_the_fresh_run_of_a_revision_the_host_was_busy_in(

@@ -202,15 +202,15 @@ def settle(
 
 
 def _newest_reasons(session: Session, component_id: int) -> dict[tuple[int, str], str]:
-    """Per (regression, state) of the component's suspected and dropped detections, the newest
-    one's reason: what a regression's summary quotes (one query for the component, not one per
-    regression on every revision stored)."""
+    """Per (regression, state) of the component's detections, the newest one's reason: what a
+    regression's summary quotes (one query for the component, not one per regression on every
+    revision stored)."""
     rows = session.execute(
         select(Detection.regression_id, Detection.confirmation, Detection.confirmation_reason)
         .join(Regression, Regression.id == Detection.regression_id)
         .where(
             Regression.component_id == component_id,
-            Detection.confirmation.in_((SUSPECTED, DROPPED)),
+            Detection.confirmation.in_((HELD, SUSPECTED, DROPPED)),
         )
         .ext(distinct_on(Detection.regression_id, Detection.confirmation))
         .order_by(Detection.regression_id, Detection.confirmation, Detection.id.desc())
@@ -240,7 +240,10 @@ def _summarize_regressions(session: Session, component_id: int) -> None:
         held, dropped = counts.get(HELD, 0), counts.get(DROPPED, 0)
         if held:
             confirmation = CONFIRMED
-            reason = f"{held} of {total} flagged change(s) held over the later revisions"
+            # what confirmed it, pairs or the later revisions (a trial's regression confirmed
+            # by pairs was said to have held over later revisions that did not exist)
+            example = reasons.get((regression.id, HELD))
+            reason = f"{held} of {total} flagged change(s) confirmed ({example})"
         elif total and dropped == total:
             confirmation = NOT_CONFIRMED
             example = reasons.get((regression.id, DROPPED))
