@@ -39,6 +39,10 @@ def test_link_local_metadata_multicast_and_unspecified_addresses_are_refused(add
         "::169.254.169.254",  # IPv4-compatible
         "64:ff9b::a9fe:a9fe",  # NAT64
         "2002:a9fe:a9fe::",  # 6to4
+        "169\u3002254\u3002169\u3002254",  # ideographic full stops, which IDNA reads as dots
+        "169\uff0e254\uff0e169\uff0e254",  # fullwidth full stops
+        "\u2460\u2465\u2468.\u2461\u2464\u2463.\u2460\u2465\u2468.\u2461\u2464\u2463",  # circled
+        "\uff11\uff16\uff19.254.169.254",  # fullwidth digits
     ],
 )
 def test_the_metadata_address_in_any_form_a_resolver_reads_is_refused(address) -> None:

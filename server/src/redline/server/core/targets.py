@@ -6,7 +6,8 @@ services a way to read them. Refused: link-local addresses (169.254.169.254 and 
 clouds serve instance metadata and credentials), the other known metadata addresses, multicast
 and unspecified ones. Loopback and private addresses stay allowed: a team's chat server or CI is
 often on its own network, and tests and `redline up` post to receivers on this host. An address
-is judged in every form a resolver reads as one (decimal, octal, hex IPv4; IPv4 inside IPv6).
+is judged in every form a resolver reads as one (decimal, octal, hex IPv4; IPv4 inside IPv6;
+circled or fullwidth digits and other full stops, as IDNA reads them).
 
 Checked twice: on the literal address of a URL when it is set (a clear 422), and on every address
 its host name resolves to before each delivery (a name can point anywhere). A name that resolves
@@ -18,18 +19,24 @@ from __future__ import annotations
 
 import ipaddress
 import socket
+import unicodedata
 
 #: metadata services not on link-local addresses: AWS's over IPv6, Alibaba Cloud's
 METADATA = frozenset(map(ipaddress.ip_address, ("fd00:ec2::254", "100.100.100.200")))
 #: the well-known NAT64 prefix: its last 32 bits are the IPv4 address reached
 NAT64 = ipaddress.IPv6Network("64:ff9b::/96")
+#: the full stops IDNA separates labels with besides "." (UTS #46)
+FULL_STOPS = str.maketrans(dict.fromkeys("\u3002\uff0e\uff61", "."))
 
 
 def _ip(address: str) -> ipaddress.IPv4Address | ipaddress.IPv6Address | None:
     """``address`` as an IP, in any form a resolver takes as one (``2852039166``, ``0251.0376``
     and ``0xa9fea9fe`` are 169.254.169.254 to ``getaddrinfo``); IPv4 carried inside IPv6
     (mapped, compatible, NAT64, 6to4) as the IPv4 it reaches; None for a name."""
-    plain = address.split("%", 1)[0]  # fe80::1%eth0: its zone dropped
+    # as IDNA reads a host before any resolver sees it: compatibility forms folded (circled
+    # and fullwidth digits), the other full stops taken as dots (a trial's host of ideographic
+    # full stops passed the check when set; httpx connects to 169.254.169.254 for it)
+    plain = unicodedata.normalize("NFKC", address.split("%", 1)[0]).translate(FULL_STOPS)
     try:
         ip: ipaddress.IPv4Address | ipaddress.IPv6Address = ipaddress.ip_address(plain)
     except ValueError:
