@@ -56,8 +56,14 @@ def test_the_demo_says_why_its_newest_revision_shows_no_change():
         {"revision": "r3", "verdict": "not enough data", "reason": "missing baseline"},
     ]
     said = demo.unmarked(verdicts)
-    assert said.startswith("no change marked: every verdict of r3 is not enough data (host busy")
+    assert said.startswith("no change marked: 2 of the 3 series of r3 were not judged (host busy")
     assert "REDLINE_DISTURBED_CPU_PERCENT" in said
     judged = [*verdicts, {"revision": "r3", "verdict": "change", "reason": ""}]
     assert demo.unmarked(judged) == ""  # the change is printed above it
-    assert "quieter" not in demo.unmarked(verdicts[2:])  # no baseline: nothing about the host
+    no_baseline = demo.unmarked(verdicts[2:])
+    assert no_baseline.startswith("no change marked: every verdict of r3 is not enough data")
+    assert "quieter" not in no_baseline  # no baseline: nothing about the host
+    # its CPU undecided, its memory judged unchanged: still said (a trial's demo said nothing)
+    memory = [*verdicts[:2], {"revision": "r3", "verdict": "no change", "reason": ""}]
+    assert "2 of the 3 series of r3 were not judged (host busy" in demo.unmarked(memory)
+    assert demo.unmarked([{"revision": "r3", "verdict": "no change", "reason": ""}]) == ""

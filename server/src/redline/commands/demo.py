@@ -231,15 +231,28 @@ def change_line(detection: dict) -> str:
 
 
 def unmarked(verdicts: list[dict]) -> str:
-    """Why the demo's newest revision shows no change (its KS ``verdicts``, as the API lists
-    them): "" when one is flagged or judged; else the commonest reason, and what to do about a
-    busy host (a trial's demo ended in "done" on a busy machine, with no mark and no word)."""
-    if not verdicts or any(v["verdict"] != "not enough data" for v in verdicts):
+    """Why the demo's newest revision, the deliberate regression, shows no change (its KS
+    ``verdicts``, as the API lists them): "" when one is flagged, or when none was left
+    undecided by a busy host and some were judged; else the commonest reason, and what to do
+    about a busy host (a trial's demo ended in "done" on a busy machine, with no mark and no
+    word; another's with its CPU series undecided and its memory ones judged, and no word)."""
+    if not verdicts or any(v["verdict"] == "change" for v in verdicts):
         return ""
-    reason = Counter(v["reason"] for v in verdicts).most_common(1)[0][0]
+    undecided = [v["reason"] for v in verdicts if v["verdict"] == "not enough data"]
+    busy = [reason for reason in undecided if names_busy_host(reason)]
     newest = verdicts[0]["revision"]
-    said = f"no change marked: every verdict of {newest} is not enough data ({reason})"
-    if names_busy_host(reason):
+    if busy:
+        reason = Counter(busy).most_common(1)[0][0]
+        said = (
+            f"no change marked: {len(busy)} of the {len(verdicts)} series of {newest} were not "
+            f"judged ({reason})"
+        )
+    elif len(undecided) == len(verdicts):
+        reason = Counter(undecided).most_common(1)[0][0]
+        said = f"no change marked: every verdict of {newest} is not enough data ({reason})"
+    else:
+        return ""
+    if busy:
         said += (
             "; another load shared the host while it ran: run the demo on a quieter machine, or "
             "see docs/running-agents.md (REDLINE_DISTURBED_CPU_PERCENT)"
