@@ -153,9 +153,9 @@ class CloneCache:
         # objects can be there without a branch or tag holding them (a local clone copies
         # every object, a branch may have been rewritten): only what those refs reach is built
         if not sha or not _git(*REACHED_FROM, sha, "refs/remotes", "refs/tags", cwd=tree).strip():
-            raise CheckoutError(
-                f"commit {commit!r} is not on a branch or tag of {repo} (a pull or merge "
-                "request's commits are not built until they are pushed to a branch)"
+            raise CheckoutError(  # a trial's mistyped commit was told only of pull requests
+                f"commit {commit!r} is not on a branch or tag of {repo}: mistyped, not pushed "
+                "yet, or a pull or merge request's (not built until it is pushed to a branch)"
             )
         _git("-c", "advice.detachedHead=false", "checkout", "--quiet", "--detach", sha, cwd=tree)
         return tree
