@@ -48,6 +48,15 @@ def _local_stack() -> None:
         for name, value in found.items():
             os.environ.setdefault(name, value)
         typer.echo(f"(the services of `redline up` in {data})", err=True)
+    else:  # said, not silently taken: a trial's command, run elsewhere, reached another Postgres
+        from sqlalchemy.engine import make_url
+
+        default = make_url(_settings().database_url).render_as_string(hide_password=True)
+        typer.echo(
+            f"(no REDLINE_DATABASE_URL, and no `redline up` data in {data}: the database "
+            f"{default})",
+            err=True,
+        )
 
 
 SHUTDOWN_GRACE_S = 2  # seconds requests in flight get when the server is asked to stop
