@@ -67,3 +67,5 @@ def test_the_demo_says_why_its_newest_revision_shows_no_change():
     memory = [*verdicts[:2], {"revision": "r3", "verdict": "no change", "reason": ""}]
     assert "2 of the 3 series of r3 were not judged (host busy" in demo.unmarked(memory)
     assert demo.unmarked([{"revision": "r3", "verdict": "no change", "reason": ""}]) == ""
+    one = [verdicts[0], {"revision": "r3", "verdict": "no change", "reason": ""}]
+    assert demo.unmarked(one).startswith("no change marked: 1 of the 2 series of r3 was not judged")

@@ -1,12 +1,16 @@
 """Where alerts may not be sent (`redline.server.core.targets`): link-local and metadata
-addresses, however written; loopback and private networks stay allowed."""
+addresses, however written; loopback and private networks stay allowed; no URL that cannot be
+sent to."""
 
 from __future__ import annotations
 
+import httpx
 import pytest
 from pydantic import ValidationError
 from redline.server.core.targets import refused_address, refused_host
 from redline.server.schemas.alerts import CommitStatusTarget, SubscriptionCreate
+from redline.worker import deliver
+from redline.worker.deliver import SendError
 
 
 @pytest.mark.parametrize(
@@ -80,3 +84,33 @@ def test_subscriptions_and_commit_status_targets_refuse_such_a_url_naming_it() -
     with pytest.raises(ValidationError, match=r"2852039166 \(169.254.169.254\) is a link-local"):
         SubscriptionCreate(kind="webhook", url="http://2852039166/latest/meta-data/")
     assert SubscriptionCreate(kind="webhook", url="http://127.0.0.1:8080/hook").url
+
+
+@pytest.mark.parametrize(
+    ("url", "said"),
+    [
+        ("http://a\x00b/", r"'\\x00' at position 8"),
+        ("http://1\x00/", r"'\\x00' at position 8"),
+        ("http://exa\tmple.com/hook", r"'\\t' at position 10"),
+        ("http://hooks.example.com/a\nb", r"'\\n' at position 26"),
+        ("http://ex ample.com/", "' ' at position 9"),
+    ],
+)
+def test_a_url_with_a_control_character_or_a_space_is_refused_naming_it(url, said) -> None:
+    # accepted before, these failed at each delivery attempt (httpx refuses to send them), and
+    # a null character raised out of the address check instead of a clear refusal
+    with pytest.raises(ValidationError, match="must not contain " + said):
+        SubscriptionCreate(kind="webhook", url=url)
+
+
+def test_an_address_check_of_a_name_holding_a_null_character_says_it_is_no_address() -> None:
+    assert refused_address("1.2.3.4\x00") is None
+    assert refused_host("a\x00b") is None  # the connection refuses it, and says so
+
+
+def test_a_stored_url_that_cannot_be_sent_to_fails_its_delivery_for_good_saying_why() -> None:
+    # a subscription stored before such URLs were refused: retrying it for days mends nothing
+    with httpx.Client() as client, pytest.raises(SendError) as failed:
+        deliver._post(client, "http://hooks.example.com/a\tb", b"{}", {}, timeout=1.0)
+    assert failed.value.permanent
+    assert str(failed.value).startswith("invalid URL: Invalid non-printable ASCII character")

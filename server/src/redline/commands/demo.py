@@ -243,8 +243,9 @@ def unmarked(verdicts: list[dict]) -> str:
     newest = verdicts[0]["revision"]
     if busy:
         reason = Counter(busy).most_common(1)[0][0]
+        verb = "was" if len(busy) == 1 else "were"
         said = (
-            f"no change marked: {len(busy)} of the {len(verdicts)} series of {newest} were not "
+            f"no change marked: {len(busy)} of the {len(verdicts)} series of {newest} {verb} not "
             f"judged ({reason})"
         )
     elif len(undecided) == len(verdicts):

@@ -79,6 +79,8 @@ def _post(
         raise SendError(f"refused: {refused}", permanent=True)
     try:
         answer = client.post(url, content=body, headers=headers, timeout=timeout)
+    except httpx.InvalidURL as error:  # stored before such URLs were refused: no retry mends it
+        raise SendError(f"invalid URL: {error}", permanent=True) from None
     except httpx.HTTPError as error:
         raise SendError(f"{type(error).__name__}: {error}") from None
     if not answer.is_success:

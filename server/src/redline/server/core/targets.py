@@ -42,7 +42,7 @@ def _ip(address: str) -> ipaddress.IPv4Address | ipaddress.IPv6Address | None:
     except ValueError:
         try:  # inet_aton reads the numeric forms resolvers accept: decimal, octal, hex, short
             ip = ipaddress.IPv4Address(socket.inet_aton(plain))
-        except (OSError, UnicodeError):
+        except (OSError, ValueError):  # ValueError: a null character; UnicodeError is one
             return None
     if isinstance(ip, ipaddress.IPv6Address):
         carried = ip.ipv4_mapped or ip.sixtofour
@@ -82,7 +82,7 @@ def refused_host(host: str) -> str | None:
         return said
     try:
         found = socket.getaddrinfo(host, None, proto=socket.IPPROTO_TCP)
-    except (OSError, UnicodeError):
+    except (OSError, ValueError):  # ValueError: a null character; UnicodeError is one
         return None
     for *_, sockaddr in found:
         kind = _kind(_ip(str(sockaddr[0])))

@@ -69,8 +69,8 @@ def index(request: Request, session: SessionDep) -> HTMLResponse:
 
 
 def _unjudged(verdicts: dict[str, str]) -> str:
-    """Why the trends may show no change marks: how many of the newest revisions have no
-    verdict yet, and the commonest reason ("" when every one has one)."""
+    """Why the trends may show no change marks: how many of the newest revisions are still
+    waiting for a verdict, and the commonest reason ("" when none is)."""
     waiting = [said for said in verdicts.values() if WAITING in said]
     if not waiting:
         return ""

@@ -3,6 +3,7 @@ and the CI verdict of a revision."""
 
 from __future__ import annotations
 
+import unicodedata
 from datetime import datetime
 from typing import Annotated, Any, Literal
 from urllib.parse import urlsplit
@@ -14,9 +15,13 @@ _ADDRESS = r"^[^@\s<>,;\"]+@[^@\s<>,;\"]+\.[^@\s<>,;\"]+$"
 
 
 def http_url(value: str) -> str:
-    """``value`` if it is an http(s) URL with a host ("" passes: none given)."""
+    """``value`` if it is an http(s) URL with a host ("" passes: none given), with no space or
+    control character in it (httpx refuses to send those: each delivery would fail)."""
     if not value:
         return value
+    for position, char in enumerate(value):
+        if char.isspace() or unicodedata.category(char) == "Cc":
+            raise ValueError(f"must not contain {char!r} at position {position}")
     parts = urlsplit(value)
     if parts.scheme not in ("http", "https") or not parts.hostname:
         raise ValueError("must be an http:// or https:// URL with a host")

@@ -51,8 +51,9 @@ class RegressionOut(BaseModel):
     bad_revision: str = Field(description="the last revision in the range showing it")
     state: RegressionState
     confirmation: Literal["suspected", "confirmed", "not_confirmed"] = Field(
-        description="confirmed when one of its changes held over the later revisions, "
-        "not_confirmed when every one was dropped as a spike, suspected until then"
+        description="confirmed when one of its changes held in its confirmation runs or over "
+        "the later revisions, not_confirmed when every one was dropped (its reason says why), "
+        "suspected until then"
     )
     confirmation_reason: str
     methods: list[str] = Field(description="methods with a flagged detection in it")
