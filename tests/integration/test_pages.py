@@ -322,7 +322,7 @@ def _state(client: TestClient, number: int) -> str:
 def test_triage_in_the_page_needs_a_sign_in_and_the_form_token(client, database_url, tmp_path):
     number = _regression(client, database_url, tmp_path)
     with session_factory(database_url)() as session:
-        create_user(session, "ada", "correct horse battery", "ci")
+        create_user(session, "ada", "correct horse battery", "triage")
         create_user(session, "reader", "correct horse battery", "read")
         with pytest.raises(BadRequest, match="'agent' is for a host's token"):  # a trial made one
             create_user(session, "eve", "correct horse battery", "agent")
@@ -363,7 +363,7 @@ def test_triage_in_the_page_needs_a_sign_in_and_the_form_token(client, database_
         triage,
         data={"state": "fixed", "csrf": form_token(client.get(f"/regressions/{number}").text)},
     )
-    assert reader.status_code == 403 and "lacks the &#39;ci&#39; scope" in reader.text
+    assert reader.status_code == 403 and "lacks the &#39;triage&#39; scope" in reader.text
     assert _state(client, number) == "confirmed"
 
 
@@ -377,7 +377,7 @@ def test_a_triage_to_no_state_names_the_field_and_the_states_not_pydantic(
     https://errors.pydantic.dev/..."."""
     number = _regression(client, database_url, tmp_path)
     with session_factory(database_url)() as session:
-        create_user(session, "ada", "correct horse battery", "ci")
+        create_user(session, "ada", "correct horse battery", "triage")
     sign_in(client, {"name": "ada", "password": "correct horse battery"})
     csrf = form_token(client.get(f"/regressions/{number}").text)
     for given, field in (({"state": "closed"}, "state"), ({"comment": "x" * 10_001}, "comment")):
@@ -396,17 +396,26 @@ def test_a_pasted_token_signs_in_with_its_own_scopes_only(client, database_url, 
     with session_factory(database_url)() as session:
         _, agent = issue_token(session, "perf-host", "agent")
         _, ci = issue_token(session, "gitlab", "ci")
+        _, triage = issue_token(session, "on-call", "triage")
     refused = sign_in(client, {"token": agent})
     assert refused.status_code == 403 and "hosts" in refused.text
     assert sign_in(client, {"token": "rl_nope"}).status_code == 403
-    sign_in(client, {"token": ci})
+    sign_in(client, {"token": ci})  # a pipeline's token reads, and triages nothing
+    page = client.get(f"/regressions/{number}").text
+    assert 'id="triage"' not in page and "Triage needs the <code>triage</code> scope" in page
+    pipeline = client.post(
+        f"/regressions/{number}/triage", data={"state": "ignored", "csrf": form_token(page)}
+    )
+    assert pipeline.status_code == 403 and _state(client, number) == "new"
+    client.post("/signout", data={"csrf": form_token(page)})
+    sign_in(client, {"token": triage})
     page = client.get(f"/regressions/{number}").text
     done = client.post(
         f"/regressions/{number}/triage", data={"state": "acknowledged", "csrf": form_token(page)}
     )
     assert done.status_code == 200 and _state(client, number) == "acknowledged"
     detail = client.get(f"/api/v1/components/builder/regressions/{number}").json()
-    assert detail["history"][0]["who"] == "token gitlab"
+    assert detail["history"][0]["who"] == "token on-call"
 
 
 def test_a_page_offers_triage_only_to_whom_may_triage(client, database_url, tmp_path):
@@ -417,7 +426,7 @@ def test_a_page_offers_triage_only_to_whom_may_triage(client, database_url, tmp_
     sign_in(client, {"token": read})
     page = client.get(f"/regressions/{number}").text
     assert 'id="triage"' not in page and 'name="state"' not in page
-    assert "Triage needs the <code>ci</code> scope; token reader has read." in page
+    assert "Triage needs the <code>triage</code> scope; token reader has read." in page
 
 
 def test_passwords_are_stored_as_scrypt_hashes_and_short_ones_refused(database_url):

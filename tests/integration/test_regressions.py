@@ -94,24 +94,29 @@ def test_two_separate_changes_make_two_regressions_with_their_ranges(api, databa
     assert detail["history"] == []
 
 
-def test_triage_records_who_when_from_to_and_why_and_needs_ci_or_admin(api, database_url, tmp_path):
+def test_triage_records_who_when_from_to_and_why_and_needs_triage_or_admin(
+    api, database_url, tmp_path
+):
     history(database_url, tmp_path, [20.0, 60.0])
     (regression,) = api.get("/regressions").json()
     path = f"/regressions/{regression['id']}"
     assert api.patch(path, "read", {"state": "confirmed"}).status_code == 403
+    # a pipeline's token, which this regression fails: it must not set it to ignored
+    refused = api.patch(path, "ci", {"state": "ignored"})
+    assert refused.status_code == 403 and "'triage'" in refused.json()["detail"], refused.text
     assert api.client.patch(BASE + path, json={"state": "confirmed"}).status_code == 401
-    assert api.patch(path, "ci", {"state": "acknowledged"}).status_code == 200
+    assert api.patch(path, "triage", {"state": "acknowledged"}).status_code == 200
     answer = api.patch(path, "admin", {"state": "confirmed", "comment": "bisected to r2"})
     assert answer.status_code == 200 and answer.json()["state"] == "confirmed"
     steps = api.get(path + "/history").json()
     assert [(s["who"], s["from_state"], s["to_state"], s["comment"]) for s in steps] == [
-        ("ci", "new", "acknowledged", ""),
+        ("triage", "new", "acknowledged", ""),
         ("admin", "acknowledged", "confirmed", "bisected to r2"),
     ]
     assert steps[0]["at"] <= steps[1]["at"]
-    assert api.patch(path, "ci", {"state": "confirmed"}).status_code == 400  # already
-    assert api.patch(path, "ci", {"state": "closed"}).status_code == 422
-    assert api.patch("/regressions/999", "ci", {"state": "fixed"}).status_code == 404
+    assert api.patch(path, "triage", {"state": "confirmed"}).status_code == 400  # already
+    assert api.patch(path, "triage", {"state": "closed"}).status_code == 422
+    assert api.patch("/regressions/999", "triage", {"state": "fixed"}).status_code == 404
     assert [r["id"] for r in api.get("/regressions?state=confirmed").json()] == [regression["id"]]
     assert api.get("/regressions?state=new").json() == []
 
@@ -121,7 +126,7 @@ def test_precision_per_method_counts_labels_and_leaves_out_ignored(api, database
     first, second, third = sorted(api.get("/regressions").json(), key=lambda r: r["id"])
     assert api.get("/accuracy").json()["labelled_regressions"] == 0
     for regression, state in ((first, "confirmed"), (second, "false_positive"), (third, "ignored")):
-        api.patch(f"/regressions/{regression['id']}", "ci", {"state": state}).raise_for_status()
+        api.patch(f"/regressions/{regression['id']}", "triage", {"state": state}).raise_for_status()
     report = api.get("/accuracy").json()
     assert report["labelled_regressions"] == 2
     ks = next(m for m in report["methods"] if m["method"] == "ks")
@@ -134,7 +139,7 @@ def test_triaged_regression_survives_reanalysis_that_no_longer_flags_it(
 ):
     history(database_url, tmp_path, [20.0, 60.0])
     (regression,) = api.get("/regressions").json()
-    api.patch(f"/regressions/{regression['id']}", "ci", {"state": "false_positive"})
+    api.patch(f"/regressions/{regression['id']}", "triage", {"state": "false_positive"})
     config = {"methods": ["ks"], "thresholds": {"ks": {"min_effect": 5.0}}, "reanalyze": False}
     assert api.put("/detection-config", "admin", config).status_code == 200
     with session_factory(database_url)() as session:

@@ -50,3 +50,56 @@ def test_the_order_key_migration_reorders_what_the_old_keys_misordered(services:
     migrate(database_url)
     with get_engine(database_url).connect() as connection:
         assert list(connection.scalars(order)) == ["three", "five"]
+
+
+def test_the_triage_migration_keeps_people_triaging_and_takes_it_from_pipelines_tokens(
+    services: Services,
+):
+    """Migration 0022: ``ci`` no longer triages. Users with ``ci`` (people at the pages) and
+    their live sessions get ``triage``; API tokens and pasted tokens' sessions do not."""
+    import sqlalchemy as sa
+    from alembic import command
+    from redline.server.db import alembic_config
+
+    database_url, _ = fresh_database(services.database_url)
+    command.upgrade(alembic_config(database_url), "0021")
+    with get_engine(database_url).begin() as connection:
+        for name, scopes in (("ada", '["ci"]'), ("rita", '["read"]'), ("root", '["admin"]')):
+            connection.execute(
+                sa.text(
+                    "INSERT INTO web_user (name, password_hash, scopes, created, disabled)"
+                    " VALUES (:name, 'scrypt$x', CAST(:scopes AS json), now(), false)"
+                ),
+                {"name": name, "scopes": scopes},
+            )
+        for secret, who in (("a" * 64, "ada"), ("b" * 64, "token gitlab")):
+            connection.execute(
+                sa.text(
+                    "INSERT INTO web_session (secret_hash, who, scopes, csrf, created, expires)"
+                    " VALUES (:secret, :who, '[\"ci\"]', 'c', now(), now() + interval '1 day')"
+                ),
+                {"secret": secret, "who": who},
+            )
+        connection.execute(
+            sa.text(
+                "INSERT INTO api_token (name, token_hash, scopes, created, revoked)"
+                " VALUES ('gitlab', :hash, '[\"ci\"]', now(), false)"
+            ),
+            {"hash": "d" * 64},
+        )
+    migrate(database_url)
+
+    def scopes(query: str) -> dict[str, list[str]]:
+        with get_engine(database_url).connect() as connection:
+            return {name: list(value) for name, value in connection.execute(sa.text(query))}
+
+    assert scopes("SELECT name, scopes FROM web_user") == {
+        "ada": ["ci", "triage"],
+        "rita": ["read"],
+        "root": ["admin"],
+    }
+    assert scopes("SELECT who, scopes FROM web_session") == {
+        "ada": ["ci", "triage"],
+        "token gitlab": ["ci"],
+    }
+    assert scopes("SELECT name, scopes FROM api_token") == {"gitlab": ["ci"]}

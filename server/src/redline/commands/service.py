@@ -225,7 +225,7 @@ def retention_run(
 @needs_database
 def token_create(
     name: Annotated[str, typer.Argument(help="who or what the token is for")],
-    scopes: Annotated[str, typer.Option(help="comma-separated: ci, agent, read, admin")],
+    scopes: Annotated[str, typer.Option(help="comma-separated: ci, triage, agent, read, admin")],
     host: Annotated[
         str | None, typer.Option(help="for an agent token: the one host it may act as")
     ] = None,
@@ -286,7 +286,7 @@ def token_revoke(
 def user_create(
     name: Annotated[str, typer.Argument(help="the name they sign in with")],
     scopes: Annotated[
-        str, typer.Option(help="comma-separated: read (look), ci (also triage), admin (all)")
+        str, typer.Option(help="comma-separated: read (look), triage (also triage), admin (all)")
     ],
     password_stdin: Annotated[
         bool, typer.Option("--password-stdin", help="read the password from standard input")

@@ -8,7 +8,7 @@ from typing import Annotated
 from fastapi import Depends, HTTPException, Request, status
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 from redline.server.core.config import Settings
-from redline.server.core.security import grants
+from redline.server.core.security import READERS, grants
 from redline.server.db import session_factory
 from redline.server.models import ApiToken
 from redline.server.services.signin import SESSION_COOKIE, current
@@ -112,7 +112,7 @@ def reader(*scopes: str) -> Callable[..., None]:
                 )
             return
         signed_in = current(session, request.cookies.get(SESSION_COOKIE))
-        if signed_in is not None and any(grants(signed_in.scopes, s) for s in ("read", "ci")):
+        if signed_in is not None and any(grants(signed_in.scopes, s) for s in READERS):
             return
         secret = (
             _bearer_secret(credentials)
@@ -124,6 +124,7 @@ def reader(*scopes: str) -> Callable[..., None]:
     return check
 
 
-READ = [Depends(reader("read"))]
+#: what Redline stored: for readers, and for those who triage what they read
+READ = [Depends(reader("read", "triage"))]
 #: a revision's verdict: what a CI job, holding its `ci` token, waits for
-VERDICT_READ = [Depends(reader("read", "ci"))]
+VERDICT_READ = [Depends(reader(*READERS))]

@@ -5,7 +5,10 @@ from __future__ import annotations
 import hashlib
 import secrets
 
-SCOPES = frozenset({"ci", "agent", "read", "admin"})
+SCOPES = frozenset({"ci", "triage", "agent", "read", "admin"})
+#: scopes of someone who may read what Redline stored when reading needs a token
+#: (`REDLINE_READ_ACCESS=token`) and sign in to the pages: every one but a host's
+READERS = ("read", "ci", "triage")
 TOKEN_PREFIX = "rl_"
 
 

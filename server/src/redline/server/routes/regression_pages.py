@@ -1,6 +1,6 @@
 """The regressions' pages: ``/regressions`` (every component's, filtered by component, triage
 state, confirmation and method, a page at a time with the API's cursor), ``/regressions/{id}``
-and its triage form (``/regressions/{id}/triage``, signed in with ``ci``)."""
+and its triage form (``/regressions/{id}/triage``, signed in with ``triage``)."""
 
 from __future__ import annotations
 
@@ -99,11 +99,11 @@ def regression_page(regression_id: int, request: Request, session: SessionDep) -
 
 @router.post("/regressions/{regression_id}/triage", response_class=HTMLResponse)
 async def triage_form(regression_id: int, request: Request, session: SessionDep) -> Response:
-    """The regression page's triage form: a signed-in session with ``ci`` (or ``admin``), and
+    """The regression page's triage form: a signed-in session with ``triage`` (or ``admin``), and
     the session's form token; the page again, with the outcome."""
     form = await form_fields(request)
     try:
-        who = signin.authorize(signed_in(request), form.get("csrf", ""), "ci")
+        who = signin.authorize(signed_in(request), form.get("csrf", ""), "triage")
         name = regressions.component_of(session, regression_id)
         change = TriageRequest(state=form.get("state", ""), comment=form.get("comment", ""))
         regressions.triage(session, name, regression_id, change, who)

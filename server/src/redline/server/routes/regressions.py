@@ -64,9 +64,9 @@ def triage_regression(
     regression_id: int,
     change: TriageRequest,
     session: SessionDep,
-    token: Annotated[ApiToken, Depends(require("ci"))],
+    token: Annotated[ApiToken, Depends(require("triage"))],
 ) -> RegressionDetail:
-    """Set the triage state (``ci`` or ``admin`` scope); recorded in the history."""
+    """Set the triage state (``triage`` or ``admin`` scope); recorded in the history."""
     return regressions.triage(session, name, regression_id, change, token.name)
 
 

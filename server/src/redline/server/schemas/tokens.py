@@ -9,7 +9,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 class TokenCreate(BaseModel):
     name: str = Field(min_length=1, max_length=200)
-    scopes: list[str] = Field(min_length=1, description="ci, agent, read, admin")
+    scopes: list[str] = Field(min_length=1, description="ci, triage, agent, read, admin")
     host: str | None = Field(
         default=None, max_length=200, description="for an agent token: the one host it may act as"
     )

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 from datetime import timedelta
 from functools import cache
 
-from redline.server.core.security import grants, hash_token, parse_scopes
+from redline.server.core.security import READERS, grants, hash_token, parse_scopes
 from redline.server.models import User, WebSession, utcnow
 from redline.server.services.errors import BadRequest, Conflict, Forbidden
 from redline.server.services.tokens import authenticate
@@ -84,7 +84,9 @@ def create_user(session: Session, name: str, password: str, scopes: str | list[s
     except ValueError as exc:
         raise BadRequest(str(exc)) from None
     if "agent" in parsed:  # a person never acts as a performance host (security.md)
-        raise BadRequest("a user's scopes: read, ci or admin; 'agent' is for a host's token")
+        raise BadRequest(
+            "a user's scopes: read, triage, ci or admin; 'agent' is for a host's token"
+        )
     user = User(name=name, password_hash=hash_password(password), scopes=parsed)
     session.add(user)
     try:
@@ -125,7 +127,7 @@ def sign_in(session: Session, name: str, password: str, token: str) -> Opened:
         found = authenticate(session, token.strip())
         if found is None:
             raise Forbidden("that token is not a live API token")
-        if not any(grants(list(found.scopes), scope) for scope in ("read", "ci")):
+        if not any(grants(list(found.scopes), scope) for scope in READERS):
             raise Forbidden(f"token {found.name!r} is for performance hosts, not for people")
         return _open(session, f"token {found.name}", list(found.scopes))
     user = session.scalar(select(User).where(User.name == name, ~User.disabled))
