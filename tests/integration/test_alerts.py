@@ -332,7 +332,7 @@ def test_no_change_posts_success_and_a_revision_still_measured_posts_pending(
 
 def test_subscriptions_are_admin_only_checked_and_listed_changed_and_deleted(api, receiver):
     hook = {"kind": "webhook", "url": receiver.url + "/hook", "secret": "s"}
-    for scope in ("ci", "read", "agent"):
+    for scope in ("ci", "triage", "read", "agent"):
         answer = api.post(f"{BASE}/subscriptions", scope, hook)
         assert answer.status_code == 403, answer.text
     bad = [

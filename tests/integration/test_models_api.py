@@ -82,7 +82,7 @@ def test_a_model_is_trained_from_named_executions_and_its_file_predicts(api, tmp
 def test_requests_are_checked_at_once_and_training_failures_say_why(api, tmp_path):
     executed(api, tmp_path, "r1", [3])  # one parameter set: nothing to cross-validate
     executed(api, tmp_path, "r2", [1, 5], traffic=False)
-    for scope in ("ci", "read", "agent"):
+    for scope in ("ci", "triage", "read", "agent"):
         assert api.post(f"{BASE}/models", scope, {}).status_code == 403
     unknown = api.post(f"{BASE}/models", "admin", {"revisions": ["r1", "nope"], "executions": [99]})
     assert unknown.status_code == 422

@@ -64,7 +64,10 @@ def test_the_triage_migration_keeps_people_triaging_and_takes_it_from_pipelines_
     database_url, _ = fresh_database(services.database_url)
     command.upgrade(alembic_config(database_url), "0021")
     with get_engine(database_url).begin() as connection:
-        for name, scopes in (("ada", '["ci"]'), ("rita", '["read"]'), ("root", '["admin"]')):
+        people = (("ada", '["ci"]'), ("rita", '["read"]'), ("root", '["admin"]'))
+        # a user whose name is what a pasted token's session is called: that session is the
+        # token's, and keeps what it had
+        for name, scopes in (*people, ("token gitlab", '["ci"]')):
             connection.execute(
                 sa.text(
                     "INSERT INTO web_user (name, password_hash, scopes, created, disabled)"
@@ -97,9 +100,26 @@ def test_the_triage_migration_keeps_people_triaging_and_takes_it_from_pipelines_
         "ada": ["ci", "triage"],
         "rita": ["read"],
         "root": ["admin"],
+        "token gitlab": ["ci", "triage"],
     }
     assert scopes("SELECT who, scopes FROM web_session") == {
         "ada": ["ci", "triage"],
         "token gitlab": ["ci"],
     }
     assert scopes("SELECT name, scopes FROM api_token") == {"gitlab": ["ci"]}
+    # back to 0021, where ci triaged: people keep triaging, a token made since loses triage
+    with get_engine(database_url).begin() as connection:
+        connection.execute(
+            sa.text(
+                "INSERT INTO api_token (name, token_hash, scopes, created, revoked)"
+                " VALUES ('on-call', :hash, '[\"triage\"]', now(), false)"
+            ),
+            {"hash": "e" * 64},
+        )
+        connection.execute(
+            sa.text("UPDATE web_user SET scopes = '[\"triage\"]' WHERE name = 'rita'")
+        )
+    command.downgrade(alembic_config(database_url), "0021")
+    assert scopes("SELECT name, scopes FROM web_user")["rita"] == ["ci"]
+    assert scopes("SELECT name, scopes FROM web_user")["ada"] == ["ci"]
+    assert scopes("SELECT name, scopes FROM api_token") == {"gitlab": ["ci"], "on-call": ["read"]}

@@ -86,6 +86,9 @@ def test_read_access_token_mode_needs_a_read_token(services: Services, tmp_path:
         assert api.client.get("/api/v1/components").status_code == 200
         api.client.cookies.clear()
         assert api.client.get("/api/v1/components", headers=api.tokens["agent"]).status_code == 403
+        # who triages reads what they triage; a pipeline's token reads only its verdicts
+        assert api.client.get("/api/v1/components", headers=api.tokens["triage"]).status_code == 200
+        assert api.client.get("/api/v1/components", headers=api.tokens["ci"]).status_code == 403
 
 
 def test_a_browser_asking_for_a_page_under_read_access_token_is_sent_to_sign_in(

@@ -27,7 +27,7 @@ from tests.support.history import TABLES
 from tests.support.recordings import write_recording
 from tests.support.servers import Services
 
-SCOPES = ("admin", "ci", "agent", "read")
+SCOPES = ("admin", "ci", "triage", "agent", "read")
 
 
 @dataclass

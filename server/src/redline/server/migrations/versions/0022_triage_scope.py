@@ -41,10 +41,16 @@ def upgrade() -> None:
     _give_triage(sessions, users_own)
 
 
+tokens = sa.table("api_token", sa.column("id"), sa.column("scopes", sa.JSON))
+
+
 def downgrade() -> None:
+    """Before 0022 ``ci`` triaged: people with ``triage`` get ``ci`` back in its place; a token
+    loses it (a token left with no scope reads)."""
     connection = op.get_bind()
-    for table in (users, sessions):
+    for table, instead in ((users, ["ci"]), (sessions, ["ci"]), (tokens, [])):
         for row in connection.execute(sa.select(table.c.id, table.c.scopes)).all():
             if "triage" in row.scopes:
-                scopes = [scope for scope in row.scopes if scope != "triage"] or ["read"]
+                kept = [scope for scope in row.scopes if scope != "triage"]
+                scopes = sorted({*kept, *instead}) or ["read"]
                 op.execute(table.update().where(table.c.id == row.id).values(scopes=scopes))
