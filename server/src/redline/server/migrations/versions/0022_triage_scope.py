@@ -11,6 +11,8 @@ are their live sessions; API tokens are not: a pipeline that triaged needs a ``t
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import sqlalchemy as sa
 from alembic import op
 
@@ -21,9 +23,10 @@ depends_on = None
 
 users = sa.table("web_user", sa.column("id"), sa.column("name"), sa.column("scopes", sa.JSON))
 sessions = sa.table("web_session", sa.column("id"), sa.column("who"), sa.column("scopes", sa.JSON))
+tokens = sa.table("api_token", sa.column("id"), sa.column("scopes", sa.JSON))
 
 
-def _give_triage(table: sa.TableClause, rows: list[sa.Row]) -> None:
+def _give_triage(table: sa.TableClause, rows: Sequence[sa.Row]) -> None:
     for row in rows:
         if "ci" in row.scopes and "triage" not in row.scopes:
             scopes = sorted({*row.scopes, "triage"})
@@ -39,9 +42,6 @@ def upgrade() -> None:
     # a pasted token's session is "token <its name>" (a user so named signs in again)
     users_own = [r for r in signed_in.all() if r.who in names and not r.who.startswith("token ")]
     _give_triage(sessions, users_own)
-
-
-tokens = sa.table("api_token", sa.column("id"), sa.column("scopes", sa.JSON))
 
 
 def downgrade() -> None:
