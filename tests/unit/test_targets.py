@@ -10,7 +10,6 @@ from pydantic import ValidationError
 from redline.server.core.targets import refused_address, refused_host
 from redline.server.schemas.alerts import CommitStatusTarget, SubscriptionCreate
 from redline.worker import deliver
-from redline.worker.deliver import SendError
 
 
 @pytest.mark.parametrize(
@@ -110,7 +109,7 @@ def test_an_address_check_of_a_name_holding_a_null_character_says_it_is_no_addre
 
 def test_a_stored_url_that_cannot_be_sent_to_fails_its_delivery_for_good_saying_why() -> None:
     # a subscription stored before such URLs were refused: retrying it for days mends nothing
-    with httpx.Client() as client, pytest.raises(SendError) as failed:
+    with httpx.Client() as client, pytest.raises(deliver.SendError) as failed:
         deliver._post(client, "http://hooks.example.com/a\tb", b"{}", {}, timeout=1.0)
     assert failed.value.permanent
     assert str(failed.value).startswith("invalid URL: Invalid non-printable ASCII character")

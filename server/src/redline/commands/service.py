@@ -287,10 +287,7 @@ def user_create(
     name: Annotated[str, typer.Argument(help="the name they sign in with")],
     scopes: Annotated[
         str,
-        typer.Option(
-            help="comma-separated: read (look), triage (look and triage), "
-            "ci (look, report revisions), admin (all)"
-        ),
+        typer.Option(help="comma-separated: read (look), triage (look and triage), admin (all)"),
     ],
     password_stdin: Annotated[
         bool, typer.Option("--password-stdin", help="read the password from standard input")

@@ -34,9 +34,8 @@ class Settings(BaseSettings):
     # may a component's repository be a local path or file:// URL? (`redline up` allows it)
     allow_file_repos: bool = False
     webhook_secret: str = ""  # GitHub/GitLab push secret; a component's own one overrides it
-    read_access: Literal["open", "token"] = (
-        "open"  # token: reading needs a `read` (or `triage`) token
-    )
+    # token: reading needs a `read` (or `triage`) token
+    read_access: Literal["open", "token"] = "open"
     retention_days: int = 90  # raw recordings (MCAP, Parquet) older than this are deleted
     log_json: bool = False  # log JSON lines instead of text
     # the address people open Redline's pages at: links in mails, webhooks and commit statuses
