@@ -57,9 +57,11 @@ def database() -> Iterator[str]:
 
 
 @contextmanager
-def api_server(database_url: str, workers: int = 1) -> Iterator[tuple[str, dict[str, str]]]:
+def api_server(
+    database_url: str, workers: int = 1, hosts: tuple[str, ...] = ()
+) -> Iterator[tuple[str, dict[str, str]]]:
     """`redline server [--workers N]` on ``database_url`` as a child process: its URL and a token
-    per scope."""
+    per scope, with an agent token per host of ``hosts`` (bound to it) as ``agent@HOST``."""
     from redline.agent.network import free_port
     from redline.commands.stack import Stack
 
@@ -72,7 +74,8 @@ def api_server(database_url: str, workers: int = 1) -> Iterator[tuple[str, dict[
             REDLINE_STORAGE_DIR=str(stack.data / "storage"),
             REDLINE_LEASE_SECONDS="600",
         )
-        tokens = {scope: stack.token(scope, scope) for scope in ("admin", "ci", "agent", "read")}
+        tokens = {scope: stack.token(scope, scope) for scope in ("admin", "ci", "read")}
+        tokens |= {f"agent@{host}": stack.token(host, "agent", host) for host in hosts}
         stack._spawn(
             "server", "server", "--host", "127.0.0.1", "--port", str(stack.port),
             "--workers", str(workers),

@@ -56,16 +56,19 @@ def _agent(server: str, token: str, host: str, limit: int) -> tuple[list[int], l
 
 
 def main() -> None:
-    with database() as url, api_server(url) as (server, tokens):
+    hosts = ("solo", *(f"agent-{n}" for n in range(AGENTS)))
+    with database() as url, api_server(url, hosts=hosts) as (server, tokens):
         _queue(url)
-        token = tokens["agent"]
         start = time.perf_counter()
-        alone, alone_latency = _agent(server, token, "solo", JOBS // 2)
+        alone, alone_latency = _agent(server, tokens["agent@solo"], "solo", JOBS // 2)
         solo = len(alone) / (time.perf_counter() - start)
         start = time.perf_counter()
         with ThreadPoolExecutor(AGENTS) as pool:
             results = list(
-                pool.map(lambda n: _agent(server, token, f"agent-{n}", JOBS), range(AGENTS))
+                pool.map(
+                    lambda n: _agent(server, tokens[f"agent@agent-{n}"], f"agent-{n}", JOBS),
+                    range(AGENTS),
+                )
             )
         crowd = sum(len(ids) for ids, _ in results) / (time.perf_counter() - start)
         counts = Counter(alone + [job for ids, _ in results for job in ids])

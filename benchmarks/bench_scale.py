@@ -159,7 +159,8 @@ def leases(processes: int) -> tuple[float, dict[str, float]]:
     (with the 1-minute load average before this run started anything: its 20 agents' start
     raises it by several)."""
     load = os.getloadavg()[0]
-    with database() as url, api_server(url, workers=processes) as (server, tokens):
+    hosts = tuple(f"agent-{n}" for n in range(AGENTS))
+    with database() as url, api_server(url, workers=processes, hosts=hosts) as (server, tokens):
         with session_factory(url)() as session:
             create_component(session, ComponentCreate(name="bench", executions=EXECUTIONS))
             for n in range(REVISIONS):
@@ -170,7 +171,7 @@ def leases(processes: int) -> tuple[float, dict[str, float]]:
                     ),
                 )
         split = CpuSplit(_api_process(server.rsplit(":", 1)[1]), _postmaster(url))
-        agents = [(server, tokens["agent"], f"agent-{n}") for n in range(AGENTS)]
+        agents = [(server, tokens[f"agent@{host}"], host) for host in hosts]
         with multiprocessing.get_context("spawn").Pool(AGENTS) as pool:
             pool.map(time.sleep, [0.0] * AGENTS)  # the agents' processes are up
             split.start()

@@ -14,6 +14,7 @@ import redis
 from fastapi.testclient import TestClient
 from redline.server.app import create_app
 from redline.server.core.config import Settings
+from redline.server.core.security import hash_token
 from redline.server.core.tasks import broker_url, queue_of
 from redline.server.db import session_factory
 from redline.server.models import ApiToken, Execution, Job, JobState
@@ -258,9 +259,7 @@ def test_an_agent_token_naming_its_host_acts_for_that_host_only(api: Api):
     )
     assert made.status_code == 201, made.text
     own = {"Authorization": f"Bearer {made.json()['token']}"}
-    api.client.post(
-        "/api/v1/agent/register", json={"name": "perf9", "labels": []}, headers=api.tokens["agent"]
-    ).raise_for_status()
+    api.post("/api/v1/agent/register", "agent", {"name": "perf9", "labels": []}).raise_for_status()
     for path, body in (
         ("/api/v1/agent/register", {"name": "perf9", "labels": []}),
         ("/api/v1/agent/lease", {"host": "perf9"}),
@@ -274,6 +273,66 @@ def test_an_agent_token_naming_its_host_acts_for_that_host_only(api: Api):
         api.client.post("/api/v1/agent/lease", json={"host": "perf1"}, headers=own).status_code
         == 204
     )
+
+
+def test_an_agent_token_must_be_bound_to_a_host(api: Api):
+    """One that may act as any host is not issued; only an agent token has a host."""
+    for body in ({"name": "any", "scopes": ["agent"]}, {"name": "any", "scopes": ["ci", "agent"]}):
+        answer = api.post("/api/v1/tokens", "admin", body)
+        assert answer.status_code == 400 and "--host" in answer.json()["detail"], answer.text
+    stray = api.post("/api/v1/tokens", "admin", {"name": "ci2", "scopes": ["ci"], "host": "perf1"})
+    assert stray.status_code == 400 and "'agent'" in stray.json()["detail"]
+    with session_factory(api.settings.database_url)() as session:
+        assert not session.scalar(select(ApiToken).where(ApiToken.name.in_(["any", "ci2"])))
+
+
+def test_a_pool_token_acts_for_the_hosts_its_prefix_names(api: Api):
+    """Replicas of one container (compose's `--scale agent=M`) share a token bound to
+    'compose-*': each registers and leases as itself; none acts as a host named otherwise."""
+    made = api.post(
+        "/api/v1/tokens", "admin", {"name": "replicas", "scopes": ["agent"], "host": "compose-*"}
+    )
+    assert made.status_code == 201, made.text
+    pool = {"Authorization": f"Bearer {made.json()['token']}"}
+    for name in ("compose-3f2a", "compose-9c1b"):
+        registered = api.client.post(
+            "/api/v1/agent/register", json={"name": name, "labels": []}, headers=pool
+        )
+        assert registered.status_code == 200, registered.text
+    for name in ("perf1", "compose-"):
+        answer = api.client.post("/api/v1/agent/lease", json={"host": name}, headers=pool)
+        assert answer.status_code == 403 and "'compose-*'" in answer.json()["detail"], answer.text
+    alert = {"target": "cpu_percent", "started": True, "residual": 1.0, "threshold": 0.5}
+    api.component()
+    unnamed = api.client.post("/api/v1/components/builder/runtime-alerts", json=alert, headers=pool)
+    assert unnamed.status_code == 403  # a pool's token must say which of its hosts reports
+    for host in ("*", "perf-*-x"):
+        body = {"name": f"bad{len(host)}", "scopes": ["agent"], "host": host}
+        refused = api.post("/api/v1/tokens", "admin", body)
+        assert refused.status_code == 400 and "alone would be any host" in refused.text
+
+
+def test_an_agent_token_bound_to_no_host_acts_for_none(api: Api):
+    """One issued before a host was required (made here as it was stored then) is refused
+    everywhere an agent acts: it registers, leases and reports as no host."""
+    with session_factory(api.settings.database_url)() as session:
+        session.add(ApiToken(name="old", token_hash=hash_token("rl_old"), scopes=["agent"]))
+        session.commit()
+    old = {"Authorization": "Bearer rl_old"}
+    alert = {"target": "cpu_percent", "started": True, "residual": 1.0, "threshold": 0.5}
+    api.component()
+    for path, body in (
+        ("/api/v1/agent/register", {"name": "perf1", "labels": []}),
+        ("/api/v1/agent/lease", {"host": "perf1"}),
+        ("/api/v1/components/builder/runtime-alerts", alert),
+    ):
+        answer = api.client.post(path, json=body, headers=old)
+        assert answer.status_code == 403, (path, answer.text)
+        assert "bound to no host" in answer.json()["detail"]
+    admin = api.client.post(
+        "/api/v1/agent/register", json={"name": "perf9", "labels": []}, headers=api.tokens["admin"]
+    )
+    assert admin.status_code == 200, admin.text  # an admin token without a host acts for any
 
 
 def test_lease_skips_a_job_another_transaction_has_locked(api: Api):

@@ -124,7 +124,10 @@ def test_three_hosts_lose_no_job_to_a_killed_agent_or_worker(
     commits = empty_commits(repo, REVISIONS)  # one commit of one code per revision
     with session_factory(database_url)() as session:
         tokens = {scope: issue_token(session, scope, scope)[1] for scope in ("admin", "ci")}
-        agent_token = issue_token(session, "agents", "agent")[1]
+        agent_tokens = {  # each host's own, bound to its name
+            name: issue_token(session, name, "agent", name)[1]
+            for name in ("slow-3", "fast-1", "fast-2")
+        }
     queue = f"hosts-{uuid.uuid4().hex[:8]}"
     shared = {
         **os.environ,
@@ -162,7 +165,6 @@ def test_three_hosts_lose_no_job_to_a_killed_agent_or_worker(
     agent_env = {
         **os.environ,
         **NEVER_BUSY,
-        "REDLINE_TOKEN": agent_token,
         "REDLINE_ALLOW_FILE_REPOS": "true",  # the tiny repository is a folder every host sees
         "PYTHONUNBUFFERED": "1",
     }
@@ -183,7 +185,8 @@ def test_three_hosts_lose_no_job_to_a_killed_agent_or_worker(
         def start(*names: str) -> None:
             for name in names:
                 argv = [REDLINE, *agent_args(server, name, tmp_path / name)]
-                agents[name] = agents_host.popen(argv, logs / f"{name}.log", agent_env)
+                env = {**agent_env, "REDLINE_TOKEN": agent_tokens[name]}
+                agents[name] = agents_host.popen(argv, logs / f"{name}.log", env)
                 children.append(agents[name])
 
         start("slow-3")  # slow-*: its build hangs (tiny.py)

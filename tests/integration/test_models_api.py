@@ -111,6 +111,21 @@ def test_runtime_alerts_are_reported_with_an_agent_token_and_listed(api):
     assert (listed["host"], listed["residual"], listed["started"]) == ("robot1", 75.0, True)
 
 
+def test_a_runtime_alert_comes_from_its_tokens_host(api):
+    """A robot's watcher reports for its own host: one naming another is refused, one naming
+    none is recorded as the token's."""
+    alert = {"target": "cpu_percent", "started": True, "residual": 75.0, "threshold": 9.5}
+    robot = api.headers("agent", "robot1")
+    forged = api.client.post(
+        f"{BASE}/runtime-alerts", json={**alert, "host": "robot2"}, headers=robot
+    )
+    assert forged.status_code == 403 and "'robot1'" in forged.text and "'robot2'" in forged.text
+    made = api.client.post(f"{BASE}/runtime-alerts", json=alert, headers=robot)
+    assert made.status_code == 201 and made.json()["host"] == "robot1"
+    (listed,) = api.client.get(f"{BASE}/runtime-alerts").json()
+    assert listed["host"] == "robot1"
+
+
 def test_the_pages_show_models_with_their_chart_and_runtime_alerts(api, tmp_path):
     first = executed(api, tmp_path, "r1", [1, 4, 7, 10, 13])
     model = train(api, {"executions": [first]})

@@ -394,7 +394,7 @@ def test_a_triage_to_no_state_names_the_field_and_the_states_not_pydantic(
 def test_a_pasted_token_signs_in_with_its_own_scopes_only(client, database_url, tmp_path):
     number = _regression(client, database_url, tmp_path)
     with session_factory(database_url)() as session:
-        _, agent = issue_token(session, "perf-host", "agent")
+        _, agent = issue_token(session, "perf-host", "agent", "perf-host")
         _, ci = issue_token(session, "gitlab", "ci")
         _, triage = issue_token(session, "on-call", "triage")
     refused = sign_in(client, {"token": agent})

@@ -71,6 +71,10 @@ class Service:
     def headers(self, scope: str) -> dict[str, str]:
         return {"Authorization": f"Bearer {self.tokens[scope]}"}
 
+    def agent_token(self, host: str) -> str:
+        """The agent token bound to ``host`` (made on first use, kept in the stack's folder)."""
+        return self.stack.token(host, "agent", host)
+
     def start_server(self) -> None:
         self.stack._spawn("server", "server", "--host", "127.0.0.1", "--port", str(self.stack.port))
         self.stack._wait_healthy()
@@ -79,7 +83,7 @@ class Service:
         self.stack._spawn(
             name,
             *agent_args(self.stack.url, name, self.root / name),
-            env={"REDLINE_TOKEN": self.tokens["agent"]},
+            env={"REDLINE_TOKEN": self.agent_token(name)},
         )
         return self.stack.children[-1]
 
@@ -161,7 +165,7 @@ def _service(database_url: str, redis_url: str, root: Path, lease_s: int) -> Ser
     )
     stack._redline("migrate")
     service = Service(stack, root, repo, commit)
-    service.tokens = {scope: stack.token(scope, scope) for scope in ("admin", "ci", "agent")}
+    service.tokens = {scope: stack.token(scope, scope) for scope in ("admin", "ci")}
     service.start_server()
     return service
 
@@ -273,10 +277,9 @@ def test_twenty_agents_leasing_two_hundred_jobs_over_http_lease_each_exactly_onc
         second._wait_healthy()
         ids = _two_hundred_jobs(service)
         hosts = [f"racer-{n:02d}" for n in range(20)]
+        tokens = {host: service.agent_token(host) for host in hosts}
         with ThreadPoolExecutor(len(hosts)) as pool:  # the long-lease server: none may lapse
-            leased = list(
-                pool.map(lambda host: _race(second.url, host, service.tokens["agent"]), hosts)
-            )
+            leased = list(pool.map(lambda host: _race(second.url, host, tokens[host]), hosts))
     finally:
         second.stop()
     counts = Counter(job_id for mine in leased for job_id in mine)
@@ -385,7 +388,7 @@ def test_postgres_away_the_api_answers_503_agents_spool_and_nothing_is_lost(
         assert health.status_code == 503 and health.json()["status"] == "unavailable"
         lease = httpx.post(
             f"{service.stack.url}/api/v1/agent/lease",
-            headers=service.headers("agent"),
+            headers={"Authorization": f"Bearer {service.agent_token('fast-spooling')}"},
             json={"host": "fast-spooling"},
         )
         assert lease.status_code == 503, lease.text

@@ -41,7 +41,9 @@ def test_admin_issues_a_token_stored_only_as_its_hash(api: Api):
     listed = api.client.get("/api/v1/tokens", headers=api.tokens["admin"]).json()
     assert "token" not in listed[-1] and listed[-1]["name"] == "perf2"
     again = api.client.post(
-        "/api/v1/tokens", headers=api.tokens["admin"], json={"name": "perf2", "scopes": ["agent"]}
+        "/api/v1/tokens",
+        headers=api.tokens["admin"],
+        json={"name": "perf2", "scopes": ["agent"], "host": "perf2"},
     )
     assert again.status_code == 409
     bad = api.client.post(
@@ -160,14 +162,13 @@ def test_cli_lists_and_revokes_tokens(api: Api):
 @pytest.mark.slow  # a real `redline` command each time
 def test_cli_creates_a_host_bound_token_one_live_per_name(api: Api):
     env = {**os.environ, "REDLINE_DATABASE_URL": api.settings.database_url}
-    command = [str(Path(sys.executable).parent / "redline"), "token", "create", "perf-1"]
-    made = subprocess.run(
-        [*command, "--scopes", "agent", "--host", "perf-1"],
-        env=env,
-        capture_output=True,
-        text=True,
-        cwd=ROOT,
-    )
+    redline = str(Path(sys.executable).parent / "redline")
+
+    def create(name: str, *options: str) -> subprocess.CompletedProcess[str]:
+        command = [redline, "token", "create", name, *options]
+        return subprocess.run(command, env=env, capture_output=True, text=True, cwd=ROOT)
+
+    made = create("perf-1", "--scopes", "agent", "--host", "perf-1")
     assert made.returncode == 0, made.stderr
     secret = made.stdout.strip()
     with session_factory(api.settings.database_url)() as session:
@@ -176,17 +177,11 @@ def test_cli_creates_a_host_bound_token_one_live_per_name(api: Api):
     own = {"Authorization": f"Bearer {secret}"}
     answer = api.client.post("/api/v1/agent/lease", json={"host": "perf-9"}, headers=own)
     assert answer.status_code == 403 and "perf-1" in answer.json()["detail"]
-    again = subprocess.run(
-        [*command, "--scopes", "agent"], env=env, capture_output=True, text=True, cwd=ROOT
-    )
+    again = create("perf-1", "--scopes", "agent", "--host", "perf-1")
     assert again.returncode == 1 and "'perf-1'" in again.stderr and not again.stdout
-    bad = subprocess.run(
-        [*command[:-1], "other", "--scopes", "root"],
-        env=env,
-        capture_output=True,
-        text=True,
-        cwd=ROOT,
-    )
+    anywhere = create("anywhere", "--scopes", "agent")
+    assert anywhere.returncode == 1 and "--host" in anywhere.stderr and not anywhere.stdout
+    bad = create("other", "--scopes", "root")
     assert bad.returncode == 1 and "'root'" in bad.stderr
 
 

@@ -28,16 +28,32 @@ from tests.support.recordings import write_recording
 from tests.support.servers import Services
 
 SCOPES = ("admin", "ci", "triage", "agent", "read")
+HOST = "perf1"  # the host the tests' ``agent`` token is bound to
 
 
 @dataclass
 class Api:
     client: TestClient
     settings: Settings
-    tokens: dict[str, dict[str, str]]  # scope -> Authorization header
+    tokens: dict[str, dict[str, str]]  # scope -> Authorization header ("agent": perf1's)
+
+    def headers(self, scope: str, host: str = HOST) -> dict[str, str]:
+        """The Authorization header of a token with ``scope``; with ``agent``, the token of
+        ``host`` (an agent token is bound to one host), issued on first use."""
+        if scope != "agent" or host == HOST:
+            return self.tokens[scope]
+        key = f"agent@{host}"
+        if key not in self.tokens:
+            with session_factory(self.settings.database_url)() as session:
+                secret = issue_token(session, f"agent-{host}", "agent", host)[1]
+            self.tokens[key] = {"Authorization": f"Bearer {secret}"}
+        return self.tokens[key]
 
     def post(self, path: str, scope: str, body: dict) -> object:
-        return self.client.post(path, json=body, headers=self.tokens[scope])
+        """POST ``body``; with ``agent``, as the host the body names (its host, or the name it
+        registers)."""
+        host = body.get("host") or body.get("name") or HOST
+        return self.client.post(path, json=body, headers=self.headers(scope, host))
 
     def component(
         self, name: str = "builder", executions: int = 1, host_labels: list[str] | None = None
@@ -78,7 +94,7 @@ class Api:
         scope: str = "agent",
     ) -> object:
         headers = {
-            **self.tokens[scope],
+            **self.headers(scope, host),
             "X-Redline-Host": host,
             "X-Redline-Sha256": sha256 or hashlib.sha256(data).hexdigest(),
         }
@@ -106,14 +122,21 @@ _MIGRATED: set[str] = set()
 
 
 def emptied_with_tokens(database_url: str) -> dict[str, dict[str, str]]:
-    """Empty the (migrated) database and issue one token per scope, named after it."""
+    """Empty the (migrated) database and issue one token per scope, named after it (the
+    agent's bound to ``HOST``)."""
     with session_factory(database_url)() as session:
         session.execute(text(f"TRUNCATE {TABLES} RESTART IDENTITY CASCADE"))
         session.commit()
         return {
-            scope: {"Authorization": f"Bearer {issue_token(session, scope, scope)[1]}"}
+            scope: {
+                "Authorization": f"Bearer {issue_token(session, scope, scope, _host(scope))[1]}"
+            }
             for scope in SCOPES
         }
+
+
+def _host(scope: str) -> str | None:
+    return HOST if scope == "agent" else None
 
 
 @contextmanager

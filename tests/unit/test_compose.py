@@ -42,6 +42,19 @@ def test_every_redline_service_runs_a_command_the_cli_accepts() -> None:
     assert services["alerts"]["queues"] == "alerts"
 
 
+def test_each_agent_replica_acts_as_a_host_of_its_tokens_pool() -> None:
+    """One token for `--scale agent=M`, bound to 'compose-*': each replica names itself after
+    its container, inside that pool and apart from the others."""
+    import socket
+
+    from redline.cli.agent_cmd import host_name
+    from redline.server.core.security import acts_for
+
+    name = host_name(str(parsed(COMPOSE["services"]["agent"]["command"])["name"]))
+    assert name == f"compose-{socket.gethostname()}"
+    assert acts_for("compose-*", name) and not acts_for("compose-*", "perf-1")
+
+
 def test_the_agent_holds_none_of_the_servers_settings_or_storage() -> None:
     agent = COMPOSE["services"]["agent"]
     assert set(agent["environment"]) == {"REDLINE_TOKEN"}  # no database or Redis URL

@@ -293,3 +293,30 @@ def test_the_agent_reads_a_token_file_only_its_owner_can_read(tmp_path: Path):
     token_file.write_text("")
     with pytest.raises(typer.BadParameter, match="empty"):
         read_token(token_file)
+
+
+@pytest.mark.parametrize(
+    ("bound", "host", "acts"),
+    [
+        ("perf-1", "perf-1", True),
+        ("perf-1", "perf-10", False),  # a name, not a prefix
+        ("perf-1", "", False),
+        ("compose-*", "compose-3f2a9c", True),
+        ("compose-*", "compose-", False),  # the prefix alone names no replica
+        ("compose-*", "perf-1", False),
+        ("compose-*", "xcompose-1", False),
+    ],
+)
+def test_an_agent_token_acts_for_its_host_or_its_pool_only(bound: str, host: str, acts: bool):
+    from redline.server.core.security import acts_for
+
+    assert acts_for(bound, host) is acts
+
+
+@pytest.mark.parametrize("host", ["*", "perf-*-x", "**", "a*b*"])
+def test_a_pool_is_a_prefix_with_one_star_at_its_end(host: str):
+    from redline.server.core.security import pool_or_host
+
+    with pytest.raises(ValueError, match="'\\*' alone would be any host"):
+        pool_or_host(host)
+    assert pool_or_host("compose-*") == "compose-*" and pool_or_host("perf-1") == "perf-1"

@@ -30,7 +30,13 @@ def agent(
             dir_okay=False,
         ),
     ] = None,
-    name: Annotated[str, typer.Option(help="this host's name")] = socket.gethostname(),
+    name: Annotated[
+        str,
+        typer.Option(
+            help="this host's name; '{hostname}' in it is the machine's (replicas of one "
+            "container: 'compose-{hostname}', with a token bound to --host 'compose-*')"
+        ),
+    ] = socket.gethostname(),
     work: Annotated[Path, typer.Option(help="folder for clones, recordings and the spool")] = Path(
         ".redline-agent"
     ),
@@ -79,7 +85,7 @@ def agent(
     os.environ.pop("REDLINE_TOKEN", None)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s agent %(levelname)s %(message)s")
     daemon = AgentDaemon(
-        ServerClient(server, token, name),
+        ServerClient(server, token, host_name(name)),
         work.resolve(),
         labels=label or [],
         poll_interval=poll,
@@ -92,6 +98,11 @@ def agent(
         daemon.run_forever()
     except AgentStopping:
         log.info("agent stopped")
+
+
+def host_name(template: str) -> str:
+    """The name the agent acts as: ``template`` with '{hostname}' the machine's."""
+    return template.replace("{hostname}", socket.gethostname())
 
 
 def read_token(token_file: Path | None) -> str:

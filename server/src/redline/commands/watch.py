@@ -73,8 +73,6 @@ def _named(process: object, name: str) -> bool:
 def _reporter(server: str | None, component: str | None, process: str) -> Callable[[Alarm], None]:
     """A function that posts an alarm to the server's runtime alerts (a no-op without one);
     a failed post is said on stderr, and watching goes on."""
-    import socket
-
     import httpx
 
     if server is None:
@@ -95,7 +93,6 @@ def _reporter(server: str | None, component: str | None, process: str) -> Callab
             "residual": alarm.residual,
             "threshold": alarm.threshold,
             "step": alarm.step,
-            "host": socket.gethostname(),
             "process": process,
         }
         try:

@@ -8,7 +8,7 @@ from typing import Annotated
 from fastapi import Depends, HTTPException, Request, status
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 from redline.server.core.config import Settings
-from redline.server.core.security import READERS, grants
+from redline.server.core.security import READERS, acts_for, grants
 from redline.server.db import session_factory
 from redline.server.models import ApiToken
 from redline.server.services.signin import SESSION_COOKIE, current
@@ -77,8 +77,18 @@ AgentToken = Annotated[ApiToken, Depends(require_agent)]
 
 
 def ensure_own_host(token: ApiToken, host: str) -> None:
-    """An agent token that names its host acts for that host only (403 otherwise)."""
-    if token.host and token.host != host:
+    """An agent token acts for the host it is bound to only, or one of its pool (``PREFIX*``:
+    the hosts whose names start so), 403 otherwise. One bound to no host (issued before that
+    was refused) acts for none; an admin token without a host acts for any."""
+    if token.host is None and "admin" in token.scopes:
+        return
+    if token.host is None:
+        raise HTTPException(
+            status.HTTP_403_FORBIDDEN,
+            f"token {token.name!r} is bound to no host, so it may act for none: "
+            "revoke it and create one with --host HOST",
+        )
+    if not acts_for(token.host, host):
         raise HTTPException(
             status.HTTP_403_FORBIDDEN,
             f"token {token.name!r} belongs to host {token.host!r}, not {host!r}",

@@ -33,6 +33,26 @@ def parse_scopes(text: str | list[str]) -> list[str]:
     return scopes
 
 
+def acts_for(bound: str, host: str) -> bool:
+    """Whether an agent token bound to ``bound`` (a host's name, or ``PREFIX*``: a pool of the
+    hosts whose names start so, the prefix alone not among them) may act as ``host``."""
+    if bound.endswith("*"):
+        prefix = bound.removesuffix("*")
+        return host.startswith(prefix) and host != prefix
+    return host == bound
+
+
+def pool_or_host(host: str) -> str:
+    """``host`` if it can bind an agent token: one name, or a prefix and one '*' at its end;
+    raises ValueError otherwise ('*' alone would be any host)."""
+    if "*" in host.removesuffix("*") or host == "*":
+        raise ValueError(
+            f"host {host!r}: one host's name, or a pool's prefix with one '*' at its end "
+            "('compose-*'); '*' alone would be any host"
+        )
+    return host
+
+
 def grants(scopes: list[str], needed: str) -> bool:
     """``admin`` implies every scope."""
     return needed in scopes or "admin" in scopes

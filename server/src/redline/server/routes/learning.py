@@ -7,7 +7,7 @@ from typing import Annotated
 
 from fastapi import APIRouter, Depends, Query, Request, status
 from fastapi.responses import FileResponse
-from redline.server.api.deps import READ, SessionDep, require
+from redline.server.api.deps import READ, AgentToken, SessionDep, ensure_own_host, require
 from redline.server.core.bodies import JsonRoute
 from redline.server.schemas.common import problems
 from redline.server.schemas.learning import ModelOut, ModelRequest, RuntimeAlertIn, RuntimeAlertOut
@@ -60,13 +60,16 @@ def model_file(name: str, ident: int, session: SessionDep) -> FileResponse:
     "/{name}/runtime-alerts",
     status_code=status.HTTP_201_CREATED,
     responses=NOT_FOUND,
-    dependencies=[Depends(require("agent"))],
 )
 def report_alert(
-    name: str, data: RuntimeAlertIn, session: SessionDep, request: Request
+    name: str, data: RuntimeAlertIn, session: SessionDep, request: Request, token: AgentToken
 ) -> RuntimeAlertOut:
     """A resource fault (or its end) that `redline watch` saw on the running component; the
-    alert subscriptions that want its target hear of it."""
+    alert subscriptions that want its target hear of it. The host is the token's (one given
+    must be it, or of its pool: 403 otherwise)."""
+    bound = token.host or ""
+    data.host = data.host or ("" if bound.endswith("*") else bound)  # a pool's: say which
+    ensure_own_host(token, data.host)
     stored = learning.record_alert(session, name, data)
     request.app.state.tasks.runtime_alert(stored.id)
     return stored

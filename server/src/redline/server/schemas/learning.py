@@ -50,7 +50,9 @@ class RuntimeAlertIn(BaseModel):
     threshold: float = Field(allow_inf_nan=False)
     step: int = Field(default=0, ge=0)
     model: int | None = Field(default=None, description="the server's model id, if from there")
-    host: str = Field(default="", max_length=200)
+    host: str = Field(
+        default="", max_length=200, description="the reporting token's host (the default); no other"
+    )
     process: str = Field(default="", max_length=200)
 
 

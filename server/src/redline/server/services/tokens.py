@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from redline.server.core.security import hash_token, new_token, parse_scopes
+from redline.server.core.security import hash_token, new_token, parse_scopes, pool_or_host
 from redline.server.models import ApiToken, utcnow
 from redline.server.services.errors import BadRequest, Conflict, NotFound
 from sqlalchemy import func, select
@@ -25,12 +25,23 @@ def authenticate(session: Session, secret: str) -> ApiToken | None:
 def issue_token(
     session: Session, name: str, scopes: str | list[str], host: str | None = None
 ) -> tuple[ApiToken, str]:
-    """A new token and its secret (shown once: only its hash is stored); an agent token is
-    bound to ``host``; one live token per name. The one way tokens are made (API and CLI)."""
+    """A new token and its secret (shown once: only its hash is stored); a token with the
+    ``agent`` scope must be bound to ``host`` (a name, or ``PREFIX*``: a pool of hosts whose
+    names start so), and only it has one; one live token per name.
+    The one way tokens are made (API, CLI and the settings page)."""
     try:
         parsed = parse_scopes(scopes)
+        if host:
+            pool_or_host(host)
     except ValueError as exc:
         raise BadRequest(str(exc)) from None
+    if "agent" in parsed and not host:
+        raise BadRequest(
+            "an agent token acts for one host, or a pool of hosts named alike: name it (host, "
+            "or --host HOST, or --host 'PREFIX*'); a token that may act as any host is not issued"
+        )
+    if host and "agent" not in parsed:
+        raise BadRequest(f"host {host!r} binds an agent token; this token has no 'agent' scope")
     # one issuer per name at a time, so two at once cannot both find no live token
     session.execute(select(func.pg_advisory_xact_lock(TOKEN_NAME_LOCK, func.hashtext(name))))
     live = session.scalar(select(ApiToken).where(ApiToken.name == name, ~ApiToken.revoked))
