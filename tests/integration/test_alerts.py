@@ -330,6 +330,56 @@ def test_no_change_posts_success_and_a_revision_still_measured_posts_pending(
         assert json.loads(call.body)["target_url"] == "https://redline.example" + page
 
 
+def test_a_commit_status_target_is_refused_in_words_and_the_stored_one_kept(api, receiver):
+    """A repository that is another path of the provider's API, or a token that would break its
+    header, is refused naming what is wrong (not a regex), the token never quoted."""
+    kept = {"provider": "github", "api_url": receiver.url, "repository": "robots/builder",
+            "token": "tok-123"}  # fmt: skip
+    assert api.client.put(
+        f"{BASE}/commit-status", json=kept, headers=api.tokens["admin"]
+    ).is_success
+    bad = [
+        ({"repository": "../../orgs/x"}, "'..' is not allowed between '/'s"),
+        ({"repository": "robots//builder"}, "'' is not allowed between '/'s"),
+        ({"repository": "robots/builder/x"}, "on GitHub, owner/name"),
+        ({"repository": "robots/build\ner"}, "'\\n' at position 12 is not allowed"),
+        ({"repository": "robots/b?x=1"}, "'?' at position 8 is not allowed"),
+        ({"token": "tok\r\nX-Evil: 1"}, "must not contain '\\r' at position 3"),
+        ({"token": "tok 123"}, "must not contain ' ' at position 3"),
+    ]
+    for change, said in bad:
+        answer = api.client.put(
+            f"{BASE}/commit-status", json={**kept, **change}, headers=api.tokens["admin"]
+        )
+        said_back = " ".join(error["msg"] for error in answer.json()["detail"])
+        assert answer.status_code == 422 and said in said_back, (change, answer.text)
+        assert "pattern" not in answer.text and "tok" not in answer.text.replace("token", "")
+    group = {**kept, "provider": "gitlab", "repository": "robots/arms/builder"}
+    assert api.client.put(
+        f"{BASE}/commit-status", json=group, headers=api.tokens["admin"]
+    ).is_success
+    stored = api.client.get(f"{BASE}/commit-status", headers=api.tokens["admin"]).json()
+    assert stored["repository"] == "robots/arms/builder"
+
+
+def test_an_address_or_an_empty_field_is_refused_in_words(api):
+    bad = [
+        ("dev team@robots.example", "must not contain ' ' at position 3"),
+        ("dev@robots.example\nBcc: x@y.z", "must not contain '\\n' at position 18"),
+        ("dev@robots", "must be one address, as name@example.org"),
+        ("a@b@robots.example", "must be one address, as name@example.org"),
+        ("<dev@robots.example>", "'<' at position 0"),
+    ]
+    for address, said in bad:
+        answer = api.post(f"{BASE}/subscriptions", "admin", {"kind": "email", "address": address})
+        said_back = " ".join(error["msg"] for error in answer.json()["detail"])
+        assert answer.status_code == 422 and said in said_back, (address, answer.text)
+        assert "pattern" not in answer.text
+    empty = {"component": "builder", "title": "r1", "sort_key": "", "commit": "abc123"}
+    answer = api.post("/api/v1/revisions", "ci", empty)
+    assert answer.status_code == 422 and answer.json()["detail"][0]["msg"] == "must not be empty"
+
+
 def test_subscriptions_are_admin_only_checked_and_listed_changed_and_deleted(api, receiver):
     hook = {"kind": "webhook", "url": receiver.url + "/hook", "secret": "s"}
     for scope in ("ci", "triage", "read", "agent"):
@@ -377,6 +427,13 @@ def test_subscriptions_are_admin_only_checked_and_listed_changed_and_deleted(api
         headers=api.tokens["admin"],
     )
     assert mail.status_code == 422 and "takes none" in mail.text  # a url on a mail subscription
+    for null in ({"url": None}, {"counters": None, "direction": "regression"}):
+        kept = api.client.patch(
+            f"{BASE}/subscriptions/{made['id']}", json=null, headers=api.tokens["admin"]
+        )
+        assert kept.status_code == 422 and "null changes nothing" in kept.text, kept.text
+    stored = api.client.get(f"{BASE}/subscriptions/{made['id']}", headers=api.tokens["admin"])
+    assert (stored.json()["url"], stored.json()["direction"]) == (hook["url"], "any")
     gone = api.client.delete(f"{BASE}/subscriptions/{made['id']}", headers=api.tokens["admin"])
     assert gone.status_code == 204
     again = api.client.get(f"{BASE}/subscriptions/{made['id']}", headers=api.tokens["admin"])

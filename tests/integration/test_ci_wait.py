@@ -115,6 +115,10 @@ def test_bad_input_and_a_timeout_exit_2_naming_the_cause(server):
     assert unknown.returncode == 2 and "unknown component 'nobody'" in unknown.stderr
     refused = wait(server, "--revision", "r1", token="rl_not-a-token")
     assert refused.returncode == 2 and "refused the token" in refused.stderr
+    early = wait(server, "--revision", "nosuch", "--timeout", "2")  # said at once, not after
+    assert early.returncode == 2, early.stderr
+    assert "has no revision 'nosuch' yet: waiting up to 2 s for it" in early.stderr
+    assert "no verdict within 2 s: still waiting for the revision to be reported" in early.stderr
     bad = wait(server, "--revision", "r1", "--fail-on", "sometimes")
     assert bad.returncode == 2 and "fail-on" in bad.stderr
     _, _, api = server

@@ -326,6 +326,9 @@ def test_triage_in_the_page_needs_a_sign_in_and_the_form_token(client, database_
         create_user(session, "reader", "correct horse battery", "read")
         with pytest.raises(BadRequest, match="'agent' is for a host's token"):  # a trial made one
             create_user(session, "eve", "correct horse battery", "agent")
+        with pytest.raises(BadRequest) as unknown:  # offers a person's scopes, not a host's
+            create_user(session, "eve", "correct horse battery", "root")
+        assert str(unknown.value.detail).endswith("known: admin, ci, read, triage")
     triage = f"/regressions/{number}/triage"
     refused = client.post(triage, data={"state": "confirmed", "csrf": "x"})
     assert refused.status_code == 403 and "sign in" in refused.text

@@ -145,6 +145,7 @@ def test_cli_lists_and_revokes_tokens(api: Api):
         [*command, "list"], env=env, capture_output=True, text=True, cwd=ROOT, check=True
     ).stdout
     assert "\tci\tci\t" in listed and "never" in listed
+    assert listed.splitlines()[0] == "id\tname\tscopes\thost\tcreated\tlast used\tstate"
     done = subprocess.run(
         [*command, "revoke", "ci"], env=env, capture_output=True, text=True, cwd=ROOT
     )

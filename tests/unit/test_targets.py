@@ -46,6 +46,9 @@ def test_link_local_metadata_multicast_and_unspecified_addresses_are_refused(add
         "169\uff0e254\uff0e169\uff0e254",  # fullwidth full stops
         "\u2460\u2465\u2468.\u2461\u2464\u2463.\u2460\u2465\u2468.\u2461\u2464\u2463",  # circled
         "\uff11\uff16\uff19.254.169.254",  # fullwidth digits
+        "169.254.169.254.",  # the root's trailing dot, which some clients drop (a trial's passed)
+        "0xa9fea9fe.",
+        "169\u3002254\u3002169\u3002254\u3002",
     ],
 )
 def test_the_metadata_address_in_any_form_a_resolver_reads_is_refused(address) -> None:

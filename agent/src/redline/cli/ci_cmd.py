@@ -185,6 +185,10 @@ def wait(
                     detail = _detail(answer)
                     if "has no revision" not in detail or waited > min(APPEAR_S, timeout):
                         _stop(BAD_INPUT, detail)
+                    if not said:  # a trial sat two silent minutes here
+                        said = "the revision to be reported"
+                        limit = min(APPEAR_S, timeout)
+                        typer.echo(f"{detail} yet: waiting up to {limit:.0f} s for it", err=True)
                 elif answer.status_code != 200:
                     _stop(BAD_INPUT, f"HTTP {answer.status_code}: {_detail(answer)}")
                 else:

@@ -252,6 +252,7 @@ def token_list() -> None:
     from redline.server.services.tokens import list_tokens
 
     with session_factory(_settings().database_url)() as session:
+        typer.echo("id\tname\tscopes\thost\tcreated\tlast used\tstate")
         for token in list_tokens(session):
             used = token.last_used.isoformat(timespec="seconds") if token.last_used else "never"
             state = "revoked" if token.revoked else "live"

@@ -34,7 +34,7 @@ from redline.server.routes import (
     webhooks,
 )
 from redline.server.services.errors import BadRequest, NotFound, ServiceError, Unprocessable
-from redline.server.ui.pages import problem
+from redline.server.ui.pages import SECRET_FIELDS, error_words, problem
 from sqlalchemy.exc import DataError
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
@@ -105,7 +105,6 @@ def _shallow(value: Any, depth: int) -> Any:
 
 
 #: fields whose values a 422 never quotes (a webhook's signing secret, a token, a password)
-SECRET_FIELDS = frozenset({"secret", "webhook_secret", "token", "password"})
 
 
 def _unquoted(loc: tuple, value: Any) -> Any:
@@ -143,7 +142,7 @@ def _invalid_page(request: Request, exc: RequestValidationError) -> Response:
     if where == "path":
         thing = str(field).removesuffix("_id").replace("_", " ")
         return problem(request, NotFound(f"there is no {thing} {given!r}"))
-    return problem(request, BadRequest(f"{field}: {first['msg']} (given: {given!r})"))
+    return problem(request, BadRequest(f"{field}: {error_words(first)} (given: {given!r})"))
 
 
 #: how many errors a 422 lists; the rest are counted in one last entry (a 1 MB import of 200,000
@@ -162,8 +161,7 @@ async def _invalid(request: Request, exc: Exception) -> Response:
     errors = [
         {
             **error,
-            # our validators' own words, without pydantic's "Value error, " before them
-            "msg": str(error["msg"]).removeprefix("Value error, "),
+            "msg": error_words(error),
             "input": _excerpt(_unquoted(tuple(error["loc"]), error.get("input"))),
         }
         for error in found[:MAX_ERRORS]

@@ -4,8 +4,11 @@ from __future__ import annotations
 
 import hashlib
 import secrets
+from collections.abc import Iterable
 
 SCOPES = frozenset({"ci", "triage", "agent", "read", "admin"})
+#: a person's: every scope but a performance host's
+PEOPLE_SCOPES = SCOPES - {"agent"}
 #: scopes of someone who may read what Redline stored when reading needs a token
 #: (`REDLINE_READ_ACCESS=token`) and sign in to the pages: every one but a host's
 READERS = ("read", "ci", "triage")
@@ -21,13 +24,14 @@ def hash_token(token: str) -> str:
     return hashlib.sha256(token.encode()).hexdigest()
 
 
-def parse_scopes(text: str | list[str]) -> list[str]:
-    """Validate a scope list (``"ci,agent"`` or a list); raises ValueError naming an unknown one."""
+def parse_scopes(text: str | list[str], known: Iterable[str] = SCOPES) -> list[str]:
+    """Validate a scope list (``"ci,agent"`` or a list) against ``known``; raises ValueError
+    naming an unknown one and the known ones."""
     items = text.split(",") if isinstance(text, str) else list(text)
     scopes = sorted({item.strip() for item in items if item.strip()})
-    unknown = [scope for scope in scopes if scope not in SCOPES]
+    unknown = [scope for scope in scopes if scope not in known]
     if unknown:
-        raise ValueError(f"unknown scope {unknown[0]!r}; known: {', '.join(sorted(SCOPES))}")
+        raise ValueError(f"unknown scope {unknown[0]!r}; known: {', '.join(sorted(known))}")
     if not scopes:
         raise ValueError("a token needs at least one scope")
     return scopes

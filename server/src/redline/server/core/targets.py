@@ -37,6 +37,7 @@ def _ip(address: str) -> ipaddress.IPv4Address | ipaddress.IPv6Address | None:
     # and fullwidth digits), the other full stops taken as dots (a trial's host of ideographic
     # full stops passed the check when set; httpx connects to 169.254.169.254 for it)
     plain = unicodedata.normalize("NFKC", address.split("%", 1)[0]).translate(FULL_STOPS)
+    plain = plain.removesuffix(".")  # the root's dot, which some clients drop (a trial's passed)
     try:
         ip: ipaddress.IPv4Address | ipaddress.IPv6Address = ipaddress.ip_address(plain)
     except ValueError:

@@ -104,7 +104,8 @@ def _changed_subscription(form: dict[str, str]) -> SubscriptionUpdate:
     elif form.get("secret"):
         fields["secret"] = form["secret"]
     try:
-        return SubscriptionUpdate.model_validate({**fields, **_filters(form)})
+        given = {name: value for name, value in _filters(form).items() if value is not None}
+        return SubscriptionUpdate.model_validate({**fields, **given})
     except ValidationError as exc:
         raise BadRequest(form_errors(exc)) from None
 

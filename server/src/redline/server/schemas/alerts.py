@@ -3,15 +3,39 @@ and the CI verdict of a revision."""
 
 from __future__ import annotations
 
-import unicodedata
 from datetime import datetime
 from typing import Annotated, Any, Literal
 from urllib.parse import urlsplit
 
-from pydantic import AfterValidator, BaseModel, ConfigDict, Field
+from pydantic import (
+    AfterValidator,
+    BaseModel,
+    ConfigDict,
+    Field,
+    ValidationInfo,
+    field_validator,
+)
 from redline.server.core.targets import refused_address
+from redline.server.schemas.fields import name_characters, printable
 
-_ADDRESS = r"^[^@\s<>,;\"]+@[^@\s<>,;\"]+\.[^@\s<>,;\"]+$"
+
+def email_address(value: str) -> str:
+    """``value`` if it is one e-mail address, name@example.org ("" passes: none given)."""
+    if not value:
+        return value
+    printable(value)
+    for position, char in enumerate(value):
+        if char in '<>,;"':
+            raise ValueError(
+                f"must be one address, as name@example.org: {char!r} at position {position}"
+            )
+    local, _, domain = value.rpartition("@")
+    if not local or "@" in local or "." not in domain.strip("."):
+        raise ValueError("must be one address, as name@example.org")
+    return value
+
+
+EmailAddress = Annotated[str, Field(max_length=320), AfterValidator(email_address)]
 
 
 def http_url(value: str) -> str:
@@ -19,9 +43,7 @@ def http_url(value: str) -> str:
     control character in it (httpx refuses to send those: each delivery would fail)."""
     if not value:
         return value
-    for position, char in enumerate(value):
-        if char.isspace() or unicodedata.category(char) == "Cc":
-            raise ValueError(f"must not contain {char!r} at position {position}")
+    printable(value)
     parts = urlsplit(value)
     if parts.scheme not in ("http", "https") or not parts.hostname:
         raise ValueError("must be an http:// or https:// URL with a host")
@@ -59,19 +81,30 @@ class SubscriptionFilters(BaseModel):
 
 class SubscriptionCreate(SubscriptionFilters):
     kind: Literal["email", "webhook"]
-    address: str = Field(default="", max_length=320, pattern=_ADDRESS + "|^$")
+    address: EmailAddress = ""
     url: HttpUrl = ""
     secret: str = Field(default="", max_length=500, description="signs webhook bodies")
     format: Literal["redline", "slack"] = "redline"
 
 
 class SubscriptionUpdate(SubscriptionFilters):
-    """What PATCH may change: the filters, the target, a new secret."""
+    """What PATCH may change: the filters, the target, a new secret. A field left out is
+    kept; one given as null is refused (it was silently kept)."""
 
-    address: str | None = Field(default=None, max_length=320, pattern=_ADDRESS)
+    address: EmailAddress | None = None
     url: HttpUrl | None = None
     secret: str | None = Field(default=None, max_length=500)
     format: Literal["redline", "slack"] | None = None
+
+    @field_validator("*", mode="before")
+    @classmethod
+    def _not_null(cls, value: object, info: ValidationInfo) -> object:
+        if value is None:
+            keep = "leave it out to keep it"
+            if info.field_name == "counters":
+                keep += ", or give [] for every counter"
+            raise ValueError(f"null changes nothing: {keep}")
+        return value
 
 
 class SubscriptionOut(BaseModel):
@@ -112,10 +145,25 @@ class CommitStatusTarget(BaseModel):
     repository: str = Field(
         min_length=1,
         max_length=300,
-        pattern=r"^[A-Za-z0-9_.\-/]+$",
         description="owner/name on GitHub; the project's id or path on GitLab",
     )
-    token: str = Field(min_length=1, max_length=500, description="stored, never shown again")
+    token: Annotated[str, AfterValidator(printable)] = Field(
+        min_length=1, max_length=500, description="stored, never shown again"
+    )
+
+    @field_validator("repository")
+    @classmethod
+    def _a_repository_of_the_provider(cls, value: str, info: ValidationInfo) -> str:
+        """The repository as the provider's API addresses it, never another of its paths
+        (``../../orgs/x``): parts of letters, digits, '.', '_', '-'; owner/name on GitHub."""
+        name_characters(value, also="/")
+        parts = value.split("/")
+        for part in parts:
+            if part in ("", ".", ".."):
+                raise ValueError(f"{part!r} is not allowed between '/'s: name each part")
+        if info.data.get("provider") == "github" and len(parts) != 2:
+            raise ValueError("on GitHub, owner/name (one '/')")
+        return value
 
 
 class CommitStatusOut(BaseModel):

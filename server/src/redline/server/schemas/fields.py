@@ -7,6 +7,7 @@ a title no URL can address, a date Python cannot read back, a commit git would r
 from __future__ import annotations
 
 import re
+import unicodedata
 from datetime import UTC, datetime, timedelta
 from typing import Annotated
 
@@ -27,6 +28,34 @@ def path_segment(value: str) -> str:
     if value in (".", ".."):
         raise ValueError(f"{value!r} cannot be addressed in a URL")
     return value
+
+
+def printable(value: str) -> str:
+    """``value`` without a space or control character (a header's or URL's would break it or
+    be refused at each use), else a ValueError naming the first and its position."""
+    for position, char in enumerate(value):
+        if char.isspace() or unicodedata.category(char) == "Cc":
+            raise ValueError(f"must not contain {char!r} at position {position}")
+    return value
+
+
+def name_characters(value: str, also: str = "") -> str:
+    """``value`` of ASCII letters, digits, '.', '_', '-' (and the characters of ``also``) only,
+    else a ValueError naming the first other character and its position (a regex's wording
+    would say none of that)."""
+    for position, char in enumerate(value):
+        if not (char.isascii() and (char.isalnum() or char in "._-" + also)):
+            allowed = ", ".join(repr(c) for c in "._-" + also)
+            raise ValueError(
+                f"{char!r} at position {position} is not allowed: use letters, digits, {allowed}"
+            )
+    return value
+
+
+def component_name(value: str) -> str:
+    if value[:1] in ("_", ".", "-"):
+        raise ValueError("must start with a letter or a digit")
+    return name_characters(value)
 
 
 def inside_repository(value: str) -> str:
@@ -66,9 +95,7 @@ def parse_commit_time(text: str) -> datetime:
 
 
 #: a component's name: letters, digits, '.', '_', '-', starting with a letter or digit
-ComponentName = Annotated[
-    str, Field(min_length=1, max_length=200, pattern=r"^[A-Za-z0-9][A-Za-z0-9._-]*$")
-]
+ComponentName = Annotated[str, Field(min_length=1, max_length=200), AfterValidator(component_name)]
 #: a revision's title: one path segment (a commit hash, a tag, "v1.2 rc1"...)
 Title = Annotated[str, Field(min_length=1, max_length=200), AfterValidator(path_segment)]
 _COMMIT = re.compile(r"[A-Za-z0-9_][\w./@+-]*")
@@ -105,4 +132,4 @@ def whole_number_as_text(value: object) -> object:
 #: what orders a component's revisions: text, or a whole number taken as its text
 SortKey = Annotated[str, BeforeValidator(whole_number_as_text), Field(min_length=1, max_length=200)]
 #: a test case's or phase's name, as the SDK allows it (`redline.testing.cases`)
-TestName = Annotated[str, Field(min_length=1, max_length=200, pattern=r"^[A-Za-z0-9_.-]+$")]
+TestName = Annotated[str, Field(min_length=1, max_length=200), AfterValidator(name_characters)]

@@ -20,7 +20,13 @@ from dataclasses import dataclass
 from datetime import timedelta
 from functools import cache
 
-from redline.server.core.security import READERS, grants, hash_token, parse_scopes
+from redline.server.core.security import (
+    PEOPLE_SCOPES,
+    READERS,
+    grants,
+    hash_token,
+    parse_scopes,
+)
 from redline.server.models import User, WebSession, utcnow
 from redline.server.services.errors import BadRequest, Conflict, Forbidden
 from redline.server.services.tokens import authenticate
@@ -79,14 +85,15 @@ def create_user(session: Session, name: str, password: str, scopes: str | list[s
         raise BadRequest("a user's name: 1 to 200 characters")
     if len(password) < MIN_PASSWORD:
         raise BadRequest(f"a password needs {MIN_PASSWORD} characters at least")
-    try:
-        parsed = parse_scopes(scopes)
-    except ValueError as exc:
-        raise BadRequest(str(exc)) from None
-    if "agent" in parsed:  # a person never acts as a performance host (security.md)
+    given = scopes.split(",") if isinstance(scopes, str) else scopes
+    if "agent" in (scope.strip() for scope in given):  # a person never acts as a host
         raise BadRequest(
             "a user's scopes: read, triage, ci or admin; 'agent' is for a host's token"
         )
+    try:
+        parsed = parse_scopes(scopes, PEOPLE_SCOPES)
+    except ValueError as exc:  # names the scopes a person may have, not a host's
+        raise BadRequest(str(exc)) from None
     user = User(name=name, password_hash=hash_password(password), scopes=parsed)
     session.add(user)
     try:

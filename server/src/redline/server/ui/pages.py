@@ -60,15 +60,35 @@ def problem(request: Request, exc: ServiceError) -> HTMLResponse:
     return page(request, "not_found.html", {"message": exc.detail, "code": code}, code)
 
 
+#: fields whose values no answer quotes
+SECRET_FIELDS = frozenset({"secret", "webhook_secret", "token", "password"})
+
+
+def error_words(error: Any) -> str:
+    """A validation error's message as a person reads it: our validators' own words, without
+    pydantic's "Value error, " before them; an empty text or list said to be empty ("Value
+    should have at least 1 item after validation" was said of an empty sort key)."""
+    empty = error["type"] in ("string_too_short", "too_short") and error.get("input") in ("", [])
+    if empty and error.get("ctx", {}).get("min_length") == 1:
+        return "must not be empty"
+    return str(error["msg"]).removeprefix("Value error, ")
+
+
 def form_errors(exc: ValidationError) -> str:
     """Each error of a form's fields as "field: what is wrong (given: ...)", for a person:
-    pydantic's own text names the model and ends in a link to its documentation."""
+    pydantic's own text names the model and ends in a link to its documentation. A secret
+    field's value is never quoted."""
     said = []
     for error in exc.errors():
         field = ".".join(str(p) for p in error["loc"])
-        message = str(error["msg"]).removeprefix("Value error, ")
+        message = error_words(error)
         given = error.get("input")
-        if isinstance(given, str) and error["type"] not in ("string_too_long", "missing"):
+        secret = any(part in SECRET_FIELDS for part in error["loc"])
+        if (
+            isinstance(given, str)
+            and error["type"] not in ("string_too_long", "missing", "string_too_short", "too_short")
+            and not secret
+        ):
             message += f" (given: {given[:80]!r})"
         said.append(f"{field}: {message}" if field else message)
     return "; ".join(said)
