@@ -320,3 +320,18 @@ def test_a_pool_is_a_prefix_with_one_star_at_its_end(host: str):
     with pytest.raises(ValueError, match="'\\*' alone would be any host"):
         pool_or_host(host)
     assert pool_or_host("compose-*") == "compose-*" and pool_or_host("perf-1") == "perf-1"
+
+
+def test_a_form_error_never_quotes_a_secret_field():
+    from pydantic import ValidationError
+    from redline.server.schemas.alerts import CommitStatusTarget
+    from redline.server.ui.pages import form_errors
+
+    target = {"provider": "github", "api_url": "https://api.github.com", "repository": "a/b"}
+    with pytest.raises(ValidationError) as bad:
+        CommitStatusTarget.model_validate({**target, "token": "tok secret-123"})
+    said = form_errors(bad.value)
+    assert said == "token: must not contain ' ' at position 3" and "secret-123" not in said
+    with pytest.raises(ValidationError) as named:  # another field's value is quoted
+        CommitStatusTarget.model_validate({**target, "repository": "a b", "token": "t"})
+    assert "(given: 'a b')" in form_errors(named.value)
