@@ -10,7 +10,9 @@ import pytest
 from redline.recording import SeriesKey, canonical_params
 from redline.server.core.tasks import DETECT_TASK
 from redline.server.db import session_factory
+from redline.server.models import Execution
 from redline.server.services.imports import ImportedRun, store_import
+from sqlalchemy import select
 
 from tests.support.api import Api, api_with
 from tests.support.servers import Services
@@ -199,3 +201,29 @@ def test_an_import_queues_detection_of_its_revision_once(api: Api):
     assert second.status_code == 201
     queued.append((DETECT_TASK, f"[{second.json()['revision_id']}]"))
     assert sorted(api.queued_tasks()) == sorted(queued)
+
+
+def test_an_import_never_joins_a_measured_revision_nor_another_commits(api: Api):
+    """A ci token's import into a revision the agents measured made its confirmed regression's
+    verdict pass (a trial's 16 imports of baseline-like values); one naming another commit
+    than the revision's was stored beside it."""
+    api.component()
+    measured = api.revision("r1", "1")  # its job is queued for a performance host
+
+    def results(revision: str, commit: str) -> dict:
+        cpu = {"case": "parse", "params": {"legs": 8}, "counter": "cpu", "values": [1.0, 2.0]}
+        body = {"component": "builder", "revision": revision, "sort_key": "1", "results": [cpu]}
+        return {**body, "commit": commit}
+
+    joined = api.post("/api/v1/import/results", "ci", results("r1", "abc123"))
+    assert joined.status_code == 409, joined.text
+    assert f"measured by performance hosts (job {measured['job_ids'][0]})" in joined.text
+    made = api.post("/api/v1/import/results", "ci", results("i1", "abc123"))
+    assert made.status_code == 201, made.text
+    other = api.post("/api/v1/import/results", "ci", results("i1", "deadbeef"))
+    assert other.status_code == 409 and "of commit 'abc123'; this import says" in other.text
+    same = api.post("/api/v1/import/results", "ci", {**results("i1", "abc123"), "host": "b"})
+    assert same.status_code == 201  # a second execution of the imported revision
+    with session_factory(api.settings.database_url)() as session:
+        stored = session.scalars(select(Execution.revision_id)).all()
+        assert len(stored) == 2 and measured["revision_id"] not in stored

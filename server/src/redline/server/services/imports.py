@@ -17,8 +17,10 @@ from redline.recording import SeriesKey, canonical_params
 from redline.server.models import Execution, Host, Job, JobState, Revision, Summary
 from redline.server.schemas.imports import ImportResult, ResultsImport
 from redline.server.services.components import get_component
+from redline.server.services.errors import Conflict
 from redline.server.services.home import IMPORTED
 from redline.server.services.ingestion import store_samples
+from redline.server.services.revision_reports import same_commit
 from redline.server.services.revisions import order_key
 from sqlalchemy import func, select
 from sqlalchemy.dialects.postgresql import insert
@@ -53,6 +55,10 @@ def from_results(data: ResultsImport) -> ImportedRun:
     )
 
 
+#: the reason of an imported execution's job (an agent's job has none, or why it failed)
+IMPORTED_JOB = "imported"
+
+
 def _revision(session: Session, run: ImportedRun) -> Revision:
     """The run's revision, created if new, locked: imports into one revision take turns, so
     each gets its own execution index (INSERT ... ON CONFLICT: concurrent imports never race)."""
@@ -70,11 +76,25 @@ def _revision(session: Session, run: ImportedRun) -> Revision:
         )
         .on_conflict_do_nothing(index_elements=["component_id", "title"])
     )
-    return session.scalars(
+    revision = session.scalars(
         select(Revision)
         .where(Revision.component_id == component.id, Revision.title == run.revision)
         .with_for_update()
     ).one()
+    if run.commit and revision.commit and not same_commit(revision.commit, run.commit):
+        raise Conflict(
+            f"component {run.component!r} already has a revision {run.revision!r}, of commit "
+            f"{revision.commit!r}; this import says {run.commit!r}"
+        )
+    measured = session.scalar(
+        select(Job.id).where(Job.revision_id == revision.id, Job.reason != IMPORTED_JOB).limit(1)
+    )
+    if measured is not None:  # a ci token's import turned a confirmed regression green
+        raise Conflict(
+            f"revision {run.revision!r} of {run.component!r} is measured by performance hosts "
+            f"(job {measured}): results are imported into revisions of their own only"
+        )
+    return revision
 
 
 def _host(session: Session, name: str) -> Host | None:
@@ -98,7 +118,7 @@ def _job(session: Session, revision: Revision, host: Host | None) -> Job:
         revision=revision,
         execution_index=index or 0,
         state=JobState.done,
-        reason="imported",
+        reason=IMPORTED_JOB,
         host=host,
     )
     session.add(job)
