@@ -165,13 +165,18 @@ def submit(
 POLL_S = 2.0
 
 
+#: a revision's states (`revision_state`) in which it runs no more; a trial's demo waited its
+#: whole 15 minutes on a revision it had cancelled
+ENDED = ("done", "failed", "cancelled", "empty")
+
+
 def wait_for_results(
     url: str,
     say: Callable[[str], None],
     timeout: float = 900.0,
     stop: threading.Event | None = None,
 ) -> list[dict]:
-    """Report revision states as they change until every one is done or failed and no verdict
+    """Report revision states as they change until every one has `ENDED` and no verdict
     waits any more (for confirmation runs, say: what it waits for is reported too); an empty
     list at once when ``stop`` is set (Ctrl-C).
 
@@ -189,7 +194,7 @@ def wait_for_results(
                 if seen.get(revision["title"]) != revision["state"]:
                     seen[revision["title"]] = revision["state"]
                     say(f"revision {revision['title']}: {revision['state']}")
-            if revisions and all(r["state"] in ("done", "failed") for r in revisions):
+            if revisions and all(r["state"] in ENDED for r in revisions):
                 pending = False
                 for revision in revisions:
                     verdict = api.get(f"/revisions/{revision['title']}/verdict").json()
