@@ -91,6 +91,9 @@ def test_cancelling_a_revision_stops_its_jobs_and_its_agent_learns_at_the_next_h
     assert answer.status_code == 200, answer.text
     assert {job["state"] for job in answer.json()["jobs"]} == {"cancelled"}
     assert answer.json()["state"] == "cancelled"
+    verdict = api.client.get("/api/v1/components/cancellable/revisions/c1/verdict").json()
+    jobs = ", ".join(str(job_id) for job_id in created["job_ids"])
+    assert verdict["reason"] == f"jobs {jobs} cancelled"  # not "cancelled: cancelled" (a trial)
     assert api.lease()["id"] not in created["job_ids"]  # c1's queued job is not handed out
     beat = api.post(f"/api/v1/jobs/{running['id']}/heartbeat", "agent", {"host": "perf1"})
     assert beat.status_code == 409

@@ -61,7 +61,8 @@ def _pending(session: Session, revision: Revision) -> tuple[str, str]:
         # one line a reason: a broken suite file failed a trial's 3 executions with one error,
         # said three times
         why = [
-            f"{'job' if len(ids) == 1 else 'jobs'} {', '.join(map(str, ids))} {state}: {reason}"
+            f"{'job' if len(ids) == 1 else 'jobs'} {', '.join(map(str, ids))} {state}"
+            + ("" if reason == state else f": {reason}")  # "cancelled: cancelled", a trial read
             for (state, reason), ids in alike.items()
         ]
         return "failed", "; ".join(why)
