@@ -419,6 +419,29 @@ def test_repeated_upload_is_idempotent(api: Api, tmp_path: Path):
     assert _executions(api) == 1
 
 
+def test_an_upload_that_could_not_be_stored_is_refused_before_its_body_is_read(
+    api: Api, tmp_path: Path
+):
+    """A trial's 200 MB were read, then refused for their hash, for a job that did not exist;
+    a 409 named the sha256 of another host's recording."""
+    api.component()
+    api.revision("r1", "1")
+    job = api.lease()
+    data = recording_for(job, tmp_path / "r1.mcap")
+    bad = api.upload(job["id"], data, sha256="zz")
+    assert bad.status_code == 422 and "'zz' is not a sha256" in bad.text
+    unknown = api.upload(99999, data)
+    assert unknown.status_code == 404 and "unknown job 99999" in unknown.text
+    other = api.upload(job["id"], data, host="perf9")
+    assert other.status_code == 409 and other.json()["detail"] == (
+        f"job {job['id']} is not held by host 'perf9'"
+    )
+    assert api.upload(job["id"], data).status_code == 201
+    stranger = api.upload(job["id"], recording_for(job, tmp_path / "x.mcap", seed=3), host="perf9")
+    assert stranger.status_code == 409 and "sha256" not in stranger.text  # nothing of perf1's
+    assert _executions(api) == 1 and api.job(job["id"])["state"] == "uploaded"
+
+
 def _executions(api: Api) -> int:
     with session_factory(api.settings.database_url)() as session:
         return session.scalar(select(func.count()).select_from(Execution))

@@ -26,7 +26,13 @@ from redline.server.schemas.jobs import (
 )
 from redline.server.services import jobs
 from redline.server.services.errors import TooLarge
-from redline.server.services.uploads import Accepted, Staged, accept_recording, stage_upload
+from redline.server.services.uploads import (
+    Accepted,
+    Staged,
+    accept_recording,
+    check_before_reading,
+    stage_upload,
+)
 from starlette.concurrency import run_in_threadpool
 
 log = logging.getLogger(__name__)
@@ -72,6 +78,11 @@ def fail(
     return JobStateOut(id=job.id, state=job.state.value, reason=job.reason)
 
 
+def _check_before_reading(settings: Settings, job_id: int, claimed: str, host: str) -> None:
+    with session_factory(settings.database_url)() as session:
+        check_before_reading(session, job_id, claimed, host)
+
+
 def _accept(settings: Settings, job_id: int, staged: Staged, claimed: str, host: str) -> Accepted:
     with session_factory(settings.database_url)() as session:
         return accept_recording(session, settings.storage_dir, job_id, staged, claimed, host)
@@ -112,6 +123,9 @@ async def upload_recording(
             f"recording of {declared} bytes is larger than the limit of "
             f"{settings.max_upload_bytes} bytes"
         )
+    await run_in_threadpool(
+        _check_before_reading, settings, job_id, x_redline_sha256, x_redline_host
+    )
     staged = await stage_upload(request.stream(), settings.storage_dir, settings.max_upload_bytes)
     try:
         accepted = await run_in_threadpool(

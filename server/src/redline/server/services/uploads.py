@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import hashlib
 import os
+import re
 import uuid
 from collections.abc import AsyncIterator
 from dataclasses import dataclass
@@ -16,7 +17,13 @@ from pathlib import Path
 
 from redline.recording import Recording, RecordingError, read_recording
 from redline.server.models import Execution, Job, JobState
-from redline.server.services.errors import BadRequest, Conflict, NotFound, TooLarge
+from redline.server.services.errors import (
+    BadRequest,
+    Conflict,
+    NotFound,
+    TooLarge,
+    Unprocessable,
+)
 from redline.server.services.fresh_runs import mark_waiting
 from redline.server.services.jobs import ensure_held, holder
 from sqlalchemy import select
@@ -117,6 +124,24 @@ def _existing(session: Session, job: Job, sha256: str, host_name: str) -> Accept
         )
     ensure_held(job, host_name)
     return None
+
+
+_SHA256 = re.compile(r"[0-9a-f]{64}")
+
+
+def check_before_reading(session: Session, job_id: int, claimed_sha256: str, host: str) -> None:
+    """Refuse at once, before a byte of the body is read, an upload that could not be stored:
+    a hash header that is no sha256 (422), an unknown job (404), one ``host`` never held (409,
+    naming no other host). A trial's 200 MB were read for a job that did not exist."""
+    if not _SHA256.fullmatch(claimed_sha256.strip().lower()):
+        raise Unprocessable(
+            f"X-Redline-Sha256 {claimed_sha256[:80]!r} is not a sha256 (64 hex digits)"
+        )
+    job = session.get(Job, job_id)
+    if job is None:
+        raise NotFound(f"unknown job {job_id}")
+    if holder(job) != host:
+        raise Conflict(f"job {job_id} is not held by host {host!r}")
 
 
 def accept_recording(
