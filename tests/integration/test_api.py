@@ -310,6 +310,17 @@ def test_a_pool_token_acts_for_the_hosts_its_prefix_names(api: Api):
         body = {"name": f"bad{len(host)}", "scopes": ["agent"], "host": host}
         refused = api.post("/api/v1/tokens", "admin", body)
         assert refused.status_code == 400 and "alone would be any host" in refused.text
+    # a CR/LF broke `redline token list`'s rows and the pages' host tables (a trial)
+    for body, said in (
+        ({"name": "bad", "scopes": ["agent"], "host": "perf\r\n3"}, "'\\r' at position 4"),
+        ({"name": "bad\r\nrow", "scopes": ["ci"]}, "must not contain control characters"),
+    ):
+        refused = api.post("/api/v1/tokens", "admin", body)
+        assert refused.status_code == 400 and said in refused.json()["detail"], refused.text
+    for body in ({"name": "compose-\r\nX"}, {"name": "compose-x", "labels": ["l\r\n"]}):
+        answer = api.client.post("/api/v1/agent/register", json=body, headers=pool)
+        said = answer.json()["detail"][0]["msg"]
+        assert answer.status_code == 422 and said.startswith("must not contain '\\r'"), said
 
 
 def test_an_agent_token_bound_to_no_host_acts_for_none(api: Api):

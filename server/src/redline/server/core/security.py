@@ -49,6 +49,9 @@ def acts_for(bound: str, host: str) -> bool:
 def pool_or_host(host: str) -> str:
     """``host`` if it can bind an agent token: one name, or a prefix and one '*' at its end;
     raises ValueError otherwise ('*' alone would be any host)."""
+    for position, char in enumerate(host):
+        if char.isspace() or not char.isprintable():  # it would break `token list`'s rows
+            raise ValueError(f"host {host!r}: must not contain {char!r} at position {position}")
     if "*" in host.removesuffix("*") or host == "*":
         raise ValueError(
             f"host {host!r}: one host's name, or a pool's prefix with one '*' at its end "

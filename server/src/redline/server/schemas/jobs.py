@@ -3,15 +3,20 @@
 from __future__ import annotations
 
 from datetime import datetime
-from typing import Any
+from typing import Annotated, Any
 
-from pydantic import BaseModel, Field
+from pydantic import AfterValidator, BaseModel, Field
+from redline.server.schemas.fields import printable
+
+#: a host's name or label: shown in the pages and `redline token list`, where a CR/LF or a
+#: space would break a row (a pool token registered "compose-\r\nX")
+HostWord = Annotated[str, Field(min_length=1, max_length=200), AfterValidator(printable)]
 
 
 class RegisterRequest(BaseModel):
-    name: str = Field(min_length=1, max_length=200)
+    name: HostWord
     fingerprint: dict[str, Any] = Field(default_factory=dict)
-    labels: list[str] = Field(default_factory=list)
+    labels: list[HostWord] = Field(default_factory=list)
 
 
 class RegisterResponse(BaseModel):

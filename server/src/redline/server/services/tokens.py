@@ -35,6 +35,8 @@ def issue_token(
             pool_or_host(host)
     except ValueError as exc:
         raise BadRequest(str(exc)) from None
+    if not name.isprintable():  # a CR/LF made `redline token list` print a second row
+        raise BadRequest(f"a token's name {name!r} must not contain control characters")
     if "agent" in parsed and not host:
         raise BadRequest(
             "an agent token acts for one host, or a pool of hosts named alike: name it (host, "
