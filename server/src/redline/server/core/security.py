@@ -6,6 +6,8 @@ import hashlib
 import secrets
 from collections.abc import Iterable
 
+from redline.server.schemas.fields import printable
+
 SCOPES = frozenset({"ci", "triage", "agent", "read", "admin"})
 #: a person's: every scope but a performance host's
 PEOPLE_SCOPES = SCOPES - {"agent"}
@@ -49,9 +51,10 @@ def acts_for(bound: str, host: str) -> bool:
 def pool_or_host(host: str) -> str:
     """``host`` if it can bind an agent token: one name, or a prefix and one '*' at its end;
     raises ValueError otherwise ('*' alone would be any host)."""
-    for position, char in enumerate(host):
-        if char.isspace() or not char.isprintable():  # it would break `token list`'s rows
-            raise ValueError(f"host {host!r}: must not contain {char!r} at position {position}")
+    try:
+        printable(host)  # a CR/LF would break `token list`'s rows
+    except ValueError as exc:
+        raise ValueError(f"host {host!r}: {exc}") from None
     if "*" in host.removesuffix("*") or host == "*":
         raise ValueError(
             f"host {host!r}: one host's name, or a pool's prefix with one '*' at its end "
