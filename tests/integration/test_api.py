@@ -430,11 +430,13 @@ def test_repeated_upload_is_idempotent(api: Api, tmp_path: Path):
     assert _executions(api) == 1
 
 
-def test_an_upload_that_could_not_be_stored_is_refused_before_its_body_is_read(
+def test_an_upload_is_refused_for_its_hash_header_job_or_host_naming_no_other_hosts(
     api: Api, tmp_path: Path
 ):
     """A trial's 200 MB were read, then refused for their hash, for a job that did not exist;
-    a 409 named the sha256 of another host's recording."""
+    a 409 named the sha256 of another host's recording. (That these refusals come before the
+    body is read is the route's order, `check_before_reading` first; the test client sends the
+    body whole, so this test does not see it.)"""
     api.component()
     api.revision("r1", "1")
     job = api.lease()
