@@ -321,6 +321,14 @@ def test_a_pool_token_acts_for_the_hosts_its_prefix_names(api: Api):
         answer = api.client.post("/api/v1/agent/register", json=body, headers=pool)
         said = answer.json()["detail"][0]["msg"]
         assert answer.status_code == 422 and said.startswith("must not contain '\\r'"), said
+    # a replica named itself out of the pool's one path segment (a trial)
+    answer = api.client.post(
+        "/api/v1/agent/register", json={"name": "compose-../../x"}, headers=pool
+    )
+    said = answer.json()["detail"][0]["msg"]
+    assert answer.status_code == 422 and said.startswith("must not contain '/'"), said
+    refused = api.post("/api/v1/tokens", "admin", {"name": "b", "scopes": ["agent"], "host": "a/b"})
+    assert refused.status_code == 400 and "must not contain '/'" in refused.json()["detail"]
 
 
 def test_an_agent_token_bound_to_no_host_acts_for_none(api: Api):
@@ -565,3 +573,12 @@ def test_trend_page_draws_the_flagged_revision_with_local_plotly(api: Api, tmp_p
     script = api.client.get("/static/plotly.min.js")
     assert script.status_code == 200 and len(script.content) > 1_000_000
     assert 'href="/components/builder"' in api.client.get("/").text
+
+
+def test_an_address_naming_an_id_past_any_stored_one_is_404_for_every_method(api: Api):
+    """A trial's heartbeat for a job id past 64 bits was a 422 "integer out of range", where
+    the same id's GET was a 404."""
+    for path in (f"/api/v1/jobs/{2**64}/heartbeat", f"/api/v1/jobs/{2**40}/release"):
+        answer = api.post(path, "agent", {"host": "perf1"})
+        assert answer.status_code == 404, answer.text
+        assert "an id out of range" in answer.json()["detail"]

@@ -39,13 +39,22 @@ from sqlalchemy.exc import DataError
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 
+def _huge_path_id(request: Request) -> bool:
+    """Whether the address names an id past any stored one (a job's POST said "integer out of
+    range" with a 422, where the same id's GET said 404)."""
+    return any(
+        isinstance(value, str) and value.lstrip("-").isdigit() and abs(int(value)) >= 2**31
+        for value in request.path_params.values()
+    )
+
+
 async def _unstorable(request: Request, exc: Exception) -> Response:
     """A value Postgres cannot hold (an id past 2**31, a NUL in a text): the caller's fault. A
-    read asking for such an id asks for something that cannot exist: 404, not "cannot be
-    stored"."""
+    read, or an address, naming such an id asks for something that cannot exist: 404, not
+    "cannot be stored"."""
     orig = getattr(exc, "orig", None) or exc
     reason = (str(orig).strip().splitlines() or [type(orig).__name__])[0]
-    if request.method in ("GET", "HEAD") and "out of range" in reason:
+    if "out of range" in reason and (request.method in ("GET", "HEAD") or _huge_path_id(request)):
         missing = NotFound(f"there is nothing at {request.url.path[:200]}: an id out of range")
         return await _service_error(request, missing)
     refused = Unprocessable(f"a value in the request cannot be stored: {reason}")

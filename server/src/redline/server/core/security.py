@@ -6,7 +6,7 @@ import hashlib
 import secrets
 from collections.abc import Iterable
 
-from redline.server.schemas.fields import printable
+from redline.server.schemas.fields import host_name
 
 SCOPES = frozenset({"ci", "triage", "agent", "read", "admin"})
 #: a person's: every scope but a performance host's
@@ -52,7 +52,7 @@ def pool_or_host(host: str) -> str:
     """``host`` if it can bind an agent token: one name, or a prefix and one '*' at its end;
     raises ValueError otherwise ('*' alone would be any host)."""
     try:
-        printable(host)  # a CR/LF would break `token list`'s rows
+        host_name(host)  # a CR/LF would break `token list`'s rows; a '/' is no machine's name
     except ValueError as exc:
         raise ValueError(f"host {host!r}: {exc}") from None
     if "*" in host.removesuffix("*") or host == "*":

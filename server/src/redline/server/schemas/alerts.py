@@ -16,7 +16,7 @@ from pydantic import (
     field_validator,
 )
 from redline.server.core.targets import refused_address
-from redline.server.schemas.fields import name_characters, printable
+from redline.server.schemas.fields import Line, name_characters, printable
 
 
 def email_address(value: str) -> str:
@@ -58,7 +58,7 @@ HttpUrl = Annotated[str, Field(max_length=2000), AfterValidator(http_url)]
 
 class SubscriptionFilters(BaseModel):
     model_config = ConfigDict(extra="forbid")  # a misspelt filter is refused, never ignored
-    counters: list[Annotated[str, Field(min_length=1, max_length=200)]] | None = Field(
+    counters: list[Line] | None = Field(
         default=None,
         max_length=100,
         description="counters or driver metrics to hear about (e.g. cpu, rss, rtt_p90); empty: all",
@@ -67,7 +67,11 @@ class SubscriptionFilters(BaseModel):
         default=None, description="changes for the worse, for the better, or both"
     )
     min_effect: float | None = Field(
-        default=None, ge=0, le=100, description="smallest relative effect told (0.05: 5 %)"
+        default=None,
+        ge=0,
+        le=100,
+        allow_inf_nan=False,
+        description="smallest relative effect told (0.05: 5 %)",
     )
     confirmed_only: bool | None = Field(
         default=None,

@@ -5,7 +5,7 @@ from __future__ import annotations
 from datetime import datetime
 
 from pydantic import BaseModel, ConfigDict, Field
-from redline.server.schemas.fields import ComponentName, SuitePath
+from redline.server.schemas.fields import Branch, ComponentName, SuitePath, Word
 
 
 class ComponentSettings(BaseModel):
@@ -14,9 +14,8 @@ class ComponentSettings(BaseModel):
     model_config = ConfigDict(extra="forbid")  # a misspelt field is refused, never ignored
 
     repo: str | None = Field(default=None, description="URL or path; https/ssh/.git all match")
-    branch: str | None = Field(
+    branch: Branch | None = Field(
         default=None,
-        max_length=200,
         description="the default branch; pushes to it become revisions",
     )
     suite: SuitePath | None = Field(
@@ -25,7 +24,7 @@ class ComponentSettings(BaseModel):
     executions: int | None = Field(
         default=None, ge=1, le=100, description="executions (jobs) per revision"
     )
-    host_labels: list[str] | None = Field(
+    host_labels: list[Word] | None = Field(
         default=None, description="labels a host needs to run its jobs"
     )
     webhook_secret: str | None = Field(
@@ -42,14 +41,13 @@ class ComponentCreate(BaseModel):
         description="https://, ssh:// or git:// URL, or user@host:path; "
         "a local path or file:// only where REDLINE_ALLOW_FILE_REPOS is set",
     )
-    branch: str = Field(
+    branch: Branch = Field(
         default="main",
-        max_length=200,
         description="the default branch; pushes to it become revisions",
     )
     suite: SuitePath = Field(default="", description="path of the suite file inside the repository")
     executions: int = Field(default=1, ge=1, le=100, description="executions per revision")
-    host_labels: list[str] = Field(
+    host_labels: list[Word] = Field(
         default_factory=list, description="labels a host needs to run its jobs"
     )
     webhook_secret: str | None = Field(default=None, description="overrides REDLINE_WEBHOOK_SECRET")

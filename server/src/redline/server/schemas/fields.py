@@ -16,27 +16,44 @@ from pydantic import AfterValidator, BeforeValidator, Field
 #: commit times accepted: from the Unix epoch to a year ahead (a skewed clock, not a typo)
 EARLIEST = datetime(1970, 1, 1, tzinfo=UTC)
 FUTURE_SLACK = timedelta(days=366)
-_CONTROL = re.compile(r"[\x00-\x1f\x7f]")
+#: Unicode's categories of what no name or line of text may hold: controls (CR, LF, NUL, and
+#: C1's U+0085, a line break to some readers), formats (U+202E shows what follows reversed) and
+#: line and paragraph separators; a trial's CR/LF printed a second row in a table
+_UNSEEN = frozenset({"Cc", "Cf", "Zl", "Zp"})
 
 
-def path_segment(value: str) -> str:
-    """A value that is one URL path segment: no ``/``, no control character, not ``.``/``..``."""
-    if "/" in value:
-        raise ValueError("must not contain '/' (it names one path segment of the API's URLs)")
-    if _CONTROL.search(value):
-        raise ValueError("must not contain control characters")
-    if value in (".", ".."):
-        raise ValueError(f"{value!r} cannot be addressed in a URL")
+def _refuse_first(value: str, spaces: bool) -> str:
+    for position, char in enumerate(value):
+        if unicodedata.category(char) in _UNSEEN or (spaces and char.isspace()):
+            raise ValueError(f"must not contain {char!r} at position {position}")
     return value
+
+
+def one_line(value: str) -> str:
+    """``value`` if it shows as one line of what it holds (spaces allowed), else a ValueError
+    naming its first control, format or line-separator character and its position."""
+    return _refuse_first(value, spaces=False)
 
 
 def printable(value: str) -> str:
-    """``value`` without a space or control character (a header's or URL's would break it or
-    be refused at each use), else a ValueError naming the first and its position."""
-    for position, char in enumerate(value):
-        if char.isspace() or unicodedata.category(char) == "Cc":
-            raise ValueError(f"must not contain {char!r} at position {position}")
-    return value
+    """``value`` as `one_line`, and without a space (a header's or URL's would break it or be
+    refused at each use)."""
+    return _refuse_first(value, spaces=True)
+
+
+def path_segment(value: str) -> str:
+    """A value that is one URL path segment: no ``/``, one line, not ``.``/``..``."""
+    if "/" in value:
+        raise ValueError("must not contain '/' (it names one path segment of the API's URLs)")
+    if value in (".", ".."):
+        raise ValueError(f"{value!r} cannot be addressed in a URL")
+    return one_line(value)
+
+
+def host_name(value: str) -> str:
+    """A performance host's name: `printable`, one path segment (a pool token's replica named
+    itself 'compose-../../x')."""
+    return path_segment(printable(value))
 
 
 def name_characters(value: str, also: str = "") -> str:
@@ -65,9 +82,7 @@ def inside_repository(value: str) -> str:
         raise ValueError("must be a path relative to the repository's root, not an absolute one")
     if ".." in re.split(r"[/\\]", value):
         raise ValueError("must stay inside the repository (no '..')")
-    if _CONTROL.search(value):
-        raise ValueError("must not contain control characters")
-    return value
+    return one_line(value)
 
 
 def commit_time(value: datetime) -> datetime:
@@ -123,13 +138,29 @@ SuitePath = Annotated[str, Field(max_length=500), AfterValidator(inside_reposito
 
 def whole_number_as_text(value: object) -> object:
     """A sort key given as a whole number (``12``, a CI build number) is its text (``"12"``,
-    compared as a number: '9' < '10'); a trial's ``"sort_key": 12`` was refused."""
+    compared as a number: '9' < '10'); a trial's ``"sort_key": 12`` was refused. Any other
+    number (``1.5``, NaN) is refused in words: "a valid string" did not say what would do."""
     if isinstance(value, int) and not isinstance(value, bool):
         return str(value)
+    if isinstance(value, float):
+        raise ValueError(f"must be text or a whole number, not {value!r}")
     return value
 
 
 #: what orders a component's revisions: text, or a whole number taken as its text
-SortKey = Annotated[str, BeforeValidator(whole_number_as_text), Field(min_length=1, max_length=200)]
+SortKey = Annotated[
+    str,
+    BeforeValidator(whole_number_as_text),
+    Field(min_length=1, max_length=200),
+    AfterValidator(one_line),
+]
+#: a git branch, as a component's default or a revision's ('' where none is given)
+Branch = Annotated[str, Field(max_length=200), AfterValidator(printable)]
+#: a host's label, as an agent's and a component's settings give it
+Word = Annotated[str, Field(min_length=1, max_length=200), AfterValidator(printable)]
+#: a performance host's name ('' where an import does not say)
+HostName = Annotated[str, Field(max_length=200), AfterValidator(host_name)]
+#: a name shown in one line (a process, a counter, a parameter, a label), spaces allowed
+Line = Annotated[str, Field(min_length=1, max_length=200), AfterValidator(one_line)]
 #: a test case's or phase's name, as the SDK allows it (`redline.testing.cases`)
 TestName = Annotated[str, Field(min_length=1, max_length=200), AfterValidator(name_characters)]

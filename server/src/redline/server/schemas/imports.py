@@ -5,7 +5,7 @@ from __future__ import annotations
 from typing import Annotated, Any
 
 from pydantic import BaseModel, ConfigDict, Field
-from redline.server.schemas.fields import Commit, SortKey, TestName, Title
+from redline.server.schemas.fields import Commit, HostName, Line, SortKey, TestName, Title
 
 
 class ImportResult(BaseModel):
@@ -24,9 +24,9 @@ class ResultValue(BaseModel):
 
     case: TestName = Field(description="letters, digits, '_', '.' or '-', as the SDK's")
     phase: TestName = "main"
-    params: dict[str, Any] = Field(default_factory=dict)
-    process: str = Field(default="benchmark", min_length=1, max_length=200)
-    counter: str = Field(min_length=1, max_length=200)
+    params: dict[Line, Any] = Field(default_factory=dict)
+    process: Line = "benchmark"
+    counter: Line
     values: list[Annotated[float, Field(allow_inf_nan=False)]] = Field(
         min_length=1, description="finite samples (NaN and infinities are refused)"
     )
@@ -41,5 +41,5 @@ class ResultsImport(BaseModel):
     revision: Title = Field(description="the revision's title")
     sort_key: SortKey
     commit: Commit = ""
-    host: str = Field(default="", max_length=200, description="where it was measured")
+    host: HostName = Field(default="", description="where it was measured")
     results: list[ResultValue] = Field(min_length=1)

@@ -3,20 +3,18 @@
 from __future__ import annotations
 
 from datetime import datetime
-from typing import Annotated, Any
+from typing import Any
 
-from pydantic import AfterValidator, BaseModel, Field
-from redline.server.schemas.fields import printable
-
-#: a host's name or label: shown in the pages and `redline token list`, where a CR/LF or a
-#: space would break a row (a pool token registered "compose-\r\nX")
-HostWord = Annotated[str, Field(min_length=1, max_length=200), AfterValidator(printable)]
+from pydantic import BaseModel, Field
+from redline.server.schemas.fields import HostName, Word
 
 
 class RegisterRequest(BaseModel):
-    name: HostWord
+    # shown in the pages and `redline token list`, where a CR/LF or a space would break a row
+    # (a pool token registered "compose-\r\nX")
+    name: HostName = Field(min_length=1)
     fingerprint: dict[str, Any] = Field(default_factory=dict)
-    labels: list[HostWord] = Field(default_factory=list)
+    labels: list[Word] = Field(default_factory=list)
 
 
 class RegisterResponse(BaseModel):
@@ -24,7 +22,7 @@ class RegisterResponse(BaseModel):
 
 
 class HostRequest(BaseModel):
-    host: str = Field(min_length=1, max_length=200)
+    host: HostName = Field(min_length=1)
 
 
 class LeasedRevision(BaseModel):

@@ -5,7 +5,7 @@ from __future__ import annotations
 from datetime import datetime
 
 from pydantic import BaseModel, ConfigDict, Field
-from redline.server.schemas.fields import CommitTime, RunCommit, SortKey, Title
+from redline.server.schemas.fields import Branch, CommitTime, RunCommit, SortKey, Title
 
 
 class RevisionCreate(BaseModel):
@@ -19,9 +19,7 @@ class RevisionCreate(BaseModel):
         description="optional; when given, it must name the "
         "component's own repository (only an admin changes that, by PATCH)",
     )
-    branch: str = Field(
-        default="", max_length=200, description="defaults to the component's branch"
-    )
+    branch: Branch = Field(default="", description="defaults to the component's branch")
     message: str = Field(default="", max_length=10_000, description="the commit message")
     committed_at: CommitTime | None = None
 

@@ -12,12 +12,13 @@ Each test's metric becomes a series (case = test name, counter = metric); the ru
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from datetime import datetime
 from typing import Any
 
 from redline.recording import SeriesKey, canonical_params
 from redline.server.core.bodies import BadJson, parse_json
-from redline.server.schemas.fields import commit_time, path_segment
+from redline.server.schemas.fields import commit_time, host_name, one_line, path_segment
 from redline.server.services.errors import BadRequest, Unprocessable
 from redline.server.services.imports import IMPORT_PROCESS, ImportedRun
 
@@ -48,6 +49,15 @@ def _values(test: str, metric: str, value: Any) -> list[float]:
     return numbers
 
 
+def _checked(where: str, value: str, check: Callable[[str], str] = one_line) -> str:
+    """``value`` cut to 200 characters if ``check`` passes it, else a BadRequest naming
+    ``where``: a CR/LF in a test's name would break the pages' rows."""
+    try:
+        return check(value[:200])
+    except ValueError as exc:
+        raise BadRequest(f"LNT report: {where} {value[:80]!r} {exc}") from None
+
+
 def _samples(tests: Any) -> dict[SeriesKey, list[float]]:
     if not isinstance(tests, list) or not tests:
         raise BadRequest("LNT report: 'tests' must be a non-empty list")
@@ -60,7 +70,9 @@ def _samples(tests: Any) -> dict[SeriesKey, list[float]]:
         for metric, value in test.items():
             numbers = _values(name, metric, value) if metric != "name" else []
             if numbers:
-                key = SeriesKey(name[:200], PHASE, params, IMPORT_PROCESS, metric[:200])
+                case = _checked(f"tests[{index}].name", name)
+                counter = _checked(f"tests[{index}] metric", metric)
+                key = SeriesKey(case, PHASE, params, IMPORT_PROCESS, counter)
                 samples.setdefault(key, []).extend(numbers)
     if not samples:
         raise BadRequest("LNT report: no test has a numeric metric")
@@ -122,7 +134,7 @@ def parse_lnt(body: bytes, component: str, order_field: str = ORDER_FIELD) -> Im
         revision=title,
         sort_key=title,
         commit=str(run.get("git_sha", run.get("commit", "")))[:200],
-        host=str(machine.get("name", ""))[:200],
+        host=_checked("machine.name", str(machine.get("name", "")), host_name),
         samples=_samples(report.get("tests")),
         meta=_run_meta(run),
     )
