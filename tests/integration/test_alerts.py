@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import hashlib
 import hmac
+import html
 import json
 from datetime import timedelta
 from pathlib import Path
@@ -590,3 +591,19 @@ def test_a_change_is_told_once_every_execution_of_its_revision_is_in(api, tmp_pa
     alert(api)
     (told,) = receiver.to("/hook")
     assert json.loads(told.body)["alerts"][0]["changes"][0]["revision"]["title"] == "r6"
+
+
+def test_the_revision_page_states_the_ci_gate_and_the_regression_behind_it(api, tmp_path):
+    """A trial read a confirmed regression's revision page and found no word of whether CI
+    passed: only `redline ci` and /verdict said it."""
+    revisions(api, tmp_path, [10.0] * 5 + [14.0])
+    verdict = api.client.get(f"{BASE}/revisions/r6/verdict").json()
+    found = api.client.get(f"{BASE}/detections", params={"revision": "r6"}).json()
+    (number,) = {d["regression_id"] for d in found if d["regression_id"]}
+    page = html.unescape(api.client.get("/components/builder/revisions/r6").text)
+    said = f"CI gate: fails: {verdict['regressions']} change for the worse in 1 test case of 1"
+    assert said in page and f'<a href="/regressions/{number}">#{number}</a>' in page
+    earlier = html.unescape(api.client.get("/components/builder/revisions/r5").text)
+    assert "CI gate: passes: 1 test case of 1 passed; redline ci exits 0." in earlier
+    first = html.unescape(api.client.get("/components/builder/revisions/r1").text)
+    assert "CI gate: passes, nothing judged yet: 1 test case without a verdict yet" in first

@@ -42,6 +42,7 @@ from redline.server.services import (
     why,
 )
 from redline.server.services.errors import BadRequest, NotFound
+from redline.server.services.gate import gate
 from redline.server.services.revisions import WAITING
 from redline.server.ui.compare_figures import comparison_figure
 from redline.server.ui.detail_figures import execution_figures, why_figures
@@ -191,6 +192,7 @@ def revision_page(name: str, title: str, request: Request, session: SessionDep) 
         "revision.html",
         {
             "revision": revision,
+            "gate": gate(session, name, title, revision.id),
             "notes": revisions.execution_notes(session, revision.id),
             "detections": regressions.list_detections(session, name, revision=title)[0],
             "values": revision_view.verdict_values(session, revision.id),
