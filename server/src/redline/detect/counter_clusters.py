@@ -29,8 +29,6 @@ from redline.detect.result import (
     passes_floor,
     relative_effects,
 )
-from scipy.cluster.hierarchy import fcluster, linkage
-from scipy.spatial.distance import squareform
 
 
 def cluster_counters(base: np.ndarray, min_correlation: float) -> list[np.ndarray]:
@@ -44,6 +42,9 @@ def cluster_counters(base: np.ndarray, min_correlation: float) -> list[np.ndarra
         distance = 1.0 - np.abs(np.corrcoef(base[:, varying], rowvar=False))
     distance = np.nan_to_num((distance + distance.T) / 2, nan=1.0)
     np.fill_diagonal(distance, 0.0)
+    from scipy.cluster.hierarchy import fcluster, linkage  # where it runs: see `redline.detect`
+    from scipy.spatial.distance import squareform
+
     labels = fcluster(
         linkage(squareform(distance, checks=False), method="average"),
         t=1.0 - min_correlation,

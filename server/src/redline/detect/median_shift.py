@@ -20,7 +20,6 @@ from dataclasses import dataclass
 import numpy as np
 from redline.detect.methods import Detector
 from redline.detect.result import CHANGE, NO_CHANGE, Detection, direction_of
-from scipy import stats
 
 #: 1.4826 * MAD estimates the standard deviation of normal data (Rousseeuw & Croux 1993).
 MAD_TO_SD = 1.4826
@@ -101,6 +100,8 @@ class MedianShift(Detector):
     def _detect(self, base: np.ndarray, cand: np.ndarray) -> Detection:
         shift = median_shift(base, cand, self.rel_scale)
         score, effect = abs(shift.after - shift.before) / shift.spread, shift.effect
+        from scipy import stats  # where it runs: see `redline.detect`
+
         p_value = float(stats.mannwhitneyu(cand, base, alternative="two-sided").pvalue)
         significant = p_value < self.alpha
         above = abs(effect) >= self.min_effect

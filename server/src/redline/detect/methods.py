@@ -25,7 +25,6 @@ from redline.detect.result import (
     passes_floor,
     relative_effects,
 )
-from scipy import stats
 
 
 class Levelled(Protocol):
@@ -173,6 +172,8 @@ class MannWhitney(Detector):
         self.min_candidate = min_candidate
 
     def _detect(self, base: np.ndarray, cand: np.ndarray) -> Detection:
+        from scipy import stats  # where it runs: see `redline.detect`
+
         p_value = float(stats.mannwhitneyu(cand, base, alternative="two-sided").pvalue)
         score = -math.log10(max(p_value, 1e-300))
         effect = float(relative_effects(base, cand)[0])
@@ -229,6 +230,8 @@ class WelchT(Detector):
                 (var1 / len(base)) ** 2 / (len(base) - 1)
                 + (var2 / len(cand)) ** 2 / (len(cand) - 1)
             )
+            from scipy import stats  # where it runs: see `redline.detect`
+
             p_value = float(2 * stats.t.sf(t, df))
         effect = largest(relative_effects(base, cand))
         return _decide(self.name, t, p_value, t > self.t_threshold, effect, self.min_effect)

@@ -9,7 +9,6 @@ from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 
 import numpy as np
-from scipy.stats import rankdata
 
 #: "Changes of 10 % or more" (the issue's recall goal), by the size `change_sizes` measures.
 LARGE_CHANGE = 0.10
@@ -56,6 +55,8 @@ def roc_auc(positive: Sequence[bool], scores: Sequence[float]) -> float:
     n_pos, n_neg = int(labels.sum()), int((~labels).sum())
     if n_pos == 0 or n_neg == 0:
         return math.nan
+    from scipy.stats import rankdata  # where it runs: see `redline.detect`
+
     ranks = rankdata(np.asarray(scores, dtype=np.float64))
     return float((ranks[labels].sum() - n_pos * (n_pos + 1) / 2) / (n_pos * n_neg))
 

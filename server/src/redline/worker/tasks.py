@@ -39,7 +39,6 @@ from redline.worker.sweeps import (
     unjudged_after_fresh_runs,
     untold_runtime_alarms,
 )
-from redline.worker.training import train_model as run_training
 from redline.worker.trends import render_component_trends, render_revision_trends
 from sqlalchemy import select
 from sqlalchemy.exc import InterfaceError, OperationalError
@@ -65,12 +64,15 @@ class ReanalysisStep(Task):
 
 @worker_init.connect
 def _preload(**_kwargs: Any) -> None:
-    """Import what the tasks load lazily (pandas, through pyarrow) when the worker starts.
+    """Import what the tasks load lazily (pandas, through pyarrow; the detectors' scipy.stats)
+    when the worker starts.
 
     On a machine that also runs an agent, a cold import inside the first task (seconds of CPU)
-    would otherwise land in the middle of a measurement.
+    would otherwise land in the middle of a measurement. scikit-learn is the exception: only
+    the training task needs it, and it imports it holding `analysing` (no run starts then).
     """
     importlib.import_module("pandas")
+    importlib.import_module("scipy.stats")
 
 
 def _settings() -> Settings:
@@ -225,5 +227,9 @@ def deliver_alerts() -> dict:
 @celery_app.task(name=TRAIN_TASK, acks_late=True, **RETRY)
 def train_model(model_id: int) -> None:
     """Fit a resource-usage model from the executions its request names."""
-    with analysing():
+    with analysing():  # held before the import too: scikit-learn's takes seconds of CPU
+        # imported here, not at the top: scikit-learn took 3 of the 10.7 s a worker's start
+        # took on a CI machine (2026-11-28), for a task most workers never run
+        from redline.worker.training import train_model as run_training
+
         run_training(_settings().database_url, _settings().storage_dir, model_id)
