@@ -46,6 +46,13 @@ def test_a_taken_port_is_refused_before_anything_starts(tmp_path) -> None:
             stack.start()
         assert stack.children == [] and stack.embedded is None
         stack.stop()
+        assert (tmp_path / "lock").exists()  # a folder it did not make keeps what it holds
+        # one it made is not left behind (a trial found it, holding only the lock)
+        new = Stack(tmp_path / "new" / "data", port=port)
+        with pytest.raises(StackError, match=rf"port {port} is taken"):
+            new.start()
+        assert not (tmp_path / "new" / "data").exists()
+        new.stop()
 
 
 def test_the_admin_commands_find_the_database_of_the_redline_up_running_here(

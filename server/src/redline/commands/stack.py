@@ -120,9 +120,18 @@ class Stack:
     def start(self) -> None:
         # new, the data folder is its owner's only: it holds the database, recordings, tokens
         # (as root, pgserver opens the path to the user it runs Postgres as: see security.md)
+        made = not self.data.exists()
         self.data.mkdir(mode=0o700, parents=True, exist_ok=True)
         self.lock = lock_data(self.data)
-        port_free(self.port)  # before Postgres starts: seconds, and a page of its logs
+        try:
+            port_free(self.port)  # before Postgres starts: seconds, and a page of its logs
+        except StackError:
+            if made:  # a refused start leaves no folder of its own (a trial's kept its lock)
+                self.lock.close()
+                self.lock = None
+                (self.data / "lock").unlink()
+                self.data.rmdir()
+            raise
         (self.data / "logs").mkdir(mode=0o700, exist_ok=True)
         self.env = self._service_env()
         self._redline("migrate")
