@@ -53,9 +53,16 @@ def ensure_environment() -> None:
         run([str(BIN / "python"), "-m", "pip", "install", "--quiet", "uv>=0.4"])
     say("syncing the workspace (uv sync)")
     env = dict(os.environ, UV_PROJECT_ENVIRONMENT=str(VENV), VIRTUAL_ENV=str(VENV))
-    # --inexact keeps uv itself, which pip put into this environment.
+    # --inexact keeps uv itself, which pip put into this environment. --compile-bytecode: uv
+    # writes no .pyc by default, and where PYTHONDONTWRITEBYTECODE is set (as on the CI
+    # machines) Python writes none either, so every process compiled every module it imported
+    # from source: 5 s of CPU for the API server's import, 10.7 s for a worker's (2026-11-28).
+    # uv compiles once, when it installs; a sync with nothing to install compiles nothing.
     run(
-        [str(BIN / "uv"), "sync", "--locked", "--all-packages", "--inexact", "--quiet"],
+        [
+            *[str(BIN / "uv"), "sync", "--locked", "--all-packages", "--inexact", "--quiet"],
+            "--compile-bytecode",
+        ],
         cwd=ROOT,
         env=env,
     )
