@@ -73,7 +73,7 @@ def waiting_on(session: Session, revision_id: int) -> list[int]:
     """The revisions judged again once this one's fresh run has ended: those whose "not
     enough data" verdicts name it as their baseline, and those with a suspected change whose
     span (baseline, revision) holds it (`redline.worker.remeasure.busy_between`), however far
-    after it they are."""
+    after it they are; oldest first."""
     revision = session.get_one(Revision, revision_id)
     baseline, flagged = aliased(Revision), aliased(Revision)
     spanning = (
@@ -92,7 +92,16 @@ def waiting_on(session: Session, revision_id: int) -> list[int]:
         Detection.verdict == NOT_ENOUGH_DATA,
         Detection.revision_id != revision_id,
     )
-    return list(session.scalars(lacking.union(spanning)))
+    # in the revisions' order, the order to judge them in: a UNION's own order is Postgres's
+    # (a CI run judged r7 before r6)
+    waiting = lacking.union(spanning).subquery()
+    return list(
+        session.scalars(
+            select(Revision.id)
+            .where(Revision.id.in_(select(waiting.c[0])))
+            .order_by(Revision.order_key, Revision.id)
+        )
+    )
 
 
 def mark_waiting(session: Session, revision_id: int) -> list[int]:
