@@ -8,6 +8,7 @@ import hashlib
 import hmac
 import html
 import json
+import re
 from datetime import timedelta
 from pathlib import Path
 
@@ -17,6 +18,7 @@ from redline.server.db import session_factory
 from redline.server.models import (
     Component,
     Delivery,
+    DetectionConfigRow,
     Execution,
     Job,
     JobState,
@@ -607,3 +609,39 @@ def test_the_revision_page_states_the_ci_gate_and_the_regression_behind_it(api, 
     assert "CI gate: passes: 1 test case of 1 passed; redline ci exits 0." in earlier
     first = html.unescape(api.client.get("/components/builder/revisions/r1").text)
     assert "CI gate: passes, nothing judged yet: 1 test case without a verdict yet" in first
+
+
+def test_a_regression_judged_again_without_its_change_is_withdrawn_with_its_figures(api, tmp_path):
+    """A trial's untriaged regression was deleted when its revision was judged again, leaving
+    no record, and the alert's link to it led nowhere: it is kept, withdrawn, with what it had
+    been; a change that comes back in its range revives it under its number."""
+    revisions(api, tmp_path, [10.0] * 5 + [14.0])
+    (before,) = api.client.get(f"{BASE}/regressions").json()
+    assert before["confirmation"] == "suspected"
+    assert re.search(r"; the largest: component cpu \+\d+ % at r6$", before["confirmation_reason"])
+    counted = '<a href="/regressions?component=builder">1</a>'
+    assert counted in api.client.get("/").text  # the home page's open regressions
+    database_url = api.settings.database_url
+
+    def judge_with(min_effect: float) -> None:
+        config = {"methods": ["ks"], "thresholds": {"ks": {"min_effect": min_effect}}}
+        with session_factory(database_url)() as session:
+            session.execute(update(DetectionConfigRow).values(config=config))
+            session.commit()
+        reanalyze_component(database_url, 1)
+
+    judge_with(0.9)  # no change of 40 % is one of 90 %
+    (withdrawn,) = api.client.get(f"{BASE}/regressions").json()
+    assert (withdrawn["id"], withdrawn["confirmation"]) == (before["id"], "withdrawn")
+    reason = withdrawn["confirmation_reason"]
+    assert "none of its changes is found any more" in reason
+    assert reason.endswith(f"it had been suspected: {before['confirmation_reason']}")
+    listed = api.client.get(f"{BASE}/regressions", params={"confirmation": "withdrawn"}).json()
+    assert [r["id"] for r in listed] == [before["id"]]
+    page = html.unescape(api.client.get(f"/regressions/{before['id']}").text)
+    assert "withdrawn" in page and before["confirmation_reason"] in page
+    assert counted not in api.client.get("/").text  # not open: the home page counts 0
+
+    judge_with(0.1)
+    (revived,) = api.client.get(f"{BASE}/regressions").json()
+    assert (revived["id"], revived["confirmation"]) == (before["id"], "suspected")

@@ -218,6 +218,26 @@ def _newest_reasons(session: Session, component_id: int) -> dict[tuple[int, str]
     return {(rid, state): reason for rid, state, reason in rows if rid is not None}
 
 
+def _largest_changes(session: Session, component_id: int) -> dict[int, str]:
+    """Per regression of the component, its largest change in words ("builder cpu +208 % at
+    r3"): the figures its summary keeps, which stay when it is withdrawn."""
+    rows = session.execute(
+        select(Detection.regression_id, Detection.effect, Series.process, Series.counter)
+        .add_columns(Revision.title)
+        .join(Regression, Regression.id == Detection.regression_id)
+        .join(Series, Series.id == Detection.series_id)
+        .join(Revision, Revision.id == Detection.revision_id)
+        .where(Regression.component_id == component_id, Detection.effect.is_not(None))
+        .ext(distinct_on(Detection.regression_id))
+        .order_by(Detection.regression_id, func.abs(Detection.effect).desc(), Detection.id)
+    )
+    return {
+        rid: f"{process} {counter} {effect * 100:+.0f} % at {title}"
+        for rid, effect, process, counter, title in rows
+        if rid is not None
+    }
+
+
 def _summarize_regressions(session: Session, component_id: int) -> None:
     """Each regression of the component: confirmed, not confirmed or suspected, and why."""
     states: dict[int, dict[str, int]] = defaultdict(dict)
@@ -230,13 +250,14 @@ def _summarize_regressions(session: Session, component_id: int) -> None:
         if regression_id is not None:  # joined to a regression: typed as nullable all the same
             states[regression_id][state] = number
     reasons = _newest_reasons(session, component_id)
+    largest = _largest_changes(session, component_id)
     for regression in session.scalars(
         select(Regression).where(Regression.component_id == component_id)
     ):
         counts = states.get(regression.id, {})
         total = sum(counts.values())
         if not total:
-            continue  # a triaged regression whose detections a re-analysis took away: kept
+            continue  # withdrawn (`redline.worker.grouping`): it says what it had been
         held, dropped = counts.get(HELD, 0), counts.get(DROPPED, 0)
         if held:
             confirmation = CONFIRMED
@@ -252,6 +273,8 @@ def _summarize_regressions(session: Session, component_id: int) -> None:
             confirmation = SUSPECTED
             example = reasons.get((regression.id, SUSPECTED))
             reason = f"{total - dropped} flagged change(s) still suspected: {example}"
+        if regression.id in largest:
+            reason += f"; the largest: {largest[regression.id]}"
         if (regression.confirmation, regression.confirmation_reason) != (confirmation, reason):
             regression.confirmation, regression.confirmation_reason = confirmation, reason
 

@@ -6,8 +6,9 @@ Only a change for the worse is a regression (`redline.detect.counters.worse`: a 
 trip that rose, an achieved rate that fell); a flagged improvement stays a detection. A flagged
 detection spans (newest baseline revision, its revision]; it joins the oldest
 regression of the component whose range overlaps that span (widening the range), else it opens
-a new one. A regression left without detections after a re-analysis is deleted while it is
-untriaged ("new", no history); a triaged one stays, because its label is ground truth.
+a new one. A regression left without detections when its revisions are judged again is
+withdrawn (`_withdraw_emptied`): kept with what it had been, never deleted once anyone could see
+it; a triaged one keeps its label too, because its label is ground truth.
 """
 
 from __future__ import annotations
@@ -17,12 +18,14 @@ from collections.abc import Collection
 from redline.detect.confirmation import SUSPECTED
 from redline.detect.counters import worse
 from redline.server.models import (
+    WITHDRAWN,
     Detection,
     Regression,
     RegressionEvent,
     RegressionState,
     Revision,
     Series,
+    utcnow,
 )
 from sqlalchemy import delete, exists, select, tuple_
 from sqlalchemy.orm import Session
@@ -62,24 +65,45 @@ def _widen(regression: Regression, good: Revision, bad: Revision) -> None:
         regression.bad_revision_id, regression.bad_key = bad.id, bad.order_key
 
 
-def _drop_untriaged_empty(session: Session, component_id: int) -> None:
+def _withdraw_emptied(session: Session, component_id: int) -> None:
+    """The component's regressions left without a detection. One never summarized (its
+    confirmation reason empty: made and emptied within one analysis, as a change found a
+    revision late moves to its revision) and untriaged is deleted: no one could have seen it.
+    Any other is withdrawn, its reason saying when and what it had been (its confirmation and
+    the figures its summary quoted): an alert's link to it still leads to it, and a change that
+    comes back in its range revives it (`_overlapping`, then the summary)."""
     has_detection = exists().where(Detection.regression_id == Regression.id)
     has_event = exists().where(RegressionEvent.regression_id == Regression.id)
+    emptied = (Regression.component_id == component_id, ~has_detection)
     session.execute(
         delete(Regression)
         .where(
-            Regression.component_id == component_id,
+            *emptied,
             Regression.state == RegressionState.new,
-            ~has_detection,
+            Regression.confirmation_reason == "",
             ~has_event,
         )
         .execution_options(synchronize_session=False)
     )
+    now = utcnow()
+    for regression in session.scalars(
+        select(Regression).where(*emptied, Regression.confirmation != WITHDRAWN)
+    ):
+        had = regression.confirmation + (
+            f": {regression.confirmation_reason}" if regression.confirmation_reason else ""
+        )
+        regression.confirmation, regression.confirmation_reason = (
+            WITHDRAWN,
+            (
+                f"withdrawn {now:%Y-%m-%d %H:%M} UTC: its revisions were judged again and none of "
+                f"its changes is found any more; it had been {had}"
+            ),
+        )
 
 
 def group_revision(session: Session, revision: Revision, alarming: Collection[str]) -> None:
-    """Attach the revision's flagged detections of the ``alarming`` methods to regressions; drop
-    emptied untriaged ones.
+    """Attach the revision's flagged detections of the ``alarming`` methods to regressions;
+    withdraw emptied ones.
 
     The caller holds the component's row lock (`redline.worker.detection.store`), so two
     workers never open overlapping regressions.
@@ -98,7 +122,7 @@ def group_revision(session: Session, revision: Revision, alarming: Collection[st
         if detection.direction == worse(process, counter):  # not an improvement
             group_detection(session, detection, revision)
     session.flush()
-    _drop_untriaged_empty(session, revision.component_id)
+    _withdraw_emptied(session, revision.component_id)
 
 
 def group_detection(session: Session, detection: Detection, revision: Revision) -> None:

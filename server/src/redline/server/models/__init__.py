@@ -7,6 +7,7 @@ from redline.server.models.base import Base, utcnow
 from redline.server.models.detection import (
     FALSE_POSITIVE_STATES,
     TRUE_POSITIVE_STATES,
+    WITHDRAWN,
     Detection,
     DetectionConfigRow,
     Reanalysis,
@@ -38,6 +39,7 @@ __all__ = [
     "FINISHED",
     "HELD",
     "UNENDED",
+    "WITHDRAWN",
     "Alert",
     "AlertedChange",
     "Delivery",

@@ -37,6 +37,11 @@ class RegressionState(enum.StrEnum):
     false_positive = "false_positive"
 
 
+#: A regression's confirmation once judging again finds none of its changes: kept, saying what
+#: it had been (`redline.worker.grouping`), not deleted (a trial's regression vanished, and the
+#: alert's link to it with it)
+WITHDRAWN = "withdrawn"
+
 #: Triage labels as ground truth for a method's precision (ignored, new, acknowledged: no label).
 TRUE_POSITIVE_STATES = frozenset({RegressionState.confirmed, RegressionState.fixed})
 FALSE_POSITIVE_STATES = frozenset({RegressionState.false_positive})
@@ -70,7 +75,7 @@ class Regression(Base):
         default=RegressionState.new,
         index=True,
     )
-    #: suspected, confirmed or not_confirmed (`redline.worker.confirmation`)
+    #: suspected, confirmed or not_confirmed (`redline.worker.confirmation`), or WITHDRAWN
     confirmation: Mapped[str] = mapped_column(String(20), default="suspected", index=True)
     confirmation_reason: Mapped[str] = mapped_column(Text, default="")
     created: Mapped[datetime] = mapped_column(default=utcnow)

@@ -25,7 +25,7 @@ from redline.server.ui.pages import (
 )
 
 router = page_router()
-CONFIRMATIONS = ("suspected", "confirmed", "not_confirmed")
+CONFIRMATIONS = ("suspected", "confirmed", "not_confirmed", "withdrawn")
 #: regressions on a page of the list (the next ones are a link away, by the API's cursor)
 PAGE = 100
 

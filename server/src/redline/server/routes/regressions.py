@@ -36,7 +36,7 @@ def list_regressions(
     session: SessionDep,
     response: Response,
     state: RegressionState | None = None,
-    confirmation: Literal["suspected", "confirmed", "not_confirmed"] | None = None,
+    confirmation: Literal["suspected", "confirmed", "not_confirmed", "withdrawn"] | None = None,
     method: str | None = None,
     limit: PageSize = None,
     cursor: Cursor = None,

@@ -50,10 +50,11 @@ class RegressionOut(BaseModel):
     good_revision: str = Field(description="the newest revision before the change")
     bad_revision: str = Field(description="the last revision in the range showing it")
     state: RegressionState
-    confirmation: Literal["suspected", "confirmed", "not_confirmed"] = Field(
+    confirmation: Literal["suspected", "confirmed", "not_confirmed", "withdrawn"] = Field(
         description="confirmed when one of its changes held in its confirmation runs or over "
         "the later revisions, not_confirmed when every one was dropped (its reason says why), "
-        "suspected until then"
+        "suspected until then; withdrawn when its revisions were judged again and none of its "
+        "changes was found (its reason says what it had been, with its largest change)"
     )
     confirmation_reason: str
     methods: list[str] = Field(description="methods with a flagged detection in it")

@@ -10,6 +10,7 @@ from redline.recording import HOST_PROCESS, SeriesKey
 from redline.recording.driver import DRIVER_PROCESS, RECORDER_PROCESS
 from redline.recording.format import OWN_PROCESS
 from redline.server.models import (
+    WITHDRAWN,
     Component,
     Execution,
     Host,
@@ -155,7 +156,7 @@ def overview(session: Session) -> list[Overview]:
         component_id: number
         for component_id, number in session.execute(
             select(Regression.component_id, func.count())
-            .where(Regression.state.in_(OPEN_STATES))
+            .where(Regression.state.in_(OPEN_STATES), Regression.confirmation != WITHDRAWN)
             .group_by(Regression.component_id)
         )
     }
