@@ -51,8 +51,10 @@ def path_segment(value: str) -> str:
 
 
 def host_name(value: str) -> str:
-    """A performance host's name: `printable`, one path segment (a pool token's replica named
-    itself 'compose-../../x')."""
+    """A performance host's name: `printable`, one word without '/' (a pool token's replica
+    named itself 'compose-../../x')."""
+    if "/" in value:
+        raise ValueError("must not contain '/': a host's name is one machine's name")
     return path_segment(printable(value))
 
 
