@@ -534,6 +534,17 @@ def test_a_422_quotes_a_body_as_the_json_it_came_as_with_secrets_masked(api: Api
     assert "s3cr3t" not in answer.text
 
 
+def test_a_422_quotes_what_would_not_show_as_itself_as_escapes(api: Api):
+    """The refusal of a branch holding U+202E quoted it raw in its ``input``: whatever read the
+    answer saw the rest of the line reversed. Long inputs stay cut short after escaping."""
+    body = {"component": "builder", "title": "r1", "sort_key": "1", "commit": "abc"}
+    for branch, quoted in (("a\u202eb", "a\\u202eb"), ("\x85" * 60, "\\x85" * 19 + "...")):
+        answer = api.post("/api/v1/revisions", "ci", body | {"branch": branch})
+        assert answer.status_code == 422, answer.text
+        (error,) = answer.json()["detail"]
+        assert error["input"] == quoted, error
+
+
 @pytest.mark.parametrize("field", ["case", "phase"])
 def test_an_imported_test_name_the_sdk_would_refuse_is_422_naming_it(api: Api, field: str):
     """A trial's import of case "a/b*" was stored, and its JUnit said classname ".../a/b*"."""

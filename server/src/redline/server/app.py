@@ -33,6 +33,7 @@ from redline.server.routes import (
     web,
     webhooks,
 )
+from redline.server.schemas.fields import escaped
 from redline.server.services.errors import BadRequest, NotFound, ServiceError, Unprocessable
 from redline.server.ui.pages import SECRET_FIELDS, error_words, problem
 from sqlalchemy.exc import DataError
@@ -93,12 +94,28 @@ def _excerpt(value: Any) -> Any:
         return value if abs(value) < 10**18 else f"{str(value)[:20]}... ({len(str(value))} digits)"
     if isinstance(value, float):
         return value if math.isfinite(value) else str(value)
-    if isinstance(value, str):
-        return value if len(value) <= 80 else value[:77] + "..."
     if isinstance(value, dict | list):  # quoted as the JSON it came as, not as Python
-        text = json.dumps(_shallow(value, 1), default=str, ensure_ascii=False)
-        return text if len(text) <= 80 else text[:77] + "..."
+        value = json.dumps(_shallow(value, 1), default=str, ensure_ascii=False)
+    if isinstance(value, str):
+        return _cut(value)
     return _EXCERPT.repr(value)
+
+
+def _cut(value: str) -> str:
+    """``value`` in at most 80 characters, those `one_line` refuses as their escapes (a U+202E
+    quoted raw reversed the rest of the line it was read in), never cutting one in two."""
+    whole = escaped(value[:81])
+    if len(value) <= 80 and len(whole) <= 80:
+        return whole
+    kept: list[str] = []
+    length = 0
+    for char in value[:77]:
+        piece = escaped(char)
+        if length + len(piece) > 77:
+            break
+        kept.append(piece)
+        length += len(piece)
+    return "".join(kept) + "..."
 
 
 def _shallow(value: Any, depth: int) -> Any:

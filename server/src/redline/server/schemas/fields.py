@@ -29,6 +29,16 @@ def _refuse_first(value: str, spaces: bool) -> str:
     return value
 
 
+def escaped(text: str) -> str:
+    """``text`` with each character `one_line` refuses written as its escape (``\\u202e``): how
+    a refusal quotes the input it refused, which would otherwise reverse or break the line
+    it is read in."""
+    return "".join(
+        char.encode("unicode_escape").decode() if unicodedata.category(char) in _UNSEEN else char
+        for char in text
+    )
+
+
 def one_line(value: str) -> str:
     """``value`` if it shows as one line of what it holds (spaces allowed), else a ValueError
     naming its first control, format or line-separator character and its position."""
