@@ -63,6 +63,9 @@ def test_text_that_shows_as_itself_is_kept():
     imported = ResultsImport.model_validate(IMPORT | {"results": [value]})
     assert imported.results[0].process == "map server"
     assert SubscriptionCreate.model_validate(MAIL | {"counters": ["rtt p90"]}).counters
+    # format characters that are text: a ZWJ in an emoji, a ZWNJ in a Persian word
+    for branch in ("feat/\U0001f469\u200d\U0001f4bb", "\u0645\u06cc\u200c\u0631\u0648\u0645"):
+        assert RevisionCreate.model_validate(REVISION | {"branch": branch}).branch == branch
 
 
 @pytest.mark.parametrize("name", ["compose-../../x", "a\\b/c", "perf 1"])

@@ -227,7 +227,11 @@ def _largest_changes(session: Session, component_id: int) -> dict[int, str]:
         .join(Regression, Regression.id == Detection.regression_id)
         .join(Series, Series.id == Detection.series_id)
         .join(Revision, Revision.id == Detection.revision_id)
-        .where(Regression.component_id == component_id, Detection.effect.is_not(None))
+        .where(
+            Regression.component_id == component_id,
+            Detection.effect.is_not(None),
+            Detection.confirmation != DROPPED,  # a spike it dropped is not its change
+        )
         .ext(distinct_on(Detection.regression_id))
         .order_by(Detection.regression_id, func.abs(Detection.effect).desc(), Detection.id)
     )

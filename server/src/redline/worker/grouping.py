@@ -50,6 +50,9 @@ def _overlapping(
         select(Regression)
         .where(
             Regression.component_id == component_id,
+            # a withdrawn one keeps its old range: a change joining it would be split from the
+            # live regression beside it, and a re-analysis would merge what it finds apart
+            Regression.confirmation != WITHDRAWN,
             tuple_(Regression.good_key, Regression.good_revision_id) < bad.place,
             tuple_(Regression.bad_key, Regression.bad_revision_id) > good.place,
         )
@@ -70,8 +73,8 @@ def _withdraw_emptied(session: Session, component_id: int) -> None:
     confirmation reason empty: made and emptied within one analysis, as a change found a
     revision late moves to its revision) and untriaged is deleted: no one could have seen it.
     Any other is withdrawn, its reason saying when and what it had been (its confirmation and
-    the figures its summary quoted): an alert's link to it still leads to it, and a change that
-    comes back in its range revives it (`_overlapping`, then the summary)."""
+    the figures its summary quoted): an alert's link to it still leads to it. A change found
+    again later opens a regression of its own (`_overlapping` skips withdrawn ones)."""
     has_detection = exists().where(Detection.regression_id == Regression.id)
     has_event = exists().where(RegressionEvent.regression_id == Regression.id)
     emptied = (Regression.component_id == component_id, ~has_detection)

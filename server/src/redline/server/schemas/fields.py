@@ -16,15 +16,23 @@ from pydantic import AfterValidator, BeforeValidator, Field
 #: commit times accepted: from the Unix epoch to a year ahead (a skewed clock, not a typo)
 EARLIEST = datetime(1970, 1, 1, tzinfo=UTC)
 FUTURE_SLACK = timedelta(days=366)
-#: Unicode's categories of what no name or line of text may hold: controls (CR, LF, NUL, and
-#: C1's U+0085, a line break to some readers), formats (U+202E shows what follows reversed) and
-#: line and paragraph separators; a trial's CR/LF printed a second row in a table
-_UNSEEN = frozenset({"Cc", "Cf", "Zl", "Zp"})
+#: what no name or line of text may hold: controls (CR, LF, NUL, and C1's U+0085, a line break
+#: to some readers), line and paragraph separators, and the bidi controls (U+202E shows what
+#: follows reversed); a trial's CR/LF printed a second row in a table. Other format characters
+#: (a ZWJ in an emoji, a ZWNJ in a Persian word) are text
+_UNSEEN = frozenset({"Cc", "Zl", "Zp"})
+_BIDI = frozenset("\u200e\u200f\u061c") | {
+    chr(c) for c in (*range(0x202A, 0x202F), *range(0x2066, 0x206A))
+}
+
+
+def _unseen(char: str) -> bool:
+    return char in _BIDI or unicodedata.category(char) in _UNSEEN
 
 
 def _refuse_first(value: str, spaces: bool) -> str:
     for position, char in enumerate(value):
-        if unicodedata.category(char) in _UNSEEN or (spaces and char.isspace()):
+        if _unseen(char) or (spaces and char.isspace()):
             raise ValueError(f"must not contain {char!r} at position {position}")
     return value
 
@@ -34,8 +42,7 @@ def escaped(text: str) -> str:
     a refusal quotes the input it refused, which would otherwise reverse or break the line
     it is read in."""
     return "".join(
-        char.encode("unicode_escape").decode() if unicodedata.category(char) in _UNSEEN else char
-        for char in text
+        char.encode("unicode_escape").decode() if _unseen(char) else char for char in text
     )
 
 
