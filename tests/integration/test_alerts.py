@@ -639,8 +639,13 @@ def test_a_regression_judged_again_without_its_change_is_withdrawn_with_its_figu
     assert reason.endswith(f"it had been suspected: {before['confirmation_reason']}")
     listed = api.client.get(f"{BASE}/regressions", params={"confirmation": "withdrawn"}).json()
     assert [r["id"] for r in listed] == [before["id"]]
+    # nor is it in the triage queue, where it had been new
+    assert api.client.get(f"{BASE}/regressions", params={"state": "new"}).json() == []
+    assert "No regression matches." in api.client.get("/regressions?state=new").text
     page = html.unescape(api.client.get(f"/regressions/{before['id']}").text)
     assert "withdrawn" in page and before["confirmation_reason"] in page
+    assert "None now: judged again, its revisions no longer show any of its changes" in page
+    assert 'id="flagged"' not in page  # no empty table
     assert counted not in api.client.get("/").text  # not open: the home page counts 0
 
     judge_with(0.1)

@@ -26,6 +26,7 @@ from redline.server.schemas.revisions import RevisionCreate
 from redline.server.services.ci_verdict import ci_verdict, junit_xml
 from redline.server.services.components import create_component
 from redline.server.services.detection_config import set_config
+from redline.server.services.gate import gate
 from redline.server.services.jobs import lease_job
 from redline.server.services.revisions import create_revision
 from redline.worker.detection import detect_revision
@@ -226,6 +227,9 @@ def test_a_driver_report_missing_from_the_revision_is_not_measured_not_a_pass(
     assert case.state == "undecided" and "not measured in this revision" in case.reason, case
     assert verdict.undecided == 1
     assert "undecided: not enough data" in junit_xml(verdict)
+    # and the revision's page says why in the same words, not "the host was busy"
+    said = gate(session, NAME, "r4").words
+    assert "because a series the revision before measured is missing;" in said, said
 
 
 def test_a_test_case_this_revision_did_not_run_is_no_measurement_it_lost(

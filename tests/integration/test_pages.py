@@ -546,6 +546,21 @@ def test_settings_pages_are_for_administrators_and_change_what_the_api_does(
         "/settings/components/builder", data={"csrf": csrf, "config": '{"nonsense_key": 1}'}
     )
     assert typo.status_code == 400 and "nonsense_key" in typo.text
+    # the form's JSON is checked as the API's is: a NUL in a pinned title, stored, made every
+    # re-analysis fail in the database (a trial, 2026-11-28)
+    before = client.get("/api/v1/components/builder/detection-config").json()
+    for config in [
+        '{"baseline": "pinned", "pinned": "r1\\u0000"}',
+        '{"context_counters": ["cpu\\nuser"]}',
+        '{"context_counters": ["cpu\\u202euser"]}',
+    ]:
+        refused = client.post("/settings/components/builder", data={"csrf": csrf, "config": config})
+        assert refused.status_code == 400, (config, refused.text)
+        assert ("pinned" in refused.text) != ("context_counters" in refused.text), refused.text
+    assert client.get("/api/v1/components/builder/detection-config").json() == before
+    nan = client.post("/settings/components/builder", data={"csrf": csrf, "executions": "NaN"})
+    said = html.unescape(nan.text)
+    assert nan.status_code == 400 and "executions: must be a whole number, not 'NaN'" in said, said
     # a value the service refuses (a repository no performance host fetches from): a page
     outside = client.post(
         "/settings/components/builder",

@@ -173,6 +173,18 @@ def test_configuration_is_validated_stored_and_queues_a_reanalysis(api, database
     typo = api.put("/detection-config", "admin", {"alarm_method": ["ks"], "confirm_revison": 0})
     assert typo.status_code == 422 and "alarm_method" in typo.text, typo.text
     assert "confirm_revison" in typo.text
+    # text that no revision's title or counter's name holds is refused, naming the field: a NUL
+    # stored by the settings form failed every re-analysis after (a trial, 2026-11-28)
+    for field, value in [
+        ("pinned", "r1\x00"),
+        ("pinned", "r1\n"),
+        ("pinned", "a/b"),
+        ("context_counters", ["cpu\u202euser"]),
+        ("context_counters", ["cpu\nuser"]),
+    ]:
+        refused = api.put("/detection-config", "admin", {field: value})
+        assert refused.status_code == 422 and field in refused.text, (field, value, refused.text)
+    assert api.get("/reanalysis").json()["state"] == "none"  # nothing stored, nothing queued
     body = {"methods": ["ks", "mann_whitney"], "baseline": "window", "window": 3}
     answer = api.put("/detection-config", "admin", body)
     assert answer.status_code == 200, answer.text

@@ -1,12 +1,15 @@
 """`redline watch` on the real objectbuilder (issue 15): a model learnt from a real run of its
-training sweep (`perf/watch.toml`, committed as `perf/data/watch-training.mcap`), then a live
+training sweep (`perf/watch.toml`) made on this host first, then a live
 objectbuilder fed a robot's traffic on its own zenoh network and watched: for a clean minute,
 which must raise nothing; then faults are injected one after another while it runs (a busy
 thread, a leak, stalled workers), each of which must be detected within 10 s: the busy
 thread by CPU, the leak by RSS, the stall by its silence (its persons no longer answer the legs
-that keep coming: the committed model's CPU threshold of 22.6 % of a core is wider than the 13 %
-a stall takes away). Five clean minutes are watched as a replay of a committed run
-(test_watch_replay.py), in seconds: live, they took five of the suite's twelve minutes.
+that keep coming: the model's CPU threshold, 20-25 % of a core on this VM, is wider than the
+13 % a stall takes away). The model is learnt here, not from the committed training run: on a
+VM slower than the one that recorded it, the objectbuilder used 1.5-1.8 times the CPU it
+predicted, and a CI run's clean minute alarmed (docs/prediction.md). Five clean minutes are
+watched as a replay of a committed run (test_watch_replay.py), in seconds: live, they took five
+of the suite's twelve minutes.
 
 Serial: the watcher compares the component's measured CPU with its prediction, which other load
 moves. The faults come after the clean minutes, into the same process, never beside them: a
@@ -24,7 +27,7 @@ import time
 
 import pytest
 
-from tests.support.watching import TRAINING, fit, live_objectbuilder, watch
+from tests.support.watching import live_objectbuilder, train, watch
 
 pytestmark = [pytest.mark.serial, pytest.mark.slow]
 
@@ -53,7 +56,7 @@ def _lines(watcher: subprocess.Popen[str], into: list[dict]) -> None:
 def watched(tmp_path_factory: pytest.TempPathFactory) -> dict:
     """The run the tests judge: an objectbuilder watched for a clean minute, then faulted."""
     tmp_path = tmp_path_factory.mktemp("watch")
-    model = fit(TRAINING, tmp_path)
+    model = train(tmp_path)
     with live_objectbuilder(tmp_path, seed=1) as builder:
         lines: list[dict] = []
         watcher = watch(model, builder, CLEAN_S + FAULTS_S)

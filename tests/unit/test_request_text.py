@@ -35,9 +35,13 @@ CASES: list[tuple[type[BaseModel], dict[str, Any], str, Any]] = [
     (ResultsImport, IMPORT, "results", lambda bad: [VALUE | {"process": bad}]),
     (ResultsImport, IMPORT, "results", lambda bad: [VALUE | {"counter": bad}]),
     (ResultsImport, IMPORT, "results", lambda bad: [VALUE | {"params": {bad: 1}}]),
+    (ResultsImport, IMPORT, "results", lambda bad: [VALUE | {"params": {"legs": bad}}]),
     (SubscriptionCreate, MAIL, "counters", lambda bad: [bad]),
     (RegisterRequest, {"name": "perf1"}, "name", lambda bad: bad),
     (RegisterRequest, {"name": "perf1"}, "labels", lambda bad: [bad]),
+    (RegisterRequest, {"name": "perf1"}, "fingerprint", lambda bad: {"cpu": bad}),
+    (ComponentCreate, {"name": "c"}, "description", lambda bad: bad),
+    (ComponentSettings, {}, "description", lambda bad: bad),
     (HostRequest, {"host": "perf1"}, "host", lambda bad: bad),
 ]
 #: CR/LF; C1's NEL (a line break to some readers); RLO (shows what follows reversed); U+2028
@@ -68,7 +72,7 @@ def test_text_that_shows_as_itself_is_kept():
         assert RevisionCreate.model_validate(REVISION | {"branch": branch}).branch == branch
 
 
-@pytest.mark.parametrize("name", ["compose-../../x", "a\\b/c", "perf 1"])
+@pytest.mark.parametrize("name", ["compose-../../x", "a\\b/c", "perf 1", "perf-\u00fc1"])
 def test_a_host_name_is_one_word_of_one_path_segment(name):
     with pytest.raises(ValidationError):
         RegisterRequest.model_validate({"name": name})
@@ -87,6 +91,23 @@ def test_a_number_where_text_is_asked_is_refused_in_words():
     assert refused.value.errors()[0]["msg"] == "Input should be a finite number"
 
 
+def test_a_parameter_value_is_text_a_number_or_a_truth_value():
+    """``{"legs": NaN}`` was stored and shown as None, nan and NaN on three pages."""
+    kept = {"legs": 8, "rate": 2.5, "fast": True, "mode": "größe"}
+    imported = ResultsImport.model_validate(IMPORT | {"results": [VALUE | {"params": kept}]})
+    assert imported.results[0].params == kept
+    for bad, said in [
+        (float("nan"), "must be a finite number, not nan"),
+        (float("inf"), "must be a finite number, not inf"),
+        ([1, 2], "must be text, a number, true or false, not list"),
+        (None, "must be text, a number, true or false, not NoneType"),
+    ]:
+        with pytest.raises(ValidationError) as refused:
+            ResultsImport.model_validate(IMPORT | {"results": [VALUE | {"params": {"legs": bad}}]})
+        error = refused.value.errors()[0]
+        assert said in error["msg"] and error["loc"][-1] == "legs", error
+
+
 LNT = {"format_version": "2", "machine": {"name": "m1"}, "run": {"llvm_project_revision": "1"}}
 
 
@@ -96,6 +117,10 @@ LNT = {"format_version": "2", "machine": {"name": "m1"}, "run": {"llvm_project_r
         ("tests[0].name", {"tests": [{"name": "a\r\nb", "t": 1}]}),
         ("tests[0] metric", {"tests": [{"name": "a", "t\u202e": 1}]}),
         ("machine.name", {"machine": {"name": "m/1"}}),
+        # a NaN name became a host called "nan"; a NaN order was "no order field"
+        ("machine.name", {"machine": {"name": float("nan")}}),
+        ("run field 'llvm_project_revision'", {"run": {"llvm_project_revision": float("nan")}}),
+        ("run field 'llvm_project_revision'", {"run": {"llvm_project_revision": [1]}}),
     ],
 )
 def test_an_lnt_report_with_unseen_characters_is_refused_naming_where(where, report):

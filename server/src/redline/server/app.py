@@ -44,8 +44,11 @@ def _huge_path_id(request: Request) -> bool:
     """Whether the address names an id past any stored one (a job's POST said "integer out of
     range" with a 422, where the same id's GET said 404)."""
     return any(
-        isinstance(value, str) and value.lstrip("-").isdigit() and abs(int(value)) >= 2**31
-        for value in request.path_params.values()
+        (key in ("id", "ident", "name_or_id") or key.endswith("_id"))  # not a name of digits
+        and isinstance(value, str)
+        and value.lstrip("-").isdigit()
+        and abs(int(value)) >= 2**31
+        for key, value in request.path_params.items()
     )
 
 

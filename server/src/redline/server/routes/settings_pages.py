@@ -17,6 +17,7 @@ from redline.server.api.deps import SessionDep, SettingsDep
 from redline.server.core.security import grants
 from redline.server.schemas.alerts import SubscriptionCreate, SubscriptionUpdate
 from redline.server.schemas.components import ComponentSettings
+from redline.server.schemas.fields import escaped
 from redline.server.schemas.regressions import DetectionConfigIn
 from redline.server.services import (
     components,
@@ -227,8 +228,9 @@ async def component_settings_form(
             raise BadRequest(f"detection configuration: not JSON ({exc})") from None
         except ValidationError as exc:
             raise BadRequest(form_errors(exc)) from None
-        except ValueError as exc:
-            raise BadRequest(f"executions: a whole number ({exc})") from None
+        except ValueError:  # int()'s own words ("invalid literal for int() with base 10")
+            given = escaped(form.get("executions", "")[:40])
+            raise BadRequest(f"executions: must be a whole number, not {given!r}") from None
         components.update_component(session, name, changed, settings.allow_file_repos)
         before = detection_config.get_config(session, name)
         detection_config.set_config(session, name, config)

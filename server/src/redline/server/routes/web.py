@@ -192,7 +192,7 @@ def revision_page(name: str, title: str, request: Request, session: SessionDep) 
         "revision.html",
         {
             "revision": revision,
-            "gate": gate(session, name, title, revision.id),
+            "gate": gate(session, name, title),
             "notes": revisions.execution_notes(session, revision.id),
             "detections": regressions.list_detections(session, name, revision=title)[0],
             "values": revision_view.verdict_values(session, revision.id),

@@ -5,7 +5,7 @@ from __future__ import annotations
 from datetime import datetime
 
 from pydantic import BaseModel, ConfigDict, Field
-from redline.server.schemas.fields import Branch, ComponentName, SuitePath, Word
+from redline.server.schemas.fields import Branch, ComponentName, Description, SuitePath, Word
 
 
 class ComponentSettings(BaseModel):
@@ -30,7 +30,7 @@ class ComponentSettings(BaseModel):
     webhook_secret: str | None = Field(
         default=None, description="overrides REDLINE_WEBHOOK_SECRET for this repository; '' clears"
     )
-    description: str | None = None
+    description: Description | None = None
 
 
 class ComponentCreate(BaseModel):
@@ -51,7 +51,7 @@ class ComponentCreate(BaseModel):
         default_factory=list, description="labels a host needs to run its jobs"
     )
     webhook_secret: str | None = Field(default=None, description="overrides REDLINE_WEBHOOK_SECRET")
-    description: str = ""
+    description: Description = ""
 
 
 class ComponentOut(BaseModel):

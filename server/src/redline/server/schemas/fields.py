@@ -6,10 +6,11 @@ a title no URL can address, a date Python cannot read back, a commit git would r
 
 from __future__ import annotations
 
+import math
 import re
 import unicodedata
 from datetime import UTC, datetime, timedelta
-from typing import Annotated
+from typing import Annotated, Any
 
 from pydantic import AfterValidator, BeforeValidator, Field
 
@@ -68,10 +69,17 @@ def path_segment(value: str) -> str:
 
 
 def host_name(value: str) -> str:
-    """A performance host's name: `printable`, one word without '/' (a pool token's replica
-    named itself 'compose-../../x')."""
+    """A performance host's name: `printable` ASCII, one word without '/' (a pool token's replica
+    named itself 'compose-../../x'; a 'perf-ü1' registered, but no upload's X-Redline-Host
+    header could carry its name, and every upload of its runs was refused)."""
     if "/" in value:
         raise ValueError("must not contain '/': a host's name is one machine's name")
+    for position, char in enumerate(printable(value)):
+        if not char.isascii():
+            raise ValueError(
+                f"must be ASCII (it travels in an HTTP header), not {char!r} at position "
+                f"{position}: a machine's DNS name, punycode for others, would do"
+            )
     return path_segment(printable(value))
 
 
@@ -181,5 +189,28 @@ Word = Annotated[str, Field(min_length=1, max_length=200), AfterValidator(printa
 HostName = Annotated[str, Field(max_length=200), AfterValidator(host_name)]
 #: a name shown in one line (a process, a counter, a parameter, a label), spaces allowed
 Line = Annotated[str, Field(min_length=1, max_length=200), AfterValidator(one_line)]
+#: a component's description, shown in one line of the home page's table
+Description = Annotated[str, Field(max_length=2000), AfterValidator(one_line)]
 #: a test case's or phase's name, as the SDK allows it (`redline.testing.cases`)
 TestName = Annotated[str, Field(min_length=1, max_length=200), AfterValidator(name_characters)]
+
+
+def param_value(value: Any) -> Any:
+    """A parameter's value as an import gives it: text of one line, a number, true or false; a
+    NaN was stored and then shown as None, nan and NaN on three pages, and a line break in a
+    value broke every label that named its series."""
+    if isinstance(value, bool | int):
+        return value
+    if isinstance(value, float):
+        if not math.isfinite(value):
+            raise ValueError(f"must be a finite number, not {value!r}")
+        return value
+    if isinstance(value, str):
+        if len(value) > 200:
+            raise ValueError("must be at most 200 characters")
+        return one_line(value)
+    raise ValueError(f"must be text, a number, true or false, not {type(value).__name__}")
+
+
+#: one parameter's value in an import
+ParamValue = Annotated[Any, AfterValidator(param_value)]

@@ -2,10 +2,18 @@
 
 from __future__ import annotations
 
-from typing import Annotated, Any
+from typing import Annotated
 
 from pydantic import BaseModel, ConfigDict, Field
-from redline.server.schemas.fields import Commit, HostName, Line, SortKey, TestName, Title
+from redline.server.schemas.fields import (
+    Commit,
+    HostName,
+    Line,
+    ParamValue,
+    SortKey,
+    TestName,
+    Title,
+)
 
 
 class ImportResult(BaseModel):
@@ -24,7 +32,9 @@ class ResultValue(BaseModel):
 
     case: TestName = Field(description="letters, digits, '_', '.' or '-', as the SDK's")
     phase: TestName = "main"
-    params: dict[Line, Any] = Field(default_factory=dict)
+    params: dict[Line, ParamValue] = Field(
+        default_factory=dict, description="each value text of one line, a number, true or false"
+    )
     process: Line = "benchmark"
     counter: Line
     values: list[Annotated[float, Field(allow_inf_nan=False)]] = Field(

@@ -3,17 +3,17 @@
 from __future__ import annotations
 
 from datetime import datetime
-from typing import Any
 
 from pydantic import BaseModel, Field
-from redline.server.schemas.fields import HostName, Word
+from redline.server.schemas.fields import HostName, Line, ParamValue, Word
 
 
 class RegisterRequest(BaseModel):
     # shown in the pages and `redline token list`, where a CR/LF or a space would break a row
     # (a pool token registered "compose-\r\nX")
     name: HostName = Field(min_length=1)
-    fingerprint: dict[str, Any] = Field(default_factory=dict)
+    # shown on the home page: one line each, as a parameter's value
+    fingerprint: dict[Line, ParamValue] = Field(default_factory=dict, max_length=100)
     labels: list[Word] = Field(default_factory=list)
 
 

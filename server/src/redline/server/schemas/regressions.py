@@ -11,6 +11,7 @@ from redline.detect.config import MAX_CONFIRM_PAIRS, MAX_CONFIRM_REVISIONS, MAX_
 from redline.detect.confirmation import DEFAULT_CONFIRM_PAIRS, DEFAULT_CONFIRM_REVISIONS
 from redline.detect.counters import CONTEXT_COUNTERS
 from redline.server.models import RegressionState
+from redline.server.schemas.fields import Line, Title
 from redline.server.schemas.results import SeriesRef
 
 
@@ -100,9 +101,9 @@ class DetectionConfigIn(BaseModel):
         "has enough values (at most `window`), restarting at its newest flagged change",
     )
     window: int = Field(default=DEFAULT_WINDOW, ge=1, le=MAX_WINDOW)
-    pinned: str | None = Field(default=None, description="revision title when pinned")
+    pinned: Title | None = Field(default=None, description="revision title when pinned")
     thresholds: dict[str, dict[str, float | str]] = Field(default_factory=dict)
-    context_counters: list[str] = Field(
+    context_counters: list[Line] = Field(
         default_factory=lambda: list(CONTEXT_COUNTERS),
         max_length=100,
         description="counters recorded and charted but not judged; by default the user/system "

@@ -9,7 +9,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from redline.server.models import Detection, Regression
+from redline.detect.result import METHOD_FAILED, NOT_MEASURED_MARK
+from redline.recording.disturbance import names_busy_host
+from redline.server.models import Regression
 from redline.server.schemas.alerts import CiVerdict
 from redline.server.services.ci_verdict import ci_verdict
 from sqlalchemy import select
@@ -27,6 +29,25 @@ class Gate:
 
 def _plural(count: int, one: str) -> str:
     return f"{count} {one}{'' if count == 1 else 's'}"
+
+
+#: what an undecided case's reason holds, and how the gate says it
+_UNDECIDED = (
+    (names_busy_host, "the host was busy"),
+    (lambda reason: METHOD_FAILED in reason, "a method failed"),
+    (
+        lambda reason: NOT_MEASURED_MARK in reason,
+        "a series the revision before measured is missing",
+    ),
+)
+
+
+def _why_undecided(verdict: CiVerdict) -> str:
+    """Each cause among the undecided cases' reasons, once, in the order of `_UNDECIDED`: a page
+    said "the host was busy or a method failed" of a series that had gone missing."""
+    reasons = [case.reason for case in verdict.cases if case.state == "undecided"]
+    causes = [said for found, said in _UNDECIDED if any(found(r) for r in reasons)]
+    return " and ".join(causes) or "the host was busy or a method failed"
 
 
 def _words(verdict: CiVerdict) -> tuple[str, str]:
@@ -47,7 +68,7 @@ def _words(verdict: CiVerdict) -> tuple[str, str]:
     if verdict.undecided:
         return "undecided", (
             f"CI gate: undecided: {_plural(verdict.undecided, 'test case')} of {cases} without a "
-            "verdict because the host was busy or a method failed; redline ci exits 4."
+            f"verdict because {_why_undecided(verdict)}; redline ci exits 4."
         )
     passed = sum(case.state == "passed" for case in verdict.cases)
     waiting = f"{_plural(verdict.skipped, 'test case')} without a verdict yet (not enough data)"
@@ -57,16 +78,22 @@ def _words(verdict: CiVerdict) -> tuple[str, str]:
     return "passed", words + (f", {waiting}" if verdict.skipped else "") + "; redline ci exits 0."
 
 
-def gate(session: Session, component: str, title: str, revision_id: int) -> Gate:
+def gate(session: Session, component: str, title: str) -> Gate:
     verdict = ci_verdict(session, component, title)
     state, words = _words(verdict)
     if state != "failed":
         return Gate(state, words)
+    # the regressions of the changes the verdict fails on: not a dropped spike's, nor those of
+    # a method that only charts (the page linked both beside a verdict that counted neither)
+    failing = {
+        change["regression"]
+        for case in verdict.cases
+        for change in case.changes
+        if change["worse"] and change["regression"] is not None
+    }
     found = session.execute(
         select(Regression.id, Regression.confirmation, Regression.confirmation_reason)
-        .join(Detection, Detection.regression_id == Regression.id)
-        .where(Detection.revision_id == revision_id)
-        .distinct()
+        .where(Regression.id.in_(failing))
         .order_by(Regression.id)
     )
     return Gate(state, words, tuple((row[0], row[1], row[2]) for row in found))

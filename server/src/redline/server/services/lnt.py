@@ -110,6 +110,15 @@ def _run_meta(run: dict[str, Any]) -> dict[str, str]:
     return {"imported": "lnt"} | {k: v.isoformat() for k, v in times.items() if v is not None}
 
 
+def _text(holder: dict[str, Any], field: str, where: str) -> str:
+    """``holder[field]`` when it is text ('' when absent); a BadRequest naming it otherwise (a
+    NaN machine name became a host called "nan")."""
+    value = holder.get(field, "")
+    if not isinstance(value, str):
+        raise BadRequest(f"LNT report: {where}.{field} must be text, not {value!r}"[:200])
+    return value
+
+
 def parse_lnt(body: bytes, component: str, order_field: str = ORDER_FIELD) -> ImportedRun:
     """The run an LNT v2 report describes; BadRequest naming the field at fault otherwise."""
     try:
@@ -122,8 +131,15 @@ def parse_lnt(body: bytes, component: str, order_field: str = ORDER_FIELD) -> Im
         raise BadRequest("LNT report: 'format_version' must be \"2\" (version 1 is not read)")
     machine, run = _object(report, "machine"), _object(report, "run")
     order = run.get(order_field)
-    if not isinstance(order, str | int) or isinstance(order, bool) or str(order) == "":
+    if order is None or order == "":
         raise BadRequest(f"LNT report: run has no order field {order_field!r}")
+    if not isinstance(order, str | int) or isinstance(order, bool):
+        # a NaN read as "no order field" sent its author looking for a missing one
+        raise BadRequest(
+            f"LNT report: run field {order_field!r} must be text or a whole number, not {order!r}"[
+                :200
+            ]
+        )
     title = str(order)[:200]
     try:
         path_segment(title)
@@ -134,7 +150,7 @@ def parse_lnt(body: bytes, component: str, order_field: str = ORDER_FIELD) -> Im
         revision=title,
         sort_key=title,
         commit=str(run.get("git_sha", run.get("commit", "")))[:200],
-        host=_checked("machine.name", str(machine.get("name", "")), host_name),
+        host=_checked("machine.name", _text(machine, "name", "machine"), host_name),
         samples=_samples(report.get("tests")),
         meta=_run_meta(run),
     )

@@ -8,6 +8,7 @@ from collections import defaultdict
 from redline.server.models import (
     FALSE_POSITIVE_STATES,
     TRUE_POSITIVE_STATES,
+    WITHDRAWN,
     Component,
     Detection,
     Regression,
@@ -97,6 +98,8 @@ def list_regressions(
             query = query.where(Regression.id < last)
     if state is not None:
         query = query.where(Regression.state == RegressionState(state))
+        if confirmation is None:  # a triage queue holds what is still found, not the withdrawn
+            query = query.where(Regression.confirmation != WITHDRAWN)
     if confirmation is not None:
         query = query.where(Regression.confirmation == confirmation)
     if method is not None:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from redline.server.core.security import hash_token, new_token, parse_scopes, pool_or_host
 from redline.server.models import ApiToken, utcnow
+from redline.server.schemas.fields import escaped, path_segment
 from redline.server.services.errors import BadRequest, Conflict, NotFound
 from sqlalchemy import func, select
 from sqlalchemy.orm import Session
@@ -35,8 +36,10 @@ def issue_token(
             pool_or_host(host)
     except ValueError as exc:
         raise BadRequest(str(exc)) from None
-    if not name.isprintable():  # a CR/LF made `redline token list` print a second row
-        raise BadRequest(f"a token's name {name!r} must not contain control characters")
+    try:  # a CR/LF made `redline token list` print a second row; a '/' no URL could revoke
+        path_segment(name)
+    except ValueError as exc:
+        raise BadRequest(f"a token's name {escaped(name)[:80]!r} {exc}") from None
     if "agent" in parsed and not host:
         raise BadRequest(
             "an agent token acts for one host, or a pool of hosts named alike: name it (host, "
