@@ -87,6 +87,9 @@ def test_requests_are_checked_at_once_and_training_failures_say_why(api, tmp_pat
     unknown = api.post(f"{BASE}/models", "admin", {"revisions": ["r1", "nope"], "executions": [99]})
     assert unknown.status_code == 422
     assert "nope" in unknown.text and "99" in unknown.text
+    # an id no database holds is named, not "a value in the request cannot be stored"
+    huge = api.post(f"{BASE}/models", "admin", {"executions": [2**64]})
+    assert huge.status_code == 422 and huge.json()["detail"][0]["loc"][-2] == "executions"
     typo = api.post(f"{BASE}/models", "admin", {"revision": ["r1"]})
     assert typo.status_code == 422 and "revision" in typo.text
     assert api.post("/api/v1/components/nobody/models", "admin", {}).status_code == 404

@@ -189,6 +189,9 @@ Word = Annotated[str, Field(min_length=1, max_length=200), AfterValidator(printa
 HostName = Annotated[str, Field(max_length=200), AfterValidator(host_name)]
 #: a name shown in one line (a process, a counter, a parameter, a label), spaces allowed
 Line = Annotated[str, Field(min_length=1, max_length=200), AfterValidator(one_line)]
+#: a stored row's id, as a body names it: a number past what the database holds is refused by
+#: name, not as "a value in the request cannot be stored: integer out of range"
+StoredId = Annotated[int, Field(ge=1, le=2**31 - 1)]
 #: a component's description, shown in one line of the home page's table
 Description = Annotated[str, Field(max_length=2000), AfterValidator(one_line)]
 #: a test case's or phase's name, as the SDK allows it (`redline.testing.cases`)

@@ -6,6 +6,7 @@ from datetime import datetime
 from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field
+from redline.server.schemas.fields import StoredId, Title
 
 
 class ModelRequest(BaseModel):
@@ -13,8 +14,8 @@ class ModelRequest(BaseModel):
     revision's), optionally only one test case's segments, and the process to model."""
 
     model_config = ConfigDict(extra="forbid")
-    revisions: list[str] = Field(default_factory=list, max_length=1000)
-    executions: list[int] = Field(default_factory=list, max_length=10_000)
+    revisions: list[Title] = Field(default_factory=list, max_length=1000)
+    executions: list[StoredId] = Field(default_factory=list, max_length=10_000)
     case: str | None = Field(default=None, max_length=200, description="one test case only")
     process: str | None = Field(
         default=None, max_length=200, description="the component process (default: the only one)"
