@@ -215,9 +215,9 @@ class Residuals:
         if self.target not in DRIFTING or self.offset is None or self.moved is None:
             return
         if not self.active and abs(self.moved) <= self.threshold:
-            # no step pulls it by more than half the threshold: a busy thread's first steps,
-            # still within the threshold once smoothed, took it 10 % of a core up with them,
-            # and its alarm came after 11 s instead of 3 (a CI-like run, 2026-11-29)
+            # no step pulls it by more than half the threshold: a fault's first steps, still
+            # within the threshold once smoothed, would pull it a 30th of the fault's size
+            # each, delaying the alarm they start (+50 % of a core: 1.7 a step, unclipped)
             reach = OFFSET_FLOOR * self.threshold
             self.offset += float(np.clip(residual - self.offset, -reach, reach)) / DRIFT_STEPS
 
