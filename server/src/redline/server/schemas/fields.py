@@ -74,13 +74,14 @@ def host_name(value: str) -> str:
     header could carry its name, and every upload of its runs was refused)."""
     if "/" in value:
         raise ValueError("must not contain '/': a host's name is one machine's name")
-    for position, char in enumerate(printable(value)):
+    printable(value)  # its unseen characters named first, as every other field's are
+    for position, char in enumerate(value):
         if not char.isascii():
             raise ValueError(
                 f"must be ASCII (it travels in an HTTP header), not {char!r} at position "
                 f"{position}: a machine's DNS name, punycode for others, would do"
             )
-    return path_segment(printable(value))
+    return path_segment(value)
 
 
 def name_characters(value: str, also: str = "") -> str:

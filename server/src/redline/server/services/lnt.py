@@ -135,11 +135,8 @@ def parse_lnt(body: bytes, component: str, order_field: str = ORDER_FIELD) -> Im
         raise BadRequest(f"LNT report: run has no order field {order_field!r}")
     if not isinstance(order, str | int) or isinstance(order, bool):
         # a NaN read as "no order field" sent its author looking for a missing one
-        raise BadRequest(
-            f"LNT report: run field {order_field!r} must be text or a whole number, not {order!r}"[
-                :200
-            ]
-        )
+        said = f"must be text or a whole number, not {order!r}"[:120]
+        raise BadRequest(f"LNT report: run field {order_field!r} {said}")
     title = str(order)[:200]
     try:
         path_segment(title)
