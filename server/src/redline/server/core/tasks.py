@@ -70,6 +70,9 @@ def celery_client(settings: Settings, **options: object) -> Celery:
     from celery import Celery
 
     app = Celery("redline", broker=broker_url(settings.redis_url), **options)
+    # a running worker looks for tasks whose worker died this often (kombu's default, 10 s x
+    # every 10th look, left such a task waiting 100 s past its timeout)
+    sweep_s = max(1, min(10, int(settings.task_visibility_s / 4)))
     app.conf.update(
         task_ignore_result=True,
         task_default_queue=settings.queue,
@@ -77,10 +80,17 @@ def celery_client(settings: Settings, **options: object) -> Celery:
         broker_connection_retry_on_startup=True,
         broker_transport_options={
             "visibility_timeout": settings.task_visibility_s,
-            # a running worker looks for tasks whose worker died this often (kombu's default,
-            # 10 s x every 10th look, left such a task waiting 100 s past its timeout)
-            "unacked_restore_interval": max(1, min(10, int(settings.task_visibility_s / 4))),
+            "unacked_restore_interval": sweep_s,
             "unacked_restore_throttle": 1,
+            # a sweep holds a lock for milliseconds; a worker killed holding it stopped every
+            # other worker's sweeps until it expired (kombu's default: 300 s)
+            "unacked_mutex_expire": 2 * sweep_s,
+            # the bookkeeping of taken tasks is the queue's own: a stack sharing the Redis
+            # with another (and another visibility timeout) never puts back the other's tasks
+            **{
+                f"unacked_{key}": f"{settings.queue}.unacked{suffix}"
+                for key, suffix in (("key", ""), ("index_key", "_index"), ("mutex_key", "_mutex"))
+            },
         },
         task_publish_retry_policy={
             "max_retries": 3,
