@@ -73,6 +73,28 @@ def test_use_is_recorded_and_revocation_is_immediate(api: Api):
     )
 
 
+def test_a_token_named_by_digits_is_refused_and_one_named_so_before_can_be_revoked(api: Api):
+    """A token named "2026" could not be revoked by its name: the digits were read as an id
+    (404 "no live token named or numbered '2026'"); one named "12345678901" was "an id out of
+    range". A new one is refused (its name would read as an id); one made before is found by
+    its name when no token has that id."""
+    refused = api.client.post(
+        "/api/v1/tokens", headers=api.tokens["admin"], json={"name": "2026", "scopes": ["ci"]}
+    )
+    assert refused.status_code == 400 and "digits" in refused.json()["detail"], refused.text
+    with session_factory(api.settings.database_url)() as session:
+        for name in ("2026", "12345678901"):  # as an older Redline let them be named
+            session.add(ApiToken(name=name, scopes=["ci"], token_hash=f"never-{name}"))
+        session.commit()
+    for name in ("2026", "12345678901"):
+        revoked = api.client.delete(f"/api/v1/tokens/{name}", headers=api.tokens["admin"])
+        assert revoked.status_code == 200, revoked.text
+        assert [(t["name"], t["revoked"]) for t in revoked.json()] == [(name, True)]
+    first = api.client.get("/api/v1/tokens", headers=api.tokens["admin"]).json()[0]
+    by_id = api.client.delete(f"/api/v1/tokens/{first['id']}", headers=api.tokens["admin"])
+    assert by_id.status_code == 200 and by_id.json()[0]["id"] == first["id"]  # an id still is one
+
+
 def test_read_access_token_mode_needs_a_read_token(services: Services, tmp_path: Path):
     with api_with(services, tmp_path, read_access="token") as api:
         assert api.client.get("/api/v1/components").status_code == 401

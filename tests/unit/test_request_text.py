@@ -10,6 +10,7 @@ from typing import Any
 
 import pytest
 from pydantic import BaseModel, ValidationError
+from redline.server.app import _huge_path_id
 from redline.server.schemas.alerts import SubscriptionCreate
 from redline.server.schemas.components import ComponentCreate, ComponentSettings
 from redline.server.schemas.imports import ResultsImport
@@ -17,6 +18,7 @@ from redline.server.schemas.jobs import HostRequest, RegisterRequest
 from redline.server.schemas.revisions import RevisionCreate
 from redline.server.services.errors import BadRequest
 from redline.server.services.lnt import parse_lnt
+from starlette.requests import Request
 
 REVISION = {"component": "c", "title": "r1", "sort_key": "1", "commit": "abc"}
 VALUE = {"case": "t", "counter": "cpu", "values": [1.0]}
@@ -128,3 +130,18 @@ def test_an_lnt_report_with_unseen_characters_is_refused_naming_where(where, rep
     assert parse_lnt(json.dumps(good).encode(), "c").host == "m1"
     with pytest.raises(BadRequest, match=re.escape(f"LNT report: {where} ")):
         parse_lnt(json.dumps(good | report).encode(), "c")
+
+
+def test_only_an_id_in_the_address_past_any_stored_one_makes_an_unstorable_value_a_404() -> None:
+    """A name of digits is a name (a component "12345678901"): a value out of range in its
+    request is the body's fault (422), not an address of nothing (404)."""
+
+    def address(**params: str) -> Request:
+        return Request({"type": "http", "method": "POST", "path_params": params})
+
+    assert _huge_path_id(address(job_id=str(2**40)))
+    assert _huge_path_id(address(id=str(-(2**31))))
+    assert _huge_path_id(address(name_or_id=str(2**64)))
+    assert not _huge_path_id(address(job_id=str(2**31 - 1)))  # it could be stored
+    assert not _huge_path_id(address(name=str(2**40)))  # a component's name of digits
+    assert not _huge_path_id(address(title=str(2**40), name="builder"))  # a revision's title

@@ -40,6 +40,11 @@ def issue_token(
         path_segment(name)
     except ValueError as exc:
         raise BadRequest(f"a token's name {escaped(name)[:80]!r} {exc}") from None
+    if name.isdigit():  # `revoke_token` reads a name of digits as an id first
+        raise BadRequest(
+            f"a token's name {name[:80]!r} must not be digits only: it would read as a token's "
+            "id (revoke by id, GET /api/v1/tokens); add a letter, as in 'ci-2026'"
+        )
     if "agent" in parsed and not host:
         raise BadRequest(
             "an agent token acts for one host, or a pool of hosts named alike: name it (host, "
@@ -64,11 +69,14 @@ def list_tokens(session: Session) -> list[ApiToken]:
 
 
 def revoke_token(session: Session, name_or_id: str) -> list[ApiToken]:
-    """Revoke the token with this id, or every live token with this name; NotFound otherwise."""
-    query = select(ApiToken).where(ApiToken.name == name_or_id, ~ApiToken.revoked)
-    if name_or_id.isdigit():
-        query = select(ApiToken).where(ApiToken.id == int(name_or_id))
-    tokens = list(session.scalars(query))
+    """Revoke the token with this id, or every live token with this name; NotFound otherwise.
+    Digits are an id first, then a name (an older Redline let tokens be named "2026")."""
+    tokens = []
+    if name_or_id.isdigit() and int(name_or_id) < 2**31:  # past that, no id: a name
+        tokens = list(session.scalars(select(ApiToken).where(ApiToken.id == int(name_or_id))))
+    if not tokens:
+        by_name = select(ApiToken).where(ApiToken.name == name_or_id, ~ApiToken.revoked)
+        tokens = list(session.scalars(by_name))
     if not tokens:
         raise NotFound(f"no live token named or numbered {name_or_id!r}")
     for token in tokens:
