@@ -9,6 +9,7 @@ import uuid
 from collections.abc import Iterator
 from pathlib import Path
 
+import httpx
 import pytest
 import redis
 from fastapi.testclient import TestClient
@@ -24,7 +25,7 @@ from sqlalchemy import func, select, update
 
 from tests.support.api import Api, api_with, emptied_with_tokens, expire_lease, recording_for
 from tests.support.pages import trend_data
-from tests.support.servers import Services
+from tests.support.servers import Services, live_server
 
 
 @pytest.fixture
@@ -584,3 +585,23 @@ def test_an_address_naming_an_id_past_any_stored_one_is_404_for_every_method(api
         answer = api.post(path, "agent", {"host": "perf1"})
         assert answer.status_code == 404, answer.text
         assert "an id out of range" in answer.json()["detail"]
+
+
+def test_head_answers_as_get_without_the_body_on_every_address_that_answers_get(api: Api):
+    """A trial's `curl -I` of pages that exist got 404, of /healthz 405: uptime and link
+    checkers ask with HEAD. Through a real uvicorn, whose HTTP framing must stay whole."""
+    api.client.post(
+        "/api/v1/components", headers=api.tokens["admin"], json={"name": "headed", "repo": ""}
+    )
+    with live_server(api.settings) as url, httpx.Client(base_url=url) as client:
+        for path in ("/", "/components/headed", "/regressions", "/healthz",
+                     "/api/v1/components", "/static/plotly.min.js"):  # fmt: skip
+            got, head = client.get(path), client.head(path)
+            assert got.status_code == 200, (path, got.text[:200])
+            assert (head.status_code, head.content) == (200, b""), path
+            assert head.headers["content-type"] == got.headers["content-type"], path
+            if "content-length" in got.headers:
+                assert head.headers["content-length"] == got.headers["content-length"], path
+        missing = client.head("/components/nosuch")
+        assert (missing.status_code, missing.content) == (404, b"")
+        assert client.get("/healthz").json()  # the connection after the HEADs still answers

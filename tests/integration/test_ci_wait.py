@@ -125,14 +125,19 @@ def test_bad_input_and_a_timeout_exit_2_naming_the_cause(server):
     api.revision("r8", "0008")  # queued, and no host to run it
     kept = Path(api.settings.storage_dir).parent / "late.xml"
     late = wait(server, "--revision", "r8", "--timeout", "2", "--junit", str(kept))
+    made = kept.parent / "reports" / "of-r8" / "late.xml"  # a missing folder is made
+    assert wait(server, "--revision", "r8", "--timeout", "1", "--junit", str(made)).returncode == 2
+    assert "no verdict within 1 s" in made.read_text()
     assert late.returncode == 2
     assert "no verdict within 2 s" in late.stderr and "performance host" in late.stderr
     error = ElementTree.parse(kept).getroot().find("testcase/error")
     assert error is not None and "no verdict within 2 s" in error.get("message", "")
     # refused before any waiting: a JUnit path that cannot be written, a server that is no URL
     started = time.monotonic()
-    nowhere = wait(server, "--revision", "r8", "--junit", "/nonexistent/dir/x.xml")
-    assert nowhere.returncode == 2 and "no folder /nonexistent/dir" in nowhere.stderr
+    under_a_file = kept / "dir" / "x.xml"  # `late.xml` is a file
+    nowhere = wait(server, "--revision", "r8", "--junit", str(under_a_file))
+    assert nowhere.returncode == 2, nowhere.stderr
+    assert f"no folder {kept / 'dir'} can be made: Not a directory" in nowhere.stderr
     assert time.monotonic() - started < 30
     url = subprocess.run(
         [REDLINE, "ci", "wait", "--server", "notaurl", "--component", "c", "--revision", "r"],

@@ -10,6 +10,7 @@ from xml.etree import ElementTree
 
 import numpy as np
 from redline.recording import RecordingWriter
+from redline.recording.format import NO_TRAFFIC
 from redline.server.models import (
     Detection,
     Execution,
@@ -57,11 +58,17 @@ def _record(
     cpu: float = 20.0,
     split: bool = False,
     case: str = CASE,
+    silent: bool = False,
 ) -> Path:
     """One execution's recording: a 2 s steady phase with the component's CPU, the host's and
-    Redline's own, and the driver's report of its queries (as `redline.testing.Query` makes)."""
+    Redline's own, and the driver's report of its queries (as `redline.testing.Query` makes).
+    ``silent``: no query answered, the run recorded as the agent records it then."""
     rng = np.random.default_rng(seed)
     begin, end = 1_000_000_000, 3_000_000_000
+    if silent:
+        timeouts = queries
+        run = {**run, "status": NO_TRAFFIC, "warning": f"none of the {queries} queries of the "
+               "measured phases was answered"}  # fmt: skip
     with RecordingWriter(path) as writer:
         writer.metadata("redline.run", run)
         writer.metadata("redline.host", {"cpu_cores": "2"})
@@ -230,6 +237,18 @@ def test_a_driver_report_missing_from_the_revision_is_not_measured_not_a_pass(
     # and the revision's page says why in the same words, not "the host was busy"
     said = gate(session, NAME, "r4").words
     assert "because a series the revision before measured is missing;" in said, said
+
+
+def test_a_revision_whose_component_answered_nothing_is_no_pass(session, database_url, tmp_path):
+    """A trial's component stopped answering: every query timed out, the runs were recorded as
+    no traffic, each case was "not enough data", skipped, and CI passed it with exit 0."""
+    _history(session, database_url, tmp_path, {"silent": True})
+    verdict = ci_verdict(session, NAME, "r4")
+    (case,) = verdict.cases
+    assert case.state == "undecided" and "no traffic: none of the 100 queries" in case.reason
+    assert verdict.undecided == 1 and "undecided: not enough data" in junit_xml(verdict)
+    said = gate(session, NAME, "r4").words
+    assert "because the component took no part in the run (no traffic);" in said, said
 
 
 def test_a_test_case_this_revision_did_not_run_is_no_measurement_it_lost(

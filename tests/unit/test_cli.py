@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import re
+import shutil
 import subprocess
 import sys
 from collections.abc import Iterator
@@ -112,6 +113,22 @@ def test_a_bad_suite_is_reported_with_its_line_before_any_service_library_loads(
     assert re.search(rf"{re.escape(str(suite))}:\d+: unknown field 'sampling_rate'", error), error
     assert done.returncode == 2, done.returncode  # bad input, as compare and ci wait say it
     assert set(loaded) <= {"zenoh"}, f"a bad suite file imported {loaded}"
+
+
+def test_a_test_module_that_cannot_be_imported_is_bad_input_before_anything_runs(
+    tmp_path: Path,
+) -> None:
+    """A trial's test module with a syntax error exited 1, "an error during the run", where
+    `--help` and writing-tests.md say 2: the suite's tests cannot be used, nothing ran."""
+    shutil.copytree(ECHO_SUITE.parents[1], tmp_path / "echo")
+    tests = tmp_path / "echo" / "perf" / "test_echo.py"
+    tests.write_text(tests.read_text() + "\nQ = Query((\n")
+    suite = tmp_path / "echo" / "perf" / "redline.toml"
+    _, done = _loaded("run", str(suite), "--out", str(tmp_path / "x.mcap"))
+    error = " ".join(done.stderr.split())
+    assert "test_echo.py" in error and "cannot import test module: " in error, error
+    assert "SyntaxError" in error and done.returncode == 2, (done.returncode, error)
+    assert not (tmp_path / "x.mcap").exists()  # nothing ran
 
 
 Command = TyperCommand | TyperGroup

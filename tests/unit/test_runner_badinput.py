@@ -6,8 +6,8 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-from redline.agent.processes import RunError
 from redline.agent.runner import run_suite
+from redline.agent.suite import SuiteError
 from redline.testing import ValidationError
 
 from tests.support.suites import quiet_suite as _suite
@@ -51,8 +51,8 @@ def test_test_module_with_an_error_is_named_with_its_line(tmp_path: Path) -> Non
         broken = 1 / 0
         """,
     )
-    with pytest.raises(
-        RunError,
+    with pytest.raises(  # bad input, as a bad suite file is: `redline run` exits 2
+        SuiteError,
         match=r"test_it.py:3: cannot import test module: "
         r"ZeroDivisionError",
     ):

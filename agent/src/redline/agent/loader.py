@@ -9,7 +9,7 @@ import traceback
 from pathlib import Path
 from types import ModuleType
 
-from redline.agent.processes import RunError
+from redline.agent.suite import SuiteError
 from redline.testing import TestCase
 
 
@@ -31,7 +31,7 @@ def import_module(path: Path) -> ModuleType:
     name = "redline_tests_" + hashlib.sha1(str(path).encode()).hexdigest()[:12]
     spec = importlib.util.spec_from_file_location(name, path)
     if spec is None or spec.loader is None:
-        raise RunError(f"{path}: cannot be imported as a Python module")
+        raise SuiteError(f"{path}: cannot be imported as a Python module")
     module = importlib.util.module_from_spec(spec)
     before = set(sys.modules)
     sys.modules[name] = module
@@ -40,7 +40,7 @@ def import_module(path: Path) -> ModuleType:
         spec.loader.exec_module(module)
     except Exception as exc:
         detail = "".join(traceback.format_exception_only(exc)).strip()
-        raise RunError(f"{_where(exc, path)}: cannot import test module: {detail}") from exc
+        raise SuiteError(f"{_where(exc, path)}: cannot import test module: {detail}") from exc
     finally:
         sys.path.remove(str(path.parent))
         _forget_modules_from(path.parent, set(sys.modules) - before)
@@ -62,6 +62,6 @@ def load_test_cases(paths: tuple[Path, ...] | list[Path]) -> list[TestCase]:
     for path in paths:
         found = [v for v in vars(import_module(path)).values() if isinstance(v, TestCase)]
         if not found:
-            raise RunError(f"{path}: defines no TestCase at its top level")
+            raise SuiteError(f"{path}: defines no TestCase at its top level")
         cases.extend(case for case in found if all(case is not c for c in cases))
     return cases

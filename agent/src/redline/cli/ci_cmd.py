@@ -5,8 +5,9 @@ table, and says by its exit code whether the revision passes.
 Exit codes: 0 no change (per ``--fail-on``), 1 a change, 2 bad input or timeout (unknown
 component or revision, refused token, no verdict in time), 3 the revision's jobs failed, 4 no
 change found but some test case undecided: the host was busy in every run of it or of its
-baseline, even after a fresh run, its method failed, or a measurement the revision before made
-in it is missing (never a silent pass; ``--fail-on none`` passes it); the message names which.
+baseline, even after a fresh run, its method failed, a measurement the revision before made
+in it is missing, or the component took no part in its runs (no traffic) (never a silent pass;
+``--fail-on none`` passes it); the message names which.
 Only httpx is needed, so CI machines install the light `redline-agent` distribution.
 """
 
@@ -134,10 +135,14 @@ def _junit_error(path: Path, component: str, revision: str, message: str) -> Non
 
 
 def _writable(path: Path) -> None:
-    """Exit 2 now, not after the wait, when the JUnit file cannot be written."""
+    """Exit 2 now, not after the wait, when the JUnit file cannot be written; a missing folder
+    is made, as `redline run --out` and `redline compare --junit` make theirs (a trial met all
+    three, and only this one refused)."""
     folder = path.parent if str(path.parent) else Path(".")
-    if not folder.is_dir():
-        _stop(BAD_INPUT, f"--junit {path}: no folder {folder}")
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        _stop(BAD_INPUT, f"--junit {path}: no folder {folder} can be made: {exc.strerror or exc}")
     if path.is_dir() or not os.access(folder, os.W_OK):
         _stop(BAD_INPUT, f"--junit {path}: cannot be written")
 
@@ -164,7 +169,7 @@ def wait(
 ) -> None:
     """Wait for a revision's verdict; write JUnit XML; exit 0 (no change), 1 (change), 2 (bad
     input or timeout), 3 (its jobs failed), 4 (undecided: the host was busy, a method
-    failed, or a measurement went missing)."""
+    failed, a measurement went missing, or the component took no part in the run)."""
     if urlsplit(server).scheme not in ("http", "https") or not urlsplit(server).hostname:
         _stop(BAD_INPUT, f"--server {server!r}: not an http:// or https:// URL")
     if junit is not None:

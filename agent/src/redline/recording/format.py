@@ -76,12 +76,16 @@ LOG_ATTACHMENT_PREFIX = "log/"
 LOG_KEEP_BYTES = 256 * 1024
 
 
+#: how `no_traffic_reason` begins, in every verdict's reason it is carried into
+NO_TRAFFIC_MARK = "no traffic: "
+
+
 def no_traffic_reason(run: Mapping[str, str]) -> str | None:
     """Why a recording's measurements say nothing of its component, from its ``redline.run``
     metadata; None unless its status is ``no_traffic``."""
     if run.get("status") != NO_TRAFFIC:
         return None
-    return f"no traffic: {run.get('warning') or 'the component took no part in the run'}"
+    return NO_TRAFFIC_MARK + (run.get("warning") or "the component took no part in the run")
 
 
 def canonical_params(params: dict[str, Any]) -> str:

@@ -16,6 +16,7 @@ from fastapi.routing import APIRoute
 from redline.server.core import metrics
 from redline.server.core.bodies import BodyLimit
 from redline.server.core.config import Settings, get_settings
+from redline.server.core.head import HeadAsGet
 from redline.server.core.tasks import TaskSender
 from redline.server.routes import (
     agent,
@@ -241,6 +242,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     # inside the metrics middleware, whose own reads of the request must not meet the limit
     app.add_middleware(BodyLimit, settings=settings)
     metrics.install(app, settings)
+    app.add_middleware(HeadAsGet)  # outermost: every layer inside sees the GET it answers
     for module in (
         health,
         components,

@@ -30,7 +30,7 @@ from redline.detect.result import (
 )
 from redline.recording.disturbance import names_busy_host
 from redline.recording.driver import DRIVER_PROCESS as DRIVER
-from redline.recording.format import canonical_params
+from redline.recording.format import NO_TRAFFIC_MARK, canonical_params
 from redline.server.models import (
     FINISHED,
     Detection,
@@ -232,11 +232,15 @@ def ci_verdict(session: Session, component_name: str, title: str) -> CiVerdict:
 def _undecided(reason: str) -> bool:
     """A "not enough data" no wait lifts: the host was busy in every run (and a fresh one), the
     method failed (a trial's threshold of the wrong kind made every verdict fail, and its
-    fourfold CPU rise "passed"), or a series the revision before measured is gone (a driver
+    fourfold CPU rise "passed"), a series the revision before measured is gone (a driver
     report missing, an action renamed: a gate that lost a measurement does not pass, as
-    `redline compare` does not)."""
+    `redline compare` does not), or the component took no part in the run (a trial's component
+    that answered none of its queries passed with exit 0)."""
     return (
-        names_busy_host(reason) or reason.startswith(METHOD_FAILED) or NOT_MEASURED_MARK in reason
+        names_busy_host(reason)
+        or reason.startswith(METHOD_FAILED)
+        or NOT_MEASURED_MARK in reason
+        or NO_TRAFFIC_MARK in reason
     )
 
 

@@ -11,6 +11,7 @@ from dataclasses import dataclass
 
 from redline.detect.result import METHOD_FAILED, NOT_MEASURED_MARK
 from redline.recording.disturbance import names_busy_host
+from redline.recording.format import NO_TRAFFIC_MARK
 from redline.server.models import Regression
 from redline.server.schemas.alerts import CiVerdict
 from redline.server.services.ci_verdict import ci_verdict
@@ -38,6 +39,10 @@ _UNDECIDED = (
     (
         lambda reason: NOT_MEASURED_MARK in reason,
         "a series the revision before measured is missing",
+    ),
+    (
+        lambda reason: NO_TRAFFIC_MARK in reason,
+        "the component took no part in the run (no traffic)",
     ),
 )
 
