@@ -488,6 +488,42 @@ def test_a_suite_outside_the_repository_is_refused_when_it_is_set(api: Api, suit
     assert api.client.get("/api/v1/components/builder").json()["suite"] == "perf/redline.toml"
 
 
+@pytest.mark.parametrize("field", ["repo", "branch", "suite"])
+def test_a_setting_a_job_needs_is_never_emptied(api: Api, field: str):
+    """A trial's PATCH of ``"repo": ""`` was saved, and its next revisions each failed on a
+    host ("no repository is configured"); the settings page keeps a field left blank."""
+    before = api.client.get("/api/v1/components/builder").json()
+    emptied = api.client.patch(
+        "/api/v1/components/builder", json={field: ""}, headers=api.tokens["admin"]
+    )
+    assert emptied.status_code == 422, emptied.text
+    assert field in emptied.text and "cannot be emptied" in emptied.text
+    assert api.client.get("/api/v1/components/builder").json() == before
+
+
+def test_a_component_no_host_could_run_takes_imports_but_no_ci_report(api: Api):
+    """A trial made a component with no repo and no suite, reported revisions to it (201), and
+    saw each job fail on its host. Its report is 409 now, saying what to set (imports, which
+    run nothing, are tested with such components in test_import.py). And a component's branch
+    is never empty."""
+    made = api.post("/api/v1/components", "admin", {"name": "imported", "branch": ""})
+    assert made.status_code == 422 and "branch" in made.text
+    assert api.post("/api/v1/components", "admin", {"name": "imported"}).status_code == 201
+    body = {"component": "imported", "title": "r1", "sort_key": "1", "commit": "abc123"}
+    refused = api.post("/api/v1/revisions", "ci", body)
+    assert refused.status_code == 409, refused.text
+    said = refused.json()["detail"]
+    assert "has no repo and no suite set" in said and "PATCH /api/v1/components/imported" in said
+    assert api.client.get("/api/v1/components/imported/revisions").json() == []
+    set_repo = {"repo": "https://git.example/imported.git"}
+    api.client.patch("/api/v1/components/imported", json=set_repo, headers=api.tokens["admin"])
+    assert "has no suite set" in api.post("/api/v1/revisions", "ci", body).json()["detail"]
+    api.client.patch(
+        "/api/v1/components/imported", json={"suite": "perf/s.toml"}, headers=api.tokens["admin"]
+    )
+    assert api.post("/api/v1/revisions", "ci", body).status_code == 201
+
+
 def test_an_unknown_field_is_refused_naming_it_never_ignored(api: Api):
     """A trial from outside saw `suite` in a revision and `committed_at` in an import dropped
     without a word (2026-11-24)."""

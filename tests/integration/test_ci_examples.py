@@ -76,7 +76,9 @@ def server(services, tmp_path_factory):
             executions = cpu_history(session, tmp, [10.0] * 5, config={"methods": ["ks"]})
             session.execute(
                 Component.__table__.update().values(
-                    repo="https://github.com/robots/builder", repo_key="github.com/robots/builder"
+                    repo="https://github.com/robots/builder",
+                    repo_key="github.com/robots/builder",
+                    suite="perf/redline.toml",
                 )
             )
             session.commit()

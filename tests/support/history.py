@@ -94,7 +94,12 @@ def cpu_history(
     config: dict | None = None,
 ) -> list[Execution]:
     """Revisions r1.. of one component with a 'cpu' series; floats are means of 60 samples."""
-    component = create_component(session, ComponentCreate(name=COMPONENT))
+    component = create_component(  # one a host could run: CI may report its revisions
+        session,
+        ComponentCreate(
+            name=COMPONENT, repo=f"https://git.example/{COMPONENT}.git", suite="perf/redline.toml"
+        ),
+    )
     if config is not None:
         session.add(DetectionConfigRow(component_id=component.id, config=config))
         session.commit()

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from datetime import datetime
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, field_validator
 from redline.server.schemas.fields import Branch, ComponentName, Description, SuitePath, Word
 
 
@@ -32,6 +32,19 @@ class ComponentSettings(BaseModel):
     )
     description: Description | None = None
 
+    @field_validator("repo", "branch", "suite")
+    @classmethod
+    def _kept_or_changed(cls, value: str | None) -> str | None:
+        """Never emptied: a trial's ``"repo": ""`` was saved, and every revision reported
+        after it failed on its host ("no repository is configured"); the settings page keeps a
+        field left blank."""
+        if value == "":
+            raise ValueError(
+                "cannot be emptied: the component's jobs need it (leave it out, or null, to "
+                "keep it)"
+            )
+        return value
+
 
 class ComponentCreate(BaseModel):
     model_config = ConfigDict(extra="forbid")  # a misspelt field is refused, never ignored
@@ -52,6 +65,13 @@ class ComponentCreate(BaseModel):
     )
     webhook_secret: str | None = Field(default=None, description="overrides REDLINE_WEBHOOK_SECRET")
     description: Description = ""
+
+    @field_validator("branch")
+    @classmethod
+    def _a_branch(cls, value: str) -> str:
+        if not value:
+            raise ValueError("must name the default branch (leave it out for 'main')")
+        return value
 
 
 class ComponentOut(BaseModel):

@@ -69,11 +69,28 @@ def _reported_before(session: Session, data: RevisionCreate) -> Revision | None:
     )
 
 
+def cannot_run(component: Component) -> str | None:
+    """Why no performance host could run the component's revisions: no repository or no suite
+    file set (a component made for imported results); None when one could."""
+    missing = [field for field in ("repo", "suite") if not getattr(component, field)]
+    if not missing:
+        return None
+    return (
+        f"component {component.name!r} has no {' and no '.join(missing)} set: no performance "
+        f"host could run its revisions; an admin sets {' and '.join(missing)} (PATCH "
+        f"/api/v1/components/{component.name}, or its settings page); results can be "
+        "imported without (POST /api/v1/import/results or /api/v1/import/lnt)"
+    )
+
+
 def report_revision(session: Session, data: RevisionCreate) -> tuple[Revision, bool]:
     """CI's report: the revision made (True), or the one reported before with the same commit
     (False: a re-run pipeline, or CI and a webhook both reporting it, whose sort keys and titles
     may differ in form: the first report's stand); a title taken by another commit is a
-    Conflict naming both."""
+    Conflict naming both, and so is a component no host could run (`cannot_run`: a trial's
+    revisions were taken, and each job failed on its host)."""
+    if (reason := cannot_run(get_component(session, data.component))) is not None:
+        raise Conflict(reason)
     reported = _reported_before(session, data)
     if reported is not None:
         return reported, False
