@@ -148,6 +148,15 @@ def test_bad_filters_and_unknown_things_are_pages_naming_them(client, database_u
         bad = client.get(f"/components/builder?{switch}={value}")
         assert bad.status_code == 400 and f"{switch}: 1 or 0" in bad.text, bad.text
     assert client.get("/components/builder?log=on&median=0").status_code == 200
+    # a filter value no series has (a trial read "No results for this view yet")
+    for query, said in (
+        ("case=nosuch", "case: builder has no case 'nosuch' (it has 'build')"),
+        ("param.legs=99", "param.legs: builder's parameter 'legs' is never '99' (it is '2', '8')"),
+        ("param.rate=2", "param.rate: builder has no parameter 'rate' (its parameters: legs)"),
+    ):
+        unknown = client.get(f"/components/builder?{query}")
+        assert unknown.status_code == 400 and said in html.unescape(unknown.text), unknown.text
+    assert client.get("/components/builder?case=build&param.legs=8").status_code == 200
     nul = client.get("/components/builder?before=%00")  # was a 422 naming a database detail
     assert nul.status_code == 400 and "before: must not contain control" in nul.text, nul.text
     missing = client.get("/components/nope")

@@ -145,3 +145,10 @@ def test_only_an_id_in_the_address_past_any_stored_one_makes_an_unstorable_value
     assert not _huge_path_id(address(job_id=str(2**31 - 1)))  # it could be stored
     assert not _huge_path_id(address(name=str(2**40)))  # a component's name of digits
     assert not _huge_path_id(address(title=str(2**40), name="builder"))  # a revision's title
+
+
+@pytest.mark.parametrize("key", ["1" * 400, int("1" * 400)])
+def test_an_over_long_sort_key_is_named_in_characters(key: object) -> None:
+    """A trial's 400-digit sort key was refused "at most 200 items after validation"."""
+    with pytest.raises(ValidationError, match="at most 200 characters"):
+        RevisionCreate(component="c", title="t", sort_key=key, commit="abc1234")

@@ -178,8 +178,8 @@ def whole_number_as_text(value: object) -> object:
 #: what orders a component's revisions: text, or a whole number taken as its text
 SortKey = Annotated[
     str,
+    Field(min_length=1, max_length=200),  # before the validator: "200 characters", not "items"
     BeforeValidator(whole_number_as_text),
-    Field(min_length=1, max_length=200),
     AfterValidator(one_line),
 ]
 #: a git branch, as a component's default or a revision's ('' where none is given)

@@ -183,6 +183,32 @@ def _choices(refs: list[SeriesRef]) -> dict[str, list[str]]:
     return {name: sorted(values, key=_numbers_first) for name, values in found.items()}
 
 
+def _check_filters(component: Component, view: TrendView, refs: list[SeriesRef]) -> None:
+    """A `BadRequest` naming a filter value that no series of the component has, with the
+    values it can take (a trial's ``?case=nosuch`` read "No results for this view yet", as if
+    results were on their way); filters each of which matches, but not together, pass."""
+    can = _choices(refs)
+    asked = [(name, getattr(view, name)) for name in FIELDS if getattr(view, name)]
+    for name, value in asked + [(f"param.{name}", value) for name, value in view.params]:
+        values, parameter = can.get(name), name.removeprefix("param.")
+        if values is None:
+            known = [key.removeprefix("param.") for key in can if key.startswith("param.")]
+            raise BadRequest(
+                f"{name}: {component.name} has no parameter {parameter!r} (its parameters: "
+                f"{', '.join(known) or 'none'})"
+            )
+        if value not in values:
+            shown = ", ".join(repr(v) for v in values[:10]) + (", ..." if len(values) > 10 else "")
+            if name in FIELDS:
+                raise BadRequest(
+                    f"{name}: {component.name} has no {name} {value!r} (it has {shown})"
+                )
+            raise BadRequest(
+                f"{name}: {component.name}'s parameter {parameter!r} is never {value!r} (it is "
+                f"{shown})"
+            )
+
+
 def _numbers_first(value: str) -> tuple[bool, float, str]:
     """Numbers in numeric order ("50" before "100"), then any other text in text order."""
     try:
@@ -226,6 +252,8 @@ def trend_data(
     every = list(session.scalars(select(Series).where(Series.component_id == component.id)))
     refs = {series.id: series_ref(series) for series in every}
     chosen = {sid: TrendSeries(ref) for sid, ref in refs.items() if view.selects(ref)}
+    if refs and not chosen:
+        _check_filters(component, view, list(refs.values()))
     found = shown_in or window(session, component, view)
     newest, ran = found.revisions, found.ran
     earlier = newest[view.revisions - 1].title if len(newest) > view.revisions else None
