@@ -31,10 +31,11 @@ from redline.server.schemas.components import ComponentCreate
 from redline.server.schemas.jobs import RegisterRequest
 from redline.server.services.ci_verdict import ci_verdict
 from redline.server.services.components import create_component
-from redline.server.services.dashboard import TrendView, trend_data
+from redline.server.services.dashboard import trend_data
 from redline.server.services.fresh_runs import waiting_on
 from redline.server.services.jobs import fail_job, lease_job, leased_job, register_host
 from redline.server.services.revisions import cancel_revision, revision_detail
+from redline.server.services.trend_view import TrendView
 from redline.worker.confirm_runs import queue_confirmations
 from redline.worker.detection import detect_revision
 from redline.worker.ingest import ingest_execution

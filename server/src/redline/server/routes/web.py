@@ -39,6 +39,7 @@ from redline.server.services import (
     regressions,
     revision_view,
     revisions,
+    trend_view,
     why,
 )
 from redline.server.services.errors import BadRequest, NotFound
@@ -83,7 +84,7 @@ def _unjudged(verdicts: dict[str, str]) -> str:
 def component_page(name: str, request: Request, session: SessionDep) -> HTMLResponse:
     try:
         component = components.get_component(session, name)
-        view = dashboard.TrendView.from_query(request.query_params)
+        view = trend_view.TrendView.from_query(request.query_params)
         trends = dashboard.cached_page(session, component, view, trend_charts)
     except (NotFound, BadRequest) as exc:
         return problem(request, exc)
@@ -98,7 +99,7 @@ def component_page(name: str, request: Request, session: SessionDep) -> HTMLResp
             "component": component,
             "view": view,
             "page": trends,
-            "most_revisions": dashboard.MAX_REVISIONS,
+            "most_revisions": trend_view.MAX_REVISIONS,
             "choices": dashboard.choices(session, component),
             "revisions": newest,
             "regressions": regressions.list_regressions(session, name, limit=LISTED)[0],
@@ -158,7 +159,7 @@ def component_trends(name: str, request: Request, session: SessionDep) -> Respon
     revision. ``{"earlier": the oldest revision shown when there are older ones, "view": the
     page's query for this view, "page": {"charts", "revisions"}}``; a bad filter is a 400."""
     component = components.get_component(session, name)
-    view = dashboard.TrendView.from_query(request.query_params)
+    view = trend_view.TrendView.from_query(request.query_params)
     trends = dashboard.cached_page(session, component, view, trend_charts)
     head = json.dumps({"earlier": trends.earlier, "view": view.query()})
     return Response(f'{head[:-1]},"page":{trends.data}}}', media_type="application/json")

@@ -1,9 +1,7 @@
 """The component page's trend view: which series, which revisions, their points and their marks.
 
-A view is what the page's address says (`TrendView.from_query`): filters by case, phase,
-process, counter, parameter (``param.legs=8``) and the host that ran the executions, how many
-of the newest revisions (100 by default), where the history ends (``before``, to page back),
-log scale and a moving median. Only
+A view is what the page's address says (`redline.server.services.trend_view`): filters, how
+many of the newest revisions (100 by default), where the history ends (``before``). Only
 those revisions are read, so a page costs the same at 100 and at 10,000 revisions, and only the
 revisions' own executions: confirmation runs are not part of a trend.
 
@@ -17,12 +15,10 @@ from __future__ import annotations
 
 import hashlib
 import json
-import math
-from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field, replace
+from collections.abc import Callable
+from dataclasses import dataclass, field
 from datetime import datetime
 from typing import Any
-from urllib.parse import urlencode
 
 from redline.detect.confirmation import DROPPED, HELD, SUSPECTED
 from redline.detect.summary import Pooled
@@ -43,95 +39,15 @@ from redline.server.models import (
 from redline.server.schemas.results import SeriesRef
 from redline.server.services.errors import BadRequest
 from redline.server.services.executions import host_names
-from redline.server.services.read import FIELDS, matches, param_text
 from redline.server.services.results import series_ref
+from redline.server.services.trend_view import (
+    TrendView,
+    check_filters,
+    filter_choices,
+)
 from sqlalchemy import ColumnElement, delete, exists, func, select
 from sqlalchemy.dialects.postgresql import insert
 from sqlalchemy.orm import Session
-
-DEFAULT_REVISIONS = 100
-MAX_REVISIONS = 2000
-MAX_FILTER_LENGTH = 200
-
-
-@dataclass(frozen=True)
-class TrendView:
-    """What a trend page shows; ``query()`` gives the address that shows it again."""
-
-    case: str = ""
-    phase: str = ""
-    process: str = ""
-    counter: str = ""
-    host: str = ""  # a performance host's name: only the executions it ran
-    params: tuple[tuple[str, str], ...] = ()
-    revisions: int = DEFAULT_REVISIONS
-    before: str = ""  # a revision's title: the history up to, not including, it
-    log: bool = False
-    median: bool = False
-
-    @classmethod
-    def from_query(cls, query: Mapping[str, str]) -> TrendView:
-        """The view an address asks for; a clear `BadRequest` naming a bad value."""
-        for key, value in query.items():
-            if len(value) > MAX_FILTER_LENGTH:
-                raise BadRequest(f"{key}: at most {MAX_FILTER_LENGTH} characters")
-            if any(ord(c) < 32 or ord(c) == 127 for c in value):  # a NUL reached the database
-                raise BadRequest(f"{key}: must not contain control characters")
-        raw = query.get("revisions", str(DEFAULT_REVISIONS)) or str(DEFAULT_REVISIONS)
-        if not (raw.isascii() and raw.isdecimal()) or not 1 <= int(raw) <= MAX_REVISIONS:
-            raise BadRequest(f"revisions: a whole number from 1 to {MAX_REVISIONS}, not {raw!r}")
-        params = tuple(
-            sorted(
-                (key.removeprefix("param."), value)
-                for key, value in query.items()
-                if key.startswith("param.") and value
-            )
-        )
-        return cls(
-            **{name: query.get(name, "") for name in FIELDS},
-            host=query.get("host", ""),
-            params=params,
-            revisions=int(raw),
-            before=query.get("before", ""),
-            log=_flag(query, "log"),
-            median=_flag(query, "median"),
-        )
-
-    def query(self, **changes: Any) -> str:
-        """The query string of this view with ``changes`` (defaults left out): shareable."""
-        view = replace(self, **changes)
-        pairs: list[tuple[str, str]] = [(n, getattr(view, n)) for n in FIELDS if getattr(view, n)]
-        pairs += [("host", view.host)] if view.host else []
-        pairs += [(f"param.{name}", value) for name, value in view.params]
-        if view.revisions != DEFAULT_REVISIONS:
-            pairs.append(("revisions", str(view.revisions)))
-        if view.before:
-            pairs.append(("before", view.before))
-        pairs += [(name, "1") for name in ("log", "median") if getattr(view, name)]
-        return urlencode(pairs)
-
-    def selects(self, series: SeriesRef) -> bool:
-        fields: dict[str, str | None] = {name: getattr(self, name) or None for name in FIELDS}
-        return matches(series, fields, dict(self.params))
-
-
-#: what a switch in an address may say (a checkbox sends "on")
-FLAG_VALUES = {
-    "1": True,
-    "on": True,
-    "true": True,
-    "": False,
-    "0": False,
-    "off": False,
-    "false": False,
-}
-
-
-def _flag(query: Mapping[str, str], name: str) -> bool:
-    value = query.get(name, "")
-    if value.lower() not in FLAG_VALUES:
-        raise BadRequest(f"{name}: 1 or 0 (on or off), not {value!r}")
-    return FLAG_VALUES[value.lower()]
 
 
 @dataclass(frozen=True)
@@ -172,52 +88,6 @@ class TrendData:
     earlier: str | None  # the oldest revision shown, when there are older ones
 
 
-def _choices(refs: list[SeriesRef]) -> dict[str, list[str]]:
-    """filter -> the values it can take; ``param.NAME`` -> the parameter's values."""
-    found: dict[str, set[str]] = {name: set() for name in FIELDS}
-    for ref in refs:
-        for name in FIELDS:
-            found[name].add(getattr(ref, name))
-        for name, value in ref.params.items():
-            found.setdefault(f"param.{name}", set()).add(param_text(value))
-    return {name: sorted(values, key=_numbers_first) for name, values in found.items()}
-
-
-def _check_filters(component: Component, view: TrendView, refs: list[SeriesRef]) -> None:
-    """A `BadRequest` naming a filter value that no series of the component has, with the
-    values it can take (a trial's ``?case=nosuch`` read "No results for this view yet", as if
-    results were on their way); filters each of which matches, but not together, pass."""
-    can = _choices(refs)
-    asked = [(name, getattr(view, name)) for name in FIELDS if getattr(view, name)]
-    for name, value in asked + [(f"param.{name}", value) for name, value in view.params]:
-        values, parameter = can.get(name), name.removeprefix("param.")
-        if values is None:
-            known = [key.removeprefix("param.") for key in can if key.startswith("param.")]
-            raise BadRequest(
-                f"{name}: {component.name} has no parameter {parameter!r} (its parameters: "
-                f"{', '.join(known) or 'none'})"
-            )
-        if value not in values:
-            shown = ", ".join(repr(v) for v in values[:10]) + (", ..." if len(values) > 10 else "")
-            if name in FIELDS:
-                raise BadRequest(
-                    f"{name}: {component.name} has no {name} {value!r} (it has {shown})"
-                )
-            raise BadRequest(
-                f"{name}: {component.name}'s parameter {parameter!r} is never {value!r} (it is "
-                f"{shown})"
-            )
-
-
-def _numbers_first(value: str) -> tuple[bool, float, str]:
-    """Numbers in numeric order ("50" before "100"), then any other text in text order."""
-    try:
-        number = float(value)
-    except ValueError:
-        return True, 0.0, value
-    return (False, number, value) if math.isfinite(number) else (True, 0.0, value)
-
-
 @dataclass(frozen=True)
 class Window:
     """The revisions a view shows, newest first, and one more when older ones exist: its own
@@ -253,7 +123,7 @@ def trend_data(
     refs = {series.id: series_ref(series) for series in every}
     chosen = {sid: TrendSeries(ref) for sid, ref in refs.items() if view.selects(ref)}
     if refs and not chosen:
-        _check_filters(component, view, list(refs.values()))
+        check_filters(component, view, list(refs.values()))
     found = shown_in or window(session, component, view)
     newest, ran = found.revisions, found.ran
     earlier = newest[view.revisions - 1].title if len(newest) > view.revisions else None
@@ -387,7 +257,7 @@ def choices(session: Session, component: Component) -> dict[str, list[str]]:
     every performance host (a handful: which ran this component would cost a look at its whole
     history)."""
     every = session.scalars(select(Series).where(Series.component_id == component.id))
-    return {**_choices([series_ref(series) for series in every]), "host": host_names(session)}
+    return {**filter_choices([series_ref(series) for series in every]), "host": host_names(session)}
 
 
 #: views kept per component (each address is a view: the least recently rendered go first)

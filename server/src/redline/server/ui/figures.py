@@ -21,7 +21,8 @@ from redline.recording import params_name
 from redline.server.schemas.results import ChangeOut, SeriesOut
 
 if TYPE_CHECKING:
-    from redline.server.services.dashboard import TrendData, TrendSeries, TrendView
+    from redline.server.services.dashboard import TrendData, TrendSeries
+    from redline.server.services.trend_view import TrendView
 
 SIDE_COLORS = {"baseline": "#1f77b4", "candidate": "#d62728"}
 FLAG_COLOR = "#d62728"

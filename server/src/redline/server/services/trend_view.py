@@ -1,0 +1,148 @@
+"""The view a component page's address asks for (`TrendView.from_query`): filters by case,
+phase, process, counter, parameter (``param.legs=8``) and host, how many of the newest
+revisions, where the history ends (``before``), log scale and a moving median; and the values
+each filter can take, with a clear refusal of one that no series has (`check_filters`).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, replace
+from typing import Any
+from urllib.parse import urlencode
+
+from redline.server.models import Component
+from redline.server.schemas.results import SeriesRef
+from redline.server.services.errors import BadRequest
+from redline.server.services.read import FIELDS, matches, param_text
+
+DEFAULT_REVISIONS = 100
+MAX_REVISIONS = 2000
+MAX_FILTER_LENGTH = 200
+
+
+@dataclass(frozen=True)
+class TrendView:
+    """What a trend page shows; ``query()`` gives the address that shows it again."""
+
+    case: str = ""
+    phase: str = ""
+    process: str = ""
+    counter: str = ""
+    host: str = ""  # a performance host's name: only the executions it ran
+    params: tuple[tuple[str, str], ...] = ()
+    revisions: int = DEFAULT_REVISIONS
+    before: str = ""  # a revision's title: the history up to, not including, it
+    log: bool = False
+    median: bool = False
+
+    @classmethod
+    def from_query(cls, query: Mapping[str, str]) -> TrendView:
+        """The view an address asks for; a clear `BadRequest` naming a bad value."""
+        for key, value in query.items():
+            if len(value) > MAX_FILTER_LENGTH:
+                raise BadRequest(f"{key}: at most {MAX_FILTER_LENGTH} characters")
+            if any(ord(c) < 32 or ord(c) == 127 for c in value):  # a NUL reached the database
+                raise BadRequest(f"{key}: must not contain control characters")
+        raw = query.get("revisions", str(DEFAULT_REVISIONS)) or str(DEFAULT_REVISIONS)
+        if not (raw.isascii() and raw.isdecimal()) or not 1 <= int(raw) <= MAX_REVISIONS:
+            raise BadRequest(f"revisions: a whole number from 1 to {MAX_REVISIONS}, not {raw!r}")
+        params = tuple(
+            sorted(
+                (key.removeprefix("param."), value)
+                for key, value in query.items()
+                if key.startswith("param.") and value
+            )
+        )
+        return cls(
+            **{name: query.get(name, "") for name in FIELDS},
+            host=query.get("host", ""),
+            params=params,
+            revisions=int(raw),
+            before=query.get("before", ""),
+            log=_flag(query, "log"),
+            median=_flag(query, "median"),
+        )
+
+    def query(self, **changes: Any) -> str:
+        """The query string of this view with ``changes`` (defaults left out): shareable."""
+        view = replace(self, **changes)
+        pairs: list[tuple[str, str]] = [(n, getattr(view, n)) for n in FIELDS if getattr(view, n)]
+        pairs += [("host", view.host)] if view.host else []
+        pairs += [(f"param.{name}", value) for name, value in view.params]
+        if view.revisions != DEFAULT_REVISIONS:
+            pairs.append(("revisions", str(view.revisions)))
+        if view.before:
+            pairs.append(("before", view.before))
+        pairs += [(name, "1") for name in ("log", "median") if getattr(view, name)]
+        return urlencode(pairs)
+
+    def selects(self, series: SeriesRef) -> bool:
+        fields: dict[str, str | None] = {name: getattr(self, name) or None for name in FIELDS}
+        return matches(series, fields, dict(self.params))
+
+
+#: what a switch in an address may say (a checkbox sends "on")
+FLAG_VALUES = {
+    "1": True,
+    "on": True,
+    "true": True,
+    "": False,
+    "0": False,
+    "off": False,
+    "false": False,
+}
+
+
+def _flag(query: Mapping[str, str], name: str) -> bool:
+    value = query.get(name, "")
+    if value.lower() not in FLAG_VALUES:
+        raise BadRequest(f"{name}: 1 or 0 (on or off), not {value!r}")
+    return FLAG_VALUES[value.lower()]
+
+
+def filter_choices(refs: list[SeriesRef]) -> dict[str, list[str]]:
+    """filter -> the values it can take; ``param.NAME`` -> the parameter's values."""
+    found: dict[str, set[str]] = {name: set() for name in FIELDS}
+    for ref in refs:
+        for name in FIELDS:
+            found[name].add(getattr(ref, name))
+        for name, value in ref.params.items():
+            found.setdefault(f"param.{name}", set()).add(param_text(value))
+    return {name: sorted(values, key=_numbers_first) for name, values in found.items()}
+
+
+def check_filters(component: Component, view: TrendView, refs: list[SeriesRef]) -> None:
+    """A `BadRequest` naming a filter value that no series of the component has, with the
+    values it can take (a trial's ``?case=nosuch`` read "No results for this view yet", as if
+    results were on their way); filters each of which matches, but not together, pass."""
+    can = filter_choices(refs)
+    asked = [(name, getattr(view, name)) for name in FIELDS if getattr(view, name)]
+    for name, value in asked + [(f"param.{name}", value) for name, value in view.params]:
+        values, parameter = can.get(name), name.removeprefix("param.")
+        if values is None:
+            known = [key.removeprefix("param.") for key in can if key.startswith("param.")]
+            raise BadRequest(
+                f"{name}: {component.name} has no parameter {parameter!r} (its parameters: "
+                f"{', '.join(known) or 'none'})"
+            )
+        if value not in values:
+            shown = ", ".join(repr(v) for v in values[:10]) + (", ..." if len(values) > 10 else "")
+            if name in FIELDS:
+                raise BadRequest(
+                    f"{name}: {component.name} has no {name} {value!r} (it has {shown})"
+                )
+            raise BadRequest(
+                f"{name}: {component.name}'s parameter {parameter!r} is never {value!r} (it is "
+                f"{shown})"
+            )
+
+
+def _numbers_first(value: str) -> tuple[bool, float, str]:
+    """Numbers in numeric order ("50" before "100"), then any other text in text order."""
+    try:
+        number = float(value)
+    except ValueError:
+        return True, 0.0, value
+    return (False, number, value) if math.isfinite(number) else (True, 0.0, value)
