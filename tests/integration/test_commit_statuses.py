@@ -144,3 +144,33 @@ def test_a_status_waits_while_an_older_one_of_its_revision_is_being_sent(api, tm
         session.commit()
     deliver_due(database_url, api.settings)
     assert [json.loads(c.body)["state"] for c in receiver.requests] == ["pending"]
+
+
+def test_a_commit_that_is_no_hash_gets_no_status_nor_any_other_address(api, tmp_path, receiver):
+    """A security review: a ci token's revision of commit "abc1234/../../../hijacked/path" made
+    the worker POST its status, with the admin's forge token, to /hijacked/path (httpx folds
+    the dot segments). Forges address statuses by hash: only a hash gets one, as one segment."""
+    _target(api, receiver)
+    revisions(api, tmp_path, [10.0] * 6)
+    database_url = api.settings.database_url
+    with session_factory(database_url)() as session:
+        r5, r6 = session.scalars(select(Revision).where(Revision.title.in_(["r5", "r6"]))).all()
+        r5.commit, r6.commit = "abc1234/../../../../../../hijacked/path", "v1.2"
+        session.commit()
+        assert commit_status(session, r5.id) == [] and commit_status(session, r6.id) == []
+        forged = Delivery(
+            uid="forged",
+            key="status:forged",
+            component_id=r5.component_id,
+            kind="status",
+            event="status.success",
+            payload={"sha": r5.commit, "state": "success", "description": "d",
+                     "context": "redline/builder", "page": "/"},
+        )  # fmt: skip
+        session.add(forged)  # as if queued by an earlier version
+        session.commit()
+    deliver_due(database_url, api.settings)
+    assert not [call for call in receiver.requests if "hijacked" in call.path], receiver.requests
+    with session_factory(database_url)() as session:
+        sent = session.scalars(select(Delivery).where(Delivery.uid == "forged")).one()
+        assert sent.state == "failed" and "not a commit hash" in sent.last_error, sent.last_error

@@ -97,6 +97,12 @@ def test_malformed_lnt_reports_are_400_naming_the_fault(api: Api):
     assert "tests[0]" in send_lnt(api, nameless).json()["detail"]
     assert send_lnt(api, lnt_report(), component="ghost").status_code == 404
     assert send_lnt(api, lnt_report(), scope="agent").status_code == 403
+    for field in ("git_sha", "commit"):  # a security review stored this as a commit
+        forged = lnt_report()
+        forged["run"][field] = "--upload-pack=touch /tmp/x?a=b#c"
+        answer = send_lnt(api, forged)
+        assert answer.status_code == 400 and f"run.{field}" in answer.json()["detail"], answer.text
+        assert "git would read a leading '-'" in answer.json()["detail"]
     assert api.client.get("/api/v1/components/clang/revisions").json() == []
 
 

@@ -41,6 +41,7 @@ from redline.server.models import (
     Subscription,
     utcnow,
 )
+from redline.server.schemas.fields import COMMIT_HASH
 from redline.server.services.ci_verdict import ci_verdict
 from redline.server.services.detection_config import component_config
 from redline.worker import messages
@@ -342,8 +343,8 @@ def commit_status(session: Session, revision_id: int) -> list[int]:
     # Statuses of one revision take turns on its row: two scans at once would read the same
     # statuses told, pick the same key, and the one that read the older verdict could land last.
     revision = session.get(Revision, revision_id, with_for_update=True)
-    if revision is None or not revision.commit:
-        return []
+    if revision is None or not COMMIT_HASH.fullmatch(revision.commit):
+        return []  # a forge addresses a status by hash: a branch, a tag or a path gets none
     component = session.get_one(Component, revision.component_id)
     if not component.commit_status:
         return []
@@ -355,7 +356,7 @@ def commit_status(session: Session, revision_id: int) -> list[int]:
     elif verdict.regressions:
         state, said = "failure", f"{verdict.regressions} change(s) for the worse"
     elif verdict.undecided:  # never a green status for a measurement the host spoiled
-        state, said = "error", f"{verdict.undecided} test case(s) undecided: the host was busy"
+        state, said = "error", f"{verdict.undecided} test case(s) undecided (each says why)"
     else:
         state, said = (
             "success",

@@ -36,6 +36,7 @@ from redline.server.core.config import Settings
 from redline.server.core.targets import refused_host
 from redline.server.db import session_scope
 from redline.server.models import Component, Delivery, Subscription, utcnow
+from redline.server.schemas.fields import COMMIT_HASH
 from redline.worker import messages
 from redline.worker.statuses import in_flight_before, supersede
 from sqlalchemy import and_, or_, select, update
@@ -175,10 +176,13 @@ def _status(
 ) -> None:
     target = component.commit_status or {}
     call = delivery.payload
+    sha = str(call["sha"])
+    if not COMMIT_HASH.fullmatch(sha):  # one queued before only hashes were: never a path
+        raise SendError(f"commit {sha[:80]!r} is not a commit hash: no status is sent", True)
     token, api = target.get("token", ""), str(target.get("api_url", "")).rstrip("/")
     link = settings.public_url.rstrip("/") + call["page"]
     if target.get("provider") == "github":
-        url = f"{api}/repos/{target['repository']}/statuses/{call['sha']}"
+        url = f"{api}/repos/{target['repository']}/statuses/{sha}"
         data = {
             "state": call["state"],
             "target_url": link,
@@ -192,7 +196,7 @@ def _status(
         }
     elif target.get("provider") == "gitlab":
         project = quote(str(target["repository"]), safe="")  # a path: robots%2Fbuilder
-        url = f"{api}/projects/{project}/statuses/{call['sha']}"
+        url = f"{api}/projects/{project}/statuses/{sha}"
         state = {"failure": "failed", "error": "failed"}.get(call["state"], call["state"])
         data = {
             "state": state,

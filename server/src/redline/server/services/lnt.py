@@ -18,7 +18,13 @@ from typing import Any
 
 from redline.recording import SeriesKey, canonical_params
 from redline.server.core.bodies import BadJson, parse_json
-from redline.server.schemas.fields import commit_time, host_name, one_line, path_segment
+from redline.server.schemas.fields import (
+    commit_time,
+    git_commit,
+    host_name,
+    one_line,
+    path_segment,
+)
 from redline.server.services.errors import BadRequest, Unprocessable
 from redline.server.services.imports import IMPORT_PROCESS, ImportedRun
 
@@ -56,6 +62,13 @@ def _checked(where: str, value: str, check: Callable[[str], str] = one_line) -> 
         return check(value[:200])
     except ValueError as exc:
         raise BadRequest(f"LNT report: {where} {value[:80]!r} {exc}") from None
+
+
+def _commit(run: dict[str, Any]) -> tuple[str, str]:
+    """Where the run names its commit (``git_sha``, else ``commit``) and what it says: checked
+    as a CI report's commit is (a review stored ``--upload-pack=...`` as one)."""
+    field = "git_sha" if "git_sha" in run else "commit"
+    return f"run.{field}", str(run.get(field, ""))
 
 
 def _samples(tests: Any) -> dict[SeriesKey, list[float]]:
@@ -146,7 +159,7 @@ def parse_lnt(body: bytes, component: str, order_field: str = ORDER_FIELD) -> Im
         component=component,
         revision=title,
         sort_key=title,
-        commit=str(run.get("git_sha", run.get("commit", "")))[:200],
+        commit=_checked(*_commit(run), git_commit),
         host=_checked("machine.name", _text(machine, "name", "machine"), host_name),
         samples=_samples(report.get("tests")),
         meta=_run_meta(run),

@@ -3,9 +3,8 @@
 
 from __future__ import annotations
 
-import re
-
 from redline.server.models import Component, Revision
+from redline.server.schemas.fields import COMMIT_HASH
 from redline.server.schemas.revisions import RevisionCreate
 from redline.server.services.components import get_component
 from redline.server.services.errors import Conflict
@@ -13,16 +12,13 @@ from redline.server.services.revisions import create_revision, require_own_repos
 from sqlalchemy import and_, func, literal, or_, select
 from sqlalchemy.orm import Session
 
-#: a commit hash, full or abbreviated as git does (7 digits at least)
-_HASH = re.compile(r"^[0-9a-fA-F]{7,64}$")
-
 
 def same_commit(first: str, second: str) -> bool:
     """Do two commit names name one commit: equal, or hashes of 7 hex digits or more one of
     which abbreviates the other (a 12-digit title's commit and the full SHA)."""
     if first == second:
         return True
-    if not (_HASH.fullmatch(first) and _HASH.fullmatch(second)):
+    if not (COMMIT_HASH.fullmatch(first) and COMMIT_HASH.fullmatch(second)):
         return False
     first, second = first.lower(), second.lower()
     return first.startswith(second) or second.startswith(first)
@@ -31,7 +27,7 @@ def same_commit(first: str, second: str) -> bool:
 def revision_of_commit(session: Session, component: Component, commit: str) -> Revision | None:
     """The component's first revision of ``commit`` (`same_commit`), whatever its title; None
     for a name that is not a hash (a branch, "main", names a commit that moves)."""
-    if not _HASH.fullmatch(commit):
+    if not COMMIT_HASH.fullmatch(commit):
         return None
     stored, given = func.lower(Revision.commit), commit.lower()
     return session.scalars(
@@ -41,7 +37,8 @@ def revision_of_commit(session: Session, component: Component, commit: str) -> R
             or_(
                 stored.startswith(given),
                 and_(
-                    Revision.commit.regexp_match(_HASH.pattern), literal(given).startswith(stored)
+                    Revision.commit.regexp_match(COMMIT_HASH.pattern),
+                    literal(given).startswith(stored),
                 ),
             ),
         )

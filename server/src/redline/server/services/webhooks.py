@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import hashlib
 import hmac
-import re
 from collections.abc import Callable
 from dataclasses import dataclass
 from datetime import UTC, datetime
@@ -17,7 +16,7 @@ from datetime import UTC, datetime
 from pydantic import ValidationError
 from redline.server.core.bodies import BadJson, parse_json
 from redline.server.models import Component, Revision
-from redline.server.schemas.fields import parse_commit_time
+from redline.server.schemas.fields import COMMIT_HASH, parse_commit_time
 from redline.server.schemas.revisions import RevisionCreate
 from redline.server.schemas.webhooks import (
     PushCommit,
@@ -35,7 +34,6 @@ from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
 TITLE_LENGTH = 12  # a commit's revision title: its first 12 hex digits
-_COMMIT_ID = re.compile(r"^[0-9a-fA-F]{7,64}$")
 
 
 class Unauthorized(ServiceError):
@@ -113,7 +111,7 @@ def _of_repository(session: Session, push: Push) -> list[Component]:
 
 def commit_time(commit: PushCommit) -> datetime | None:
     """The commit's time; ValueError saying what is wrong with the commit otherwise."""
-    if not _COMMIT_ID.match(commit.id):
+    if not COMMIT_HASH.match(commit.id):
         raise ValueError(f"id {commit.id[:80]!r} is not a commit hash (7 to 64 hex digits)")
     return parse_commit_time(commit.timestamp) if commit.timestamp else None
 
