@@ -90,7 +90,7 @@ def test_the_triage_migration_keeps_people_triaging_and_takes_it_from_pipelines_
             ),
             {"hash": "d" * 64},
         )
-    migrate(database_url)
+    command.upgrade(alembic_config(database_url), "0022")  # 0023 ends every session
 
     def scopes(query: str) -> dict[str, list[str]]:
         with get_engine(database_url).connect() as connection:
@@ -107,6 +107,8 @@ def test_the_triage_migration_keeps_people_triaging_and_takes_it_from_pipelines_
         "token gitlab": ["ci"],
     }
     assert scopes("SELECT name, scopes FROM api_token") == {"gitlab": ["ci"]}
+    migrate(database_url)  # sessions with no owner to check end: their people sign in again
+    assert scopes("SELECT who, scopes FROM web_session") == {}
     # back to 0021, where ci triaged: people keep triaging, a token made since loses triage
     with get_engine(database_url).begin() as connection:
         connection.execute(

@@ -5,15 +5,15 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from urllib.parse import urlencode
 
 import pytest
 from redline.server.db import session_factory
-from redline.server.models import ApiToken
+from redline.server.models import ApiToken, User
 from redline.server.services.signin import create_user
-from sqlalchemy import select
+from sqlalchemy import select, update
 
 from tests.support import ROOT
 from tests.support.api import Api, api_with
@@ -152,6 +152,37 @@ def test_a_browser_asking_for_a_page_under_read_access_token_is_sent_to_sign_in(
         )
         assert signed.headers["location"] == "/regressions"
         assert api.client.get("/", headers=browser).status_code == 200
+
+
+def test_revoking_a_token_or_disabling_a_user_ends_their_browser_sessions(api: Api):
+    """A security review signed in with the admin token, revoked it, and the session it had
+    opened still made a new admin token on the settings page (for up to 7 days)."""
+    made = api.client.post(
+        "/api/v1/tokens", headers=api.tokens["admin"], json={"name": "leaked", "scopes": ["admin"]}
+    ).json()
+    with session_factory(api.settings.database_url)() as session:
+        create_user(session, "ada", "correct horse battery", "admin")
+    for signed, revoke in (
+        ({"token": made["token"]}, lambda: api.client.delete(
+            "/api/v1/tokens/leaked", headers=api.tokens["admin"]).raise_for_status()),
+        ({"name": "ada", "password": "correct horse battery"}, _disable("ada", api)),
+    ):  # fmt: skip
+        api.client.cookies.clear()
+        assert sign_in(api.client, signed, follow_redirects=False).status_code == 303
+        assert api.client.get("/settings", follow_redirects=False).status_code == 200
+        revoke()
+        ended = api.client.get("/settings", follow_redirects=False)
+        assert ended.status_code in (303, 401, 403), ended.text[:300]
+        assert 'name="csrf"' not in ended.text  # no form of the settings page to post
+
+
+def _disable(name: str, api: Api) -> Callable[[], None]:
+    def disable() -> None:
+        with session_factory(api.settings.database_url)() as session:
+            session.execute(update(User).where(User.name == name).values(disabled=True))
+            session.commit()
+
+    return disable
 
 
 def test_read_access_open_by_default(api: Api):

@@ -9,6 +9,7 @@ from redline.server.models.base import Base, utcnow
 from sqlalchemy import (
     JSON,
     Boolean,
+    ForeignKey,
     String,
     Text,
 )
@@ -47,6 +48,13 @@ class WebSession(Base):
     id: Mapped[int] = mapped_column(primary_key=True)
     secret_hash: Mapped[str] = mapped_column(String(64), unique=True)
     who: Mapped[str] = mapped_column(String(200))  # a user's name, or "token <name>"
+    #: what opened it, one of the two: revoked or disabled, it ends (`signin.current`)
+    token_id: Mapped[int | None] = mapped_column(
+        ForeignKey("api_token.id", ondelete="CASCADE"), index=True, default=None
+    )
+    user_id: Mapped[int | None] = mapped_column(
+        ForeignKey("web_user.id", ondelete="CASCADE"), index=True, default=None
+    )
     scopes: Mapped[list[str]] = mapped_column(JSON)
     csrf: Mapped[str] = mapped_column(String(64))
     created: Mapped[datetime] = mapped_column(default=utcnow)

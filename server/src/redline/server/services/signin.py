@@ -27,7 +27,7 @@ from redline.server.core.security import (
     hash_token,
     parse_scopes,
 )
-from redline.server.models import User, WebSession, utcnow
+from redline.server.models import ApiToken, User, WebSession, utcnow
 from redline.server.services.errors import BadRequest, Conflict, Forbidden
 from redline.server.services.tokens import authenticate
 from sqlalchemy import delete, select
@@ -112,12 +112,15 @@ class Opened:
     session: WebSession
 
 
-def _open(session: Session, who: str, scopes: list[str]) -> Opened:
+def _open(session: Session, opener: ApiToken | User) -> Opened:
     secret = secrets.token_urlsafe(32)
+    by_token = isinstance(opener, ApiToken)
     row = WebSession(
         secret_hash=hash_token(secret),
-        who=who,
-        scopes=scopes,
+        who=f"token {opener.name}" if by_token else opener.name,
+        scopes=list(opener.scopes),
+        token_id=opener.id if by_token else None,
+        user_id=None if by_token else opener.id,
         csrf=secrets.token_urlsafe(32),
         expires=utcnow() + timedelta(days=SESSION_DAYS),
     )
@@ -136,20 +139,32 @@ def sign_in(session: Session, name: str, password: str, token: str) -> Opened:
             raise Forbidden("that token is not a live API token")
         if not any(grants(list(found.scopes), scope) for scope in READERS):
             raise Forbidden(f"token {found.name!r} is for performance hosts, not for people")
-        return _open(session, f"token {found.name}", list(found.scopes))
+        return _open(session, found)
     user = session.scalar(select(User).where(User.name == name, ~User.disabled))
     if not check_password(password, user.password_hash if user else _unknown()) or user is None:
         raise Forbidden("wrong name or password")
-    return _open(session, user.name, list(user.scopes))
+    return _open(session, user)
 
 
 def current(session: Session, secret: str | None) -> WebSession | None:
-    """The live session a cookie's secret opens; None when none (or expired)."""
+    """The live session a cookie's secret opens; None when none, when expired, and when the
+    token that opened it is revoked or its user disabled (a review's revoked admin token kept
+    its session, which made a new admin token)."""
     if not secret:
         return None
     row = session.scalar(select(WebSession).where(WebSession.secret_hash == hash_token(secret)))
     if row is None or row.expires < utcnow():
         return None
+    opener: ApiToken | User | None
+    if row.token_id is not None:
+        opener = session.get(ApiToken, row.token_id)
+        live = opener is not None and not opener.revoked
+    else:
+        opener = session.get(User, row.user_id) if row.user_id is not None else None
+        live = opener is not None and not opener.disabled
+    if not live or opener is None:
+        return None
+    row.scopes = list(opener.scopes)  # what it may do now, not what it could when it signed in
     return row
 
 
