@@ -125,3 +125,46 @@ def test_the_triage_migration_keeps_people_triaging_and_takes_it_from_pipelines_
     assert scopes("SELECT name, scopes FROM web_user")["rita"] == ["ci"]
     assert scopes("SELECT name, scopes FROM web_user")["ada"] == ["ci"]
     assert scopes("SELECT name, scopes FROM api_token") == {"gitlab": ["ci"], "on-call": ["read"]}
+
+
+def test_the_credentials_migration_strips_passwords_and_tokens_from_stored_repositories(
+    services: Services,
+):
+    """Migration 0024: a URL stored with a password or token (refused since) loses it, in the
+    component and in its revisions' copies; an ssh URL keeps its user."""
+    import sqlalchemy as sa
+    from alembic import command
+    from redline.server.db import alembic_config
+
+    database_url, _ = fresh_database(services.database_url)
+    command.upgrade(alembic_config(database_url), "0023")
+    stored = {
+        "https://ci-bot:SECRET@github.com/org/a.git": "https://github.com/org/a.git",
+        "https://SECRET@github.com/org/b.git": "https://github.com/org/b.git",
+        "ssh://git:SECRET@host:22/c.git": "ssh://git@host:22/c.git",
+        "ssh://git@host/d.git": "ssh://git@host/d.git",
+        "git@github.com:org/e.git": "git@github.com:org/e.git",
+    }
+    with get_engine(database_url).begin() as connection:
+        for number, repo in enumerate(stored, start=1):
+            ident = connection.execute(
+                sa.text(
+                    "INSERT INTO component (name, repo, repo_key, branch, suite, executions,"
+                    " host_labels, description, commit_status, created) VALUES (:name, :repo, '',"
+                    " 'main', '', 1, '[]', '', '{}', now()) RETURNING id"
+                ),
+                {"name": f"c{number}", "repo": repo},
+            ).scalar_one()
+            connection.execute(
+                sa.text(
+                    "INSERT INTO revision (component_id, title, sort_key, order_key, commit,"
+                    " branch, repo, created) VALUES (:ident, 'r1', '1', '1', 'abc1234', 'main',"
+                    " :repo, now())"
+                ),
+                {"ident": ident, "repo": repo},
+            )
+    migrate(database_url)
+    with get_engine(database_url).connect() as connection:
+        for table in ("component", "revision"):
+            kept = connection.execute(sa.text(f"SELECT repo FROM {table} ORDER BY id")).scalars()
+            assert list(kept) == list(stored.values()), table

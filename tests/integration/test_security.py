@@ -105,6 +105,28 @@ def test_component_repositories_in_the_allowed_schemes_are_kept(api: Api, repo: 
     assert created.status_code == 201, created.text
 
 
+@pytest.mark.parametrize(
+    "repo",
+    [
+        "https://ci-bot:SECRETSECRET@github.com/org/private.git",
+        "https://SECRETSECRET@github.com/org/private.git",  # a token as the user
+        "git://u:SECRETSECRET@host/x.git",
+        "ssh://git:SECRETSECRET@host/x.git",
+    ],
+)
+def test_a_repository_url_carrying_a_password_or_token_is_refused_never_echoed(api: Api, repo: str):
+    """A security review's admin set such a URL: the API and the pages showed it to every
+    reader, and a host would have put it on git's command line, visible in ps."""
+    created = api.post("/api/v1/components", "admin", {"name": "other", "repo": repo})
+    assert created.status_code == 422 and "password or token" in created.text, created.text
+    patched = api.client.patch(
+        "/api/v1/components/builder", json={"repo": repo}, headers=api.tokens["admin"]
+    )
+    assert patched.status_code == 422 and "credential helper" in patched.text
+    assert "SECRETSECRET" not in created.text + patched.text
+    assert api.client.get("/api/v1/components/builder").json()["repo"] == REPO
+
+
 def test_local_repositories_only_when_the_server_allows_them(services: Services, tmp_path: Path):
     with api_with(services, tmp_path, allow_file_repos=True) as api:
         for repo in ("/srv/git/builder.git", "file:///srv/git/builder.git"):

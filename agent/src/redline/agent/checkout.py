@@ -37,6 +37,16 @@ class CheckoutError(RuntimeError):
     """git could not produce the requested revision; the message carries git's own words."""
 
 
+#: a URL's user information (``user:token@``), right after its scheme
+_USERINFO = re.compile(r"^([A-Za-z][A-Za-z0-9+.-]*://)[^/@]*@")
+
+
+def without_credentials(url: str) -> str:
+    """``url`` as it may be shown: its user information (a user, a password, a token) left
+    out."""
+    return _USERINFO.sub(r"\1", url)
+
+
 def refused_repo(url: str, allow_file: bool) -> str | None:
     """Why a performance host must not fetch ``url``, or None when it may.
 
@@ -61,6 +71,11 @@ def refused_repo(url: str, allow_file: bool) -> str | None:
         authority = url[match.end() :].split("/", 1)[0]
         if any(part.startswith("-") for part in re.split(r"[@:]", authority)):
             return "a repository URL's user, host or port must not start with '-'"
+        if "@" in authority and (scheme != "ssh" or ":" in authority.rsplit("@", 1)[0]):
+            return (  # the URL is shown on pages and in the API, and put on git's command line
+                "a repository URL must not carry a password or token (https://user:token@...): "
+                "give the performance hosts theirs with git's credential helper or an ssh key"
+            )
         return None
     if url.startswith("/"):
         return (

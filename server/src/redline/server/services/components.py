@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from redline.agent.checkout import refused_repo
+from redline.agent.checkout import refused_repo, without_credentials
 from redline.server.models import Component, Revision
 from redline.server.schemas.components import ComponentCreate, ComponentOut, ComponentSettings
 from redline.server.services.errors import Conflict, NotFound, Unprocessable
@@ -31,7 +31,7 @@ def check_repo(repo: str, allow_file: bool) -> None:
     """Unprocessable unless a performance host may fetch ``repo`` (empty: none set yet)."""
     reason = refused_repo(repo, allow_file) if repo else None
     if reason is not None:
-        raise Unprocessable(f"repo {repo[:200]!r}: {reason}")
+        raise Unprocessable(f"repo {without_credentials(repo)[:200]!r}: {reason}")
 
 
 def create_component(
