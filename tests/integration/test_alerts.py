@@ -308,14 +308,16 @@ def test_no_change_posts_success_and_a_revision_still_measured_posts_pending(
     database_url = api.settings.database_url
     with session_factory(database_url)() as session:
         session.execute(update(Revision).where(Revision.title == "r6").values(commit="b" * 40))
+        # a forge addresses statuses by hash (abbreviated, 7 digits at least): only those get one
+        session.execute(update(Revision).where(Revision.title == "r7").values(commit="abc1234"))
         judged = session.scalar(select(Revision.id).where(Revision.title == "r6"))
         assert len(commit_status(session, judged)) == 1
         assert len(commit_status(session, waiting["revision_id"])) == 1
         session.commit()
     deliver_due(database_url, api.settings)
     calls = {call.path.rsplit("/", 1)[1]: call for call in receiver.requests}
-    assert set(calls) == {"b" * 40, "abc123"}
-    done, pending = json.loads(calls["b" * 40].body), json.loads(calls["abc123"].body)
+    assert set(calls) == {"b" * 40, "abc1234"}
+    done, pending = json.loads(calls["b" * 40].body), json.loads(calls["abc1234"].body)
     assert (done["state"], done["description"]) == ("success", "Redline: no change for the worse")
     assert pending["state"] == "pending"
     assert pending["description"] == "Redline: waiting for a performance host to take its jobs"
@@ -546,6 +548,9 @@ def test_a_revision_whose_jobs_all_failed_gets_its_commit_status_too(api, receiv
     api.post("/api/v1/agent/register", "agent", {"name": "perf1"}).raise_for_status()
     job = api.lease()
     database_url = api.settings.database_url
+    with session_factory(database_url)() as session:  # a hash: what a status is addressed by
+        session.execute(update(Revision).values(commit="abc1234"))
+        session.commit()
     with session_factory(database_url)() as session:
         assert failed_without_status(session) == []  # still running: its verdict may come
     answer = api.post(f"/api/v1/jobs/{job['id']}/fail", "agent", {"host": "perf1", "reason": "x"})
@@ -564,7 +569,7 @@ def test_a_revision_whose_jobs_all_failed_gets_its_commit_status_too(api, receiv
     deliver_due(database_url, api.settings)
     (call,) = receiver.requests
     body = json.loads(call.body)
-    assert call.path == "/api/repos/r/b/statuses/abc123"
+    assert call.path == "/api/repos/r/b/statuses/abc1234"
     assert body["state"] == "error" and "failed or were cancelled" in body["description"]
     with session_factory(database_url)() as session:
         # a component that posts no statuses has nothing swept, however its jobs ended

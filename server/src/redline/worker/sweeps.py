@@ -21,6 +21,7 @@ from redline.server.models import (
     Subscription,
     utcnow,
 )
+from redline.server.schemas.fields import COMMIT_HASH
 from redline.server.services.fresh_runs import waiting_on
 from redline.worker.alerts import runtime_listeners
 from sqlalchemy import cast, func, select
@@ -35,11 +36,11 @@ SWEEP_GRACE = timedelta(minutes=2)
 
 
 def failed_without_status(session: Session, now: datetime | None = None) -> list[int]:
-    """Revisions with a commit, of components that post commit statuses, whose jobs have all
-    ended (in the last `SWEEP_WITHIN`, `SWEEP_GRACE` ago at least), one of their own failed or
-    cancelled, and with no final status yet: no ingest follows such a job, so nothing else would
-    post the verdict (a build that fails, leases that lapse until the job is failed, a host that
-    gives up)."""
+    """Revisions of a commit hash (`commit_status` posts none for another), of components that
+    post commit statuses, whose jobs have all ended (in the last `SWEEP_WITHIN`, `SWEEP_GRACE`
+    ago at least), one of their own failed or cancelled, and with no final status yet: no
+    ingest follows such a job, so nothing else would post the verdict (a build that fails,
+    leases that lapse until the job is failed, a host that gives up)."""
     now = now or utcnow()
     other = aliased(Job)
     unsettled = select(other.id).where(other.revision_id == Revision.id, other.state.in_(UNENDED))
@@ -56,7 +57,8 @@ def failed_without_status(session: Session, now: datetime | None = None) -> list
             select(Revision.id)
             .join(Component, Component.id == Revision.component_id)
             .join(Job, Job.revision_id == Revision.id)
-            .where(cast(Component.commit_status, JSONB).has_key("provider"), Revision.commit != "")
+            .where(cast(Component.commit_status, JSONB).has_key("provider"))
+            .where(Revision.commit.regexp_match(COMMIT_HASH.pattern))  # what gets a status
             .where(Job.pair == 0, Job.state.in_((JobState.failed, JobState.cancelled)))
             .where(Job.updated.between(now - SWEEP_WITHIN, now - SWEEP_GRACE))
             .where(~unsettled.exists(), ~final.exists())
