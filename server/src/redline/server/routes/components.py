@@ -11,7 +11,15 @@ from redline.server.schemas.common import Problem, problems
 from redline.server.schemas.components import ComponentCreate, ComponentOut, ComponentSettings
 from redline.server.schemas.results import ChangeOut, Comparison, ExecutionListed, SeriesOut
 from redline.server.schemas.revisions import RevisionDetail, RevisionOut
-from redline.server.services import compare, components, executions, read, results, revisions
+from redline.server.services import (
+    compare,
+    component_deletion,
+    components,
+    executions,
+    read,
+    results,
+    revisions,
+)
 
 router = APIRouter(prefix="/api/v1/components", tags=["components"], route_class=JsonRoute)
 NOT_FOUND = problems(404, description="unknown component or revision")
@@ -51,6 +59,18 @@ def update_component(
     return components.component_out(
         components.update_component(session, name, data, settings.allow_file_repos)
     )
+
+
+@router.delete(
+    "/{name}",
+    responses={**NOT_FOUND, **problems(409, description="a job of it is in flight")},
+    dependencies=[Depends(require("admin"))],
+)
+def delete_component(name: str, session: SessionDep) -> dict[str, int | str]:
+    """Delete the component and its whole history (revisions, results, verdicts, regressions,
+    alerts about it, models, settings) and its files; how many of each went. 409 while a host
+    holds one of its jobs or a result waits to be ingested."""
+    return {"deleted": name, **component_deletion.delete_component(session, name)}
 
 
 @router.get("/{name}/revisions", responses=NOT_FOUND, dependencies=READ)

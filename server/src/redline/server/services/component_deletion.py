@@ -1,0 +1,152 @@
+"""Deleting a component (admin): its whole history — revisions, jobs, executions, summaries,
+verdicts, regressions and their triage, the alerts about it, its models, subscriptions and
+settings — in one transaction, then its files (recordings, sample tables, model files).
+
+Two new users registered a component by mistake and could not remove it (405): it stayed on the
+home page and in every filter. Nothing else is touched: another component's rows, the hosts,
+the tokens. A component whose jobs a host holds, or whose results wait to be ingested, is
+refused (409): deleting under a running job or ingestion would fail it halfway.
+"""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+from redline.server.models import (
+    Alert,
+    AlertedChange,
+    Component,
+    Detection,
+    DetectionConfigRow,
+    Execution,
+    FigureCache,
+    Job,
+    JobState,
+    Reanalysis,
+    Regression,
+    ResourceModelRow,
+    Revision,
+    Series,
+    Summary,
+)
+from redline.server.services.components import get_component
+from redline.server.services.errors import Conflict
+from redline.server.storage import samples_path
+from sqlalchemy import ColumnElement, delete, func, or_, select
+from sqlalchemy.exc import IntegrityError
+from sqlalchemy.orm import Session
+
+log = logging.getLogger(__name__)
+
+#: a job in these states is in a host's hands or on its way to the worker
+IN_FLIGHT = (JobState.leased, JobState.running, JobState.uploaded)
+
+
+def delete_component(session: Session, name: str) -> dict[str, int]:
+    """Delete the component called ``name`` and everything of it; how many revisions,
+    executions, regressions and files went. NotFound for an unknown name, Conflict while one of
+    its jobs is in flight (`IN_FLIGHT`) or when a report arrived meanwhile."""
+    component = get_component(session, name)
+    session.refresh(component, with_for_update=True)  # a report of it waits for this
+    revisions = select(Revision.id).where(Revision.component_id == component.id)
+    series = select(Series.id).where(Series.component_id == component.id)
+    busy = session.scalar(
+        select(func.count()).where(Job.revision_id.in_(revisions), Job.state.in_(IN_FLIGHT))
+    )
+    if busy:
+        raise Conflict(
+            f"component {name!r} has {busy} job(s) held by a host or waiting to be ingested: "
+            "cancel its revisions' jobs or let them finish, then delete it"
+        )
+    files = _files(session, component.id)
+    counts = {
+        "revisions": session.scalar(select(func.count()).select_from(revisions.subquery())) or 0,
+        "executions": _count(session, Execution, Execution.revision_id.in_(revisions)),
+        "regressions": _count(session, Regression, Regression.component_id == component.id),
+    }
+    ours = or_(AlertedChange.series_id.in_(series), AlertedChange.revision_id.in_(revisions))
+    for statement in (
+        delete(AlertedChange).where(ours),
+        delete(Alert).where(  # a subscription to every component alerted about this one
+            or_(
+                Alert.revision_id.in_(revisions),
+                Alert.regression_id.in_(
+                    select(Regression.id).where(Regression.component_id == component.id)
+                ),
+            )
+        ),
+        delete(Summary).where(Summary.series_id.in_(series)),
+        delete(Detection).where(
+            or_(Detection.revision_id.in_(revisions), Detection.series_id.in_(series))
+        ),
+        delete(Regression).where(Regression.component_id == component.id),
+        delete(Execution).where(Execution.revision_id.in_(revisions)),
+        delete(Job).where(
+            or_(Job.revision_id.in_(revisions), Job.confirms_revision_id.in_(revisions))
+        ),
+        delete(Revision).where(Revision.component_id == component.id),
+        delete(Series).where(Series.component_id == component.id),
+        delete(DetectionConfigRow).where(DetectionConfigRow.component_id == component.id),
+        delete(FigureCache).where(FigureCache.component_id == component.id),
+        delete(Reanalysis).where(Reanalysis.component_id == component.id),
+        delete(Component).where(Component.id == component.id),  # its models, alarms and
+        # subscriptions (with their deliveries) go with it (ON DELETE CASCADE)
+    ):
+        session.execute(statement)
+    try:
+        session.commit()
+    except IntegrityError:  # a revision reported between the count and the delete
+        session.rollback()
+        raise Conflict(f"component {name!r} changed while it was deleted: try again") from None
+    counts["files"] = _remove(session, files)
+    log.info("component %s deleted: %s", name, counts)
+    return counts
+
+
+def _count(session: Session, model: type, where: ColumnElement[bool]) -> int:
+    found: int | None = session.scalar(select(func.count()).select_from(model).where(where))
+    return found or 0
+
+
+def _files(session: Session, component_id: int) -> set[Path]:
+    """The files of the component's executions (recording, samples) and of its models."""
+    recordings = session.scalars(
+        select(Execution.recording_path)
+        .join(Revision, Revision.id == Execution.revision_id)
+        .where(Revision.component_id == component_id)
+    ).all()
+    models = session.scalars(
+        select(ResourceModelRow.path).where(
+            ResourceModelRow.component_id == component_id, ResourceModelRow.path != ""
+        )
+    ).all()
+    return {
+        *(Path(path) for path in recordings),
+        *(samples_path(path) for path in recordings),
+        *(Path(path) for path in models),
+    }
+
+
+def _remove(session: Session, files: set[Path]) -> int:
+    """Remove ``files`` that no remaining execution names (an upload is stored by its sha256:
+    the same bytes for two components would be one file); how many were there."""
+    still = set(
+        session.scalars(
+            select(Execution.recording_path).where(
+                Execution.recording_path.in_([str(path) for path in files])
+            )
+        )
+    )
+    removed = 0
+    for path in files:
+        if str(path) in still:
+            continue
+        try:
+            path.unlink()
+            removed += 1
+        except FileNotFoundError:
+            pass  # pruned by retention before
+        except OSError as exc:  # the rows are gone: a file left behind is logged, not fatal
+            log.warning("component deletion: %s not removed: %s", path, exc)
+    return removed
