@@ -22,6 +22,7 @@ from redline.server.models import (
     Job,
     JobState,
     Regression,
+    ResourceModelRow,
     Revision,
     Series,
     Subscription,
@@ -155,4 +156,18 @@ def test_a_component_with_a_job_in_flight_is_not_deleted(api: Api, tmp_path: Pat
     answer = api.client.delete("/api/v1/components/builder", headers=api.tokens["admin"])
     assert answer.status_code == 409, answer.text
     assert "1 job(s) held by a host or waiting to be ingested" in answer.json()["detail"]
+    assert _rows(api) == before
+
+
+def test_a_component_whose_model_is_being_trained_is_not_deleted(api: Api, tmp_path: Path) -> None:
+    """A review: a training under way writes its model file after the delete; the row gone, the
+    file would be left with no row naming it."""
+    _histories(api, tmp_path)
+    with session_factory(api.settings.database_url)() as session:
+        builder = session.scalar(select(Component.id).where(Component.name == "builder"))
+        session.add(ResourceModelRow(component_id=builder, state="running"))
+        session.commit()
+    before = _rows(api)
+    answer = api.client.delete("/api/v1/components/builder", headers=api.tokens["admin"])
+    assert answer.status_code == 409 and "a model's training under way" in answer.text
     assert _rows(api) == before

@@ -142,6 +142,8 @@ def test_the_credentials_migration_strips_passwords_and_tokens_from_stored_repos
         "https://ci-bot:SECRET@github.com/org/a.git": "https://github.com/org/a.git",
         "https://SECRET@github.com/org/b.git": "https://github.com/org/b.git",
         "ssh://git:SECRET@host:22/c.git": "ssh://git@host:22/c.git",
+        "https://ci:SEC@RET@github.com/org/f.git": "https://github.com/org/f.git",
+        "ssh://git:SEC@RET@host/g.git": "ssh://git@host/g.git",
         "ssh://git@host/d.git": "ssh://git@host/d.git",
         "git@github.com:org/e.git": "git@github.com:org/e.git",
     }

@@ -90,9 +90,21 @@ def test_a_token_named_by_digits_is_refused_and_one_named_so_before_can_be_revok
         revoked = api.client.delete(f"/api/v1/tokens/{name}", headers=api.tokens["admin"])
         assert revoked.status_code == 200, revoked.text
         assert [(t["name"], t["revoked"]) for t in revoked.json()] == [(name, True)]
-    first = api.client.get("/api/v1/tokens", headers=api.tokens["admin"]).json()[0]
+    first = api.client.post(  # a token of its own to revoke by its id
+        "/api/v1/tokens", headers=api.tokens["admin"], json={"name": "by-id", "scopes": ["ci"]}
+    ).json()
     by_id = api.client.delete(f"/api/v1/tokens/{first['id']}", headers=api.tokens["admin"])
     assert by_id.status_code == 200 and by_id.json()[0]["id"] == first["id"]  # an id still is one
+    # that id revoked, a live token named by it is what the number now names (a review saw
+    # the revoked one answer 200, the live one left usable)
+    with session_factory(api.settings.database_url)() as session:
+        session.add(ApiToken(name=str(first["id"]), scopes=["ci"], token_hash="never-named"))
+        session.commit()
+    named = api.client.delete(f"/api/v1/tokens/{first['id']}", headers=api.tokens["admin"])
+    assert named.status_code == 200, named.text
+    assert [(t["name"], t["revoked"]) for t in named.json()] == [(str(first["id"]), True)]
+    odd = api.client.delete("/api/v1/tokens/%C2%B2", headers=api.tokens["admin"])  # '²'
+    assert odd.status_code == 404 and "no live token named or numbered" in odd.text, odd.text
 
 
 def test_read_access_token_mode_needs_a_read_token(services: Services, tmp_path: Path):

@@ -63,6 +63,20 @@ def test_github_push_creates_a_revision_per_commit_with_jobs_per_execution(api: 
         assert {tuple(job.labels) for job in session.scalars(select(Job))} == {("quiet",)}
 
 
+def test_a_push_makes_no_revision_of_a_component_no_host_could_run(api: Api):
+    """A review: CI's report to a component without a suite was refused (409), a push still
+    made its revisions, and each job failed on its host (suite file not found)."""
+    api.post(
+        "/api/v1/components", "admin", {"name": "twin", "repo": "https://github.com/org/builder"}
+    ).raise_for_status()  # the same repository, no suite
+    answer = send_github(api, github_push())
+    assert answer.status_code == 200, answer.text
+    assert {r["component"] for r in answer.json()["created"]} == {"builder"}
+    said = answer.json()["detail"]
+    assert "for builder; none for component 'twin' has no suite set" in said, said
+    assert api.client.get("/api/v1/components/twin/revisions").json() == []
+
+
 def test_repeated_delivery_creates_nothing_twice(api: Api):
     assert send_github(api, github_push()).status_code == 200
     again = send_github(api, github_push())

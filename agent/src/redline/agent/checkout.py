@@ -38,7 +38,7 @@ class CheckoutError(RuntimeError):
 
 
 #: a URL's user information (``user:token@``), right after its scheme
-_USERINFO = re.compile(r"^([A-Za-z][A-Za-z0-9+.-]*://)[^/@]*@")
+_USERINFO = re.compile(r"^([A-Za-z][A-Za-z0-9+.-]*://)[^/]*@")  # to its last '@' ('p@ss')
 
 
 def without_credentials(url: str) -> str:

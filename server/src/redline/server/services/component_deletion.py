@@ -4,8 +4,9 @@ settings — in one transaction, then its files (recordings, sample tables, mode
 
 Two new users registered a component by mistake and could not remove it (405): it stayed on the
 home page and in every filter. Nothing else is touched: another component's rows, the hosts,
-the tokens. A component whose jobs a host holds, or whose results wait to be ingested, is
-refused (409): deleting under a running job or ingestion would fail it halfway.
+the tokens. A component whose jobs a host holds, whose results wait to be ingested, or whose
+model training or re-analysis is under way, is refused (409): deleting under them would fail
+them halfway (and leave a model file no row names).
 """
 
 from __future__ import annotations
@@ -41,6 +42,8 @@ log = logging.getLogger(__name__)
 
 #: a job in these states is in a host's hands or on its way to the worker
 IN_FLIGHT = (JobState.leased, JobState.running, JobState.uploaded)
+#: a model's training or a re-analysis in these states writes rows and files of the component
+WORKING = ("queued", "running")
 
 
 def delete_component(session: Session, name: str) -> dict[str, int]:
@@ -51,13 +54,22 @@ def delete_component(session: Session, name: str) -> dict[str, int]:
     session.refresh(component, with_for_update=True)  # a report of it waits for this
     revisions = select(Revision.id).where(Revision.component_id == component.id)
     series = select(Series.id).where(Series.component_id == component.id)
-    busy = session.scalar(
-        select(func.count()).where(Job.revision_id.in_(revisions), Job.state.in_(IN_FLIGHT))
-    )
-    if busy:
+    jobs = session.execute(  # locked: a host cannot lease one of them meanwhile
+        select(Job.state)
+        .where(or_(Job.revision_id.in_(revisions), Job.confirms_revision_id.in_(revisions)))
+        .with_for_update()
+    ).scalars()
+    busy = sum(state in IN_FLIGHT for state in jobs)
+    working = [
+        what
+        for what, model in (("a model's training", ResourceModelRow), ("a re-analysis", Reanalysis))
+        if _count(session, model, model.component_id == component.id, model.state.in_(WORKING))
+    ]
+    if busy or working:
+        held = [f"{busy} job(s) held by a host or waiting to be ingested"] if busy else []
         raise Conflict(
-            f"component {name!r} has {busy} job(s) held by a host or waiting to be ingested: "
-            "cancel its revisions' jobs or let them finish, then delete it"
+            f"component {name!r} has {' and '.join(held + working)} under way: let them "
+            "finish (or cancel its revisions' jobs), then delete it"
         )
     files = _files(session, component.id)
     counts = {
@@ -66,7 +78,7 @@ def delete_component(session: Session, name: str) -> dict[str, int]:
         "regressions": _count(session, Regression, Regression.component_id == component.id),
     }
     ours = or_(AlertedChange.series_id.in_(series), AlertedChange.revision_id.in_(revisions))
-    for statement in (
+    statements = (
         delete(AlertedChange).where(ours),
         delete(Alert).where(  # a subscription to every component alerted about this one
             or_(
@@ -92,11 +104,12 @@ def delete_component(session: Session, name: str) -> dict[str, int]:
         delete(Reanalysis).where(Reanalysis.component_id == component.id),
         delete(Component).where(Component.id == component.id),  # its models, alarms and
         # subscriptions (with their deliveries) go with it (ON DELETE CASCADE)
-    ):
-        session.execute(statement)
+    )
     try:
+        for statement in statements:
+            session.execute(statement)
         session.commit()
-    except IntegrityError:  # a revision reported between the count and the delete
+    except IntegrityError:  # a worker stored a row of it meanwhile (a verdict, a fresh run)
         session.rollback()
         raise Conflict(f"component {name!r} changed while it was deleted: try again") from None
     counts["files"] = _remove(session, files)
@@ -104,8 +117,8 @@ def delete_component(session: Session, name: str) -> dict[str, int]:
     return counts
 
 
-def _count(session: Session, model: type, where: ColumnElement[bool]) -> int:
-    found: int | None = session.scalar(select(func.count()).select_from(model).where(where))
+def _count(session: Session, model: type, *where: ColumnElement[bool]) -> int:
+    found: int | None = session.scalar(select(func.count()).select_from(model).where(*where))
     return found or 0
 
 

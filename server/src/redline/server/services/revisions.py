@@ -107,6 +107,7 @@ def create_revision(session: Session, data: RevisionCreate) -> Revision:
         session.commit()
     except IntegrityError:
         session.rollback()
+        get_component(session, data.component)  # NotFound when it was deleted meanwhile
         raise Conflict(
             f"component {data.component!r} already has a revision {data.title!r}"
         ) from None

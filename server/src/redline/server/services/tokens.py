@@ -40,7 +40,7 @@ def issue_token(
         path_segment(name)
     except ValueError as exc:
         raise BadRequest(f"a token's name {escaped(name)[:80]!r} {exc}") from None
-    if name.isdigit():  # `revoke_token` reads a name of digits as an id first
+    if name.isascii() and name.isdecimal():  # `revoke_token` reads such a name as an id first
         raise BadRequest(
             f"a token's name {name[:80]!r} must not be digits only: it would read as a token's "
             "id (revoke by id, GET /api/v1/tokens); add a letter, as in 'ci-2026'"
@@ -70,10 +70,13 @@ def list_tokens(session: Session) -> list[ApiToken]:
 
 def revoke_token(session: Session, name_or_id: str) -> list[ApiToken]:
     """Revoke the token with this id, or every live token with this name; NotFound otherwise.
-    Digits are an id first, then a name (an older Redline let tokens be named "2026")."""
+    A number is a live token's id first, then a name (an older Redline let tokens be named
+    "2026"; a review found id 5 revoked before answer for a live token named "5")."""
     tokens = []
-    if name_or_id.isdigit() and int(name_or_id) < 2**31:  # past that, no id: a name
-        tokens = list(session.scalars(select(ApiToken).where(ApiToken.id == int(name_or_id))))
+    numeral = name_or_id.isascii() and name_or_id.isdecimal()  # '²' is a digit, not a number
+    if numeral and int(name_or_id) < 2**31:  # past that, no id: a name
+        by_id = select(ApiToken).where(ApiToken.id == int(name_or_id), ~ApiToken.revoked)
+        tokens = list(session.scalars(by_id))
     if not tokens:
         by_name = select(ApiToken).where(ApiToken.name == name_or_id, ~ApiToken.revoked)
         tokens = list(session.scalars(by_name))

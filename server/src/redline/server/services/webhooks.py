@@ -27,7 +27,7 @@ from redline.server.schemas.webhooks import (
 )
 from redline.server.services.errors import BadRequest, ServiceError
 from redline.server.services.repos import repo_key
-from redline.server.services.revision_reports import revision_of_commit
+from redline.server.services.revision_reports import cannot_run, revision_of_commit
 from redline.server.services.revisions import new_revision
 from sqlalchemy import select
 from sqlalchemy.exc import IntegrityError
@@ -149,7 +149,10 @@ def _record(session: Session, components: list[Component], push: Push) -> Webhoo
             timed.append((index, commit, commit_time(commit)))
         except ValueError as exc:
             result.refused.append(RefusedCommit(commit=commit.id[:200], reason=str(exc)))
+    unrunnable = {c.name: reason for c in components if (reason := cannot_run(c)) is not None}
     for component in components:
+        if component.name in unrunnable:  # its jobs could only fail on a host
+            continue
         for index, commit, when in timed:
             data = RevisionCreate(
                 component=component.name,
@@ -175,9 +178,11 @@ def _record(session: Session, components: list[Component], push: Push) -> Webhoo
             )
     session.commit()
     refused = f", {len(result.refused)} commit(s) refused" if result.refused else ""
+    runnable = [c.name for c in components if c.name not in unrunnable]
     result.detail = (
         f"{len(result.created)} revision(s) created, {result.existing} already known"
-        f"{refused} for {', '.join(c.name for c in components)}"
+        f"{refused} for {', '.join(runnable) or 'no component'}"
+        + "".join(f"; none for {reason}" for reason in unrunnable.values())
     )
     return result
 

@@ -24,8 +24,9 @@ down_revision = "0023"
 branch_labels = None
 depends_on = None
 
-#: scheme://, then the user information up to its '@'
-_USERINFO = re.compile(r"^([A-Za-z][A-Za-z0-9+.-]*://)([^/@]*)@")
+#: scheme://, then the user information up to its last '@' before the path (a password may
+#: hold a raw '@')
+_USERINFO = re.compile(r"^([A-Za-z][A-Za-z0-9+.-]*://)([^/]*)@")
 
 
 def without_secret(url: str) -> str:
