@@ -157,8 +157,12 @@ def test_generic_results_import_and_compare_two_revisions(api: Api):
     assert empty.status_code == 422
 
 
-@pytest.mark.parametrize("value", ["NaN", "Infinity", "-Infinity", "1e400"])
+@pytest.mark.parametrize(
+    "value", ["NaN", "Infinity", "-Infinity", "1e400", "1e308", "-2e30", '"1.0"', "true"]
+)
 def test_non_finite_generic_values_are_422_naming_the_field(api: Api, value: str):
+    """A trial's 1e308 was taken and broke the statistics (NaN means, a 300-digit change);
+    its "1.0" was taken as a number, where the docs promise numbers."""
     body = (
         '{"component": "clang", "revision": "r1", "sort_key": "1", "results": '
         f'[{{"case": "parse", "counter": "cpu", "values": [1.0, {value}]}}]}}'
@@ -170,6 +174,30 @@ def test_non_finite_generic_values_are_422_naming_the_field(api: Api, value: str
     )
     assert answer.status_code == 422, answer.text
     assert [e["loc"] for e in answer.json()["detail"]] == [["body", "results", 0, "values", 1]]
+    assert api.client.get("/api/v1/components/clang/revisions").json() == []
+
+
+def test_one_series_given_twice_in_an_import_is_422_naming_both(api: Api):
+    """A trial's two entries of one series were pooled without a word (a mean of 15)."""
+    entry = {"case": "parse", "counter": "cpu", "params": {"n": 1}}
+    body = {
+        "component": "clang",
+        "revision": "r1",
+        "sort_key": "1",
+        "results": [{**entry, "values": [10.0]}, {**entry, "counter": "rss", "values": [1.0]},
+                    {**entry, "values": [20.0]}],
+    }  # fmt: skip
+    answer = api.post("/api/v1/import/results", "ci", body)
+    assert answer.status_code == 422, answer.text
+    assert "results[2] is the series of results[0] again" in answer.text
+    assert api.client.get("/api/v1/components/clang/revisions").json() == []
+
+
+def test_an_lnt_metric_too_large_to_measure_is_400_naming_it(api: Api):
+    report = lnt_report()
+    report["tests"][0]["execution_time"] = [1e308, 1e308]
+    answer = send_lnt(api, report)
+    assert answer.status_code == 400 and "beyond ±1e+30" in answer.json()["detail"], answer.text
     assert api.client.get("/api/v1/components/clang/revisions").json() == []
 
 

@@ -158,6 +158,20 @@ def git_commit(value: str) -> str:
     return value
 
 
+#: the largest measurement taken (in magnitude): a trial's 1e308 made the statistics overflow
+#: (NaN means, a change of 300 digits); no counter, time or size comes near
+MEASURABLE = 1e30
+
+
+def measurable(value: float) -> float:
+    """``value`` if it is within ±`MEASURABLE`, else a ValueError saying so."""
+    if abs(value) > MEASURABLE:
+        raise ValueError(f"{value:g} is beyond ±{MEASURABLE:g}: no measurement is that large")
+    return value
+
+
+#: a measured sample: a number (never text such as "1.0"), finite, within ±`MEASURABLE`
+Measure = Annotated[float, Field(strict=True, allow_inf_nan=False), AfterValidator(measurable)]
 #: a commit as git names it (a hash, a tag, a branch); never starting with '-'
 Commit = Annotated[str, Field(max_length=200), AfterValidator(git_commit)]
 #: the same, where a performance host will check it out: never empty

@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
-from typing import Annotated
+import json
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, field_validator
 from redline.server.schemas.fields import (
     Commit,
     HostName,
     Line,
+    Measure,
     ParamValue,
     SortKey,
     TestName,
@@ -37,8 +38,9 @@ class ResultValue(BaseModel):
     )
     process: Line = "benchmark"
     counter: Line
-    values: list[Annotated[float, Field(allow_inf_nan=False)]] = Field(
-        min_length=1, description="finite samples (NaN and infinities are refused)"
+    values: list[Measure] = Field(
+        min_length=1,
+        description="finite numbers within ±1e30 (NaN, infinities and text are refused)",
     )
 
 
@@ -53,3 +55,20 @@ class ResultsImport(BaseModel):
     commit: Commit = ""
     host: HostName = Field(default="", description="where it was measured")
     results: list[ResultValue] = Field(min_length=1)
+
+    @field_validator("results")
+    @classmethod
+    def _each_series_once(cls, results: list[ResultValue]) -> list[ResultValue]:
+        """One entry per series: a trial's two entries of one series were pooled without a
+        word ([10] and [20] became one execution's mean of 15)."""
+        first: dict[tuple, int] = {}
+        for index, result in enumerate(results):
+            key = (result.case, result.phase, json.dumps(result.params, sort_keys=True),
+                   result.process, result.counter)  # fmt: skip
+            if key in first:
+                raise ValueError(
+                    f"results[{index}] is the series of results[{first[key]}] again (case, "
+                    "phase, params, process and counter): give each series' values once"
+                )
+            first[key] = index
+        return results

@@ -22,6 +22,7 @@ from redline.server.schemas.fields import (
     commit_time,
     git_commit,
     host_name,
+    measurable,
     one_line,
     path_segment,
 )
@@ -52,7 +53,10 @@ def _values(test: str, metric: str, value: Any) -> list[float]:
         numbers = [math.inf]
     if any(not math.isfinite(number) for number in numbers):
         raise BadRequest(f"LNT report: test {test!r} metric {metric!r} is not a finite number")
-    return numbers
+    try:
+        return [measurable(number) for number in numbers]
+    except ValueError as exc:
+        raise BadRequest(f"LNT report: test {test!r} metric {metric!r}: {exc}") from None
 
 
 def _checked(where: str, value: str, check: Callable[[str], str] = one_line) -> str:
