@@ -11,9 +11,9 @@ from urllib.parse import urlencode
 
 import pytest
 from redline.server.db import session_factory
-from redline.server.models import ApiToken, User
+from redline.server.models import ApiToken
 from redline.server.services.signin import create_user
-from sqlalchemy import select, update
+from sqlalchemy import select
 
 from tests.support import ROOT
 from tests.support.api import Api, api_with
@@ -189,12 +189,32 @@ def test_revoking_a_token_or_disabling_a_user_ends_their_browser_sessions(api: A
 
 
 def _disable(name: str, api: Api) -> Callable[[], None]:
+    """`redline user disable NAME`, as an admin runs it (a trial found no way to disable one)."""
+
     def disable() -> None:
-        with session_factory(api.settings.database_url)() as session:
-            session.execute(update(User).where(User.name == name).values(disabled=True))
-            session.commit()
+        env = {**os.environ, "REDLINE_DATABASE_URL": api.settings.database_url}
+        redline = [str(Path(sys.executable).parent / "redline"), "user"]
+        done = subprocess.run([*redline, "disable", name], env=env, capture_output=True,
+                              text=True, cwd=ROOT, timeout=60)  # fmt: skip
+        assert done.returncode == 0 and f"disabled user {name}" in done.stdout, done.stderr
+        listed = subprocess.run([*redline, "list"], env=env, capture_output=True, text=True,
+                                cwd=ROOT, timeout=60).stdout  # fmt: skip
+        assert f"{name}\tadmin\t" in listed and listed.rstrip().endswith("disabled"), listed
 
     return disable
+
+
+def test_a_blank_token_name_is_refused(api: Api):
+    """A trial's `redline token create ""` made a token with no name; the API took "   "."""
+    for name in ("", "   "):
+        refused = api.client.post(
+            "/api/v1/tokens", headers=api.tokens["admin"], json={"name": name, "scopes": ["ci"]}
+        )
+        assert refused.status_code in (400, 422), refused.text
+    blank = api.client.post(
+        "/api/v1/tokens", headers=api.tokens["admin"], json={"name": "   ", "scopes": ["ci"]}
+    )
+    assert "must not be empty or blank" in blank.text
 
 
 def test_read_access_open_by_default(api: Api):

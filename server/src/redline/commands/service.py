@@ -288,7 +288,10 @@ def user_create(
     name: Annotated[str, typer.Argument(help="the name they sign in with")],
     scopes: Annotated[
         str,
-        typer.Option(help="comma-separated: read (look), triage (look and triage), admin (all)"),
+        typer.Option(
+            help="comma-separated: read (look), triage (look and triage), ci (report "
+            "revisions), admin (all)"
+        ),
     ],
     password_stdin: Annotated[
         bool, typer.Option("--password-stdin", help="read the password from standard input")
@@ -317,6 +320,47 @@ def user_create(
             typer.echo(exc.detail, err=True)
             raise typer.Exit(1) from None
     typer.echo(f"created user {user.name} ({','.join(user.scopes)})")
+
+
+@user_app.command("list")
+@needs_database
+def user_list() -> None:
+    """List users: name, scopes, created, state (live or disabled)."""
+    from redline.server.db import session_factory
+    from redline.server.services.signin import list_users
+
+    with session_factory(_settings().database_url)() as session:
+        typer.echo("name\tscopes\tcreated\tstate")
+        for user in list_users(session):
+            state = "disabled" if user.disabled else "live"
+            typer.echo(f"{user.name}\t{','.join(user.scopes)}\t{user.created:%Y-%m-%d}\t{state}")
+
+
+@needs_database
+def _user_disabled(name: str, disabled: bool) -> None:
+    from redline.server.db import session_factory
+    from redline.server.services.errors import NotFound
+    from redline.server.services.signin import set_disabled
+
+    with session_factory(_settings().database_url)() as session:
+        try:
+            user = set_disabled(session, name, disabled)
+        except NotFound as exc:
+            typer.echo(exc.detail, err=True)
+            raise typer.Exit(1) from None
+    typer.echo(f"{'disabled' if disabled else 'enabled'} user {user.name}")
+
+
+@user_app.command("disable")
+def user_disable(name: Annotated[str, typer.Argument(help="the user's name")]) -> None:
+    """Disable a user: they cannot sign in, and their open sessions end at once."""
+    _user_disabled(name, True)
+
+
+@user_app.command("enable")
+def user_enable(name: Annotated[str, typer.Argument(help="the user's name")]) -> None:
+    """Let a disabled user sign in again."""
+    _user_disabled(name, False)
 
 
 retention_app.command("run")(retention_run)

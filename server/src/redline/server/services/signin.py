@@ -28,7 +28,7 @@ from redline.server.core.security import (
     parse_scopes,
 )
 from redline.server.models import ApiToken, User, WebSession, utcnow
-from redline.server.services.errors import BadRequest, Conflict, Forbidden
+from redline.server.services.errors import BadRequest, Conflict, Forbidden, NotFound
 from redline.server.services.tokens import authenticate
 from sqlalchemy import delete, select
 from sqlalchemy.exc import IntegrityError
@@ -101,6 +101,21 @@ def create_user(session: Session, name: str, password: str, scopes: str | list[s
     except IntegrityError:
         session.rollback()
         raise Conflict(f"a user named {name!r} exists") from None
+    return user
+
+
+def list_users(session: Session) -> list[User]:
+    return list(session.scalars(select(User).order_by(User.name)))
+
+
+def set_disabled(session: Session, name: str, disabled: bool) -> User:
+    """Disable (or enable again) the user called ``name``: a disabled user cannot sign in, and
+    their open sessions end at once (`current`); NotFound naming it otherwise."""
+    user = session.scalar(select(User).where(User.name == name))
+    if user is None:
+        raise NotFound(f"no user named {name!r}")
+    user.disabled = disabled
+    session.commit()
     return user
 
 

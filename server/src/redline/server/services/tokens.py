@@ -40,6 +40,8 @@ def issue_token(
         path_segment(name)
     except ValueError as exc:
         raise BadRequest(f"a token's name {escaped(name)[:80]!r} {exc}") from None
+    if not name.strip():  # `redline token create ""` made one; the API took "   "
+        raise BadRequest("a token's name must not be empty or blank: name who it is for")
     if name.isascii() and name.isdecimal():  # `revoke_token` reads such a name as an id first
         raise BadRequest(
             f"a token's name {name[:80]!r} must not be digits only: it would read as a token's "
