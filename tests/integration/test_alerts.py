@@ -320,7 +320,10 @@ def test_no_change_posts_success_and_a_revision_still_measured_posts_pending(
     done, pending = json.loads(calls["b" * 40].body), json.loads(calls["abc1234"].body)
     assert (done["state"], done["description"]) == ("success", "Redline: no change for the worse")
     assert pending["state"] == "pending"
-    assert pending["description"] == "Redline: waiting for a performance host to take its jobs"
+    assert pending["description"] == (
+        "Redline: waiting for a performance host to take its jobs (no performance host has "
+        "registered yet: start one, docs/running-agents.md)"
+    )
     for sha, call in calls.items():
         assert call.method == "POST"
         if provider == "github":
@@ -414,6 +417,14 @@ def test_subscriptions_are_admin_only_checked_and_listed_changed_and_deleted(api
     made = subscribe(api, hook)
     everywhere = subscribe(api, {"kind": "email", "address": "all@robots.example"}, None)
     assert everywhere["component"] is None
+    # the same address or URL again, where it is subscribed: every alert would go twice (a
+    # trial's second subscription of one address was taken)
+    for scope, body in (
+        (BASE, hook),
+        ("/api/v1", {"kind": "email", "address": "ALL@robots.example"}),
+    ):
+        again = api.post(f"{scope}/subscriptions", "admin", body)
+        assert again.status_code == 409 and "is subscribed already" in again.text, again.text
     listed = api.client.get(f"{BASE}/subscriptions", headers=api.tokens["admin"]).json()
     assert [s["id"] for s in listed] == [made["id"]] and '"secret"' not in json.dumps(listed)
     changed = api.client.patch(

@@ -88,7 +88,12 @@ def test_same_report_twice_stores_it_once(api: Api):
 
 def test_malformed_lnt_reports_are_400_naming_the_fault(api: Api):
     version_one = {**lnt_report(), "format_version": "1"}
-    assert "format_version" in send_lnt(api, version_one).json()["detail"]
+    assert (
+        "'format_version' is '1': only \"2\" is read" in send_lnt(api, version_one).json()["detail"]
+    )
+    unversioned = lnt_report()
+    del unversioned["format_version"]
+    assert "'format_version' is missing" in send_lnt(api, unversioned).json()["detail"]
     no_order = lnt_report()
     del no_order["run"]["llvm_project_revision"]
     answer = send_lnt(api, no_order)

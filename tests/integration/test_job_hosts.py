@@ -99,3 +99,24 @@ def test_cancelling_a_revision_stops_its_jobs_and_its_agent_learns_at_the_next_h
     assert beat.status_code == 409
     missing = api.post("/api/v1/components/cancellable/revisions/nope/cancel", "ci", {})
     assert missing.status_code == 404 and "nope" in missing.json()["detail"]
+
+
+def test_a_verdict_waiting_for_a_host_says_when_none_could_take_its_jobs(
+    services: Services, tmp_path: Path
+) -> None:
+    """A trial's jobs needed the label 'nowhere': the verdict, the page and `ci wait` said only
+    "waiting for a performance host to take its jobs"."""
+    with api_with(services, tmp_path) as api:
+        api.component("labelled", host_labels=["gpu", "quiet"])
+        api.revision("r1", "1", component="labelled")
+
+        def waiting() -> str:
+            verdict = api.client.get("/api/v1/components/labelled/revisions/r1/verdict").json()
+            assert verdict["state"] == "pending", verdict
+            return verdict["waiting_for"]
+
+        assert "no performance host has registered yet" in waiting()
+        api.post("/api/v1/agent/register", "agent", {"name": "perf1", "labels": ["quiet"]})
+        assert "no registered host has the label(s) 'gpu', 'quiet' they need" in waiting()
+        api.post("/api/v1/agent/register", "agent", {"name": "perf2", "labels": ["quiet", "gpu"]})
+        assert waiting() == "a performance host to take its jobs"  # perf2 may take them

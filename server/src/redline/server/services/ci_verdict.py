@@ -34,6 +34,7 @@ from redline.recording.format import NO_TRAFFIC_MARK, canonical_params
 from redline.server.models import (
     FINISHED,
     Detection,
+    Host,
     Job,
     JobState,
     Revision,
@@ -47,6 +48,22 @@ from redline.server.services.fresh_runs import fresh_run_between, fresh_runs_und
 from redline.server.services.revisions import own_jobs, revision_state
 from sqlalchemy import or_, select
 from sqlalchemy.orm import Session
+
+
+def _no_host_for(session: Session, queued: list[Job]) -> str:
+    """Why no host may ever take the queued jobs, when none can: no host registered, or none
+    with every label they need (a trial's jobs for label 'nowhere' said only "waiting for a
+    performance host", and `ci wait` timed out saying the same)."""
+    hosts = [set(labels) for labels in session.scalars(select(Host.labels))]
+    if not hosts:
+        return " (no performance host has registered yet: start one, docs/running-agents.md)"
+    for needed in {tuple(sorted(job.labels)) for job in queued}:
+        if not any(set(needed) <= labels for labels in hosts):
+            return (
+                f" (no registered host has the label(s) {', '.join(map(repr, needed))} they "
+                "need: give one `redline agent --label`, or change the component's host_labels)"
+            )
+    return ""
 
 
 def _pending(session: Session, revision: Revision) -> tuple[str, str]:
@@ -73,7 +90,10 @@ def _pending(session: Session, revision: Revision) -> tuple[str, str]:
             "running": "its jobs to finish",
             "analyzing": "detection to judge its results",
         }
-        return "pending", waits.get(state, state)
+        said = waits.get(state, state)
+        if state == "queued":
+            said += _no_host_for(session, [job for job in own if job.state == JobState.queued])
+        return "pending", said
     reruns = session.scalar(
         select(Job.id).where(Job.confirms_revision_id == revision.id, Job.state.not_in(FINISHED))
     )

@@ -144,8 +144,13 @@ def parse_lnt(body: bytes, component: str, order_field: str = ORDER_FIELD) -> Im
         raise BadRequest(f"LNT report: {exc}") from None
     if not isinstance(report, dict):
         raise BadRequest(f"LNT report: the body must be a JSON object, not {type(report).__name__}")
+    if "format_version" not in report:  # "version 1 is not read" said of none, a trial read
+        raise BadRequest("LNT report: 'format_version' is missing: LNT's format 2 says \"2\"")
     if str(report.get("format_version")) != "2":
-        raise BadRequest("LNT report: 'format_version' must be \"2\" (version 1 is not read)")
+        raise BadRequest(
+            f"LNT report: 'format_version' is {str(report['format_version'])[:20]!r}: only "
+            '"2" is read (version 1 is not)'
+        )
     machine, run = _object(report, "machine"), _object(report, "run")
     order = run.get(order_field)
     if order is None or order == "":

@@ -10,7 +10,7 @@ from redline.server.schemas.alerts import (
     SubscriptionUpdate,
 )
 from redline.server.services.components import get_component
-from redline.server.services.errors import NotFound, Unprocessable
+from redline.server.services.errors import Conflict, NotFound, Unprocessable
 from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
@@ -72,7 +72,21 @@ def create_subscription(
         fields.update(url="", secret="", format="redline")
     else:
         fields.update(address="")
-    subscription = Subscription(component_id=_scope(session, component), **fields)
+    scope = _scope(session, component)
+    target = Subscription.url == fields["url"]
+    if data.kind == "email":
+        target = func.lower(Subscription.address) == fields["address"].lower()
+    same = session.scalar(
+        _query(session, component).where(Subscription.kind == data.kind, target).limit(1)
+    )
+    if same is not None:  # a trial's second one would have had every alert told twice
+        where = f"components/{component}/" if component else ""
+        raise Conflict(
+            f"{data.kind} to {fields['address'] or fields['url']!r} is subscribed already "
+            f"(subscription {same.id}): change what it is told with PATCH "
+            f"/api/v1/{where}subscriptions/{same.id}"
+        )
+    subscription = Subscription(component_id=scope, **fields)
     session.add(subscription)
     session.commit()
     return subscription_out(subscription, component)
