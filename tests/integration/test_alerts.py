@@ -29,6 +29,7 @@ from redline.server.models import (
 from redline.server.schemas.regressions import TriageRequest
 from redline.server.services.regressions import triage
 from redline.worker.alerts import (
+    PERIOD,
     commit_status,
     runtime_alerts,
     scan_component,
@@ -220,8 +221,9 @@ def test_a_digest_gathers_the_alerts_of_its_period_into_one_message(api, tmp_pat
     alert(api)
     assert not mailbox.messages  # gathered, not sent
     with session_factory(api.settings.database_url)() as session:
-        assert len(send_digests(session)) == 1
-        assert send_digests(session) == []  # once per period
+        assert send_digests(session) == []  # a day after it was made, not at the next beat
+        assert len(send_digests(session, now=utcnow() + PERIOD)) == 1
+        assert send_digests(session, now=utcnow() + PERIOD) == []  # once per period
         session.commit()
     alert(api)
     (mail,) = mailbox.messages

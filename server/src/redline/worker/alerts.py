@@ -47,7 +47,7 @@ from redline.server.services.detection_config import component_config
 from redline.worker import messages
 from redline.worker.statuses import status_key
 from redline.worker.told import Change, mark_told, told_pairs, untold
-from sqlalchemy import and_, or_, select
+from sqlalchemy import and_, func, or_, select
 from sqlalchemy.orm import Session, aliased
 
 #: a regression that grows is told again at most this often (and a digest goes out this often)
@@ -306,15 +306,16 @@ def runtime_alerts(session: Session, alarm_id: int) -> list[int]:
 
 
 def send_digests(session: Session, now: datetime | None = None) -> list[int]:
-    """One message per digest subscription whose period has passed and that has alerts not
-    sent yet; returns the new deliveries' ids."""
+    """One message per digest subscription whose period has passed (since its last digest, or
+    since it was made: a trial's first "daily" digest went out at the next 15-minute beat) and
+    that has alerts not sent yet; returns the new deliveries' ids."""
     now = now or utcnow()
     made = []
     due = session.scalars(
         select(Subscription)
         .where(
             Subscription.delivery == "digest",
-            or_(Subscription.digest_sent.is_(None), Subscription.digest_sent <= now - PERIOD),
+            func.coalesce(Subscription.digest_sent, Subscription.created) <= now - PERIOD,
         )
         .with_for_update(skip_locked=True)
     ).all()
