@@ -71,7 +71,8 @@ class SubscriptionFilters(BaseModel):
         ge=0,
         le=100,
         allow_inf_nan=False,
-        description="smallest relative effect told (0.05: 5 %)",
+        description="smallest relative effect told, a fraction (0.05: 5 %; 5: 500 %); the "
+        "settings page takes it in percent",
     )
     confirmed_only: bool | None = Field(
         default=None,
