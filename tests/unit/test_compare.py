@@ -12,8 +12,11 @@ import numpy as np
 import pytest
 import typer
 from redline.commands.compare import parse_args, register
-from redline.detect.compare import CompareError
+from redline.detect.compare import CompareError, SeriesVerdict
+from redline.detect.compare_junit import series_line
+from redline.detect.result import NOT_ENOUGH_DATA, Detection
 from redline.recording import RecordingWriter
+from redline.recording.format import SeriesKey
 from typer.testing import CliRunner
 
 RATES = (10, 20)
@@ -293,3 +296,18 @@ def test_a_driver_metric_s_line_names_its_method_s_score_not_a_ks_d() -> None:
     found = _judge(key, {key: base}, {key: cand})
     line = series_line(SeriesVerdict(key, found, 435.7, 5573.3, 3, 3))
     assert found.flagged and " D " not in line and f"{found.method} score" in line, line
+
+
+def test_a_series_not_judged_shows_no_effect() -> None:
+    """A trial read "lateness_p50_us: effect +0.0% ... mean 10.124 -> 7.798 [not enough
+    data: ...]": a series not judged has no effect to show."""
+    verdict = SeriesVerdict(
+        key=SeriesKey("c", "p", "{}", "driver", "lateness_p50_us"),
+        result=Detection(method="ks", verdict=NOT_ENOUGH_DATA, reason="too few samples"),
+        baseline_mean=10.124,
+        candidate_mean=7.798,
+        baseline_n=3,
+        candidate_n=3,
+    )
+    line = series_line(verdict)
+    assert "effect not judged" in line and "+0.0%" not in line, line

@@ -14,6 +14,7 @@ from __future__ import annotations
 import xml.etree.ElementTree as ET
 
 from redline.detect.compare import Comparison, SegmentVerdict, SeriesVerdict
+from redline.detect.result import NOT_ENOUGH_DATA
 
 SUITE_NAME = "redline compare"
 
@@ -37,8 +38,10 @@ def series_line(verdict: SeriesVerdict) -> str:
         if result.method == "ks"
         else f"{result.method} score {result.score:.3g}"
     )
+    # a series not judged has no effect: a trial read "+0.0%" beside means 10.1 -> 7.8
+    effect = "not judged" if result.verdict == NOT_ENOUGH_DATA else f"{result.effect:+.1%}"
     return (
-        f"{key.process}.{key.counter}: effect {result.effect:+.1%}, {score}, "
+        f"{key.process}.{key.counter}: effect {effect}, {score}, "
         f"p {p_value}; mean {before} -> {after} "
         f"(n {verdict.baseline_n} -> {verdict.candidate_n}){reason}"
     )
