@@ -400,6 +400,10 @@ def test_a_triage_to_no_state_names_the_field_and_the_states_not_pydantic(
         assert "pydantic" not in said and "validation error" not in said and "\n" not in said
         if field == "state":  # the value given, and every one allowed
             assert "'closed'" in said and all(f"'{s}'" in said for s in STATES), said
+        assert f'<a href="/regressions/{number}">Back to regression #{number}</a>' in answer.text
+    none = client.post(f"/regressions/{number}/triage", data={"csrf": csrf, "comment": "hm"})
+    said = html.unescape(re.search(r'class="problem">(.*?)</p>', none.text, re.S).group(1))
+    assert none.status_code == 400 and said.startswith("triage: choose the state to set"), said
     assert _state(client, number) == "new"
 
 

@@ -102,13 +102,19 @@ async def triage_form(regression_id: int, request: Request, session: SessionDep)
     """The regression page's triage form: a signed-in session with ``triage`` (or ``admin``), and
     the session's form token; the page again, with the outcome."""
     form = await form_fields(request)
+    back = (f"/regressions/{regression_id}", f"regression #{regression_id}")
     try:
         who = signin.authorize(signed_in(request), form.get("csrf", ""), "triage")
         name = regressions.component_of(session, regression_id)
-        change = TriageRequest(state=form.get("state", ""), comment=form.get("comment", ""))
+        if not form.get("state"):  # the form sent without a state chosen (a trial met pydantic)
+            raise BadRequest(
+                "triage: choose the state to set: acknowledge, confirm, ignore, fixed or false "
+                "positive (a comment alone is not kept)"
+            )
+        change = TriageRequest(state=form["state"], comment=form.get("comment", ""))
         regressions.triage(session, name, regression_id, change, who)
     except (NotFound, BadRequest, Forbidden) as exc:
-        return problem(request, exc)
+        return problem(request, exc, back)
     except ValidationError as exc:  # a state that is none, a comment too long
-        return problem(request, BadRequest(f"triage: {form_errors(exc)}"))
+        return problem(request, BadRequest(f"triage: {form_errors(exc)}"), back)
     return RedirectResponse(f"/regressions/{regression_id}", status_code=303)

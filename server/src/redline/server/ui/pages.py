@@ -54,10 +54,14 @@ def page(
     return templates.TemplateResponse(request, template, context, status_code=status_code)
 
 
-def problem(request: Request, exc: ServiceError) -> HTMLResponse:
-    """The error page for a service error, with its status and message."""
+def problem(
+    request: Request, exc: ServiceError, back: tuple[str, str] | None = None
+) -> HTMLResponse:
+    """The error page for a service error, with its status and message; ``back``: the page
+    the form came from (its address and name), linked beside the home page."""
     code = exc.status_code
-    return page(request, "not_found.html", {"message": exc.detail, "code": code}, code)
+    context = {"message": exc.detail, "code": code, "back": back}
+    return page(request, "not_found.html", context, code)
 
 
 #: fields whose values no answer quotes
