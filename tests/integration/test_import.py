@@ -86,6 +86,30 @@ def test_same_report_twice_stores_it_once(api: Api):
     assert len(api.client.get("/api/v1/components/clang/revisions").json()) == 1
 
 
+def test_the_same_results_spelt_otherwise_are_one_execution(api: Api):
+    """A trial imported one revision's samples again with its series in another order, its
+    commit in capitals and its sort key "1.0": a new execution each time, counted again in
+    every verdict (a confirmed regression was withdrawn after a few such imports)."""
+    results = [
+        {"case": "parse", "counter": "cpu", "values": [10.0, 10.5, 9.5]},
+        {"case": "parse", "counter": "rss", "values": [1.0, 2.0]},
+    ]
+    body = {"component": "clang", "revision": "v1", "sort_key": "1", "commit": "0000001abc",
+            "results": results}  # fmt: skip
+    first = api.post("/api/v1/import/results", "ci", body)
+    assert first.status_code == 201, first.text
+    for spelt in (
+        {**body, "results": results[::-1]},
+        {**body, "commit": "0000001ABC"},
+        {**body, "sort_key": "1.0"},
+    ):
+        again = api.post("/api/v1/import/results", "ci", spelt)
+        assert again.status_code == 200 and again.json()["created"] is False, again.text
+        assert again.json()["execution_id"] == first.json()["execution_id"]
+    other = {**body, "results": [{**results[0], "values": [10.0, 10.5, 9.6]}, results[1]]}
+    assert api.post("/api/v1/import/results", "ci", other).json()["created"] is True  # a new run
+
+
 def test_malformed_lnt_reports_are_400_naming_the_fault(api: Api):
     version_one = {**lnt_report(), "format_version": "1"}
     assert (

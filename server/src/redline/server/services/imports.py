@@ -3,12 +3,14 @@
 An import is one execution of a revision (created if new, without queued jobs): its body is kept
 in the storage folder as the "recording", its samples in Parquet beside it, and its summaries
 and series are the same rows ingestion writes, so detection, the read API and the UI treat
-imported history like measured history. Importing the same body again stores nothing new.
+imported history like measured history. Importing the same run again (`content_key`) stores
+nothing new.
 """
 
 from __future__ import annotations
 
 import hashlib
+import json
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -41,6 +43,25 @@ class ImportedRun:
     samples: dict[SeriesKey, list[float]]
     #: the execution's metadata: the format imported, and what else the report says of the run
     meta: dict[str, str] = field(default_factory=lambda: {"imported": "json"})
+
+
+def content_key(run: ImportedRun) -> str:
+    """The sha256 of what an import says, not of how its body spells it: a trial's same
+    samples, their series in another order (or its commit in capitals, its sort key written
+    "1.0") were a new execution each time, counted again in every verdict. The sort key is left
+    out: a revision's first one stands."""
+    said = {
+        "component": run.component,
+        "revision": run.revision,
+        "commit": run.commit.lower(),
+        "host": run.host,
+        "meta": run.meta,
+        "samples": sorted(
+            [key.case, key.phase, key.params, key.process, key.counter, values]
+            for key, values in run.samples.items()
+        ),
+    }
+    return hashlib.sha256(json.dumps(said, sort_keys=True).encode()).hexdigest()
 
 
 def from_results(data: ResultsImport) -> ImportedRun:
@@ -138,8 +159,10 @@ def _keep(storage_dir: Path, body: bytes, sha256: str, suffix: str) -> Path:
 def store_import(
     session: Session, storage_dir: Path, run: ImportedRun, body: bytes, suffix: str = ".json"
 ) -> ImportResult:
-    """Store the run as one execution; a body imported before returns its execution."""
-    sha256 = hashlib.sha256(body).hexdigest()
+    """Store the run as one execution; a run imported before (the same samples of the same
+    series, revision, commit, host and report details, however the body spelt them) returns
+    its execution."""
+    sha256 = content_key(run)
     revision = _revision(session, run)  # locked: the same body sent twice at once waits here
     known = session.scalar(select(Execution).where(Execution.sha256 == sha256))
     if known is not None:
