@@ -22,6 +22,7 @@ from redline.server.models import (
     Execution,
     Job,
     JobState,
+    Regression,
     RegressionState,
     Revision,
     utcnow,
@@ -33,9 +34,9 @@ from redline.worker.alerts import (
     commit_status,
     runtime_alerts,
     scan_component,
-    send_digests,
 )
 from redline.worker.deliver import deliver_due
+from redline.worker.digests import send_digests
 from redline.worker.reanalysis import reanalyze_component
 from redline.worker.sweeps import SWEEP_GRACE, failed_without_status, untold_runtime_alarms
 from sqlalchemy import delete, select, update
@@ -230,6 +231,27 @@ def test_a_digest_gathers_the_alerts_of_its_period_into_one_message(api, tmp_pat
     assert mail["Subject"] == "[Redline] digest: 2 alert(s)"
     text = mail.get_body(("plain",)).get_content()
     assert "at r6" in text and "at r10" in text
+
+
+def test_a_digest_leaves_out_a_regression_set_aside_since_its_alert(api, tmp_path, mailbox):
+    """A trial's digest told a regression marked a false positive hours before as "confirmed"."""
+    subscribe(
+        api,
+        {"kind": "email", "address": "lead@robots.example", "delivery": "digest",
+         "confirmed_only": False},
+    )  # fmt: skip
+    revisions(api, tmp_path, [10.0] * 5 + [14.0, 14.0, 14.0, 14.0, 20.0])
+    alert(api)
+    with session_factory(api.settings.database_url)() as session:
+        first = session.scalar(select(Regression.id).order_by(Regression.id))
+        triage(session, "builder", first, TriageRequest(state="false_positive"), "ada")
+        assert len(send_digests(session, now=utcnow() + PERIOD)) == 1
+        session.commit()
+    alert(api)
+    (mail,) = mailbox.messages
+    assert mail["Subject"] == "[Redline] digest: 1 alert(s)"
+    text = mail.get_body(("plain",)).get_content()
+    assert "at r10" in text and "at r6" not in text, text
 
 
 def test_a_growing_regression_is_updated_once_a_period_with_its_new_series_only(

@@ -74,11 +74,15 @@ def compare_cmd(
     baseline: Annotated[
         list[Path],
         typer.Option(
-            help="baseline recording(s): every file after the option (it may also repeat)"
+            metavar="FILE.mcap ...",
+            help="baseline recording(s): every file after the option (it may also repeat)",
         ),
     ],
     candidate: Annotated[
-        list[Path], typer.Option(help="candidate recording(s), given as the baseline's")
+        list[Path],
+        typer.Option(
+            metavar="FILE.mcap ...", help="candidate recording(s), given as the baseline's"
+        ),
     ],
     junit: Annotated[
         Path,

@@ -47,7 +47,8 @@ def _local_stack() -> None:
     if "REDLINE_DATABASE_URL" in found:
         for name, value in found.items():
             os.environ.setdefault(name, value)
-        typer.echo(f"(the services of `redline up` in {data})", err=True)
+        # said, so that it is no surprise which database the command changed
+        typer.echo(f"(using the database of the `redline up` whose data is in {data})", err=True)
     else:  # said, not silently taken: a trial's command, run elsewhere, reached another Postgres
         from sqlalchemy.engine import make_url
 

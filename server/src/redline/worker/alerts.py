@@ -8,9 +8,9 @@ twice; and a change a re-analysis moved within the range it was told with, `redl
 and writes an `Alert` for each regression with new changes: "regression" the first
 time, "regression.updated" when it grew, at most once per digest period. Immediate
 subscriptions get a `Delivery` per alert; digest ones collect their alerts until
-`send_digests`. Only revisions reported after the subscription was made are alerted (a new
-subscription does not replay the history), and a triaged regression (fixed, ignored, false
-positive) is never alerted again.
+`redline.worker.digests.send_digests`. Only revisions reported after the subscription was made
+are alerted (a new subscription does not replay the history), and a triaged regression (fixed,
+ignored, false positive) is never alerted again.
 
 A fault `redline watch` reports at run time (`runtime_alerts`) goes to the subscriptions that
 want regressions of its target (``counters`` empty or naming it), once each, its end too.
@@ -47,7 +47,7 @@ from redline.server.services.detection_config import component_config
 from redline.worker import messages
 from redline.worker.statuses import status_key
 from redline.worker.told import Change, mark_told, told_pairs, untold
-from sqlalchemy import and_, func, or_, select
+from sqlalchemy import or_, select
 from sqlalchemy.orm import Session, aliased
 
 #: a regression that grows is told again at most this often (and a digest goes out this often)
@@ -302,39 +302,6 @@ def runtime_alerts(session: Session, alarm_id: int) -> list[int]:
             alert.delivery_id = delivery.id
             made.append(delivery.id)
     session.flush()
-    return made
-
-
-def send_digests(session: Session, now: datetime | None = None) -> list[int]:
-    """One message per digest subscription whose period has passed (since its last digest, or
-    since it was made: a trial's first "daily" digest went out at the next 15-minute beat) and
-    that has alerts not sent yet; returns the new deliveries' ids."""
-    now = now or utcnow()
-    made = []
-    due = session.scalars(
-        select(Subscription)
-        .where(
-            Subscription.delivery == "digest",
-            func.coalesce(Subscription.digest_sent, Subscription.created) <= now - PERIOD,
-        )
-        .with_for_update(skip_locked=True)
-    ).all()
-    for subscription in due:
-        waiting = session.scalars(
-            select(Alert)
-            .where(and_(Alert.subscription_id == subscription.id, Alert.delivery_id.is_(None)))
-            .order_by(Alert.id)
-        ).all()
-        if not waiting:
-            continue
-        payload = messages.digest_body([alert.body for alert in waiting])
-        delivery = new_delivery(subscription, "digest", payload, subscription.component_id)
-        session.add(delivery)
-        session.flush()
-        for alert in waiting:
-            alert.delivery_id = delivery.id
-        subscription.digest_sent = now
-        made.append(delivery.id)
     return made
 
 

@@ -28,9 +28,10 @@ from redline.server.core.tasks import (
 from redline.server.db import session_scope
 from redline.server.models import Revision
 from redline.worker import reanalysis, reanalysis_finish
-from redline.worker.alerts import commit_status, runtime_alerts, scan_component, send_digests
+from redline.worker.alerts import commit_status, runtime_alerts, scan_component
 from redline.worker.app import celery_app
 from redline.worker.deliver import deliver_due
+from redline.worker.digests import send_digests
 from redline.worker.ingest import ingest as run_ingest
 from redline.worker.ingest import stale_uploads
 from redline.worker.onward import judge_onward
