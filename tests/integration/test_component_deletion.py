@@ -105,6 +105,18 @@ def test_deleting_a_component_removes_its_history_and_files_and_keeps_the_others
                 .where(Revision.component_id == other)
             ),
         }
+        # one file named by an execution of each (stored by content, the same bytes are one
+        # file): it stays, with its sample table, for the component that keeps it
+        shared = paths[0]
+        first_of_other = session.scalar(
+            select(func.min(Execution.id))
+            .join(Revision, Revision.id == Execution.revision_id)
+            .where(Revision.component_id == other)
+        )
+        session.execute(
+            update(Execution).where(Execution.id == first_of_other).values(recording_path=shared)
+        )
+        session.commit()
     assert all(Path(path).exists() and samples_path(path).exists() for path in paths)
     assert (
         api.client.delete("/api/v1/components/builder", headers=api.tokens["ci"]).status_code == 403
@@ -116,9 +128,10 @@ def test_deleting_a_component_removes_its_history_and_files_and_keeps_the_others
         "revisions": 7,
         "executions": 7,
         "regressions": 1,
-        "files": 14,  # each execution's recording and sample table
+        "files": 12,  # each execution's recording and sample table, but the shared one's
     }
-    assert not any(Path(path).exists() or samples_path(path).exists() for path in paths)
+    assert not any(Path(path).exists() or samples_path(path).exists() for path in paths[1:])
+    assert Path(shared).exists() and samples_path(shared).exists()
     assert api.client.get("/api/v1/components/builder").status_code == 404
     with session_factory(api.settings.database_url)() as session:
         assert session.scalars(select(Component.name)).all() == ["other"]

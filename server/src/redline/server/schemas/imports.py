@@ -2,9 +2,8 @@
 
 from __future__ import annotations
 
-import json
-
 from pydantic import BaseModel, ConfigDict, Field, field_validator
+from redline.recording.format import canonical_params
 from redline.server.schemas.fields import (
     Commit,
     HostName,
@@ -63,8 +62,8 @@ class ResultsImport(BaseModel):
         word ([10] and [20] became one execution's mean of 15)."""
         first: dict[tuple, int] = {}
         for index, result in enumerate(results):
-            key = (result.case, result.phase, json.dumps(result.params, sort_keys=True),
-                   result.process, result.counter)  # fmt: skip
+            params = canonical_params(result.params)
+            key = (result.case, result.phase, params, result.process, result.counter)
             if key in first:
                 raise ValueError(
                     f"results[{index}] is the series of results[{first[key]}] again (case, "

@@ -48,8 +48,9 @@ WORKING = ("queued", "running")
 
 def delete_component(session: Session, name: str) -> dict[str, int]:
     """Delete the component called ``name`` and everything of it; how many revisions,
-    executions, regressions and files went. NotFound for an unknown name, Conflict while one of
-    its jobs is in flight (`IN_FLIGHT`) or when a report arrived meanwhile."""
+    executions, regressions and files went. NotFound for an unknown name; Conflict while one of
+    its jobs is in flight (`IN_FLIGHT`), its model is trained or its history re-analysed
+    (`WORKING`), or when a worker stored a row of it meanwhile."""
     component = get_component(session, name)
     session.refresh(component, with_for_update=True)  # a report of it waits for this
     revisions = select(Revision.id).where(Revision.component_id == component.id)
@@ -122,8 +123,8 @@ def _count(session: Session, model: type, *where: ColumnElement[bool]) -> int:
     return found or 0
 
 
-def _files(session: Session, component_id: int) -> set[Path]:
-    """The files of the component's executions (recording, samples) and of its models."""
+def _files(session: Session, component_id: int) -> tuple[list[str], list[str]]:
+    """The recordings of the component's executions, and its models' files."""
     recordings = session.scalars(
         select(Execution.recording_path)
         .join(Revision, Revision.id == Execution.revision_id)
@@ -134,27 +135,24 @@ def _files(session: Session, component_id: int) -> set[Path]:
             ResourceModelRow.component_id == component_id, ResourceModelRow.path != ""
         )
     ).all()
-    return {
-        *(Path(path) for path in recordings),
-        *(samples_path(path) for path in recordings),
-        *(Path(path) for path in models),
-    }
+    return list(recordings), list(models)
 
 
-def _remove(session: Session, files: set[Path]) -> int:
-    """Remove ``files`` that no remaining execution names (an upload is stored by its sha256:
-    the same bytes for two components would be one file); how many were there."""
-    still = set(
+def _remove(session: Session, files: tuple[list[str], list[str]]) -> int:
+    """Remove the recordings (each with its sample table) that no remaining execution names (an
+    upload is stored by its sha256: the same bytes for two components would be one file), and
+    the model files; how many files were there."""
+    recordings, models = files
+    kept = set(
         session.scalars(
-            select(Execution.recording_path).where(
-                Execution.recording_path.in_([str(path) for path in files])
-            )
+            select(Execution.recording_path).where(Execution.recording_path.in_(recordings))
         )
     )
+    paths = [Path(path) for path in models]
+    for recording in set(recordings) - kept:
+        paths += [Path(recording), samples_path(recording)]
     removed = 0
-    for path in files:
-        if str(path) in still:
-            continue
+    for path in paths:
         try:
             path.unlink()
             removed += 1

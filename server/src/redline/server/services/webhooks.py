@@ -111,7 +111,7 @@ def _of_repository(session: Session, push: Push) -> list[Component]:
 
 def commit_time(commit: PushCommit) -> datetime | None:
     """The commit's time; ValueError saying what is wrong with the commit otherwise."""
-    if not COMMIT_HASH.match(commit.id):
+    if not COMMIT_HASH.fullmatch(commit.id):
         raise ValueError(f"id {commit.id[:80]!r} is not a commit hash (7 to 64 hex digits)")
     return parse_commit_time(commit.timestamp) if commit.timestamp else None
 
