@@ -384,3 +384,33 @@ def test_revisions_with_one_sort_key_keep_their_reported_order_and_one_regressio
 
 
 COUNTERS = (("cpu", 1.0), ("rss", 1000.0))
+
+
+def test_a_spike_neither_blinds_the_revisions_after_it_nor_stays_suspected(
+    session, database_url, tmp_path
+):
+    """One execution per revision: a spike at r9, back at r10, and a real +30 % at r12. Every
+    flag restarted the baseline before: r10 and r11 were judged against the spike alone ("not
+    enough data"), r12 on a baseline still beginning at the spike, so the change was pooled in
+    and never flagged; and r10, flagged the other way against the spike, kept r9 "suspected"
+    for ever. Now a flag the revisions after it returned from restarts nothing, and a spike's
+    return, flagged or not, drops it."""
+    create_component(session, ComponentCreate(name=NAME, executions=1))
+    rng = np.random.default_rng(4)
+    for number, level in enumerate([20.0] * 8 + [30.0, 20.0, 20.0] + [26.0] * 4, start=1):
+        executions = add_executions(
+            session, tmp_path, NAME, f"r{number}", str(number),
+            [{"cpu": rng.normal(level, level * 0.02, 60)}],
+        )  # fmt: skip
+        ingest_and_detect(database_url, executions)
+    session.expire_all()
+    flagged = {title: d for title, d in _flagged(session).items() if d.direction == "increase"}
+    assert set(flagged) == {"r9", "r12"}, {t: d.effect for t, d in _flagged(session).items()}
+    assert flagged["r9"].confirmation == "dropped", flagged["r9"].confirmation_reason
+    assert "returned towards the old level" in flagged["r9"].confirmation_reason
+    assert flagged["r12"].confirmation == "held", flagged["r12"].confirmation_reason
+    assert flagged["r12"].effect is not None and 0.2 < flagged["r12"].effect < 0.4
+    by_revision = {
+        r.bad_revision.title: r.confirmation for r in session.scalars(select(Regression))
+    }
+    assert by_revision == {"r9": "not_confirmed", "r12": "confirmed"}, by_revision

@@ -141,7 +141,30 @@ def test_build_shift_judges_revisions_so_noise_shared_by_a_revision_is_not_a_cha
     ],
 )
 def test_recent_baseline_depth(sizes, need, window, flagged_at, depth) -> None:
-    assert recent_depth(sizes, need, window, flagged_at) == depth
+    values = [np.full(size, 10.0) for size in sizes]
+    assert recent_depth(values, need, window, lambda k: k == flagged_at) == depth
+
+
+def _levels(*levels: float) -> list[np.ndarray]:
+    """One execution per revision at these levels, newest first, with a little noise."""
+    rng = np.random.default_rng(3)
+    return [level * (1 + rng.normal(0, 0.01, 1)) for level in levels]
+
+
+@pytest.mark.parametrize(
+    ("levels", "depth", "why"),
+    [
+        ((14, 14, 14, 10, 10, 10, 10, 10), 3, "held by the 2 after it: the baseline starts there"),
+        ((10, 14, 10, 10, 10, 10, 10, 10), 2, "1 after it: too soon to say, it starts there"),
+        ((10, 10, 14, 10, 10, 10, 10, 10), 6, "the 2 after it returned: a spike, pooled past"),
+    ],
+)
+def test_a_baseline_restarts_at_a_flag_only_while_it_may_be_a_new_level(levels, depth, why):
+    """A trial's spike, flagged and dropped, left the next revisions judged against it alone
+    ("not enough data") and then pooled a real change in unjudged (`redline.detect.baseline`)."""
+    values = _levels(*levels)
+    flagged_at = levels.index(14) if levels[0] != 14 else 2
+    assert recent_depth(values, 6, 10, lambda k: k == flagged_at, wait=2) == depth, why
 
 
 def _step_corpus(executions: int = 5) -> Corpus:

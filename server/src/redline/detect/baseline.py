@@ -4,16 +4,24 @@ and the offline evaluation so that both judge exactly the same comparison.
 ``recent``: the newest earlier revisions, newest first, pooled until they hold the method's
 ``baseline_values`` values (samples, or executions for an execution-level method), at most
 ``window`` revisions, and never reaching back past the newest revision at which the same method
-flagged the series. That revision is the first of the new level: after a change, the baseline
-restarts there, so the revisions after a real change are compared with the changed level rather
-than flagged again and again until the old level leaves the window (as Perfherder and Otava
-restart their windows at a detected change point).
+flagged a change that the revisions since have not left (`restarts`). That revision is the
+first of the new level: after a change, the baseline restarts there, so the revisions after a
+real change are compared with the changed level rather than flagged again and again until the
+old level leaves the window (as Perfherder and Otava restart their windows at a detected change
+point). A flag the revisions after it returned from is a spike, not a level: the baseline
+goes on past it. Before, every flag restarted it, spikes included, and the next revisions were
+judged against the spike alone: with one execution each, "not enough data" for five revisions,
+and then a baseline that still began at the spike, so a real change in those revisions was
+pooled in unjudged (a trial's history lost a confirmed +40 % regression this way).
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Sequence
-from typing import TypeVar
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from typing import Generic, TypeVar
+
+import numpy as np
+from redline.detect.confirmation import DEFAULT_CONFIRM_REVISIONS, DROPPED, hold
 
 #: How many earlier revisions ``recent`` may pool at most, by default (configurable: ``window``).
 DEFAULT_WINDOW = 10
@@ -31,37 +39,105 @@ def lookback(window: int) -> int:
     return 2 * window
 
 
+class _Lazy(Generic[T]):
+    """The items of an iterable, read only as far as asked."""
+
+    def __init__(self, items: Iterable[tuple[T, np.ndarray, bool]]) -> None:
+        self._source: Iterator[tuple[T, np.ndarray, bool]] = iter(items)
+        self._read: list[tuple[T, np.ndarray, bool]] = []
+
+    def get(self, k: int) -> tuple[T, np.ndarray, bool] | None:
+        while len(self._read) <= k:
+            item = next(self._source, None)
+            if item is None:
+                return None
+            self._read.append(item)
+        return self._read[k]
+
+
+def restarts(
+    before: Sequence[np.ndarray],
+    flagged: np.ndarray,
+    since: Sequence[np.ndarray],
+    wait: int = DEFAULT_CONFIRM_REVISIONS,
+    count: bool = False,
+) -> bool:
+    """Whether a baseline restarts at a flagged revision (its values ``flagged``; ``before``:
+    those of the revisions before it, its own baseline; ``since``: those of the revisions
+    between it and the one judged, oldest first): yes until ``wait`` of them measured the
+    series, then unless they returned towards the old level (`redline.detect.confirmation.hold`,
+    the test confirmation by history applies, on the values at hand)."""
+    pooled = [v for v in before if len(v)]
+    if not pooled:
+        return True
+    return hold(np.concatenate(pooled), flagged, list(since), wait, count=count).state != DROPPED
+
+
 def take_recent(
-    newest_first: Iterable[tuple[T, int, bool]], need: int, window: int = DEFAULT_WINDOW
+    newest_first: Iterable[tuple[T, np.ndarray, bool]],
+    need: int,
+    window: int = DEFAULT_WINDOW,
+    wait: int = DEFAULT_CONFIRM_REVISIONS,
+    count: bool = False,
 ) -> list[T]:
-    """The earlier revisions that form the baseline, taken from ``(revision, number of values,
+    """The earlier revisions that form the baseline, taken from ``(revision, its values,
     flagged by the method)`` newest first, and read no further than needed (the iterable may
-    compute each revision's values lazily)."""
+    compute each revision's values lazily). ``wait``: the revisions after a flag that decide
+    whether it was a spike (`restarts`); ``count``: the values count rare events."""
+    items: _Lazy[T] = _Lazy(newest_first)
     taken: list[T] = []
     pooled = 0
-    for item, size, flagged in newest_first:
-        if len(taken) >= window or pooled >= need:
-            break
+    k = 0
+    while len(taken) < window and pooled < need and (entry := items.get(k)) is not None:
+        item, values, flagged = entry
         taken.append(item)
-        pooled += size
-        if flagged:  # the newest change the method flagged: the baseline starts there
-            break
+        pooled += len(values)
+        if flagged and _restarts_at(items, k, need, window, wait, count):
+            break  # the newest change the method flagged that held: the baseline starts there
+        k += 1
     return taken
 
 
+def _restarts_at(items: _Lazy[T], k: int, need: int, window: int, wait: int, count: bool) -> bool:
+    """`restarts` at the ``k``-th newest revision, its own baseline read as `take_recent` reads
+    one (up to the flag before it, that one included)."""
+    since = [entry[1] for j in range(k - 1, -1, -1) if (entry := items.get(j)) is not None]
+    if len(since) < wait:
+        return True  # cheap, and the common case right after a flag
+    flagged = items.get(k)
+    assert flagged is not None
+    before: list[np.ndarray] = []
+    j = k + 1
+    while len(before) < window and sum(map(len, before)) < need:
+        entry = items.get(j)
+        if entry is None:
+            break
+        before.append(entry[1])
+        if entry[2]:
+            break
+        j += 1
+    return restarts(before, flagged[1], since, wait, count)
+
+
 def recent_depth(
-    sizes_newest_first: Sequence[int],
+    values_newest_first: Sequence[np.ndarray],
     need: int,
     window: int = DEFAULT_WINDOW,
-    flagged_at: int | None = None,
+    flagged: Callable[[int], bool] = lambda _k: False,
+    wait: int = DEFAULT_CONFIRM_REVISIONS,
+    count: bool = False,
 ) -> int:
-    """How many of the newest earlier revisions form the baseline (`take_recent` on sizes).
+    """How many of the newest earlier revisions form the baseline (`take_recent` on values).
 
-    ``flagged_at``: the position in ``sizes_newest_first`` of the newest revision the method
-    flagged, or None; the baseline stops there, that revision included.
+    ``flagged``: whether the method flagged the revision at that position of
+    ``values_newest_first``.
     """
     return len(
         take_recent(
-            ((k, size, k == flagged_at) for k, size in enumerate(sizes_newest_first)), need, window
+            ((k, values, flagged(k)) for k, values in enumerate(values_newest_first)),
+            need,
+            window,
+            wait,
+            count,
         )
     )

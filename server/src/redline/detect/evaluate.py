@@ -138,11 +138,15 @@ def _walk_series(
         totals = [values_for(judge, of[b]) if b in of else None for b, _ in builds]
     changes = snapped(label.change_builds, [build for build, _ in builds])
     runs = [executions for _, executions in builds]
-    last_flagged: int | None = None
+    flags: set[int] = set()
     for k in range(1, len(builds)):
-        sizes = [len(values[j]) for j in range(k - 1, -1, -1)]
-        flagged_at = None if last_flagged is None else k - 1 - last_flagged
-        depth = recent_depth(sizes, judge.baseline_values, window, flagged_at)
+        depth = recent_depth(
+            [values[j] for j in range(k - 1, -1, -1)],
+            judge.baseline_values,
+            window,
+            {k - 1 - j for j in flags}.__contains__,  # positions newest first
+            count=kind.count,
+        )
         baseline, candidate = np.concatenate(values[k - depth : k]), values[k]
         build = builds[k][0]
         unit = Unit(
@@ -156,8 +160,8 @@ def _walk_series(
             # as the worker judges: the detector, then the counter's absolute floor (a series
             # id ending in a known counter name, e.g. "leak/rss_bytes", gets that floor)
             found = judge_series(detector, kind.counter, baseline, candidate)
-        if found.flagged:  # the baseline restarts at any flag, a better or a worse one
-            last_flagged = k
+        if found.flagged:  # a baseline may restart at any flag, a better or a worse one
+            flags.add(k)
         yield unit, found
 
 

@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from redline.detect.baseline import lookback, take_recent
 from redline.detect.config import DetectionConfig
+from redline.detect.count_rate import CountRate
 from redline.detect.execution_shift import ExecutionShift, strongest_step
 from redline.detect.methods import Levelled
 from redline.detect.result import Detection
@@ -106,13 +107,13 @@ class Baselines:
         if self.config.baseline != "recent":
             return list(present)
         return take_recent(
-            (
-                ((i, values), len(values), (series_id, detector.name, i) in self.flagged)
-                for i, values in present
-            ),
+            (((i, values), values, (series_id, detector.name, i) in self.flagged)
+             for i, values in present),
             detector.baseline_values,
             self.config.window,
-        )
+            self.config.confirm_revisions,
+            count=isinstance(detector, CountRate),
+        )  # fmt: skip
 
     def step(self, series_id: int, detector: Levelled, candidate: np.ndarray | None) -> Step | None:
         """A step at one of the baseline's revisions that could not be judged when measured

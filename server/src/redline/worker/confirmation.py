@@ -21,6 +21,7 @@ from redline.detect.confirmation import (
     DROPPED,
     FOUND_LATE,
     HELD,
+    HOLD_SHARE,
     LOOKBACK,
     SUSPECTED,
     Hold,
@@ -177,6 +178,8 @@ def settle(
     past = np.concatenate(before) if before else np.array([])
     found = hold(baseline, levels[at][2], following, wait, count=count, past=past)
     if found.state == SUSPECTED and end < len(levels):
+        found = _returned(baseline, levels, at, wait, count) or found
+    if found.state == SUSPECTED and end < len(levels):
         if not detection.confirmation_reason.startswith(UNDECIDED):
             detection.confirmation_reason = (
                 f"suspected: the series changed again {end - at} revision(s) later, before "
@@ -199,6 +202,19 @@ def settle(
     if found.state == SUSPECTED and detection.confirmation_reason.startswith(UNDECIDED):
         return  # what the re-runs said stands until the history decides
     detection.confirmation, detection.confirmation_reason = found.state, found.reason
+
+
+def _returned(
+    baseline: np.ndarray, levels: list[tuple[str, int, np.ndarray]], at: int, wait: int, count: bool
+) -> Hold | None:
+    """The flagged change at ``at`` dropped as a spike when the revisions after it returned
+    towards the old level, the next change among them: that change may be the return itself
+    (a spike's next revision, judged against the spike, is flagged the other way, and the spike
+    stayed suspected for ever). Only a return counts across a later change, never a hold."""
+    found = hold(baseline, levels[at][2], [v for _, _, v in levels[at + 1 :]], wait, count=count)
+    if found.state == DROPPED and found.kept < HOLD_SHARE:
+        return found
+    return None
 
 
 def _newest_reasons(session: Session, component_id: int) -> dict[tuple[int, str], str]:
