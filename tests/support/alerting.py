@@ -17,9 +17,9 @@ import pytest
 from redline.server.core.config import Settings
 from redline.server.db import session_factory
 from redline.server.models import Alert, Component, Delivery, DetectionConfigRow
-from redline.worker.alerts import scan_component
 from redline.worker.deliver import claim, deliver_due
 from redline.worker.detection import detect_revision
+from redline.worker.follow_ups import tell_component
 from redline.worker.ingest import ingest_execution
 from redline.worker.reanalysis import reanalyze_component
 from sqlalchemy import select, update
@@ -157,7 +157,7 @@ def scan(api: Api) -> None:
     """What the worker does after a detection, short of sending: the alerts and deliveries."""
     with session_factory(api.settings.database_url)() as session:
         component = session.scalar(select(Component.id).where(Component.name == "builder"))
-        scan_component(session, component)
+        tell_component(session, component)
         session.commit()
 
 

@@ -78,26 +78,41 @@ def _measuring(session: Session, revision_ids: set[int]) -> set[int]:
     )
 
 
-def flagged_changes(session: Session, component: Component, since: datetime) -> list[Change]:
-    """The component's flagged changes of the alarm methods, on revisions reported since
-    ``since``, not dropped by confirmation, outside silenced regressions."""
+def flagged_rows(
+    session: Session,
+    component: Component,
+    regression_id: int | None = None,
+    since: datetime | None = None,
+) -> list[Any]:
+    """(detection, series, revision, baseline title, baseline sort key, baseline id) of the
+    component's flagged detections of its alarm methods, oldest first: of one regression, or of
+    the revisions reported since ``since`` outside silenced regressions."""
     alarming = component_config(session, component.id).alarming
     baseline = aliased(Revision)
-    rows = session.execute(
+    query = (
         select(Detection, Series, Revision, baseline.title, baseline.order_key, baseline.id)
         .join(Series, Series.id == Detection.series_id)
         .join(Revision, Revision.id == Detection.revision_id)
         .outerjoin(baseline, baseline.id == Detection.baseline_revision_id)
         .outerjoin(Regression, Regression.id == Detection.regression_id)
-        .where(
-            Series.component_id == component.id,
-            Detection.flagged,
-            Detection.method.in_(alarming),
+        .where(Series.component_id == component.id, Detection.flagged)
+        .where(Detection.method.in_(alarming))
+        .order_by(Detection.id)
+    )
+    if regression_id is not None:
+        query = query.where(Detection.regression_id == regression_id)
+    if since is not None:
+        query = query.where(
             Revision.created >= since,
             or_(Regression.id.is_(None), Regression.state.not_in(SILENCED)),
         )
-        .order_by(Detection.id)
-    ).all()
+    return list(session.execute(query).all())
+
+
+def flagged_changes(session: Session, component: Component, since: datetime) -> list[Change]:
+    """The component's flagged changes of the alarm methods, on revisions reported since
+    ``since``, not dropped by confirmation, outside silenced regressions."""
+    rows = flagged_rows(session, component, since=since)
     changes = []
     for detection, series, revision, baseline_title, baseline_key, baseline_id in rows:
         is_worse = detection.direction == worse(series.process, series.counter)
@@ -162,6 +177,22 @@ def new_delivery(
     )
 
 
+def add_alert(
+    session: Session, subscription: Subscription, component_id: int, **fields: Any
+) -> Alert:
+    """An alert of these ``fields`` (`Alert`'s) stored for ``subscription``, with its delivery
+    when the subscription is told at once (a digest one gathers it later)."""
+    alert = Alert(subscription_id=subscription.id, **fields)
+    session.add(alert)
+    session.flush()
+    if subscription.delivery == "immediate":
+        delivery = new_delivery(subscription, alert.kind, alert.body, component_id)
+        session.add(delivery)
+        session.flush()
+        alert.delivery_id = delivery.id
+    return alert
+
+
 def _alert(
     session: Session,
     subscription: Subscription,
@@ -171,22 +202,17 @@ def _alert(
     changes: list[Change],
 ) -> Alert:
     body = messages.alert_body(component.name, kind, regression, [c.body for c in changes])
-    alert = Alert(
-        subscription_id=subscription.id,
+    alert = add_alert(
+        session,
+        subscription,
+        component.id,
         regression_id=regression.id if regression else None,
         revision_id=changes[0].revision_id,
         kind=kind,
         body=body,
     )
-    session.add(alert)
-    session.flush()
     for change in changes:
         mark_told(session, subscription, change, alert.id)
-    if subscription.delivery == "immediate":
-        delivery = new_delivery(subscription, kind, body, component.id)
-        session.add(delivery)
-        session.flush()
-        alert.delivery_id = delivery.id
     return alert
 
 
@@ -288,19 +314,11 @@ def runtime_alerts(session: Session, alarm_id: int) -> list[int]:
             subscription.counters and alarm.target not in subscription.counters
         ):
             continue
-        alert = Alert(
-            subscription_id=subscription.id,
-            runtime_alarm_id=alarm.id,
-            kind=body["kind"],
+        alert = add_alert(
+            session, subscription, component.id, runtime_alarm_id=alarm.id, kind=body["kind"],
             body=body,
-        )
-        session.add(alert)
-        if subscription.delivery == "immediate":
-            delivery = new_delivery(subscription, body["kind"], body, component.id)
-            session.add(delivery)
-            session.flush()
-            alert.delivery_id = delivery.id
-            made.append(delivery.id)
+        )  # fmt: skip
+        made.extend([alert.delivery_id] if alert.delivery_id is not None else [])
     session.flush()
     return made
 

@@ -1,9 +1,12 @@
 """Digests: a digest subscription's alerts gathered into one message a period (a day), the
 first a day after it was made, leaving out the regressions a person has set aside or judging
-again has withdrawn since their alert."""
+again has withdrawn since their alert (but for the follow-up that says it was withdrawn,
+`redline.worker.follow_ups`). Each alert tells its regression as it is when the digest goes
+out (a trial's digest told a regression fixed since its alert as "new")."""
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from datetime import datetime
 
 from redline.server.models import (
@@ -16,7 +19,8 @@ from redline.server.models import (
 )
 from redline.worker import messages
 from redline.worker.alerts import PERIOD, new_delivery
-from sqlalchemy import and_, func, or_, select
+from redline.worker.follow_ups import EVENTS
+from sqlalchemy import and_, func, select
 from sqlalchemy.orm import Session
 
 #: a regression triaged so, or withdrawn, before a digest is sent is left out of it (a trial's
@@ -24,18 +28,28 @@ from sqlalchemy.orm import Session
 SETTLED = (RegressionState.false_positive, RegressionState.ignored)
 
 
-def _settled(session: Session, regression_ids: set[int]) -> set[int]:
-    """Those of the regressions a person has set aside, or judging again has withdrawn."""
-    if not regression_ids:
-        return set()
-    return set(
-        session.scalars(
-            select(Regression.id).where(
-                Regression.id.in_(regression_ids),
-                or_(Regression.state.in_(SETTLED), Regression.confirmation == WITHDRAWN),
+def _told(session: Session, waiting: Sequence[Alert]) -> list[Alert]:
+    """The waiting alerts a digest tells, their regressions as they are now: not those of
+    regressions a person has set aside, nor of withdrawn ones but for the withdrawal itself."""
+    regressions = {
+        regression.id: regression
+        for regression in session.scalars(
+            select(Regression).where(
+                Regression.id.in_({alert.regression_id for alert in waiting}),
             )
         )
-    )
+    }
+    told = []
+    for alert in waiting:
+        regression = regressions.get(alert.regression_id or 0)
+        if regression is not None:
+            if regression.state in SETTLED or (
+                regression.confirmation == WITHDRAWN and alert.kind != EVENTS[WITHDRAWN]
+            ):
+                continue
+            alert.body = {**alert.body, "regression": messages.regression_body(regression)}
+        told.append(alert)
+    return told
 
 
 def send_digests(session: Session, now: datetime | None = None) -> list[int]:
@@ -58,8 +72,7 @@ def send_digests(session: Session, now: datetime | None = None) -> list[int]:
             .where(and_(Alert.subscription_id == subscription.id, Alert.delivery_id.is_(None)))
             .order_by(Alert.id)
         ).all()
-        settled = _settled(session, {a.regression_id for a in waiting if a.regression_id})
-        told = [alert for alert in waiting if alert.regression_id not in settled]
+        told = _told(session, waiting)
         if not told:
             continue  # the settled ones wait: told should a person take them up again
         payload = messages.digest_body([alert.body for alert in told])

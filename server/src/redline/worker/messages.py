@@ -66,6 +66,9 @@ def _summary(component: str, kind: str, changes: list[dict[str, Any]]) -> str:
     what = {
         "regression": "regression",
         "regression.updated": "regression grew",
+        "regression.confirmed": "regression confirmed",
+        "regression.not_confirmed": "regression not confirmed",
+        "regression.withdrawn": "regression withdrawn",
         "improvement": "improvement",
     }.get(kind, kind)
     who = "" if first["process"] == component else f"{first['process']} "
@@ -87,16 +90,21 @@ def alert_body(
         "changes": changes,
     }
     if regression is not None:
-        body["regression"] = {
-            "id": regression.id,
-            "page": f"/regressions/{regression.id}",
-            "state": regression.state.value,
-            "confirmation": regression.confirmation,
-            "confirmation_reason": regression.confirmation_reason,
-            "good": {"title": regression.good_revision.title},
-            "bad": {"title": regression.bad_revision.title},
-        }
+        body["regression"] = regression_body(regression)
     return body
+
+
+def regression_body(regression: Regression) -> dict[str, Any]:
+    """The regression as an alert tells it: as it is at the time the message is made."""
+    return {
+        "id": regression.id,
+        "page": f"/regressions/{regression.id}",
+        "state": regression.state.value,
+        "confirmation": regression.confirmation,
+        "confirmation_reason": regression.confirmation_reason,
+        "good": {"title": regression.good_revision.title},
+        "bad": {"title": regression.bad_revision.title},
+    }
 
 
 def runtime_body(component: str, alarm: RuntimeAlarm) -> dict[str, Any]:
@@ -215,6 +223,7 @@ def email(event: str, payload: dict[str, Any], public_url: str) -> tuple[str, st
                     if regression["confirmation_reason"]
                     else ""
                 )
+                + (f"; triaged: {regression['state']}" if regression["state"] != "new" else "")
             )
             text_parts.append(said)
             text_parts.append(f"Regression: {regression['page_url']}")

@@ -28,10 +28,11 @@ from redline.server.core.tasks import (
 from redline.server.db import session_scope
 from redline.server.models import Revision
 from redline.worker import reanalysis, reanalysis_finish
-from redline.worker.alerts import commit_status, runtime_alerts, scan_component
+from redline.worker.alerts import commit_status, runtime_alerts
 from redline.worker.app import celery_app
 from redline.worker.deliver import deliver_due
 from redline.worker.digests import send_digests
+from redline.worker.follow_ups import tell_component
 from redline.worker.ingest import ingest as run_ingest
 from redline.worker.ingest import stale_uploads
 from redline.worker.onward import judge_onward
@@ -189,7 +190,7 @@ def scan_alerts(component_id: int | None, revision_id: int | None = None) -> int
             )
         if component_id is None:
             return 0  # the revision is gone
-        deliveries = scan_component(session, component_id)
+        deliveries = tell_component(session, component_id)
         if revision_id is not None:
             deliveries += commit_status(session, revision_id)
     if deliveries:
