@@ -18,6 +18,7 @@ from redline.server.schemas.components import ComponentCreate
 from redline.server.services.components import create_component
 from redline.worker.detection import detect_revision
 from redline.worker.ingest import ingest_execution
+from redline.worker.onward import judge_onward
 from redline.worker.reanalysis import reanalyze_component
 from sqlalchemy import text
 
@@ -217,3 +218,41 @@ def test_component_page_lists_regressions_with_their_state(api, database_url, tm
     first = api.get("/revisions/r1").json()
     assert first["verdict"].startswith("ks: not enough data yet (missing baseline")
     assert api.get("/revisions/r2").json()["verdict"] == "ks: 1 change(s), 0 series unchanged"
+
+
+@pytest.mark.parametrize(
+    ("late", "expected"),
+    [
+        (20.0, ("r3", "r4")),  # r3 unchanged: the change is r4's, judged against r3 now
+        (60.0, ("r2", "r3")),  # r3 made the change: r4 no longer differs from it
+    ],
+)
+def test_a_regression_spans_what_its_changes_span_after_a_revision_reported_late(
+    api, database_url, tmp_path, late, expected
+):
+    """A second trial's regression kept saying "between r2 and r4" when its change, judged
+    again once the revision between had run, was r4 against r3: a range only ever widened."""
+    rng = np.random.default_rng(5)
+    with session_factory(database_url)() as session:
+        component = create_component(session, ComponentCreate(name="builder"))
+        session.add(DetectionConfigRow(component_id=component.id, config={"methods": ["ks"]}))
+        session.commit()
+
+    def report(n: int, cpu: float) -> None:
+        with session_factory(database_url)() as session:
+            execution = add_execution(
+                session, tmp_path, "builder", f"r{n}", str(n), {"cpu": rng.normal(cpu, 1.0, 60)}
+            )
+        ingest_execution(database_url, execution.id)
+        judge_onward(database_url, execution.revision_id)  # as the worker: it, then later ones
+
+    for n, cpu in ((1, 20.0), (2, 20.0), (4, 60.0), (5, 60.0)):
+        report(n, cpu)
+    (before,) = api.get("/regressions").json()
+    assert (before["good_revision"], before["bad_revision"]) == ("r2", "r4")
+    report(3, late)  # CI reported it late (or it ran afresh after a busy host)
+    (after,) = api.get("/regressions").json()
+    assert after["id"] == before["id"]
+    assert (after["good_revision"], after["bad_revision"]) == expected
+    flagged = api.get(f"/regressions/{after['id']}").json()["flagged"]
+    assert {d["revision"] for d in flagged} == {expected[1]}

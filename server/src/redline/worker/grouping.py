@@ -13,6 +13,7 @@ it; a triaged one keeps its label too, because its label is ground truth.
 
 from __future__ import annotations
 
+from collections import defaultdict
 from collections.abc import Collection
 
 from redline.detect.confirmation import SUSPECTED
@@ -28,7 +29,7 @@ from redline.server.models import (
     utcnow,
 )
 from sqlalchemy import delete, exists, select, tuple_
-from sqlalchemy.orm import Session
+from sqlalchemy.orm import Session, aliased
 
 
 def _span(
@@ -125,7 +126,43 @@ def group_revision(session: Session, revision: Revision, alarming: Collection[st
         if detection.direction == worse(process, counter):  # not an improvement
             group_detection(session, detection, revision)
     session.flush()
+    _fit(session, revision)
     _withdraw_emptied(session, revision.component_id)
+
+
+def _fit(session: Session, revision: Revision) -> None:
+    """The ranges of the regressions that reach the revision, made again from their changes'
+    spans: judged again, a change can narrow (a revision reported late, or run afresh after the
+    host was busy, between its baseline and it), and a range that only widened kept saying
+    "between r2 and r4" of a change that was r4's against r3. A withdrawn or emptied one keeps
+    the range it had."""
+    reaching = session.scalars(
+        select(Regression).where(
+            Regression.component_id == revision.component_id,
+            Regression.confirmation != WITHDRAWN,
+            tuple_(Regression.good_key, Regression.good_revision_id) < revision.place,
+            tuple_(Regression.bad_key, Regression.bad_revision_id) >= revision.place,
+        )
+    ).all()
+    if not reaching:
+        return
+    baseline = aliased(Revision)
+    spans: dict[int | None, list[tuple[Revision, Revision]]] = defaultdict(list)
+    for regression_id, good, bad in session.execute(
+        select(Detection.regression_id, baseline, Revision)
+        .join(baseline, baseline.id == Detection.baseline_revision_id)
+        .join(Revision, Revision.id == Detection.revision_id)
+        .where(Detection.regression_id.in_([r.id for r in reaching]))
+    ):
+        spans[regression_id].append((good, bad))
+    for regression in reaching:
+        found = spans.get(regression.id)
+        if not found:
+            continue  # emptied: withdrawn (or deleted) next, with the range it had
+        good = min((g for g, _ in found), key=lambda r: r.place)
+        bad = max((b for _, b in found), key=lambda r: r.place)
+        regression.good_revision_id, regression.good_key = good.id, good.order_key
+        regression.bad_revision_id, regression.bad_key = bad.id, bad.order_key
 
 
 def group_detection(session: Session, detection: Detection, revision: Revision) -> None:
