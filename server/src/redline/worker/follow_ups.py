@@ -24,8 +24,9 @@ from redline.server.models import WITHDRAWN, Alert, Component, Regression, Subsc
 from redline.worker import messages
 from redline.worker.alerts import SILENCED, add_alert, flagged_rows, scan_component
 from redline.worker.confirmation import CONFIRMED, NOT_CONFIRMED
-from sqlalchemy import or_, select
-from sqlalchemy.orm import Session
+from sqlalchemy import exists, or_, select
+from sqlalchemy.dialects.postgresql import distinct_on
+from sqlalchemy.orm import Session, aliased
 
 #: the event that tells each settled confirmation
 EVENTS = {
@@ -35,12 +36,8 @@ EVENTS = {
 }
 
 
-def _said(alert: Alert) -> str | None:
-    return (alert.body.get("regression") or {}).get("confirmation")
-
-
 def _changes(
-    session: Session, component: Component, regression: Regression, told: list[Alert]
+    session: Session, component: Component, regression: Regression, subscription_id: int
 ) -> list[dict[str, Any]]:
     """The regression's changes with their figures now, dropped ones included; for a withdrawn
     one, which has none left, the changes the subscriber was told, as told."""
@@ -50,7 +47,46 @@ def _changes(
             session, component, regression.id
         )
     ]
-    return now or [change for alert in told for change in alert.body.get("changes", [])]
+    if now:
+        return now
+    told = session.scalars(
+        select(Alert.body)
+        .where(Alert.subscription_id == subscription_id, Alert.regression_id == regression.id)
+        .order_by(Alert.id)
+    )
+    return [change for body in told for change in body.get("changes", [])]
+
+
+def _unsaid(session: Session, subscription_id: int, component_id: int) -> list[Regression]:
+    """The component's regressions the subscription was sent, untriaged or open, whose
+    confirmation has settled otherwise than its last alert of them said: one query on the last
+    alert of each, however many alerts the subscription has had."""
+    sent = aliased(Alert)
+    last = (
+        select(Alert.regression_id, Alert.body["regression"]["confirmation"].as_string())
+        .join(Regression, Regression.id == Alert.regression_id)
+        .where(
+            Alert.subscription_id == subscription_id,
+            Regression.component_id == component_id,
+            Regression.state.not_in(SILENCED),
+            Regression.confirmation.in_(list(EVENTS)),
+            # never sent (a digest's, still waiting): nothing to follow up
+            exists().where(
+                sent.subscription_id == subscription_id,
+                sent.regression_id == Alert.regression_id,
+                sent.delivery_id.is_not(None),
+            ),
+        )
+        .ext(distinct_on(Alert.regression_id))
+        .order_by(Alert.regression_id, Alert.id.desc())
+    )
+    said = {regression_id: confirmation for regression_id, confirmation in session.execute(last)}
+    if not said:
+        return []
+    regressions = session.scalars(
+        select(Regression).where(Regression.id.in_(list(said))).order_by(Regression.id)
+    )
+    return [r for r in regressions if said[r.id] != r.confirmation]
 
 
 def tell_settled(session: Session, component_id: int) -> list[int]:
@@ -65,26 +101,9 @@ def tell_settled(session: Session, component_id: int) -> list[int]:
     ).all()
     made: list[int] = []
     for subscription in subscriptions:
-        by_regression: dict[int, list[Alert]] = {}
-        for alert in session.scalars(
-            select(Alert)
-            .join(Regression, Regression.id == Alert.regression_id)
-            .where(
-                Alert.subscription_id == subscription.id,
-                Regression.component_id == component_id,
-                Regression.state.not_in(SILENCED),
-            )
-            .order_by(Alert.id)
-        ):
-            by_regression.setdefault(alert.regression_id or 0, []).append(alert)
-        for regression_id, alerts in by_regression.items():
-            if not any(alert.delivery_id is not None for alert in alerts):
-                continue  # never sent (a digest's, still waiting): nothing to follow up
-            regression = session.get_one(Regression, regression_id)
-            event = EVENTS.get(regression.confirmation)
-            if event is None or _said(alerts[-1]) == regression.confirmation:
-                continue
-            changes = _changes(session, component, regression, alerts)
+        for regression in _unsaid(session, subscription.id, component_id):
+            event = EVENTS[regression.confirmation]
+            changes = _changes(session, component, regression, subscription.id)
             told = add_alert(
                 session,
                 subscription,
