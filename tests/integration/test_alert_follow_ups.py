@@ -10,8 +10,16 @@ import json
 from pathlib import Path
 
 import jsonschema
+import numpy as np
 from redline.server.db import session_factory
-from redline.server.models import DetectionConfigRow, Regression, RegressionState, utcnow
+from redline.server.models import (
+    DetectionConfigRow,
+    Regression,
+    RegressionState,
+    RegressionTold,
+    Subscription,
+    utcnow,
+)
 from redline.server.schemas.regressions import TriageRequest
 from redline.server.services.regressions import triage
 from redline.worker.alerts import PERIOD
@@ -20,7 +28,16 @@ from redline.worker.reanalysis import reanalyze_component
 from sqlalchemy import select, update
 
 from tests.support import alerting
-from tests.support.alerting import alert, eager, revisions, subscribe
+from tests.support.alerting import (
+    a_period_later,
+    alert,
+    cpu_and_rss,
+    eager,
+    grow_by_rss,
+    judged,
+    revisions,
+    subscribe,
+)
 
 SCHEMA = json.loads((Path(__file__).parents[2] / "docs" / "alerts.schema.json").read_text())
 api, mailbox, receiver = alerting.api, alerting.mailbox, alerting.receiver  # the fixtures
@@ -139,3 +156,119 @@ def test_a_digest_tells_a_regression_as_it_is_when_it_goes_out(api, tmp_path, re
     (digest,) = _bodies(receiver, "/digest")
     (told,) = digest["alerts"]
     assert (told["kind"], told["regression"]["state"]) == ("regression", "fixed")
+
+
+def _cpu_and_rss(api, tmp_path, means: list[tuple[float, float]], first: int = 1) -> None:
+    """Revisions r<first>.. of cpu and rss at these means (2 % noise), judged by KS alone."""
+    with session_factory(api.settings.database_url)() as session:
+        session.execute(update(DetectionConfigRow).values(config={"methods": ["ks"]}))
+        session.commit()
+    rng = np.random.default_rng(7 + first)
+    runs = [{"cpu": rng.normal(c, c / 50, 60), "rss": rng.normal(r, r / 50, 60)} for c, r in means]
+    judged(api, tmp_path, runs, first)
+
+
+def test_a_follow_up_tells_only_the_changes_the_subscription_keeps(api, tmp_path, receiver):
+    """A review's cpu-only subscriber was told "confirmed" of a regression whose cpu change was
+    dropped and whose rss change held; the summary named the dropped one."""
+    subscribe(api, {**eager(receiver, "/cpu"), "counters": ["cpu"]})
+    subscribe(api, eager(receiver, "/all"))
+    _cpu_and_rss(api, tmp_path, [(10.0, 100.0)] * 5 + [(14.0, 125.0)])  # both up at r6
+    alert(api)
+    _cpu_and_rss(api, tmp_path, [(10.0, 125.0)] * 3, first=7)  # cpu back (a spike), rss held
+    alert(api)
+    assert [b["event"] for b in _bodies(receiver, "/cpu")] == ["regression"]
+    everything = _bodies(receiver, "/all")
+    assert [b["event"] for b in everything] == ["regression", "regression.confirmed"]
+    (held,) = everything[1]["alerts"]
+    assert [(c["counter"], c["confirmation"]) for c in held["changes"]] == [("rss", "held")]
+    assert held["summary"].startswith("builder: regression confirmed: component rss +")
+
+
+def test_a_change_that_overshoots_the_old_level_is_no_spike(api, tmp_path):
+    """+40 % at r6, then -50 % against it: a regression followed by a fix (or another change),
+    not a return to the old level: it stays suspected, not "not confirmed"."""
+    revisions(api, tmp_path, [10.0] * 5 + [14.0, 7.0, 7.0, 7.0])
+    (regression,) = api.client.get("/api/v1/components/builder/regressions").json()
+    assert regression["confirmation"] == "suspected", regression["confirmation_reason"]
+    assert "changed again" in regression["confirmation_reason"]
+
+
+def test_a_follow_up_holds_no_growth_back_and_a_withdrawal_tells_each_change_once(
+    api, tmp_path, receiver
+):
+    subscribe(api, eager(receiver, "/hook"))
+    cpu_and_rss(api, tmp_path)  # cpu +40 % at r6, suspected
+    alert(api)
+    a_period_later(api)
+    revisions(api, tmp_path, [14.0, 14.0], first=7)  # held: confirmed
+    alert(api)
+    grow_by_rss(api)  # rss +3 % flagged at r6 too: the regression grew
+    alert(api)
+    events = [body["event"] for body in _bodies(receiver, "/hook")]
+    assert events == ["regression", "regression.confirmed", "regression.updated"], events
+
+    with session_factory(api.settings.database_url)() as session:  # nothing of 90 % any more
+        strict = {"methods": ["ks"], "thresholds": {"ks": {"min_effect": 0.9}}}
+        session.execute(update(DetectionConfigRow).values(config=strict))
+        session.commit()
+    reanalyze_component(api.settings.database_url, 1)
+    alert(api)
+    last = _bodies(receiver, "/hook")[-1]
+    assert last["event"] == "regression.withdrawn"
+    told = [(c["counter"], c["revision"]["title"]) for c in last["alerts"][0]["changes"]]
+    assert sorted(told) == [("cpu", "r6"), ("rss", "r6")], told  # each once, as told
+
+
+def test_a_digest_tells_how_a_regression_settled_last_not_on_the_way(api, tmp_path, receiver):
+    _digest(api, receiver)
+    revisions(api, tmp_path, [10.0] * 5 + [14.0])
+    alert(api)
+    database_url = api.settings.database_url
+
+    def digest() -> list[str]:
+        with session_factory(database_url)() as session:
+            send_digests(session, now=utcnow() + 3 * PERIOD)
+            session.commit()
+        alert(api)
+        (body,) = _bodies(receiver, "/digest")[-1:]
+        return [told["kind"] for told in body["alerts"]]
+
+    assert digest() == ["regression"]  # sent while suspected
+    with session_factory(database_url)() as session:  # as if a day had passed
+        session.execute(update(Subscription).values(digest_sent=utcnow() - 2 * PERIOD))
+        session.commit()
+    revisions(api, tmp_path, [14.0, 14.0], first=7)  # held: confirmed
+    alert(api)
+    with session_factory(database_url)() as session:  # then nothing of 90 %: withdrawn
+        strict = {"methods": ["ks"], "thresholds": {"ks": {"min_effect": 0.9}}}
+        session.execute(update(DetectionConfigRow).values(config=strict))
+        session.commit()
+    reanalyze_component(database_url, 1)
+    alert(api)
+    assert digest() == ["regression.withdrawn"]  # not the confirmation it had passed through
+
+
+def test_what_was_sent_before_the_upgrade_counts_as_told_as_it_stands(api, tmp_path, receiver):
+    """Migration 0025: a regression sent before follow-ups existed is recorded as told as it
+    stands at the upgrade (a review: every old regression settled since its alert would have
+    been followed up at once); one that settles afterwards is followed up."""
+    from alembic import command
+    from redline.server.db import alembic_config
+
+    subscribe(api, eager(receiver, "/hook"))
+    revisions(api, tmp_path, [10.0] * 5 + [14.0])
+    alert(api)
+    database_url = api.settings.database_url
+    config = alembic_config(database_url)
+    command.downgrade(config, "0024")  # as the service stood before
+    command.upgrade(config, "head")
+    with session_factory(database_url)() as session:
+        told = session.execute(select(RegressionTold.confirmation)).scalars().all()
+    assert told == ["suspected"]
+    revisions(api, tmp_path, [14.0, 14.0], first=7)
+    alert(api)
+    assert [b["event"] for b in _bodies(receiver, "/hook")] == [
+        "regression",
+        "regression.confirmed",
+    ]

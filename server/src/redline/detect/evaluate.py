@@ -25,7 +25,7 @@ import numpy as np
 from redline.detect.baseline import DEFAULT_WINDOW, recent_depth
 from redline.detect.changepoint import EDivisive
 from redline.detect.changepoint_f1 import MARGIN, binary_segmentation, f_measure
-from redline.detect.confirmation import HELD, LOOKBACK, hold
+from redline.detect.confirmation import DEFAULT_CONFIRM_REVISIONS, HELD, LOOKBACK, hold
 from redline.detect.corpus import (
     Corpus,
     Measures,
@@ -106,9 +106,12 @@ def walk(
     corpus: Corpus,
     window: int = DEFAULT_WINDOW,
     progress: Progress | None = None,
+    wait: int = DEFAULT_CONFIRM_REVISIONS,
 ) -> Iterator[tuple[Unit, Detection]]:
     """Each unit of the corpus with ``detector``'s verdict on it, series by series in build
-    order; the baseline follows the ``recent`` policy (it restarts where the detector flagged).
+    order; the baseline follows the ``recent`` policy (it restarts where the detector flagged a
+    change the ``wait`` builds after it did not return from, as a service whose
+    ``confirm_revisions`` is ``wait`` restarts it).
     Series the service does not judge are no units, and counts are judged by `CountRate`
     (`measures`). ``progress`` hears after each series."""
     every = list(series_builds(corpus))
@@ -116,7 +119,7 @@ def walk(
     for done, (series, label, builds) in enumerate(every, start=1):
         kind = measures(series, label)
         if kind.judged:
-            yield from _walk_series(detector, series, label, builds, kind, present, window)
+            yield from _walk_series(detector, series, label, builds, kind, present, window, wait)
         if progress is not None:
             progress(done, len(every))
 
@@ -129,6 +132,7 @@ def _walk_series(
     kind: Measures,
     present: dict[str, dict[int, list[np.ndarray]]],
     window: int,
+    wait: int,
 ) -> Iterator[tuple[Unit, Detection]]:
     judge = CountRate() if kind.count else detector
     values = [values_for(judge, executions) for _, executions in builds]
@@ -145,6 +149,7 @@ def _walk_series(
             judge.baseline_values,
             window,
             {k - 1 - j for j in flags}.__contains__,  # positions newest first
+            wait,
             count=kind.count,
         )
         baseline, candidate = np.concatenate(values[k - depth : k]), values[k]
@@ -179,7 +184,10 @@ def run_detector(
     service confirms by history; a change too near the end of its series stays suspected and
     counts as not flagged)."""
     sizes = change_sizes(corpus)
-    judged = list(walk(detector, corpus, progress=progress))
+    # the baselines as a service confirming over ``confirm`` revisions has them (by default, 2)
+    judged = list(
+        walk(detector, corpus, progress=progress, wait=confirm or DEFAULT_CONFIRM_REVISIONS)
+    )
     outcomes = []
     for index, (unit, found) in enumerate(judged):
         flagged, confirmation = alarm(unit, found.flagged, found.direction), ""

@@ -46,7 +46,7 @@ from redline.server.services.ci_verdict import ci_verdict
 from redline.server.services.detection_config import component_config
 from redline.worker import messages
 from redline.worker.statuses import status_key
-from redline.worker.told import Change, mark_told, told_pairs, untold
+from redline.worker.told import Change, mark_said, mark_told, told_pairs, untold
 from sqlalchemy import or_, select
 from sqlalchemy.orm import Session, aliased
 
@@ -139,13 +139,19 @@ def flagged_changes(session: Session, component: Component, since: datetime) -> 
 
 def wanted(subscription: Subscription, change: Change) -> bool:
     """Whether the subscription's filters keep the change (confirmation aside)."""
-    if subscription.direction == "regression" and not change.worse:
+    return wants(subscription, change.worse, change.body)
+
+
+def wants(subscription: Subscription, worse: bool, change: dict[str, Any]) -> bool:
+    """Whether the subscription's filters keep a change for the worse (or the better) as an
+    alert tells it (`redline.worker.messages.change_body`)."""
+    if subscription.direction == "regression" and not worse:
         return False
-    if subscription.direction == "improvement" and change.worse:
+    if subscription.direction == "improvement" and worse:
         return False
-    if subscription.counters and not told_of(change.body["counter"], subscription.counters):
+    if subscription.counters and not told_of(change["counter"], subscription.counters):
         return False
-    return abs(change.effect or 0.0) >= subscription.min_effect
+    return abs(change.get("effect") or 0.0) >= subscription.min_effect
 
 
 def told_of(counter: str, counters: list[str]) -> bool:
@@ -155,10 +161,20 @@ def told_of(counter: str, counters: list[str]) -> bool:
     return counter in counters or counter.rpartition(":")[2] in counters
 
 
+#: the alerts that tell a regression's changes (a follow-up tells how it settled: `follow_ups`)
+TELLING = ("regression", "regression.updated")
+
+
 def _last_alert(session: Session, subscription_id: int, regression_id: int) -> Alert | None:
+    """The subscription's last alert of the regression's changes: its growth is told at most a
+    `PERIOD` after it (a follow-up in between holds nothing back)."""
     return session.scalar(
         select(Alert)
-        .where(Alert.subscription_id == subscription_id, Alert.regression_id == regression_id)
+        .where(
+            Alert.subscription_id == subscription_id,
+            Alert.regression_id == regression_id,
+            Alert.kind.in_(TELLING),
+        )
         .order_by(Alert.id.desc())
         .limit(1)
     )
@@ -213,6 +229,8 @@ def _alert(
     )
     for change in changes:
         mark_told(session, subscription, change, alert.id)
+    if regression is not None and alert.delivery_id is not None:  # sent: a digest's, once sent
+        mark_said(session, subscription.id, regression.id, regression.confirmation)
     return alert
 
 

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import math
 from collections import defaultdict
-from collections.abc import Collection
+from collections.abc import Collection, Mapping
 
 import numpy as np
 from redline.detect.confirmation import (
@@ -132,6 +132,7 @@ def settle(
     wait: int,
     changed: Collection[int] = (),
     fresh_runs: bool = True,
+    returns: Mapping[int, Collection[int]] | None = None,
 ) -> None:
     """Settle one suspected detection if enough later revisions measured its series, counting
     only the revisions before the next one that itself changed (``changed``: the revisions with
@@ -172,7 +173,15 @@ def settle(
         )
         return
     baseline = _baseline(levels, newest, detection.baseline_revisions)
-    end = next((i for i in range(at + 1, len(levels)) if levels[i][1] in changed), len(levels))
+    returned = returns or {}
+    end = next(
+        (
+            i
+            for i in range(at + 1, len(levels))
+            if levels[i][1] in changed or detection.series_id in returned.get(levels[i][1], ())
+        ),
+        len(levels),
+    )
     following = [values for _, _, values in levels[at + 1 : end]]
     before = [values for _, _, values in levels[max(0, at - LOOKBACK) : at]]
     past = np.concatenate(before) if before else np.array([])
@@ -204,6 +213,46 @@ def settle(
     detection.confirmation, detection.confirmation_reason = found.state, found.reason
 
 
+def _standing(
+    session: Session, component_id: int, alarming: Collection[str]
+) -> tuple[dict[int, set[int]], dict[int, set[int]]]:
+    """Per revision, its flagged changes of the ``alarming`` methods that were not dropped, and
+    that are not the return of a flag at their baseline revision (the same series and method
+    flagged there the other way): a spike's next revision, judged against the spike alone, is
+    flagged back, and counted as a change it kept every other change of the spike's revision
+    suspected for ever. And per revision, the series such a return is of: for that series
+    itself it is a change (`_returned` tells a return from a fall past the old level)."""
+    flags = session.execute(
+        select(
+            Detection.id,
+            Detection.revision_id,
+            Detection.series_id,
+            Detection.method,
+            Detection.direction,
+            Detection.baseline_revision_id,
+            Detection.confirmation,
+        )
+        .join(Series, Series.id == Detection.series_id)
+        .where(
+            Series.component_id == component_id,
+            Detection.flagged,
+            Detection.method.in_(list(alarming)),
+        )
+    ).all()
+    direction = {(f.series_id, f.method, f.revision_id): f.direction for f in flags}
+    standing: dict[int, set[int]] = defaultdict(set)
+    returns: dict[int, set[int]] = defaultdict(set)
+    for flag in flags:
+        before = direction.get((flag.series_id, flag.method, flag.baseline_revision_id))
+        if flag.confirmation == DROPPED:
+            continue
+        if before not in (None, flag.direction):
+            returns[flag.revision_id].add(flag.series_id)
+            continue
+        standing[flag.revision_id].add(flag.id)
+    return standing, returns
+
+
 def _returned(
     baseline: np.ndarray, levels: list[tuple[str, int, np.ndarray]], at: int, wait: int, count: bool
 ) -> Hold | None:
@@ -212,8 +261,8 @@ def _returned(
     (a spike's next revision, judged against the spike, is flagged the other way, and the spike
     stayed suspected for ever). Only a return counts across a later change, never a hold."""
     found = hold(baseline, levels[at][2], [v for _, _, v in levels[at + 1 :]], wait, count=count)
-    if found.state == DROPPED and found.kept < HOLD_SHARE:
-        return found
+    if found.state == DROPPED and -HOLD_SHARE < found.kept < HOLD_SHARE:
+        return found  # back near the old level: not a fall past it (a regression, then a fix)
     return None
 
 
@@ -328,23 +377,14 @@ def confirm_by_history(
     ).all()
     # per revision with flagged changes, those not dropped: while any is left, it changed
     standing: dict[int, set[int]] = defaultdict(set)
+    returns: dict[int, set[int]] = {}
     if suspected:
-        for revision_id, detection_id in session.execute(
-            select(Detection.revision_id, Detection.id)
-            .join(Series, Series.id == Detection.series_id)
-            .where(
-                Series.component_id == component_id,
-                Detection.flagged,
-                Detection.method.in_(list(alarming)),
-                Detection.confirmation != DROPPED,
-            )
-        ):
-            standing[revision_id].add(detection_id)
+        standing, returns = _standing(session, component_id, alarming)
     changed = set(standing)
     # a revision being run afresh (`redline.worker.remeasure`): nearly always none
     fresh = session.scalar(fresh_runs_under_way(component_id).limit(1))
     for detection, process, counter in suspected:
-        settle(session, detection, process, counter, wait, changed, fresh is not None)
+        settle(session, detection, process, counter, wait, changed, fresh is not None, returns)
         if detection.confirmation == DROPPED and detection.revision_id in standing:
             standing[detection.revision_id].discard(detection.id)
             if not standing[detection.revision_id]:

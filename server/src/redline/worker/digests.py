@@ -18,8 +18,9 @@ from redline.server.models import (
     utcnow,
 )
 from redline.worker import messages
-from redline.worker.alerts import PERIOD, new_delivery
+from redline.worker.alerts import PERIOD, TELLING, new_delivery
 from redline.worker.follow_ups import EVENTS
+from redline.worker.told import mark_said
 from sqlalchemy import and_, func, select
 from sqlalchemy.orm import Session
 
@@ -28,9 +29,11 @@ from sqlalchemy.orm import Session
 SETTLED = (RegressionState.false_positive, RegressionState.ignored)
 
 
-def _told(session: Session, waiting: Sequence[Alert]) -> list[Alert]:
-    """The waiting alerts a digest tells, their regressions as they are now: not those of
-    regressions a person has set aside, nor of withdrawn ones but for the withdrawal itself."""
+def _told(session: Session, subscription_id: int, waiting: Sequence[Alert]) -> list[Alert]:
+    """The waiting alerts a digest tells, their regressions as they are now (and recorded as
+    told so, `RegressionTold`): not those of regressions a person has set aside, nor of
+    withdrawn ones but for the withdrawal itself, nor a follow-up the regression has settled
+    past since (told "not confirmed", then confirmed after all: the digest says the latter)."""
     regressions = {
         regression.id: regression
         for regression in session.scalars(
@@ -43,11 +46,15 @@ def _told(session: Session, waiting: Sequence[Alert]) -> list[Alert]:
     for alert in waiting:
         regression = regressions.get(alert.regression_id or 0)
         if regression is not None:
-            if regression.state in SETTLED or (
-                regression.confirmation == WITHDRAWN and alert.kind != EVENTS[WITHDRAWN]
-            ):
+            follow_up = alert.kind not in TELLING
+            if regression.state in SETTLED:
                 continue
+            if follow_up and alert.kind != EVENTS.get(regression.confirmation):
+                continue  # settled otherwise since: the follow-up of that is told instead
+            if regression.confirmation == WITHDRAWN and not follow_up:
+                continue  # only its withdrawal
             alert.body = {**alert.body, "regression": messages.regression_body(regression)}
+            mark_said(session, subscription_id, regression.id, regression.confirmation)
         told.append(alert)
     return told
 
@@ -72,7 +79,7 @@ def send_digests(session: Session, now: datetime | None = None) -> list[int]:
             .where(and_(Alert.subscription_id == subscription.id, Alert.delivery_id.is_(None)))
             .order_by(Alert.id)
         ).all()
-        told = _told(session, waiting)
+        told = _told(session, subscription.id, waiting)
         if not told:
             continue  # the settled ones wait: told should a person take them up again
         payload = messages.digest_body([alert.body for alert in told])

@@ -4,29 +4,46 @@ An eager subscription (``confirmed_only`` false) hears of a regression while it 
 any subscription can hear of one that a re-analysis or a later re-judging withdraws. A trial's
 subscriber was told of a suspected +40 % regression and never heard that it was dropped, nor
 that another held, with the figures its pairs had measured. So once a subscription has been
-sent an alert of a regression (delivered, or gathered into a digest), a change of the
-regression's confirmation from what that subscription was last told makes one more alert:
+sent a regression (an immediate alert, or a digest that carried it), what it was last told of
+its confirmation is kept (`RegressionTold`), and a confirmation that differs later makes one
+more alert, of the changes the subscription's filters keep (``counters``, ``min_effect``):
 
-- ``regression.confirmed``: it held (told while suspected);
+- ``regression.confirmed``: it held, by one of those changes (told while suspected);
 - ``regression.not_confirmed``: its re-runs or the revisions after it dropped every change;
 - ``regression.withdrawn``: judged again, its revisions no longer show any of its changes.
 
-Each carries the regression as it is now (confirmation and its reason) and its changes with
-their current figures, the dropped ones marked so. A regression a person has triaged as fixed,
-ignored or a false positive is theirs: no follow-up then.
+Each carries the regression as it is now (confirmation and its reason) and those changes with
+their current figures (the held ones for a confirmation; for a withdrawal, which has none left,
+those it was told). A regression a person has triaged as fixed, ignored or a false positive is
+theirs: no follow-up then. One whose settling concerns none of the subscription's changes (an
+rss change held, for a subscriber of cpu) is recorded as told, with nothing sent.
 """
 
 from __future__ import annotations
 
 from typing import Any
 
-from redline.server.models import WITHDRAWN, Alert, Component, Regression, Subscription
+from redline.server.models import (
+    WITHDRAWN,
+    Alert,
+    Component,
+    Regression,
+    RegressionTold,
+    Subscription,
+)
 from redline.worker import messages
-from redline.worker.alerts import SILENCED, add_alert, flagged_rows, scan_component
+from redline.worker.alerts import (
+    SILENCED,
+    TELLING,
+    add_alert,
+    flagged_rows,
+    scan_component,
+    wants,
+)
 from redline.worker.confirmation import CONFIRMED, NOT_CONFIRMED
-from sqlalchemy import exists, or_, select
-from sqlalchemy.dialects.postgresql import distinct_on
-from sqlalchemy.orm import Session, aliased
+from redline.worker.told import identity, mark_said
+from sqlalchemy import or_, select
+from sqlalchemy.orm import Session
 
 #: the event that tells each settled confirmation
 EVENTS = {
@@ -36,57 +53,64 @@ EVENTS = {
 }
 
 
-def _changes(
-    session: Session, component: Component, regression: Regression, subscription_id: int
-) -> list[dict[str, Any]]:
-    """The regression's changes with their figures now, dropped ones included; for a withdrawn
-    one, which has none left, the changes the subscriber was told, as told."""
-    now = [
-        messages.change_body(component.name, detection, series, revision, baseline_title)
-        for detection, series, revision, baseline_title, *_ in flagged_rows(
-            session, component, regression.id
-        )
-    ]
-    if now:
-        return now
-    told = session.scalars(
+def _told_changes(session: Session, subscription_id: int, regression_id: int) -> list[dict]:
+    """The changes the subscription was sent of the regression, each once, as told."""
+    bodies = session.scalars(
         select(Alert.body)
-        .where(Alert.subscription_id == subscription_id, Alert.regression_id == regression.id)
+        .where(
+            Alert.subscription_id == subscription_id,
+            Alert.regression_id == regression_id,
+            Alert.kind.in_(TELLING),
+            Alert.delivery_id.is_not(None),
+        )
         .order_by(Alert.id)
     )
-    return [change for body in told for change in body.get("changes", [])]
+    told: dict[tuple[Any, ...], dict] = {}
+    for body in bodies:
+        for change in body.get("changes", []):
+            told.setdefault((*identity(change), change["revision"]["title"]), change)
+    return list(told.values())
+
+
+def _changes(
+    session: Session, component: Component, regression: Regression, subscription: Subscription
+) -> list[dict[str, Any]]:
+    """The changes a follow-up of the regression tells the subscription, empty when its
+    settling concerns none of those its filters keep."""
+    if regression.confirmation == WITHDRAWN:
+        return _told_changes(session, subscription.id, regression.id)
+    own = [
+        change
+        for change in (
+            messages.change_body(component.name, detection, series, revision, baseline_title)
+            for detection, series, revision, baseline_title, *_ in flagged_rows(
+                session, component, regression.id
+            )
+        )
+        if wants(subscription, True, change)
+    ]
+    if regression.confirmation == CONFIRMED:
+        return [change for change in own if change["confirmation"] == "held"]
+    return own  # not confirmed: every change dropped
 
 
 def _unsaid(session: Session, subscription_id: int, component_id: int) -> list[Regression]:
-    """The component's regressions the subscription was sent, untriaged or open, whose
-    confirmation has settled otherwise than its last alert of them said: one query on the last
-    alert of each, however many alerts the subscription has had."""
-    sent = aliased(Alert)
-    last = (
-        select(Alert.regression_id, Alert.body["regression"]["confirmation"].as_string())
-        .join(Regression, Regression.id == Alert.regression_id)
-        .where(
-            Alert.subscription_id == subscription_id,
-            Regression.component_id == component_id,
-            Regression.state.not_in(SILENCED),
-            Regression.confirmation.in_(list(EVENTS)),
-            # never sent (a digest's, still waiting): nothing to follow up
-            exists().where(
-                sent.subscription_id == subscription_id,
-                sent.regression_id == Alert.regression_id,
-                sent.delivery_id.is_not(None),
-            ),
+    """The component's regressions the subscription was sent, not triaged away, whose
+    confirmation has settled otherwise than it was last told."""
+    return list(
+        session.scalars(
+            select(Regression)
+            .join(RegressionTold, RegressionTold.regression_id == Regression.id)
+            .where(
+                RegressionTold.subscription_id == subscription_id,
+                Regression.component_id == component_id,
+                Regression.state.not_in(SILENCED),
+                Regression.confirmation.in_(list(EVENTS)),
+                RegressionTold.confirmation != Regression.confirmation,
+            )
+            .order_by(Regression.id)
         )
-        .ext(distinct_on(Alert.regression_id))
-        .order_by(Alert.regression_id, Alert.id.desc())
     )
-    said = {regression_id: confirmation for regression_id, confirmation in session.execute(last)}
-    if not said:
-        return []
-    regressions = session.scalars(
-        select(Regression).where(Regression.id.in_(list(said))).order_by(Regression.id)
-    )
-    return [r for r in regressions if said[r.id] != r.confirmation]
 
 
 def tell_settled(session: Session, component_id: int) -> list[int]:
@@ -102,8 +126,11 @@ def tell_settled(session: Session, component_id: int) -> list[int]:
     made: list[int] = []
     for subscription in subscriptions:
         for regression in _unsaid(session, subscription.id, component_id):
+            mark_said(session, subscription.id, regression.id, regression.confirmation)
+            changes = _changes(session, component, regression, subscription)
+            if not changes:
+                continue  # none of its own changes settled so: nothing to tell it
             event = EVENTS[regression.confirmation]
-            changes = _changes(session, component, regression, subscription.id)
             told = add_alert(
                 session,
                 subscription,

@@ -29,8 +29,11 @@ that lacks a series, or follows revisions the host was busy in throughout
 results, and one
 beyond the walk is not judged again unless a changed verdict carries the walk to it; a step
 found (`redline.worker.detection`) at a revision before the late one, by a revision judged
-without it, stays stored; confirmation by history and the ranges of regressions are settled as
-verdicts come and are not undone. A re-analysis of the component judges everything again.
+without it, stays stored; confirmation by history is settled as verdicts come and is not
+undone; a regression's range is made again from its changes' spans as they are judged again
+(`redline.worker.grouping._fit`), but two changes it gathered are not split into two
+regressions when they no longer overlap. A re-analysis of the component judges everything
+again.
 """
 
 from __future__ import annotations

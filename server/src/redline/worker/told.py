@@ -18,8 +18,16 @@ from dataclasses import dataclass
 from datetime import datetime
 from typing import Any
 
-from redline.server.models import Alert, AlertedChange, Revision, Series, Subscription
+from redline.server.models import (
+    Alert,
+    AlertedChange,
+    RegressionTold,
+    Revision,
+    Series,
+    Subscription,
+)
 from sqlalchemy import select
+from sqlalchemy.dialects.postgresql import insert
 from sqlalchemy.orm import Session
 
 #: a range of revisions (good, bad] as their order keys; "" is before every revision
@@ -182,3 +190,19 @@ def untold(
             session.get_one(Alert, match.alert_id).regression_id = change.regression_id
     session.flush()
     return fresh
+
+
+def mark_said(
+    session: Session, subscription_id: int, regression_id: int, confirmation: str
+) -> None:
+    """Record that the subscription was sent the regression as ``confirmation``
+    (`RegressionTold`)."""
+    said = insert(RegressionTold).values(
+        subscription_id=subscription_id, regression_id=regression_id, confirmation=confirmation
+    )
+    session.execute(
+        said.on_conflict_do_update(
+            index_elements=[RegressionTold.subscription_id, RegressionTold.regression_id],
+            set_={"confirmation": said.excluded.confirmation},
+        )
+    )

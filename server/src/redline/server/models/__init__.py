@@ -2,7 +2,13 @@
 registers every table on `Base.metadata`, which Alembic's autogenerate compares with the schema.
 Schema changes go through Alembic (``redline/server/migrations``)."""
 
-from redline.server.models.alerts import Alert, AlertedChange, Delivery, Subscription
+from redline.server.models.alerts import (
+    Alert,
+    AlertedChange,
+    Delivery,
+    RegressionTold,
+    Subscription,
+)
 from redline.server.models.base import Base, utcnow
 from redline.server.models.detection import (
     FALSE_POSITIVE_STATES,
@@ -42,6 +48,7 @@ __all__ = [
     "WITHDRAWN",
     "Alert",
     "AlertedChange",
+    "RegressionTold",
     "Delivery",
     "Subscription",
     "FALSE_POSITIVE_STATES",

@@ -98,6 +98,21 @@ class AlertedChange(Base):
     alert_id: Mapped[int] = mapped_column(ForeignKey("alert.id", ondelete="CASCADE"), index=True)
 
 
+class RegressionTold(Base):
+    """What a subscription was last told of a regression's confirmation, once anything of it
+    was sent (an immediate alert, a digest that carried it, a follow-up): a later confirmation
+    that differs is followed up (`redline.worker.follow_ups`)."""
+
+    __tablename__ = "regression_told"
+    subscription_id: Mapped[int] = mapped_column(
+        ForeignKey("subscription.id", ondelete="CASCADE"), primary_key=True
+    )
+    regression_id: Mapped[int] = mapped_column(
+        ForeignKey("regression.id", ondelete="CASCADE"), primary_key=True, index=True
+    )
+    confirmation: Mapped[str] = mapped_column(String(20))
+
+
 class Delivery(Base):
     """One message in the outbox: a webhook call, a mail or a commit status.
 
