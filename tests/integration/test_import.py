@@ -11,6 +11,8 @@ from redline.recording import SeriesKey, canonical_params
 from redline.server.core.tasks import DETECT_TASK
 from redline.server.db import session_factory
 from redline.server.models import Execution
+from redline.server.schemas.components import ComponentCreate
+from redline.server.services.components import create_component
 from redline.server.services.imports import ImportedRun, store_import
 from sqlalchemy import select
 
@@ -278,15 +280,45 @@ def test_an_import_never_joins_a_measured_revision_nor_another_commits(api: Api)
         body = {"component": "builder", "revision": revision, "sort_key": "1", "results": [cpu]}
         return {**body, "commit": commit}
 
-    joined = api.post("/api/v1/import/results", "ci", results("r1", "abc123"))
+    # an admin's imports (a ci token's are refused: `test_a_ci_token_cannot_import_...`)
+    joined = api.post("/api/v1/import/results", "admin", results("r1", "abc123"))
     assert joined.status_code == 409, joined.text
     assert f"measured by performance hosts (job {measured['job_ids'][0]})" in joined.text
-    made = api.post("/api/v1/import/results", "ci", results("i1", "abc123"))
+    made = api.post("/api/v1/import/results", "admin", results("i1", "abc123"))
     assert made.status_code == 201, made.text
-    other = api.post("/api/v1/import/results", "ci", results("i1", "deadbeef"))
+    other = api.post("/api/v1/import/results", "admin", results("i1", "deadbeef"))
     assert other.status_code == 409 and "of commit 'abc123'; this import says" in other.text
-    same = api.post("/api/v1/import/results", "ci", {**results("i1", "abc123"), "host": "b"})
+    same = api.post("/api/v1/import/results", "admin", {**results("i1", "abc123"), "host": "b"})
     assert same.status_code == 201  # a second execution of the imported revision
     with session_factory(api.settings.database_url)() as session:
         stored = session.scalars(select(Execution.revision_id)).all()
         assert len(stored) == 2 and measured["revision_id"] not in stored
+
+
+def test_a_ci_token_cannot_import_what_performance_hosts_measure(api: Api):
+    """A trial's ci token imported made-up results for a commit before reporting it: the report
+    queued nothing, the gate passed a 4x CPU rise with a green commit status, and the made-up
+    level hid the next commit's real regression. A component its hosts measure takes imports
+    from an admin only; one for imported results alone (no repository or suite) from ci."""
+    api.component()
+    cpu = {"case": "parse", "counter": "cpu", "values": [1.0, 2.0]}
+    forged = {"component": "builder", "revision": "fa468a4", "sort_key": "1", "commit": "fa468a4"}
+    forged["results"] = [cpu]
+    for path, body in (
+        ("/api/v1/import/results", json.dumps(forged).encode()),
+        ("/api/v1/import/lnt?component=builder", json.dumps(lnt_report("fa468a4")).encode()),
+    ):
+        refused = api.client.post(
+            path, content=body, headers={**api.tokens["ci"], "Content-Type": "application/json"}
+        )
+        assert refused.status_code == 403, refused.text
+        assert "measured by its performance hosts" in refused.json()["detail"]
+        assert "admin token only" in refused.json()["detail"]
+    assert api.client.get("/api/v1/components/builder/revisions").json() == []  # nothing kept
+    reported = api.revision("fa468a4", "1")  # CI's report: its hosts measure it
+    assert reported["job_ids"], reported
+
+    with session_factory(api.settings.database_url)() as session:
+        create_component(session, ComponentCreate(name="bench"))  # results imported only
+    answer = api.post("/api/v1/import/results", "ci", {**forged, "component": "bench"})
+    assert answer.status_code == 201, answer.text

@@ -7,21 +7,26 @@ from typing import Annotated
 from fastapi import APIRouter, Depends, Query, Request, Response, status
 from redline.server.api.deps import SessionDep, SettingsDep, require
 from redline.server.core.bodies import JsonRoute
+from redline.server.models import ApiToken
 from redline.server.schemas.common import Problem
 from redline.server.schemas.imports import ImportResult, ResultsImport
 from redline.server.services.imports import from_results, store_import
 from redline.server.services.lnt import ORDER_FIELD, parse_lnt
 from starlette.concurrency import run_in_threadpool
 
+#: one instance, so that the router's dependency and a handler's token share a single check
+require_ci = require("ci")
+CiToken = Annotated[ApiToken, Depends(require_ci)]
 router = APIRouter(
     prefix="/api/v1/import",
     tags=["import"],
-    dependencies=[Depends(require("ci"))],
+    dependencies=[Depends(require_ci)],
     route_class=JsonRoute,
 )
 RESPONSES: dict[int | str, dict] = {
     200: {"model": ImportResult, "description": "imported before; nothing new stored"},
     400: {"model": Problem},
+    403: {"model": Problem, "description": "a ci token's import into a component hosts measure"},
     404: {"model": Problem},
 }
 LNT_BODY = {
@@ -56,13 +61,16 @@ async def import_lnt(
     response: Response,
     session: SessionDep,
     settings: SettingsDep,
+    token: CiToken,
     component: Annotated[str, Query(description="the Redline component it belongs to")],
     order_field: Annotated[str, Query(description="the run field that orders runs")] = ORDER_FIELD,
 ) -> ImportResult:
     """One LNT run: each test's metric becomes a series (case = test, counter = metric)."""
     body = await request.body()
     run = parse_lnt(body, component, order_field)
-    result = await run_in_threadpool(store_import, session, settings.storage_dir, run, body)
+    result = await run_in_threadpool(
+        store_import, session, settings.storage_dir, run, body, admin="admin" in token.scopes
+    )
     return await run_in_threadpool(_finish, result, request, response)
 
 
@@ -73,9 +81,10 @@ def import_results(
     response: Response,
     session: SessionDep,
     settings: SettingsDep,
+    token: CiToken,
 ) -> ImportResult:
     """A benchmark's samples per named series, for one revision (docs/api.md)."""
     body = data.model_dump_json().encode()
-    return _finish(
-        store_import(session, settings.storage_dir, from_results(data), body), request, response
-    )
+    admin = "admin" in token.scopes
+    stored = store_import(session, settings.storage_dir, from_results(data), body, admin=admin)
+    return _finish(stored, request, response)

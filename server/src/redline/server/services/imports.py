@@ -19,10 +19,10 @@ from redline.recording import SeriesKey, canonical_params
 from redline.server.models import Execution, Host, Job, JobState, Revision, Summary
 from redline.server.schemas.imports import ImportResult, ResultsImport
 from redline.server.services.components import get_component
-from redline.server.services.errors import Conflict
+from redline.server.services.errors import Conflict, Forbidden
 from redline.server.services.home import IMPORTED
 from redline.server.services.ingestion import store_samples
-from redline.server.services.revision_reports import same_commit
+from redline.server.services.revision_reports import cannot_run, same_commit
 from redline.server.services.revisions import order_key
 from sqlalchemy import func, select
 from sqlalchemy.dialects.postgresql import insert
@@ -80,10 +80,23 @@ def from_results(data: ResultsImport) -> ImportedRun:
 IMPORTED_JOB = "imported"
 
 
-def _revision(session: Session, run: ImportedRun) -> Revision:
+def _revision(session: Session, run: ImportedRun, admin: bool) -> Revision:
     """The run's revision, created if new, locked: imports into one revision take turns, so
-    each gets its own execution index (INSERT ... ON CONFLICT: concurrent imports never race)."""
+    each gets its own execution index (INSERT ... ON CONFLICT: concurrent imports never race).
+
+    A component its performance hosts measure takes imports from an admin only: a ``ci``
+    token's import stands for measurements no host made. A trial imported made-up results for
+    a commit before CI reported it: the report then queued nothing, the gate passed a 4x CPU
+    rise with a green commit status, and the made-up level hid the next commit's real
+    regression from its confirmation pairs."""
     component = get_component(session, run.component)
+    if not admin and cannot_run(component) is None:
+        raise Forbidden(
+            f"component {run.component!r} is measured by its performance hosts: results are "
+            "imported into it with an admin token only (a ci token reports its commits, "
+            "which the hosts then measure); import into a component without a repository or "
+            "suite"
+        )
     session.execute(
         insert(Revision)
         .values(
@@ -157,13 +170,18 @@ def _keep(storage_dir: Path, body: bytes, sha256: str, suffix: str) -> Path:
 
 
 def store_import(
-    session: Session, storage_dir: Path, run: ImportedRun, body: bytes, suffix: str = ".json"
+    session: Session,
+    storage_dir: Path,
+    run: ImportedRun,
+    body: bytes,
+    suffix: str = ".json",
+    admin: bool = False,
 ) -> ImportResult:
     """Store the run as one execution; a run imported before (the same samples of the same
     series, revision, commit, host and report details, however the body spelt them) returns
-    its execution."""
+    its execution. ``admin``: the caller holds the admin scope (`_revision`)."""
     sha256 = content_key(run)
-    revision = _revision(session, run)  # locked: the same body sent twice at once waits here
+    revision = _revision(session, run, admin)  # locked: the same body sent twice at once waits
     known = session.scalar(select(Execution).where(Execution.sha256 == sha256))
     if known is not None:
         session.rollback()  # nothing new; an emptied revision made just now is not kept
