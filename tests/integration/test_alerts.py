@@ -13,11 +13,13 @@ from datetime import timedelta
 from pathlib import Path
 
 import jsonschema
+import numpy as np
 import pytest
 from redline.server.db import session_factory
 from redline.server.models import (
     Component,
     Delivery,
+    Detection,
     DetectionConfigRow,
     Execution,
     Job,
@@ -29,15 +31,13 @@ from redline.server.models import (
 )
 from redline.server.schemas.regressions import TriageRequest
 from redline.server.services.regressions import triage
-from redline.worker.alerts import (
-    PERIOD,
-    commit_status,
-    runtime_alerts,
-    scan_component,
-)
+from redline.worker.alerts import PERIOD, runtime_alerts, scan_component
 from redline.worker.deliver import deliver_due
+from redline.worker.detection import detect_revision
 from redline.worker.digests import send_digests
+from redline.worker.ingest import ingest_execution
 from redline.worker.reanalysis import reanalyze_component
+from redline.worker.statuses import commit_status
 from redline.worker.sweeps import SWEEP_GRACE, failed_without_status, untold_runtime_alarms
 from sqlalchemy import delete, select, update
 
@@ -55,6 +55,7 @@ from tests.support.alerting import (
     scan,
     subscribe,
 )
+from tests.support.history import add_executions
 
 SCHEMA = json.loads((Path(__file__).parents[2] / "docs" / "alerts.schema.json").read_text())
 SECRET = "hook-secret"
@@ -692,3 +693,37 @@ def test_a_regression_judged_again_without_its_change_is_withdrawn_with_its_figu
     found = {r["id"]: r["confirmation"] for r in api.client.get(f"{BASE}/regressions").json()}
     assert found.pop(before["id"]) == "withdrawn"
     assert list(found.values()) == ["suspected"]
+
+
+def test_a_change_is_told_once_every_ingested_execution_is_judged(api, tmp_path, receiver):
+    """A third trial's alert said +85.6 %, the median of two of r6's three executions, where the
+    verdict of all three said +80.4 %: the scan ran after the third's ingestion, before its
+    judging. It now waits for that judging."""
+    subscribe(api, eager(receiver, "/hook"))
+    revisions(api, tmp_path, [10.0] * 5)
+    answer = api.client.patch(
+        "/api/v1/components/builder", json={"executions": 3}, headers=api.tokens["admin"]
+    )
+    assert answer.status_code == 200, answer.text
+    rng = np.random.default_rng(1)
+    database_url = api.settings.database_url
+    with session_factory(database_url)() as session:
+        runs = [{"cpu": rng.normal(level, 0.3, 60)} for level in (14.0, 15.0, 12.0)]
+        first, second, third = add_executions(session, tmp_path, "builder", "r6", "6", runs)
+    for execution in (first, second):
+        ingest_execution(database_url, execution.id)
+    detect_revision(database_url, first.revision_id)  # judged on two executions
+    ingest_execution(database_url, third.id)  # the third is in, not yet judged
+    alert(api)
+    assert not receiver.requests  # its verdict is not yet the one of every execution
+    detect_revision(database_url, first.revision_id)
+    alert(api)
+    (told,) = receiver.to("/hook")
+    (change,) = json.loads(told.body)["alerts"][0]["changes"]
+    with session_factory(database_url)() as session:  # the verdict of all three executions
+        stored = session.scalars(
+            select(Detection.effect)
+            .join(Revision, Revision.id == Detection.revision_id)
+            .where(Revision.title == "r6", Detection.flagged)
+        ).one()
+    assert change["effect"] == pytest.approx(stored)

@@ -10,8 +10,8 @@ from datetime import timedelta
 
 from redline.server.db import session_factory
 from redline.server.models import Delivery, Revision, utcnow
-from redline.worker.alerts import commit_status
 from redline.worker.deliver import deliver_due
+from redline.worker.statuses import commit_status
 from sqlalchemy import select, update
 
 from tests.support import alerting

@@ -33,6 +33,7 @@ from redline.server.models import (
     Detection,
     Execution,
     Job,
+    JobState,
     Regression,
     RegressionState,
     Revision,
@@ -41,13 +42,10 @@ from redline.server.models import (
     Subscription,
     utcnow,
 )
-from redline.server.schemas.fields import COMMIT_HASH
-from redline.server.services.ci_verdict import ci_verdict
 from redline.server.services.detection_config import component_config
 from redline.worker import messages
-from redline.worker.statuses import status_key
 from redline.worker.told import Change, mark_said, mark_told, told_pairs, untold
-from sqlalchemy import or_, select
+from sqlalchemy import and_, or_, select
 from sqlalchemy.orm import Session, aliased
 
 #: a regression that grows is told again at most this often (and a digest goes out this often)
@@ -66,13 +64,24 @@ def _imported(session: Session, revision_ids: set[int]) -> set[int]:
 
 
 def _measuring(session: Session, revision_ids: set[int]) -> set[int]:
-    """The revisions with own jobs still to run or to ingest: their changes are told once every
-    execution is in (a trial's regression was told with 6 series, and grew to 7 when the
-    revision's third execution came 12 s later, the 7th left to a daily update)."""
+    """The revisions with own jobs still to run or to ingest, or ingested since the revision
+    was last judged: their changes are told once every execution is in and judged (a trial's
+    regression was told with 6 series, and grew to 7 when the revision's third execution came
+    12 s later, the 7th left to a daily update; a third trial's alert said +85.6 %, the median
+    of two of three executions, where the verdict of all three said +80.4 %: the scan ran
+    between the third's ingestion and its judging)."""
+    unjudged = and_(
+        Job.state == JobState.done,
+        or_(Revision.analyzed_at.is_(None), Job.updated > Revision.analyzed_at),
+    )
     return set(
         session.scalars(
-            select(Job.revision_id).where(
-                Job.revision_id.in_(revision_ids), Job.pair == 0, Job.state.in_(UNENDED)
+            select(Job.revision_id)
+            .join(Revision, Revision.id == Job.revision_id)
+            .where(
+                Job.revision_id.in_(revision_ids),
+                Job.pair == 0,
+                or_(Job.state.in_(UNENDED), unjudged),
             )
         )
     )
@@ -339,51 +348,3 @@ def runtime_alerts(session: Session, alarm_id: int) -> list[int]:
         made.extend([alert.delivery_id] if alert.delivery_id is not None else [])
     session.flush()
     return made
-
-
-def commit_status(session: Session, revision_id: int) -> list[int]:
-    """The revision's verdict as a commit status, when its component has a target and the
-    revision a commit: once per change of its state (pending, success, failure, error)."""
-    # Statuses of one revision take turns on its row: two scans at once would read the same
-    # statuses told, pick the same key, and the one that read the older verdict could land last.
-    revision = session.get(Revision, revision_id, with_for_update=True)
-    if revision is None or not COMMIT_HASH.fullmatch(revision.commit):
-        return []  # a forge addresses a status by hash: a branch, a tag or a path gets none
-    component = session.get_one(Component, revision.component_id)
-    if not component.commit_status:
-        return []
-    verdict = ci_verdict(session, component.name, revision.title)
-    if verdict.state == "pending":
-        state, said = "pending", f"waiting for {verdict.waiting_for}"
-    elif verdict.state == "failed":
-        state, said = "error", "its performance jobs failed or were cancelled"
-    elif verdict.regressions:
-        state, said = "failure", f"{verdict.regressions} change(s) for the worse"
-    elif verdict.undecided:  # never a green status for a measurement the host spoiled
-        state, said = "error", f"{verdict.undecided} test case(s) undecided (each says why)"
-    else:
-        state, said = (
-            "success",
-            "no change for the worse"
-            + (f" ({verdict.skipped} test case(s) without enough data)" if verdict.skipped else ""),
-        )
-    key = status_key(session, revision.id, state)
-    if key is None:
-        return []
-    delivery = Delivery(
-        uid=str(uuid.uuid4()),
-        key=key,
-        component_id=component.id,
-        kind="status",
-        event=f"status.{state}",
-        payload={
-            "sha": revision.commit,
-            "state": state,
-            "description": f"Redline: {said}",
-            "context": f"redline/{component.name}",
-            "page": verdict.page,
-        },
-    )
-    session.add(delivery)
-    session.flush()
-    return [delivery.id]

@@ -22,6 +22,7 @@ import logging
 import math
 from collections.abc import Callable
 from dataclasses import replace
+from datetime import datetime
 from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
@@ -212,6 +213,7 @@ def store(
     rows: list[dict[str, Any]],
     rerun: bool = False,
     config: DetectionConfig | None = None,
+    judged_at: datetime | None = None,
 ) -> None:
     """Replace the revision's detections, regroup its regressions, queue or judge its
     confirmation runs (`redline.worker.confirm_runs`), queue a fresh run of a baseline the host
@@ -246,7 +248,8 @@ def store(
         confirm_by_history(
             session, revision.component_id, config.confirm_revisions, config.alarming
         )
-    revision.analyzed_at = utcnow()
+    # when the judging began: a result ingested after it is in no verdict stored here
+    revision.analyzed_at = judged_at or utcnow()
 
 
 def _store_steps(session: Session, rows: list[dict[str, Any]], config: DetectionConfig) -> None:
@@ -328,13 +331,15 @@ def detect_and_store(database_url: str, revision_id: int) -> Judged | None:
     revisions a step was found at among them."""
     with session_scope(database_url) as session:
         lock_revision(session, revision_id)
+        began = utcnow()
         judged = judge_revision(session, revision_id)
         if judged is None:  # its samples are gone: its stored results stand, as analysed
             revision = session.get(Revision, revision_id)
             if revision is not None:
                 revision.analyzed_at = utcnow()
             return None
-        store(session, session.get_one(Revision, revision_id), judged.rows, rerun=True)
+        revision = session.get_one(Revision, revision_id)
+        store(session, revision, judged.rows, rerun=True, judged_at=began)
     log.info(
         "revision %s: %d series compared, %d flagged",
         revision_id,

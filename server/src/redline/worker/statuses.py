@@ -1,22 +1,25 @@
 """Commit statuses, one revision's in order: each a `Delivery` keyed ``status:{revision}:...``
-(`redline.worker.alerts.commit_status`). A revision's state can come back (a late arrival has
+(`commit_status`). A revision's state can come back (a late arrival has
 it judged again: success, pending, success), so the last one made is the one the commit must
 end at: older ones not sent yet are superseded, and one is not sent while an older one of its
 revision is (two at once land in either order)."""
 
 from __future__ import annotations
 
+import uuid
 from datetime import datetime
 from typing import Any
 
-from redline.server.models import Delivery
+from redline.server.models import Component, Delivery, Revision
+from redline.server.schemas.fields import COMMIT_HASH
+from redline.server.services.ci_verdict import ci_verdict
 from sqlalchemy import ColumnElement, and_, func, or_, select, update
 from sqlalchemy.orm import Session, aliased
 
 
 def _same_revision(other: Any) -> ColumnElement[bool]:
     """``other`` is a commit status of the same revision as `Delivery` (keys
-    ``status:{revision}:...``, `redline.worker.alerts`)."""
+    ``status:{revision}:...``, `commit_status`)."""
     return and_(
         Delivery.kind == "status",
         other.kind == "status",
@@ -83,3 +86,51 @@ def status_key(session: Session, revision_id: int, state: str) -> str | None:
         return None
     key = f"status:{revision_id}:{state}"
     return key if f"status.{state}" not in told else f"{key}:{len(told)}"
+
+
+def commit_status(session: Session, revision_id: int) -> list[int]:
+    """The revision's verdict as a commit status, when its component has a target and the
+    revision a commit: once per change of its state (pending, success, failure, error)."""
+    # Statuses of one revision take turns on its row: two scans at once would read the same
+    # statuses told, pick the same key, and the one that read the older verdict could land last.
+    revision = session.get(Revision, revision_id, with_for_update=True)
+    if revision is None or not COMMIT_HASH.fullmatch(revision.commit):
+        return []  # a forge addresses a status by hash: a branch, a tag or a path gets none
+    component = session.get_one(Component, revision.component_id)
+    if not component.commit_status:
+        return []
+    verdict = ci_verdict(session, component.name, revision.title)
+    if verdict.state == "pending":
+        state, said = "pending", f"waiting for {verdict.waiting_for}"
+    elif verdict.state == "failed":
+        state, said = "error", "its performance jobs failed or were cancelled"
+    elif verdict.regressions:
+        state, said = "failure", f"{verdict.regressions} change(s) for the worse"
+    elif verdict.undecided:  # never a green status for a measurement the host spoiled
+        state, said = "error", f"{verdict.undecided} test case(s) undecided (each says why)"
+    else:
+        state, said = (
+            "success",
+            "no change for the worse"
+            + (f" ({verdict.skipped} test case(s) without enough data)" if verdict.skipped else ""),
+        )
+    key = status_key(session, revision.id, state)
+    if key is None:
+        return []
+    delivery = Delivery(
+        uid=str(uuid.uuid4()),
+        key=key,
+        component_id=component.id,
+        kind="status",
+        event=f"status.{state}",
+        payload={
+            "sha": revision.commit,
+            "state": state,
+            "description": f"Redline: {said}",
+            "context": f"redline/{component.name}",
+            "page": verdict.page,
+        },
+    )
+    session.add(delivery)
+    session.flush()
+    return [delivery.id]

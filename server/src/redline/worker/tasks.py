@@ -28,7 +28,7 @@ from redline.server.core.tasks import (
 from redline.server.db import session_scope
 from redline.server.models import Revision
 from redline.worker import reanalysis, reanalysis_finish
-from redline.worker.alerts import commit_status, runtime_alerts
+from redline.worker.alerts import runtime_alerts
 from redline.worker.app import celery_app
 from redline.worker.deliver import deliver_due
 from redline.worker.digests import send_digests
@@ -36,6 +36,7 @@ from redline.worker.follow_ups import tell_component
 from redline.worker.ingest import ingest as run_ingest
 from redline.worker.ingest import stale_uploads
 from redline.worker.onward import judge_onward
+from redline.worker.statuses import commit_status
 from redline.worker.sweeps import (
     failed_without_status,
     unjudged_after_fresh_runs,
