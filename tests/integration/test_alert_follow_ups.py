@@ -141,6 +141,17 @@ def test_a_withdrawn_regression_is_told_to_whom_it_was_sent_and_to_no_one_else(
         session.commit()
     assert receiver.to("/digest") == []
 
+    # found again (the configuration put back): told again, not left at "withdrawn" (a trial)
+    with session_factory(database_url)() as session:
+        session.execute(update(DetectionConfigRow).values(config={"methods": ["ks"]}))
+        session.commit()
+    reanalyze_component(database_url, 1)
+    alert(api)
+    again = _bodies(receiver, "/eager")[2:]
+    assert [body["event"] for body in again] == ["regression"], again
+    assert again[0]["alerts"][0]["regression"]["id"] != withdrawn["regression"]["id"]
+    assert [c["revision"]["title"] for c in again[0]["alerts"][0]["changes"]] == ["r6"]
+
 
 def test_a_digest_tells_a_regression_as_it_is_when_it_goes_out(api, tmp_path, receiver):
     _digest(api, receiver)

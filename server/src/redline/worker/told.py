@@ -19,14 +19,16 @@ from datetime import datetime
 from typing import Any
 
 from redline.server.models import (
+    WITHDRAWN,
     Alert,
     AlertedChange,
+    Regression,
     RegressionTold,
     Revision,
     Series,
     Subscription,
 )
-from sqlalchemy import select
+from sqlalchemy import ColumnElement, exists, select
 from sqlalchemy.dialects.postgresql import insert
 from sqlalchemy.orm import Session
 
@@ -86,13 +88,23 @@ class Told:
         return direction == self.direction and any(overlaps(span, told) for told in self.spans)
 
 
+def _standing() -> ColumnElement[bool]:
+    """An alert whose regression was not withdrawn since: a change told in a withdrawn one
+    counts as untold, so that finding it again tells it again (a third trial's subscriber heard
+    a confirmed +80 % regression withdrawn by a configuration change, and nothing when the
+    change was put back and the same regression found again: its last word was "withdrawn")."""
+    return ~exists().where(
+        Regression.id == Alert.regression_id, Regression.confirmation == WITHDRAWN
+    )
+
+
 def told_pairs(session: Session, subscription_id: int) -> set[tuple[int, int]]:
-    """The (series, revision) of every change the subscription was told."""
+    """The (series, revision) of every change the subscription was told (`_standing`)."""
     return set(
         session.execute(
-            select(AlertedChange.series_id, AlertedChange.revision_id).where(
-                AlertedChange.subscription_id == subscription_id
-            )
+            select(AlertedChange.series_id, AlertedChange.revision_id)
+            .join(Alert, Alert.id == AlertedChange.alert_id)
+            .where(AlertedChange.subscription_id == subscription_id, _standing())
         )
     )
 
@@ -118,6 +130,7 @@ def told_of(
         .where(
             AlertedChange.subscription_id == subscription_id,
             AlertedChange.series_id.in_(series_ids),
+            _standing(),
         )
     ).all()
     found: list[tuple[int, int, int | None, str, Place, list[str]]] = []
@@ -151,12 +164,21 @@ def told_of(
 
 
 def mark_told(session: Session, subscription: Subscription, change: Change, alert_id: int) -> None:
-    session.add(
-        AlertedChange(
-            subscription_id=subscription.id,
-            series_id=change.series_id,
-            revision_id=change.revision_id,
-            alert_id=alert_id,
+    """Record the change as told in ``alert_id`` (again, when told in a withdrawn one before)."""
+    told = insert(AlertedChange).values(
+        subscription_id=subscription.id,
+        series_id=change.series_id,
+        revision_id=change.revision_id,
+        alert_id=alert_id,
+    )
+    session.execute(
+        told.on_conflict_do_update(
+            index_elements=[
+                AlertedChange.subscription_id,
+                AlertedChange.series_id,
+                AlertedChange.revision_id,
+            ],
+            set_={"alert_id": told.excluded.alert_id},
         )
     )
 
