@@ -95,13 +95,25 @@ def _flagged_history(session, database_url, tmp_path, pairs: int = PAIRS):
 
 
 def _run(
-    session, database_url: str, tmp_path: Path, job: Job, level: float, onward: bool = False
+    session,
+    database_url: str,
+    tmp_path: Path,
+    job: Job,
+    level: float,
+    onward: bool = False,
+    host_percent: float | None = None,
 ) -> None:
     """What the host's agent does with a leased job: record, upload; then the worker ingests
-    and judges the revision ingestion names (the one confirmed, for a confirmation run)."""
+    and judges the revision ingestion names (the one confirmed, for a confirmation run).
+    ``host_percent``: the host's CPU beside the run (90: busy, the run disturbed)."""
     revision = job.revision
     run = run_metadata(job, NAME, revision.title, revision.sort_key)
-    path = write_recording(tmp_path / f"confirm-{job.id}.mcap", run, _cpu(level, 1000 + job.id))
+    path = write_recording(
+        tmp_path / f"confirm-{job.id}.mcap",
+        run,
+        _cpu(level, 1000 + job.id),
+        host_percent=host_percent,
+    )
     session.add(
         Execution(
             job_id=job.id,
@@ -215,6 +227,25 @@ def test_pairs_that_show_the_change_confirm_it_and_stay_out_of_the_verdicts(
     assert (detection.effect, detection.baseline_revisions) == (effect, own)
     regression = session.scalars(select(Regression)).one()
     assert regression.confirmation == "confirmed"
+
+
+def test_one_pair_alone_confirms_nothing_when_the_other_was_measured_on_a_busy_host(
+    session, database_url, tmp_path
+):
+    """A trial's demo said "confirmed by 1 of 1 pairs; 2 pair(s) did not run": those had run,
+    while the host was busy, and were left out. Two that agree decide; one alone leaves the
+    change to the later revisions, saying why."""
+    _flagged_history(session, database_url, tmp_path)
+    while (job := lease_job(session, "perf-1", 60, 3)) is not None:
+        level = 30.0 if job.revision.title == "r5" else 20.0
+        busy = 90.0 if job.pair == 2 else None
+        _run(session, database_url, tmp_path, job, level, host_percent=busy)
+    detection = _r5_detection(session)
+    assert detection.confirmation == "suspected", detection.confirmation_reason
+    reason = detection.confirmation_reason
+    assert reason.startswith("re-runs could not decide: 2 pairs must show it, and 1 of 1 pairs")
+    assert "1 pair(s) gave no value of it (a run measured while the host was busy" in reason
+    assert session.scalars(select(Regression)).one().confirmation == "suspected"
 
 
 def test_a_late_baseline_queues_pairs_against_it_and_the_earlier_ones_are_superseded(

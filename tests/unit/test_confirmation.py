@@ -132,10 +132,22 @@ def test_pairs_confirm_a_change_most_of_them_show_and_name_what_did_not_run() ->
     fall = pairs_hold([(100.0, 80.0), (100.0, 82.0)], "decrease", -0.2, 2)
     assert fall.state == HELD
     assert pairs_hold([(100.0, 80.0)], "increase", 0.2, 1).state == DROPPED  # the other way
+    # one complete pair alone decides nothing where two were wanted (a trial's demo confirmed
+    # by "1 of 1 pairs; 2 pair(s) did not run": those had run, measured while the host was busy)
     partial = pairs_hold([(100.0, 130.0), (math.nan, 129.0)], "increase", 0.3, 2)
-    assert partial.state == HELD and "1 pair(s) did not run" in partial.reason
+    assert partial.state == SUSPECTED, partial.reason
+    assert partial.reason.startswith("re-runs could not decide: 2 pairs must show it")
+    assert "1 pair(s) gave no value of it (a run measured while the host was busy" in partial.reason
+    alone = pairs_hold([(100.0, 130.0), (math.nan, 129.0), (100.0, math.nan)], "increase", 0.3, 3)
+    assert alone.state == SUSPECTED and "2 pair(s) gave no value" in alone.reason
+    unshown = pairs_hold([(100.0, 101.0), (math.nan, 129.0)], "increase", 0.3, 2)
+    assert unshown.state == DROPPED  # the missing pair could not make two of two
+    held = pairs_hold([(100.0, 130.0), (100.0, 131.0), (math.nan, 99.0)], "increase", 0.3, 3)
+    assert held.state == HELD and "confirmed by 2 of 2 pairs" in held.reason
     none = pairs_hold([], "increase", 0.3, 2)
-    assert none.state == DROPPED and "none of the 2 confirmation pair(s) ran" in none.reason
+    assert none.state == SUSPECTED and "none of the 2 confirmation pair(s) gave a value" in (
+        none.reason
+    )
 
 
 def test_a_pair_shows_a_change_beyond_its_noise_not_beyond_half_the_flagged_step() -> None:

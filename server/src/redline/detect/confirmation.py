@@ -160,6 +160,9 @@ def hold(
     return Hold(HELD, f"held: {figures}", kept)
 
 
+#: How a reason begins when the re-runs could not decide a change (none ran, too few gave a
+#: value, a count, a series they did not measure): the history decides then
+UNDECIDED = "re-runs could not decide"
 #: The share of complete pairs that must show the change for it to be confirmed by re-runs.
 PAIRS_SHARE = 2 / 3
 #: A pair shows a change when its candidate moved the flagged way by more than this many
@@ -257,8 +260,18 @@ def _shows(move: float, direction: str, bar: float) -> bool:
     return sign * move >= bar
 
 
-def _holds(shown: int, complete: int) -> bool:
-    return complete > 0 and shown >= max(1, math.ceil(PAIRS_SHARE * complete))
+def _needed(pairs: int) -> int:
+    """How many pairs must show a change for ``pairs`` of them to confirm it (2 of 2, 2 of 3)."""
+    return max(1, math.ceil(PAIRS_SHARE * pairs))
+
+
+def _outcome(shown: int, lacking: int, wanted: int) -> str:
+    """`HELD` when ``shown`` pairs reach what ``wanted`` need, `SUSPECTED` (undecided) when the
+    ``lacking`` ones, which gave no value, could have, `DROPPED` otherwise."""
+    needed = _needed(wanted)
+    if shown >= needed:
+        return HELD
+    return SUSPECTED if shown + lacking >= needed else DROPPED
 
 
 def pairs_decided(
@@ -274,10 +287,11 @@ def pairs_decided(
     complete = _complete(pairs)
     bar = pair_bar(effect, noise)
     shown = sum(_shows(move, direction, bar) for move in _moves(complete))
+    wanted, lacking = len(pairs) + pending, len(pairs) - len(complete)
     outcomes = {
-        _holds(shown + more_shown, len(complete) + more)
-        for more in range(pending + 1)
-        for more_shown in range(more + 1)
+        _outcome(shown + more_shown, lacking + more_lacking, wanted)
+        for more_shown in range(pending + 1)
+        for more_lacking in range(pending - more_shown + 1)
     }
     return len(outcomes) == 1
 
@@ -297,19 +311,37 @@ def pairs_hold(
     it. ``wanted``: the pairs that were queued (a missing one is named in the reason)."""
     complete = _complete(pairs)
     if not complete:
-        return Hold(DROPPED, f"not confirmed: none of the {wanted} confirmation pair(s) ran", 0.0)
+        return Hold(
+            SUSPECTED,
+            f"{UNDECIDED}: none of the {wanted} confirmation pair(s) gave a value of it; the "
+            "later revisions will confirm it instead",
+        )
     sign = 1.0 if direction == "increase" else -1.0
     bar = pair_bar(effect, noise)
     moves = _moves(complete)
     shown = sum(_shows(move, direction, bar) for move in moves)
     moved = ", ".join(f"{100 * move:+.1f} %" for move in moves)
-    missing = f"; {wanted - len(complete)} pair(s) did not run" if len(complete) < wanted else ""
+    lacking = max(0, wanted - len(complete))  # incomplete: NaN, or never ran
+    missing = (
+        f"; {lacking} pair(s) gave no value of it (a run measured while the host was busy, or "
+        "one that did not run)"
+        if lacking
+        else ""
+    )
     why = f"{PAIR_SDS:g} sd of a pair's noise" if math.isfinite(noise) else "half the flagged step"
     figures = (
         f"{shown} of {len(complete)} pairs (candidate against baseline, back to back on one "
         f"host: {moved}; flagged {100 * sign * abs(effect):+.1f} %; a pair shows it beyond "
         f"{100 * sign * bar:+.1f} %, {why}){missing}"
     )
-    if _holds(shown, len(complete)):
+    wanted = max(wanted, len(complete))
+    outcome = _outcome(shown, wanted - len(complete), wanted)
+    if outcome == HELD:
         return Hold(HELD, f"confirmed by {figures}", shown / len(complete))
+    if outcome == SUSPECTED:  # two that agree decide: one alone does not (a trial's did)
+        return Hold(
+            SUSPECTED,
+            f"{UNDECIDED}: {_needed(wanted)} pairs must show it, and {figures}; the later "
+            "revisions will confirm it instead",
+        )
     return Hold(DROPPED, f"not confirmed: the change showed in {figures}", shown / len(complete))

@@ -24,6 +24,7 @@ from redline.detect.confirmation import (
     HOLD_SHARE,
     LOOKBACK,
     SUSPECTED,
+    UNDECIDED,
     Hold,
     hold,
     relative_noise,
@@ -50,9 +51,6 @@ CONFIRMED, NOT_CONFIRMED = "confirmed", "not_confirmed"
 #: later revisions with results, in multiples of the wait, after which a change whose series
 #: they did not measure enough is dropped instead of waiting for ever
 GONE_AFTER = 3
-#: how `redline.worker.confirm_runs` begins the reason of a change its pairs could not decide
-#: (none ran, a count, a series they did not measure): the history decides then
-UNDECIDED = "re-runs could not decide"
 
 
 def _levels(session: Session, series_id: int, count: bool) -> list[tuple[str, int, np.ndarray]]:
