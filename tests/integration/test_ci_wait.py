@@ -121,6 +121,20 @@ def test_bad_input_and_a_timeout_exit_2_naming_the_cause(server):
     assert "no verdict within 2 s: still waiting for the revision to be reported" in early.stderr
     bad = wait(server, "--revision", "r1", "--fail-on", "sometimes")
     assert bad.returncode == 2 and "fail-on" in bad.stderr
+    # names no address can carry, said as such (a trial was told "Not Found")
+    for option, name in (("--revision", ".."), ("--revision", ""), ("--component", "../x")):
+        args = ("--revision", "r1", "--component", "builder", option, name)
+        odd = wait(server, *args)
+        assert odd.returncode == 2, odd.stderr
+        assert f"{option} {name!r}: not a name Redline gives anything" in odd.stderr
+    wrong = subprocess.run(
+        [REDLINE, "ci", "wait", "--server", server[0] + "/nothing-here", "--component", "builder",
+         "--revision", "r1"],
+        capture_output=True, text=True, timeout=60, env={"PATH": "/usr/bin:/bin"},
+    )  # fmt: skip
+    assert wrong.returncode == 2 and "is --server the root URL of the Redline server?" in (
+        wrong.stderr
+    )
     _, _, api = server
     api.revision("r8", "0008")  # queued, and no host to run it
     kept = Path(api.settings.storage_dir).parent / "late.xml"
@@ -128,6 +142,15 @@ def test_bad_input_and_a_timeout_exit_2_naming_the_cause(server):
     made = kept.parent / "reports" / "of-r8" / "late.xml"  # a missing folder is made
     assert wait(server, "--revision", "r8", "--timeout", "1", "--junit", str(made)).returncode == 2
     assert "no verdict within 1 s" in made.read_text()
+    # a revision never reported, and a refused token: the JUnit file says so too (a trial's
+    # CI step found none to keep)
+    for args, said in (
+        (("--revision", "neverreported", "--timeout", "1"), "no verdict within 1 s"),
+        (("--revision", "..", "--timeout", "1"), "not a name Redline gives anything"),
+    ):
+        never = kept.parent / f"never-{len(said)}.xml"
+        assert wait(server, *args, "--junit", str(never)).returncode == 2
+        assert said in never.read_text()
     assert late.returncode == 2
     assert "no verdict within 2 s" in late.stderr and "performance host" in late.stderr
     error = ElementTree.parse(kept).getroot().find("testcase/error")

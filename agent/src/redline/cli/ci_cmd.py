@@ -134,6 +134,17 @@ def _junit_error(path: Path, component: str, revision: str, message: str) -> Non
     )
 
 
+def _unaddressable(option: str, name: str) -> str | None:
+    """Why no API address can carry the name, or None (a trial's ``--revision ..`` and
+    ``--component ../x`` were told only "Not Found")."""
+    if name in ("", ".", "..") or "/" in name:
+        return (
+            f"{option} {name!r}: not a name Redline gives anything: a component's name or a "
+            "revision's title is not empty, '.' or '..', and has no '/'"
+        )
+    return None
+
+
 def _writable(path: Path) -> None:
     """Exit 2 now, not after the wait, when the JUnit file cannot be written; a missing folder
     is made, as `redline run --out` and `redline compare --junit` make theirs (a trial met all
@@ -174,6 +185,17 @@ def wait(
         _stop(BAD_INPUT, f"--server {server!r}: not an http:// or https:// URL")
     if junit is not None:
         _writable(junit)
+
+    def fail(message: str) -> NoReturn:
+        """Exit 2 with ``message``, in the JUnit file too: a CI step keeps it in every case."""
+        if junit is not None:
+            _junit_error(junit, component, revision, message)
+        _stop(BAD_INPUT, message)
+
+    for option, name in (("--component", component), ("--revision", revision)):
+        if (unaddressable := _unaddressable(option, name)) is not None:
+            fail(unaddressable)
+
     headers = {"Authorization": f"Bearer {token}"} if token else {}
     base = f"/api/v1/components/{quote(component, safe='')}/revisions/{quote(revision, safe='')}"
     started = time.monotonic()
@@ -185,17 +207,20 @@ def wait(
             reached = reached or answer is not None
             if answer is not None:
                 if answer.status_code in (401, 403):
-                    _stop(BAD_INPUT, f"the server refused the token: {_detail(answer)}")
+                    fail(f"the server refused the token: {_detail(answer)}")
                 if answer.status_code == 404:
                     detail = _detail(answer)
+                    if detail == "Not Found":  # no route at all: not Redline's API there
+                        fail(f"{server} has no Redline API at {base}/verdict: is --server the "
+                             "root URL of the Redline server?")  # fmt: skip
                     if "has no revision" not in detail or waited > min(APPEAR_S, timeout):
-                        _stop(BAD_INPUT, detail)
+                        fail(detail)
                     if not said:  # a trial sat two silent minutes here
                         said = "the revision to be reported"
                         limit = min(APPEAR_S, timeout)
                         typer.echo(f"{detail} yet: waiting up to {limit:.0f} s for it", err=True)
                 elif answer.status_code != 200:
-                    _stop(BAD_INPUT, f"HTTP {answer.status_code}: {_detail(answer)}")
+                    fail(f"HTTP {answer.status_code}: {_detail(answer)}")
                 else:
                     verdict = answer.json()
                     if verdict["state"] != "pending":
@@ -212,10 +237,7 @@ def wait(
                     why = "the revision did not appear"
                 else:
                     why = f"the server at {server} was never reached"
-                late = f"no verdict within {timeout:.0f} s: {why}"
-                if junit is not None:
-                    _junit_error(junit, component, revision, late)
-                _stop(BAD_INPUT, late)
+                fail(f"no verdict within {timeout:.0f} s: {why}")
             time.sleep(poll)
         if junit is not None:
             xml = client.get(f"{base}/junit", params={"fail_on": fail_on.value})
