@@ -100,6 +100,16 @@ def test_cancelling_a_revision_stops_its_jobs_and_its_agent_learns_at_the_next_h
     missing = api.post("/api/v1/components/cancellable/revisions/nope/cancel", "ci", {})
     assert missing.status_code == 404 and "nope" in missing.json()["detail"]
 
+    # reported again (the pipeline re-run): measured again, not left cancelled (a trial)
+    body = {"component": "cancellable", "title": "c1", "sort_key": "1", "commit": "abc123"}
+    again = api.post("/api/v1/revisions", "ci", body)
+    assert again.status_code == 200, again.text  # reported before
+    assert sorted(again.json()["job_ids"]) == sorted(created["job_ids"])
+    detail = api.client.get("/api/v1/components/cancellable/revisions/c1").json()
+    assert {job["state"] for job in detail["jobs"]} == {"queued"}, detail["jobs"]
+    verdict = api.client.get("/api/v1/components/cancellable/revisions/c1/verdict").json()
+    assert verdict["state"] == "pending", verdict
+
 
 def test_a_verdict_waiting_for_a_host_says_when_none_could_take_its_jobs(
     services: Services, tmp_path: Path

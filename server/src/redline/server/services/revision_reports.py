@@ -3,12 +3,16 @@
 
 from __future__ import annotations
 
-from redline.server.models import Component, Revision
+from redline.server.models import Component, Job, JobState, Revision
 from redline.server.schemas.fields import COMMIT_HASH
 from redline.server.schemas.revisions import RevisionCreate
 from redline.server.services.components import get_component
 from redline.server.services.errors import Conflict
-from redline.server.services.revisions import create_revision, require_own_repository
+from redline.server.services.revisions import (
+    CANCELLED,
+    create_revision,
+    require_own_repository,
+)
 from sqlalchemy import and_, func, literal, or_, select
 from sqlalchemy.orm import Session
 
@@ -90,6 +94,7 @@ def report_revision(session: Session, data: RevisionCreate) -> tuple[Revision, b
         raise Conflict(reason)
     reported = _reported_before(session, data)
     if reported is not None:
+        _queue_cancelled_again(session, reported)
         return reported, False
     try:
         return create_revision(session, data), True
@@ -98,3 +103,27 @@ def report_revision(session: Session, data: RevisionCreate) -> tuple[Revision, b
         if reported is None:
             raise
         return reported, False
+
+
+def _queue_cancelled_again(session: Session, revision: Revision) -> None:
+    """A revision reported again whose own runs were cancelled (`cancel_revision`: CI cancelled
+    a superseded pipeline, then ran it again) has those runs queued anew; runs that finished
+    keep their results. A trial's re-report of a cancelled commit answered 200 and queued
+    nothing: the revision stayed cancelled, with no way to measure it."""
+    cancelled = session.scalars(
+        select(Job)
+        .where(
+            Job.revision_id == revision.id,
+            Job.pair == 0,
+            Job.remeasures_job_id.is_(None),
+            Job.state == JobState.cancelled,
+            Job.reason == CANCELLED,
+        )
+        .with_for_update()
+    ).all()
+    for job in cancelled:
+        job.state, job.reason, job.attempts = JobState.queued, "", 0
+        job.lease_expires_at, job.host_id = None, None
+    if cancelled:
+        session.commit()
+        session.refresh(revision)
