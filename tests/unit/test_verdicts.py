@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from redline.detect.config import ConfigError, DetectionConfig
 from redline.detect.methods import KolmogorovSmirnov
-from redline.detect.verdict import judge_series
+from redline.detect.verdict import TOO_FEW, judge_series
 from redline.worker.samples import SampleCache
 
 
@@ -87,3 +87,16 @@ def test_sample_cache_keeps_only_the_newest_revisions_it_is_sized_for():
     assert cache.get(None, 5)[1][0].tolist() == [5.0, 5.0]  # a hit reads nothing
     cache.put(5, {1: [np.zeros(1)]})  # replacing keeps the bound
     assert len(cache.entries) == 3 and cache.get(None, 5)[1][0].tolist() == [0.0]
+
+
+def test_ks_in_the_service_says_too_few_to_decide_where_it_cannot_reach_significance() -> None:
+    """A third trial's server said "no change" of a round trip +100 % with D = 1 (three values a
+    side: KS's smallest p is 0.1), where `redline compare` said "too few values to decide"."""
+    base, cand = np.array([100.0, 102.0, 101.0]), np.array([201.0, 203.0, 199.0])
+    found = judge_series(KolmogorovSmirnov(), "rtt_p50_us", base, cand)
+    assert found.verdict == "not enough data", found
+    assert found.reason.startswith(TOO_FEW) and "smallest p here: 0.1" in found.reason
+    many = judge_series(KolmogorovSmirnov(), "rtt_p50_us", np.tile(base, 5), np.tile(cand, 5))
+    assert many.flagged  # with 15 a side it decides
+    close = judge_series(KolmogorovSmirnov(), "rtt_p50_us", base, base + 1.5)
+    assert close.verdict == "no change"  # overlapping sides: KS's "no change" stands

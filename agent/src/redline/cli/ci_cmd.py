@@ -213,8 +213,13 @@ def wait(
                     if detail == "Not Found":  # no route at all: not Redline's API there
                         fail(f"{server} has no Redline API at {base}/verdict: is --server the "
                              "root URL of the Redline server?")  # fmt: skip
-                    if "has no revision" not in detail or waited > min(APPEAR_S, timeout):
+                    if "has no revision" not in detail:
                         fail(detail)
+                    if waited > min(APPEAR_S, timeout):  # said as the timeout below says it
+                        fail(
+                            f"no verdict within {min(APPEAR_S, timeout):.0f} s: still waiting "
+                            f"for the revision to be reported ({detail})"
+                        )
                     if not said:  # a trial sat two silent minutes here
                         said = "the revision to be reported"
                         limit = min(APPEAR_S, timeout)

@@ -29,12 +29,10 @@ from redline.detect.counters import (
     kind,
     worse,
 )
-from redline.detect.floors import absolute_floor
-from redline.detect.ks import DEFAULT_ALPHA, DEFAULT_MIN_EFFECT
 from redline.detect.methods import KolmogorovSmirnov
 from redline.detect.relative_change import RelativeChange
 from redline.detect.result import Detection, not_enough
-from redline.detect.verdict import judge_series
+from redline.detect.verdict import TOO_FEW, judge_series
 from redline.recording import (
     Recording,
     RecordingError,
@@ -69,10 +67,6 @@ class RecordedSeries:
     timeline: Timeline
     #: (case, phase, params) → why: the segments the host was busy in (a warning, not a verdict)
     disturbed: dict[Segment, str] = field(default_factory=dict)
-
-
-#: how the reason of a series KS saw apart but could not call begins (`_too_few`)
-TOO_FEW = "too few values to decide:"
 
 
 @dataclass(frozen=True)
@@ -264,34 +258,7 @@ def _judge(
         )
     if kind(key.process) != "counter":
         return judge_series(RelativeChange(), key.counter, base[key], cand[key])
-    found = judge_series(KolmogorovSmirnov(), key.counter, base[key], cand[key])
-    return _too_few(found, key.counter, base[key], cand[key]) or found
-
-
-def _too_few(
-    found: Detection, counter: str, base: np.ndarray, cand: np.ndarray
-) -> Detection | None:
-    """ "Not enough data" where KS saw the sides apart by more than its floors but could not
-    call it: with one value an execution (CPU per unit of work) and 3 executions a side, the
-    smallest p KS can give is 0.1 (a trial's tripled work per message passed as "no change")."""
-    n, m = base.size, cand.size
-    smallest_p = 2 / math.comb(n + m, n)
-    moved = abs(float(np.mean(cand)) - float(np.mean(base)))
-    if (
-        found.flagged
-        or found.score != 1.0  # the sides overlap: KS's "no change" stands
-        or smallest_p < DEFAULT_ALPHA
-        or abs(found.effect or 0.0) < DEFAULT_MIN_EFFECT
-        or moved < absolute_floor(counter)
-    ):
-        return None
-    return not_enough(
-        KolmogorovSmirnov.name,
-        f"{TOO_FEW} the {n} and {m} values do not overlap (effect {found.effect:+.1%}), but "
-        "with so few "
-        f"KS cannot reach p < {DEFAULT_ALPHA:g} (its smallest p here: {smallest_p:.2g}): record "
-        "more executions a side (5 and 5 suffice)",
-    )
+    return judge_series(KolmogorovSmirnov(), key.counter, base[key], cand[key])
 
 
 def _verdict(
