@@ -66,9 +66,9 @@ def _told_changes(session: Session, subscription_id: int, regression_id: int) ->
         .order_by(Alert.id)
     )
     told: dict[tuple[Any, ...], dict] = {}
-    for body in bodies:
+    for body in bodies:  # oldest first: the figures it was last told of each stand
         for change in body.get("changes", []):
-            told.setdefault((*identity(change), change["revision"]["title"]), change)
+            told[(*identity(change), change["revision"]["title"])] = change
     return list(told.values())
 
 
