@@ -95,6 +95,25 @@ def test_a_commit_ci_reported_under_its_full_sha_is_not_made_again_by_a_push(api
     assert answer.json()["existing"] == 1 and counts(api) == (2, 4)
 
 
+def test_a_commit_whose_title_another_commit_holds_is_refused_not_called_known(api: Api):
+    """A trial pushed 3,000 ids sharing their first 12 hex digits: "1 revision(s) created, 2999
+    already known", as if delivered before. Each such commit is refused, naming the holder."""
+    twins = [
+        {"id": "c" * 12 + f"{n:028x}", "message": f"twin {n}", "timestamp": "2026-11-20T10:00:00Z"}
+        for n in range(3)
+    ]
+    answer = send_github(api, github_push(commits=twins))
+    assert answer.status_code == 200, answer.text
+    found = answer.json()
+    assert [r["title"] for r in found["created"]] == ["c" * 12] and found["existing"] == 0
+    assert [r["commit"] for r in found["refused"]] == [twins[1]["id"], twins[2]["id"]]
+    assert (
+        f"already has a revision {'c' * 12!r}, of commit {twins[0]['id']!r}"
+        in (found["refused"][0]["reason"])
+    )
+    assert "2 commit(s) refused" in found["detail"]
+
+
 def test_forged_signature_is_401_and_creates_nothing(api: Api):
     answer = send_github(api, github_push(), secret="guessed")
     assert answer.status_code == 401 and "signature" in answer.json()["detail"]

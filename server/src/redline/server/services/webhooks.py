@@ -124,11 +124,25 @@ def sort_key(when: datetime, index: int) -> str:
     return f"{int(when.timestamp())}.{index:04d}"
 
 
-def _add_revision(session: Session, component: Component, data: RevisionCreate) -> Revision | None:
+def _add_revision(
+    session: Session, component: Component, data: RevisionCreate
+) -> Revision | str | None:
     """The new revision, or None when the component already has it (a repeated delivery, or
-    CI's report of the commit under its full SHA)."""
+    CI's report of the commit under its full SHA), or why not when its title is another
+    commit's (two commits whose first 12 hex digits agree: a trial's push of 3,000 such ids was
+    answered "2999 already known", as if delivered before)."""
     if revision_of_commit(session, component, data.commit) is not None:
         return None
+    holder = session.scalar(
+        select(Revision.commit).where(
+            Revision.component_id == component.id, Revision.title == data.title
+        )
+    )
+    if holder is not None:  # not this commit (above): another whose title it would take
+        return (
+            f"component {component.name!r} already has a revision {data.title!r}, of commit "
+            f"{holder!r}: report this commit with a title of its own (POST /api/v1/revisions)"
+        )
     try:
         with session.begin_nested():
             revision = new_revision(component, data)
@@ -164,6 +178,9 @@ def _record(session: Session, components: list[Component], push: Push) -> Webhoo
                 committed_at=when,
             )
             revision = _add_revision(session, component, data)
+            if isinstance(revision, str):
+                result.refused.append(RefusedCommit(commit=commit.id[:200], reason=revision))
+                continue
             if revision is None:
                 result.existing += 1
                 continue
