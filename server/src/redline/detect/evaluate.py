@@ -22,7 +22,7 @@ import math
 from collections.abc import Callable, Iterator, Mapping, Sequence
 
 import numpy as np
-from redline.detect.baseline import DEFAULT_WINDOW, recent_depth
+from redline.detect.baseline import DEFAULT_WINDOW, lookback, recent_depth
 from redline.detect.changepoint import EDivisive
 from redline.detect.changepoint_f1 import MARGIN, binary_segmentation, f_measure
 from redline.detect.confirmation import DEFAULT_CONFIRM_REVISIONS, HELD, LOOKBACK, hold
@@ -145,7 +145,7 @@ def _walk_series(
     flags: set[int] = set()
     for k in range(1, len(builds)):
         depth = recent_depth(
-            [values[j] for j in range(k - 1, -1, -1)],
+            values[max(0, k - lookback(window)) : k][::-1],  # all a baseline can reach
             judge.baseline_values,
             window,
             {k - 1 - j for j in flags}.__contains__,  # positions newest first

@@ -59,16 +59,16 @@ def too_few(
     call it: with one value an execution (CPU per unit of work) and 3 executions a side, the
     smallest p KS can give is 0.1 (a trial's tripled work per message passed `redline compare`
     as "no change"; a third trial's server said "no change" at +100 %, D = 1)."""
+    if (
+        found.flagged
+        or found.score != 1.0  # the sides overlap: KS's "no change" stands (nearly always)
+        or abs(found.effect or 0.0) < detector.min_effect
+    ):
+        return None
     n, m = np.asarray(baseline).size, np.asarray(candidate).size
     smallest_p = 2 / math.comb(n + m, n)
     moved = abs(float(np.mean(candidate)) - float(np.mean(baseline)))
-    if (
-        found.flagged
-        or found.score != 1.0  # the sides overlap: KS's "no change" stands
-        or smallest_p < detector.alpha
-        or abs(found.effect or 0.0) < detector.min_effect
-        or moved < absolute_floor(counter)
-    ):
+    if smallest_p < detector.alpha or moved < absolute_floor(counter):
         return None
     return not_enough(
         detector.name,

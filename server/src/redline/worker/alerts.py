@@ -243,15 +243,25 @@ def _alert(
     return alert
 
 
+def component_subscriptions(session: Session, component_id: int) -> list[Subscription]:
+    """The subscriptions of the component and of every component, locked: two scans of one
+    component never tell the same thing twice."""
+    return list(
+        session.scalars(
+            select(Subscription)
+            .where(
+                or_(Subscription.component_id == component_id, Subscription.component_id.is_(None))
+            )
+            .order_by(Subscription.id)
+            .with_for_update()
+        )
+    )
+
+
 def scan_component(session: Session, component_id: int) -> list[int]:
     """Write the alerts the component's changes call for; returns the new deliveries' ids."""
     component = session.get_one(Component, component_id)
-    subscriptions = session.scalars(
-        select(Subscription)
-        .where(or_(Subscription.component_id == component_id, Subscription.component_id.is_(None)))
-        .order_by(Subscription.id)
-        .with_for_update()  # two scans of one component never tell the same change twice
-    ).all()
+    subscriptions = component_subscriptions(session, component_id)
     if not subscriptions:
         return []
     changes = flagged_changes(session, component, min(s.created for s in subscriptions))

@@ -336,7 +336,7 @@ def detect_and_store(database_url: str, revision_id: int) -> Judged | None:
         if judged is None:  # its samples are gone: its stored results stand, as analysed
             revision = session.get(Revision, revision_id)
             if revision is not None:
-                revision.analyzed_at = utcnow()
+                revision.analyzed_at = began
             return None
         revision = session.get_one(Revision, revision_id)
         store(session, revision, judged.rows, rerun=True, judged_at=began)

@@ -36,13 +36,14 @@ from redline.worker.alerts import (
     SILENCED,
     TELLING,
     add_alert,
+    component_subscriptions,
     flagged_rows,
     scan_component,
     wants,
 )
 from redline.worker.confirmation import CONFIRMED, NOT_CONFIRMED
 from redline.worker.told import identity, mark_said
-from sqlalchemy import or_, select
+from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 #: the event that tells each settled confirmation
@@ -117,14 +118,8 @@ def tell_settled(session: Session, component_id: int) -> list[int]:
     """Write the follow-ups the component's regressions call for; returns the new deliveries'
     ids (immediate subscriptions; a digest one gathers its follow-ups as its other alerts)."""
     component = session.get_one(Component, component_id)
-    subscriptions = session.scalars(
-        select(Subscription)
-        .where(or_(Subscription.component_id == component_id, Subscription.component_id.is_(None)))
-        .order_by(Subscription.id)
-        .with_for_update()  # as `scan_component`: two scans never tell the same thing twice
-    ).all()
     made: list[int] = []
-    for subscription in subscriptions:
+    for subscription in component_subscriptions(session, component_id):
         for regression in _unsaid(session, subscription.id, component_id):
             mark_said(session, subscription.id, regression.id, regression.confirmation)
             changes = _changes(session, component, regression, subscription)

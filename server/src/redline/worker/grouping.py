@@ -147,22 +147,27 @@ def _fit(session: Session, revision: Revision) -> None:
     if not reaching:
         return
     baseline = aliased(Revision)
-    spans: dict[int | None, list[tuple[Revision, Revision]]] = defaultdict(list)
-    for regression_id, good, bad in session.execute(
-        select(Detection.regression_id, baseline, Revision)
+    goods: dict[int | None, list[tuple[str, int]]] = defaultdict(list)
+    bads: dict[int | None, list[tuple[str, int]]] = defaultdict(list)
+    for regression_id, good_key, good_id, bad_key, bad_id in session.execute(
+        select(
+            Detection.regression_id,
+            baseline.order_key,
+            baseline.id,
+            Revision.order_key,
+            Revision.id,
+        )
         .join(baseline, baseline.id == Detection.baseline_revision_id)
         .join(Revision, Revision.id == Detection.revision_id)
         .where(Detection.regression_id.in_([r.id for r in reaching]))
     ):
-        spans[regression_id].append((good, bad))
+        goods[regression_id].append((good_key, good_id))
+        bads[regression_id].append((bad_key, bad_id))
     for regression in reaching:
-        found = spans.get(regression.id)
-        if not found:
+        if regression.id not in goods:
             continue  # emptied: withdrawn (or deleted) next, with the range it had
-        good = min((g for g, _ in found), key=lambda r: r.place)
-        bad = max((b for _, b in found), key=lambda r: r.place)
-        regression.good_revision_id, regression.good_key = good.id, good.order_key
-        regression.bad_revision_id, regression.bad_key = bad.id, bad.order_key
+        regression.good_key, regression.good_revision_id = min(goods[regression.id])
+        regression.bad_key, regression.bad_revision_id = max(bads[regression.id])
 
 
 def group_detection(session: Session, detection: Detection, revision: Revision) -> None:

@@ -88,7 +88,7 @@ class Told:
         return direction == self.direction and any(overlaps(span, told) for told in self.spans)
 
 
-def _standing() -> ColumnElement[bool]:
+def _not_withdrawn() -> ColumnElement[bool]:
     """An alert whose regression was not withdrawn since: a change told in a withdrawn one
     counts as untold, so that finding it again tells it again (a third trial's subscriber heard
     a confirmed +80 % regression withdrawn by a configuration change, and nothing when the
@@ -99,12 +99,12 @@ def _standing() -> ColumnElement[bool]:
 
 
 def told_pairs(session: Session, subscription_id: int) -> set[tuple[int, int]]:
-    """The (series, revision) of every change the subscription was told (`_standing`)."""
+    """The (series, revision) of every change the subscription was told (`_not_withdrawn`)."""
     return set(
         session.execute(
             select(AlertedChange.series_id, AlertedChange.revision_id)
             .join(Alert, Alert.id == AlertedChange.alert_id)
-            .where(AlertedChange.subscription_id == subscription_id, _standing())
+            .where(AlertedChange.subscription_id == subscription_id, _not_withdrawn())
         )
     )
 
@@ -130,7 +130,7 @@ def told_of(
         .where(
             AlertedChange.subscription_id == subscription_id,
             AlertedChange.series_id.in_(series_ids),
-            _standing(),
+            _not_withdrawn(),
         )
     ).all()
     found: list[tuple[int, int, int | None, str, Place, list[str]]] = []

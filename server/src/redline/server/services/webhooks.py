@@ -27,7 +27,7 @@ from redline.server.schemas.webhooks import (
 )
 from redline.server.services.errors import BadRequest, ServiceError
 from redline.server.services.repos import repo_key
-from redline.server.services.revision_reports import cannot_run, revision_of_commit
+from redline.server.services.revision_reports import cannot_run, revision_of_commit, same_commit
 from redline.server.services.revisions import new_revision
 from sqlalchemy import select
 from sqlalchemy.exc import IntegrityError
@@ -133,23 +133,23 @@ def _add_revision(
     answered "2999 already known", as if delivered before)."""
     if revision_of_commit(session, component, data.commit) is not None:
         return None
-    holder = session.scalar(
-        select(Revision.commit).where(
-            Revision.component_id == component.id, Revision.title == data.title
-        )
-    )
-    if holder is not None:  # not this commit (above): another whose title it would take
-        return (
-            f"component {component.name!r} already has a revision {data.title!r}, of commit "
-            f"{holder!r}: report this commit with a title of its own (POST /api/v1/revisions)"
-        )
     try:
         with session.begin_nested():
             revision = new_revision(component, data)
             session.add(revision)
             session.flush()
-    except IntegrityError:
-        return None
+    except IntegrityError:  # its title is taken: by this commit (a delivery meanwhile) or not
+        holder = session.scalar(
+            select(Revision.commit).where(
+                Revision.component_id == component.id, Revision.title == data.title
+            )
+        )
+        if holder is None or same_commit(holder, data.commit):
+            return None
+        return (
+            f"component {component.name!r} already has a revision {data.title!r}, of commit "
+            f"{holder!r}: report this commit with a title of its own (POST /api/v1/revisions)"
+        )
     return revision
 
 
