@@ -32,6 +32,7 @@ from redline.commands.stack import Child, Stack
 from redline.recording import read_recording
 from redline.server.db import session_factory
 from redline.server.models import Execution, Job, JobState, Revision
+from redline.server.services.jobs import holder
 from redline.server.services.tokens import issue_token
 from sqlalchemy import func, select, update
 
@@ -233,7 +234,27 @@ def test_second_sigterm_releases_the_job_without_counting_an_attempt(service: Se
     agent.process.send_signal(signal.SIGTERM)
     assert agent.process.wait(timeout=60) == 0, agent.tail()
     job = service.row(job_id)
-    assert (job.state, job.attempts, job.host) == (JobState.queued, 0, None), agent.tail()
+    assert (job.state, job.attempts, holder(job)) == (JobState.queued, 0, None), agent.tail()
+
+
+def test_an_agent_gone_during_its_long_poll_is_leased_nothing(service: Service):
+    """A killed agent's long poll went on at the server and leased the next job queued to no
+    one: the next agent could not run it until the lease lapsed (CI saw the test above fail
+    on the job its predecessor's killed agent had been leased)."""
+    client = ServerClient(service.stack.url, service.agent_token("gone"), "gone")
+    client.register({}, [])
+    wait_s = 2
+    with pytest.raises(httpx.ReadTimeout):  # the agent goes away: its connection closes
+        client._http.post(
+            "/api/v1/agent/lease",
+            json={"host": "gone"},
+            params={"wait": wait_s},
+            timeout=httpx.Timeout(10, read=0.3),
+        )
+    job_id = service.job("abandoned")
+    time.sleep(wait_s + 1)  # the poll's end at the latest: it would have leased the job by then
+    job = service.row(job_id)
+    assert (job.state, job.attempts, holder(job)) == (JobState.queued, 0, None)
 
 
 def test_one_sigterm_lets_the_agent_finish_its_job_then_stop(service: Service):

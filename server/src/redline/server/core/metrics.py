@@ -10,9 +10,8 @@ from __future__ import annotations
 import logging
 import os
 import time
-from collections.abc import Awaitable, Callable
 
-from fastapi import FastAPI, Request, Response
+from fastapi import FastAPI, Response
 from prometheus_client import CONTENT_TYPE_LATEST, CollectorRegistry, Counter, Histogram
 from prometheus_client.core import GaugeMetricFamily
 from prometheus_client.exposition import generate_latest
@@ -20,6 +19,7 @@ from redline.server.core.config import Settings
 from redline.server.db import session_factory
 from redline.server.models import Job, JobState
 from sqlalchemy import func, select
+from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 log = logging.getLogger(__name__)
 
@@ -62,6 +62,36 @@ class JobCollector:
             return {}
 
 
+class _Measured:
+    """ASGI middleware: count and time each request by method, route template and status.
+
+    Not ``@app.middleware("http")``: Starlette's BaseHTTPMiddleware hides a client's going
+    away from ``request.is_disconnected()``, and a killed agent's long poll went on to lease a
+    job to no one (`redline.server.routes.agent.lease`)."""
+
+    def __init__(self, app: ASGIApp, requests: Counter, latency: Histogram) -> None:
+        self.app, self.requests, self.latency = app, requests, latency
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+        start, status = time.perf_counter(), 500  # unless a response starts
+
+        async def sending(message: Message) -> None:
+            nonlocal status
+            if message["type"] == "http.response.start":
+                status = message["status"]
+            await send(message)
+
+        try:
+            await self.app(scope, receive, sending)
+        finally:  # the router names the route in the scope it was given
+            route = getattr(scope.get("route"), "path", "unmatched")
+            self.latency.labels(scope["method"], route).observe(time.perf_counter() - start)
+            self.requests.labels(scope["method"], route, str(status)).inc()
+
+
 def install(app: FastAPI, settings: Settings) -> None:
     """Count and time every request (by route template) and serve ``GET /metrics``."""
     registry = CollectorRegistry()
@@ -76,16 +106,7 @@ def install(app: FastAPI, settings: Settings) -> None:
     )
     registry.register(JobCollector(settings))
 
-    @app.middleware("http")
-    async def measure(
-        request: Request, call_next: Callable[[Request], Awaitable[Response]]
-    ) -> Response:
-        start = time.perf_counter()
-        response = await call_next(request)
-        route = getattr(request.scope.get("route"), "path", "unmatched")
-        latency.labels(request.method, route).observe(time.perf_counter() - start)
-        requests.labels(request.method, route, str(response.status_code)).inc()
-        return response
+    app.add_middleware(_Measured, requests=requests, latency=latency)
 
     @app.get("/metrics", include_in_schema=False)
     def metrics() -> Response:

@@ -46,6 +46,11 @@ def _lease_once(settings: Settings, host: str) -> LeasedJob | None:
         return None if job is None else jobs.leased_job(job)
 
 
+def _give_back(settings: Settings, job_id: int, host: str) -> None:
+    with session_factory(settings.database_url)() as session:
+        jobs.release_job(session, job_id, host)
+
+
 @router.post(
     "/lease",
     response_model=LeasedJob | None,
@@ -64,14 +69,21 @@ async def lease(
     """The next job for this host (newest revision first), leased for ``lease_seconds``.
 
     With ``wait``, a long poll: the answer comes as soon as a job is queued, or 204 after
-    ``wait`` seconds; no database connection is held while waiting.
+    ``wait`` seconds; no database connection is held while waiting. An agent gone before the
+    answer is leased nothing: a job leased as it went is given back.
     """
     ensure_own_host(token, data.host)
     deadline = time.monotonic() + wait
-    while True:
+    while not await request.is_disconnected():
         job = await run_in_threadpool(_lease_once, settings, data.host)
+        if job is not None and await request.is_disconnected():
+            # the agent went away while it was leased: no one would run it before the lease
+            # lapsed (a killed agent's long poll kept a job from the next agent for minutes)
+            await run_in_threadpool(_give_back, settings, job.id, data.host)
+            break
         if job is not None:
             return job
-        if time.monotonic() + RECHECK_S > deadline or await request.is_disconnected():
-            return Response(status_code=status.HTTP_204_NO_CONTENT)
+        if time.monotonic() + RECHECK_S > deadline:
+            break
         await asyncio.sleep(RECHECK_S)
+    return Response(status_code=status.HTTP_204_NO_CONTENT)
