@@ -2,10 +2,12 @@
 for 1,000 revisions × 50 series, and flat from 100 to 10,000 revisions).
 
     .venv/bin/python benchmarks/bench_dashboard.py [--revisions 100 1000 10000] [--requests 40]
+        [--counters 10] [--sets 5]
 
 For each history length R it fills a fresh database with one component of R revisions, each
-with one execution and 50 series (5 parameter sets × 10 counters: the summaries an import or an
-agent's upload stores, one detection per series, a flagged change in a regression every 50
+with one execution and 50 series (5 parameter sets × 10 counters, or ``--sets`` × ``--counters``:
+a trial's import of 20,000 series is ``--counters 4000``; the summaries an import or an agent's
+upload stores, one detection per series, a flagged change in a regression every 50
 revisions), bulk-inserted in SQL so that 10,000 revisions take seconds rather than the hour the
 HTTP import would, then analysed (``ANALYZE``: the statistics autovacuum would have gathered).
 A real `redline server` (child process) then answers:
@@ -30,7 +32,6 @@ import sys
 import time
 import uuid
 from pathlib import Path
-from typing import Any
 
 import httpx
 import numpy as np
@@ -60,8 +61,14 @@ CHROMIUM = Path("/usr/bin/chromium")
 CHROMIUM_FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking"]
 
 
-def fill(url: str, revisions: int) -> None:
-    """One component, ``revisions`` revisions of one execution and 50 series each."""
+def counters(count: int) -> list[str]:
+    """The first ``count`` of `COUNTERS`, then made-up names: a wide import's."""
+    return COUNTERS[:count] + [f"counter_{n:05d}" for n in range(len(COUNTERS), count)]
+
+
+def fill(url: str, revisions: int, names: list[str], sets: list[dict[str, int]]) -> None:
+    """One component, ``revisions`` revisions of one execution and a series per counter of
+    ``names`` and parameter set of ``sets`` each."""
     rng = np.random.default_rng(13)
     session = session_factory(url)()
     now = utcnow()
@@ -77,8 +84,8 @@ def fill(url: str, revisions: int) -> None:
             process="bench",
             counter=counter,
         )
-        for params in PARAMS
-        for counter in COUNTERS
+        for params in sets
+        for counter in names
     ]
     session.add_all(series)
     session.flush()
@@ -222,10 +229,10 @@ def first_chart_ms(url: str) -> float | None:
     return elapsed
 
 
-def measure(revisions: int, requests: int) -> dict[str, Any]:
+def measure(revisions: int, requests: int, names: list[str], sets: list[dict[str, int]]) -> dict:
     with database() as url:
         began = time.monotonic()
-        fill(url, revisions)
+        fill(url, revisions, names, sets)
         filled = time.monotonic() - began
         with (
             api_server(url) as (server, _tokens),
@@ -240,7 +247,7 @@ def measure(revisions: int, requests: int) -> dict[str, Any]:
     reference_p50 = statistics.median(reference)
     return {
         "revisions": revisions,
-        "series": len(PARAMS) * len(COUNTERS),
+        "series": len(sets) * len(names),
         "p50_ms": round(p50, 1),
         "p95_ms": round(times[max(0, math.ceil(0.95 * len(times)) - 1)], 1),  # nearest rank
         "miss_ms": round(miss, 1),
@@ -256,9 +263,13 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--revisions", type=int, nargs="+", default=[100, 1000, 10000])
     parser.add_argument("--requests", type=int, default=40)
+    parser.add_argument("--counters", type=int, default=len(COUNTERS), help="counters a set")
+    parser.add_argument("--sets", type=int, default=len(PARAMS), help="parameter sets")
     args = parser.parse_args()
+    sets = PARAMS[: args.sets] + [{"legs": 2**n} for n in range(len(PARAMS), args.sets)]
     for revisions in args.revisions:
-        print(json.dumps(measure(revisions, args.requests)), flush=True)
+        row = measure(revisions, args.requests, counters(args.counters), sets)
+        print(json.dumps(row), flush=True)
     return 0
 
 

@@ -1,10 +1,10 @@
-"""The order of a component page's charts (`redline.server.ui.figures`)."""
+"""The order of a component page's charts (`redline.server.services.trend_view.chart_place`)."""
 
 from __future__ import annotations
 
 from redline.recording.driver import DRIVER_PROCESS, RECORDER_PROCESS
 from redline.recording.format import HOST_PROCESS, OWN_PROCESS
-from redline.server.ui.figures import _chart_place
+from redline.server.services.trend_view import chart_place
 
 
 def test_the_components_own_counters_come_first_and_redlines_last():
@@ -19,7 +19,7 @@ def test_the_components_own_counters_come_first_and_redlines_last():
         ("legs", "steady", "objectbuilder", "cpu_percent"),
         ("legs", "warmup", "objectbuilder", "cpu_percent"),
     ]
-    assert sorted(keys, key=_chart_place) == [
+    assert sorted(keys, key=chart_place) == [
         ("legs", "steady", "objectbuilder", "cpu_percent"),
         ("legs", "steady", "objectbuilder", "rss_bytes"),
         ("legs", "steady", DRIVER_PROCESS, "FixedRate/Query(x):rtt_p50_us"),

@@ -68,4 +68,6 @@ class FigureCache(Base):
     version: Mapped[str] = mapped_column(Text)
     figures: Mapped[str] = mapped_column(Text)  # JSON, safe inside <script>: served as it is
     earlier: Mapped[str | None] = mapped_column(Text, default=None)
+    #: what the page says of the charts it left out ('' when none: `trend_view.cut_charts`)
+    note: Mapped[str] = mapped_column(Text, default="", server_default="")
     created: Mapped[datetime] = mapped_column(default=utcnow)

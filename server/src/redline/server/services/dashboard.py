@@ -43,6 +43,7 @@ from redline.server.services.results import series_ref
 from redline.server.services.trend_view import (
     TrendView,
     check_filters,
+    cut_charts,
     filter_choices,
 )
 from sqlalchemy import ColumnElement, delete, exists, func, select
@@ -86,6 +87,7 @@ class TrendData:
     revisions: list[TrendRevision]  # oldest first
     series: list[TrendSeries]
     earlier: str | None  # the oldest revision shown, when there are older ones
+    note: str = ""  # what the page says of the charts it does not draw (`cut_charts`)
 
 
 @dataclass(frozen=True)
@@ -121,9 +123,11 @@ def trend_data(
     """The series the view selects, with a point per revision among the newest it shows."""
     every = list(session.scalars(select(Series).where(Series.component_id == component.id)))
     refs = {series.id: series_ref(series) for series in every}
-    chosen = {sid: TrendSeries(ref) for sid, ref in refs.items() if view.selects(ref)}
-    if refs and not chosen:
+    selected = {sid: ref for sid, ref in refs.items() if view.selects(ref)}
+    if refs and not selected:
         check_filters(component, view, list(refs.values()))
+    drawn, note = cut_charts(selected)
+    chosen = {sid: TrendSeries(ref) for sid, ref in selected.items() if sid in drawn}
     found = shown_in or window(session, component, view)
     newest, ran = found.revisions, found.ran
     earlier = newest[view.revisions - 1].title if len(newest) > view.revisions else None
@@ -169,6 +173,7 @@ def trend_data(
         ],
         series=[s for s in chosen.values() if s.points],
         earlier=earlier,
+        note=note,
     )
 
 
@@ -210,10 +215,12 @@ SCRIPT_SAFE = str.maketrans({"<": "\\u003c", ">": "\\u003e", "&": "\\u0026", "'"
 @dataclass(frozen=True)
 class TrendPage:
     """A view's charts as JSON text safe inside ``<script>`` (``{"charts", "revisions"}``: each
-    revision's title, commit and time, shown on hover), and where the earlier history starts."""
+    revision's title, commit and time, shown on hover), where the earlier history starts, and
+    what the page says of the charts it left out."""
 
     data: str
     earlier: str | None
+    note: str = ""
 
 
 def render_page(data: TrendData, view: TrendView, render: Render) -> TrendPage:
@@ -225,7 +232,7 @@ def render_page(data: TrendData, view: TrendView, render: Render) -> TrendPage:
         ],
     }
     text = json.dumps(content, separators=(",", ":"), allow_nan=False).translate(SCRIPT_SAFE)
-    return TrendPage(text, data.earlier)
+    return TrendPage(text, data.earlier, data.note)
 
 
 def cached_page(
@@ -238,7 +245,7 @@ def cached_page(
         select(FigureCache).where(FigureCache.component_id == component.id, FigureCache.view == key)
     )
     if row is not None and row.version == version:
-        return TrendPage(row.figures, row.earlier)
+        return TrendPage(row.figures, row.earlier, row.note)
     rendered = render_page(trend_data(session, component, view, shown), view, render)
     store(session, component.id, key, version, rendered)
     session.commit()
@@ -272,6 +279,7 @@ def store(session: Session, component_id: int, key: str, version: str, rendered:
         "version": version,
         "figures": rendered.data,
         "earlier": rendered.earlier,
+        "note": rendered.note,
         "created": utcnow(),
     }
     statement = insert(FigureCache).values(**values)
@@ -280,7 +288,7 @@ def store(session: Session, component_id: int, key: str, version: str, rendered:
             index_elements=[FigureCache.component_id, FigureCache.view],
             set_={
                 name: statement.excluded[name]
-                for name in ("version", "figures", "earlier", "created")
+                for name in ("version", "figures", "earlier", "note", "created")
             },
         )
     )

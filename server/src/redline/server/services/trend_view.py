@@ -1,17 +1,21 @@
 """The view a component page's address asks for (`TrendView.from_query`): filters by case,
 phase, process, counter, parameter (``param.legs=8``) and host, how many of the newest
-revisions, where the history ends (``before``), log scale and a moving median; and the values
-each filter can take, with a clear refusal of one that no series has (`check_filters`).
+revisions, where the history ends (``before``), log scale and a moving median; the values
+each filter can take, with a clear refusal of one that no series has (`check_filters`); the
+order of its charts (`chart_place`) and how many one page draws (`cut_charts`).
 """
 
 from __future__ import annotations
 
 import math
+from collections import defaultdict
 from collections.abc import Mapping
 from dataclasses import dataclass, replace
 from typing import Any
 from urllib.parse import urlencode
 
+from redline.detect.counters import kind
+from redline.recording import params_name
 from redline.server.models import Component
 from redline.server.schemas.results import SeriesRef
 from redline.server.services.errors import BadRequest
@@ -20,6 +24,10 @@ from redline.server.services.read import FIELDS, matches, param_text
 DEFAULT_REVISIONS = 100
 MAX_REVISIONS = 2000
 MAX_FILTER_LENGTH = 200
+#: the most charts, and series drawn in them, of one page: a trial's import of 20,000 series
+#: made an unfiltered page of 30 MB that took 5 s to answer, and longer to draw
+MAX_CHARTS = 60
+MAX_SERIES = 400
 
 
 @dataclass(frozen=True)
@@ -146,3 +154,48 @@ def _numbers_first(value: str) -> tuple[bool, float, str]:
     except ValueError:
         return True, 0.0, value
     return (False, number, value) if math.isfinite(number) else (True, 0.0, value)
+
+
+#: a chart: the case, phase, process and counter its lines (parameter sets) share
+ChartKey = tuple[str, str, str, str]
+#: the order of a test case's charts by whose series they are: the component's own first
+CHART_KINDS = {"counter": 0, "driver": 1, "host": 2, "redline": 3, "recorder": 4}
+
+
+def chart_key(ref: SeriesRef) -> ChartKey:
+    return ref.case, ref.phase, ref.process, ref.counter
+
+
+def chart_place(key: ChartKey) -> tuple[Any, ...]:
+    """Where a chart goes: the suite's test cases before Redline's own ("@run", the
+    recorder's counts), and in each the component's counters, then the driver's metrics, then
+    the machine's and Redline's. A trial's unfiltered page opened with four flat recorder
+    charts above the component's CPU."""
+    case, phase, process, counter = key
+    return (case.startswith("@"), case, phase, CHART_KINDS.get(kind(process), 0), process, counter)
+
+
+def cut_charts(refs: Mapping[int, SeriesRef]) -> tuple[set[int], str]:
+    """The series (by id) of the charts one page draws, the first in `chart_place` order up to
+    `MAX_CHARTS` charts and `MAX_SERIES` series (of a first chart with more lines, the first
+    `MAX_SERIES` by parameter set); and, when that is not all of ``refs``, what the page says of
+    the rest ('' when it is)."""
+    charts: dict[ChartKey, list[int]] = defaultdict(list)
+    for series_id, ref in refs.items():
+        charts[chart_key(ref)].append(series_id)
+    if len(charts) <= MAX_CHARTS and len(refs) <= MAX_SERIES:
+        return set(refs), ""
+    kept: list[int] = []
+    drawn = 0
+    for key in sorted(charts, key=chart_place):
+        lines = sorted(charts[key], key=lambda series_id: params_name(refs[series_id].params))
+        if drawn == MAX_CHARTS or (kept and len(kept) + len(lines) > MAX_SERIES):
+            break
+        kept += lines[:MAX_SERIES]
+        drawn += 1
+    note = (
+        f"This view has {len(charts):,} charts of {len(refs):,} series; the page draws the "
+        f"first {drawn:,} ({len(kept):,} series). Choose a case, phase, process, counter or "
+        "parameter above to see the others."
+    )
+    return set(kept), note

@@ -16,9 +16,9 @@ from itertools import cycle
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from redline.detect.counters import kind
 from redline.recording import params_name
 from redline.server.schemas.results import ChangeOut, SeriesOut
+from redline.server.services.trend_view import ChartKey, chart_key, chart_place
 
 if TYPE_CHECKING:
     from redline.server.services.dashboard import TrendData, TrendSeries
@@ -178,31 +178,17 @@ def _mark_traces(
     return traces
 
 
-#: the order of a test case's charts by whose series they are: the component's own first
-CHART_KINDS = {"counter": 0, "driver": 1, "host": 2, "redline": 3, "recorder": 4}
-
-
-def _chart_place(key: tuple[str, str, str, str]) -> tuple[Any, ...]:
-    """Where a (case, phase, process, counter) chart goes: the suite's test cases before
-    Redline's own ("@run", the recorder's counts), and in each the component's counters, then
-    the driver's metrics, then the machine's and Redline's. A trial's unfiltered page opened
-    with four flat recorder charts above the component's CPU."""
-    case, phase, process, counter = key
-    return (case.startswith("@"), case, phase, CHART_KINDS.get(kind(process), 0), process, counter)
-
-
 def trend_charts(data: TrendData, view: TrendView) -> list[dict[str, Any]]:
     """One chart per case, phase, process and counter, a line per parameter set, in the order
-    the page groups them (`_chart_place`): a list of
+    the page groups them (`chart_place`): a list of
     ``{"id", "key", "case", "phase", "title", "figure"}``; a series trace's x is left out, for
     the page to fill with the x axis's ``categoryarray`` (the revisions' titles as plot text)."""
     titles = [plot_text(revision.title) for revision in data.revisions]
     index = {revision.id: at for at, revision in enumerate(data.revisions)}
-    groups: dict[tuple[str, str, str, str], list[TrendSeries]] = defaultdict(list)
+    groups: dict[ChartKey, list[TrendSeries]] = defaultdict(list)
     for series in data.series:
-        ref = series.ref
-        groups[(ref.case, ref.phase, ref.process, ref.counter)].append(series)
-    order = sorted(groups, key=_chart_place)
+        groups[chart_key(series.ref)].append(series)
+    order = sorted(groups, key=chart_place)
     charts = []
     for number, key in enumerate(order, start=1):
         case, phase, process, counter = key
