@@ -135,6 +135,26 @@ def test_duplicate_component_or_revision_title_is_409(api: Api):
     assert "'abc123'" in answer.json()["detail"]  # both commits named
 
 
+def test_a_component_named_as_another_but_for_case_is_refused_and_a_lookup_suggests_it(
+    api: Api,
+):
+    """A trial made 'hasher' and 'Hasher': two components, each with half of its history."""
+    api.component()
+    answer = api.post("/api/v1/components", "admin", {"name": "Builder"})
+    assert answer.status_code == 409, answer.text
+    assert "'builder' already exists" in answer.json()["detail"]
+    answer = api.post(
+        "/api/v1/revisions",
+        "ci",
+        {"component": "BUILDER", "title": "r1", "sort_key": "1", "commit": "abc123"},
+    )
+    assert answer.status_code == 404
+    assert answer.json()["detail"] == (
+        "unknown component 'BUILDER' (names are case-sensitive: did you mean 'builder'?)"
+    )
+    assert "did you mean 'builder'" in html.unescape(api.client.get("/components/Builder").text)
+
+
 def test_a_revision_reported_again_with_its_commit_is_the_same_revision(api: Api):
     """A re-run CI pipeline (or CI and a webhook both) report a revision again: ci.md's
     `curl -fsS` failed on the 409 before `redline ci wait` could run (a trial)."""

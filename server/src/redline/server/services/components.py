@@ -7,7 +7,7 @@ from redline.server.models import Component, Revision
 from redline.server.schemas.components import ComponentCreate, ComponentOut, ComponentSettings
 from redline.server.services.errors import Conflict, NotFound, Unprocessable
 from redline.server.services.repos import repo_key
-from sqlalchemy import select
+from sqlalchemy import func, select
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
@@ -38,6 +38,14 @@ def create_component(
     session: Session, data: ComponentCreate, allow_file: bool = False
 ) -> Component:
     check_repo(data.repo, allow_file)
+    held = _named_alike(session, data.name)
+    if held is not None and held != data.name:
+        # 'hasher' and 'Hasher' were two components, and a report to one never reached the
+        # other's pages (a trial)
+        raise Conflict(
+            f"component {held!r} already exists: names that differ only in case would be "
+            f"taken for each other; name it {held!r} or choose another name than {data.name!r}"
+        )
     component = Component(**data.model_dump())
     component.webhook_secret = data.webhook_secret or None
     component.repo_key = repo_key(data.repo)
@@ -75,8 +83,17 @@ def get_component(session: Session, name: str) -> Component:
     """The component called ``name``; NotFound naming it otherwise."""
     component = session.scalar(select(Component).where(Component.name == name))
     if component is None:
-        raise NotFound(f"unknown component {name!r}")
+        held = _named_alike(session, name)
+        hint = f" (names are case-sensitive: did you mean {held!r}?)" if held else ""
+        raise NotFound(f"unknown component {name!r}{hint}")
     return component
+
+
+def _named_alike(session: Session, name: str) -> str | None:
+    """The name of a component called ``name`` but for case, if there is one."""
+    return session.scalar(
+        select(Component.name).where(func.lower(Component.name) == name.lower()).limit(1)
+    )
 
 
 def get_revision(session: Session, component: Component, title: str) -> Revision:
