@@ -37,7 +37,7 @@ from tests.support.servers import live_server
 ROOT = Path(__file__).parents[2]
 DOC = (ROOT / "docs" / "ci.md").read_text()
 SECRET = "push-secret"
-REPORT = "/api/v1/revisions"  # what the report step calls
+REPORT = "redline ci report"  # what the report step runs
 
 
 def _block(heading: str) -> str:
@@ -129,7 +129,6 @@ def run_example(server, name: str, number: int, cpu: float, webhook: str = "") -
     code (the JUnit file is checked by the caller)."""
     url, api, tmp, wheel = server
     steps, (sha_var, number_var, branch_var) = EXAMPLES[name]
-    sha = hashlib.sha1(f"{name}{number}".encode()).hexdigest()
     workspace = tmp / f"{name}-{number}"
     workspace.mkdir()
     # the CI system's checkout: its commit's time is the report's sort key, an hour apart from
@@ -142,6 +141,9 @@ def run_example(server, name: str, number: int, cpu: float, webhook: str = "") -
         check=True,
         env={**os.environ, **when, "GIT_COMMITTER_DATE": when["GIT_AUTHOR_DATE"]},
     )
+    sha = subprocess.run(
+        [*GIT, "rev-parse", "HEAD"], cwd=workspace, check=True, capture_output=True, text=True
+    ).stdout.strip()  # what the CI system checked out, and names in its variable
     env = {
         "PATH": os.environ["PATH"],
         "HOME": str(workspace),

@@ -19,6 +19,7 @@ from redline.server.services.components import create_component
 from sqlalchemy import select
 
 from tests.support.api import api_with
+from tests.support.git import GIT
 from tests.support.history import add_executions, cpu_history, ingest_and_detect
 from tests.support.servers import live_server
 
@@ -221,3 +222,53 @@ def test_a_cases_parameters_are_an_object_as_everywhere_else(server):
         for c in cases
     ]
     assert sorted(names) == sorted(expected), (names, expected)
+
+
+def _git(tree: Path, *args: str) -> str:
+    env = {"PATH": "/usr/bin:/bin", "HOME": str(tree)}
+    done = subprocess.run([*GIT, *args], cwd=tree, env=env, capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    return done.stdout.strip()
+
+
+def test_ci_report_reports_head_and_ci_wait_waits_for_it_by_default(server, tmp_path):
+    """CI reported with curl and a here-document (docs/ci.md); a trial asked for a command."""
+    url, _, api = server
+    with session_factory(api.settings.database_url)() as session:
+        create_component(
+            session,
+            ComponentCreate(name="hashed", repo="https://git.example/hashed.git", suite="p.toml"),
+        )
+    tree = tmp_path / "tree"
+    tree.mkdir()
+    _git(tree, "init", "-q")
+    (tree / "a.txt").write_text("a\n")
+    _git(tree, "add", "a.txt")
+    _git(tree, "commit", "-qm", "Speed up the hash\n\nA longer body.")
+    full, when = _git(tree, "log", "-1", "--format=%H %ct").split()
+    ci = api.tokens["ci"]["Authorization"].removeprefix("Bearer ")
+    env = {"PATH": "/usr/bin:/bin", "REDLINE_TOKEN": ci}
+
+    def redline(*args: str, cwd: Path = tree) -> subprocess.CompletedProcess:
+        command = [REDLINE, "ci", *args, "--server", url, "--component", "hashed"]
+        return subprocess.run(command, capture_output=True, text=True, env=env, cwd=cwd)
+
+    done = redline("report")
+    assert done.returncode == 0, done.stderr
+    assert done.stdout == f"{full[:12]}\n" and "reported: 1 job(s) queued" in done.stderr
+    with session_factory(api.settings.database_url)() as session:
+        revision = session.scalar(select(Revision).where(Revision.title == full[:12]))
+        assert revision is not None
+        assert (revision.commit, revision.sort_key) == (full, when)
+        assert revision.message.startswith("Speed up the hash")
+    again = redline("report")  # a re-run pipeline
+    assert again.returncode == 0 and "reported before with this commit" in again.stderr
+    waited = redline("wait", "--timeout", "1", "--poll", "0.2")  # HEAD's revision: no verdict yet
+    assert waited.returncode == 2 and "still waiting for" in waited.stderr, waited.stderr
+    assert "has no revision" not in waited.stderr
+
+    outside = redline("report", cwd=tmp_path)  # not a work tree, and no --commit
+    assert outside.returncode == 2 and "git work tree" in outside.stderr, outside.stderr
+    env["REDLINE_TOKEN"] = "rl_forged"
+    refused = redline("report")
+    assert refused.returncode == 2 and "HTTP 401" in refused.stderr, refused.stderr

@@ -29,7 +29,9 @@ PASSED, CHANGED, BAD_INPUT, JOBS_FAILED, UNDECIDED = 0, 1, 2, 3, 4
 #: how long a revision may take to appear (its push is still being reported) before "unknown"
 APPEAR_S = 120.0
 
-ci = typer.Typer(help="For CI pipelines: wait for a revision's verdict.", no_args_is_help=True)
+ci = typer.Typer(
+    help="For CI pipelines: report a commit, wait for its verdict.", no_args_is_help=True
+)
 
 
 class FailOn(StrEnum):
@@ -52,7 +54,7 @@ def _get(client: httpx.Client, path: str, **params: str) -> httpx.Response | Non
         return None
 
 
-def _detail(answer: httpx.Response) -> str:
+def detail(answer: httpx.Response) -> str:
     try:
         return str(answer.json().get("detail", answer.text))
     except ValueError:
@@ -134,7 +136,7 @@ def _junit_error(path: Path, component: str, revision: str, message: str) -> Non
     )
 
 
-def _unaddressable(option: str, name: str) -> str | None:
+def unaddressable(option: str, name: str) -> str | None:
     """Why no API address can carry the name, or None (a trial's ``--revision ..`` and
     ``--component ../x`` were told only "Not Found")."""
     if name in ("", ".", "..") or "/" in name:
@@ -161,7 +163,12 @@ def _writable(path: Path) -> None:
 def wait(
     server: Annotated[str, typer.Option(help="URL of the Redline server", envvar="REDLINE_SERVER")],
     component: Annotated[str, typer.Option(help="the component's name")],
-    revision: Annotated[str, typer.Option(help="the revision's title (e.g. the commit)")],
+    revision: Annotated[
+        str | None,
+        typer.Option(
+            help="the revision's title (default: HEAD's first 12 digits, as `ci report` gives it)"
+        ),
+    ] = None,
     token: Annotated[
         str,
         typer.Option(
@@ -185,6 +192,10 @@ def wait(
         _stop(BAD_INPUT, f"--server {server!r}: not an http:// or https:// URL")
     if junit is not None:
         _writable(junit)
+    if revision is None:
+        from redline.cli.ci_report import TITLE_DIGITS, git_head
+
+        revision = git_head("%H")[:TITLE_DIGITS]
 
     def fail(message: str) -> NoReturn:
         """Exit 2 with ``message``, in the JUnit file too: a CI step keeps it in every case."""
@@ -193,8 +204,8 @@ def wait(
         _stop(BAD_INPUT, message)
 
     for option, name in (("--component", component), ("--revision", revision)):
-        if (unaddressable := _unaddressable(option, name)) is not None:
-            fail(unaddressable)
+        if (why := unaddressable(option, name)) is not None:
+            fail(why)
 
     headers = {"Authorization": f"Bearer {token}"} if token else {}
     base = f"/api/v1/components/{quote(component, safe='')}/revisions/{quote(revision, safe='')}"
@@ -207,25 +218,25 @@ def wait(
             reached = reached or answer is not None
             if answer is not None:
                 if answer.status_code in (401, 403):
-                    fail(f"the server refused the token: {_detail(answer)}")
+                    fail(f"the server refused the token: {detail(answer)}")
                 if answer.status_code == 404:
-                    detail = _detail(answer)
-                    if detail == "Not Found":  # no route at all: not Redline's API there
+                    missing = detail(answer)
+                    if missing == "Not Found":  # no route at all: not Redline's API there
                         fail(f"{server} has no Redline API at {base}/verdict: is --server the "
                              "root URL of the Redline server?")  # fmt: skip
-                    if "has no revision" not in detail:
-                        fail(detail)
+                    if "has no revision" not in missing:
+                        fail(missing)
                     if waited > min(APPEAR_S, timeout):  # said as the timeout below says it
                         fail(
                             f"no verdict within {min(APPEAR_S, timeout):.0f} s: still waiting "
-                            f"for the revision to be reported ({detail})"
+                            f"for the revision to be reported ({missing})"
                         )
                     if not said:  # a trial sat two silent minutes here
                         said = "the revision to be reported"
                         limit = min(APPEAR_S, timeout)
-                        typer.echo(f"{detail} yet: waiting up to {limit:.0f} s for it", err=True)
+                        typer.echo(f"{missing} yet: waiting up to {limit:.0f} s for it", err=True)
                 elif answer.status_code != 200:
-                    fail(f"HTTP {answer.status_code}: {_detail(answer)}")
+                    fail(f"HTTP {answer.status_code}: {detail(answer)}")
                 else:
                     verdict = answer.json()
                     if verdict["state"] != "pending":
@@ -270,5 +281,8 @@ def wait(
 
 
 def register(app: typer.Typer) -> None:
+    from redline.cli.ci_report import report
+
+    ci.command("report")(report)
     ci.command("wait")(wait)
     app.add_typer(ci, name="ci")

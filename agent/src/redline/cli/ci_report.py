@@ -1,0 +1,99 @@
+"""`redline ci report`: what a CI job runs first, to report the commit it built to the server.
+
+Run in the component's git work tree, it reports HEAD: its full id as the commit the
+performance hosts build, its first 12 hex digits as the title, its commit time as the sort key,
+its message and time; each can be given instead (``--commit``, ``--title``, ...). It prints the
+title on stdout, for `redline ci wait --revision`, which takes the same default. A commit
+reported before is the same revision (exit 0: a re-run pipeline, or CI and a webhook both).
+Exit codes: 0 reported, 2 refused (the server's reason) or nothing to report. Before this
+command, CI reported with curl and a here-document (docs/ci.md).
+"""
+
+from __future__ import annotations
+
+import subprocess
+from typing import Annotated, Any, NoReturn
+from urllib.parse import urlsplit
+
+import httpx
+import typer
+from redline.cli.ci_cmd import BAD_INPUT, detail, unaddressable
+
+#: a title of the first 12 hex digits, as `git rev-parse --short=12` and the push webhook give
+TITLE_DIGITS = 12
+
+
+def _stop(message: str) -> NoReturn:
+    typer.echo(f"redline ci report: {message}", err=True)
+    raise typer.Exit(BAD_INPUT)
+
+
+def git_head(what: str, commit: str = "HEAD") -> str:
+    """``git log -1 --format=WHAT COMMIT`` in the working directory; a clear exit 2 outside a
+    work tree or for a commit it does not have."""
+    try:
+        done = subprocess.run(
+            ["git", "log", "-1", f"--format={what}", commit, "--"],
+            capture_output=True,
+            text=True,
+            timeout=30,
+        )
+    except FileNotFoundError:
+        _stop("git is not installed: give --commit, --title and --sort-key")
+    if done.returncode != 0:
+        said = done.stderr.strip().splitlines()[-1] if done.stderr.strip() else ""
+        _stop(f"cannot read commit {commit!r} here ({said}): run in the component's git work "
+              "tree, or give --commit, --title and --sort-key")  # fmt: skip
+    return done.stdout.rstrip("\n")
+
+
+def report(
+    component: Annotated[str, typer.Option(help="the component's name")],
+    server: Annotated[str, typer.Option(help="URL of the Redline server", envvar="REDLINE_SERVER")],
+    token: Annotated[
+        str,
+        typer.Option(
+            help="a token with the 'ci' scope; better set REDLINE_TOKEN than pass it here, "
+            "where other users of the machine see it in ps",
+            envvar="REDLINE_TOKEN",
+        ),
+    ] = "",
+    commit: Annotated[
+        str, typer.Option(help="what the hosts build (default: HEAD's full id)")
+    ] = "",
+    title: Annotated[
+        str, typer.Option(help="the revision's title (default: the commit's first 12 digits)")
+    ] = "",
+    sort_key: Annotated[
+        str, typer.Option(help="orders revisions (default: the commit's time, in seconds)")
+    ] = "",
+    branch: Annotated[str, typer.Option(help="default: the component's branch")] = "",
+) -> None:
+    """Report a commit to the server: the hosts measure it, `redline ci wait` waits for it."""
+    if urlsplit(server).scheme not in ("http", "https") or not urlsplit(server).hostname:
+        _stop(f"--server {server!r}: not an http:// or https:// URL")
+    if (why := unaddressable("--component", component)) is not None:
+        _stop(why)
+    body: dict[str, Any] = {"component": component, "branch": branch}
+    if not (commit and title and sort_key):  # what is not given comes from git
+        full, when, stamp = git_head("%H%n%ct%n%cI", commit or "HEAD").splitlines()
+        body |= {"message": git_head("%B", full)[:10_000], "committed_at": stamp}
+        commit, title, sort_key = commit or full, title or full[:TITLE_DIGITS], sort_key or when
+    body |= {"commit": commit, "title": title, "sort_key": sort_key}
+    headers = {"Authorization": f"Bearer {token}"} if token else {}
+    try:
+        answer = httpx.post(
+            f"{server.rstrip('/')}/api/v1/revisions", json=body, headers=headers, timeout=60
+        )
+    except httpx.TransportError as error:
+        _stop(f"the server at {server} cannot be reached ({type(error).__name__}: {error})")
+    if answer.status_code not in (200, 201):
+        _stop(f"HTTP {answer.status_code}: {detail(answer)}")
+    jobs = len(answer.json().get("job_ids", []))
+    typer.echo(
+        f"{component} {title}: reported before with this commit ({jobs} job(s))"
+        if answer.status_code == 200
+        else f"{component} {title} reported: {jobs} job(s) queued",
+        err=True,
+    )
+    typer.echo(title)
