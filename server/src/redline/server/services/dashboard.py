@@ -39,12 +39,14 @@ from redline.server.models import (
 from redline.server.schemas.results import SeriesRef
 from redline.server.services.errors import BadRequest
 from redline.server.services.executions import host_names
+from redline.server.services.read import FIELDS
 from redline.server.services.results import series_ref
 from redline.server.services.trend_view import (
+    Identity,
     TrendView,
     check_filters,
+    choices_of,
     cut_charts,
-    filter_choices,
 )
 from sqlalchemy import ColumnElement, delete, exists, func, select
 from sqlalchemy.dialects.postgresql import insert
@@ -121,13 +123,15 @@ def trend_data(
     session: Session, component: Component, view: TrendView, shown_in: Window | None = None
 ) -> TrendData:
     """The series the view selects, with a point per revision among the newest it shows."""
-    every = list(session.scalars(select(Series).where(Series.component_id == component.id)))
-    refs = {series.id: series_ref(series) for series in every}
-    selected = {sid: ref for sid, ref in refs.items() if view.selects(ref)}
-    if refs and not selected:
-        check_filters(component, view, list(refs.values()))
+    every = _identities(session, component.id)
+    selected = {sid: identity for sid, identity in every.items() if view.selects(identity)}
+    if every and not selected:
+        check_filters(component, view, list(every.values()))
     drawn, note = cut_charts(selected)
-    chosen = {sid: TrendSeries(ref) for sid, ref in selected.items() if sid in drawn}
+    chosen = {
+        series.id: TrendSeries(series_ref(series))
+        for series in session.scalars(select(Series).where(Series.id.in_(drawn)))
+    }
     found = shown_in or window(session, component, view)
     newest, ran = found.revisions, found.ran
     earlier = newest[view.revisions - 1].title if len(newest) > view.revisions else None
@@ -175,6 +179,26 @@ def trend_data(
         earlier=earlier,
         note=note,
     )
+
+
+def _identities(session: Session, component_id: int) -> dict[int, Identity]:
+    """Each series of the component (by id) as a view selects it."""
+    rows = session.execute(
+        select(
+            Series.id, Series.case, Series.phase, Series.process, Series.counter, Series.params
+        ).where(Series.component_id == component_id)
+    )
+    parsed: dict[str, dict[str, Any]] = {}  # a few parameter sets, shared by many series
+    return {
+        series_id: Identity(case, phase, process, counter, _parsed(parsed, params))
+        for series_id, case, phase, process, counter, params in rows
+    }
+
+
+def _parsed(seen: dict[str, dict[str, Any]], text: str) -> dict[str, Any]:
+    if text not in seen:
+        seen[text] = json.loads(text)
+    return seen[text]
 
 
 def _host_id(session: Session, name: str) -> int:
@@ -263,8 +287,14 @@ def choices(session: Session, component: Component) -> dict[str, list[str]]:
     """The values each filter can take: every case, phase, process, counter, parameter, and
     every performance host (a handful: which ran this component would cost a look at its whole
     history)."""
-    every = session.scalars(select(Series).where(Series.component_id == component.id))
-    return {**filter_choices([series_ref(series) for series in every]), "host": host_names(session)}
+    of = Series.component_id == component.id
+    values = {
+        name: session.scalars(select(getattr(Series, name)).where(of).distinct()) for name in FIELDS
+    }
+    param_sets = [
+        json.loads(text) for text in session.scalars(select(Series.params).where(of).distinct())
+    ]
+    return {**choices_of(values, param_sets), "host": host_names(session)}
 
 
 #: views kept per component (each address is a view: the least recently rendered go first)

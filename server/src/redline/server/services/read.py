@@ -3,13 +3,14 @@
 from __future__ import annotations
 
 import json
+from collections.abc import Mapping
+from typing import Any, Protocol
 
 from redline.server.models import Component, Execution, Job, Revision, Series, Summary
 from redline.server.schemas.results import (
     ExecutionDetail,
     SeriesDetail,
     SeriesOut,
-    SeriesRef,
     SummaryOut,
 )
 from redline.server.services.errors import NotFound
@@ -20,7 +21,22 @@ from sqlalchemy.orm import Session, selectinload
 FIELDS = ("case", "phase", "process", "counter")
 
 
-def matches(series: SeriesRef, fields: dict[str, str | None], params: dict[str, str]) -> bool:
+class Identified(Protocol):
+    """What a filter reads of a series: `SeriesRef`, or a page's lighter `Identity`."""
+
+    @property
+    def case(self) -> str: ...
+    @property
+    def phase(self) -> str: ...
+    @property
+    def process(self) -> str: ...
+    @property
+    def counter(self) -> str: ...
+    @property
+    def params(self) -> Mapping[str, Any]: ...
+
+
+def matches(series: Identified, fields: dict[str, str | None], params: dict[str, str]) -> bool:
     """Whether the series has these field values and parameter values (compared as text)."""
     if any(value is not None and getattr(series, name) != value for name, value in fields.items()):
         return False
