@@ -25,6 +25,11 @@ At the end it reads the verdicts back through the API and reports:
   ≤ 25 %);
 - what the confirmation runs decided (``--pairs``), and what the first 1 or 2 of them would have.
 
+A CPU event's size is that of the work per pair of legs unless ``--fixed-work F`` is given:
+then each raises the component's CPU per operation by its size, F being the part of that CPU no
+work setting moves, in units of work, as `calibrate_cpu_events.py` measures it on this host
+(measured first: "+5 %" of the work moved the CPU per operation by 0.5-5.8 %).
+
 The suite it runs is ``objectbuilder/perf/verdicts.toml`` (the CPU case and the queryable's
 round trips: about 25 s a run); one execution per revision, the default.
 """
@@ -32,6 +37,7 @@ round trips: about 25 s a run); one execution per revision, the default.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import math
 import os
@@ -50,6 +56,7 @@ from typing import Any
 import httpx
 import sqlalchemy as sa
 from _service import database
+from calibrate_cpu_events import calibrated_work
 from make_corpus import BASE_WORK, MEMORY, Event, make_repo, plan
 from measure_quiet_host import spin
 
@@ -71,6 +78,23 @@ EVENTS = [
     Event("extra_thread", "thread", 0.0, ("threads",), {"extra_threads": 1}),
     Event("cpu_plus_5b", "cpu", 0.05, CPU, {"work": round(BASE_WORK * 1.05 * 1.10 * 1.3 * 1.05)}),
 ]
+
+
+def calibrated(events: list[Event], fixed_work: float | None) -> list[Event]:
+    """``events`` with each CPU event's work per pair raising the component's CPU per
+    operation by its size (`calibrate_cpu_events`: ``fixed_work`` is the part of it no work
+    setting moves, in units of work); as they are without it (the size then is the work's)."""
+    if fixed_work is None:
+        return events
+    out, work = [], BASE_WORK
+    for event in events:
+        if event.kind == "cpu":
+            work = calibrated_work(fixed_work, work, event.size)
+            event = dataclasses.replace(event, apply={"work": work})
+        out.append(event)
+    return out
+
+
 LARGE = 0.10  # "changes of 10 % or more": the CPU, latency and timeout ones, the leak, the thread
 LOG_TIME = re.compile(r"^(\S+ \S+) agent \w+ job (\d+)(: | failed)(.*)$")
 
@@ -215,7 +239,8 @@ def rescore(path: Path, stretch: int, events: int) -> dict[str, Any]:
     """The figures of a run saved with --json, scored again (by this file's scoring): its
     detections' series are read back from their labels ("case/phase[params] process.counter")."""
     saved = json.loads(path.read_text())
-    _, starts = plan(saved.get("stretch", stretch), EVENTS[: saved.get("events", events)])
+    events_run = calibrated(EVENTS[: saved.get("events", events)], saved.get("fixed_work"))
+    _, starts = plan(saved.get("stretch", stretch), events_run)
     titles = [f"r{n:03d}" for n in range(saved["revisions"])]
     found = []
     for detection in saved["detections"]:
@@ -283,7 +308,7 @@ def run(args: argparse.Namespace, work: Path) -> dict[str, Any]:
     from redline.agent.network import free_port
     from redline.commands.stack import Stack
 
-    knobs, starts = plan(args.stretch, EVENTS[: args.events])
+    knobs, starts = plan(args.stretch, calibrated(EVENTS[: args.events], args.fixed_work))
     commits = make_repo(work / "repo", knobs, starts)
     titles = [f"r{n:03d}" for n in range(len(commits))]
     middle, half = len(commits) / 2, len(commits) * args.load_share / 2
@@ -361,6 +386,8 @@ def run(args: argparse.Namespace, work: Path) -> dict[str, Any]:
         "confirmation_jobs": sum(1 for pair in jobs.values() if pair > 0),
         "stretch": args.stretch,
         "events": args.events,
+        "fixed_work": args.fixed_work,
+        "cpu_event_work": [e.apply["work"] for e in starts.values() if e.kind == "cpu"],
         **scores(found, titles, starts, args.pairs),
     }
     result["detections"] = [
@@ -390,6 +417,13 @@ def main() -> int:
     )
     parser.add_argument("--events", type=int, default=len(EVENTS), help="the first N events")
     parser.add_argument("--seed", type=int, default=1, help="of the background load's switching")
+    parser.add_argument(
+        "--fixed-work",
+        type=float,
+        help="the CPU per operation no work setting moves, in units of work (measured by "
+        "calibrate_cpu_events.py): CPU events then raise the CPU per operation by their size, "
+        "not the work per pair",
+    )
     parser.add_argument("--json", type=Path, help="write every figure here")
     parser.add_argument(
         "--keep",

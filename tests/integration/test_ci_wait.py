@@ -267,6 +267,9 @@ def test_ci_report_reports_head_and_ci_wait_waits_for_it_by_default(server, tmp_
     assert waited.returncode == 2 and "still waiting for" in waited.stderr, waited.stderr
     assert "has no revision" not in waited.stderr
 
+    option = redline("report", "--commit", f"--output={tmp_path / 'written'}")
+    assert option.returncode == 2 and "not a commit" in option.stderr, option.stderr
+    assert not (tmp_path / "written").exists()
     outside = redline("report", cwd=tmp_path)  # not a work tree, and no --commit
     assert outside.returncode == 2 and "git work tree" in outside.stderr, outside.stderr
     env["REDLINE_TOKEN"] = "rl_forged"

@@ -31,6 +31,8 @@ def _stop(message: str) -> NoReturn:
 def git_head(what: str, commit: str = "HEAD") -> str:
     """``git log -1 --format=WHAT COMMIT`` in the working directory; a clear exit 2 outside a
     work tree or for a commit it does not have."""
+    if commit.startswith("-"):  # git would take it for an option (--output=FILE writes)
+        _stop(f"--commit {commit!r}: not a commit")
     try:
         done = subprocess.run(
             ["git", "log", "-1", f"--format={what}", commit, "--"],
