@@ -11,7 +11,8 @@ twice `BASE_WORK`), ``--runs`` times each, on a copy of the example, and fits th
 CPU per operation (the median of each run's samples, per parameter set of the CPU case) as
 ``a + b * work``. Then the work that raises the CPU per operation by ``p`` from a setting ``W``
 is ``W + p * (a / b + W)`` (`calibrated_work`); ``a / b`` is the fixed part in units of work,
-which is what `bench_verdicts --calibrate` uses. Run on a quiet host: the fit's residuals are
+which `bench_verdicts --fixed-work` takes: that of the series carrying most of the component's
+CPU (``fixed_work_heaviest``). Run on a quiet host: the fit's residuals are
 what the host's noise leaves.
 """
 
@@ -99,6 +100,19 @@ def fit(by_work: dict[int, list[dict[str, float]]]) -> dict[str, Any]:
     return fits
 
 
+def summary(fits: dict[str, Any]) -> dict[str, Any]:
+    """The fixed part of the series that carries most of the component's CPU (the largest CPU
+    per operation at `BASE_WORK`: what "the component's CPU" means for an event), and the
+    median over all series (the light ones' fixed part is most of their CPU)."""
+    heaviest = max(fits, key=lambda label: fits[label]["medians_us"][BASE_WORK])
+    fixed = [f["fixed_work"] for f in fits.values() if f["fixed_work"] is not None]
+    return {
+        "heaviest_series": heaviest,
+        "fixed_work_heaviest": fits[heaviest]["fixed_work"],
+        "fixed_work_median": median(fixed) if fixed else None,
+    }
+
+
 def calibrated_work(fixed: float, work: float, share: float) -> int:
     """The work per pair that raises the CPU per operation by ``share`` from ``work``."""
     return round(work + share * (fixed + work))
@@ -114,9 +128,7 @@ def main() -> int:
         shutil.copytree(EXAMPLE, tree, ignore=shutil.ignore_patterns("__pycache__"))
         by_work = {work: measure(work, args.runs, tree) for work in SETTINGS}
     fits = fit(by_work)
-    fixed = [f["fixed_work"] for f in fits.values() if f["fixed_work"] is not None]
-    result = {"settings": SETTINGS, "runs": args.runs, "fits": fits,
-              "fixed_work_median": median(fixed) if fixed else None}  # fmt: skip
+    result = {"settings": SETTINGS, "runs": args.runs, "fits": fits, **summary(fits)}
     print(json.dumps(result, indent=1))
     if args.json:
         args.json.write_text(json.dumps(result, indent=1) + "\n")
