@@ -272,6 +272,11 @@ def test_ci_report_reports_head_and_ci_wait_waits_for_it_by_default(server, tmp_
     assert not (tmp_path / "written").exists()
     outside = redline("report", cwd=tmp_path)  # not a work tree, and no --commit
     assert outside.returncode == 2 and "git work tree" in outside.stderr, outside.stderr
+    junit = tmp_path / "head.xml"
+    outside = redline("wait", "--junit", str(junit), cwd=tmp_path)  # nor a --revision
+    assert outside.returncode == 2, outside.stderr
+    assert outside.stderr.startswith("redline ci wait: cannot read commit 'HEAD' here")
+    assert "(--revision)" in outside.stderr and "git work tree" in junit.read_text()
     env["REDLINE_TOKEN"] = "rl_forged"
     refused = redline("report")
     assert refused.returncode == 2 and "HTTP 401" in refused.stderr, refused.stderr

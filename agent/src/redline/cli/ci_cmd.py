@@ -193,9 +193,14 @@ def wait(
     if junit is not None:
         _writable(junit)
     if revision is None:
-        from redline.cli.ci_report import TITLE_DIGITS, git_head
+        from redline.cli.ci_report import TITLE_DIGITS, NoCommit, git_head
 
-        revision = git_head("%H")[:TITLE_DIGITS]
+        try:
+            revision = git_head("%H")[:TITLE_DIGITS]
+        except NoCommit as exc:
+            if junit is not None:
+                _junit_error(junit, component, "HEAD", f"{exc} (--revision)")
+            _stop(BAD_INPUT, f"{exc} (--revision)")
 
     def fail(message: str) -> NoReturn:
         """Exit 2 with ``message``, in the JUnit file too: a CI step keeps it in every case."""

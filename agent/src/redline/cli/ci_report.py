@@ -28,11 +28,15 @@ def _stop(message: str) -> NoReturn:
     raise typer.Exit(BAD_INPUT)
 
 
+class NoCommit(ValueError):
+    """No commit to report or wait for here: the message says why and what to give instead."""
+
+
 def git_head(what: str, commit: str = "HEAD") -> str:
-    """``git log -1 --format=WHAT COMMIT`` in the working directory; a clear exit 2 outside a
+    """``git log -1 --format=WHAT COMMIT`` in the working directory; `NoCommit` outside a
     work tree or for a commit it does not have."""
     if commit.startswith("-"):  # git would take it for an option (--output=FILE writes)
-        _stop(f"--commit {commit!r}: not a commit")
+        raise NoCommit(f"--commit {commit!r}: not a commit")
     try:
         done = subprocess.run(
             ["git", "log", "-1", f"--format={what}", commit, "--"],
@@ -41,11 +45,13 @@ def git_head(what: str, commit: str = "HEAD") -> str:
             timeout=30,
         )
     except FileNotFoundError:
-        _stop("git is not installed: give --commit, --title and --sort-key")
+        raise NoCommit("git is not installed: give the commit and title yourself") from None
     if done.returncode != 0:
         said = done.stderr.strip().splitlines()[-1] if done.stderr.strip() else ""
-        _stop(f"cannot read commit {commit!r} here ({said}): run in the component's git work "
-              "tree, or give --commit, --title and --sort-key")  # fmt: skip
+        raise NoCommit(
+            f"cannot read commit {commit!r} here ({said}): run in the component's git work "
+            "tree, or name the commit and title yourself"
+        )
     return done.stdout.rstrip("\n")
 
 
@@ -78,8 +84,12 @@ def report(
         _stop(why)
     body: dict[str, Any] = {"component": component, "branch": branch}
     if not (commit and title and sort_key):  # what is not given comes from git
-        full, when, stamp = git_head("%H%n%ct%n%cI", commit or "HEAD").splitlines()
-        body |= {"message": git_head("%B", full)[:10_000], "committed_at": stamp}
+        try:
+            full, when, stamp = git_head("%H%n%ct%n%cI", commit or "HEAD").splitlines()
+            message = git_head("%B", full)[:10_000]
+        except NoCommit as exc:
+            _stop(f"{exc} (--commit, --title and --sort-key)")
+        body |= {"message": message, "committed_at": stamp}
         commit, title, sort_key = commit or full, title or full[:TITLE_DIGITS], sort_key or when
     body |= {"commit": commit, "title": title, "sort_key": sort_key}
     headers = {"Authorization": f"Bearer {token}"} if token else {}
