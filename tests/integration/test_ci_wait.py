@@ -266,6 +266,20 @@ def test_ci_report_reports_head_and_ci_wait_waits_for_it_by_default(server, tmp_
     waited = redline("wait", "--timeout", "1", "--poll", "0.2")  # HEAD's revision: no verdict yet
     assert waited.returncode == 2 and "still waiting for" in waited.stderr, waited.stderr
     assert "has no revision" not in waited.stderr
+    # a commit named as git names it is sent as its full id, and the title printed is the
+    # revision's, also when this report gave another (a trial's three reports of HEAD: a 422
+    # for HEAD~1, a 409 for a branch's name, and a title that named nothing)
+    (tree / "b.txt").write_text("b\n")
+    _git(tree, "add", "b.txt")
+    _git(tree, "commit", "-qm", "Second")
+    _git(tree, "branch", "release", full)
+    for named in (["--commit", "HEAD~1"], ["--commit", "release"], ["--title", full]):
+        named = ["--commit", full, *named] if named[0] == "--title" else named
+        done = redline("report", *named)
+        assert done.returncode == 0, (named, done.stderr)
+        assert done.stdout == f"{full[:12]}\n", (named, done.stdout)
+    refused = redline("report", "--commit", "a b", "--title", "t", "--sort-key", "1")
+    assert refused.returncode == 2 and "HTTP 422: commit: " in refused.stderr, refused.stderr
 
     option = redline("report", "--commit", f"--output={tmp_path / 'written'}")
     assert option.returncode == 2 and "not a commit" in option.stderr, option.stderr
@@ -277,6 +291,12 @@ def test_ci_report_reports_head_and_ci_wait_waits_for_it_by_default(server, tmp_
     assert outside.returncode == 2, outside.stderr
     assert outside.stderr.startswith("redline ci wait: cannot read commit 'HEAD' here")
     assert "(--revision)" in outside.stderr and "git work tree" in junit.read_text()
+    bad_url = tmp_path / "url.xml"
+    done = subprocess.run(
+        [REDLINE, "ci", "wait", "--server", "ftp://x", "--component", "hashed", "--revision",
+         "r1", "--junit", str(bad_url)], capture_output=True, text=True, env=env,
+    )  # fmt: skip
+    assert done.returncode == 2 and "not an http:// or https:// URL" in bad_url.read_text()
     env["REDLINE_TOKEN"] = "rl_forged"
     refused = redline("report")
     assert refused.returncode == 2 and "HTTP 401" in refused.stderr, refused.stderr

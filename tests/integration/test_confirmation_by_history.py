@@ -16,6 +16,7 @@ from redline.server.models import (
 )
 from redline.server.schemas.components import ComponentCreate
 from redline.server.services.components import create_component
+from redline.server.services.revisions import revision_verdicts
 from redline.worker.detection import detect_revision
 from redline.worker.ingest import ingest_execution
 from redline.worker.reanalysis import reanalyze_component
@@ -100,6 +101,12 @@ def test_a_spike_that_returns_is_not_confirmed_and_keeps_its_figures(
     assert r5.confirmation == "dropped" and r5.effect is not None and r5.effect > 0.4
     assert "returned towards the old level" in r5.confirmation_reason
     assert r5.regression_id == regression.id  # its figures stay with the regression
+    # the revision's verdict counts it apart, as `ci wait` does (a trial's page said 8 changes
+    # where ci wait said 7, the eighth dropped)
+    said = revision_verdicts(session, NAME, ["r5"])["r5"]
+    assert said.startswith("execution_shift: no change in ") and said.endswith(
+        "series, 1 flagged but not confirmed"
+    ), said
 
 
 def test_revisions_measured_while_the_host_was_busy_neither_hold_a_change_nor_drop_it(

@@ -263,6 +263,8 @@ def test_a_view_of_more_charts_than_a_page_draws_draws_the_first_and_says_how_to
     }
     assert client.post("/api/v1/import/results", json=body, headers=admin).status_code == 201
     page = client.get("/components/wide").text
+    where = re.search(r'<p class="meta" id="where">(.*?)</p>', page).group(1)
+    assert where == "imported results only: no repository for the hosts to measure", where
     titles = [chart["title"] for chart in trend_data(page)["charts"]]
     assert len(titles) == MAX_CHARTS and titles[-1].endswith(f"k{MAX_CHARTS - 1:03d}"), titles
     note = html.unescape(re.search(r'<p class="meta" id="cut">(.*?)</p>', page).group(1))

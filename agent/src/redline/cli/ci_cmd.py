@@ -50,15 +50,27 @@ def _get(client: httpx.Client, path: str, **params: str) -> httpx.Response | Non
     try:
         return client.get(path, params=params)
     except httpx.TransportError as error:
-        typer.echo(f"server not reachable ({type(error).__name__}); trying again", err=True)
+        typer.echo(
+            f"server {client.base_url} not reachable ({type(error).__name__}); trying again",
+            err=True,
+        )
         return None
 
 
 def detail(answer: httpx.Response) -> str:
+    """The server's reason, a refused field's as ``field: message`` (not a list's repr)."""
     try:
-        return str(answer.json().get("detail", answer.text))
+        said = answer.json().get("detail", answer.text)
     except ValueError:
         return answer.text[:200]
+    if isinstance(said, list):
+        return "; ".join(
+            f"{'.'.join(str(p) for p in item.get('loc', [])[1:])}: {item.get('msg', item)}"
+            if isinstance(item, dict)
+            else str(item)
+            for item in said
+        )
+    return str(said)
 
 
 def _counted(change: dict[str, Any], fail_on: FailOn) -> bool:
@@ -188,8 +200,6 @@ def wait(
     """Wait for a revision's verdict; write JUnit XML; exit 0 (no change), 1 (change), 2 (bad
     input or timeout), 3 (its jobs failed), 4 (undecided: the host was busy, a method
     failed, a measurement went missing, or the component took no part in the run)."""
-    if urlsplit(server).scheme not in ("http", "https") or not urlsplit(server).hostname:
-        _stop(BAD_INPUT, f"--server {server!r}: not an http:// or https:// URL")
     if junit is not None:
         _writable(junit)
     if revision is None:
@@ -208,6 +218,8 @@ def wait(
             _junit_error(junit, component, revision, message)
         _stop(BAD_INPUT, message)
 
+    if urlsplit(server).scheme not in ("http", "https") or not urlsplit(server).hostname:
+        fail(f"--server {server!r}: not an http:// or https:// URL")
     for option, name in (("--component", component), ("--revision", revision)):
         if (why := unaddressable(option, name)) is not None:
             fail(why)
@@ -251,6 +263,10 @@ def wait(
                     if verdict["waiting_for"] != said:
                         said = verdict["waiting_for"]
                         typer.echo(f"waiting for {said} (at {waited:.0f} s)", err=True)
+            if not reached and waited > min(APPEAR_S, timeout):
+                fail(
+                    f"the server at {server} was not reached in {waited:.0f} s: is --server right?"
+                )
             if waited + poll > timeout:
                 if said:
                     why = f"still waiting for {said}"

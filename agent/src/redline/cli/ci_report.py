@@ -90,7 +90,8 @@ def report(
         except NoCommit as exc:
             _stop(f"{exc} (--commit, --title and --sort-key)")
         body |= {"message": message, "committed_at": stamp}
-        commit, title, sort_key = commit or full, title or full[:TITLE_DIGITS], sort_key or when
+        # the full id git resolved (HEAD~1 or main was refused, or taken for another commit)
+        commit, title, sort_key = full, title or full[:TITLE_DIGITS], sort_key or when
     body |= {"commit": commit, "title": title, "sort_key": sort_key}
     headers = {"Authorization": f"Bearer {token}"} if token else {}
     try:
@@ -102,6 +103,7 @@ def report(
     if answer.status_code not in (200, 201):
         _stop(f"HTTP {answer.status_code}: {detail(answer)}")
     jobs = len(answer.json().get("job_ids", []))
+    title = answer.json().get("title", title)  # reported before: the first report's title
     typer.echo(
         f"{component} {title}: reported before with this commit ({jobs} job(s))"
         if answer.status_code == 200

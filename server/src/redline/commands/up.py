@@ -22,7 +22,7 @@ if TYPE_CHECKING:
 #: what a new user does next, said once the service is up
 NEXT = (
     "your own component: register it with the admin token (POST /api/v1/components, its repo a "
-    "git URL or a local path), report each commit with the ci token (POST /api/v1/revisions) "
+    "git URL or a local path), report each commit with the ci token (redline ci report) "
     "and wait for its verdict with `redline ci wait`: docs/ci.md; its tests: "
     "docs/writing-tests.md"
 )

@@ -29,4 +29,6 @@ def report(data: RevisionCreate, session: SessionDep, response: Response) -> Rev
     revision, created = report_revision(session, data)
     if not created:
         response.status_code = status.HTTP_200_OK
-    return RevisionCreated(revision_id=revision.id, job_ids=[job.id for job in revision.jobs])
+    return RevisionCreated(
+        revision_id=revision.id, title=revision.title, job_ids=[job.id for job in revision.jobs]
+    )

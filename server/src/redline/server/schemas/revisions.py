@@ -26,6 +26,7 @@ class RevisionCreate(BaseModel):
 
 class RevisionCreated(BaseModel):
     revision_id: int
+    title: str = Field(description="the revision's title: the first report's, when reported before")
     job_ids: list[int]
 
 

@@ -43,8 +43,8 @@ def create_component(
         # 'hasher' and 'Hasher' were two components, and a report to one never reached the
         # other's pages (a trial)
         raise Conflict(
-            f"component {held!r} already exists: names that differ only in case would be "
-            f"taken for each other; name it {held!r} or choose another name than {data.name!r}"
+            f"component {held!r} already exists, and names that differ only in case would be "
+            f"taken for each other: use {held!r}, or choose a name other than {data.name!r}"
         )
     component = Component(**data.model_dump())
     component.webhook_secret = data.webhook_secret or None

@@ -9,6 +9,7 @@ from collections import Counter, defaultdict
 from collections.abc import Collection
 from typing import Any
 
+from redline.detect.confirmation import DROPPED
 from redline.detect.result import waits_for_history
 from redline.recording.format import META_RUN
 from redline.server.db import lock_component
@@ -335,16 +336,20 @@ def revision_verdicts(
     method = component_config(session, component.id).alarming[0]
     counts: dict[str, dict[str, int]] = defaultdict(dict)
     why: dict[str, str] = {}
+    # a change its re-runs or the history dropped is counted apart: the page said 8 changes
+    # where `ci wait` and the verdict, which leave it out, said 7 (a trial)
+    dropped = Detection.confirmation == DROPPED
     query = (
-        select(Revision.title, Detection.verdict, func.count(), func.min(Detection.reason))
+        select(Revision.title, Detection.verdict, dropped, func.count(), func.min(Detection.reason))
         .join(Revision, Revision.id == Detection.revision_id)
         .where(Revision.component_id == component.id, Detection.method == method)
-        .group_by(Revision.title, Detection.verdict)
+        .group_by(Revision.title, Detection.verdict, dropped)
     )
     if titles is not None:
         query = query.where(Revision.title.in_(list(titles)))
-    for name, verdict, number, reason in session.execute(query):
-        counts[name][verdict] = number
+    for name, verdict, was_dropped, number, reason in session.execute(query):
+        key = "dropped" if verdict == "change" and was_dropped else verdict
+        counts[name][key] = counts[name].get(key, 0) + number
         if verdict == "not enough data":
             why[name] = reason
     said = {}
@@ -354,10 +359,11 @@ def revision_verdicts(
             by.get("no change", 0),
             by.get("not enough data", 0),
         )
+        not_confirmed = f", {by['dropped']} flagged but not confirmed" if by.get("dropped") else ""
         if changed:
-            said[title] = f"{method}: {changed} change(s), {same} series unchanged"
-        elif same:
-            said[title] = f"{method}: no change in {same} series" + (
+            said[title] = f"{method}: {changed} change(s), {same} series unchanged{not_confirmed}"
+        elif same or not_confirmed:
+            said[title] = f"{method}: no change in {same} series{not_confirmed}" + (
                 f", {unknown} not judged" + (" yet" if waits_for_history(why[title]) else "")
                 if unknown
                 else ""
