@@ -29,7 +29,7 @@ from statistics import median
 from typing import Any
 
 import numpy as np
-from make_corpus import BASE_WORK, EXAMPLE, TUNING, Knobs
+from make_corpus import BASE_WORK, EXAMPLE, Knobs, write_tuning
 
 REDLINE = str(Path(sys.executable).parent / "redline")
 SUITE = "perf/verdicts.toml"
@@ -52,19 +52,7 @@ def cpu_per_op(recording: Path) -> dict[str, float]:
 
 
 def measure(work: int, runs: int, tree: Path) -> list[dict[str, float]]:
-    knob = Knobs(work=work)
-    (tree / "tuning.py").write_text(
-        TUNING.format(
-            index=0,
-            note=f"calibration at {work}",
-            work=knob.work,
-            leak=knob.leak_kib_per_tick,
-            threads=knob.extra_threads,
-            io=knob.io_kib_per_tick,
-            delay=knob.reply_delay_us,
-            drop=knob.drop_every,
-        )
-    )
+    write_tuning(tree, 0, f"calibration at {work}", Knobs(work=work))
     found = []
     for run in range(runs):
         out = tree / f"w{work}-{run}.mcap"

@@ -195,6 +195,22 @@ def plan(stretch: int, events: list[Event] = EVENTS) -> tuple[list[Knobs], dict[
     return knobs, starts
 
 
+def write_tuning(tree: Path, index: int, note: str, knob: Knobs) -> None:
+    """The example's ``tuning.py`` in ``tree`` set to ``knob`` (revision ``index``: ``note``)."""
+    (tree / "tuning.py").write_text(
+        TUNING.format(
+            index=index,
+            note=note,
+            work=knob.work,
+            leak=knob.leak_kib_per_tick,
+            threads=knob.extra_threads,
+            io=knob.io_kib_per_tick,
+            delay=knob.reply_delay_us,
+            drop=knob.drop_every,
+        )
+    )
+
+
 def make_repo(
     repo: Path, knobs: list[Knobs], starts: dict[int, Event], perf: dict[str, str] | None = None
 ) -> list[str]:
@@ -209,18 +225,7 @@ def make_repo(
     for index, knob in enumerate(knobs):
         event = starts.get(index)
         note = f"injects {event.name}" if event else "unchanged (comment only)"
-        (repo / "objectbuilder" / "tuning.py").write_text(
-            TUNING.format(
-                index=index,
-                note=note,
-                work=knob.work,
-                leak=knob.leak_kib_per_tick,
-                threads=knob.extra_threads,
-                io=knob.io_kib_per_tick,
-                delay=knob.reply_delay_us,
-                drop=knob.drop_every,
-            )
-        )
+        write_tuning(repo / "objectbuilder", index, note, knob)
         git(repo, "add", "-A")
         git(repo, "commit", "--quiet", "-m", f"revision {index}: {note}")
         commits.append(git(repo, "rev-parse", "HEAD"))

@@ -202,21 +202,20 @@ def wait(
     failed, a measurement went missing, or the component took no part in the run)."""
     if junit is not None:
         _writable(junit)
+
+    def fail(message: str) -> NoReturn:
+        """Exit 2 with ``message``, in the JUnit file too: a CI step keeps it in every case."""
+        if junit is not None:
+            _junit_error(junit, component, revision or "HEAD", message)
+        _stop(BAD_INPUT, message)
+
     if revision is None:
         from redline.cli.ci_report import TITLE_DIGITS, NoCommit, git_head
 
         try:
             revision = git_head("%H")[:TITLE_DIGITS]
         except NoCommit as exc:
-            if junit is not None:
-                _junit_error(junit, component, "HEAD", f"{exc} (--revision)")
-            _stop(BAD_INPUT, f"{exc} (--revision)")
-
-    def fail(message: str) -> NoReturn:
-        """Exit 2 with ``message``, in the JUnit file too: a CI step keeps it in every case."""
-        if junit is not None:
-            _junit_error(junit, component, revision, message)
-        _stop(BAD_INPUT, message)
+            fail(f"{exc} (--revision)")
 
     if urlsplit(server).scheme not in ("http", "https") or not urlsplit(server).hostname:
         fail(f"--server {server!r}: not an http:// or https:// URL")

@@ -85,11 +85,11 @@ def report(
     body: dict[str, Any] = {"component": component, "branch": branch}
     if not (commit and title and sort_key):  # what is not given comes from git
         try:
-            full, when, stamp = git_head("%H%n%ct%n%cI", commit or "HEAD").splitlines()
-            message = git_head("%B", full)[:10_000]
+            head = git_head("%H%n%ct%n%cI%n%B", commit or "HEAD")
         except NoCommit as exc:
             _stop(f"{exc} (--commit, --title and --sort-key)")
-        body |= {"message": message, "committed_at": stamp}
+        full, when, stamp, *message = head.split("\n", 3)  # a message may be empty
+        body |= {"message": "".join(message)[:10_000], "committed_at": stamp}
         # the full id git resolved (HEAD~1 or main was refused, or taken for another commit)
         commit, title, sort_key = full, title or full[:TITLE_DIGITS], sort_key or when
     body |= {"commit": commit, "title": title, "sort_key": sort_key}
@@ -102,8 +102,8 @@ def report(
         _stop(f"the server at {server} cannot be reached ({type(error).__name__}: {error})")
     if answer.status_code not in (200, 201):
         _stop(f"HTTP {answer.status_code}: {detail(answer)}")
-    jobs = len(answer.json().get("job_ids", []))
-    title = answer.json().get("title", title)  # reported before: the first report's title
+    said = answer.json()
+    jobs, title = len(said.get("job_ids", [])), said.get("title", title)  # the first report's
     typer.echo(
         f"{component} {title}: reported before with this commit ({jobs} job(s))"
         if answer.status_code == 200
