@@ -4,6 +4,7 @@ its exit codes, the JUnit XML it writes, and the verdict endpoints behind it."""
 from __future__ import annotations
 
 import json
+import socket
 import subprocess
 import sys
 import time
@@ -12,11 +13,14 @@ from xml.etree import ElementTree
 
 import numpy as np
 import pytest
+import typer
+from redline.cli import ci_cmd
 from redline.server.db import session_factory
 from redline.server.models import Job, JobState, Revision
 from redline.server.schemas.components import ComponentCreate
 from redline.server.services.components import create_component
 from sqlalchemy import select
+from typer.testing import CliRunner
 
 from tests.support.api import api_with
 from tests.support.git import GIT
@@ -300,3 +304,29 @@ def test_ci_report_reports_head_and_ci_wait_waits_for_it_by_default(server, tmp_
     env["REDLINE_TOKEN"] = "rl_forged"
     refused = redline("report")
     assert refused.returncode == 2 and "HTTP 401" in refused.stderr, refused.stderr
+
+
+@pytest.mark.timeout(60)  # without the give-up it would wait its whole hour
+def test_ci_wait_gives_up_on_a_server_it_never_reached(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+):
+    """A wrong --server is said after APPEAR_S (2 minutes), not after the whole --timeout (an
+    hour by default), in the JUnit file too."""
+    with socket.socket() as unused:  # a port nobody listens on: bound, never listening
+        unused.bind(("127.0.0.1", 0))
+        port = unused.getsockname()[1]
+        monkeypatch.setattr(ci_cmd, "APPEAR_S", 0.5)
+        junit = tmp_path / "redline.xml"
+        alone = typer.Typer()
+        alone.command()(ci_cmd.wait)
+        done = CliRunner().invoke(
+            alone,
+            ["--server", f"http://127.0.0.1:{port}", "--component", "c",
+             "--revision", "r1", "--timeout", "3600", "--poll", "0.1", "--junit", str(junit)],
+            env={"REDLINE_TOKEN": ""},
+        )  # fmt: skip
+    assert done.exit_code == 2, done.output
+    said = " ".join(done.output.split())
+    assert "not reachable (ConnectError); trying again" in said
+    assert f"the server at http://127.0.0.1:{port} was not reached in" in said
+    assert "is --server right?" in junit.read_text()
