@@ -516,6 +516,9 @@ def test_a_runtime_fault_reaches_the_subscriptions_that_want_its_target_once(
     subscribe(api, {"kind": "email", "address": "mem@robots.example", "counters": ["rss_bytes"]})
     fault = {"target": "cpu_percent", "started": True, "residual": 61.5, "threshold": 4.0,
              "step": 60, "host": "robot-1", "process": "objectbuilder"}  # fmt: skip
+    for field in ("step", "model"):  # past 32 bits: refused by name, not "cannot be stored"
+        huge = api.post(f"{BASE}/runtime-alerts", "agent", {**fault, field: 10**20})
+        assert huge.status_code == 422 and huge.json()["detail"][0]["loc"] == ["body", field]
     answer = api.post(f"{BASE}/runtime-alerts", "agent", fault)
     assert answer.status_code == 201, answer.text
     database_url = api.settings.database_url

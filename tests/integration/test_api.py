@@ -391,6 +391,13 @@ def test_heartbeat_extends_the_lease_and_marks_the_job_running(api: Api):
     api.component()
     api.revision("r1", "1")
     job = api.lease()
+    for path, body in (  # a stray field is refused, never ignored (a trial's were taken)
+        (f"/api/v1/jobs/{job['id']}/heartbeat", {"host": "perf1", "x": 1}),
+        (f"/api/v1/jobs/{job['id']}/fail", {"host": "perf1", "reason": "r", "x": 1}),
+    ):
+        stray = api.post(path, "agent", body)
+        assert stray.status_code == 422 and stray.json()["detail"][0]["loc"] == ["body", "x"]
+    assert api.job(job["id"])["state"] == "leased"  # neither beat nor failed
     beat = api.post(f"/api/v1/jobs/{job['id']}/heartbeat", "agent", {"host": "perf1"})
     assert beat.status_code == 200
     assert beat.json()["lease_expires_at"] >= job["lease_expires_at"]
@@ -484,6 +491,21 @@ def test_an_upload_is_refused_for_its_hash_header_job_or_host_naming_no_other_ho
     stranger = api.upload(job["id"], recording_for(job, tmp_path / "x.mcap", seed=3), host="perf9")
     assert stranger.status_code == 409 and "sha256" not in stranger.text  # nothing of perf1's
     assert _executions(api) == 1 and api.job(job["id"])["state"] == "uploaded"
+    # a job that takes no recording any more is said so before the body is read, not after it
+    # as a hash that does not match ("send it again", a trial was told of a failed job)
+    other = recording_for(job, tmp_path / "y.mcap", seed=4)
+    again = api.upload(job["id"], other, sha256="0" * 64)
+    assert again.status_code == 409 and "already has a different recording" in again.text
+    api.revision("r2", "2")
+    failed = api.lease()
+    gave_up = api.post(
+        f"/api/v1/jobs/{failed['id']}/fail", "agent", {"host": "perf1", "reason": "x"}
+    )
+    assert gave_up.status_code == 200, gave_up.text
+    late = api.upload(failed["id"], data, sha256="0" * 64)
+    assert late.status_code == 409, late.text
+    assert f"job {failed['id']} is not leased to host 'perf1' (state failed" in late.text
+    assert _executions(api) == 1
 
 
 def _executions(api: Api) -> int:

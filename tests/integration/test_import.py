@@ -3,20 +3,23 @@
 from __future__ import annotations
 
 import json
+import threading
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 from redline.recording import SeriesKey, canonical_params
 from redline.server.core.tasks import DETECT_TASK
-from redline.server.db import session_factory
-from redline.server.models import Execution
+from redline.server.db import lock_component, session_factory
+from redline.server.models import Execution, Revision
+from redline.server.models.base import utcnow
 from redline.server.schemas.components import ComponentCreate
 from redline.server.services.components import create_component
 from redline.server.services.imports import ImportedRun, store_import
-from sqlalchemy import select
+from sqlalchemy import select, update
 
 from tests.support.api import Api, api_with
+from tests.support.concurrency import waiting_on_a_lock
 from tests.support.servers import Services
 
 
@@ -322,3 +325,67 @@ def test_a_ci_token_cannot_import_what_performance_hosts_measure(api: Api):
         create_component(session, ComponentCreate(name="bench"))  # results imported only
     answer = api.post("/api/v1/import/results", "ci", {**forged, "component": "bench"})
     assert answer.status_code == 201, answer.text
+
+
+def test_a_commit_imported_under_another_title_is_refused_naming_its_revision(api: Api):
+    """A trial imported i12b with i11's commit and got a second revision of one commit, where a
+    report of it under another title is the revision first reported (docs/api.md)."""
+
+    def results(revision: str, commit: str) -> dict:
+        cpu = {"case": "parse", "counter": "cpu", "values": [1.0, 2.0]}
+        return {"component": "clang", "revision": revision, "sort_key": revision[1:],
+                "commit": commit, "results": [cpu]}  # fmt: skip
+
+    sha = "0000011abcdef0123456789"
+    assert api.post("/api/v1/import/results", "ci", results("i11", sha)).status_code == 201
+    for commit in (sha, sha[:12].upper()):
+        again = api.post("/api/v1/import/results", "ci", results("i12", commit))
+        assert again.status_code == 409, again.text
+        assert f"commit {commit!r} is revision 'i11' of 'clang' already" in again.text
+    moving = api.post("/api/v1/import/results", "ci", results("i12", "main"))
+    assert moving.status_code == 201  # a branch names a commit that moves: a new revision
+
+
+def test_an_import_takes_turns_with_a_verdict_being_stored(api: Api):
+    """A trial's import into a revision being judged was refused 503 "deadlock detected":
+    storing verdicts locks the component, then the revision's row (`db.lock_component`); the
+    import locked the revision, then needed the component for its new series."""
+    first = send_lnt(api, lnt_report())
+    assert first.status_code == 201
+    revision_id = first.json()["revision_id"]
+    database_url = api.settings.database_url
+    with session_factory(database_url)() as session:
+        component_id = session.get_one(Revision, revision_id).component_id
+    locked, go = threading.Event(), threading.Event()
+    outcome: list[object] = []
+
+    def storing_verdicts() -> None:  # as `redline.worker.detection.store` does
+        try:
+            with session_factory(database_url)() as session:
+                lock_component(session, component_id)
+                locked.set()
+                assert go.wait(30)
+                session.execute(
+                    update(Revision).where(Revision.id == revision_id).values(analyzed_at=utcnow())
+                )
+                session.commit()
+            outcome.append("stored")
+        except Exception as exc:  # the deadlock, had the import won it
+            outcome.append(exc)
+
+    worker = threading.Thread(target=storing_verdicts)
+    worker.start()
+    assert locked.wait(30)
+    report = lnt_report()
+    report["tests"].append({"name": "new.exec", "execution_time": [2.0]})  # a new series
+    importing = threading.Thread(target=lambda: outcome.append(send_lnt(api, report)))
+    importing.start()
+    for _ in range(600):  # until the import waits on a lock the verdicts hold
+        if waiting_on_a_lock(database_url):
+            break
+        importing.join(0.05)
+    go.set()
+    worker.join(30)
+    importing.join(30)
+    answers = [o.status_code if hasattr(o, "status_code") else o for o in outcome]
+    assert sorted(answers, key=str) == [201, "stored"], [getattr(o, "text", o) for o in outcome]

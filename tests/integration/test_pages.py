@@ -16,7 +16,7 @@ from fastapi.testclient import TestClient
 from redline.server.db import session_factory
 from redline.server.models import FigureCache
 from redline.server.services.errors import BadRequest, Conflict
-from redline.server.services.signin import check_password, create_user
+from redline.server.services.signin import SESSION_COOKIE, check_password, create_user
 from redline.server.services.tokens import issue_token
 from redline.server.services.trend_view import MAX_CHARTS
 from sqlalchemy import func, select
@@ -462,7 +462,19 @@ def test_a_pasted_token_signs_in_with_its_own_scopes_only(client, database_url, 
         f"/regressions/{number}/triage", data={"state": "ignored", "csrf": form_token(page)}
     )
     assert pipeline.status_code == 403 and _state(client, number) == "new"
-    client.post("/signout", data={"csrf": form_token(page)})
+    # signing out needs the session's form token too: another site's form cannot end it
+    # (a trial's forged sign-out dropped the cookie and left the session live)
+    kept = client.cookies.get(SESSION_COOKIE)
+    for forged in ({}, {"csrf": "x" * 32}):
+        refused = client.post("/signout", data=forged, follow_redirects=False)
+        assert refused.status_code == 403 and "form&#39;s token" in refused.text, refused.text[:300]
+        assert SESSION_COOKIE not in refused.headers.get("set-cookie", "")
+    assert "Sign out</button>" in client.get(f"/regressions/{number}").text  # still in
+    out = client.post("/signout", data={"csrf": form_token(page)}, follow_redirects=False)
+    assert out.status_code == 303 and SESSION_COOKIE in out.headers["set-cookie"]
+    client.cookies.set(SESSION_COOKIE, kept)  # the old cookie opens nothing once signed out
+    assert "Sign out</button>" not in client.get(f"/regressions/{number}").text
+    client.cookies.clear()
     sign_in(client, {"token": triage})
     page = client.get(f"/regressions/{number}").text
     done = client.post(

@@ -130,6 +130,27 @@ def test_openapi_gives_every_route_a_response_model(api: Api):
         assert path in document["paths"]
 
 
+#: calls whose JSON body another system writes, read for the fields Redline needs only
+FOREIGN_BODIES = {"/api/v1/webhooks/github", "/api/v1/webhooks/gitlab", "/api/v1/import/lnt"}
+
+
+def test_every_json_body_refuses_a_field_it_does_not_know(api: Api):
+    """docs/api.md: a field a call does not know is refused, never ignored (a trial's triage,
+    and an agent's heartbeat and fail, took a stray field)."""
+    document = api.client.get("/openapi.json").json()
+    schemas = document["components"]["schemas"]
+    lax = []
+    for path, operations in document["paths"].items():
+        for method, operation in operations.items():
+            body = operation.get("requestBody", {}).get("content", {}).get("application/json")
+            if body is None or path in FOREIGN_BODIES:
+                continue
+            name = body["schema"]["$ref"].rsplit("/", 1)[-1]
+            if schemas[name].get("additionalProperties") is not False:
+                lax.append(f"{method.upper()} {path} ({name})")
+    assert lax == []  # tests/integration/test_api.py sends some of them a stray field
+
+
 def test_metrics_count_requests_and_jobs_by_state(api: Api):
     api.post(
         "/api/v1/revisions",

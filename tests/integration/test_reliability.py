@@ -420,6 +420,8 @@ def test_postgres_away_the_api_answers_503_agents_spool_and_nothing_is_lost(
         )
         assert lease.status_code == 503, lease.text
         assert "database is unavailable" in lease.json()["detail"]
+        logged = (service.stack.data / "logs" / "server.log").read_text()
+        assert "POST /api/v1/agent/lease: 503, the database: " in logged  # why, not only that
         spooled = tmp_path / "fast-spooling" / "spool" / f"job-{job_id}.mcap"
         _until(
             lambda: spooled.exists() and "recording spooled" in agent.tail(40),

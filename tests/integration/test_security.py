@@ -203,7 +203,7 @@ def test_a_ping_is_authenticated_by_a_components_own_secret(services: Services, 
         api.post(
             "/api/v1/components",
             "admin",
-            {"name": "builder", "repo": REPO, "webhook_secret": "own"},
+            {"name": "builder", "repo": REPO, "webhook_secret": "own-secret-of-builder"},
         ).raise_for_status()
         body = json.dumps(
             {
@@ -212,7 +212,9 @@ def test_a_ping_is_authenticated_by_a_components_own_secret(services: Services, 
                 "repository": {"clone_url": REPO, "html_url": "https://github.com/org/builder"},
             }
         ).encode()
-        assert send_github(api, body, secret="own", event="ping").status_code == 202
+        assert (
+            send_github(api, body, secret="own-secret-of-builder", event="ping").status_code == 202
+        )
         assert send_github(api, body, secret="wrong", event="ping").status_code == 401
         assert counts(api) == (0, 0)
 

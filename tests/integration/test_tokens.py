@@ -127,6 +127,29 @@ def test_read_access_token_mode_needs_a_read_token(services: Services, tmp_path:
         assert api.client.get("/api/v1/components", headers=api.tokens["ci"]).status_code == 403
 
 
+def test_a_session_reads_only_what_its_scopes_read(services: Services, tmp_path: Path):
+    """A trial signed in with the ci token, which reads only verdicts, and its session read
+    every page, the API and the recordings under REDLINE_READ_ACCESS=token."""
+    with api_with(services, tmp_path, read_access="token") as api:
+        with session_factory(api.settings.database_url)() as session:
+            create_user(session, "pipeline", "correct horse battery", "ci")
+        ci = api.tokens["ci"]["Authorization"].removeprefix("Bearer ")
+        for signed in ({"token": ci}, {"name": "pipeline", "password": "correct horse battery"}):
+            api.client.cookies.clear()
+            assert sign_in(api.client, signed, follow_redirects=False).status_code == 303
+            for path in ("/api/v1/components", "/", "/regressions", "/components/builder/trends"):
+                refused = api.client.get(path, follow_redirects=False)
+                assert refused.status_code == 403, (signed, path, refused.text[:200])
+                assert "lacks the 'read' or 'triage' scope" in refused.text, refused.text[:300]
+            verdict = api.client.get("/api/v1/components/builder/revisions/r1/verdict")
+            assert verdict.status_code == 404, verdict.text  # read, and there is no r1
+            page = api.client.get("/regressions", headers={"Accept": "text/html"})
+            assert page.status_code == 403 and "<html" in page.text, page.text[:300]
+            assert "lacks the &#39;read&#39; or &#39;triage&#39; scope" in page.text
+            assert 'href="/signin?next=%2Fregressions"' in page.text
+        api.client.cookies.clear()
+
+
 def test_a_browser_asking_for_a_page_under_read_access_token_is_sent_to_sign_in(
     services: Services, tmp_path: Path
 ):

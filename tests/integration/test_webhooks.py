@@ -156,12 +156,24 @@ def test_ping_is_acknowledged_and_ignored(api: Api):
 
 def test_component_secret_overrides_the_setting(api: Api):
     api.client.patch(
-        "/api/v1/components/builder", json={"webhook_secret": "own"}, headers=api.tokens["admin"]
+        "/api/v1/components/builder",
+        json={"webhook_secret": "own-secret-of-builder"},
+        headers=api.tokens["admin"],
     ).raise_for_status()
     assert send_github(api, github_push()).status_code == 401
-    assert send_github(api, github_push(), secret="own").status_code == 200
+    assert send_github(api, github_push(), secret="own-secret-of-builder").status_code == 200
     shown = api.client.get("/api/v1/components/builder").json()
     assert shown["has_webhook_secret"] is True and "webhook_secret" not in shown
+    # a secret a forge signs with is not one guessed (a trial set "x"), nor a branch an option
+    for field, value, said in (
+        ("webhook_secret", "x", "at least 16 characters"),
+        ("branch", "-x", "must not start with '-'"),
+    ):
+        weak = api.client.patch(
+            "/api/v1/components/builder", json={field: value}, headers=api.tokens["admin"]
+        )
+        assert weak.status_code == 422 and said in weak.text, weak.text
+    assert send_github(api, github_push(), secret="own-secret-of-builder").status_code == 200
 
 
 def test_gitlab_push_with_its_token_creates_revisions(api: Api):

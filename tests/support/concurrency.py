@@ -20,7 +20,7 @@ def _pause_before_commit(session: Session, reached: threading.Event, go: threadi
     event.listen(session, "before_commit", hold)
 
 
-def _waiting_on_a_lock(database_url: str) -> bool:
+def waiting_on_a_lock(database_url: str) -> bool:
     with session_factory(database_url)() as session:
         return bool(
             session.scalar(
@@ -56,7 +56,7 @@ def interleave(
     two = threading.Thread(target=run, args=(1, second, False))
     two.start()
     for _ in range(300):
-        if not two.is_alive() or _waiting_on_a_lock(database_url):
+        if not two.is_alive() or waiting_on_a_lock(database_url):
             break
         two.join(0.05)
     go.set()

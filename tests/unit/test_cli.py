@@ -226,4 +226,3 @@ def test_a_run_written_to_a_log_keeps_every_name_whole(monkeypatch: pytest.Monke
         assert captured.get().count(name) == 2, captured.get()
     finally:
         run_cmd._console.cache_clear()
-

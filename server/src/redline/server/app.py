@@ -39,7 +39,13 @@ from redline.server.routes import (
     webhooks,
 )
 from redline.server.schemas.fields import escaped
-from redline.server.services.errors import BadRequest, NotFound, ServiceError, Unprocessable
+from redline.server.services.errors import (
+    BadRequest,
+    Forbidden,
+    NotFound,
+    ServiceError,
+    Unprocessable,
+)
 from redline.server.ui.pages import SECRET_FIELDS, error_words, problem
 from sqlalchemy.exc import DataError
 from starlette.exceptions import HTTPException as StarletteHTTPException
@@ -78,6 +84,8 @@ async def _no_route(request: Request, exc: Exception) -> Response:
         return RedirectResponse(_signin_address(request), status_code=303)
     if _a_page(request) and exc.status_code in (404, 405):
         return problem(request, NotFound(f"there is no page at {request.url.path[:200]}"))
+    if _for_a_browser(request) and _a_page(request) and exc.status_code == 403:
+        return problem(request, Forbidden(str(exc.detail)), (_signin_address(request), "sign in"))
     return JSONResponse({"detail": exc.detail}, status_code=exc.status_code, headers=exc.headers)
 
 

@@ -101,7 +101,8 @@ READ_COOKIE = "redline_token"
 def reader(*scopes: str) -> Callable[..., None]:
     """A dependency for reading: open unless ``REDLINE_READ_ACCESS=token``; then a token with
     one of ``scopes`` is needed, as a bearer header, the ``redline_token`` cookie or ``?token=``
-    (for the browser UI), or a signed-in session of the pages. Open or not, a token that is
+    (for the browser UI), or a signed-in session of the pages whose scopes grant one of them
+    (a ci session reads verdicts only, as its token does). Open or not, a token that is
     given as a bearer header or ``?token=`` must be live (401 otherwise): a mistyped CI secret
     is refused, never ignored. (A stale cookie is not refused where reading is open: the
     browser, not the caller, sends it.)"""
@@ -122,13 +123,21 @@ def reader(*scopes: str) -> Callable[..., None]:
                 )
             return
         signed_in = current(session, request.cookies.get(SESSION_COOKIE))
-        if signed_in is not None and any(grants(signed_in.scopes, s) for s in READERS):
+        # a session reads what its scopes read, no more (a ci session: verdicts only)
+        if signed_in is not None and any(grants(signed_in.scopes, s) for s in scopes):
             return
         secret = (
             _bearer_secret(credentials)
             or request.cookies.get(READ_COOKIE)
             or request.query_params.get("token")
         )
+        if signed_in is not None and not secret:
+            wanted = " or ".join(repr(scope) for scope in scopes)
+            raise HTTPException(
+                status.HTTP_403_FORBIDDEN,
+                f"signed in as {signed_in.who!r}, which lacks the {wanted} scope: sign in "
+                "with a token or user that has it",
+            )
         _checked(session, secret, *scopes)
 
     return check

@@ -6,6 +6,8 @@ periodic re-queue), so the service is "degraded" (200: a load balancer keeps it)
 
 from __future__ import annotations
 
+import logging
+
 from fastapi import APIRouter, Request
 from fastapi.responses import JSONResponse, Response
 from pydantic import BaseModel
@@ -18,6 +20,7 @@ from sqlalchemy import exc, text
 from starlette.concurrency import run_in_threadpool
 
 router = APIRouter(tags=["health"], route_class=JsonRoute)
+log = logging.getLogger(__name__)
 
 #: Errors meaning "no database to talk to" (refused, shut down, pool exhausted), not a bad query.
 DATABASE_DOWN: tuple[type[Exception], ...] = (
@@ -41,7 +44,9 @@ def _reason(error: BaseException) -> str:
 
 
 async def database_unavailable(request: Request, error: Exception) -> JSONResponse:
-    """The app's handler for DATABASE_DOWN: agents keep their recordings and try again."""
+    """The app's handler for DATABASE_DOWN: agents keep their recordings and try again. The
+    cause goes to the log too (a trial's 503 left only its access line there)."""
+    log.warning("%s %s: 503, the database: %s", request.method, request.url.path, _reason(error))
     return JSONResponse(
         {"detail": f"the database is unavailable ({_reason(error)}); try again later"},
         status_code=503,

@@ -12,7 +12,7 @@ from fastapi.responses import HTMLResponse, RedirectResponse
 from redline.server.api.deps import SessionDep
 from redline.server.services import signin
 from redline.server.services.errors import Forbidden
-from redline.server.ui.pages import form_fields, page, page_router, signed_in
+from redline.server.ui.pages import form_fields, page, page_router, problem, signed_in
 
 router = page_router(read=False)
 
@@ -69,9 +69,16 @@ async def signin_form(request: Request, session: SessionDep) -> Response:
 
 @router.post("/signout", response_class=HTMLResponse)
 async def signout_form(request: Request, session: SessionDep) -> Response:
+    """Ends the session, when the form carries its token: another site's form, which cannot,
+    is refused (403) and ends nothing, the cookie included. Not signed in, there is nothing
+    to end."""
     form = await form_fields(request)
     row = signed_in(request)
-    if row is not None and form.get("csrf") == row.csrf:
+    if row is not None:
+        try:
+            signin.check_form(row, str(form.get("csrf", "")))
+        except Forbidden as exc:
+            return problem(request, exc)
         signin.sign_out(session, request.cookies.get(signin.SESSION_COOKIE))
     answer = RedirectResponse("/", status_code=303)
     answer.delete_cookie(signin.SESSION_COOKIE)

@@ -10,12 +10,12 @@ from urllib.parse import urlsplit
 from pydantic import (
     AfterValidator,
     BaseModel,
-    ConfigDict,
     Field,
     ValidationInfo,
     field_validator,
 )
 from redline.server.core.targets import refused_address
+from redline.server.schemas.common import RequestBody
 from redline.server.schemas.fields import Line, name_characters, printable
 
 
@@ -56,8 +56,7 @@ def http_url(value: str) -> str:
 HttpUrl = Annotated[str, Field(max_length=2000), AfterValidator(http_url)]
 
 
-class SubscriptionFilters(BaseModel):
-    model_config = ConfigDict(extra="forbid")  # a misspelt filter is refused, never ignored
+class SubscriptionFilters(RequestBody):
     counters: list[Line] | None = Field(
         default=None,
         max_length=100,
@@ -142,7 +141,7 @@ class DeliveryOut(BaseModel):
     delivered: datetime | None
 
 
-class CommitStatusTarget(BaseModel):
+class CommitStatusTarget(RequestBody):
     provider: Literal["github", "gitlab"]
     api_url: HttpUrl = Field(
         description="https://api.github.com, or https://gitlab.example.com/api/v4"

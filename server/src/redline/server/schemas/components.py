@@ -5,13 +5,19 @@ from __future__ import annotations
 from datetime import datetime
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
-from redline.server.schemas.fields import Branch, ComponentName, Description, SuitePath, Word
+from redline.server.schemas.common import RequestBody
+from redline.server.schemas.fields import (
+    Branch,
+    ComponentName,
+    Description,
+    SuitePath,
+    WebhookSecret,
+    Word,
+)
 
 
-class ComponentSettings(BaseModel):
+class ComponentSettings(RequestBody):
     """What PATCH may change; every field is optional there."""
-
-    model_config = ConfigDict(extra="forbid")  # a misspelt field is refused, never ignored
 
     repo: str | None = Field(default=None, description="URL or path; https/ssh/.git all match")
     branch: Branch | None = Field(
@@ -27,7 +33,7 @@ class ComponentSettings(BaseModel):
     host_labels: list[Word] | None = Field(
         default=None, description="labels a host needs to run its jobs"
     )
-    webhook_secret: str | None = Field(
+    webhook_secret: WebhookSecret | None = Field(
         default=None, description="overrides REDLINE_WEBHOOK_SECRET for this repository; '' clears"
     )
     description: Description | None = None
@@ -46,8 +52,7 @@ class ComponentSettings(BaseModel):
         return value
 
 
-class ComponentCreate(BaseModel):
-    model_config = ConfigDict(extra="forbid")  # a misspelt field is refused, never ignored
+class ComponentCreate(RequestBody):
     name: ComponentName
     repo: str = Field(
         default="",
@@ -63,7 +68,9 @@ class ComponentCreate(BaseModel):
     host_labels: list[Word] = Field(
         default_factory=list, description="labels a host needs to run its jobs"
     )
-    webhook_secret: str | None = Field(default=None, description="overrides REDLINE_WEBHOOK_SECRET")
+    webhook_secret: WebhookSecret | None = Field(
+        default=None, description="overrides REDLINE_WEBHOOK_SECRET"
+    )
     description: Description = ""
 
     @field_validator("branch")

@@ -199,8 +199,36 @@ SortKey = Annotated[
     BeforeValidator(whole_number_as_text),
     AfterValidator(one_line),
 ]
+
+
+def git_branch(value: str) -> str:
+    """``value`` as `printable`, and not starting with '-' (git refuses such a branch, and
+    would read it as an option), else a ValueError saying so."""
+    if value.startswith("-"):
+        raise ValueError("must not start with '-': git would read it as an option")
+    return printable(value)
+
+
 #: a git branch, as a component's default or a revision's ('' where none is given)
-Branch = Annotated[str, Field(max_length=200), AfterValidator(printable)]
+Branch = Annotated[str, Field(max_length=200), AfterValidator(git_branch)]
+
+#: the least length of a component's own webhook secret: the forge signs with it, and a short
+#: one is guessed (a trial set "x")
+SECRET_LENGTH = 16
+
+
+def strong_secret(value: str) -> str:
+    """``value`` when empty (no secret of its own) or of `SECRET_LENGTH` characters or more."""
+    if value and len(value) < SECRET_LENGTH:
+        raise ValueError(
+            f"must be at least {SECRET_LENGTH} characters (python3 -c 'import secrets; "
+            "print(secrets.token_urlsafe(24))' makes one), or '' for none of its own"
+        )
+    return value
+
+
+#: a component's own webhook secret
+WebhookSecret = Annotated[str, Field(max_length=200), AfterValidator(strong_secret)]
 #: a host's label, as an agent's and a component's settings give it
 Word = Annotated[str, Field(min_length=1, max_length=200), AfterValidator(printable)]
 #: a performance host's name ('' where an import does not say)

@@ -2,8 +2,9 @@
 
 from __future__ import annotations
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator
+from pydantic import BaseModel, Field, field_validator
 from redline.recording.format import canonical_params
+from redline.server.schemas.common import RequestBody
 from redline.server.schemas.fields import (
     Commit,
     HostName,
@@ -25,10 +26,8 @@ class ImportResult(BaseModel):
     created: bool = Field(description="false when the same report was imported before")
 
 
-class ResultValue(BaseModel):
+class ResultValue(RequestBody):
     """One measured series of a generic result: its name and its samples."""
-
-    model_config = ConfigDict(extra="forbid")  # a misspelt field is refused, never ignored
 
     case: TestName = Field(description="letters, digits, '_', '.' or '-', as the SDK's")
     phase: TestName = "main"
@@ -43,10 +42,8 @@ class ResultValue(BaseModel):
     )
 
 
-class ResultsImport(BaseModel):
+class ResultsImport(RequestBody):
     """A benchmark's results without the SDK; see docs/api.md."""
-
-    model_config = ConfigDict(extra="forbid")  # a misspelt field is refused, never ignored
 
     component: str = Field(min_length=1, max_length=200)
     revision: Title = Field(description="the revision's title")

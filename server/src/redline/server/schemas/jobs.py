@@ -5,10 +5,11 @@ from __future__ import annotations
 from datetime import datetime
 
 from pydantic import BaseModel, Field
+from redline.server.schemas.common import RequestBody
 from redline.server.schemas.fields import HostName, Line, ParamValue, Word
 
 
-class RegisterRequest(BaseModel):
+class RegisterRequest(RequestBody):
     # shown in the pages and `redline token list`, where a CR/LF or a space would break a row
     # (a pool token registered "compose-\r\nX")
     name: HostName = Field(min_length=1)
@@ -21,7 +22,7 @@ class RegisterResponse(BaseModel):
     host_id: int
 
 
-class HostRequest(BaseModel):
+class HostRequest(RequestBody):
     host: HostName = Field(min_length=1)
 
 
@@ -62,7 +63,7 @@ class UploadResponse(BaseModel):
     ingest_queued: bool = Field(description="whether ingestion was handed to the workers")
 
 
-class FailRequest(BaseModel):
+class FailRequest(RequestBody):
     host: str = Field(min_length=1, max_length=200, description="the host holding the job")
     reason: str = Field(min_length=1, max_length=10_000)
 

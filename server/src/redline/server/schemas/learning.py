@@ -5,15 +5,15 @@ from __future__ import annotations
 from datetime import datetime
 from typing import Any
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, Field
+from redline.server.schemas.common import RequestBody
 from redline.server.schemas.fields import StoredId, Title
 
 
-class ModelRequest(BaseModel):
+class ModelRequest(RequestBody):
     """What to train on: executions chosen by revision titles and/or ids (none named: the newest
     revision's), optionally only one test case's segments, and the process to model."""
 
-    model_config = ConfigDict(extra="forbid")
     revisions: list[Title] = Field(default_factory=list, max_length=1000)
     executions: list[StoredId] = Field(default_factory=list, max_length=10_000)
     case: str | None = Field(default=None, max_length=200, description="one test case only")
@@ -43,14 +43,13 @@ class ModelOut(BaseModel):
     file: str | None = Field(description="where to download the model file for `redline watch`")
 
 
-class RuntimeAlertIn(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+class RuntimeAlertIn(RequestBody):
     target: str = Field(min_length=1, max_length=50)
     started: bool = Field(description="a fault began (true) or ended (false)")
     residual: float = Field(allow_inf_nan=False)
     threshold: float = Field(allow_inf_nan=False)
-    step: int = Field(default=0, ge=0)
-    model: int | None = Field(default=None, description="the server's model id, if from there")
+    step: int = Field(default=0, ge=0, le=2**31 - 1)  # stored in 32 bits: refused by name
+    model: StoredId | None = Field(default=None, description="the server's model id, if from there")
     host: str = Field(
         default="", max_length=200, description="the reporting token's host (the default); no other"
     )

@@ -5,12 +5,13 @@ from __future__ import annotations
 from datetime import datetime
 from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, Field
 from redline.detect.baseline import DEFAULT_WINDOW
 from redline.detect.config import MAX_CONFIRM_PAIRS, MAX_CONFIRM_REVISIONS, MAX_WINDOW
 from redline.detect.confirmation import DEFAULT_CONFIRM_PAIRS, DEFAULT_CONFIRM_REVISIONS
 from redline.detect.counters import CONTEXT_COUNTERS
 from redline.server.models import RegressionState
+from redline.server.schemas.common import RequestBody
 from redline.server.schemas.fields import Line, Title
 from redline.server.schemas.results import SeriesRef
 
@@ -69,7 +70,7 @@ class RegressionDetail(RegressionOut):
     history: list[RegressionEventOut]
 
 
-class TriageRequest(BaseModel):
+class TriageRequest(RequestBody):
     state: RegressionState
     comment: str = Field(default="", max_length=10_000)
 
@@ -88,9 +89,8 @@ class AccuracyOut(BaseModel):
     methods: list[MethodAccuracy]
 
 
-class DetectionConfigIn(BaseModel):
+class DetectionConfigIn(RequestBody):
     # a misspelt field ("alarm_method") would otherwise be dropped and its default stored
-    model_config = ConfigDict(extra="forbid")
 
     methods: list[str] | None = Field(
         default=None, description="default: the evaluated default and ks"

@@ -5,11 +5,11 @@ from __future__ import annotations
 from datetime import datetime
 
 from pydantic import BaseModel, ConfigDict, Field
+from redline.server.schemas.common import RequestBody
 from redline.server.schemas.fields import Branch, CommitTime, RunCommit, SortKey, Title
 
 
-class RevisionCreate(BaseModel):
-    model_config = ConfigDict(extra="forbid")  # a misspelt field is refused, never ignored
+class RevisionCreate(RequestBody):
     component: str = Field(min_length=1, max_length=200)
     title: Title
     sort_key: SortKey = Field(description="orders revisions; '9' < '10' (a whole number: its text)")

@@ -5,9 +5,10 @@ from __future__ import annotations
 from datetime import datetime
 
 from pydantic import BaseModel, ConfigDict, Field
+from redline.server.schemas.common import RequestBody
 
 
-class TokenCreate(BaseModel):
+class TokenCreate(RequestBody):
     name: str = Field(min_length=1, max_length=200)
     scopes: list[str] = Field(min_length=1, description="ci, triage, agent, read, admin")
     host: str | None = Field(

@@ -16,13 +16,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from redline.recording import SeriesKey, canonical_params
+from redline.server.db import lock_component
 from redline.server.models import Execution, Host, Job, JobState, Revision, Summary
 from redline.server.schemas.imports import ImportResult, ResultsImport
 from redline.server.services.components import get_component
 from redline.server.services.errors import Conflict, Forbidden
 from redline.server.services.home import IMPORTED
 from redline.server.services.ingestion import store_samples
-from redline.server.services.revision_reports import cannot_run, same_commit
+from redline.server.services.revision_reports import cannot_run, revision_of_commit, same_commit
 from redline.server.services.revisions import order_key
 from sqlalchemy import func, select
 from sqlalchemy.dialects.postgresql import insert
@@ -96,6 +97,16 @@ def _revision(session: Session, run: ImportedRun, admin: bool) -> Revision:
             "imported into it with an admin token only (a ci token reports its commits, "
             "which the hosts then measure); import into a component without a repository or "
             "suite"
+        )
+    # the component before the revision, as storing verdicts takes them (`lock_component`): a
+    # new series' row needs the component's, and an import that held the revision first met
+    # a verdict being stored that held the component and wanted the revision (a deadlock)
+    lock_component(session, component.id)
+    known = revision_of_commit(session, component, run.commit) if run.commit else None
+    if known is not None and known.title != run.revision:
+        raise Conflict(
+            f"commit {run.commit!r} is revision {known.title!r} of {run.component!r} already: "
+            "import its results under that title"
         )
     session.execute(
         insert(Revision)

@@ -194,11 +194,16 @@ def authorize(row: WebSession | None, form_token: str, scope: str) -> str:
     session's form token and grants ``scope``; `Forbidden` naming what is missing otherwise."""
     if row is None:
         raise Forbidden("sign in first")
-    if not hmac.compare_digest(form_token.encode(), row.csrf.encode()):
-        raise Forbidden("the form's token does not match this session: reload the page")
+    check_form(row, form_token)
     if not grants(list(row.scopes), scope):
         raise Forbidden(f"{row.who} lacks the {scope!r} scope")
     return row.who
+
+
+def check_form(row: WebSession, form_token: str) -> None:
+    """`Forbidden` unless a form posted in session ``row`` carries its form token (CSRF)."""
+    if not hmac.compare_digest(form_token.encode(), row.csrf.encode()):
+        raise Forbidden("the form's token does not match this session: reload the page")
 
 
 def signin_token(cookie: str | None) -> str:

@@ -132,8 +132,12 @@ _SHA256 = re.compile(r"[0-9a-f]{64}")
 def check_before_reading(session: Session, job_id: int, claimed_sha256: str, host: str) -> None:
     """Refuse at once, before a byte of the body is read, an upload that could not be stored:
     a hash header that is no sha256 (422), an unknown job (404), one ``host`` never held (409,
-    naming no other host). A trial's 200 MB were read for a job that did not exist."""
-    if not _SHA256.fullmatch(claimed_sha256.strip().lower()):
+    naming no other host), one that takes no recording any more (409: it failed or was
+    cancelled, or it has another one; only a resend of the recording it has is read). A
+    trial's 200 MB were read for a job that did not exist; a failed job's upload was read,
+    then refused for its hash."""
+    claimed = claimed_sha256.strip().lower()
+    if not _SHA256.fullmatch(claimed):
         raise Unprocessable(
             f"X-Redline-Sha256 {claimed_sha256[:80]!r} is not a sha256 (64 hex digits)"
         )
@@ -142,6 +146,12 @@ def check_before_reading(session: Session, job_id: int, claimed_sha256: str, hos
         raise NotFound(f"unknown job {job_id}")
     if holder(job) != host:
         raise Conflict(f"job {job_id} is not held by host {host!r}")
+    if job.execution is None:
+        ensure_held(job, host)
+    elif job.execution.sha256 != claimed:
+        raise Conflict(
+            f"job {job_id} already has a different recording (sha256 {job.execution.sha256})"
+        )
 
 
 def accept_recording(
