@@ -4,19 +4,21 @@ from __future__ import annotations
 
 import json
 import threading
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
 from redline.recording import SeriesKey, canonical_params
 from redline.server.core.tasks import DETECT_TASK
 from redline.server.db import lock_component, session_factory
-from redline.server.models import Execution, Revision
+from redline.server.models import Component, Delivery, Execution, Revision
 from redline.server.models.base import utcnow
 from redline.server.schemas.components import ComponentCreate
 from redline.server.services.components import create_component
 from redline.server.services.imports import ImportedRun, store_import
-from sqlalchemy import select, update
+from redline.worker.statuses import commit_status
+from sqlalchemy import event, select, update
+from sqlalchemy.orm import Session
 
 from tests.support.api import Api, api_with
 from tests.support.concurrency import waiting_on_a_lock
@@ -344,6 +346,15 @@ def test_a_commit_imported_under_another_title_is_refused_naming_its_revision(ap
         assert f"commit {commit!r} is revision 'i11' of 'clang' already" in again.text
     moving = api.post("/api/v1/import/results", "ci", results("i12", "main"))
     assert moving.status_code == 201  # a branch names a commit that moves: a new revision
+    # a second revision of one commit made before this rule takes its imports, sent again too
+    with session_factory(api.settings.database_url)() as session:
+        first = session.scalar(select(Revision).where(Revision.title == "i11"))
+        twin = {"title": "i13", "sort_key": "13", "commit": sha, "repo": "", "branch": ""}
+        session.add(Revision(component_id=first.component_id, order_key=first.order_key, **twin))
+        session.commit()
+    for status in (201, 200):
+        kept = api.post("/api/v1/import/results", "ci", results("i13", sha))
+        assert kept.status_code == status, kept.text
 
 
 def test_an_import_takes_turns_with_a_verdict_being_stored(api: Api):
@@ -373,19 +384,77 @@ def test_an_import_takes_turns_with_a_verdict_being_stored(api: Api):
         except Exception as exc:  # the deadlock, had the import won it
             outcome.append(exc)
 
-    worker = threading.Thread(target=storing_verdicts)
-    worker.start()
-    assert locked.wait(30)
     report = lnt_report()
     report["tests"].append({"name": "new.exec", "execution_time": [2.0]})  # a new series
+    _import_while_held(api, report, storing_verdicts, locked, go, outcome)
+    answers = [o.status_code if hasattr(o, "status_code") else o for o in outcome]
+    assert sorted(answers, key=str) == [201, "stored"], [getattr(o, "text", o) for o in outcome]
+
+
+def test_an_import_takes_turns_with_a_commit_status_being_written(api: Api):
+    """A review found the import's component lock (taken for the test above) deadlocked with a
+    commit status: that locks the revision, then its delivery's row needs the component's. Both
+    take the component's key-share lock before the revision's now."""
+    report = lnt_report()
+    report["run"]["git_sha"] = "a" * 40
+    first = send_lnt(api, report)
+    assert first.status_code == 201, first.text
+    revision_id = first.json()["revision_id"]
+    database_url = api.settings.database_url
+    target = {"provider": "github", "api_url": "https://api.github.com", "repository": "o/r"}
+    with session_factory(database_url)() as session:
+        revision = session.get_one(Revision, revision_id)
+        session.execute(
+            update(Component)
+            .where(Component.id == revision.component_id)
+            .values(commit_status={**target, "token": "t"})
+        )
+        session.commit()
+    reached, go = threading.Event(), threading.Event()
+    outcome: list[object] = []
+
+    def writing_a_status() -> None:
+        def hold(held: Session, *_: object) -> None:  # its delivery's row about to be made
+            if any(isinstance(row, Delivery) for row in held.new) and not reached.is_set():
+                reached.set()
+                assert go.wait(30)
+
+        try:
+            with session_factory(database_url)() as session:
+                event.listen(session, "before_flush", hold)
+                made = commit_status(session, revision_id)
+                session.commit()
+            outcome.append(len(made))
+        except Exception as exc:  # the deadlock, had the status lost it
+            outcome.append(exc)
+
+    again = lnt_report(scale=2.0)  # a second machine's results of the revision
+    again["run"]["git_sha"] = "a" * 40
+    _import_while_held(api, again, writing_a_status, reached, go, outcome)
+    answers = [o.status_code if hasattr(o, "status_code") else o for o in outcome]
+    assert sorted(answers, key=str) == [1, 201], [getattr(o, "text", o) for o in outcome]
+
+
+def _import_while_held(
+    api: Api,
+    report: dict,
+    holder: Callable[[], None],
+    holding: threading.Event,
+    go: threading.Event,
+    outcome: list[object],
+) -> None:
+    """``holder`` runs in a thread until it holds its locks (``holding``); then ``report`` is
+    imported until it waits on a lock, ``go`` lets the holder finish, and both end; the
+    import's answer joins ``outcome``."""
+    worker = threading.Thread(target=holder)
+    worker.start()
+    assert holding.wait(30)
     importing = threading.Thread(target=lambda: outcome.append(send_lnt(api, report)))
     importing.start()
-    for _ in range(600):  # until the import waits on a lock the verdicts hold
-        if waiting_on_a_lock(database_url):
+    for _ in range(600):
+        if waiting_on_a_lock(api.settings.database_url):
             break
         importing.join(0.05)
     go.set()
     worker.join(30)
     importing.join(30)
-    answers = [o.status_code if hasattr(o, "status_code") else o for o in outcome]
-    assert sorted(answers, key=str) == [201, "stored"], [getattr(o, "text", o) for o in outcome]

@@ -12,6 +12,7 @@ from urllib.parse import urlencode
 import pytest
 from redline.server.db import session_factory
 from redline.server.models import ApiToken
+from redline.server.services import signin
 from redline.server.services.signin import create_user
 from sqlalchemy import select
 
@@ -129,14 +130,21 @@ def test_read_access_token_mode_needs_a_read_token(services: Services, tmp_path:
 
 def test_a_session_reads_only_what_its_scopes_read(services: Services, tmp_path: Path):
     """A trial signed in with the ci token, which reads only verdicts, and its session read
-    every page, the API and the recordings under REDLINE_READ_ACCESS=token."""
+    every page, the API and the recordings under REDLINE_READ_ACCESS=token. Such a sign-in is
+    refused now; a session opened while reading was open reads what its scopes read."""
     with api_with(services, tmp_path, read_access="token") as api:
         with session_factory(api.settings.database_url)() as session:
             create_user(session, "pipeline", "correct horse battery", "ci")
         ci = api.tokens["ci"]["Authorization"].removeprefix("Bearer ")
         for signed in ({"token": ci}, {"name": "pipeline", "password": "correct horse battery"}):
             api.client.cookies.clear()
-            assert sign_in(api.client, signed, follow_redirects=False).status_code == 303
+            refused = sign_in(api.client, signed, follow_redirects=False)
+            assert refused.status_code == 403, refused.text[:300]
+            assert "reads only revisions&#39; verdicts (scopes ci), not the pages" in refused.text
+            with session_factory(api.settings.database_url)() as session:
+                name, password = signed.get("name", ""), signed.get("password", "")
+                opened = signin.sign_in(session, name, password, signed.get("token", ""))
+            api.client.cookies.set(signin.SESSION_COOKIE, opened.secret)
             for path in ("/api/v1/components", "/", "/regressions", "/components/builder/trends"):
                 refused = api.client.get(path, follow_redirects=False)
                 assert refused.status_code == 403, (signed, path, refused.text[:200])

@@ -30,6 +30,19 @@ def lock_component(session: Session, component_id: int) -> None:
     session.execute(select(Component.id).where(Component.id == component_id).with_for_update())
 
 
+def share_component(session: Session, component_id: int) -> None:
+    """The component's row, key-share locked for the transaction: the lock a row that refers to
+    it (a series, a delivery) takes when made, taken before the revision's row by whoever locks
+    both. An import, and a commit status, locked the revision first and then waited for the
+    component, which storing verdicts (`lock_component`, then the revision's row) held: a
+    deadlock. Key-share locks do not wait for one another, only for `lock_component`'s."""
+    session.execute(
+        select(Component.id)
+        .where(Component.id == component_id)
+        .with_for_update(read=True, key_share=True)
+    )
+
+
 @lru_cache
 def get_engine(database_url: str) -> Engine:
     """One engine per database URL in this process: a pool of at most ``REDLINE_DB_POOL_SIZE`` +

@@ -10,6 +10,7 @@ import uuid
 from datetime import datetime
 from typing import Any
 
+from redline.server.db import share_component
 from redline.server.models import Component, Delivery, Revision
 from redline.server.schemas.fields import COMMIT_HASH
 from redline.server.services.ci_verdict import ci_verdict
@@ -93,6 +94,12 @@ def commit_status(session: Session, revision_id: int) -> list[int]:
     revision a commit: once per change of its state (pending, success, failure, error)."""
     # Statuses of one revision take turns on its row: two scans at once would read the same
     # statuses told, pick the same key, and the one that read the older verdict could land last.
+    # The component's key-share lock first, which the delivery's row takes anyway: taken after
+    # the revision's, it deadlocked with an import (`db.share_component`).
+    component_id = session.scalar(select(Revision.component_id).where(Revision.id == revision_id))
+    if component_id is None:
+        return []
+    share_component(session, component_id)
     revision = session.get(Revision, revision_id, with_for_update=True)
     if revision is None or not COMMIT_HASH.fullmatch(revision.commit):
         return []  # a forge addresses a status by hash: a branch, a tag or a path gets none

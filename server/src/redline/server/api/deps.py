@@ -8,7 +8,7 @@ from typing import Annotated
 from fastapi import Depends, HTTPException, Request, status
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 from redline.server.core.config import Settings
-from redline.server.core.security import READERS, acts_for, grants
+from redline.server.core.security import PAGE_READERS, READERS, acts_for, grants
 from redline.server.db import session_factory
 from redline.server.models import ApiToken
 from redline.server.services.signin import SESSION_COOKIE, current
@@ -144,6 +144,6 @@ def reader(*scopes: str) -> Callable[..., None]:
 
 
 #: what Redline stored: for readers, and for those who triage what they read
-READ = [Depends(reader("read", "triage"))]
+READ = [Depends(reader(*PAGE_READERS))]
 #: a revision's verdict: what a CI job, holding its `ci` token, waits for
 VERDICT_READ = [Depends(reader(*READERS))]

@@ -14,6 +14,8 @@ PEOPLE_SCOPES = SCOPES - {"agent"}
 #: scopes of someone who may read what Redline stored when reading needs a token
 #: (`REDLINE_READ_ACCESS=token`) and sign in to the pages: every one but a host's
 READERS = ("read", "ci", "triage")
+#: ... and of those who read everything else, the pages too (a `ci` token reads verdicts only)
+PAGE_READERS = ("read", "triage")
 TOKEN_PREFIX = "rl_"
 
 

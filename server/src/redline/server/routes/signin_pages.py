@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from fastapi import Request, Response
 from fastapi.responses import HTMLResponse, RedirectResponse
-from redline.server.api.deps import SessionDep
+from redline.server.api.deps import SessionDep, SettingsDep
 from redline.server.services import signin
 from redline.server.services.errors import Forbidden
 from redline.server.ui.pages import form_fields, page, page_router, problem, signed_in
@@ -45,13 +45,17 @@ def signinpage(request: Request, next: str = "/") -> Response:
 
 
 @router.post("/signin", response_class=HTMLResponse)
-async def signin_form(request: Request, session: SessionDep) -> Response:
+async def signin_form(request: Request, session: SessionDep, settings: SettingsDep) -> Response:
     form = await form_fields(request)
     target = _local(form.get("next", "/"))
     try:
         signin.check_signin_form(request.cookies.get(signin.SIGNIN_COOKIE), form.get("csrf", ""))
         opened = signin.sign_in(
-            session, form.get("name", ""), form.get("password", ""), form.get("token", "")
+            session,
+            form.get("name", ""),
+            form.get("password", ""),
+            form.get("token", ""),
+            pages_closed=settings.read_access == "token",
         )
     except Forbidden as exc:
         return _form(request, target, exc.detail, status_code=403)

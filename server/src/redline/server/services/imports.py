@@ -16,8 +16,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from redline.recording import SeriesKey, canonical_params
-from redline.server.db import lock_component
-from redline.server.models import Execution, Host, Job, JobState, Revision, Summary
+from redline.server.db import share_component
+from redline.server.models import Component, Execution, Host, Job, JobState, Revision, Summary
 from redline.server.schemas.imports import ImportResult, ResultsImport
 from redline.server.services.components import get_component
 from redline.server.services.errors import Conflict, Forbidden
@@ -81,6 +81,31 @@ def from_results(data: ResultsImport) -> ImportedRun:
 IMPORTED_JOB = "imported"
 
 
+def _refuse_another_revisions_commit(
+    session: Session, component: Component, run: ImportedRun
+) -> None:
+    """A Conflict when the import would make a new revision of a commit (a hash) that is another
+    revision already: one commit, one revision, as CI's reports have it. A trial's i12b with
+    i11's commit was a second revision of it. An import into a revision that exists is left to
+    the checks after this (and one sent again to it is the import stored before)."""
+    if not run.commit:
+        return
+    known = revision_of_commit(session, component, run.commit)
+    if known is None or known.title == run.revision:
+        return
+    titled = session.scalar(
+        select(Revision.id).where(
+            Revision.component_id == component.id, Revision.title == run.revision
+        )
+    )
+    if titled is None:
+        raise Conflict(
+            f"commit {run.commit!r} is revision {known.title!r} of {run.component!r} already: "
+            "one commit is one revision (import under its title, where it is not measured by "
+            "performance hosts)"
+        )
+
+
 def _revision(session: Session, run: ImportedRun, admin: bool) -> Revision:
     """The run's revision, created if new, locked: imports into one revision take turns, so
     each gets its own execution index (INSERT ... ON CONFLICT: concurrent imports never race).
@@ -98,16 +123,8 @@ def _revision(session: Session, run: ImportedRun, admin: bool) -> Revision:
             "which the hosts then measure); import into a component without a repository or "
             "suite"
         )
-    # the component before the revision, as storing verdicts takes them (`lock_component`): a
-    # new series' row needs the component's, and an import that held the revision first met
-    # a verdict being stored that held the component and wanted the revision (a deadlock)
-    lock_component(session, component.id)
-    known = revision_of_commit(session, component, run.commit) if run.commit else None
-    if known is not None and known.title != run.revision:
-        raise Conflict(
-            f"commit {run.commit!r} is revision {known.title!r} of {run.component!r} already: "
-            "import its results under that title"
-        )
+    share_component(session, component.id)  # before the revision's row, as everyone does
+    _refuse_another_revisions_commit(session, component, run)
     session.execute(
         insert(Revision)
         .values(

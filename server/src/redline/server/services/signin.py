@@ -21,6 +21,7 @@ from datetime import timedelta
 from functools import cache
 
 from redline.server.core.security import (
+    PAGE_READERS,
     PEOPLE_SCOPES,
     READERS,
     grants,
@@ -145,20 +146,34 @@ def _open(session: Session, opener: ApiToken | User) -> Opened:
     return Opened(secret, row)
 
 
-def sign_in(session: Session, name: str, password: str, token: str) -> Opened:
+def sign_in(
+    session: Session, name: str, password: str, token: str, pages_closed: bool = False
+) -> Opened:
     """A session for the user with this name and password, or for the API token; a
-    `Forbidden` that does not say which part was wrong otherwise."""
+    `Forbidden` that does not say which part was wrong otherwise. ``pages_closed``: reading
+    needs a token (REDLINE_READ_ACCESS=token), so one whose scopes read no page (`ci`: only
+    verdicts) is refused here rather than met by a 403 on every page, whose "sign in" led back."""
     if token:
         found = authenticate(session, token.strip())
         if found is None:
             raise Forbidden("that token is not a live API token")
         if not any(grants(list(found.scopes), scope) for scope in READERS):
             raise Forbidden(f"token {found.name!r} is for performance hosts, not for people")
+        _reads_pages(f"token {found.name!r}", found.scopes, pages_closed)
         return _open(session, found)
     user = session.scalar(select(User).where(User.name == name, ~User.disabled))
     if not check_password(password, user.password_hash if user else _unknown()) or user is None:
         raise Forbidden("wrong name or password")
+    _reads_pages(f"user {user.name!r}", user.scopes, pages_closed)
     return _open(session, user)
+
+
+def _reads_pages(who: str, scopes: list[str], pages_closed: bool) -> None:
+    if pages_closed and not any(grants(list(scopes), scope) for scope in PAGE_READERS):
+        raise Forbidden(
+            f"{who} reads only revisions' verdicts (scopes {', '.join(scopes)}), not the "
+            "pages: sign in with a read or triage token or user"
+        )
 
 
 def current(session: Session, secret: str | None) -> WebSession | None:
