@@ -248,6 +248,31 @@ def test_one_pair_alone_confirms_nothing_when_the_other_was_measured_on_a_busy_h
     assert session.scalars(select(Regression)).one().confirmation == "suspected"
 
 
+def test_pairs_all_measured_on_a_busy_host_say_so_and_a_later_change_hands_it_to_triage(
+    session, database_url, tmp_path
+):
+    """A trial's threefold CPU stayed suspected for good, its reason saying "the pairs did not
+    measure this series against its baseline; the later revisions will confirm it instead":
+    every pair had run while the host was busy (left out), and a leak two revisions later
+    ended what the history could judge. Each is now said as it is."""
+    host = _flagged_history(session, database_url, tmp_path)
+    while (job := lease_job(session, "perf-1", 60, 3)) is not None:
+        level = 30.0 if job.revision.title == "r5" else 20.0
+        _run(session, database_url, tmp_path, job, level, host_percent=90.0)
+    detection = _r5_detection(session)
+    assert detection.confirmation == "suspected", detection.confirmation_reason
+    reason = detection.confirmation_reason
+    busy = "re-runs could not decide: the host was busy in every pair's run of this series"
+    assert reason.startswith(busy) and "the later revisions will confirm it" in reason, reason
+    _measured(session, database_url, tmp_path, [30.0, 60.0, 60.0], host, start=6)
+    detection = _r5_detection(session)
+    assert detection.confirmation == "suspected", detection.confirmation_reason
+    assert detection.confirmation_reason == (
+        f"{busy} (their phases are left out, as detection leaves them out); the series changed "
+        "again 2 revision(s) later, before 2 revision(s) could confirm it: triage decides"
+    )
+
+
 def test_a_late_baseline_queues_pairs_against_it_and_the_earlier_ones_are_superseded(
     session, database_url, tmp_path
 ):

@@ -44,7 +44,7 @@ from redline.server.services.detection_config import component_config
 from redline.server.services.fresh_runs import fresh_run_between
 from redline.server.services.jobs import current_pairs
 from redline.server.services.revisions import CANCELLED, UNFINISHED
-from redline.worker.confirmation import baseline_noise
+from redline.worker.confirmation import LATER_DECIDE, baseline_noise
 from redline.worker.found_late import move_back
 from redline.worker.history import reanalysing
 from sqlalchemy import exists, func, select
@@ -191,6 +191,18 @@ def _values(session: Session, jobs: list[Job]) -> dict[tuple[int, int, int], tup
     return {(s, pair, rid): (p50, mean) for s, pair, rid, p50, mean in rows}
 
 
+def _busy_in(session: Session, jobs: list[Job]) -> set[int]:
+    """The series of which a confirmation execution of ``jobs`` has a phase measured while the
+    host was busy (`_values` leaves those out)."""
+    return set(
+        session.scalars(
+            select(Summary.series_id)
+            .join(Execution, Execution.id == Summary.execution_id)
+            .where(Execution.job_id.in_([job.id for job in jobs]), Summary.disturbed)
+        )
+    )
+
+
 def _measured(
     values: dict[tuple[int, int, int], tuple[float, float]],
     series_id: int,
@@ -243,11 +255,11 @@ def settle_pairs(session: Session, revision: Revision) -> bool:
     if not any((pair, revision.id) in ran and (pair, baseline) in ran for pair in pairs):
         for detection, _, _ in suspected:  # not one complete pair: the history decides
             detection.confirmation_reason = (
-                f"{UNDECIDED}: no confirmation pair could run ({'; '.join(failed)}); the later "
-                "revisions will confirm it instead"
+                f"{UNDECIDED}: no confirmation pair could run ({'; '.join(failed)}); {LATER_DECIDE}"
             )
         return True
     moved: list[Revision] = []
+    busy: set[int] = set()  # read once, where a series has no complete pair
     rerunnable = _rerunnable(session, session.get_one(Revision, baseline))
     for detection, process, counter in suspected:
         if is_count(process, counter):
@@ -260,10 +272,14 @@ def settle_pairs(session: Session, revision: Revision) -> bool:
         if detection.baseline_revision_id != baseline or not any(
             math.isfinite(b) and math.isfinite(c) for b, c in measured
         ):
-            detection.confirmation_reason = (
-                f"{UNDECIDED}: the pairs did not measure this series against its baseline; the "
-                "later revisions will confirm it instead"
+            why = (
+                "the host was busy in every pair's run of this series (their phases are left "
+                "out, as detection leaves them out)"
+                if detection.baseline_revision_id == baseline
+                and detection.series_id in (busy := busy or _busy_in(session, jobs))
+                else "the pairs did not measure this series against its baseline"
             )
+            detection.confirmation_reason = f"{UNDECIDED}: {why}; {LATER_DECIDE}"
             continue
         found = pairs_hold(
             measured,

@@ -48,6 +48,8 @@ from sqlalchemy.dialects.postgresql import distinct_on
 from sqlalchemy.orm import Session
 
 CONFIRMED, NOT_CONFIRMED = "confirmed", "not_confirmed"
+#: how a re-runs' "could not decide" hands the change to the history
+LATER_DECIDE = "the later revisions will confirm it instead"
 #: later revisions with results, in multiples of the wait, after which a change whose series
 #: they did not measure enough is dropped instead of waiting for ever
 GONE_AFTER = 3
@@ -187,10 +189,18 @@ def settle(
     if found.state == SUSPECTED and end < len(levels):
         found = _returned(baseline, levels, at, wait, count) or found
     if found.state == SUSPECTED and end < len(levels):
-        if not detection.confirmation_reason.startswith(UNDECIDED):
+        again = (
+            f"the series changed again {end - at} revision(s) later, before {wait} revision(s) "
+            "could confirm it"
+        )
+        said = detection.confirmation_reason
+        if said.startswith(UNDECIDED):  # what the re-runs said, and that the history cannot
+            # (a trial's kept "the later revisions will confirm it instead" for good)
+            head = said.split(f"; {LATER_DECIDE}")[0].split("; the series changed again")[0]
+            detection.confirmation_reason = f"{head}; {again}: triage decides"
+        else:
             detection.confirmation_reason = (
-                f"suspected: the series changed again {end - at} revision(s) later, before "
-                f"{wait} revision(s) could confirm it; re-runs (confirm_pairs) or triage decide"
+                f"suspected: {again}; re-runs (confirm_pairs) or triage decide"
             )
         return  # what follows the next change says nothing of this one
     later = (
