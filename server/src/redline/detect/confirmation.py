@@ -163,6 +163,8 @@ def hold(
 #: How a reason begins when the re-runs could not decide a change (none ran, too few gave a
 #: value, a count, a series they did not measure): the history decides then
 UNDECIDED = "re-runs could not decide"
+#: ... and how such a reason hands the change to the history
+LATER_DECIDE = "the later revisions will confirm it instead"
 #: The share of complete pairs that must show the change for it to be confirmed by re-runs.
 PAIRS_SHARE = 2 / 3
 #: A pair shows a change when its candidate moved the flagged way by more than this many

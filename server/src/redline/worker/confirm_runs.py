@@ -25,7 +25,14 @@ from collections import defaultdict
 from datetime import timedelta
 
 from redline.detect.config import DetectionConfig
-from redline.detect.confirmation import DROPPED, SUSPECTED, UNDECIDED, pairs_decided, pairs_hold
+from redline.detect.confirmation import (
+    DROPPED,
+    LATER_DECIDE,
+    SUSPECTED,
+    UNDECIDED,
+    pairs_decided,
+    pairs_hold,
+)
 from redline.detect.counters import is_count
 from redline.server.models import (
     DID_NOT_RUN,
@@ -44,7 +51,7 @@ from redline.server.services.detection_config import component_config
 from redline.server.services.fresh_runs import fresh_run_between
 from redline.server.services.jobs import current_pairs
 from redline.server.services.revisions import CANCELLED, UNFINISHED
-from redline.worker.confirmation import LATER_DECIDE, baseline_noise
+from redline.worker.confirmation import baseline_noise
 from redline.worker.found_late import move_back
 from redline.worker.history import reanalysing
 from sqlalchemy import exists, func, select

@@ -22,6 +22,7 @@ from redline.detect.confirmation import (
     FOUND_LATE,
     HELD,
     HOLD_SHARE,
+    LATER_DECIDE,
     LOOKBACK,
     SUSPECTED,
     UNDECIDED,
@@ -48,8 +49,6 @@ from sqlalchemy.dialects.postgresql import distinct_on
 from sqlalchemy.orm import Session
 
 CONFIRMED, NOT_CONFIRMED = "confirmed", "not_confirmed"
-#: how a re-runs' "could not decide" hands the change to the history
-LATER_DECIDE = "the later revisions will confirm it instead"
 #: later revisions with results, in multiples of the wait, after which a change whose series
 #: they did not measure enough is dropped instead of waiting for ever
 GONE_AFTER = 3
