@@ -438,7 +438,12 @@ def test_a_fresh_run_that_could_not_run_leaves_its_revision_as_it_was(
     (fresh,) = [job for job in r1.jobs if job.remeasures_job_id is not None]
     fresh.state, fresh.reason = JobState.failed, "commit gone"
     session.commit()
-    assert ci_verdict(session, NAME, "r1").state == "done"  # not failed: its own runs ran
+    first = ci_verdict(session, NAME, "r1")
+    assert first.state == "done"  # not failed: its own runs ran
+    # nothing to compare the first revision with, busy host or not: skipped, not undecided
+    # (a trial's first commit failed its CI with exit 4 on a shared host)
+    assert (first.undecided, first.skipped) == (0, 1), [c.reason for c in first.cases]
+    assert "the first revision: nothing to compare it with" in first.cases[0].reason
     verdict = ci_verdict(session, NAME, "r2")
     assert verdict.state == "done" and [c.state for c in verdict.cases] == ["undecided"]
 

@@ -34,6 +34,7 @@ from redline.recording.format import NO_TRAFFIC_MARK, canonical_params
 from redline.server.models import (
     FINISHED,
     Detection,
+    Execution,
     Host,
     Job,
     JobState,
@@ -195,6 +196,7 @@ def ci_verdict(session: Session, component_name: str, title: str) -> CiVerdict:
             charted[key].append((detection, series))
     cases = []
     regressions = improvements = skipped = undecided = 0
+    opening = _first(session, revision)
     for (case, phase, params), found in groups.items():
         changes = [_change(d, s) for d, s in found if d.flagged and d.confirmation != DROPPED]
         worse_count = sum(c["worse"] for c in changes)
@@ -210,7 +212,11 @@ def ci_verdict(session: Session, component_name: str, title: str) -> CiVerdict:
             # passed only when every series that can be judged was: a CPU series still short of
             # baseline values beside a judged count of timeouts is no pass (a trial saw 2.5x the
             # CPU pass that way, 2026-11-24)
-            busy = [(d, s) for d, s in lacking if _undecided(d.reason)]
+            busy = [
+                (d, s)
+                for d, s in lacking
+                if _undecided(d.reason) and not (opening and names_busy_host(d.reason))
+            ]
             # a component's own counter before the driver's metrics: what a developer changed
             first, series = min(busy or lacking or found, key=lambda f: f[1].process == DRIVER)
             undecided += bool(busy)
@@ -221,7 +227,9 @@ def ci_verdict(session: Session, component_name: str, title: str) -> CiVerdict:
                 phase=phase,
                 parameters=json.loads(params),
                 state="undecided" if busy else "skipped",
-                reason=f"not enough data{some}: {series.process} {series.counter}: {first.reason}"
+                reason=f"not enough data{some}: {series.process} {series.counter}: "
+                + (FIRST if opening and not busy else "")
+                + first.reason
                 + _charted_note(charted[(case, phase, params)]),
                 changes=changes,
             )
@@ -247,6 +255,21 @@ def ci_verdict(session: Session, component_name: str, title: str) -> CiVerdict:
         cases=cases,
         page=f"/components/{quote(component.name)}/revisions/{quote(revision.title)}",
     )
+
+
+#: how a case of a component's first measured revision begins its reason: a busy host there
+#: spoils no comparison, there being none (a trial's first commit failed CI with exit 4)
+FIRST = "the first revision: nothing to compare it with; "
+
+
+def _first(session: Session, revision: Revision) -> bool:
+    """Whether no revision of the component before ``revision`` has results."""
+    earlier = (
+        select(Execution.id)
+        .join(Revision, Revision.id == Execution.revision_id)
+        .where(Revision.component_id == revision.component_id, revision_place() < revision.place)
+    )
+    return not session.scalar(select(earlier.exists()))
 
 
 def _undecided(reason: str) -> bool:
