@@ -4,6 +4,7 @@ its exit codes, the JUnit XML it writes, and the verdict endpoints behind it."""
 from __future__ import annotations
 
 import json
+import re
 import socket
 import subprocess
 import sys
@@ -78,6 +79,9 @@ def test_a_change_for_the_worse_fails_with_1_and_a_junit_failure(server, tmp_pat
     done = wait(server, "--revision", "r6", "--junit", str(out))
     assert done.returncode == 1, done.stderr
     assert "cpu +" in done.stdout and "1 change(s) for the worse" in done.stdout
+    # said on the console as in the JUnit file (a trial's table showed a suspected change as
+    # plainly failed)
+    assert re.search(r"cpu \+[0-9.]+ % \(suspected: not confirmed yet\)", done.stdout), done.stdout
     suite = ElementTree.parse(out).getroot()
     assert (suite.get("tests"), suite.get("failures"), suite.get("skipped")) == ("1", "1", "0")
     failure = suite.find("testcase/failure")
@@ -304,6 +308,12 @@ def test_ci_report_reports_head_and_ci_wait_waits_for_it_by_default(server, tmp_
     env["REDLINE_TOKEN"] = "rl_forged"
     refused = redline("report")
     assert refused.returncode == 2 and "HTTP 401" in refused.stderr, refused.stderr
+    assert "no token was given" not in refused.stderr  # one was, and it was refused
+    env["REDLINE_TOKEN"] = ""  # none at all: said how to give one (a trial read only the 401)
+    for command in ("report", "wait"):
+        bare = redline(command)
+        said = " ".join(bare.stderr.split())
+        assert bare.returncode == 2 and "no token was given: set REDLINE_TOKEN" in said, said
 
 
 @pytest.mark.timeout(60)  # without the give-up it would wait its whole hour

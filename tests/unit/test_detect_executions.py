@@ -272,3 +272,13 @@ def test_steps_on_unchanged_histories_are_rare_and_large_ones_are_found(per_revi
             step = strongest_step(ExecutionShift(), history, _blind(history))
             found += step is not None and step[0] == 3
         assert found >= 0.8 * 300
+
+
+def test_the_why_page_quotes_what_the_score_is_and_where_it_flags():
+    """A trial read execution_shift's score of 0.902 as the shift itself: the paragraph the
+    page quotes named the shift, not the score, and not that 1 or more flags."""
+    from redline.server.services.why import _rule
+
+    rule = _rule("execution_shift")
+    assert "its score is the weaker of z / threshold and |effect| / min_effect" in rule
+    assert "a score of 1 or more is a change" in rule

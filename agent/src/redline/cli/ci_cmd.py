@@ -57,6 +57,13 @@ def _get(client: httpx.Client, path: str, **params: str) -> httpx.Response | Non
         return None
 
 
+def no_token(answer: httpx.Response, token: str, scope: str) -> str:
+    """What a 401 adds when no token was given (a trial read only "missing bearer token")."""
+    if answer.status_code != 401 or token:
+        return ""
+    return f"; no token was given: set REDLINE_TOKEN to a token with the '{scope}' scope"
+
+
 def detail(answer: httpx.Response) -> str:
     """The server's reason, a refused field's as ``field: message`` (not a list's repr)."""
     try:
@@ -86,6 +93,15 @@ def _params_text(params: object) -> str:
     return json.dumps(params, sort_keys=True, separators=(",", ":"), default=str)
 
 
+def _marks(change: dict[str, Any]) -> str:
+    """What a change's row adds to its size: for the better, and not confirmed yet (a trial's
+    console showed a suspected change as plainly failed; only its JUnit file said so)."""
+    marks = [] if change["worse"] else ["better"]
+    if change.get("confirmation") == "suspected":
+        marks.append("suspected: not confirmed yet")
+    return f" ({'; '.join(marks)})" if marks else ""
+
+
 def _table(verdict: dict[str, Any], fail_on: FailOn) -> str:
     rows = [("test case / phase [parameters]", "verdict", "changes")]
     for case in verdict["cases"]:
@@ -95,7 +111,7 @@ def _table(verdict: dict[str, Any], fail_on: FailOn) -> str:
         changes = ", ".join(
             f"{c['process']} {c['counter']} "
             + ("n/a" if c["effect"] is None else f"{c['effect'] * 100:+.1f} %")
-            + ("" if c["worse"] else " (better)")
+            + _marks(c)
             for c in case["changes"]
         )
         name = f"{case['case']} / {case['phase']} {_params_text(case['parameters'])}".strip()
@@ -234,7 +250,10 @@ def wait(
             reached = reached or answer is not None
             if answer is not None:
                 if answer.status_code in (401, 403):
-                    fail(f"the server refused the token: {detail(answer)}")
+                    fail(
+                        f"the server refused the token: {detail(answer)}"
+                        + no_token(answer, token, "read' or 'ci")
+                    )
                 if answer.status_code == 404:
                     missing = detail(answer)
                     if missing == "Not Found":  # no route at all: not Redline's API there

@@ -17,7 +17,7 @@ from urllib.parse import urlsplit
 
 import httpx
 import typer
-from redline.cli.ci_cmd import BAD_INPUT, detail, unaddressable
+from redline.cli.ci_cmd import BAD_INPUT, detail, no_token, unaddressable
 
 #: a title of the first 12 hex digits, as `git rev-parse --short=12` and the push webhook give
 TITLE_DIGITS = 12
@@ -101,7 +101,7 @@ def report(
     except httpx.TransportError as error:
         _stop(f"the server at {server} cannot be reached ({type(error).__name__}: {error})")
     if answer.status_code not in (200, 201):
-        _stop(f"HTTP {answer.status_code}: {detail(answer)}")
+        _stop(f"HTTP {answer.status_code}: {detail(answer)}" + no_token(answer, token, "ci"))
     said = answer.json()
     jobs, title = len(said.get("job_ids", [])), said.get("title", title)  # the first report's
     typer.echo(
