@@ -37,3 +37,25 @@ def test_an_alerts_summary_names_its_largest_change_with_its_parameters():
     )
     other = _summary("objectbuilder", "improvement", [change(-0.2, 2, process="driver")])
     assert other.startswith("objectbuilder: improvement: driver cpu_percent -20.0 % [legs=2")
+
+
+def test_an_alerts_chart_link_opens_the_changed_series_parameter_set_and_all():
+    """A trial's alert linked to ?case=reads&phase=steady&process=kvstore&counter=pss_bytes,
+    every parameter set's chart: the link now selects the changed one, as the page filters."""
+    import json
+    from types import SimpleNamespace
+    from urllib.parse import parse_qsl, urlsplit
+
+    from redline.server.models import Series
+    from redline.server.services.trend_view import TrendView
+    from redline.worker.messages import _chart_path
+
+    params = {"rate": 150, "size": "2048", "mode": True}
+    series = Series(case="reads", phase="steady", params=json.dumps(params, sort_keys=True),
+                    process="kvstore", counter="pss_bytes")  # fmt: skip
+    link = urlsplit(_chart_path("kv store", series))
+    assert link.path == "/components/kv%20store"
+    view = TrendView.from_query(dict(parse_qsl(link.query)))
+    same = SimpleNamespace(case="reads", phase="steady", process="kvstore", counter="pss_bytes")
+    assert view.selects(SimpleNamespace(**vars(same), params=params))
+    assert not view.selects(SimpleNamespace(**vars(same), params={**params, "rate": 50}))

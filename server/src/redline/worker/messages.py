@@ -17,14 +17,19 @@ from urllib.parse import quote, urlencode
 
 from redline.recording import params_name
 from redline.server.models import Detection, Regression, Revision, RuntimeAlarm, Series
+from redline.server.services.read import param_text
 
 #: the version of the webhook payload (docs/alerts.md); a breaking change raises it
 SCHEMA_VERSION = 1
 
 
 def _chart_path(component: str, series: Series) -> str:
+    """The component page filtered to the series' chart, its parameter set too, as the page's
+    own filters say it (`param.NAME`; a trial's alert opened every parameter set's chart)."""
     query = {"case": series.case, "phase": series.phase, "process": series.process}
     query["counter"] = series.counter
+    params = json.loads(series.params or "{}")
+    query |= {f"param.{name}": param_text(value) for name, value in sorted(params.items())}
     return f"/components/{quote(component)}?{urlencode(query)}"
 
 
