@@ -107,3 +107,26 @@ def test_component_ready_by_liveliness_token_runs_and_a_missing_token_times_out(
     suite.write_text(text.replace("lively/*", "other/*"))
     with pytest.raises(RunError, match="waiting for a zenoh liveliness token on 'other/\\*'"):
         run_suite(suite, tmp_path / "never.mcap")
+
+
+def test_an_action_that_raises_is_named_with_where_in_the_test_module(tmp_path: Path) -> None:
+    """A trial's raising action said only "RuntimeError: boom from my custom action": no file,
+    no line, and no traceback in the run's logs. The error names the test module's line."""
+    suite = _suite(
+        tmp_path,
+        """\
+        from redline.testing import Phase, TestCase
+        from redline.testing.actions import Action
+
+        class Boom(Action):
+            def run(self, ctx):
+                raise RuntimeError("boom from my custom action")
+
+        case = TestCase("c", [Phase("p", Boom())])
+        """,
+    )
+    with pytest.raises(RunError) as caught:
+        run_suite(suite, tmp_path / "out.mcap")
+    said = str(caught.value)
+    assert "RuntimeError: boom from my custom action" in said, said
+    assert f"(raised at {tmp_path / 'test_it.py'}:6, in run)" in said, said

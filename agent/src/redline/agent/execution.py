@@ -5,8 +5,10 @@ from __future__ import annotations
 import json
 import threading
 import time
+import traceback
 from collections.abc import Callable, Sequence
 from contextlib import AbstractContextManager, nullcontext
+from pathlib import Path
 from typing import Any
 
 import zenoh
@@ -60,6 +62,25 @@ class Markers:
         self._publisher.undeclare()
 
 
+#: Redline's own package (the agent's part of it, the SDK's actions included): frames in it
+#: are not where a test's error is
+OWN = Path(__file__).resolve().parents[1]
+
+
+def raised_at(exc: BaseException) -> str:
+    """Where in the test's own code ``exc`` was raised: the innermost frame of its traceback
+    outside Redline's package (a trial's raising action said only "RuntimeError: boom"); ""
+    when every frame is Redline's."""
+    frames = [
+        frame
+        for frame in traceback.extract_tb(exc.__traceback__)
+        if not Path(frame.filename).resolve().is_relative_to(OWN)
+    ]
+    if not frames:
+        return ""
+    return f" (raised at {frames[-1].filename}:{frames[-1].lineno}, in {frames[-1].name})"
+
+
 #: Called with each segment's phase and the driver reports it published (`TrafficCheck`).
 Observer = Callable[[Phase, list[dict[str, Any]]], None]
 
@@ -80,7 +101,7 @@ def _run_segment(
     except Exception as exc:
         raise RunError(
             f"test case {case.name!r}, phase {phase.name!r} [{params.name}]: "
-            f"{type(exc).__name__}: {exc}"
+            f"{type(exc).__name__}: {exc}{raised_at(exc)}"
         ) from exc
     finally:
         ctx.flush_metrics()  # query round trips, waits: one summary per action and key
