@@ -266,7 +266,7 @@ def settle_pairs(session: Session, revision: Revision) -> bool:
             )
         return True
     moved: list[Revision] = []
-    busy: set[int] = set()  # read once, where a series has no complete pair
+    busy: set[int] | None = None  # read once, where a series has no complete pair
     rerunnable = _rerunnable(session, session.get_one(Revision, baseline))
     for detection, process, counter in suspected:
         if is_count(process, counter):
@@ -283,7 +283,8 @@ def settle_pairs(session: Session, revision: Revision) -> bool:
                 "the host was busy in every pair's run of this series (their phases are left "
                 "out, as detection leaves them out)"
                 if detection.baseline_revision_id == baseline
-                and detection.series_id in (busy := busy or _busy_in(session, jobs))
+                and detection.series_id
+                in (busy := _busy_in(session, jobs) if busy is None else busy)
                 else "the pairs did not measure this series against its baseline"
             )
             detection.confirmation_reason = f"{UNDECIDED}: {why}; {LATER_DECIDE}"

@@ -88,17 +88,14 @@ def _refuse_another_revisions_commit(
     revision already: one commit, one revision, as CI's reports have it. A trial's i12b with
     i11's commit was a second revision of it. An import into a revision that exists is left to
     the checks after this (and one sent again to it is the import stored before)."""
-    if not run.commit:
-        return
-    known = revision_of_commit(session, component, run.commit)
-    if known is None or known.title == run.revision:
-        return
-    titled = session.scalar(
+    if not run.commit or session.scalar(
         select(Revision.id).where(
             Revision.component_id == component.id, Revision.title == run.revision
         )
-    )
-    if titled is None:
+    ):
+        return
+    known = revision_of_commit(session, component, run.commit)
+    if known is not None:
         raise Conflict(
             f"commit {run.commit!r} is revision {known.title!r} of {run.component!r} already: "
             "one commit is one revision (import under its title, where it is not measured by "
