@@ -229,40 +229,102 @@ def test_pairs_that_show_the_change_confirm_it_and_stay_out_of_the_verdicts(
     assert regression.confirmation == "confirmed"
 
 
-def test_one_pair_alone_confirms_nothing_when_the_other_was_measured_on_a_busy_host(
+def _run_all(session, database_url: str, tmp_path: Path, busy=lambda job: False) -> None:
+    """Every confirmation run an agent may lease now, r5's at 30 % CPU and r4's at 20 %;
+    ``busy(job)``: whether the host was busy beside it (the run disturbed)."""
+    while (job := lease_job(session, "perf-1", 60, 3)) is not None:
+        level = 30.0 if job.revision.title == "r5" else 20.0
+        _run(session, database_url, tmp_path, job, level, host_percent=90.0 if busy(job) else None)
+
+
+def _quiet_time_came(session) -> None:
+    """As if `QUIET_WAIT` had passed since the pairs were queued again."""
+    for job in session.scalars(select(Job).where(Job.not_before.is_not(None))):
+        job.not_before = utcnow() - timedelta(seconds=1)
+    session.commit()
+
+
+def _queued_again(session) -> list[tuple[str, int]]:
+    jobs = session.scalars(select(Job).where(Job.not_before.is_not(None)).order_by(Job.id))
+    return [(job.revision.title, job.pair) for job in jobs]
+
+
+def test_a_pair_the_host_was_busy_in_is_run_again_later_and_then_decides(
     session, database_url, tmp_path
 ):
     """A trial's demo said "confirmed by 1 of 1 pairs; 2 pair(s) did not run": those had run,
-    while the host was busy, and were left out. Two that agree decide; one alone leaves the
-    change to the later revisions, saying why."""
+    while the host was busy, and were left out. One pair alone decides nothing: the pairs are
+    queued once more, not leased before the host may be quiet, and the first of them that
+    shows the change confirms it with the pair that did; the second is not needed."""
     _flagged_history(session, database_url, tmp_path)
-    while (job := lease_job(session, "perf-1", 60, 3)) is not None:
-        level = 30.0 if job.revision.title == "r5" else 20.0
-        busy = 90.0 if job.pair == 2 else None
-        _run(session, database_url, tmp_path, job, level, host_percent=busy)
+    _run_all(session, database_url, tmp_path, busy=lambda job: job.pair == 2)
     detection = _r5_detection(session)
     assert detection.confirmation == "suspected", detection.confirmation_reason
+    assert re.fullmatch(
+        r"the host was busy in a confirmation pair's run of this series \(left out, as "
+        r"detection leaves it out\): 2 pair\(s\) queued again, from \d\d:\d\d UTC, when "
+        r"the work that loaded it may have ended",
+        detection.confirmation_reason,
+    ), detection.confirmation_reason
+    assert _queued_again(session) == [("r4", 3), ("r5", 3), ("r4", 4), ("r5", 4)]
+    waited = session.scalars(select(Job.not_before).where(Job.not_before.is_not(None))).first()
+    assert waited - utcnow() > timedelta(minutes=9)  # QUIET_WAIT: ten minutes
+    assert lease_job(session, "perf-1", 60, 3) is None  # not before then
+    shown = revision_detail(session, NAME, "r5").jobs  # as the API and the page show them
+    assert [(j.pair, j.not_before is not None) for j in shown if j.pair] == [
+        (1, False),
+        (2, False),
+        (3, True),
+        (4, True),
+    ]
+    verdict = ci_verdict(session, NAME, "r5")
+    assert verdict.state == "pending", verdict
+    assert "queued again because the host was busy" in verdict.waiting_for, verdict
+    _quiet_time_came(session)
+    _run_all(session, database_url, tmp_path)
+    detection = _r5_detection(session)
+    assert detection.confirmation == "held", detection.confirmation_reason
     reason = detection.confirmation_reason
-    assert reason.startswith("re-runs could not decide: 2 pairs must show it, and 1 of 1 pairs")
-    assert "1 pair(s) gave no value of it (a run measured while the host was busy" in reason
-    assert session.scalars(select(Regression)).one().confirmation == "suspected"
+    assert reason.startswith("confirmed by 2 of 2 pairs"), reason
+    assert reason.endswith(
+        "1 more pair(s) not needed: these decided it; 1 of them run again after the host was busy"
+    ), reason
+    assert session.scalars(select(Regression)).one().confirmation == "confirmed"
 
 
-def test_pairs_all_measured_on_a_busy_host_say_so_and_a_later_change_hands_it_to_triage(
+def test_pairs_queued_again_that_do_not_show_the_change_drop_it(session, database_url, tmp_path):
+    _flagged_history(session, database_url, tmp_path)
+    _run_all(session, database_url, tmp_path, busy=lambda job: job.pair <= 2)
+    assert _queued_again(session) == [("r4", 3), ("r5", 3), ("r4", 4), ("r5", 4)]
+    _quiet_time_came(session)
+    while (job := lease_job(session, "perf-1", 60, 3)) is not None:
+        _run(session, database_url, tmp_path, job, 20.0)  # r5 as r4: the flag was the load's
+    detection = _r5_detection(session)
+    assert detection.confirmation == "dropped", detection.confirmation_reason
+    assert detection.confirmation_reason.startswith("not confirmed: the change showed in 0 of 1")
+    assert session.scalars(select(Job).where(Job.pair > 4)).all() == []  # once only
+
+
+def test_pairs_all_measured_on_a_busy_host_twice_say_so_and_a_later_change_hands_it_to_triage(
     session, database_url, tmp_path
 ):
     """A trial's threefold CPU stayed suspected for good, its reason saying "the pairs did not
     measure this series against its baseline; the later revisions will confirm it instead":
     every pair had run while the host was busy (left out), and a leak two revisions later
-    ended what the history could judge. Each is now said as it is."""
+    ended what the history could judge. The pairs now run once more; when the host is busy
+    then too, each is said as it is."""
     host = _flagged_history(session, database_url, tmp_path)
-    while (job := lease_job(session, "perf-1", 60, 3)) is not None:
-        level = 30.0 if job.revision.title == "r5" else 20.0
-        _run(session, database_url, tmp_path, job, level, host_percent=90.0)
+    _run_all(session, database_url, tmp_path, busy=lambda job: True)
+    assert len(_queued_again(session)) == 4
+    _quiet_time_came(session)
+    _run_all(session, database_url, tmp_path, busy=lambda job: True)
+    assert session.scalars(select(Job).where(Job.pair > 4)).all() == []  # once only
     detection = _r5_detection(session)
     assert detection.confirmation == "suspected", detection.confirmation_reason
     reason = detection.confirmation_reason
-    busy = "re-runs could not decide: the host was busy in every pair's run of this series"
+    busy = (
+        "re-runs could not decide: the host was busy in every run of the 4 pair(s) of this series"
+    )
     assert reason.startswith(busy) and "the later revisions will confirm it" in reason, reason
     _measured(session, database_url, tmp_path, [30.0, 60.0, 60.0], host, start=6)
     detection = _r5_detection(session)

@@ -209,6 +209,30 @@ def test_two_pairs_that_agree_decide_three_and_the_decision_is_what_all_would_gi
                 assert pairs_hold(pairs, direction, effect, wanted).state == decided, pairs
 
 
+def test_pairs_queued_again_are_decided_as_they_are_judged_wanting_only_the_first_ones() -> None:
+    """Pairs queued again after a busy host (`redline.worker.quiet_pairs`) replace the first
+    ones the host was busy in: the change is judged wanting as many pairs as were first queued,
+    and a decision before the last of them has run is the one they all would give."""
+    from redline.detect.confirmation import pairs_decided, pairs_hold
+
+    up, busy = (100.0, 131.0), (math.nan, math.nan)
+    # one busy of two first, then one that shows it: 2 of 2 wanted, decided, the 4th spared
+    assert pairs_decided([up, busy, up], "increase", 0.3, pending=1, wanted=2)
+    assert pairs_hold([up, busy, up], "increase", 0.3, 2).state == "held"
+    # counted as every pair, four wanted, three must show it: not decided
+    assert not pairs_decided([up, busy, up], "increase", 0.3, pending=1)
+    rng = np.random.default_rng(4)
+    outcomes = [(100.0, 131.0), (100.0, 101.0), busy, (100.0, 69.0)]
+    for _ in range(2_000):
+        first = int(rng.integers(1, 4))
+        total = first + int(rng.integers(1, 4))
+        pairs = [outcomes[i] for i in rng.integers(0, len(outcomes), total)]
+        for ran in range(first, total + 1):
+            if pairs_decided(pairs[:ran], "increase", 0.3, pending=total - ran, wanted=first):
+                decided = pairs_hold(pairs[:ran], "increase", 0.3, first).state
+                assert pairs_hold(pairs, "increase", 0.3, first).state == decided, pairs
+
+
 def test_a_baseline_revision_rerun_at_the_new_level_already_moved() -> None:
     """CPU +10 % missed by its own revision's run, flagged at the next: the pair's run of the
     changed revision sits +10 % on its own baseline (2 % noise), beyond the bar; one at the old

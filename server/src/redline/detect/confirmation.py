@@ -282,19 +282,21 @@ def pairs_decided(
     effect: float,
     pending: int,
     noise: float = math.nan,
+    wanted: int | None = None,
 ) -> bool:
     """Whether the ``pairs`` that ran decide `pairs_hold` whatever the ``pending`` ones show,
     or whether they run at all: then those need not run (with 3 pairs, two that agree decide).
-    The verdict is the one all the pairs would give; only machine time is saved."""
-    complete = _complete(pairs)
+    The verdict is the one all the pairs would give, judged as `pairs_hold` judges them with
+    ``wanted`` (default: every pair, those to run included); only machine time is saved."""
+    complete = len(_complete(pairs))
     bar = pair_bar(effect, noise)
-    shown = sum(_shows(move, direction, bar) for move in _moves(complete))
-    wanted, lacking = len(pairs) + pending, len(pairs) - len(complete)
-    outcomes = {
-        _outcome(shown + more_shown, lacking + more_lacking, wanted)
-        for more_shown in range(pending + 1)
-        for more_lacking in range(pending - more_shown + 1)
-    }
+    shown = sum(_shows(move, direction, bar) for move in _moves(_complete(pairs)))
+    wanted = len(pairs) + pending if wanted is None else wanted
+    outcomes = set()
+    for more in range(pending + 1):  # the pending pairs that give a value
+        final = max(wanted, complete + more)  # as `pairs_hold` counts what is wanted
+        for more_shown in range(more + 1):
+            outcomes.add(_outcome(shown + more_shown, final - complete - more, final))
     return len(outcomes) == 1
 
 

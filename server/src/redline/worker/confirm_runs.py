@@ -12,6 +12,7 @@ once every pair has run, each suspected change of the candidate is judged on the
 the figures. A pair that could not run (the baseline's commit is gone, the host went away and
 the lease ran out, the revision was cancelled as superseded) is named in the reason; when no
 pair could run, the later revisions confirm the change instead (`redline.worker.confirmation`).
+A pair the host was busy in is queued once more, for later (`redline.worker.quiet_pairs`).
 Machine time is spent only on flagged revisions, once per revision and baseline (judged again
 against a revision that arrived late, its unfinished pairs against the old baseline are
 cancelled as superseded and pairs against the new one queued), and only where an agent measured
@@ -22,6 +23,7 @@ from __future__ import annotations
 
 import math
 from collections import defaultdict
+from dataclasses import replace
 from datetime import timedelta
 
 from redline.detect.config import DetectionConfig
@@ -30,6 +32,7 @@ from redline.detect.confirmation import (
     LATER_DECIDE,
     SUSPECTED,
     UNDECIDED,
+    Hold,
     pairs_decided,
     pairs_hold,
 )
@@ -54,11 +57,17 @@ from redline.server.services.revisions import CANCELLED, UNFINISHED
 from redline.worker.confirmation import baseline_noise
 from redline.worker.found_late import move_back
 from redline.worker.history import reanalysing
-from sqlalchemy import exists, func, select
+from redline.worker.quiet_pairs import (
+    busy_in,
+    flagged_sets,
+    queue_pairs,
+    queued_again,
+    run_again,
+    waiting,
+)
+from sqlalchemy import exists, select
 from sqlalchemy.orm import Session
 
-#: confirmation jobs take execution indices from here up, apart from a revision's own
-FIRST_INDEX = 1000
 #: a pinned host silent this long is taken for gone: its confirmation runs fail with the reason
 HOST_GONE = timedelta(minutes=30)
 #: the reason of a confirmation job cancelled because the pairs before it decided every change
@@ -114,30 +123,9 @@ def queue_confirmations(session: Session, revision: Revision, config: DetectionC
         return 0  # once per baseline; none for a revision whose runs were cancelled with it
     _supersede(session, revision, current, baseline)
     first = max((job.pair for job in earlier), default=0) + 1
-    labels = list(revision.component.host_labels or [])
-    parameter_sets = _flagged_sets(session, suspected)
-    queued = 0
-    for pair in range(first, first + config.confirm_pairs):
-        for revision_id in (baseline, revision.id):  # baseline first, then the candidate
-            index = session.scalar(
-                select(func.coalesce(func.max(Job.execution_index) + 1, FIRST_INDEX)).where(
-                    Job.revision_id == revision_id, Job.execution_index >= FIRST_INDEX
-                )
-            )
-            session.add(
-                Job(
-                    revision_id=revision_id,
-                    execution_index=index,
-                    pair=pair,
-                    confirms_revision_id=revision.id,
-                    pinned_host_id=host_id,
-                    labels=labels,
-                    parameter_sets=parameter_sets,
-                )
-            )
-            session.flush()
-            queued += 1
-    return queued
+    sets = flagged_sets(session, [d.series_id for d in suspected])
+    pairs = range(first, first + config.confirm_pairs)
+    return queue_pairs(session, revision, baseline, pairs, host_id, sets)
 
 
 def _measured_on(session: Session, revision: Revision) -> int | None:
@@ -168,20 +156,6 @@ def _supersede(session: Session, revision: Revision, current: list[Job], baselin
             job.reason = f"{SUPERSEDED}: {revision.title} was judged again against {against}"
 
 
-def _flagged_sets(session: Session, suspected: list[Detection]) -> dict[str, list[str]]:
-    """Per test case, the parameter sets (canonical, as series name them) with a suspected
-    change: the agent runs the suite as far as the last of them (`selection.choose_sets`),
-    what ran before them in the flagged run included (a leak grows over a run), and what came
-    after them not, which would cost machine time and confirm nothing."""
-    series = [detection.series_id for detection in suspected]
-    sets: dict[str, set[str]] = defaultdict(set)
-    for case, params in session.execute(
-        select(Series.case, Series.params).where(Series.id.in_(series))
-    ):
-        sets[case].add(params)
-    return {case: sorted(sets[case]) for case in sorted(sets)}
-
-
 def _values(session: Session, jobs: list[Job]) -> dict[tuple[int, int, int], tuple[float, float]]:
     """(series, pair, revision) -> (median, mean) of each confirmation execution that ran, but
     of no phase measured while the host was busy: that pair is then incomplete for the series."""
@@ -196,18 +170,6 @@ def _values(session: Session, jobs: list[Job]) -> dict[tuple[int, int, int], tup
         )
     )
     return {(s, pair, rid): (p50, mean) for s, pair, rid, p50, mean in rows}
-
-
-def _busy_in(session: Session, jobs: list[Job]) -> set[int]:
-    """The series of which a confirmation execution of ``jobs`` has a phase measured while the
-    host was busy (`_values` leaves those out)."""
-    return set(
-        session.scalars(
-            select(Summary.series_id)
-            .join(Execution, Execution.id == Summary.execution_id)
-            .where(Execution.job_id.in_([job.id for job in jobs]), Summary.disturbed)
-        )
-    )
 
 
 def _measured(
@@ -244,9 +206,10 @@ def settle_pairs(session: Session, revision: Revision) -> bool:
             job.state, job.reason, job.lease_expires_at = JobState.cancelled, NOT_NEEDED, None
         running = []
     if running:
+        note = waiting(jobs)
         for detection, _, _ in suspected:
             detection.confirmation_reason = (
-                f"confirmation runs: {len(jobs) - len(running)} of {len(jobs)} finished"
+                f"confirmation runs: {len(jobs) - len(running)} of {len(jobs)} finished{note}"
             )
         return True
     failed = sorted(
@@ -265,48 +228,68 @@ def settle_pairs(session: Session, revision: Revision) -> bool:
                 f"{UNDECIDED}: no confirmation pair could run ({'; '.join(failed)}); {LATER_DECIDE}"
             )
         return True
+    again = queued_again(jobs)
+    wanted = len([pair for pair in pairs if pair not in again])  # a pair run again replaces one
+    busy = busy_in(session, jobs)
     moved: list[Revision] = []
-    busy: set[int] | None = None  # read once, where a series has no complete pair
+    left: list[tuple[Detection, Hold]] = []  # undecided because the host was busy: run again
     rerunnable = _rerunnable(session, session.get_one(Revision, baseline))
     for detection, process, counter in suspected:
-        if is_count(process, counter):
-            detection.confirmation_reason = (
-                f"{UNDECIDED}: a count of rare events (0 in most runs) is confirmed by the "
-                "later revisions, not by a few pairs"
-            )
-            continue
         measured = _measured(values, detection.series_id, pairs, baseline, revision.id)
-        if detection.baseline_revision_id != baseline or not any(
-            math.isfinite(b) and math.isfinite(c) for b, c in measured
-        ):
-            why = (
-                "the host was busy in every pair's run of this series (their phases are left "
-                "out, as detection leaves them out)"
-                if detection.baseline_revision_id == baseline
-                and detection.series_id
-                in (busy := _busy_in(session, jobs) if busy is None else busy)
-                else "the pairs did not measure this series against its baseline"
-            )
-            detection.confirmation_reason = f"{UNDECIDED}: {why}; {LATER_DECIDE}"
+        found = _judged(detection, is_count(process, counter), baseline, busy, measured, len(pairs))
+        if found is None:
+            found = pairs_hold(
+                measured, detection.direction, detection.effect or 0.0, wanted,
+                noises[detection.id],
+            )  # fmt: skip
+            if failed:
+                found = replace(found, reason=f"{found.reason} (failed: {'; '.join(failed)})")
+        if found.state == SUSPECTED and detection.series_id in busy and not again:
+            left.append((detection, found))
             continue
-        found = pairs_hold(
-            measured,
-            detection.direction,
-            detection.effect or 0.0,
-            len(pairs),
-            noises[detection.id],
-        )
-        reason = found.reason + (f" (failed: {'; '.join(failed)})" if failed else "")
+        reason = found.reason
         if spared:
             reason += f"; {len(spared)} more pair(s) not needed: these decided it"
+        if again and detection.series_id in busy:
+            reason += f"; {len(again - spared)} of them run again after the host was busy"
         detection.confirmation, detection.confirmation_reason = found.state, reason
         if found.state == DROPPED and rerunnable:  # perhaps its baseline revision changed it
             earlier = move_back(session, detection, revision, [b for b, _ in measured])
             if earlier is not None:
                 moved.append(earlier)
+    run_again(session, revision, baseline, jobs, left)
     for earlier in moved:
         _confirm_moved(session, earlier)
     return True
+
+
+def _judged(
+    detection: Detection,
+    count: bool,
+    baseline: int,
+    busy: set[int],
+    measured: list[tuple[float, float]],
+    pairs: int,
+) -> Hold | None:
+    """What the pairs leave undecided before judging their values (`pairs_hold` judges them:
+    None): a count of rare events, a series they did not measure against its baseline."""
+    if count:
+        return Hold(
+            SUSPECTED,
+            f"{UNDECIDED}: a count of rare events (0 in most runs) is confirmed by the later "
+            "revisions, not by a few pairs",
+        )
+    if detection.baseline_revision_id == baseline and any(
+        math.isfinite(b) and math.isfinite(c) for b, c in measured
+    ):
+        return None
+    why = (
+        f"the host was busy in every run of the {pairs} pair(s) of this series (their phases "
+        "are left out, as detection leaves them out)"
+        if detection.baseline_revision_id == baseline and detection.series_id in busy
+        else "the pairs did not measure this series against its baseline"
+    )
+    return Hold(SUSPECTED, f"{UNDECIDED}: {why}; {LATER_DECIDE}")
 
 
 def _rerunnable(session: Session, revision: Revision) -> bool:
@@ -344,14 +327,15 @@ def _decided(
     pairs = sorted({job.pair for job in jobs})
     complete = [p for p in pairs if (p, baseline) in done and (p, revision.id) in done]
     pending = len([p for p in pairs if p not in complete and p not in gone])
+    again = queued_again(jobs)  # then as many as were first queued are wanted (`settle_pairs`)
+    spared = {job.pair for job in jobs if job.reason == NOT_NEEDED}
+    wanted = len(set(pairs) - again - spared) if again else None
     for detection, process, counter in suspected:
         if is_count(process, counter) or detection.baseline_revision_id != baseline:
             continue  # the pairs do not judge it (`settle_pairs`)
         measured = _measured(values, detection.series_id, complete, baseline, revision.id)
-        noise = noises[detection.id]
-        if not pairs_decided(
-            measured, detection.direction, detection.effect or 0.0, pending, noise
-        ):
+        effect, noise = detection.effect or 0.0, noises[detection.id]
+        if not pairs_decided(measured, detection.direction, effect, pending, noise, wanted):
             return False
     return True
 

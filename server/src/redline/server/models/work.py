@@ -129,6 +129,9 @@ class Job(Base):
     remeasures_job_id: Mapped[int | None] = mapped_column(
         ForeignKey("job.id", ondelete="SET NULL"), default=None
     )
+    #: not leased before this time: a confirmation pair queued again because the host was busy
+    #: in the pairs before it (`redline.worker.quiet_pairs`); None for every other job
+    not_before: Mapped[datetime | None] = mapped_column(default=None)
     #: the test cases to run; []: all (no job the server makes names any since 2026-11-27: a
     #: confirmation run names its `parameter_sets`, which end the run, earlier cases included)
     cases: Mapped[list[str]] = mapped_column(JSON, default=list)

@@ -55,6 +55,11 @@ class JobOut(BaseModel):
     confirms: str | None = Field(
         default=None, description="the revision a confirmation run confirms (its title)"
     )
+    not_before: datetime | None = Field(
+        default=None,
+        description="a confirmation pair queued again because the host was busy in the pairs "
+        "before it is not run before this time; null for every other job",
+    )
 
 
 class RevisionOut(BaseModel):

@@ -47,7 +47,7 @@ from redline.server.services.components import get_component, get_revision
 from redline.server.services.detection_config import component_config
 from redline.server.services.fresh_runs import fresh_run_between, fresh_runs_under_way
 from redline.server.services.revisions import own_jobs, revision_state
-from sqlalchemy import or_, select
+from sqlalchemy import func, or_, select
 from sqlalchemy.orm import Session
 
 
@@ -95,11 +95,18 @@ def _pending(session: Session, revision: Revision) -> tuple[str, str]:
         if state == "queued":
             said += _no_host_for(session, [job for job in own if job.state == JobState.queued])
         return "pending", said
-    reruns = session.scalar(
-        select(Job.id).where(Job.confirms_revision_id == revision.id, Job.state.not_in(FINISHED))
-    )
-    if reruns is not None:
-        return "pending", "confirmation runs of it and its baseline"
+    reruns, later = session.execute(
+        select(func.count(), func.min(Job.not_before)).where(
+            Job.confirms_revision_id == revision.id, Job.state.not_in(FINISHED)
+        )
+    ).one()
+    if reruns:
+        again = (
+            f", queued again because the host was busy in the first ones (from {later:%H:%M} UTC)"
+            if later is not None
+            else ""
+        )
+        return "pending", f"confirmation runs of it and its baseline{again}"
     fresh = session.scalar(  # a baseline all of whose runs were disturbed, being run afresh
         fresh_runs_under_way(revision.component_id)
         .where(

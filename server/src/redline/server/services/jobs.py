@@ -114,9 +114,9 @@ def lease_job(
     host = _host(session, host_name)
     now = utcnow()
     _fail_exhausted(session, now, max_attempts)
-    available = or_(
-        Job.state == JobState.queued,
-        and_(Job.state.in_(HELD), Job.lease_expires_at < now),
+    available = and_(
+        or_(Job.state == JobState.queued, and_(Job.state.in_(HELD), Job.lease_expires_at < now)),
+        or_(Job.not_before.is_(None), Job.not_before <= now),  # a pair run again after a busy spell
     )
     in_pool = cast(Job.labels, JSONB).contained_by(list(host.labels or []))  # has every label
     # a confirmation run goes to the host that measured the revision it confirms, and its pairs

@@ -238,6 +238,7 @@ def job_out(job: Job) -> JobOut:
         execution=execution,
         pair=job.pair,
         confirms=job.confirms_revision.title if job.confirms_revision else None,
+        not_before=job.not_before,
     )
 
 

@@ -1,0 +1,168 @@
+"""Queueing confirmation pairs, and queueing them once more when the host was busy in their runs.
+
+A pair is a baseline run and a candidate run, back to back on the host that measured the flagged
+revision (`redline.worker.confirm_runs`). A phase measured while other work loaded the host is
+left out, as detection leaves it out (`redline.recording.disturbance`; the agent already ran the
+execution again at once). When that leaves a suspected change without the pairs it needs, the
+pairs it lacks are queued once more, for the parameter sets of those changes only, and not leased
+before `QUIET_WAIT` has passed, when the work that loaded the host may have ended. Without this,
+a trial's threefold CPU regression, every pair of which ran beside a test suite on the same host,
+stayed "suspected" for good and no alert was sent. Once only: a host that is busy again leaves
+the change to the later revisions, saying so.
+"""
+
+from __future__ import annotations
+
+from collections import defaultdict
+from collections.abc import Iterable, Sequence
+from datetime import datetime, timedelta
+
+from redline.detect.confirmation import Hold
+from redline.server.models import (
+    FINISHED,
+    Detection,
+    Execution,
+    Job,
+    Revision,
+    Series,
+    Summary,
+    utcnow,
+)
+from redline.server.services.detection_config import component_config
+from sqlalchemy import func, select
+from sqlalchemy.orm import Session
+
+#: confirmation jobs take execution indices from here up, apart from a revision's own
+FIRST_INDEX = 1000
+#: how long pairs queued again after a busy host wait before an agent may lease them
+QUIET_WAIT = timedelta(minutes=10)
+
+
+def flagged_sets(session: Session, series: Iterable[int]) -> dict[str, list[str]]:
+    """Per test case, the parameter sets (canonical, as series name them) of ``series``: the
+    agent runs the suite as far as the last of them (`selection.choose_sets`), what ran before
+    them in the flagged run included (a leak grows over a run), and what came after them not,
+    which would cost machine time and confirm nothing."""
+    sets: dict[str, set[str]] = defaultdict(set)
+    for case, params in session.execute(
+        select(Series.case, Series.params).where(Series.id.in_(list(series)))
+    ):
+        sets[case].add(params)
+    return {case: sorted(sets[case]) for case in sorted(sets)}
+
+
+def queue_pairs(
+    session: Session,
+    revision: Revision,
+    baseline: int,
+    pairs: range,
+    host_id: int,
+    parameter_sets: dict[str, list[str]],
+    not_before: datetime | None = None,
+) -> int:
+    """Queue ``pairs`` (their numbers) of the ``revision`` against its ``baseline`` revision,
+    the baseline's run first, pinned to ``host_id``; returns the jobs queued."""
+    labels = list(revision.component.host_labels or [])
+    queued = 0
+    for pair in pairs:
+        for revision_id in (baseline, revision.id):  # baseline first, then the candidate
+            index = session.scalar(
+                select(func.coalesce(func.max(Job.execution_index) + 1, FIRST_INDEX)).where(
+                    Job.revision_id == revision_id, Job.execution_index >= FIRST_INDEX
+                )
+            )
+            session.add(
+                Job(
+                    revision_id=revision_id,
+                    execution_index=index,
+                    pair=pair,
+                    confirms_revision_id=revision.id,
+                    pinned_host_id=host_id,
+                    labels=labels,
+                    parameter_sets=parameter_sets,
+                    not_before=not_before,
+                )
+            )
+            session.flush()
+            queued += 1
+    return queued
+
+
+def busy_in(session: Session, jobs: list[Job]) -> set[int]:
+    """The series of which a confirmation execution of ``jobs`` has a phase measured while the
+    host was busy (confirmation runs leave those out)."""
+    return set(
+        session.scalars(
+            select(Summary.series_id)
+            .join(Execution, Execution.id == Summary.execution_id)
+            .where(Execution.job_id.in_([job.id for job in jobs]), Summary.disturbed)
+        )
+    )
+
+
+def queued_again(jobs: Sequence[Job]) -> set[int]:
+    """The pairs among ``jobs`` (one baseline's) queued again after a busy host."""
+    return {job.pair for job in jobs if job.not_before is not None}
+
+
+def _queue_again(
+    session: Session,
+    revision: Revision,
+    baseline: int,
+    jobs: Sequence[Job],
+    busy: Sequence[Detection],
+    count: int,
+) -> datetime | None:
+    """Queue ``count`` more pairs for the ``busy`` detections (suspected changes the host was
+    busy in some pair's run of, which the pairs left undecided), once per baseline: the time
+    they may start, or None when they were queued again already (or there is nothing to run)."""
+    if not busy or count <= 0 or queued_again(jobs) or not jobs:
+        return None
+    host_id = jobs[0].pinned_host_id
+    if host_id is None:
+        return None
+    start = utcnow() + QUIET_WAIT
+    first = max(job.pair for job in jobs) + 1
+    sets = flagged_sets(session, {d.series_id for d in busy})
+    queue_pairs(session, revision, baseline, range(first, first + count), host_id, sets, start)
+    return start
+
+
+def run_again(
+    session: Session,
+    revision: Revision,
+    baseline: int,
+    jobs: list[Job],
+    left: list[tuple[Detection, Hold]],
+) -> None:
+    """The pairs of the changes ``left`` undecided because the host was busy, queued once more
+    for a quieter time; where they cannot be, what the pairs
+    said stands and the later revisions decide."""
+    if not left:
+        return
+    count = component_config(session, revision.component_id).confirm_pairs
+    start = _queue_again(session, revision, baseline, jobs, [d for d, _ in left], count)
+    for detection, found in left:
+        detection.confirmation, detection.confirmation_reason = (
+            found.state,
+            (
+                found.reason
+                if start is None
+                else (
+                    "the host was busy in a confirmation pair's run of this series (left out, "
+                    f"as detection leaves it out): {count} pair(s) queued again, from "
+                    f"{start:%H:%M} UTC, when the work that loaded it may have ended"
+                )
+            ),
+        )
+
+
+def waiting(jobs: Sequence[Job]) -> str:
+    """What the unfinished pairs queued again wait for ("" when none does)."""
+    later = [job.not_before for job in jobs if job.not_before and job.state not in FINISHED]
+    if not later:
+        return ""
+    return (
+        f"; {len(later) // 2 or 1} pair(s) queued again because the host was busy, from "
+        f"{min(later):%H:%M} UTC"
+    )
