@@ -238,7 +238,7 @@ def _run_all(session, database_url: str, tmp_path: Path, busy=lambda job: False)
 
 
 def _quiet_time_came(session) -> None:
-    """As if `QUIET_WAIT` had passed since the pairs were queued again."""
+    """As if `quiet_wait` had passed since the pairs were queued again."""
     for job in session.scalars(select(Job).where(Job.not_before.is_not(None))):
         job.not_before = utcnow() - timedelta(seconds=1)
     session.commit()
@@ -268,7 +268,7 @@ def test_a_pair_the_host_was_busy_in_is_run_again_later_and_then_decides(
     ), detection.confirmation_reason
     assert _queued_again(session) == [("r4", 3), ("r5", 3), ("r4", 4), ("r5", 4)]
     waited = session.scalars(select(Job.not_before).where(Job.not_before.is_not(None))).first()
-    assert waited - utcnow() > timedelta(minutes=9)  # QUIET_WAIT: ten minutes
+    assert waited - utcnow() > timedelta(minutes=9)  # REDLINE_QUIET_WAIT_S: ten minutes
     assert lease_job(session, "perf-1", 60, 3) is None  # not before then
     shown = revision_detail(session, NAME, "r5").jobs  # as the API and the page show them
     assert [(j.pair, j.not_before is not None) for j in shown if j.pair] == [

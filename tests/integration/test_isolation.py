@@ -104,3 +104,31 @@ def test_unix_transport_uses_a_socket_and_no_port(tmp_path: Path) -> None:
             network.endpoint
         ]
     assert not socket_path.parent.exists()  # the private folder goes with the network
+
+
+def test_a_port_taken_between_choosing_and_binding_it_is_chosen_again(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """A CI run's three agents on one host failed a job with zenoh's "Address already in use":
+    the port its router chose free was taken before the router bound it. The router chooses
+    again; a port the caller named is not moved."""
+    import socket
+
+    import zenoh
+    from redline.agent import network
+
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        chosen = iter([port])  # the first choice is taken by the time the router binds it
+        free = network.free_port
+        monkeypatch.setattr(network, "free_port", lambda: next(chosen, None) or free())
+        with RunNetwork() as run:
+            assert run.endpoint.startswith("tcp/127.0.0.1:")
+            assert run.endpoint != f"tcp/127.0.0.1:{port}"
+            # a client reaches it there (a client that cannot connect fails to open)
+            with zenoh.open(network.config_from_dict(run.client_settings())) as client:
+                assert str(client.info.zid())
+        with pytest.raises(zenoh.ZError, match="Address already in use"):
+            RunNetwork(port).open()

@@ -38,6 +38,10 @@ TRANSPORTS = ("tcp", "unix")
 #: Batches queued per link for data (zenoh's default: 2, ~128 KiB, which a receiver paused for a
 #: millisecond overflows at 100,000 msg/s of 1 KiB, and DROP publishers then lose samples).
 DATA_QUEUE_BATCHES = 16
+#: Ports a router tries: one chosen free may be taken before the router binds it (another run's
+#: router, a component's peer; a CI run's three agents on one host failed a job so)
+PORT_TRIES = 5
+IN_USE = "Address already in use"
 
 
 def free_port() -> int:
@@ -104,14 +108,26 @@ class RunNetwork:
             self.endpoint = f"unixsock-stream/{self._folder / 'router.sock'}"
         else:
             self.endpoint = f"tcp/127.0.0.1:{port or free_port()}"
+        self._chosen = transport == "tcp" and not port  # a port of its own choosing: may move
         self._router: zenoh.Session | None = None
         self._seen: set[str] = set()
 
     def open(self) -> RunNetwork:
-        settings = _isolated("router", [self.endpoint], [], self.shared_memory)
-        # read-only, for the runner's own router session: who subscribed to what (`subscriptions`)
-        settings["adminspace"] = {"enabled": True, "permissions": {"read": True, "write": False}}
-        self._router = zenoh.open(config_from_dict(settings))
+        for tries_left in reversed(range(PORT_TRIES if self._chosen else 1)):
+            settings = _isolated("router", [self.endpoint], [], self.shared_memory)
+            # read-only, for the runner's own router session: who subscribed to what
+            settings["adminspace"] = {
+                "enabled": True,
+                "permissions": {"read": True, "write": False},
+            }
+            try:
+                self._router = zenoh.open(config_from_dict(settings))
+                break
+            except zenoh.ZError as exc:  # taken between choosing and binding it: choose again
+                if IN_USE not in str(exc) or not tries_left:
+                    raise
+                self.endpoint = f"tcp/127.0.0.1:{free_port()}"
+        assert self._router is not None
         self._router.info.declare_transport_events_listener(  # lives as long as the router
             lambda event: self._seen.add(str(event.transport.zid)), history=True
         )

@@ -5,7 +5,8 @@ revision (`redline.worker.confirm_runs`). A phase measured while other work load
 left out, as detection leaves it out (`redline.recording.disturbance`; the agent already ran the
 execution again at once). When that leaves a suspected change without the pairs it needs, the
 pairs it lacks are queued once more, for the parameter sets of those changes only, and not leased
-before `QUIET_WAIT` has passed, when the work that loaded the host may have ended. Without this,
+before `quiet_wait` has passed (``REDLINE_QUIET_WAIT_S``, 10 minutes unless set), when the work
+that loaded the host may have ended. Without this,
 a trial's threefold CPU regression, every pair of which ran beside a test suite on the same host,
 stayed "suspected" for good and no alert was sent. Once only: a host that is busy again leaves
 the change to the later revisions, saying so.
@@ -18,6 +19,7 @@ from collections.abc import Iterable, Sequence
 from datetime import datetime, timedelta
 
 from redline.detect.confirmation import Hold
+from redline.server.core.config import get_settings
 from redline.server.models import (
     FINISHED,
     Detection,
@@ -34,8 +36,11 @@ from sqlalchemy.orm import Session
 
 #: confirmation jobs take execution indices from here up, apart from a revision's own
 FIRST_INDEX = 1000
-#: how long pairs queued again after a busy host wait before an agent may lease them
-QUIET_WAIT = timedelta(minutes=10)
+
+
+def quiet_wait() -> timedelta:
+    """How long pairs queued again after a busy host wait before an agent may lease them."""
+    return timedelta(seconds=get_settings().quiet_wait_s)
 
 
 def flagged_sets(session: Session, series: Iterable[int]) -> dict[str, list[str]]:
@@ -121,7 +126,7 @@ def _queue_again(
     host_id = jobs[0].pinned_host_id
     if host_id is None:
         return None
-    start = utcnow() + QUIET_WAIT
+    start = utcnow() + quiet_wait()
     first = max(job.pair for job in jobs) + 1
     sets = flagged_sets(session, {d.series_id for d in busy})
     queue_pairs(session, revision, baseline, range(first, first + count), host_id, sets, start)
