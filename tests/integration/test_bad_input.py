@@ -603,3 +603,31 @@ def test_a_sort_key_given_as_a_whole_number_is_taken_as_its_text(api: Api):
     for bad in (True, 1.5, None):
         answer = _revision(api, title="rx", sort_key=bad)
         assert answer.status_code == 422 and "sort_key" in answer.text, (bad, answer.text)
+
+
+def test_ci_and_a_webhook_reporting_one_commit_at_once_make_one_revision(api: Api):
+    """A review: CI's report (titled by the full SHA) and the push's webhook (titled by 12
+    digits) each looked for the commit, found none while the other was not yet committed, and
+    each made a revision: one commit under two titles, measured twice."""
+    from redline.server.models import Revision
+    from redline.server.schemas.revisions import RevisionCreate
+    from redline.server.services.revision_reports import report_revision
+    from redline.server.services.webhooks import receive_push
+    from sqlalchemy import select
+
+    sha = "c" * 40
+    body = github_push(
+        repo=REPO.removesuffix(".git"),
+        commits=[{"id": sha, "message": "m", "timestamp": "2026-11-20T10:00:00+01:00"}],
+    )
+    report = RevisionCreate(component="builder", title=sha, sort_key="1795165200", commit=sha)
+    results = interleave(
+        api.settings.database_url,
+        lambda s: report_revision(s, report),
+        lambda s: receive_push(s, body, lambda secret: True, SECRET),
+    )
+    assert not [r for r in results if isinstance(r, Exception)], results
+    with session_factory(api.settings.database_url)() as session:
+        titles = session.scalars(select(Revision.title)).all()
+    assert titles == [sha], titles
+    assert results[1][1].existing == 1 and results[1][1].created == [], results[1]

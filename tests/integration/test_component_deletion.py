@@ -184,3 +184,47 @@ def test_a_component_whose_model_is_being_trained_is_not_deleted(api: Api, tmp_p
     answer = api.client.delete("/api/v1/components/builder", headers=api.tokens["admin"])
     assert answer.status_code == 409 and "a model's training under way" in answer.text
     assert _rows(api) == before
+
+
+def test_a_revision_of_which_nothing_was_measured_is_deleted_and_one_with_results_stays(
+    api: Api, tmp_path: Path
+) -> None:
+    """A new-user trial reported a commit that does not exist: its checkout failed, and the
+    revision stayed "failed" on the home page for good, with no way to remove it."""
+    _histories(api, tmp_path)
+    mistake = api.revision("r-typo", "8", component="builder")
+    for job_id in mistake["job_ids"]:  # as the agent reports a commit it cannot check out
+        with session_factory(api.settings.database_url)() as session:
+            job = session.get_one(Job, job_id)
+            job.state, job.reason = JobState.failed, "checkout failed: commit deadbeef not found"
+            session.commit()
+    before = _rows(api)
+    path = "/api/v1/components/builder/revisions/r-typo"
+    for scope in ("ci", "triage", "read"):  # only an admin deletes
+        assert api.client.delete(path, headers=api.tokens[scope]).status_code == 403, scope
+    answer = api.client.delete(path, headers=api.tokens["admin"])
+    assert answer.status_code == 200, answer.text
+    jobs = len(mistake["job_ids"])
+    assert answer.json() == {"deleted": "r-typo", "component": "builder", "jobs": jobs}
+    after = _rows(api)
+    assert (before["revision"] - after["revision"], before["job"] - after["job"]) == (1, jobs)
+    assert {t: n for t, n in after.items() if t not in ("revision", "job", "figure_cache")} == {
+        t: n for t, n in before.items() if t not in ("revision", "job", "figure_cache")
+    }
+    listed = api.client.get("/api/v1/components/builder/revisions").json()
+    assert "r-typo" not in {revision["title"] for revision in listed}
+    assert api.client.delete(path, headers=api.tokens["admin"]).status_code == 404
+    # one with results stays, saying why; so does one a host holds a job of
+    measured = api.client.delete(
+        "/api/v1/components/builder/revisions/r7", headers=api.tokens["admin"]
+    )
+    assert measured.status_code == 409 and "1 execution(s) stored" in measured.text
+    held = api.revision("r-held", "9", component="builder")
+    with session_factory(api.settings.database_url)() as session:
+        session.get_one(Job, held["job_ids"][0]).state = JobState.running
+        session.commit()
+    answer = api.client.delete(
+        "/api/v1/components/builder/revisions/r-held", headers=api.tokens["admin"]
+    )
+    assert answer.status_code == 409 and "cancel it" in answer.text
+    assert _rows(api)["revision"] == after["revision"] + 1

@@ -238,7 +238,10 @@ def test_the_defaults_make_no_regression_of_unchanged_code_run_once_per_revision
         .join(Revision, Revision.id == Detection.revision_id)
         .where(Revision.title == "r3", Detection.method == "execution_shift")
     ).one()
-    assert r3.verdict == "not enough data" and "(4 short: the revisions after" in r3.reason
+    assert (
+        r3.verdict == "not enough data"
+        and "- 4 short, which the revisions after it will add" in r3.reason
+    )
 
 
 def test_a_change_whose_series_is_no_longer_measured_is_dropped_not_left_waiting(

@@ -15,7 +15,9 @@ import pytest
 from fastapi.testclient import TestClient
 from redline.server.db import session_factory
 from redline.server.models import FigureCache
+from redline.server.schemas.revisions import RevisionCreate
 from redline.server.services.errors import BadRequest, Conflict
+from redline.server.services.revisions import create_revision
 from redline.server.services.signin import SESSION_COOKIE, check_password, create_user
 from redline.server.services.tokens import issue_token
 from redline.server.services.trend_view import MAX_CHARTS
@@ -68,7 +70,9 @@ def test_the_trends_say_why_revisions_without_a_verdict_have_no_marks(
     )
     assert (
         note
-        and "1 of the newest 1 revisions have no verdict (ks: not enough data yet" in note.group(1)
+        and "1 of the newest 1 revisions have no verdict yet. The commonest reason, ks: not "
+        "enough data yet: "
+        in note.group(1)
     )
     assert "baseline" in note.group(1)  # the reason, as the revision list says it
     history(database_url, tmp_path, [20.0], start=2)  # judged against r1
@@ -269,8 +273,8 @@ def test_a_view_of_more_charts_than_a_page_draws_draws_the_first_and_says_how_to
     assert len(titles) == MAX_CHARTS and titles[-1].endswith(f"k{MAX_CHARTS - 1:03d}"), titles
     note = html.unescape(re.search(r'<p class="meta" id="cut">(.*?)</p>', page).group(1))
     assert note.startswith(
-        f"This view has {counters} charts of {counters * sets} series; the page draws the first "
-        f"{MAX_CHARTS} ({MAX_CHARTS * sets} series)."
+        f"This view holds {counters * sets} series in {counters} charts; the page draws the "
+        f"first {MAX_CHARTS} charts ({MAX_CHARTS * sets} series)."
     ), note
     assert (
         json.loads(client.get("/components/wide/trends").text)["page"]["charts"][-1]["title"]
@@ -698,3 +702,37 @@ def _subscriptions(database_url: str) -> list:
 
     with session_factory(database_url)() as session:
         return list(session.scalars(select(Subscription)))
+
+
+def test_an_admin_deletes_a_revision_nothing_was_measured_of_from_its_page(
+    client, database_url, tmp_path
+):
+    """A new-user trial's commit reported by mistake stayed "failed" on the home page for good.
+    Its page offers an admin to delete it; a measured revision's page offers nothing."""
+    history(database_url, tmp_path, [20.0])
+    with session_factory(database_url)() as session:
+        create_user(session, "ada", "correct horse battery", "admin")
+        create_user(session, "reader", "correct horse battery", "read")
+    with session_factory(database_url)() as session:  # as CI reports it
+        create_revision(
+            session,
+            RevisionCreate(component="builder", title="typo", sort_key="9", commit="deadbeef"),
+        )
+    sign_in(client, {"name": "reader", "password": "correct horse battery"})
+    assert 'id="delete-revision"' not in client.get("/components/builder/revisions/typo").text
+    client.post("/signout", data={"csrf": form_token(client.get("/").text)})
+    sign_in(client, {"name": "ada", "password": "correct horse battery"})
+    assert 'id="delete-revision"' not in client.get("/components/builder/revisions/r1").text
+    page = client.get("/components/builder/revisions/typo").text
+    assert 'id="delete-revision"' in page
+    action = "/components/builder/revisions/typo/delete"
+    forged = client.post(action, data={"csrf": "not-the-token"})  # another site's form
+    assert forged.status_code == 403
+    done = client.post(action, data={"csrf": form_token(page)}, follow_redirects=False)
+    assert done.status_code == 303 and done.headers["location"] == "/components/builder"
+    assert client.get("/components/builder/revisions/typo").status_code == 404
+    kept = client.post(
+        "/components/builder/revisions/r1/delete",
+        data={"csrf": form_token(client.get("/components/builder/revisions/r1").text)},
+    )
+    assert kept.status_code == 409 and "execution(s) stored" in kept.text

@@ -20,7 +20,7 @@ from redline.worker.detection import detect_revision
 from redline.worker.ingest import ingest_execution
 from redline.worker.onward import judge_onward
 from redline.worker.reanalysis import reanalyze_component
-from sqlalchemy import text
+from sqlalchemy import select, text
 
 from tests.support.api import emptied_with_tokens
 from tests.support.history import add_execution
@@ -212,11 +212,11 @@ def test_component_page_lists_regressions_with_their_state(api, database_url, tm
     assert "confirmation-suspected" in table and "waiting for 2 more revision(s) after it" in table
     # each revision says what its alarm method found, or why it has no verdict yet
     rows = page.split('id="revisions"', 1)[1].split("</table>", 1)[0]
-    assert "ks: not enough data yet (missing baseline" in rows
+    assert "ks: not enough data yet: missing baseline" in rows
     assert "ks: 1 change(s), 0 series unchanged" in rows
     # and the API says the same of one revision
     first = api.get("/revisions/r1").json()
-    assert first["verdict"].startswith("ks: not enough data yet (missing baseline")
+    assert first["verdict"].startswith("ks: not enough data yet: missing baseline")
     assert api.get("/revisions/r2").json()["verdict"] == "ks: 1 change(s), 0 series unchanged"
 
 
@@ -256,3 +256,55 @@ def test_a_regression_spans_what_its_changes_span_after_a_revision_reported_late
     assert (after["good_revision"], after["bad_revision"]) == expected
     flagged = api.get(f"/regressions/{after['id']}").json()["flagged"]
     assert {d["revision"] for d in flagged} == {expected[1]}
+
+
+def test_a_regression_names_the_revisions_inside_its_range_that_were_not_judged(
+    api, database_url, tmp_path
+):
+    """A new-user trial's regression page said "After r4, shows at r6", and hid r5 between
+    them, which the host had been busy in: the change may have been r5's."""
+    from redline.server.models import Job, JobState
+    from redline.server.schemas.revisions import RevisionCreate
+    from redline.server.services.revisions import create_revision
+
+    rng = np.random.default_rng(7)
+    with session_factory(database_url)() as session:
+        component = create_component(session, ComponentCreate(name="builder"))
+        session.add(DetectionConfigRow(component_id=component.id, config={"methods": ["ks"]}))
+        session.commit()
+        runs = [("r1", 20.0, None), ("r2", 20.0, None), ("r3", 60.0, 90.0)]  # r3: a busy host
+        executions = [
+            add_execution(
+                session, tmp_path, "builder", title, title[1:],
+                {"cpu": rng.normal(cpu, 1.0, 60)}, host_percent=busy,
+            )
+            for title, cpu, busy in runs
+        ]  # fmt: skip
+        failed = create_revision(  # r4: its checkout failed
+            session, RevisionCreate(component="builder", title="r4", sort_key="4", commit="x")
+        )
+        for job in session.scalars(select(Job).where(Job.revision_id == failed.id)):
+            job.state, job.reason = JobState.failed, "checkout failed: commit x not found"
+        session.commit()
+        executions.append(
+            add_execution(
+                session, tmp_path, "builder", "r5", "5", {"cpu": rng.normal(60.0, 1.0, 60)}
+            )
+        )
+    for execution in executions:
+        ingest_execution(database_url, execution.id)
+        detect_revision(database_url, execution.revision_id)
+    (regression,) = api.get("/regressions").json()
+    assert (regression["good_revision"], regression["bad_revision"]) == ("r2", "r5")
+    detail = api.get(f"/regressions/{regression['id']}").json()
+    assert detail["between"] == [
+        {
+            "title": "r3",
+            "why": "the host was busy in its runs of these series: charted, not judged (a "
+            "fresh run of it is queued)",
+        },
+        {"title": "r4", "why": "its runs failed (checkout failed: commit x not found)"},
+    ]
+    assert detail["between_count"] == 2
+    page = api.client.get(f"/regressions/{regression['id']}").text
+    assert 'id="between"' in page and ">r3</a> (the host was busy" in page

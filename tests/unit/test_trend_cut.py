@@ -39,8 +39,8 @@ def test_a_wide_view_draws_its_first_charts_whole_and_says_how_to_see_the_others
     assert len(charts) == MAX_CHARTS and len(drawn) == 4 * MAX_CHARTS  # whole charts only
     assert charts == {("c", "p", "proc", f"k{n:05d}") for n in range(MAX_CHARTS)}  # the first
     assert note.startswith(
-        f"This view has 5,000 charts of 20,000 series; the page draws the first {MAX_CHARTS} "
-        f"({4 * MAX_CHARTS} series)."
+        f"This view holds 20,000 series in 5,000 charts; the page draws the first {MAX_CHARTS} "
+        f"charts ({4 * MAX_CHARTS} series)."
     )
     assert "Choose a case, phase, process, counter or parameter" in note
 
@@ -50,13 +50,13 @@ def test_the_series_budget_ends_the_page_before_a_chart_that_would_pass_it():
     drawn, note = cut_charts(refs)
     whole = MAX_SERIES // 30
     assert len(drawn) == 30 * whole and len({chart_key(refs[i]) for i in drawn}) == whole
-    assert f"the first {whole} ({30 * whole} series)" in note
+    assert f"the first {whole} charts ({30 * whole} series)" in note
 
 
 def test_a_first_chart_with_more_lines_than_the_budget_draws_its_first_parameter_sets():
     refs = _refs(1, MAX_SERIES + 50)
     drawn, note = cut_charts(refs)
-    assert len(drawn) == MAX_SERIES and "the first 1 (" in note
+    assert len(drawn) == MAX_SERIES and "the first 1 chart (" in note
     names = sorted(f"n={refs[i].params['n']}" for i in drawn)
     assert names == sorted(f"n={n}" for n in range(MAX_SERIES + 50))[:MAX_SERIES]
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import importlib
 import json
+import logging
 import math
 import reprlib
 import threading
@@ -38,7 +39,7 @@ from redline.server.routes import (
     web,
     webhooks,
 )
-from redline.server.schemas.fields import escaped
+from redline.server.schemas.fields import SECRET_LENGTH, escaped
 from redline.server.services.errors import (
     BadRequest,
     Forbidden,
@@ -250,12 +251,27 @@ async def _lifespan(_app: FastAPI) -> AsyncIterator[None]:
     yield
 
 
+def _warn_of_weak_settings(settings: Settings) -> None:
+    """Say at start what weakens the service and is left as set (refusing it would stop a
+    running deployment at its next restart): a webhook secret short enough to guess, which
+    would let anyone report revisions by webhook (a component's own one is refused so)."""
+    if settings.webhook_secret and len(settings.webhook_secret) < SECRET_LENGTH:
+        logging.getLogger(__name__).warning(
+            "REDLINE_WEBHOOK_SECRET has %d characters: a secret that short can be guessed, and "
+            "whoever guesses it reports revisions by webhook; use %d or more (python3 -c "
+            "'import secrets; print(secrets.token_urlsafe(24))')",
+            len(settings.webhook_secret),
+            SECRET_LENGTH,
+        )
+
+
 def create_app(settings: Settings | None = None) -> FastAPI:
     """The Redline server; ``settings`` default to the environment (``REDLINE_*``).
 
     The database must already be migrated (``redline.server.db.migrate``).
     """
     settings = settings or get_settings()
+    _warn_of_weak_settings(settings)
     app = FastAPI(
         title="Redline",
         version="1",

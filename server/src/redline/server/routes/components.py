@@ -105,6 +105,18 @@ def cancel_revision(name: str, title: str, session: SessionDep) -> RevisionDetai
     return revisions.cancel_revision(session, name, title)
 
 
+@router.delete(
+    "/{name}/revisions/{title}",
+    responses={**NOT_FOUND, **problems(409, description="it has results, or a host holds a job")},
+    dependencies=[Depends(require("admin"))],
+)
+def delete_revision(name: str, title: str, session: SessionDep) -> dict[str, int | str]:
+    """Delete a revision of which nothing was measured (a commit reported by mistake, say),
+    with its jobs. 409 when it has results (they are part of the history later revisions were
+    judged against) or while a host holds one of its jobs."""
+    return component_deletion.delete_revision(session, name, title)
+
+
 @router.get("/{name}/executions", responses=BAD, dependencies=READ)
 def list_executions(
     name: str,

@@ -9,6 +9,7 @@ every change posts the session's form token and needs ``admin``, as the API does
 from __future__ import annotations
 
 import json
+from urllib.parse import quote
 
 from fastapi import Request, Response
 from fastapi.responses import HTMLResponse, RedirectResponse
@@ -20,6 +21,7 @@ from redline.server.schemas.components import ComponentSettings
 from redline.server.schemas.fields import escaped
 from redline.server.schemas.regressions import DetectionConfigIn
 from redline.server.services import (
+    component_deletion,
     components,
     detection_config,
     home,
@@ -240,6 +242,21 @@ async def component_settings_form(
     except (Forbidden, NotFound, BadRequest, Conflict) as exc:
         return problem(request, exc)
     return RedirectResponse(f"/settings/components/{name}", status_code=303)
+
+
+@router.post("/components/{name}/revisions/{title}/delete", response_class=HTMLResponse)
+async def delete_revision_form(
+    name: str, title: str, request: Request, session: SessionDep
+) -> Response:
+    """Delete a revision of which nothing was measured (its page offers it to an admin), as
+    the API's ``DELETE`` does; then the component's page."""
+    form = await form_fields(request)
+    try:
+        signin.authorize(signed_in(request), form.get("csrf", ""), ADMIN)
+        component_deletion.delete_revision(session, name, title)
+    except (Forbidden, NotFound, Conflict) as exc:
+        return problem(request, exc)
+    return RedirectResponse(f"/components/{quote(name, safe='')}", status_code=303)
 
 
 @router.post("/settings/tokens", response_class=HTMLResponse)

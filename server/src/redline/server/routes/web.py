@@ -77,7 +77,10 @@ def _unjudged(verdicts: dict[str, str]) -> str:
     if not waiting:
         return ""
     reason = Counter(waiting).most_common(1)[0][0]
-    return f"{len(waiting)} of the newest {len(verdicts)} revisions have no verdict ({reason})"
+    return (
+        f"{len(waiting)} of the newest {len(verdicts)} revisions have no verdict yet. The "
+        f"commonest reason, {reason}"
+    )
 
 
 @router.get("/components/{name}", response_class=HTMLResponse)

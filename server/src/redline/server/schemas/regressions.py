@@ -65,9 +65,23 @@ class RegressionOut(BaseModel):
     updated: datetime
 
 
+class RevisionBetween(BaseModel):
+    title: str
+    why: str = Field(
+        description="why it is not the good revision: its runs failed, were cancelled, have not "
+        "run, did not measure the regression's series, or were measured while the host was busy"
+    )
+
+
 class RegressionDetail(RegressionOut):
     flagged: list[DetectionOut]
     history: list[RegressionEventOut]
+    between: list[RevisionBetween] = Field(
+        default_factory=list,
+        description="the revisions between good_revision and the first showing the change that "
+        "were not judged for its series, oldest first (the first 20): the change may be theirs",
+    )
+    between_count: int = Field(default=0, description="how many such revisions there are in all")
 
 
 class TriageRequest(RequestBody):

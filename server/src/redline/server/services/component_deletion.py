@@ -7,6 +7,11 @@ home page and in every filter. Nothing else is touched: another component's rows
 the tokens. A component whose jobs a host holds, whose results wait to be ingested, or whose
 model training or re-analysis is under way, is refused (409): deleting under them would fail
 them halfway (and leave a model file no row names).
+
+A revision is deleted alone only when nothing was measured of it (`delete_revision`): a commit
+reported by mistake, say, whose checkout failed, stayed "failed" on the home page for good (a
+new-user trial). A revision with results is part of the history later revisions were judged
+against; it stays.
 """
 
 from __future__ import annotations
@@ -14,6 +19,7 @@ from __future__ import annotations
 import logging
 from pathlib import Path
 
+from redline.server.db import lock_component
 from redline.server.models import (
     Alert,
     AlertedChange,
@@ -31,7 +37,7 @@ from redline.server.models import (
     Series,
     Summary,
 )
-from redline.server.services.components import get_component
+from redline.server.services.components import get_component, get_revision
 from redline.server.services.errors import Conflict
 from redline.server.storage import samples_path
 from sqlalchemy import ColumnElement, delete, func, or_, select
@@ -116,6 +122,43 @@ def delete_component(session: Session, name: str) -> dict[str, int]:
     counts["files"] = _remove(session, files)
     log.info("component %s deleted: %s", name, counts)
     return counts
+
+
+def delete_revision(session: Session, name: str, title: str) -> dict[str, int | str]:
+    """Delete a revision of the component called ``name`` of which nothing was measured, with
+    its jobs: what went. NotFound for an unknown one; Conflict when it has results (they are
+    part of the history later revisions were judged against), or while a host holds one of
+    its jobs (cancel it first)."""
+    revision = get_revision(session, get_component(session, name), title)
+    lock_component(session, revision.component_id)  # a report or a verdict of it waits
+    mine = or_(Job.revision_id == revision.id, Job.confirms_revision_id == revision.id)
+    states = list(session.scalars(select(Job.state).where(mine).with_for_update()))
+    measured = _count(session, Execution, Execution.revision_id == revision.id)
+    if measured:
+        raise Conflict(
+            f"revision {title!r} of {name!r} has {measured} execution(s) stored: its results "
+            "are part of the history later revisions are judged against, and it stays (delete "
+            "the component to remove its whole history)"
+        )
+    held = sum(state in IN_FLIGHT for state in states)
+    if held:
+        raise Conflict(
+            f"revision {title!r} of {name!r} has {held} job(s) a host holds: cancel it "
+            f"(POST .../revisions/{title}/cancel), then delete it"
+        )
+    try:
+        session.execute(delete(AlertedChange).where(AlertedChange.revision_id == revision.id))
+        session.execute(delete(Job).where(mine))
+        session.execute(
+            delete(FigureCache).where(FigureCache.component_id == revision.component_id)
+        )
+        session.execute(delete(Revision).where(Revision.id == revision.id))  # alerts: SET NULL
+        session.commit()
+    except IntegrityError:  # a worker stored a row of it meanwhile
+        session.rollback()
+        raise Conflict(f"revision {title!r} changed while it was deleted: try again") from None
+    log.info("revision %s of %s deleted (%d jobs)", title, name, len(states))
+    return {"deleted": title, "component": name, "jobs": len(states)}
 
 
 def _count(session: Session, model: type, *where: ColumnElement[bool]) -> int:

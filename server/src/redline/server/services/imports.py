@@ -23,7 +23,12 @@ from redline.server.services.components import get_component
 from redline.server.services.errors import Conflict, Forbidden
 from redline.server.services.home import IMPORTED
 from redline.server.services.ingestion import store_samples
-from redline.server.services.revision_reports import cannot_run, revision_of_commit, same_commit
+from redline.server.services.revision_reports import (
+    cannot_run,
+    reports_take_turns,
+    revision_of_commit,
+    same_commit,
+)
 from redline.server.services.revisions import order_key
 from sqlalchemy import func, select
 from sqlalchemy.dialects.postgresql import insert
@@ -94,6 +99,7 @@ def _refuse_another_revisions_commit(
         )
     ):
         return
+    reports_take_turns(session, component.id)  # a report of this commit meanwhile waits
     known = revision_of_commit(session, component, run.commit)
     if known is not None:
         raise Conflict(
@@ -120,8 +126,8 @@ def _revision(session: Session, run: ImportedRun, admin: bool) -> Revision:
             "which the hosts then measure); import into a component without a repository or "
             "suite"
         )
+    _refuse_another_revisions_commit(session, component, run)  # reports take turns first
     share_component(session, component.id)  # before the revision's row, as everyone does
-    _refuse_another_revisions_commit(session, component, run)
     session.execute(
         insert(Revision)
         .values(

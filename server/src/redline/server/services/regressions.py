@@ -29,6 +29,7 @@ from redline.server.schemas.regressions import (
 from redline.server.services.components import get_component, get_revision
 from redline.server.services.errors import BadRequest, NotFound
 from redline.server.services.paging import after_newest_first, decode_cursor, encode_cursor
+from redline.server.services.regression_range import revisions_between
 from redline.server.services.results import series_ref
 from sqlalchemy import Select, exists, literal, select, tuple_
 from sqlalchemy.orm import Session, aliased, selectinload
@@ -200,8 +201,13 @@ def regression_detail(
         for e in regression.events
     ]
     methods = sorted({d.method for d in flagged})
+    between, count = revisions_between(session, regression)
     return RegressionDetail(
-        **_out(regression, component_name, methods, len(flagged)), flagged=flagged, history=history
+        **_out(regression, component_name, methods, len(flagged)),
+        flagged=flagged,
+        history=history,
+        between=between,
+        between_count=count,
     )
 
 

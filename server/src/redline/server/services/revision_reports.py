@@ -51,12 +51,25 @@ def revision_of_commit(session: Session, component: Component, commit: str) -> R
     ).first()
 
 
+#: the first key of the advisory lock that reports of one component's revisions take turns on
+REPORT_LOCK = 0x5252  # "RR"
+
+
+def reports_take_turns(session: Session, component_id: int) -> None:
+    """Reports of the component's revisions (CI's, a webhook's push, an import) take turns for
+    the rest of the transaction: each looks for the commit, then makes its revision, and two at
+    once each found none and made one (a review: CI's full SHA and a webhook's 12 digits, one
+    commit under two titles). Nothing else waits for it (a verdict being stored does not)."""
+    session.execute(select(func.pg_advisory_xact_lock(REPORT_LOCK, component_id)))
+
+
 def _reported_before(session: Session, data: RevisionCreate) -> Revision | None:
     """The revision ``data`` reports again: of its title and commit, or of its commit under
     another title (CI's full SHA and a webhook's 12 digits); a Conflict naming both commits when
     its title is another commit's."""
     component = get_component(session, data.component)
     require_own_repository(component, data)
+    reports_take_turns(session, component.id)
     titled = session.scalar(
         select(Revision).where(Revision.component_id == component.id, Revision.title == data.title)
     )

@@ -370,5 +370,5 @@ def revision_verdicts(
                 else ""
             )
         else:
-            said[title] = f"{method}: {WAITING} ({why.get(title, '')})"
+            said[title] = f"{method}: {WAITING}: {why.get(title, '')}"
     return said

@@ -212,8 +212,12 @@ def cut_charts(refs: Mapping[int, Identified]) -> tuple[set[int], str]:
         kept += lines[:MAX_SERIES]
         drawn += 1
     note = (
-        f"This view has {len(charts):,} charts of {len(refs):,} series; the page draws the "
-        f"first {drawn:,} ({len(kept):,} series). Choose a case, phase, process, counter or "
-        "parameter above to see the others."
+        f"This view holds {len(refs):,} series in {_charts(len(charts))}; the page draws the "
+        f"first {_charts(drawn)} ({len(kept):,} series). Choose a case, phase, process, counter "
+        "or parameter above to see the others."
     )
     return set(kept), note
+
+
+def _charts(count: int) -> str:
+    return f"{count:,} chart" + ("" if count == 1 else "s")

@@ -27,7 +27,12 @@ from redline.server.schemas.webhooks import (
 )
 from redline.server.services.errors import BadRequest, ServiceError
 from redline.server.services.repos import repo_key
-from redline.server.services.revision_reports import cannot_run, revision_of_commit, same_commit
+from redline.server.services.revision_reports import (
+    cannot_run,
+    reports_take_turns,
+    revision_of_commit,
+    same_commit,
+)
 from redline.server.services.revisions import new_revision
 from sqlalchemy import select
 from sqlalchemy.exc import IntegrityError
@@ -164,6 +169,9 @@ def _record(session: Session, components: list[Component], push: Push) -> Webhoo
         except ValueError as exc:
             result.refused.append(RefusedCommit(commit=commit.id[:200], reason=str(exc)))
     unrunnable = {c.name: reason for c in components if (reason := cannot_run(c)) is not None}
+    for component in sorted(components, key=lambda c: c.id):  # in one order: no deadlock
+        if component.name not in unrunnable:
+            reports_take_turns(session, component.id)
     for component in components:
         if component.name in unrunnable:  # its jobs could only fail on a host
             continue
