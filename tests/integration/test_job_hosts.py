@@ -130,3 +130,41 @@ def test_a_verdict_waiting_for_a_host_says_when_none_could_take_its_jobs(
         assert "no registered host has the label(s) 'gpu', 'quiet' they need" in waiting()
         api.post("/api/v1/agent/register", "agent", {"name": "perf2", "labels": ["quiet", "gpu"]})
         assert waiting() == "a performance host to take its jobs"  # perf2 may take them
+
+
+def test_a_fault_of_the_commit_itself_runs_none_of_its_other_executions(api: Api):
+    """A trial's broken suite failed its three executions one after another (41 s of the CI
+    run's wait), each with the same words. An agent that says the fault is the commit's own
+    (its suite file, its build) has the revision's queued executions cancelled, saying why; one
+    another host runs already runs on; a failed run does not cancel the rest."""
+    api.post("/api/v1/components/builder/revisions/r1/cancel", "ci", {}).raise_for_status()
+    api.component("broken", executions=3)
+    created = api.revision("b1", "1", component="broken")
+    first, second = api.lease("perf1"), api.lease("perf2")
+    assert {first["id"], second["id"]} <= set(created["job_ids"])
+    reason = "build command 'make' exited with 2:\nMakefile:3: *** missing separator."
+    failed = api.post(
+        f"/api/v1/jobs/{first['id']}/fail",
+        "agent",
+        {"host": "perf1", "reason": reason, "of_commit": True},
+    )
+    assert failed.status_code == 200, failed.text
+    jobs = {
+        j["id"]: j for j in api.client.get("/api/v1/components/broken/revisions/b1").json()["jobs"]
+    }
+    (third,) = set(created["job_ids"]) - {first["id"], second["id"]}
+    assert (jobs[third]["state"], jobs[third]["reason"]) == (
+        "cancelled",
+        f"not run: job {first['id']} of this commit failed so (build command 'make' exited "
+        "with 2:)",
+    )
+    assert jobs[second["id"]]["state"] == "leased"  # perf2 runs it on, and may fail alike
+    assert api.lease("perf1") is None  # nothing of it left to run
+    # a run that failed says nothing of the others: they run
+    created = api.revision("b2", "2", component="broken")
+    run = api.lease("perf1")
+    api.post(
+        f"/api/v1/jobs/{run['id']}/fail", "agent", {"host": "perf1", "reason": "RuntimeError: x"}
+    ).raise_for_status()
+    jobs = api.client.get("/api/v1/components/broken/revisions/b2").json()["jobs"]
+    assert sorted(j["state"] for j in jobs) == ["failed", "queued", "queued"]

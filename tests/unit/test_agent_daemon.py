@@ -128,6 +128,7 @@ class _FailingClient(_LostLeaseClient):
         super().__init__()
         self.job = {**super().lease(), "repo": str(repo), "commit": commit}
         self.reasons: list[str] = []
+        self.of_commit: list[bool] = []
 
     def lease(self, wait: int = 0) -> dict:
         return self.job
@@ -135,8 +136,9 @@ class _FailingClient(_LostLeaseClient):
     def heartbeat(self, job_id: int) -> None:
         return None
 
-    def fail(self, job_id: int, reason: str) -> None:
+    def fail(self, job_id: int, reason: str, of_commit: bool = False) -> None:
         self.reasons.append(reason)
+        self.of_commit.append(of_commit)
 
 
 def test_a_broken_suite_file_is_named_as_in_the_repository_not_where_the_host_checked_it_out(
@@ -156,3 +158,43 @@ def test_a_broken_suite_file_is_named_as_in_the_repository_not_where_the_host_ch
     (reason,) = client.reasons
     assert reason.startswith("SuiteError: perf/redline.toml:"), reason
     assert str(tmp_path / "work") not in reason
+
+
+@pytest.mark.parametrize(
+    ("files", "run_fails", "of_commit"),
+    [
+        ({"perf/redline.toml": 'name = "s"\ntests = [\n'}, False, True),  # its suite file
+        # its build (a top-level key, before the first table)
+        (
+            {"perf/redline.toml": 'build = "false"\n' + SUITE_FILES["perf/redline.toml"]},
+            False,
+            True,
+        ),
+        ({}, True, False),  # a run that failed: it may not fail alike the next time
+    ],
+)
+def test_a_fault_of_the_commit_itself_is_told_as_such_and_a_failed_run_is_not(
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    files: dict[str, str],
+    run_fails: bool,
+    of_commit: bool,
+) -> None:
+    """A trial's broken suite failed its three executions one after another (41 s), each with
+    the same words: a fault of the commit (its suite file, its build) is told as such, so that
+    the server runs none of the others; a run that failed is not."""
+    from redline.agent.isolated import ChildFailed
+
+    def run_isolated(*args: object) -> RunResult:
+        raise ChildFailed("RuntimeError: boom (raised at test_s.py:2, in run)")
+
+    if run_fails:
+        monkeypatch.setattr(daemon_module, "run_isolated", run_isolated)
+    repo, commit = committed_repo(tmp_path / "repo", {**SUITE_FILES, **files})
+    client = _FailingClient(repo, commit)
+    daemon = AgentDaemon(client=client, workdir=tmp_path / "work", allow_file_repos=True)  # type: ignore[arg-type]
+    assert daemon.run_once() is True
+    assert client.of_commit == [of_commit], client.reasons
+    if files.get("perf/redline.toml", "").startswith("build"):
+        said = "build command 'sh -c false' exited with 1, printing nothing"
+        assert client.reasons == [said], client.reasons

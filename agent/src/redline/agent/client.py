@@ -81,11 +81,11 @@ class ServerClient:
             raise LeaseLost(f"job {job_id}: {answer.text}")
         answer.raise_for_status()
 
-    def fail(self, job_id: int, reason: str) -> None:
-        """Fail the job this host holds; a 409 (no longer ours) is ignored."""
-        self._http.post(
-            f"/api/v1/jobs/{job_id}/fail", json={"host": self.host, "reason": reason[-4000:]}
-        )
+    def fail(self, job_id: int, reason: str, of_commit: bool = False) -> None:
+        """Fail the job this host holds (``of_commit``: for a fault of the commit itself, which
+        every execution of it meets); a 409 (no longer ours) is ignored."""
+        body = {"host": self.host, "reason": reason[-4000:], "of_commit": of_commit}
+        self._http.post(f"/api/v1/jobs/{job_id}/fail", json=body)
 
     def release(self, job_id: int) -> None:
         """Give the job back to the queue without counting an attempt."""

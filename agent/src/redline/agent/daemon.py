@@ -37,7 +37,14 @@ MAX_RETRY_S = 10.0
 
 
 class JobFailed(RuntimeError):
-    """A job could not be completed; the message is the reason the server records."""
+    """A job could not be completed; the message is the reason the server records.
+    ``of_commit``: the commit's own fault (its suite file or build), which every execution of
+    it meets alike: the server then runs none of its others (a trial's broken suite failed
+    three executions one after another, 41 s, each with the same words)."""
+
+    def __init__(self, reason: str, of_commit: bool = False) -> None:
+        super().__init__(reason)
+        self.of_commit = of_commit
 
 
 class AgentStopping(BaseException):
@@ -137,7 +144,8 @@ class AgentDaemon:
                 log.info("job %s: uploaded as execution %s", job["id"], execution)
         except (JobFailed, UploadRejected) as exc:
             log.error("job %s failed: %s", job["id"], exc)
-            self.client.fail(job["id"], self._in_repository(str(exc), job))
+            of_commit = getattr(exc, "of_commit", False)
+            self.client.fail(job["id"], self._in_repository(str(exc), job), of_commit)
         except LeaseLost as exc:
             log.warning("job %s: lease lost, abandoning it (%s)", job["id"], exc)
         except AgentStopping:
@@ -183,10 +191,13 @@ class AgentDaemon:
         tree = self.cache.checkout(job["repo"], job["commit"], name)
         suite_path = (tree / job["suite"]).resolve()
         if not suite_path.is_relative_to(tree.resolve()):
-            raise JobFailed(f"suite file {job['suite']} is outside the repository")
+            raise JobFailed(f"suite file {job['suite']} is outside the repository", True)
         if not suite_path.is_file():
-            raise JobFailed(f"suite file {job['suite']} not found at commit {job['commit']}")
-        suite = load_suite(suite_path)
+            raise JobFailed(f"suite file {job['suite']} not found at commit {job['commit']}", True)
+        try:
+            suite = load_suite(suite_path)
+        except Exception as exc:  # the suite file as this commit has it: each execution alike
+            raise JobFailed(f"{type(exc).__name__}: {exc}", True) from exc
         _build(suite.build, suite.directory)
         out = self.workdir / "recordings" / f"{name}.mcap"
         retried: dict[str, str] = {}
@@ -267,7 +278,8 @@ def _build(command: tuple[str, ...] | None, cwd: Path) -> None:
         raise JobFailed(f"build command {shown!r} could not run: {exc}") from exc
     if done.returncode != 0:
         tail = (done.stdout + done.stderr).strip()[-2000:]
-        raise JobFailed(f"build command {shown!r} exited with {done.returncode}:\n{tail}")
+        said = f":\n{tail}" if tail else ", printing nothing"
+        raise JobFailed(f"build command {shown!r} exited with {done.returncode}{said}", True)
 
 
 class _Heartbeat:

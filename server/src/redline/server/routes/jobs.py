@@ -70,7 +70,7 @@ def fail(
 ) -> JobStateOut:
     """Fail the job with the agent's reason; 409 when this host does not hold it."""
     ensure_own_host(token, data.host)
-    job, again = jobs.fail_job(session, job_id, data.host, data.reason)
+    job, again = jobs.fail_job(session, job_id, data.host, data.reason, data.of_commit)
     if jobs.ended(session, job.revision_id):  # no ingest follows: the verdict is posted now
         request.app.state.tasks.revision_ended(job.revision_id)
     if again:  # a fresh run others waited for: they are judged without it

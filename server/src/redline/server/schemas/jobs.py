@@ -66,6 +66,11 @@ class UploadResponse(BaseModel):
 class FailRequest(RequestBody):
     host: str = Field(min_length=1, max_length=200, description="the host holding the job")
     reason: str = Field(min_length=1, max_length=10_000)
+    of_commit: bool = Field(
+        default=False,
+        description="the commit's own fault (its suite file or build), which every execution "
+        "of it meets alike: the revision's other executions still queued are not run",
+    )
 
 
 class JobStateOut(BaseModel):

@@ -263,10 +263,15 @@ def ended(session: Session, revision_id: int) -> bool:
     )
 
 
-def fail_job(session: Session, job_id: int, host_name: str, reason: str) -> tuple[Job, list[int]]:
+def fail_job(
+    session: Session, job_id: int, host_name: str, reason: str, of_commit: bool = False
+) -> tuple[Job, list[int]]:
     """Mark a job this host holds failed with its reason; the same host failing it again
     changes nothing. Another host (one whose lease lapsed, say) gets a Conflict. Returns the
-    job, and for a fresh run others waited for, what to judge now (`mark_waiting`)."""
+    job, and for a fresh run others waited for, what to judge now (`mark_waiting`).
+    ``of_commit``: the commit's own fault, which every execution of it meets: the revision's
+    own executions still queued are cancelled, saying why (its verdict is "failed" whatever
+    they would do; a trial's broken suite failed three, one after another)."""
     job = _locked_job(session, job_id)
     if job.state == JobState.failed and holder(job) == host_name:
         session.commit()
@@ -275,6 +280,15 @@ def fail_job(session: Session, job_id: int, host_name: str, reason: str) -> tupl
     job.state = JobState.failed
     job.reason = reason
     job.lease_expires_at = None
+    if of_commit and job.pair == 0 and job.remeasures_job_id is None:
+        first = reason.strip().splitlines()[0][:300] if reason.strip() else "failed"
+        for other in session.scalars(
+            select(Job)
+            .where(Job.revision_id == job.revision_id, Job.pair == 0, Job.state == JobState.queued)
+            .with_for_update(skip_locked=True)  # one a host is leasing now runs, and fails alike
+        ):
+            other.state = JobState.cancelled
+            other.reason = f"not run: job {job.id} of this commit failed so ({first})"
     again = mark_waiting(session, job.revision_id) if job.remeasures_job_id else []
     session.commit()
     return job, again
