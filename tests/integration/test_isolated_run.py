@@ -81,8 +81,11 @@ def test_a_jobs_run_happens_in_a_process_that_ends_with_it(tmp_path: Path) -> No
 
 def test_a_run_that_cannot_start_fails_naming_why(tmp_path: Path) -> None:
     suite = _suite(tmp_path, "raise RuntimeError('no such robot')\n")
-    with pytest.raises(ChildFailed, match="no such robot"):
+    with pytest.raises(ChildFailed, match="no such robot") as failed:
         run_isolated(suite, tmp_path / "out.mcap", {})
+    # the whole traceback too, for the agent's log: a trial's run logs kept none
+    assert failed.value.trace.startswith("Traceback (most recent call last):")
+    assert 'test_it.py", line 1' in failed.value.trace, failed.value.trace
 
 
 def test_an_agent_that_stops_mid_run_ends_the_run_and_its_recording_says_so(

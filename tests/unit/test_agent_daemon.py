@@ -176,6 +176,7 @@ def test_a_broken_suite_file_is_named_as_in_the_repository_not_where_the_host_ch
 def test_a_fault_of_the_commit_itself_is_told_as_such_and_a_failed_run_is_not(
     tmp_path: Path,
     monkeypatch: pytest.MonkeyPatch,
+    caplog: pytest.LogCaptureFixture,
     files: dict[str, str],
     run_fails: bool,
     of_commit: bool,
@@ -185,8 +186,10 @@ def test_a_fault_of_the_commit_itself_is_told_as_such_and_a_failed_run_is_not(
     the server runs none of the others; a run that failed is not."""
     from redline.agent.isolated import ChildFailed
 
+    trace = 'Traceback (most recent call last):\n  File "perf/test_s.py", line 2, in run\n'
+
     def run_isolated(*args: object) -> RunResult:
-        raise ChildFailed("RuntimeError: boom (raised at test_s.py:2, in run)")
+        raise ChildFailed("RuntimeError: boom (raised at test_s.py:2, in run)", trace)
 
     if run_fails:
         monkeypatch.setattr(daemon_module, "run_isolated", run_isolated)
@@ -195,6 +198,9 @@ def test_a_fault_of_the_commit_itself_is_told_as_such_and_a_failed_run_is_not(
     daemon = AgentDaemon(client=client, workdir=tmp_path / "work", allow_file_repos=True)  # type: ignore[arg-type]
     assert daemon.run_once() is True
     assert client.of_commit == [of_commit], client.reasons
+    if run_fails:  # the reason in a line, the whole traceback in the agent's log
+        assert client.reasons == ["RuntimeError: boom (raised at test_s.py:2, in run)"]
+        assert trace.rstrip() in caplog.text
     if files.get("perf/redline.toml", "").startswith("build"):
         said = "build command 'sh -c false' exited with 1, printing nothing"
         assert client.reasons == [said], client.reasons

@@ -211,7 +211,9 @@ class AgentDaemon:
                         job.get("cases") or (),
                         job.get("parameter_sets") or {},  # a confirmation run: its flagged sets
                     )
-                except ChildFailed as exc:
+                except ChildFailed as exc:  # the reason in a line; where, in the log
+                    if exc.trace:
+                        log.error("job %s: the run raised:\n%s", job["id"], exc.trace.rstrip())
                     raise JobFailed(str(exc)) from None
             busy = recording_disturbances(
                 read_recording(out, strict=False).series_samples(), threshold()

@@ -28,6 +28,7 @@ import multiprocessing
 import os
 import signal
 import time
+import traceback
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -109,7 +110,12 @@ def _end_orphans(before: set[int]) -> list[int]:
 
 
 class ChildFailed(RuntimeError):
-    """The child's run raised: the message names the exception as the agent's own run did."""
+    """The child's run raised: the message names the exception as the agent's own run did;
+    ``trace``: the child's traceback ("" when it died without a word), for the agent's log."""
+
+    def __init__(self, message: str, trace: str = "") -> None:
+        super().__init__(message)
+        self.trace = trace
 
 
 def _die_with_parent() -> None:
@@ -133,12 +139,12 @@ def _child(
     _die_with_parent()
     try:
         result = run_suite(suite_path, out, run_metadata=meta, only=only, parameter_sets=sets)
-    except Exception as exc:  # the agent fails the job with it
-        conn.send(("error", f"{type(exc).__name__}: {exc}"))
+    except Exception as exc:  # the agent fails the job with it, and logs where it was raised
+        conn.send(("error", f"{type(exc).__name__}: {exc}", traceback.format_exc()))
     except BaseException as exc:  # stopped by the agent: the recording says so
-        conn.send(("stopped", f"{type(exc).__name__}: {exc}"))
+        conn.send(("stopped", f"{type(exc).__name__}: {exc}", ""))
     else:
-        conn.send(("done", result))
+        conn.send(("done", result, ""))
     finally:
         conn.close()
 
@@ -179,9 +185,9 @@ def run_isolated(
     finally:
         receive.close()
     _reap(child, before, stop=False)
-    state, value = answer
+    state, value, trace = answer
     if state != "done":
-        raise ChildFailed(value)
+        raise ChildFailed(value, trace)
     result: RunResult = value
     return result
 
