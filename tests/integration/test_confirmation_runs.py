@@ -25,6 +25,7 @@ from redline.server.models import (
     Regression,
     Revision,
     Series,
+    Summary,
     utcnow,
 )
 from redline.server.schemas.components import ComponentCreate
@@ -36,13 +37,13 @@ from redline.server.services.fresh_runs import waiting_on
 from redline.server.services.jobs import fail_job, lease_job, leased_job, register_host
 from redline.server.services.revisions import cancel_revision, revision_detail
 from redline.server.services.trend_view import TrendView
-from redline.worker.confirm_runs import queue_confirmations
+from redline.worker.confirm_runs import queue_confirmations, settle_pending_pairs
 from redline.worker.detection import detect_revision
 from redline.worker.ingest import ingest_execution
 from redline.worker.onward import judge_onward
 from redline.worker.reanalysis import reanalyze_component
 from redline.worker.sweeps import SWEEP_GRACE, unjudged_after_fresh_runs
-from sqlalchemy import select
+from sqlalchemy import delete, select
 from sqlalchemy.orm import Session
 
 from tests.support.api import api_with
@@ -262,8 +263,8 @@ def test_a_pair_the_host_was_busy_in_is_run_again_later_and_then_decides(
     assert detection.confirmation == "suspected", detection.confirmation_reason
     assert re.fullmatch(
         r"the host was busy in a confirmation pair's run of this series \(left out, as "
-        r"detection leaves it out\): 2 pair\(s\) queued again, from \d\d:\d\d UTC, when "
-        r"the work that loaded it may have ended",
+        r"detection leaves it out\): 2 pair\(s\) queued again, from "
+        r"\d{4}-\d\d-\d\d \d\d:\d\d UTC, when the work that loaded it may have ended",
         detection.confirmation_reason,
     ), detection.confirmation_reason
     assert _queued_again(session) == [("r4", 3), ("r5", 3), ("r4", 4), ("r5", 4)]
@@ -303,6 +304,107 @@ def test_pairs_queued_again_that_do_not_show_the_change_drop_it(session, databas
     assert detection.confirmation == "dropped", detection.confirmation_reason
     assert detection.confirmation_reason.startswith("not confirmed: the change showed in 0 of 1")
     assert session.scalars(select(Job).where(Job.pair > 4)).all() == []  # once only
+
+
+def _settle(session) -> None:
+    """What the worker does after any run of the component ends: judge the pairs waiting."""
+    component_id = _r5_detection(session).revision.component_id
+    lock_component(session, component_id)
+    settle_pending_pairs(session, component_id)
+    session.commit()
+    session.expire_all()
+
+
+def test_pairs_are_not_run_again_for_a_revision_ci_cancelled(session, database_url, tmp_path):
+    """A review: pair 1 ran on a busy host, then CI cancelled r5 (a newer commit); its
+    pairs were queued again all the same, and its verdict stayed pending ten minutes."""
+    _flagged_history(session, database_url, tmp_path)
+    for _ in range(2):  # pair 1 only, the host busy
+        job = lease_job(session, "perf-1", 60, 3)
+        level = 30.0 if job.revision.title == "r5" else 20.0
+        _run(session, database_url, tmp_path, job, level, host_percent=90.0)
+    cancel_revision(session, NAME, "r5")
+    session.expire_all()
+    _settle(session)
+    assert _queued_again(session) == []
+    assert _r5_detection(session).confirmation_reason.startswith("re-runs could not decide")
+
+
+def _suspected_timeouts_beside(session, detection: Detection) -> Series:
+    """A suspected change of a count of timeouts, in the segment of ``detection``'s series."""
+    series = detection.series
+    count = Series(
+        component_id=series.component_id,
+        case=series.case,
+        phase=series.phase,
+        params=series.params,
+        process="driver",
+        counter="FixedRate/Query(builder/get):timeouts",
+    )
+    session.add(count)
+    session.flush()
+    session.add(
+        Detection(
+            series_id=count.id,
+            revision_id=detection.revision_id,
+            baseline_revision_id=detection.baseline_revision_id,
+            method="count_rate",
+            verdict="change",
+            flagged=True,
+            direction="increase",
+            confirmation="suspected",
+        )
+    )
+    return count
+
+
+def test_a_count_the_pairs_do_not_judge_is_not_run_again(session, database_url, tmp_path):
+    """A review: a count of timeouts beside the CPU series, in a segment the host was busy in,
+    had pairs queued again that could not decide it (counts are the history's to settle)."""
+    _flagged_history(session, database_url, tmp_path)
+    _run_all(session, database_url, tmp_path)  # a quiet host: the CPU change holds
+    cpu = _r5_detection(session)
+    assert cpu.confirmation == "held", cpu.confirmation_reason
+    count = _suspected_timeouts_beside(session, cpu)
+    run = session.scalars(
+        select(Execution).join(Job, Job.id == Execution.job_id).where(Job.pair == 1)
+    ).first()
+    values = dict(n=40, mean=1, std=0, min=1, p5=1, p25=1, p50=1, p75=1, p95=1, max=1)
+    session.add(Summary(execution_id=run.id, series_id=count.id, disturbed=True, **values))
+    session.commit()
+    _settle(session)
+    assert _queued_again(session) == []
+    reason = session.scalars(select(Detection).where(Detection.series_id == count.id)).one()
+    assert reason.confirmation_reason.startswith("re-runs could not decide: a count of rare")
+
+
+def test_the_wait_for_pairs_run_again_counts_pairs_not_runs(session, database_url, tmp_path):
+    _flagged_history(session, database_url, tmp_path)
+    _run_all(session, database_url, tmp_path, busy=lambda job: job.pair == 2)
+    _quiet_time_came(session)
+    job = lease_job(session, "perf-1", 60, 3)
+    assert (job.revision.title, job.pair) == ("r4", 3)
+    _run(session, database_url, tmp_path, job, 20.0)  # three runs of two pairs are left
+    reason = _r5_detection(session).confirmation_reason
+    assert re.fullmatch(
+        r"confirmation runs: 5 of 8 finished; 2 pair\(s\) queued again because the host was "
+        r"busy, from \d{4}-\d\d-\d\d \d\d:\d\d UTC",
+        reason,
+    ), reason
+
+
+def test_a_reanalysis_runs_no_pairs_again(session, database_url, tmp_path):
+    """A review: a revision whose pairs ran on a busy host before pairs were run again (an
+    upgrade) had them queued by the next re-analysis, which queues no machine time."""
+    _flagged_history(session, database_url, tmp_path)
+    _run_all(session, database_url, tmp_path, busy=lambda job: job.pair == 2)
+    session.execute(delete(Job).where(Job.not_before.is_not(None)))  # as before the upgrade
+    detection = _r5_detection(session)
+    detection.confirmation_reason = "re-runs could not decide: 2 pairs must show it"
+    session.commit()
+    reanalyze_component(database_url, detection.revision.component_id)
+    session.expire_all()
+    assert _queued_again(session) == []
 
 
 def test_pairs_all_measured_on_a_busy_host_twice_say_so_and_a_later_change_hands_it_to_triage(
@@ -896,29 +998,7 @@ def test_a_revision_whose_only_suspect_is_a_count_of_timeouts_runs_nothing_again
         .join(Revision, Revision.id == Detection.revision_id)
         .where(Revision.title == "r5", Detection.method == "execution_shift")
     ).one()
-    series = detection.series
-    count = Series(
-        component_id=series.component_id,
-        case=series.case,
-        phase=series.phase,
-        params=series.params,
-        process="driver",
-        counter="FixedRate/Query(builder/get):timeouts",
-    )
-    session.add(count)
-    session.flush()
-    session.add(
-        Detection(
-            series_id=count.id,
-            revision_id=detection.revision_id,
-            baseline_revision_id=detection.baseline_revision_id,
-            method="count_rate",
-            verdict="change",
-            flagged=True,
-            direction="increase",
-            confirmation="suspected",
-        )
-    )
+    _suspected_timeouts_beside(session, detection)
     session.commit()
     revision = session.get_one(Revision, detection.revision_id)
     assert queue_confirmations(session, revision, DetectionConfig(confirm_pairs=PAIRS)) == 0

@@ -170,6 +170,12 @@ def test_a_broken_suite_file_is_named_as_in_the_repository_not_where_the_host_ch
             False,
             True,
         ),
+        # a build the host lacks a tool for (the shell's 127): the host's fault, not the commit's
+        (
+            {"perf/redline.toml": 'build = "exit 127"\n' + SUITE_FILES["perf/redline.toml"]},
+            False,
+            False,
+        ),
         ({}, True, False),  # a run that failed: it may not fail alike the next time
     ],
 )
@@ -201,6 +207,6 @@ def test_a_fault_of_the_commit_itself_is_told_as_such_and_a_failed_run_is_not(
     if run_fails:  # the reason in a line, the whole traceback in the agent's log
         assert client.reasons == ["RuntimeError: boom (raised at test_s.py:2, in run)"]
         assert trace.rstrip() in caplog.text
-    if files.get("perf/redline.toml", "").startswith("build"):
+    if files.get("perf/redline.toml", "").startswith('build = "false"'):
         said = "build command 'sh -c false' exited with 1, printing nothing"
         assert client.reasons == [said], client.reasons

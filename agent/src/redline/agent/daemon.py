@@ -25,7 +25,7 @@ from redline.agent.host import host_fingerprint
 from redline.agent.isolated import ChildFailed, adopt_orphans, run_isolated
 from redline.agent.quiet import measuring
 from redline.agent.spool import Spool, SpoolSender
-from redline.agent.suite import load_suite
+from redline.agent.suite import SuiteError, load_suite
 from redline.recording import read_recording
 from redline.recording.disturbance import recording_disturbances, threshold
 from redline.recording.format import NO_TRAFFIC
@@ -196,7 +196,7 @@ class AgentDaemon:
             raise JobFailed(f"suite file {job['suite']} not found at commit {job['commit']}", True)
         try:
             suite = load_suite(suite_path)
-        except Exception as exc:  # the suite file as this commit has it: each execution alike
+        except SuiteError as exc:  # the suite file as this commit has it: each execution alike
             raise JobFailed(f"{type(exc).__name__}: {exc}", True) from exc
         _build(suite.build, suite.directory)
         out = self.workdir / "recordings" / f"{name}.mcap"
@@ -281,7 +281,10 @@ def _build(command: tuple[str, ...] | None, cwd: Path) -> None:
     if done.returncode != 0:
         tail = (done.stdout + done.stderr).strip()[-2000:]
         said = f":\n{tail}" if tail else ", printing nothing"
-        raise JobFailed(f"build command {shown!r} exited with {done.returncode}{said}", True)
+        # the commit's own fault, unless the shell found no such command (126, 127: the host
+        # lacks a tool) or a signal ended it (the host's memory, a timeout): those are the host's
+        of_commit = 0 < done.returncode < 126
+        raise JobFailed(f"build command {shown!r} exited with {done.returncode}{said}", of_commit)
 
 
 class _Heartbeat:

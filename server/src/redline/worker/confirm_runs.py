@@ -58,6 +58,7 @@ from redline.worker.confirmation import baseline_noise
 from redline.worker.found_late import move_back
 from redline.worker.history import reanalysing
 from redline.worker.quiet_pairs import (
+    SUPERSEDED,
     busy_in,
     flagged_sets,
     queue_pairs,
@@ -72,9 +73,6 @@ from sqlalchemy.orm import Session
 HOST_GONE = timedelta(minutes=30)
 #: the reason of a confirmation job cancelled because the pairs before it decided every change
 NOT_NEEDED = "not needed: the pairs that ran before it decided every suspected change"
-#: the reason's start of one cancelled because its revision was judged again against another
-#: baseline (a revision arriving late), against which new pairs were queued
-SUPERSEDED = "superseded"
 
 
 def _suspected(session: Session, revision_id: int) -> list[tuple[Detection, str, str]]:
@@ -208,6 +206,8 @@ def settle_pairs(session: Session, revision: Revision) -> bool:
     if running:
         note = waiting(jobs)
         for detection, _, _ in suspected:
+            if note and detection.confirmation_reason.startswith(UNDECIDED):
+                continue  # what the first pairs said of a change the pairs run again do not judge
             detection.confirmation_reason = (
                 f"confirmation runs: {len(jobs) - len(running)} of {len(jobs)} finished{note}"
             )
@@ -229,7 +229,7 @@ def settle_pairs(session: Session, revision: Revision) -> bool:
             )
         return True
     again = queued_again(jobs)
-    wanted = len([pair for pair in pairs if pair not in again])  # a pair run again replaces one
+    wanted = len(set(pairs) - again)  # the first pairs that ran (a pair run again replaces one)
     busy = busy_in(session, jobs)
     moved: list[Revision] = []
     left: list[tuple[Detection, Hold]] = []  # undecided because the host was busy: run again
@@ -237,6 +237,8 @@ def settle_pairs(session: Session, revision: Revision) -> bool:
     for detection, process, counter in suspected:
         measured = _measured(values, detection.series_id, pairs, baseline, revision.id)
         found = _judged(detection, is_count(process, counter), baseline, busy, measured, len(pairs))
+        # the pairs judge it: not a count, nor a series measured against another baseline
+        judged = not is_count(process, counter) and detection.baseline_revision_id == baseline
         if found is None:
             found = pairs_hold(
                 measured, detection.direction, detection.effect or 0.0, wanted,
@@ -244,7 +246,7 @@ def settle_pairs(session: Session, revision: Revision) -> bool:
             )  # fmt: skip
             if failed:
                 found = replace(found, reason=f"{found.reason} (failed: {'; '.join(failed)})")
-        if found.state == SUSPECTED and detection.series_id in busy and not again:
+        if judged and found.state == SUSPECTED and detection.series_id in busy and not again:
             left.append((detection, found))
             continue
         reason = found.reason

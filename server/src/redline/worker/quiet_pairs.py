@@ -30,12 +30,16 @@ from redline.server.models import (
     Summary,
     utcnow,
 )
-from redline.server.services.detection_config import component_config
+from redline.server.services.revisions import CANCELLED
+from redline.worker.history import reanalysing
 from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
 #: confirmation jobs take execution indices from here up, apart from a revision's own
 FIRST_INDEX = 1000
+#: the reason's start of a confirmation job cancelled because its revision was judged again
+#: against another baseline (a revision arriving late), against which new pairs were queued
+SUPERSEDED = "superseded"
 
 
 def quiet_wait() -> timedelta:
@@ -123,6 +127,10 @@ def _queue_again(
     they may start, or None when they were queued again already (or there is nothing to run)."""
     if not busy or count <= 0 or queued_again(jobs) or not jobs:
         return None
+    if any(job.reason == CANCELLED or job.reason.startswith(SUPERSEDED) for job in jobs):
+        return None  # CI cancelled the revision, or it is judged against another baseline now
+    if reanalysing(session, revision.component_id):
+        return None  # a re-analysis queues no machine time for old revisions
     host_id = jobs[0].pinned_host_id
     if host_id is None:
         return None
@@ -145,7 +153,7 @@ def run_again(
     said stands and the later revisions decide."""
     if not left:
         return
-    count = component_config(session, revision.component_id).confirm_pairs
+    count = len({job.pair for job in jobs})  # as many as were first queued
     start = _queue_again(session, revision, baseline, jobs, [d for d, _ in left], count)
     for detection, found in left:
         detection.confirmation, detection.confirmation_reason = (
@@ -156,7 +164,7 @@ def run_again(
                 else (
                     "the host was busy in a confirmation pair's run of this series (left out, "
                     f"as detection leaves it out): {count} pair(s) queued again, from "
-                    f"{start:%H:%M} UTC, when the work that loaded it may have ended"
+                    f"{start:%Y-%m-%d %H:%M} UTC, when the work that loaded it may have ended"
                 )
             ),
         )
@@ -164,10 +172,11 @@ def run_again(
 
 def waiting(jobs: Sequence[Job]) -> str:
     """What the unfinished pairs queued again wait for ("" when none does)."""
-    later = [job.not_before for job in jobs if job.not_before and job.state not in FINISHED]
+    later = [job for job in jobs if job.not_before and job.state not in FINISHED]
     if not later:
         return ""
+    start = min(job.not_before for job in later if job.not_before)
     return (
-        f"; {len(later) // 2 or 1} pair(s) queued again because the host was busy, from "
-        f"{min(later):%H:%M} UTC"
+        f"; {len({job.pair for job in later})} pair(s) queued again because the host was busy, "
+        f"from {start:%Y-%m-%d %H:%M} UTC"
     )

@@ -78,8 +78,11 @@ class RegressionDetail(RegressionOut):
     history: list[RegressionEventOut]
     between: list[RevisionBetween] = Field(
         default_factory=list,
-        description="the revisions between good_revision and the first showing the change that "
-        "were not judged for its series, oldest first (the first 20): the change may be theirs",
+        description="the revisions between good_revision and bad_revision other than those with "
+        "one of its changes, oldest first (the first 20), each with why it is not the good one "
+        "(not judged for its series: its runs failed, were cancelled, have not run, did not "
+        "measure them, or the host was busy; or measured within the span of its changes): the "
+        "change may be theirs",
     )
     between_count: int = Field(default=0, description="how many such revisions there are in all")
 

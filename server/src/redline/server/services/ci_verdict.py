@@ -102,7 +102,8 @@ def _pending(session: Session, revision: Revision) -> tuple[str, str]:
     ).one()
     if reruns:
         again = (
-            f", queued again because the host was busy in the first ones (from {later:%H:%M} UTC)"
+            ", queued again because the host was busy in the first ones (from "
+            f"{later:%Y-%m-%d %H:%M} UTC)"
             if later is not None
             else ""
         )

@@ -39,6 +39,7 @@ from redline.server.models import (
 )
 from redline.server.services.components import get_component, get_revision
 from redline.server.services.errors import Conflict
+from redline.server.services.revision_reports import reports_take_turns
 from redline.server.storage import samples_path
 from sqlalchemy import ColumnElement, delete, func, or_, select
 from sqlalchemy.exc import IntegrityError
@@ -130,7 +131,8 @@ def delete_revision(session: Session, name: str, title: str) -> dict[str, int | 
     part of the history later revisions were judged against), or while a host holds one of
     its jobs (cancel it first)."""
     revision = get_revision(session, get_component(session, name), title)
-    lock_component(session, revision.component_id)  # a report or a verdict of it waits
+    reports_take_turns(session, revision.component_id)  # a report of its commit waits
+    lock_component(session, revision.component_id)  # so does a verdict of it
     mine = or_(Job.revision_id == revision.id, Job.confirms_revision_id == revision.id)
     states = list(session.scalars(select(Job.state).where(mine).with_for_update()))
     measured = _count(session, Execution, Execution.revision_id == revision.id)

@@ -284,7 +284,12 @@ def fail_job(
         first = reason.strip().splitlines()[0][:300] if reason.strip() else "failed"
         for other in session.scalars(
             select(Job)
-            .where(Job.revision_id == job.revision_id, Job.pair == 0, Job.state == JobState.queued)
+            .where(
+                Job.revision_id == job.revision_id,
+                Job.pair == 0,
+                Job.remeasures_job_id.is_(None),  # a fresh run others wait for is theirs to end
+                Job.state == JobState.queued,
+            )
             .with_for_update(skip_locked=True)  # one a host is leasing now runs, and fails alike
         ):
             other.state = JobState.cancelled
