@@ -153,6 +153,12 @@ def test_a_component_named_as_another_but_for_case_is_refused_and_a_lookup_sugge
         "unknown component 'BUILDER' (names are case-sensitive: did you mean 'builder'?)"
     )
     assert "did you mean 'builder'" in html.unescape(api.client.get("/components/Builder").text)
+    # a letter missing: a trial's 'planer' for 'planner' got no hint
+    body = {"component": "bulder", "title": "r1", "sort_key": "1", "commit": "abc123"}
+    answer = api.post("/api/v1/revisions", "ci", body)
+    assert answer.json()["detail"] == "unknown component 'bulder' (did you mean 'builder'?)"
+    answer = api.post("/api/v1/revisions", "ci", {**body, "component": "hasher"})
+    assert answer.json()["detail"] == "unknown component 'hasher'"  # nothing near it
 
 
 def test_a_revision_reported_again_with_its_commit_is_the_same_revision(api: Api):

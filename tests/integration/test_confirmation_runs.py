@@ -37,6 +37,7 @@ from redline.server.services.fresh_runs import waiting_on
 from redline.server.services.jobs import fail_job, lease_job, leased_job, register_host
 from redline.server.services.revisions import cancel_revision, revision_detail
 from redline.server.services.trend_view import TrendView
+from redline.server.services.why import why_flagged
 from redline.worker.confirm_runs import queue_confirmations, settle_pending_pairs
 from redline.worker.detection import detect_revision
 from redline.worker.ingest import ingest_execution
@@ -269,7 +270,7 @@ def test_a_pair_the_host_was_busy_in_is_run_again_later_and_then_decides(
     ), detection.confirmation_reason
     assert _queued_again(session) == [("r4", 3), ("r5", 3), ("r4", 4), ("r5", 4)]
     waited = session.scalars(select(Job.not_before).where(Job.not_before.is_not(None))).first()
-    assert waited - utcnow() > timedelta(minutes=9)  # REDLINE_QUIET_WAIT_S: ten minutes
+    assert waited - utcnow() > timedelta(minutes=4)  # REDLINE_QUIET_WAIT_S: five minutes
     assert lease_job(session, "perf-1", 60, 3) is None  # not before then
     shown = revision_detail(session, NAME, "r5").jobs  # as the API and the page show them
     assert [(j.pair, j.not_before is not None) for j in shown if j.pair] == [
@@ -290,6 +291,10 @@ def test_a_pair_the_host_was_busy_in_is_run_again_later_and_then_decides(
     assert reason.endswith(
         "1 more pair(s) not needed: these decided it; 1 of them run again after the host was busy"
     ), reason
+    # the why page's pairs: the busy one marked left out (a trial's listed it unmarked beside
+    # "confirmed by 2 of 3 pairs")
+    pairs = why_flagged(session, detection.id).pairs
+    assert [(pair, busy) for pair, _, _, busy in pairs] == [(1, False), (2, True), (3, False)]
     assert session.scalars(select(Regression)).one().confirmation == "confirmed"
 
 
@@ -317,7 +322,7 @@ def _settle(session) -> None:
 
 def test_pairs_are_not_run_again_for_a_revision_ci_cancelled(session, database_url, tmp_path):
     """A review: pair 1 ran on a busy host, then CI cancelled r5 (a newer commit); its
-    pairs were queued again all the same, and its verdict stayed pending ten minutes."""
+    pairs were queued again all the same, and its verdict stayed pending for minutes."""
     _flagged_history(session, database_url, tmp_path)
     for _ in range(2):  # pair 1 only, the host busy
         job = lease_job(session, "perf-1", 60, 3)

@@ -54,7 +54,7 @@ def history(services: Services, tmp_path_factory: pytest.TempPathFactory) -> Ite
         REDLINE_DATABASE_URL=database_url,
         REDLINE_REDIS_URL=services.redis_url,
         REDLINE_QUEUE=f"e2e-{uuid.uuid4().hex[:8]}",
-        # a pair run while something else loaded the host runs again a minute later, not ten:
+        # a pair run while something else loaded the host runs again a minute later, not five:
         # within the wait below
         REDLINE_QUIET_WAIT_S="60",
     )

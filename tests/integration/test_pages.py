@@ -323,6 +323,9 @@ def test_revision_and_regression_pages_link_each_other(client, database_url, tmp
     revision = client.get(f"/components/builder/revisions/{bad}")
     assert revision.status_code == 200
     assert f'href="/regressions/{number}"' in revision.text and "builder.cpu" in revision.text
+    # which method fails CI, said above the verdicts (the history's config: KS alone)
+    said = re.search(r'<p class="meta" id="alarming">(.*?)</p>', revision.text).group(1)
+    assert said.startswith("A change for the worse found by ks or count_rate is a regression")
     listed = client.get("/regressions?component=builder&confirmation=suspected")
     assert listed.status_code == 200
 

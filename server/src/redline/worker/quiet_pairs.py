@@ -5,7 +5,7 @@ revision (`redline.worker.confirm_runs`). A phase measured while other work load
 left out, as detection leaves it out (`redline.recording.disturbance`; the agent already ran the
 execution again at once). When that leaves a suspected change without the pairs it needs, the
 pairs it lacks are queued once more, for the parameter sets of those changes only, and not leased
-before `quiet_wait` has passed (``REDLINE_QUIET_WAIT_S``, 10 minutes unless set), when the work
+before `quiet_wait` has passed (``REDLINE_QUIET_WAIT_S``, 5 minutes unless set), when the work
 that loaded the host may have ended. Without this,
 a trial's threefold CPU regression, every pair of which ran beside a test suite on the same host,
 stayed "suspected" for good and no alert was sent. Once only: a host that is busy again leaves

@@ -67,7 +67,7 @@ class Settings(BaseSettings):
     task_visibility_s: float = 3600.0
     # confirmation pairs the host was busy in are queued once more, and not run before this
     # long has passed, when the work that loaded the host may have ended (docs/detection.md)
-    quiet_wait_s: float = Field(default=600.0, ge=0, le=7 * 24 * 3600)
+    quiet_wait_s: float = Field(default=300.0, ge=0, le=7 * 24 * 3600)
     # a re-analysis is judged in this many parts, split by series, each a task any detect
     # worker takes (docs/operations.md): as many as the worker processes that should share it
     reanalysis_parts: int = Field(default=2, ge=1, le=64)

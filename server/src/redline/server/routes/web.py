@@ -32,6 +32,7 @@ from redline.server.services import (
     compare,
     components,
     dashboard,
+    detection_config,
     execution_view,
     executions,
     home,
@@ -199,6 +200,11 @@ def revision_page(name: str, title: str, request: Request, session: SessionDep) 
             "gate": gate(session, name, title),
             "notes": revisions.execution_notes(session, revision.id),
             "detections": regressions.list_detections(session, name, revision=title)[0],
+            # which methods' changes fail CI (a trial read a KS mark beside execution_shift's
+            # "no change" for one series, with nothing saying which decides)
+            "alarming": detection_config.component_config(
+                session, components.get_component(session, name).id
+            ).alarming,
             "values": revision_view.verdict_values(session, revision.id),
             "facts": revision_view.execution_facts(session, revision.id),
         },

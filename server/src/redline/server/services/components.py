@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import difflib
+
 from redline.agent.checkout import refused_repo, without_credentials
 from redline.server.models import Component, Revision
 from redline.server.schemas.components import ComponentCreate, ComponentOut, ComponentSettings
@@ -85,8 +87,17 @@ def get_component(session: Session, name: str) -> Component:
     if component is None:
         held = _named_alike(session, name)
         hint = f" (names are case-sensitive: did you mean {held!r}?)" if held else ""
+        if not held and (near := _spelt_alike(session, name)):
+            hint = f" (did you mean {near!r}?)"  # a trial's 'planer' for 'planner' got no hint
         raise NotFound(f"unknown component {name!r}{hint}")
     return component
+
+
+def _spelt_alike(session: Session, name: str) -> str | None:
+    """The component name closest to ``name`` when one differs by a letter or two."""
+    names = list(session.scalars(select(Component.name).order_by(Component.id).limit(10_000)))
+    near = difflib.get_close_matches(name, names, n=1, cutoff=0.8)
+    return near[0] if near else None
 
 
 def _named_alike(session: Session, name: str) -> str | None:

@@ -56,7 +56,9 @@ class WhyFlagged:
     thresholds: dict[str, Any]
     floor: float
     rule: str  # what the method's score is and how it decides, in its own words
-    pairs: list[tuple[int, float | None, float | None]] = field(default_factory=list)
+    #: (pair, baseline's median, candidate's median, whether the host was busy in either run:
+    #: then it was left out, as confirmation leaves it out)
+    pairs: list[tuple[int, float | None, float | None, bool]] = field(default_factory=list)
 
 
 def _values(session: Session, series_id: int, revision_ids: list[int]) -> list[ExecutionValue]:
@@ -108,14 +110,17 @@ def baseline_revisions(
     return list(rows)[::-1]
 
 
-def _pairs(session: Session, detection: Detection) -> list[tuple[int, float | None, float | None]]:
-    """(pair, baseline's median, candidate's median) of each of the newest confirmation pairs
-    that ran (`current_pairs`: those queued against another baseline measured another
-    comparison)."""
+def _pairs(
+    session: Session, detection: Detection
+) -> list[tuple[int, float | None, float | None, bool]]:
+    """(pair, baseline's median, candidate's median, left out) of each of the newest
+    confirmation pairs that ran (`current_pairs`: those queued against another baseline measured
+    another comparison); left out: the host was busy in either run of the series (a trial's
+    page listed four pairs beside "confirmed by 2 of 3 pairs", the busy one unmarked)."""
     jobs = session.scalars(select(Job).where(Job.confirms_revision_id == detection.revision_id))
     _, newest = current_pairs(list(jobs), detection.revision_id)
     rows = session.execute(
-        select(Job.pair, Job.revision_id, Summary.p50)
+        select(Job.pair, Job.revision_id, Summary.p50, Summary.disturbed)
         .join(Execution, Execution.job_id == Job.id)
         .join(Summary, Summary.execution_id == Execution.id)
         .where(
@@ -125,10 +130,13 @@ def _pairs(session: Session, detection: Detection) -> list[tuple[int, float | No
         )
     )
     found: dict[int, list[float | None]] = {}
-    for pair, revision_id, value in rows:
+    busy: set[int] = set()
+    for pair, revision_id, value, disturbed in rows:
         side = 1 if revision_id == detection.revision_id else 0
         found.setdefault(pair, [None, None])[side] = value
-    return [(pair, values[0], values[1]) for pair, values in sorted(found.items())]
+        if disturbed:
+            busy.add(pair)
+    return [(pair, sides[0], sides[1], pair in busy) for pair, sides in sorted(found.items())]
 
 
 def why_flagged(session: Session, detection_id: int) -> WhyFlagged:
