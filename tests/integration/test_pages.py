@@ -21,7 +21,7 @@ from redline.server.services.revisions import create_revision
 from redline.server.services.signin import SESSION_COOKIE, check_password, create_user
 from redline.server.services.tokens import issue_token
 from redline.server.services.trend_view import MAX_CHARTS
-from sqlalchemy import func, select
+from sqlalchemy import func, select, text
 
 from tests.support.pages import form_token, history, page_client, sign_in, trend_data
 from tests.support.servers import Services
@@ -535,6 +535,22 @@ def test_why_flagged_shows_what_was_compared(client, database_url, tmp_path):
     # the method's own rule, not one rule for all (KS's score is D: it needs no "1 or more")
     assert "needs 1 or more" not in page.text
     assert flagged["method"] == "ks" and "the score is D (0..1)" in page.text
+    assert "left out" not in page.text
+    # a run measured while the host was busy is counted apart, as detection left it out (a
+    # trial read "1 of 3 executions left out" beside "candidate: 3 execution(s)")
+    with session_factory(database_url)() as session:
+        session.execute(
+            text(
+                "UPDATE summary SET disturbed = true WHERE series_id = :series AND execution_id = "
+                "(SELECT min(id) FROM execution WHERE revision_id = "
+                "(SELECT id FROM revision WHERE title = 'r4'))"
+            ),
+            {"series": flagged["series"]["id"]},
+        )
+        session.commit()
+    page = client.get(f"/detections/{flagged['id']}")
+    counts = re.search(r"<tr><th>baseline</th><td>(.*?)</td>", page.text, re.S).group(1)
+    assert counts == "r3 (1 execution(s)); candidate: 1 execution(s), 1 left out: the host was busy"
     assert client.get("/detections/999999").status_code == 404
     # a verdict with no baseline (the first revision's) has its page too: the API lists it
     # (a trial got a 500 for each of those)

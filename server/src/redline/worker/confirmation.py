@@ -20,7 +20,6 @@ import numpy as np
 from redline.detect.confirmation import (
     DROPPED,
     FOUND_LATE,
-    HELD,
     HOLD_SHARE,
     LATER_DECIDE,
     LOOKBACK,
@@ -36,19 +35,17 @@ from redline.server.models import (
     Detection,
     Execution,
     Job,
-    Regression,
     Revision,
     Series,
     Summary,
     revision_place,
 )
 from redline.server.services.fresh_runs import fresh_run_between, fresh_runs_under_way
+from redline.worker.regression_summary import summarize_regressions
 from redline.worker.samples import ingested_executions
 from sqlalchemy import exists, func, select
-from sqlalchemy.dialects.postgresql import distinct_on
 from sqlalchemy.orm import Session
 
-CONFIRMED, NOT_CONFIRMED = "confirmed", "not_confirmed"
 #: later revisions with results, in multiples of the wait, after which a change whose series
 #: they did not measure enough is dropped instead of waiting for ever
 GONE_AFTER = 3
@@ -273,88 +270,6 @@ def _returned(
     return None
 
 
-def _newest_reasons(session: Session, component_id: int) -> dict[tuple[int, str], str]:
-    """Per (regression, state) of the component's detections, the newest one's reason: what a
-    regression's summary quotes (one query for the component, not one per regression on every
-    revision stored)."""
-    rows = session.execute(
-        select(Detection.regression_id, Detection.confirmation, Detection.confirmation_reason)
-        .join(Regression, Regression.id == Detection.regression_id)
-        .where(
-            Regression.component_id == component_id,
-            Detection.confirmation.in_((HELD, SUSPECTED, DROPPED)),
-        )
-        .ext(distinct_on(Detection.regression_id, Detection.confirmation))
-        .order_by(Detection.regression_id, Detection.confirmation, Detection.id.desc())
-    )
-    return {(rid, state): reason for rid, state, reason in rows if rid is not None}
-
-
-def _largest_changes(session: Session, component_id: int) -> dict[int, str]:
-    """Per regression of the component, its largest change in words ("builder cpu +208 % at
-    r3"): the figures its summary keeps, which stay when it is withdrawn."""
-    rows = session.execute(
-        select(Detection.regression_id, Detection.effect, Series.process, Series.counter)
-        .add_columns(Revision.title)
-        .join(Regression, Regression.id == Detection.regression_id)
-        .join(Series, Series.id == Detection.series_id)
-        .join(Revision, Revision.id == Detection.revision_id)
-        .where(
-            Regression.component_id == component_id,
-            Detection.effect.is_not(None),
-            Detection.confirmation != DROPPED,  # a spike it dropped is not its change
-        )
-        .ext(distinct_on(Detection.regression_id))
-        .order_by(Detection.regression_id, func.abs(Detection.effect).desc(), Detection.id)
-    )
-    return {
-        rid: f"{process} {counter} {effect * 100:+.0f} % at {title}"
-        for rid, effect, process, counter, title in rows
-        if rid is not None
-    }
-
-
-def _summarize_regressions(session: Session, component_id: int) -> None:
-    """Each regression of the component: confirmed, not confirmed or suspected, and why."""
-    states: dict[int, dict[str, int]] = defaultdict(dict)
-    for regression_id, state, number in session.execute(
-        select(Detection.regression_id, Detection.confirmation, func.count())
-        .join(Regression, Regression.id == Detection.regression_id)
-        .where(Regression.component_id == component_id)
-        .group_by(Detection.regression_id, Detection.confirmation)
-    ):
-        if regression_id is not None:  # joined to a regression: typed as nullable all the same
-            states[regression_id][state] = number
-    reasons = _newest_reasons(session, component_id)
-    largest = _largest_changes(session, component_id)
-    for regression in session.scalars(
-        select(Regression).where(Regression.component_id == component_id)
-    ):
-        counts = states.get(regression.id, {})
-        total = sum(counts.values())
-        if not total:
-            continue  # withdrawn (`redline.worker.grouping`): it says what it had been
-        held, dropped = counts.get(HELD, 0), counts.get(DROPPED, 0)
-        if held:
-            confirmation = CONFIRMED
-            # what confirmed it, pairs or the later revisions (a trial's regression confirmed
-            # by pairs was said to have held over later revisions that did not exist)
-            example = reasons.get((regression.id, HELD))
-            reason = f"{held} of {total} flagged change(s) confirmed ({example})"
-        elif total and dropped == total:
-            confirmation = NOT_CONFIRMED
-            example = reasons.get((regression.id, DROPPED))
-            reason = f"none of the {total} flagged change(s) held: {example}"
-        else:
-            confirmation = SUSPECTED
-            example = reasons.get((regression.id, SUSPECTED))
-            reason = f"{total - dropped} flagged change(s) still suspected: {example}"
-        if regression.id in largest:
-            reason += f"; the largest: {largest[regression.id]}"
-        if (regression.confirmation, regression.confirmation_reason) != (confirmation, reason):
-            regression.confirmation, regression.confirmation_reason = confirmation, reason
-
-
 def confirm_by_history(
     session: Session, component_id: int, wait: int, alarming: Collection[str]
 ) -> None:
@@ -397,4 +312,4 @@ def confirm_by_history(
             if not standing[detection.revision_id]:
                 changed.discard(detection.revision_id)
     session.flush()
-    _summarize_regressions(session, component_id)
+    summarize_regressions(session, component_id)

@@ -41,7 +41,7 @@ from redline.worker.alerts import (
     scan_component,
     wants,
 )
-from redline.worker.confirmation import CONFIRMED, NOT_CONFIRMED
+from redline.worker.regression_summary import CONFIRMED, NOT_CONFIRMED
 from redline.worker.told import identity, mark_said
 from sqlalchemy import select
 from sqlalchemy.orm import Session

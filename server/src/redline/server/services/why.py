@@ -44,6 +44,7 @@ class ExecutionValue:
     mean: float
     n: int
     sketch: list[float]
+    disturbed: bool = False  # measured while the host was busy: left out of the verdict
 
 
 @dataclass
@@ -64,6 +65,7 @@ class WhyFlagged:
 def _values(session: Session, series_id: int, revision_ids: list[int]) -> list[ExecutionValue]:
     rows = session.execute(
         select(Revision.title, Execution.id, Summary.p50, Summary.mean, Summary.n, Summary.sketch)
+        .add_columns(Summary.disturbed)
         .join(Execution, Execution.id == Summary.execution_id)
         .join(Job, Job.id == Execution.job_id)
         .join(Revision, Revision.id == Execution.revision_id)
@@ -75,8 +77,8 @@ def _values(session: Session, series_id: int, revision_ids: list[int]) -> list[E
         .order_by(Revision.order_key, Revision.id, Execution.id)
     )
     return [
-        ExecutionValue(title, ident, p50, mean, n, list(sketch or []))
-        for title, ident, p50, mean, n, sketch in rows
+        ExecutionValue(title, ident, p50, mean, n, list(sketch or []), bool(disturbed))
+        for title, ident, p50, mean, n, sketch, disturbed in rows
     ]
 
 
