@@ -10,6 +10,7 @@ from __future__ import annotations
 import tempfile
 import textwrap
 import threading
+import time
 from pathlib import Path
 
 import pytest
@@ -127,8 +128,12 @@ def test_a_port_taken_between_choosing_and_binding_it_is_chosen_again(
         with RunNetwork() as run:
             assert run.endpoint.startswith("tcp/127.0.0.1:")
             assert run.endpoint != f"tcp/127.0.0.1:{port}"
-            # a client reaches it there (a client that cannot connect fails to open)
-            with zenoh.open(network.config_from_dict(run.client_settings())) as client:
-                assert str(client.info.zid())
+            # a client reaches it there: the router hears its session
+            zid = network.session_id()
+            with zenoh.open(network.config_from_dict(run.client_settings(zid))):
+                deadline = time.monotonic() + 5
+                while zid not in run.sessions_seen() and time.monotonic() < deadline:
+                    time.sleep(0.05)
+            assert zid in run.sessions_seen()
         with pytest.raises(zenoh.ZError, match="Address already in use"):
             RunNetwork(port).open()

@@ -288,9 +288,10 @@ def pairs_decided(
     or whether they run at all: then those need not run (with 3 pairs, two that agree decide).
     The verdict is the one all the pairs would give, judged as `pairs_hold` judges them with
     ``wanted`` (default: every pair, those to run included); only machine time is saved."""
-    complete = len(_complete(pairs))
+    ran = _complete(pairs)
+    complete = len(ran)
     bar = pair_bar(effect, noise)
-    shown = sum(_shows(move, direction, bar) for move in _moves(_complete(pairs)))
+    shown = sum(_shows(move, direction, bar) for move in _moves(ran))
     wanted = len(pairs) + pending if wanted is None else wanted
     outcomes = set()
     for more in range(pending + 1):  # the pending pairs that give a value

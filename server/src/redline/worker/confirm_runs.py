@@ -236,9 +236,10 @@ def settle_pairs(session: Session, revision: Revision) -> bool:
     rerunnable = _rerunnable(session, session.get_one(Revision, baseline))
     for detection, process, counter in suspected:
         measured = _measured(values, detection.series_id, pairs, baseline, revision.id)
-        found = _judged(detection, is_count(process, counter), baseline, busy, measured, len(pairs))
+        count = is_count(process, counter)
+        found = _judged(detection, count, baseline, busy, measured, len(pairs))
         # the pairs judge it: not a count, nor a series measured against another baseline
-        judged = not is_count(process, counter) and detection.baseline_revision_id == baseline
+        judged = not count and detection.baseline_revision_id == baseline
         if found is None:
             found = pairs_hold(
                 measured, detection.direction, detection.effect or 0.0, wanted,

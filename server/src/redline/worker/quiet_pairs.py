@@ -125,7 +125,7 @@ def _queue_again(
     """Queue ``count`` more pairs for the ``busy`` detections (suspected changes the host was
     busy in some pair's run of, which the pairs left undecided), once per baseline: the time
     they may start, or None when they were queued again already (or there is nothing to run)."""
-    if not busy or count <= 0 or queued_again(jobs) or not jobs:
+    if not busy or not jobs or queued_again(jobs):
         return None
     if any(job.reason == CANCELLED or job.reason.startswith(SUPERSEDED) for job in jobs):
         return None  # CI cancelled the revision, or it is judged against another baseline now
@@ -155,19 +155,18 @@ def run_again(
         return
     count = len({job.pair for job in jobs})  # as many as were first queued
     start = _queue_again(session, revision, baseline, jobs, [d for d, _ in left], count)
-    for detection, found in left:
-        detection.confirmation, detection.confirmation_reason = (
-            found.state,
-            (
-                found.reason
-                if start is None
-                else (
-                    "the host was busy in a confirmation pair's run of this series (left out, "
-                    f"as detection leaves it out): {count} pair(s) queued again, from "
-                    f"{start:%Y-%m-%d %H:%M} UTC, when the work that loaded it may have ended"
-                )
-            ),
+    queued = (
+        ""
+        if start is None
+        else (
+            "the host was busy in a confirmation pair's run of this series (left out, as detection "
+            f"leaves it out): {count} pair(s) queued again, from {start:%Y-%m-%d %H:%M} UTC, when "
+            "the work that loaded it may have ended"
         )
+    )
+    for detection, found in left:
+        detection.confirmation = found.state
+        detection.confirmation_reason = queued or found.reason
 
 
 def waiting(jobs: Sequence[Job]) -> str:

@@ -151,10 +151,8 @@ def delete_revision(session: Session, name: str, title: str) -> dict[str, int | 
     try:
         session.execute(delete(AlertedChange).where(AlertedChange.revision_id == revision.id))
         session.execute(delete(Job).where(mine))
-        session.execute(
-            delete(FigureCache).where(FigureCache.component_id == revision.component_id)
-        )
-        session.execute(delete(Revision).where(Revision.id == revision.id))  # alerts: SET NULL
+        # alerts about it: SET NULL; its cached charts: their data version names its revisions
+        session.execute(delete(Revision).where(Revision.id == revision.id))
         session.commit()
     except IntegrityError:  # a worker stored a row of it meanwhile
         session.rollback()

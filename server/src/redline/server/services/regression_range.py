@@ -1,5 +1,6 @@
 """The revisions inside a regression's range: between its good revision (the newest its changes
-were judged against) and the first showing it, each with why it is not the good one.
+were judged against) and its bad one (the newest showing it), other than those with one of its
+changes, each with why it is not the good one.
 
 A revision there was reported but not judged for the regression's series: its runs failed, were
 cancelled, have not run yet, did not measure those series, or were measured while the host was
@@ -19,8 +20,7 @@ from redline.server.models import (
     revision_place,
 )
 from redline.server.schemas.regressions import RevisionBetween
-from redline.server.services.revisions import UNFINISHED as UNENDED
-from redline.server.services.revisions import own_jobs, revision_state
+from redline.server.services.revisions import UNFINISHED, own_jobs, revision_state
 from sqlalchemy import func, select, tuple_
 from sqlalchemy.orm import Session, selectinload
 
@@ -35,7 +35,9 @@ def _why(revision: Revision, busy: set[int], measured: set[int]) -> str:
         reasons = "; ".join(dict.fromkeys(job.reason for job in jobs if job.reason))
         return f"its runs {state}" + (f" ({reasons})" if reasons else "")
     if revision.id in busy:
-        fresh = [job.state.value for job in jobs if job.remeasures_job_id and job.state in UNENDED]
+        fresh = [
+            job.state.value for job in jobs if job.remeasures_job_id and job.state in UNFINISHED
+        ]
         again = f" (a fresh run of it is {fresh[0]})" if fresh else ""
         return f"the host was busy in its runs of these series: charted, not judged{again}"
     if state != "done":
