@@ -31,9 +31,10 @@ with zenoh.open(zenoh.Config.from_env()) as session:
 """
 IDLE_CLIENT = """\
 import signal, threading
+from redline.agent.interrupts import set_on_signals
 from redline.agent.network import client_settings_from_env, open_client
 stop = threading.Event()
-signal.signal(signal.SIGTERM, lambda *_: stop.set())
+set_on_signals(stop, signal.SIGTERM)
 with open_client(client_settings_from_env()) as session:
     print("redline-monitor ready", flush=True)
     while not stop.wait(0.2):

@@ -63,9 +63,9 @@ from measure_quiet_host import spin
 ROOT = Path(__file__).resolve().parents[1]
 COMPONENT = "objectbuilder"
 SUITE = "objectbuilder/perf/verdicts.toml"
-#: the component's CPU, and its CPU per unit of work the driver delivered (the injected change is
-#: more work per leg pair: both move)
-CPU = ("cpu_percent", "cpu_us_per_op")
+#: the component's CPU, and its CPU per unit of work the driver delivered, in µs and in units of
+#: the host's reference work (the injected change is more work per leg pair: all move)
+CPU = ("cpu_percent", "cpu_us_per_op", "cpu_refs_per_op")
 RTT = ("rtt_p50_us", "rtt_p90_us")
 TIMEOUTS = ("timeouts",)
 EVENTS = [

@@ -37,7 +37,9 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     stop = threading.Event()
     for signum in (signal.SIGTERM, signal.SIGINT):
-        signal.signal(signum, lambda *_: stop.set())
+        # set from a thread of its own: a handler interrupting stop.wait() while it holds the
+        # event's lock would wait for that lock for ever
+        signal.signal(signum, lambda *_: threading.Thread(target=stop.set).start())
     with zenoh.open(zenoh.Config.from_env()) as session:
         publisher = session.declare_publisher(OUT_KEY)
 

@@ -197,7 +197,9 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("--work-per-pair must be at least 1")
     stop = threading.Event()
     for signum in (signal.SIGTERM, signal.SIGINT):
-        signal.signal(signum, lambda *_: stop.set())
+        # set from a thread of its own: a handler interrupting stop.wait() while it holds the
+        # event's lock would wait for that lock for ever
+        signal.signal(signum, lambda *_: threading.Thread(target=stop.set).start())
     legs_pool = ThreadPoolExecutor(args.threads, thread_name_prefix="legs")
     pose_pool = ThreadPoolExecutor(1, thread_name_prefix="pose")
     with zenoh.open(zenoh.Config.from_env()) as session:

@@ -19,7 +19,7 @@ pytestmark = pytest.mark.usefixtures("workspaces_in_tmp_path")
 COMPONENT = """\
     import signal, threading, zenoh
     stop = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    signal.signal(signal.SIGTERM, lambda *_: threading.Thread(target=stop.set).start())
     with zenoh.open(zenoh.Config.from_env()) as session:
         sub = session.declare_subscriber("x/y", lambda sample: None)
         print("ready", flush=True)

@@ -21,7 +21,7 @@ from redline.recording import read_recording
 COMPONENT = """\
     import os, signal, threading, zenoh
     stop = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    signal.signal(signal.SIGTERM, lambda *_: threading.Thread(target=stop.set).start())
     with zenoh.open(zenoh.Config.from_env()) as session:
         heard = session.declare_subscriber("iso/**", lambda s: None)  # a peer that listens too
         print("component ready", flush=True)

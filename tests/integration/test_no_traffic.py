@@ -49,7 +49,7 @@ COMPONENT = """\
     else:
         config = zenoh.Config.from_env()
     stop = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    signal.signal(signal.SIGTERM, lambda *_: threading.Thread(target=stop.set).start())
 
     def answer(query):
         with query:

@@ -85,7 +85,7 @@ def test_component_ready_by_zenoh_key_runs_through(tmp_path: Path) -> None:
     component = """\
         import signal, threading, zenoh
         stop = threading.Event()
-        signal.signal(signal.SIGTERM, lambda *_: stop.set())
+        signal.signal(signal.SIGTERM, lambda *_: threading.Thread(target=stop.set).start())
         with zenoh.open(zenoh.Config.from_env()) as session:
             while not stop.wait(0.1):
                 session.put("demo/alive", b"1")
@@ -109,7 +109,7 @@ def test_a_suites_affinity_pins_the_component_and_is_recorded_in_the_run(tmp_pat
         import os, signal, threading
         open("cores", "w").write(str(sorted(os.sched_getaffinity(0))))
         stop = threading.Event()
-        signal.signal(signal.SIGTERM, lambda *_: stop.set())
+        signal.signal(signal.SIGTERM, lambda *_: threading.Thread(target=stop.set).start())
         print("component ready", flush=True)
         while not stop.wait(0.1):
             pass

@@ -25,7 +25,7 @@ LISTENING = """\
     import os, signal, threading, zenoh
     open("pid", "w").write(str(os.getpid()))
     stop = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    signal.signal(signal.SIGTERM, lambda *_: threading.Thread(target=stop.set).start())
 
     def heard(_sample):
         open("heard", "w").close()
@@ -81,7 +81,7 @@ def test_ctrl_c_stops_every_process_and_leaves_a_readable_recording(tmp_path: Pa
 LIVELY = """\
     import signal, threading, zenoh
     stop = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    signal.signal(signal.SIGTERM, lambda *_: threading.Thread(target=stop.set).start())
     with zenoh.open(zenoh.Config.from_env()) as session:
         token = session.liveliness().declare_token("lively/alive")
         heard = session.declare_subscriber("x/y", lambda sample: None)  # takes part in the run

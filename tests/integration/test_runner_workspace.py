@@ -25,7 +25,7 @@ GIVES_UP = """\
 ALIVE = """\
     import signal, threading, zenoh
     stop = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    signal.signal(signal.SIGTERM, lambda *_: threading.Thread(target=stop.set).start())
     with zenoh.open(zenoh.Config.from_env()) as session:
         print("component ready", flush=True)
         while not stop.wait(0.1):

@@ -24,7 +24,7 @@ Z_QUERYABLE = """\
     args = parser.parse_args()
     conf = zenoh.Config.from_file(args.config) if args.config else zenoh.Config()
     stop = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    signal.signal(signal.SIGTERM, lambda *_: threading.Thread(target=stop.set).start())
 
     def answer(query):
         with query:

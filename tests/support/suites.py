@@ -10,7 +10,7 @@ COMPONENT = """\
     import os, signal, threading
     open("pid", "w").write(str(os.getpid()))
     stop = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    signal.signal(signal.SIGTERM, lambda *_: threading.Thread(target=stop.set).start())
     print("component ready", flush=True)
     while not stop.wait(0.1):
         pass

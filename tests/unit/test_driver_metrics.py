@@ -66,9 +66,11 @@ def record(
     with_own: bool = True,
     query_path: str = QUERY_PATH,
     query: bool = True,
+    reference: list[float] | None = None,
 ) -> Path:
-    """One execution: a 2 s 'steady' segment with component, host and own CPU samples, and the
-    driver's Query (at ``query_path`` in the tree; none without ``query``) and Publish reports."""
+    """One execution: a 2 s 'steady' segment with component, host and own CPU samples (the
+    host's with the given ``reference`` timings, in turn), and the driver's Query (at
+    ``query_path`` in the tree; none without ``query``) and Publish reports."""
     rng = np.random.default_rng(int(cpu * 10 + timeouts))
     begin, end = 1_000_000_000, 3_000_000_000
     with RecordingWriter(path) as writer:
@@ -80,7 +82,10 @@ def record(
         writer.marker("begin", "c", "steady", PARAMS, warmup=False, t_ns=begin)
         for t_ns in range(begin + 100_000_000, end, 100_000_000):
             writer.counters("svc", 42, {"cpu_percent": rng.normal(cpu, 0.5)}, t_ns)
-            writer.counters("host", 0, {"cpu_percent": host, "cpu_steal_percent": 0.0}, t_ns)
+            values = {"cpu_percent": host, "cpu_steal_percent": 0.0}
+            if reference:
+                values["reference_us"] = reference[t_ns // 100_000_000 % len(reference)]
+            writer.counters("host", 0, values, t_ns)
             if with_own:
                 writer.counters("redline", 0, {"cpu_percent": own}, t_ns)
         if query:
@@ -186,6 +191,29 @@ def test_cpu_per_unit_of_work_divides_the_components_cpu_by_what_the_driver_deli
     (per_op,) = [v for k, v in samples.items() if k.counter == "cpu_us_per_op"]
     # 20 % of a core over 2 s = 0.4 CPU-s, for 100 answered queries and 100 published samples
     assert per_op[0] == pytest.approx(0.4e6 / 200, rel=0.05)
+
+
+def test_cpu_per_unit_of_work_is_also_given_in_units_of_the_hosts_reference_work(
+    tmp_path: Path,
+) -> None:
+    def per_op(path: Path, counter: str) -> float:
+        samples = read_recording(path).series_samples()
+        ((value,),) = [v for k, v in samples.items() if k.counter == counter]
+        return value
+
+    # the host at its speed, then half as fast while the same code ran: twice the CPU for the
+    # same work, and the reference work took twice as long too (its mean over the segment)
+    quick = record(tmp_path / "q.mcap", cpu=20.0, reference=[280.0, 320.0])
+    slow = record(tmp_path / "s.mcap", cpu=40.0, reference=[560.0, 640.0])
+    assert per_op(slow, "cpu_us_per_op") == pytest.approx(2 * per_op(quick, "cpu_us_per_op"), 0.05)
+    in_refs = per_op(quick, "cpu_us_per_op") / 300  # the mean (301), not the median (320)
+    assert per_op(quick, "cpu_refs_per_op") == pytest.approx(in_refs, rel=0.01)
+    assert per_op(slow, "cpu_refs_per_op") == pytest.approx(per_op(quick, "cpu_refs_per_op"), 0.05)
+    # judged in place of the CPU time per unit of work, which is charted
+    assert judged("svc", "cpu_refs_per_op") and not judged("svc", "cpu_us_per_op")
+    assert not judged("host", "reference_us")
+    untimed = read_recording(record(tmp_path / "u.mcap", cpu=20.0)).series_samples()
+    assert not [k for k in untimed if k.counter == "cpu_refs_per_op"]  # an older recording
 
 
 def test_other_load_is_the_hosts_cpu_beyond_the_runs_own(tmp_path: Path) -> None:
@@ -332,8 +360,9 @@ def test_compare_does_not_pass_a_report_missing_from_every_candidate_run(tmp_pat
 
 
 def test_compares_junit_has_the_driver_series_a_changed_round_trip_failing(tmp_path: Path) -> None:
-    base = [record(tmp_path / f"b{i}.mcap", rtt_p50=500.0 + i) for i in range(3)]
-    slower = [record(tmp_path / f"s{i}.mcap", rtt_p50=600.0 + i) for i in range(3)]
+    timed = {"reference": [300.0]}
+    base = [record(tmp_path / f"b{i}.mcap", rtt_p50=500.0 + i, **timed) for i in range(3)]
+    slower = [record(tmp_path / f"s{i}.mcap", rtt_p50=600.0 + i, **timed) for i in range(3)]
     code, output, suite = _compare(tmp_path, base, slower)
     assert code == 1, output
     (case,) = [c for c in suite.iter("testcase") if c.get("name") == "c/steady[rate=10]"]
@@ -345,7 +374,8 @@ def test_compares_junit_has_the_driver_series_a_changed_round_trip_failing(tmp_p
     listed = (case.findtext("system-out") or "").splitlines()
     for field_name in ("timeouts", "errors", "unanswered"):  # counts, judged as rates
         assert [x for x in listed if x.startswith(f"driver.{QUERY_PATH}:{field_name}:")], listed
-    assert [x for x in listed if x.startswith("svc.cpu_us_per_op")], listed
+    assert [x for x in listed if x.startswith("svc.cpu_refs_per_op")], listed
+    assert not [x for x in listed if x.startswith("svc.cpu_us_per_op")], listed  # charted
     assert not [x for x in listed if ":queries" in x or ":rtt_p99_us" in x]  # load, extreme
 
 

@@ -5,6 +5,9 @@ from __future__ import annotations
 
 import contextlib
 import signal
+import subprocess
+import sys
+import textwrap
 
 import pytest
 from redline.agent.interrupts import Terminated, signals_as_exceptions
@@ -93,3 +96,27 @@ def test_a_signal_whose_exception_was_swallowed_is_raised_again_when_the_work_en
 def test_nothing_is_raised_again_when_no_signal_came() -> None:
     with signals_as_exceptions() as guard:
         guard.raise_swallowed()
+
+
+def test_a_stop_signal_sets_its_event_even_when_it_comes_while_the_event_is_waited_on() -> None:
+    # the signal lands while the main thread holds the event's own lock, as inside
+    # ``stop.wait()``: a handler calling ``stop.set()`` there waited for that lock for ever
+    # (a monitor that never stopped on SIGTERM); in a process of its own, so such a hang fails
+    # the test by its timeout instead of stopping the suite
+    script = textwrap.dedent(
+        """
+        import os, signal, threading
+        from redline.agent.interrupts import set_on_signals
+        stop = threading.Event()
+        set_on_signals(stop, signal.SIGUSR1)
+        with stop._cond:
+            os.kill(os.getpid(), signal.SIGUSR1)
+            for _ in range(1000):  # the handler runs between two of these steps
+                pass
+        print("stopped" if stop.wait(10) else "not set")
+        """
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", script], capture_output=True, text=True, timeout=30, check=False
+    )
+    assert (done.returncode, done.stdout.strip()) == (0, "stopped"), done.stderr

@@ -52,6 +52,7 @@ def test_context_counters_are_part_of_a_components_configuration() -> None:
         "cpu_user_percent",
         "cpu_system_percent",
         "ctx_involuntary_per_s",
+        "cpu_us_per_op",
     )
     assert DetectionConfig.parse({"context_counters": []}).context_counters == ()
     assert DetectionConfig.parse(default.as_dict()) == default

@@ -49,6 +49,22 @@ def ending(exc: BaseException) -> dict[str, str]:
     return {"status": "failed", "error": f"{type(exc).__name__}: {exc}"[:4000]}
 
 
+def set_on_signals(event: threading.Event, *signums: int) -> None:
+    """Set ``event`` when one of the signals comes (in the main thread, which installs it).
+
+    Not by calling ``event.set()`` in the handler: a handler runs in the main thread between two
+    of its steps, and when those are inside ``event.wait()`` holding the event's own lock,
+    ``set()`` waits for that lock for ever (seen: a monitor that never stopped on SIGTERM, its
+    main thread blocked in the handler). A thread of its own sets it instead, as soon as the
+    main thread lets go of the lock."""
+
+    def handler(_signum: int, _frame: FrameType | None) -> None:
+        threading.Thread(target=event.set, name="signal-stop", daemon=True).start()
+
+    for signum in signums:
+        signal.signal(signum, handler)
+
+
 def _is_default(signum: int, handler: Any) -> bool:
     return handler is signal.SIG_DFL or (
         signum == signal.SIGINT and handler is signal.default_int_handler

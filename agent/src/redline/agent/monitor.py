@@ -28,6 +28,7 @@ import threading
 import time
 
 import zenoh
+from redline.agent.interrupts import set_on_signals
 from redline.agent.network import client_settings_from_env, open_client
 from redline.agent.procstat import ProcessSampler
 from redline.agent.sampling import HostSampler, TreeSampler
@@ -143,8 +144,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("targets", nargs="+", help="NAME=PID of each process to sample")
     args = parser.parse_args(argv)
     stop = threading.Event()
-    for signum in (signal.SIGTERM, signal.SIGINT):
-        signal.signal(signum, lambda *_: stop.set())
+    set_on_signals(stop, signal.SIGTERM, signal.SIGINT)
     run(_targets(args.targets), args.rate, stop, with_host=not args.no_host, own=args.own)
     return 0
 

@@ -29,6 +29,7 @@ from pathlib import Path
 from typing import Any
 
 import zenoh
+from redline.agent.interrupts import set_on_signals
 from redline.agent.network import client_settings_from_env, open_client, shared_memory_enabled
 from redline.recording.format import (
     JSON_ENCODING,
@@ -295,8 +296,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--buffer", type=int, default=200_000, help="samples queued at most")
     args = parser.parse_args(argv)
     stop = threading.Event()
-    for signum in (signal.SIGTERM, signal.SIGINT):
-        signal.signal(signum, lambda *_: stop.set())
+    set_on_signals(stop, signal.SIGTERM, signal.SIGINT)
     counts = record(args.out, args.meta, args.buffer, stop)
     print(f"redline-recorder finished: {json.dumps(counts)}", flush=True)
     return 0

@@ -7,12 +7,40 @@ again with another start time is a new process (PID reuse), never the old one co
 
 from __future__ import annotations
 
+import hashlib
 import os
 import time
 
 from redline.agent.procstat import ProcessSampler, WindowRate, pread, start_time
 
 RESCAN_NS = 1_000_000_000
+
+#: The host counter of the host's speed at the time: the monitor thread's CPU time, in µs, for a
+#: fixed piece of work (`reference_work`) done at every sample. A component's CPU per unit of
+#: work divided by it (`redline.recording.driver.CPU_REFS_PER_OP`) is steadier than the CPU
+#: alone: on the 2-core VM one execution's CPU per operation moved with the host's speed
+#: (docs/detection.md, "host-speed reference").
+REFERENCE = "reference_us"
+_REFERENCE_DATA = bytes(range(256)) * 256  # 64 KiB
+_REFERENCE_LOOP = 3000
+
+
+def reference_work() -> int:
+    """A fixed piece of work (~0.35 ms on the 2-core VM): SHA-256 of 64 KiB, as compiled code
+    does, and an integer loop, as the interpreter does; its result, so nothing is skipped."""
+    acc = int.from_bytes(hashlib.sha256(_REFERENCE_DATA).digest()[:4], "little")
+    for i in range(_REFERENCE_LOOP):
+        acc = (acc * 31 + i) & 0xFFFFFFFF
+    return acc
+
+
+def reference_us() -> float:
+    """The CPU time the calling thread took for `reference_work`, in µs: time the thread waited
+    for the CPU is not in it, only how fast the CPU ran it (its clock, its caches, a sibling
+    hyperthread's load)."""
+    start = time.thread_time_ns()
+    reference_work()
+    return round((time.thread_time_ns() - start) / 1e3, 3)
 
 
 class TreeSampler:
@@ -76,7 +104,8 @@ class TreeSampler:
 
 
 class HostSampler:
-    """Host CPU (busy, iowait, steal; % of all CPUs) and load average."""
+    """Host CPU (busy, iowait, steal; % of all CPUs), load average, and the host's speed at the
+    time (`REFERENCE`)."""
 
     def __init__(self) -> None:
         self._stat = os.open("/proc/stat", os.O_RDONLY)
@@ -86,7 +115,10 @@ class HostSampler:
     def sample(self) -> dict[str, float]:
         ticks = [int(v) for v in pread(self._stat, 512).split(b"\n", 1)[0].split()[1:9]]
         user, nice, system, idle, iowait, irq, softirq, steal = ticks
-        values: dict[str, float] = {"load_1m": float(pread(self._loadavg).split()[0])}
+        values: dict[str, float] = {
+            "load_1m": float(pread(self._loadavg).split()[0]),
+            REFERENCE: reference_us(),
+        }
         rates = self._rates.update(
             time.monotonic_ns(), (user + nice, system + irq + softirq, idle, iowait, steal)
         )

@@ -76,6 +76,12 @@ LOAD_FIELDS = (
 #: The component's CPU per unit of work the driver delivered (a process counter, derived): a
 #: run that delivered less load is not read as a faster component.
 CPU_PER_OP = "cpu_us_per_op"
+#: The same, in units of the host's reference work done beside it (the host counter
+#: ``reference_us``, `redline.agent.sampling.REFERENCE`): a slower host at the time of a run
+#: raises both, so their ratio keeps what the code changed (docs/detection.md).
+CPU_REFS_PER_OP = "cpu_refs_per_op"
+#: The host counter `CPU_REFS_PER_OP` divides by (the agent's `sampling.REFERENCE`).
+HOST_REFERENCE = "reference_us"
 
 
 def metric_of(counter: str) -> Metric | None:

@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 from io import BytesIO
 from operator import itemgetter
 from pathlib import Path
+from statistics import mean
 from typing import Any
 
 from mcap.data_stream import ReadDataStream
@@ -25,7 +26,9 @@ from mcap.stream_reader import StreamReader, breakup_chunk
 from redline.recording.disturbance import OTHER_CPU, other_load
 from redline.recording.driver import (
     CPU_PER_OP,
+    CPU_REFS_PER_OP,
     DRIVER_PROCESS,
+    HOST_REFERENCE,
     RECORDER_PROCESS,
     RUN_CASE,
     RUN_PHASE,
@@ -193,10 +196,17 @@ def _add_cpu_per_op(
     grouped: dict[SeriesKey, list[Any]], segment: Segment, work: float, timed: bool
 ) -> None:
     """Each monitored process's CPU time in the segment per unit of work (µs per sample
-    published or query answered), from its mean CPU share over the segment's duration."""
+    published or query answered), from its mean CPU share over the segment's duration; and,
+    where the monitor timed the host's reference work, the same in units of it (its mean time
+    over the segment, which the component's CPU followed more closely than the median or the
+    fastest did: docs/detection.md; `CPU_REFS_PER_OP`)."""
     if work <= 0:
         return
     params, seconds = canonical_params(segment.params), (segment.end_ns - segment.begin_ns) / 1e9
+    timings = grouped.get(
+        SeriesKey(segment.case, segment.phase, params, HOST_PROCESS, HOST_REFERENCE)
+    )
+    reference = mean(v[1] if timed else v for v in timings) if timings else 0.0
     for key in [
         k
         for k in grouped
@@ -206,8 +216,14 @@ def _add_cpu_per_op(
     ]:
         shares = [v[1] if timed else v for v in grouped[key]]
         value = sum(shares) / len(shares) / 100.0 * seconds * 1e6 / work
-        derived = SeriesKey(key.case, key.phase, key.params, key.process, CPU_PER_OP)
-        grouped.setdefault(derived, []).append((segment.end_ns, value) if timed else value)
+        derived = {CPU_PER_OP: value} | (
+            {CPU_REFS_PER_OP: value / reference} if reference > 0 else {}
+        )
+        for counter, derived_value in derived.items():
+            series = SeriesKey(key.case, key.phase, key.params, key.process, counter)
+            grouped.setdefault(series, []).append(
+                (segment.end_ns, derived_value) if timed else derived_value
+            )
 
 
 def _by_counter(samples: list[dict[str, Any]], timed: bool) -> dict[tuple[str, str], list[Any]]:

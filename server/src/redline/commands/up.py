@@ -10,7 +10,6 @@ import signal
 import threading
 from collections.abc import Callable
 from pathlib import Path
-from types import FrameType
 from typing import TYPE_CHECKING
 
 import typer
@@ -42,16 +41,13 @@ def _serve(
     """Start the stack, run ``then`` (which must return soon after the stop event is set),
     and supervise until Ctrl-C or SIGTERM."""
     import httpx
+    from redline.agent.interrupts import set_on_signals
     from redline.commands.stack import Stack, StackError
 
     stack = Stack(data.resolve(), port)
     stop = threading.Event()
 
-    def on_signal(signum: int, _frame: FrameType | None) -> None:
-        stop.set()
-
-    signal.signal(signal.SIGINT, on_signal)
-    signal.signal(signal.SIGTERM, on_signal)
+    set_on_signals(stop, signal.SIGINT, signal.SIGTERM)
     try:
         stack.start()
         console.print(f"Redline is up at [bold]{stack.url}[/bold]")

@@ -164,6 +164,7 @@ def watch_cmd(
     ] = None,
 ) -> None:
     """Watch a running component for resource faults with a model of its usage."""
+    from redline.agent.interrupts import set_on_signals
     from redline.agent.sampling import TreeSampler
     from redline.predict.dataset import RESPONSE_WINDOW_S, TARGETS, DataError
     from redline.predict.features import OUT, FeatureSpec
@@ -187,8 +188,7 @@ def watch_cmd(
     silences = [Silence(key) for key in loaded.responses]
     residuals = {t: Residuals(t, loaded.metrics[t]["threshold"]) for t in TARGETS}
     stop = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
-    signal.signal(signal.SIGINT, lambda *_: stop.set())
+    set_on_signals(stop, signal.SIGTERM, signal.SIGINT)
     session = _session(zenoh_config)
     subscribers = listen(session, window)
     subscribers += listen(session, answers)

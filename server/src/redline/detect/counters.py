@@ -22,18 +22,29 @@ from __future__ import annotations
 from collections.abc import Collection
 
 from redline.recording import HOST_PROCESS
-from redline.recording.driver import DRIVER_PROCESS, RECORDER_PROCESS, Metric, metric_of
+from redline.recording.driver import (
+    CPU_PER_OP,
+    DRIVER_PROCESS,
+    RECORDER_PROCESS,
+    Metric,
+    metric_of,
+)
 from redline.recording.format import OWN_PROCESS
 
 #: Counters recorded and charted but, unless a component asks, not judged: the user/system split
-#: of CPU (above), and involuntary context switches, which the scheduler makes when other
+#: of CPU (above); involuntary context switches, which the scheduler makes when other
 #: processes want the CPU: they follow the host's load more than the code (flagged 4 times in
 #: `bench_verdicts`' 54 revisions, each dropped by its re-runs as noise; a trial's README commit
-#: flagged at +92 % against a baseline whose own executions ranged 343-801 a second).
+#: flagged at +92 % against a baseline whose own executions ranged 343-801 a second); and the
+#: CPU time per unit of work, judged in units of the host's reference work instead
+#: (``cpu_refs_per_op``: its spread between executions of the same code was 2.5-6.8 % where the
+#: CPU time's was 6.1-13.1 %, docs/detection.md). A component whose recordings carry no
+#: reference (made by an older agent) asks for ``cpu_us_per_op`` by leaving it out of its list.
 CONTEXT_COUNTERS: tuple[str, ...] = (
     "cpu_user_percent",
     "cpu_system_percent",
     "ctx_involuntary_per_s",
+    CPU_PER_OP,
 )
 
 
