@@ -59,10 +59,12 @@ def _record(
     split: bool = False,
     case: str = CASE,
     silent: bool = False,
+    reference: float | None = None,
 ) -> Path:
     """One execution's recording: a 2 s steady phase with the component's CPU, the host's and
     Redline's own, and the driver's report of its queries (as `redline.testing.Query` makes).
-    ``silent``: no query answered, the run recorded as the agent records it then."""
+    ``silent``: no query answered, the run recorded as the agent records it then;
+    ``reference``: the host's reference work timed at every sample, in µs."""
     rng = np.random.default_rng(seed)
     begin, end = 1_000_000_000, 3_000_000_000
     if silent:
@@ -78,7 +80,10 @@ def _record(
             writer.counters(
                 NAME, 42, {**used, "cpu_user_percent": cpu / 2} if split else used, t_ns
             )
-            writer.counters("host", 0, {"cpu_percent": host_percent}, t_ns)
+            host = {"cpu_percent": host_percent}
+            if reference is not None:
+                host["reference_us"] = float(rng.normal(reference, reference / 100))
+            writer.counters("host", 0, host, t_ns)
             writer.counters("redline", 0, {"cpu_percent": 4.0}, t_ns)
         if report:
             answered = queries - timeouts
@@ -191,6 +196,37 @@ def test_the_series_api_says_judged_as_the_components_own_context_counters_say(
         assert user_cpu_judged() is False  # by default: charted, not judged
         set_config(session, NAME, DetectionConfigIn(context_counters=[]))
         assert user_cpu_judged() is True
+
+
+def test_a_slower_host_is_no_change_where_the_cpu_is_judged_at_the_hosts_speed(
+    session, database_url, tmp_path, services
+):
+    """r4 ran on a host 30 % slower: the component's CPU share rose 30 %, and so did the time
+    the host's reference work took. Its CPU per unit of work at the host's speed is judged, not
+    the share beside it (the same figure with the host's speed in it), and it did not move."""
+    with api_with(services, tmp_path) as api:
+        create_component(session, ComponentCreate(name=NAME, executions=RUNS))
+        for number in range(1, 5):
+            slower = number == 4
+            executions = _revision(
+                session,
+                tmp_path,
+                number,
+                cpu=26.0 if slower else 20.0,
+                reference=390.0 if slower else 300.0,
+            )
+            ingest_and_detect(database_url, executions)
+        answer = api.client.get(f"/api/v1/components/{NAME}/series")
+        assert answer.status_code == 200, answer.text
+        shown = {s["counter"]: s["judged"] for s in answer.json() if s["process"] == NAME}
+    assert shown == {"cpu_percent": False, "cpu_us_per_op": False, "cpu_refs_per_op": True}
+    session.expire_all()
+    r4 = session.scalars(select(Revision).where(Revision.title == "r4")).one()
+    verdicts = _verdicts(session, r4)
+    judged = {counter for process, counter, _ in verdicts if process == NAME}
+    assert judged == {"cpu_refs_per_op"}  # not cpu_percent, not cpu_us_per_op
+    assert not [key for key, found in verdicts.items() if found.flagged], verdicts
+    assert session.scalar(select(func.count()).select_from(Regression)) == 0
 
 
 def test_a_faster_round_trip_is_a_change_but_not_a_regression(session, database_url, tmp_path):

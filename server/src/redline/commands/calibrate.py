@@ -26,7 +26,7 @@ def _execution_values(
     many recordings its segment was disturbed (the host busy). A disturbed segment's value is
     left out, as the service does not judge it: the spread is the quiet host's."""
     import numpy as np
-    from redline.detect.counters import is_count, judged
+    from redline.detect.counters import is_count, judged_among
     from redline.recording import read_recording
     from redline.recording.disturbance import recording_disturbances
 
@@ -35,12 +35,9 @@ def _execution_values(
     for path in recordings:
         samples = read_recording(path).series_samples()
         disturbed = recording_disturbances(samples, limit)
+        asked = set(judged_among(samples))
         for key, series in samples.items():
-            if (
-                not series
-                or not judged(key.process, key.counter)
-                or is_count(key.process, key.counter)
-            ):
+            if not series or key not in asked or is_count(key.process, key.counter):
                 continue
             if (key.case, key.phase, key.params) in disturbed:
                 busy[key] = busy.get(key, 0) + 1

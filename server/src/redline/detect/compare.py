@@ -25,7 +25,7 @@ from redline.detect.counters import (
     driver_metric,
     is_count,
     is_load,
-    judged,
+    judged_among,
     kind,
     worse,
 )
@@ -209,11 +209,11 @@ def load_side(
         )
         # the judged series, and the driver's loads that its counts are rated out of; not a
         # segment the host was busy in: its values are not the component's own
+        asked = set(judged_among(everything, context))
         timeline = {
             key: points
             for key, points in everything.items()
-            if (judged(key.process, key.counter, context) or is_load(key.process, key.counter))
-            and _segment(key) not in busy
+            if (key in asked or is_load(key.process, key.counter)) and _segment(key) not in busy
         }
         loaded.append(
             RecordedSeries(path=path, label=_label(recording), timeline=timeline, disturbed=busy)

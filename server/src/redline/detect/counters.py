@@ -19,11 +19,13 @@ component judges the split when it asks (its detection configuration's ``context
 
 from __future__ import annotations
 
-from collections.abc import Collection
+from collections.abc import Collection, Iterable
+from typing import Protocol, TypeVar
 
 from redline.recording import HOST_PROCESS
 from redline.recording.driver import (
     CPU_PER_OP,
+    CPU_REFS_PER_OP,
     DRIVER_PROCESS,
     RECORDER_PROCESS,
     Metric,
@@ -85,6 +87,48 @@ def is_load(process: str, counter: str) -> bool:
 #: A driver's extremes (the largest and the 99th percentile of a phase's few hundred round trips
 #: or lateness samples): one outlier decides them, so they are charted, not judged.
 EXTREMES = ("_max_us", "_p99_us")
+
+
+#: A component's CPU share, judged per unit of work at the host's speed where that is recorded
+SHARE = "cpu_percent"
+
+
+class Named(Protocol):
+    """A series by its names: a `SeriesKey`, or the server's stored series."""
+
+    @property
+    def case(self) -> str: ...
+    @property
+    def phase(self) -> str: ...
+    @property
+    def params(self) -> str: ...
+    @property
+    def process(self) -> str: ...
+    @property
+    def counter(self) -> str: ...
+
+
+S = TypeVar("S", bound=Named)
+
+
+def judged_among(series: Iterable[S], context: Collection[str] = CONTEXT_COUNTERS) -> list[S]:
+    """The series a verdict is asked of among one run's or one revision's (`judged`): where the
+    driver's work and the host's reference were recorded beside a component's CPU share
+    (`CPU_REFS_PER_OP` judged in the same case, phase, parameters and process), the share is
+    not judged: with the load fixed it is the same figure as the CPU per unit of work, but with
+    the host's speed in it, and judging both asked twice of one measurement."""
+    listed = list(series)
+    per_op = {
+        (s.case, s.phase, s.params, s.process)
+        for s in listed
+        if s.counter == CPU_REFS_PER_OP and judged(s.process, s.counter, context)
+    }
+    return [
+        s
+        for s in listed
+        if judged(s.process, s.counter, context)
+        and not (s.counter == SHARE and (s.case, s.phase, s.params, s.process) in per_op)
+    ]
 
 
 def judged(process: str, counter: str, context: Collection[str] = CONTEXT_COUNTERS) -> bool:

@@ -7,8 +7,9 @@ from __future__ import annotations
 from collections import defaultdict
 from collections.abc import Collection, Sequence
 
-from redline.detect.counters import CONTEXT_COUNTERS, driver_metric, is_count, judged
+from redline.detect.counters import CONTEXT_COUNTERS, driver_metric, is_count, judged_among
 from redline.detect.result import NOT_ENOUGH_DATA
+from redline.recording import SeriesKey
 from redline.server.models import (
     Detection,
     Execution,
@@ -54,24 +55,24 @@ def judged_counters(
     session: Session,
     series_ids: Collection[int],
     context: Collection[str] = CONTEXT_COUNTERS,
-    known: dict[int, tuple[str, str]] | None = None,
+    known: dict[int, SeriesKey] | None = None,
 ) -> dict[int, tuple[str, str]]:
-    """Series id → (process, counter), of the series a verdict is asked of
-    (`redline.detect.counters`: not the host's, not a context counter, not a driver's load).
+    """Series id → (process, counter), of the series among ``series_ids`` (one revision's) a
+    verdict is asked of (`redline.detect.counters.judged_among`: not the host's, not a context
+    counter, not a driver's load, not a CPU share judged per unit of work instead).
     ``known``: the names read so far (a re-analysis's memory; a series' names never change),
     brought up to date."""
     known = {} if known is None else known
     unknown = [series_id for series_id in series_ids if series_id not in known]
     if unknown:
         rows = session.execute(
-            select(Series.id, Series.process, Series.counter).where(Series.id.in_(unknown))
+            select(
+                Series.id, Series.case, Series.phase, Series.params, Series.process, Series.counter
+            ).where(Series.id.in_(unknown))
         )
-        known.update((series_id, (process, counter)) for series_id, process, counter in rows)
-    return {
-        series_id: known[series_id]
-        for series_id in series_ids
-        if series_id in known and judged(*known[series_id], context)
-    }
+        known.update((row[0], SeriesKey(*row[1:])) for row in rows)
+    ids = {known[series_id]: series_id for series_id in series_ids if series_id in known}
+    return {ids[key]: (key.process, key.counter) for key in judged_among(ids, context)}
 
 
 def newest_with_summaries(session: Session, revision: Revision, depth: int) -> list[int]:

@@ -31,6 +31,7 @@ import numpy as np
 from redline.detect.baseline import lookback
 from redline.detect.config import DetectionConfig
 from redline.detect.result import NOT_ENOUGH_DATA
+from redline.recording import SeriesKey
 from redline.server.db import bulk_insert, session_scope
 from redline.server.models import Reanalysis, StagedDetection, StagedRevision, utcnow
 from redline.server.services.detection_config import component_config
@@ -83,8 +84,8 @@ class Walk:
     #: there later (`redline.worker.baselines.Baselines.step`)
     undecided: set[tuple[int, str, int]] = field(default_factory=set)
     recent: deque[tuple[int, frozenset[int]]] = field(default_factory=deque)
-    #: each series' (process, counter) read so far (`redline.worker.history.judged_counters`)
-    names: dict[int, tuple[str, str]] = field(default_factory=dict)
+    #: each series' names read so far (`redline.worker.history.judged_counters`)
+    names: dict[int, SeriesKey] = field(default_factory=dict)
 
     @classmethod
     def over(cls, config: DetectionConfig) -> Walk:

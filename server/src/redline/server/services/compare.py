@@ -14,12 +14,14 @@ from collections import defaultdict
 
 import numpy as np
 import pyarrow.parquet as pq
+from redline.detect.counters import judged_among
 from redline.detect.ks import ks
 from redline.detect.summary import describe
 from redline.server.models import Component, Execution, Revision, Series, Summary, revision_place
 from redline.server.schemas.regressions import DetectionOut
 from redline.server.schemas.results import Comparison, SeriesComparison, Statistics
 from redline.server.services.components import get_component, get_revision
+from redline.server.services.detection_config import component_config
 from redline.server.services.errors import BadRequest
 from redline.server.services.regressions import list_detections
 from redline.server.services.results import series_ref
@@ -142,13 +144,15 @@ def compare(session: Session, component_name: str, base: str, candidate: str) ->
     cand_samples, cand_exact = pooled_samples(session, after)
     common = sorted(set(base_samples) & set(cand_samples))
     series = {s.id: s for s in session.scalars(select(Series).where(Series.id.in_(common)))}
+    context = component_config(session, component.id).context_counters
+    judged_ids = {s.id for s in judged_among(series.values(), context)}
     rows = []
     for series_id in common:
         old, new = base_samples[series_id], cand_samples[series_id]
         result = ks(old, new)
         rows.append(
             SeriesComparison(
-                series=series_ref(series[series_id]),
+                series=series_ref(series[series_id], context, judged_ids),
                 baseline=statistics(old),
                 candidate=statistics(new),
                 change=result.effect if math.isfinite(result.effect) else None,

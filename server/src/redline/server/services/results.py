@@ -8,7 +8,7 @@ from collections import defaultdict
 from collections.abc import Collection
 
 from redline.detect.config import CHARTED_METHOD
-from redline.detect.counters import CONTEXT_COUNTERS, judged, kind, worse
+from redline.detect.counters import CONTEXT_COUNTERS, judged, judged_among, kind, worse
 from redline.detect.result import NOT_ENOUGH_DATA
 from redline.detect.summary import Pooled
 from redline.recording import SeriesKey
@@ -22,9 +22,15 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session, aliased
 
 
-def series_ref(series: Series, context: Collection[str] = CONTEXT_COUNTERS) -> SeriesRef:
+def series_ref(
+    series: Series,
+    context: Collection[str] = CONTEXT_COUNTERS,
+    judged_ids: Collection[int] | None = None,
+) -> SeriesRef:
     """The series as the API shows it; ``context``: the counters its component does not judge
-    (its detection settings' ``context_counters``)."""
+    (its detection settings' ``context_counters``); ``judged_ids``: the series judged among
+    those shown with it (`judged_among`: a CPU share beside its CPU per unit of work is not),
+    None to judge it by its name alone."""
     label = SeriesKey(
         series.case, series.phase, series.params, series.process, series.counter
     ).label()
@@ -38,7 +44,9 @@ def series_ref(series: Series, context: Collection[str] = CONTEXT_COUNTERS) -> S
         counter=series.counter,
         kind=kind(series.process),
         worse=worse(series.process, series.counter),
-        judged=judged(series.process, series.counter, context),
+        judged=judged(series.process, series.counter, context)
+        if judged_ids is None
+        else series.id in judged_ids,
     )
 
 
@@ -67,9 +75,10 @@ def component_series(session: Session, component_name: str) -> list[SeriesOut]:
     pools: dict[Series, dict[Revision, Pooled]] = defaultdict(dict)
     for series, revision, n, mean, std in rows:
         pools[series].setdefault(revision, Pooled()).add(n, mean, std)
+    judged_ids = {series.id for series in judged_among(pools, context)}
     return [
         SeriesOut(
-            **series_ref(series, context).model_dump(),
+            **series_ref(series, context, judged_ids).model_dump(),
             points=[
                 SeriesPoint(
                     revision=revision.title,
