@@ -9,6 +9,7 @@ from typing import Any
 from xml.etree import ElementTree
 
 import numpy as np
+from redline.detect.registry import DEFAULT_METHOD
 from redline.recording import RecordingWriter
 from redline.recording.format import NO_TRAFFIC
 from redline.server.models import (
@@ -202,8 +203,12 @@ def test_a_slower_host_is_no_change_where_the_cpu_is_judged_at_the_hosts_speed(
     session, database_url, tmp_path, services
 ):
     """r4 ran on a host 30 % slower: the component's CPU share rose 30 %, and so did the time
-    the host's reference work took. Its CPU per unit of work at the host's speed is judged, not
-    the share beside it (the same figure with the host's speed in it), and it did not move."""
+    the host's reference work took. The default method, judging executions, judges its CPU per
+    unit of work at the host's speed, not the share beside it (the same figure with the host's
+    speed in it), and it did not move: no regression. KS, charted, judges the share's samples:
+    the per-unit figure is one value an execution, and a component alarming on KS at one
+    execution a revision lost its CPU verdicts when it was judged by that alone (CI,
+    2026-12-04)."""
     with api_with(services, tmp_path) as api:
         create_component(session, ComponentCreate(name=NAME, executions=RUNS))
         for number in range(1, 5):
@@ -219,13 +224,15 @@ def test_a_slower_host_is_no_change_where_the_cpu_is_judged_at_the_hosts_speed(
         answer = api.client.get(f"/api/v1/components/{NAME}/series")
         assert answer.status_code == 200, answer.text
         shown = {s["counter"]: s["judged"] for s in answer.json() if s["process"] == NAME}
-    assert shown == {"cpu_percent": False, "cpu_us_per_op": False, "cpu_refs_per_op": True}
+    assert shown == {"cpu_percent": True, "cpu_us_per_op": False, "cpu_refs_per_op": True}
     session.expire_all()
     r4 = session.scalars(select(Revision).where(Revision.title == "r4")).one()
     verdicts = _verdicts(session, r4)
-    judged = {counter for process, counter, _ in verdicts if process == NAME}
-    assert judged == {"cpu_refs_per_op"}  # not cpu_percent, not cpu_us_per_op
-    assert not [key for key, found in verdicts.items() if found.flagged], verdicts
+    asked = {(counter, method) for process, counter, method in verdicts if process == NAME}
+    assert asked == {("cpu_refs_per_op", DEFAULT_METHOD), ("cpu_percent", "ks")}
+    alarming = [key for key, found in verdicts.items() if found.flagged and key[2] != "ks"]
+    assert not alarming, verdicts
+    assert verdicts[(NAME, "cpu_percent", "ks")].flagged  # the share did rise, charted
     assert session.scalar(select(func.count()).select_from(Regression)) == 0
 
 

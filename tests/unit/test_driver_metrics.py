@@ -17,7 +17,15 @@ from redline.cli import run_cmd
 from redline.commands.compare import register
 from redline.detect.compare import compare_files
 from redline.detect.count_rate import CountRate
-from redline.detect.counters import CONTEXT_COUNTERS, is_count, judged, judged_among, kind, worse
+from redline.detect.counters import (
+    CONTEXT_COUNTERS,
+    LEVELS,
+    is_count,
+    judged,
+    judged_among,
+    kind,
+    worse,
+)
 from redline.detect.relative_change import RelativeChange
 from redline.detect.verdict import judge_series
 from redline.recording import RecordingWriter, SeriesKey, read_recording
@@ -219,12 +227,19 @@ def test_cpu_per_unit_of_work_is_also_given_in_units_of_the_hosts_reference_work
 def test_a_cpu_share_beside_its_cpu_per_unit_of_work_at_the_hosts_speed_is_not_judged(
     tmp_path: Path,
 ) -> None:
-    def asked(path: Path, context: tuple[str, ...] = CONTEXT_COUNTERS) -> set[str]:
+    def asked(
+        path: Path,
+        context: tuple[str, ...] = CONTEXT_COUNTERS,
+        levels: tuple[str, ...] = ("execution",),
+    ) -> set[str]:
         samples = read_recording(path).series_samples()
-        return {k.counter for k in judged_among(samples, context) if k.process == "svc"}
+        return {k.counter for k in judged_among(samples, context, levels) if k.process == "svc"}
 
     timed = record(tmp_path / "t.mcap", reference=[300.0])
     assert asked(timed) == {"cpu_refs_per_op"}  # the share is the same figure, host and all
+    # a method judging samples (KS) judges the share's: the per-unit figure is one value a run
+    assert asked(timed, levels=("sample",)) == {"cpu_percent"}
+    assert asked(timed, levels=LEVELS) == {"cpu_percent", "cpu_refs_per_op"}
     assert asked(record(tmp_path / "u.mcap")) == {"cpu_percent"}  # no reference: the share
     # a component that does not judge the CPU at the host's speed judges its share
     assert asked(timed, (*CONTEXT_COUNTERS, "cpu_refs_per_op")) == {"cpu_percent"}
@@ -232,6 +247,10 @@ def test_a_cpu_share_beside_its_cpu_per_unit_of_work_at_the_hosts_speed_is_not_j
     base = [record(tmp_path / f"b{i}.mcap", cpu=20.0 + i / 10, reference=[300.0]) for i in range(3)]
     slow = [record(tmp_path / f"s{i}.mcap", cpu=26.0 + i / 10, reference=[390.0]) for i in range(3)]
     assert compare_files(base, slow).changed == []
+    # one recording a side: too few values of the per-unit figure for KS, which judges the
+    # share's samples, and finds the work's +30 % (here the host's, there is no telling)
+    (changed,) = compare_files(base[:1], slow[:1]).changed
+    assert changed.key.counter == "cpu_percent" and changed.result.effect > 0.25, changed
 
 
 def test_other_load_is_the_hosts_cpu_beyond_the_runs_own(tmp_path: Path) -> None:

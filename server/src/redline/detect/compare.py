@@ -4,7 +4,9 @@ Baseline and candidate are each one or more recordings; the samples of every ser
 per side (the paper: "the individual measurements ... of potentially multiple executions form an
 observation") and judged exactly as the service's KS judges them: `redline.detect.verdict`'s
 `judge_series` with `KolmogorovSmirnov` (the KS test, then the counter's absolute floor), the
-host-wide series and the user/system split of CPU left out (`redline.detect.counters`). Results
+host-wide series and the user/system split of CPU left out (`redline.detect.counters`); a
+component's CPU judged per unit of work at the host's speed where each side has two recordings
+or more, else by its share's samples (`one_cpu_figure`). Results
 are grouped into one verdict per test case × phase × parameter set. A series only one side holds
 is "not enough data" saying which side (`ONLY_IN`): never a silent pass. Reading the files is the
 only I/O here.
@@ -22,11 +24,13 @@ import numpy as np
 from redline.detect.count_rate import CountRate
 from redline.detect.counters import (
     CONTEXT_COUNTERS,
+    LEVELS,
     driver_metric,
     is_count,
     is_load,
     judged_among,
     kind,
+    one_cpu_figure,
     worse,
 )
 from redline.detect.methods import KolmogorovSmirnov
@@ -209,7 +213,8 @@ def load_side(
         )
         # the judged series, and the driver's loads that its counts are rated out of; not a
         # segment the host was busy in: its values are not the component's own
-        asked = set(judged_among(everything, context))
+        # of a CPU share and its CPU per unit of work both: `compare_sides` picks one
+        asked = set(judged_among(everything, context, LEVELS))
         timeline = {
             key: points
             for key, points in everything.items()
@@ -305,6 +310,17 @@ def _busy(recorded: Sequence[RecordedSeries], judged_segments: set[Segment]) -> 
     return found
 
 
+def _levels(
+    baseline: tuple[RecordedSeries, ...], candidate: tuple[RecordedSeries, ...]
+) -> tuple[str]:
+    """What KS judges a component's CPU by (`one_cpu_figure`): its CPU per unit of work at the
+    host's speed, one value a recording, where each side has enough recordings for KS; else its
+    share's samples."""
+    ks = KolmogorovSmirnov()
+    enough = min(len(baseline), len(candidate)) >= max(ks.min_baseline, ks.min_candidate)
+    return ("execution",) if enough else ("sample",)
+
+
 def compare_sides(
     baseline: tuple[RecordedSeries, ...], candidate: tuple[RecordedSeries, ...]
 ) -> Comparison:
@@ -312,7 +328,12 @@ def compare_sides(
     one side holds (`ONLY_IN`) outside the segments the host was busy in; CompareError when
     they hold none in common."""
     base, cand = pooled(baseline), pooled(candidate)
-    every = {key for key in base.keys() | cand.keys() if not is_load(key.process, key.counter)}
+    every = set(
+        one_cpu_figure(
+            (key for key in base.keys() | cand.keys() if not is_load(key.process, key.counter)),
+            _levels(baseline, candidate),
+        )
+    )
     common = sorted(key for key in every if key in base and key in cand)
     if not common:
         raise CompareError(

@@ -89,7 +89,8 @@ def is_load(process: str, counter: str) -> bool:
 EXTREMES = ("_max_us", "_p99_us")
 
 
-#: A component's CPU share, judged per unit of work at the host's speed where that is recorded
+#: A component's CPU share: where the host's speed is recorded, methods judging executions judge
+#: it per unit of work at that speed instead (`one_cpu_figure`)
 SHARE = "cpu_percent"
 
 
@@ -111,24 +112,40 @@ class Named(Protocol):
 S = TypeVar("S", bound=Named)
 
 
-def judged_among(series: Iterable[S], context: Collection[str] = CONTEXT_COUNTERS) -> list[S]:
-    """The series a verdict is asked of among one run's or one revision's (`judged`): where the
-    driver's work and the host's reference were recorded beside a component's CPU share
-    (`CPU_REFS_PER_OP` judged in the same case, phase, parameters and process), the share is
-    not judged: with the load fixed it is the same figure as the CPU per unit of work, but with
-    the host's speed in it, and judging both asked twice of one measurement."""
+#: the levels a method judges a series' values at (`redline.detect.methods.Detector.level`)
+LEVELS = ("sample", "execution", "build")
+
+
+def one_cpu_figure(series: Iterable[S], levels: Collection[str] = LEVELS) -> list[S]:
+    """``series`` (judged ones) less the CPU figure that methods judging at ``levels`` do not
+    ask of: a component's CPU share and its CPU per unit of work at the host's speed
+    (`CPU_REFS_PER_OP`, recorded where the driver's work and the host's reference were) are
+    the same figure with the driver's load fixed, the share with the host's speed in it, and
+    judging both would ask twice of one measurement. A method judging one value per execution
+    or per build judges the figure per unit of work; one judging samples pooled (KS) judges the
+    share, whose samples it needs: the per-unit figure is one value an execution, and one
+    execution a revision would leave it nothing to judge. Both stay where methods of either
+    kind ask."""
     listed = list(series)
-    per_op = {
-        (s.case, s.phase, s.params, s.process)
-        for s in listed
-        if s.counter == CPU_REFS_PER_OP and judged(s.process, s.counter, context)
-    }
-    return [
-        s
-        for s in listed
-        if judged(s.process, s.counter, context)
-        and not (s.counter == SHARE and (s.case, s.phase, s.params, s.process) in per_op)
-    ]
+
+    def segment(s: S) -> tuple[str, str, str, str]:
+        return s.case, s.phase, s.params, s.process
+
+    shares = {segment(s) for s in listed if s.counter == SHARE}
+    both = {segment(s) for s in listed if s.counter == CPU_REFS_PER_OP} & shares
+    asked = {SHARE: "sample" in levels, CPU_REFS_PER_OP: any(lv != "sample" for lv in levels)}
+    return [s for s in listed if segment(s) not in both or asked.get(s.counter, True)]
+
+
+def judged_among(
+    series: Iterable[S],
+    context: Collection[str] = CONTEXT_COUNTERS,
+    levels: Collection[str] = ("execution",),
+) -> list[S]:
+    """The series a verdict is asked of among one run's or one revision's (`judged`) by
+    methods judging at ``levels``: of a CPU share beside its CPU per unit of work at the host's
+    speed, one (`one_cpu_figure`)."""
+    return one_cpu_figure((s for s in series if judged(s.process, s.counter, context)), levels)
 
 
 def judged(process: str, counter: str, context: Collection[str] = CONTEXT_COUNTERS) -> bool:

@@ -102,16 +102,28 @@ def analyze(
     missing = next(iter(unjudged.values())) if unjudged and not candidate else NOT_MEASURED
     absent = {**dict.fromkeys(gone, missing), **unjudged}
     asked = [series_id for series_id in [*candidate, *absent] if only is None or only(series_id)]
-    judged = judged_counters(session, asked, config.context_counters, walk.names if walk else None)
+    detectors = config.detectors()
+    names = walk.names if walk else {}
+    # of a CPU share and its CPU per unit of work, each method judges the one at its level
+    by_level = {
+        level: judged_counters(session, asked, config.context_counters, names, (level,))
+        for level in {detector.level for detector in detectors}
+    }
+    judged = {k: v for judged_at in by_level.values() for k, v in judged_at.items()}
     baselines = Baselines(session, revision, config, sorted(candidate.keys() & judged), walk)
     baselines.cache.put(revision.id, candidate)
-    detectors = config.detectors()
     counts = {s for s, (process, counter) in judged.items() if is_count(process, counter)}
+
+    def asking(series_id: int) -> list[Detector]:
+        return [d for d in detectors if series_id in by_level[d.level]]
+
     rows = [
         detection_row(series_id, revision.id, Baseline(None), not_enough(name, why))
         for series_id, why in sorted(absent.items())
         if series_id in judged
-        for name in ([CountRate.name] if series_id in counts else [d.name for d in detectors])
+        for name in (
+            [CountRate.name] if series_id in counts else [d.name for d in asking(series_id)]
+        )
     ]
     totals = count_totals(session, counts)
     changes = []
@@ -121,7 +133,7 @@ def analyze(
             verdict = _noted(verdict, partial.get(series_id))
             rows.append(detection_row(series_id, revision.id, base, verdict))
             continue
-        for detector in detectors:
+        for detector in asking(series_id):
             values = baselines.values(revision.id, series_id, detector)
             step = _step(baselines, revision, series_id, detector, judged[series_id][1], values)
             if step is not None:

@@ -7,7 +7,13 @@ from __future__ import annotations
 from collections import defaultdict
 from collections.abc import Collection, Sequence
 
-from redline.detect.counters import CONTEXT_COUNTERS, driver_metric, is_count, judged_among
+from redline.detect.counters import (
+    CONTEXT_COUNTERS,
+    LEVELS,
+    driver_metric,
+    is_count,
+    judged_among,
+)
 from redline.detect.result import NOT_ENOUGH_DATA
 from redline.recording import SeriesKey
 from redline.server.models import (
@@ -56,12 +62,13 @@ def judged_counters(
     series_ids: Collection[int],
     context: Collection[str] = CONTEXT_COUNTERS,
     known: dict[int, SeriesKey] | None = None,
+    levels: Collection[str] = LEVELS,
 ) -> dict[int, tuple[str, str]]:
     """Series id → (process, counter), of the series among ``series_ids`` (one revision's) a
-    verdict is asked of (`redline.detect.counters.judged_among`: not the host's, not a context
-    counter, not a driver's load, not a CPU share judged per unit of work instead).
-    ``known``: the names read so far (a re-analysis's memory; a series' names never change),
-    brought up to date."""
+    verdict is asked of by methods judging at ``levels`` (`redline.detect.counters.judged_among`:
+    not the host's, not a context counter, not a driver's load, of a CPU share and its CPU per
+    unit of work the one such methods judge). ``known``: the names read so far (a re-analysis's
+    memory; a series' names never change), brought up to date."""
     known = {} if known is None else known
     unknown = [series_id for series_id in series_ids if series_id not in known]
     if unknown:
@@ -72,7 +79,7 @@ def judged_counters(
         )
         known.update((row[0], SeriesKey(*row[1:])) for row in rows)
     ids = {known[series_id]: series_id for series_id in series_ids if series_id in known}
-    return {ids[key]: (key.process, key.counter) for key in judged_among(ids, context)}
+    return {ids[key]: (key.process, key.counter) for key in judged_among(ids, context, levels)}
 
 
 def newest_with_summaries(session: Session, revision: Revision, depth: int) -> list[int]:

@@ -29,8 +29,8 @@ def series_ref(
 ) -> SeriesRef:
     """The series as the API shows it; ``context``: the counters its component does not judge
     (its detection settings' ``context_counters``); ``judged_ids``: the series judged among
-    those shown with it (`judged_among`: a CPU share beside its CPU per unit of work is not),
-    None to judge it by its name alone."""
+    those shown with it (`judged_among`: of a CPU share and its CPU per unit of work, those
+    its component's methods judge), None to judge it by its name alone."""
     label = SeriesKey(
         series.case, series.phase, series.params, series.process, series.counter
     ).label()
@@ -54,7 +54,8 @@ def component_series(session: Session, component_name: str) -> list[SeriesOut]:
     """Each series of the component with one point per revision, in sort-key order; whether
     it is judged as the component's own settings say."""
     component = get_component(session, component_name)
-    context = component_config(session, component.id).context_counters
+    config = component_config(session, component.id)
+    context = config.context_counters
     rows = session.execute(
         select(Series, Revision, Summary.n, Summary.mean, Summary.std)
         .join(Summary, Summary.series_id == Series.id)
@@ -75,7 +76,8 @@ def component_series(session: Session, component_name: str) -> list[SeriesOut]:
     pools: dict[Series, dict[Revision, Pooled]] = defaultdict(dict)
     for series, revision, n, mean, std in rows:
         pools[series].setdefault(revision, Pooled()).add(n, mean, std)
-    judged_ids = {series.id for series in judged_among(pools, context)}
+    levels = {detector.level for detector in config.detectors()}
+    judged_ids = {series.id for series in judged_among(pools, context, levels)}
     return [
         SeriesOut(
             **series_ref(series, context, judged_ids).model_dump(),
