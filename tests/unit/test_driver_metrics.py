@@ -15,7 +15,7 @@ import typer
 from redline.agent.runner import RunResult
 from redline.cli import run_cmd
 from redline.commands.compare import register
-from redline.detect.compare import compare_files
+from redline.detect.compare import compare_files, decisive_values
 from redline.detect.count_rate import CountRate
 from redline.detect.counters import (
     CONTEXT_COUNTERS,
@@ -243,14 +243,41 @@ def test_a_cpu_share_beside_its_cpu_per_unit_of_work_at_the_hosts_speed_is_not_j
     assert asked(record(tmp_path / "u.mcap")) == {"cpu_percent"}  # no reference: the share
     # a component that does not judge the CPU at the host's speed judges its share
     assert asked(timed, (*CONTEXT_COUNTERS, "cpu_refs_per_op")) == {"cpu_percent"}
-    # the slower host's recording: same work per reference, no change; its share +30 %
-    base = [record(tmp_path / f"b{i}.mcap", cpu=20.0 + i / 10, reference=[300.0]) for i in range(3)]
-    slow = [record(tmp_path / f"s{i}.mcap", cpu=26.0 + i / 10, reference=[390.0]) for i in range(3)]
-    assert compare_files(base, slow).changed == []
-    # one recording a side: too few values of the per-unit figure for KS, which judges the
-    # share's samples, and finds the work's +30 % (here the host's, there is no telling)
-    (changed,) = compare_files(base[:1], slow[:1]).changed
-    assert changed.key.counter == "cpu_percent" and changed.result.effect > 0.25, changed
+
+
+def test_redline_compare_judges_the_cpu_per_unit_of_work_only_where_both_sides_hold_enough_of_it(
+    tmp_path: Path,
+) -> None:
+    """KS needs five values a side to find a change at its alpha (`decisive_values`); the CPU
+    per unit of work is one value a recording. A reviewer found the candidate's per-unit figure
+    listed as new and the share both sides held left unjudged when only the candidate's
+    recordings had the host's reference: the tripled CPU passed with exit 0."""
+    assert [decisive_values(a) for a in (0.01, 0.05, 0.2)] == [5, 4, 3]
+
+    def runs(name: str, cpu: float, reference: float | None, n: int = 5) -> list[Path]:
+        return [
+            record(
+                tmp_path / f"{name}{i}.mcap",
+                cpu=cpu + i / 10,
+                reference=None if reference is None else [reference],
+            )
+            for i in range(n)
+        ]
+
+    def changed(baseline: list[Path], candidate: list[Path]) -> set[str]:
+        return {c.key.counter for c in compare_files(baseline, candidate).changed}
+
+    # a host 30 % slower, five runs a side: the work per reference did not move, the share did
+    base, slow = runs("b", 20.0, 300.0), runs("s", 26.0, 390.0)
+    assert changed(base, slow) == set()
+    # fewer than five a side (or one side without the reference): the share's samples decide
+    assert changed(base[:4], slow[:4]) == {"cpu_percent"}
+    assert changed(base[:1], slow[:1]) == {"cpu_percent"}
+    older = runs("o", 20.0, None)  # an older agent's baseline, without the reference
+    heavier = runs("h", 26.0, 300.0)
+    assert changed(older, heavier) == {"cpu_percent"}
+    listed = {s.key.counter for seg in compare_files(older, heavier).segments for s in seg.series}
+    assert "cpu_refs_per_op" not in listed  # not "new": the share judged the CPU
 
 
 def test_other_load_is_the_hosts_cpu_beyond_the_runs_own(tmp_path: Path) -> None:
@@ -398,8 +425,9 @@ def test_compare_does_not_pass_a_report_missing_from_every_candidate_run(tmp_pat
 
 def test_compares_junit_has_the_driver_series_a_changed_round_trip_failing(tmp_path: Path) -> None:
     timed = {"reference": [300.0]}
-    base = [record(tmp_path / f"b{i}.mcap", rtt_p50=500.0 + i, **timed) for i in range(3)]
-    slower = [record(tmp_path / f"s{i}.mcap", rtt_p50=600.0 + i, **timed) for i in range(3)]
+    # five a side: enough of the CPU per unit of work for KS (`decisive_values`)
+    base = [record(tmp_path / f"b{i}.mcap", rtt_p50=500.0, **timed) for i in range(5)]
+    slower = [record(tmp_path / f"s{i}.mcap", rtt_p50=600.0, **timed) for i in range(5)]
     code, output, suite = _compare(tmp_path, base, slower)
     assert code == 1, output
     (case,) = [c for c in suite.iter("testcase") if c.get("name") == "c/steady[rate=10]"]
@@ -412,6 +440,7 @@ def test_compares_junit_has_the_driver_series_a_changed_round_trip_failing(tmp_p
     for field_name in ("timeouts", "errors", "unanswered"):  # counts, judged as rates
         assert [x for x in listed if x.startswith(f"driver.{QUERY_PATH}:{field_name}:")], listed
     assert [x for x in listed if x.startswith("svc.cpu_refs_per_op")], listed
+    assert not [x for x in listed if x.startswith("svc.cpu_percent")], listed  # the same figure
     assert not [x for x in listed if x.startswith("svc.cpu_us_per_op")], listed  # charted
     assert not [x for x in listed if ":queries" in x or ":rtt_p99_us" in x]  # load, extreme
 

@@ -5,8 +5,9 @@ per side (the paper: "the individual measurements ... of potentially multiple ex
 observation") and judged exactly as the service's KS judges them: `redline.detect.verdict`'s
 `judge_series` with `KolmogorovSmirnov` (the KS test, then the counter's absolute floor), the
 host-wide series and the user/system split of CPU left out (`redline.detect.counters`); a
-component's CPU judged per unit of work at the host's speed where each side has two recordings
-or more, else by its share's samples (`one_cpu_figure`). Results
+component's CPU judged per unit of work at the host's speed where each side holds enough
+values of it for KS to decide (five recordings a side at its alpha of 0.01), else by its
+share's samples (`_one_cpu_figure`). Results
 are grouped into one verdict per test case × phase × parameter set. A series only one side holds
 is "not enough data" saying which side (`ONLY_IN`): never a silent pass. Reading the files is the
 only I/O here.
@@ -25,12 +26,12 @@ from redline.detect.count_rate import CountRate
 from redline.detect.counters import (
     CONTEXT_COUNTERS,
     LEVELS,
+    SHARE,
     driver_metric,
     is_count,
     is_load,
     judged_among,
     kind,
-    one_cpu_figure,
     worse,
 )
 from redline.detect.methods import KolmogorovSmirnov
@@ -45,6 +46,7 @@ from redline.recording import (
     read_recording,
 )
 from redline.recording.disturbance import DEFAULT_THRESHOLD, recording_disturbances
+from redline.recording.driver import CPU_REFS_PER_OP
 
 Timeline = dict[SeriesKey, list[tuple[int, float]]]
 Segment = tuple[str, str, str]  # case, phase, canonical parameters
@@ -310,15 +312,41 @@ def _busy(recorded: Sequence[RecordedSeries], judged_segments: set[Segment]) -> 
     return found
 
 
-def _levels(
-    baseline: tuple[RecordedSeries, ...], candidate: tuple[RecordedSeries, ...]
-) -> tuple[str]:
-    """What KS judges a component's CPU by (`one_cpu_figure`): its CPU per unit of work at the
-    host's speed, one value a recording, where each side has enough recordings for KS; else its
-    share's samples."""
-    ks = KolmogorovSmirnov()
-    enough = min(len(baseline), len(candidate)) >= max(ks.min_baseline, ks.min_candidate)
-    return ("execution",) if enough else ("sample",)
+def decisive_values(alpha: float) -> int:
+    """The fewest values a side for which KS can find a change at ``alpha``: with n a side that
+    do not overlap, its exact two-sided p is 2 / C(2n, n) (0.33 at 2, 0.1 at 3, 0.029 at 4,
+    0.0079 at 5)."""
+    n = 1
+    while 2 / math.comb(2 * n, n) >= alpha:
+        n += 1
+    return n
+
+
+def _one_cpu_figure(
+    keys: Collection[SeriesKey],
+    base: dict[SeriesKey, np.ndarray],
+    cand: dict[SeriesKey, np.ndarray],
+) -> set[SeriesKey]:
+    """``keys`` with one of each process's two CPU figures in a segment (as
+    `redline.detect.counters.one_cpu_figure` keeps one): its
+    CPU per unit of work at the host's speed, one value a recording, where both sides hold
+    enough of it for KS to decide (`decisive_values`), else its share's samples. Decided per
+    segment and by what each side holds: a side without the host's reference (an older agent)
+    or with a busy recording's segment left out has too few, and its share is judged."""
+    need = decisive_values(KolmogorovSmirnov().alpha)
+
+    def per_unit_decides(key: SeriesKey) -> bool:
+        figure = replace(key, counter=CPU_REFS_PER_OP)
+        return all(figure in side and side[figure].size >= need for side in (base, cand))
+
+    shares = {key for key in keys if key.counter == SHARE}
+    per_unit = {key for key in keys if key.counter == CPU_REFS_PER_OP}
+    dropped = {key for key in shares if per_unit_decides(key)} | {
+        key
+        for key in per_unit
+        if replace(key, counter=SHARE) in shares and not per_unit_decides(key)
+    }
+    return set(keys) - dropped
 
 
 def compare_sides(
@@ -328,11 +356,10 @@ def compare_sides(
     one side holds (`ONLY_IN`) outside the segments the host was busy in; CompareError when
     they hold none in common."""
     base, cand = pooled(baseline), pooled(candidate)
-    every = set(
-        one_cpu_figure(
-            (key for key in base.keys() | cand.keys() if not is_load(key.process, key.counter)),
-            _levels(baseline, candidate),
-        )
+    every = _one_cpu_figure(
+        {key for key in base.keys() | cand.keys() if not is_load(key.process, key.counter)},
+        base,
+        cand,
     )
     common = sorted(key for key in every if key in base and key in cand)
     if not common:

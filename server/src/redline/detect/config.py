@@ -178,6 +178,11 @@ class DetectionConfig:
         """One detector per configured method, with its thresholds."""
         return [DETECTORS[name](**self.thresholds.get(name, {})) for name in self.methods]
 
+    @property
+    def levels(self) -> frozenset[str]:
+        """The levels its methods judge values at (`redline.detect.counters.one_cpu_figure`)."""
+        return frozenset(detector.level for detector in self.detectors())
+
     def as_dict(self) -> dict[str, Any]:
         return {
             "methods": list(self.methods),

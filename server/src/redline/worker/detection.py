@@ -101,14 +101,22 @@ def analyze(
     # a series is missing from it
     missing = next(iter(unjudged.values())) if unjudged and not candidate else NOT_MEASURED
     absent = {**dict.fromkeys(gone, missing), **unjudged}
-    asked = [series_id for series_id in [*candidate, *absent] if only is None or only(series_id)]
     detectors = config.detectors()
     names = walk.names if walk else {}
-    # of a CPU share and its CPU per unit of work, each method judges the one at its level
-    by_level = {
-        level: judged_counters(session, asked, config.context_counters, names, (level,))
-        for level in {detector.level for detector in detectors}
-    }
+
+    def judged_at(level: str) -> dict[int, tuple[str, str]]:
+        """The series methods at ``level`` judge: of a CPU share and its CPU per unit of work,
+        the one at that level (`judged_counters`), chosen among all the revision's measured
+        series, then among its absent ones (a revision whose runs lost the host's reference
+        has its share judged), before a re-analysis's part takes its own: parts split the two
+        figures of a segment, and each part alone would judge both."""
+        found = {
+            **judged_counters(session, list(candidate), config.context_counters, names, (level,)),
+            **judged_counters(session, list(absent), config.context_counters, names, (level,)),
+        }
+        return {s: named for s, named in found.items() if only is None or only(s)}
+
+    by_level = {level: judged_at(level) for level in config.levels}
     judged = {k: v for judged_at in by_level.values() for k, v in judged_at.items()}
     baselines = Baselines(session, revision, config, sorted(candidate.keys() & judged), walk)
     baselines.cache.put(revision.id, candidate)

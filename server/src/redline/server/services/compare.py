@@ -144,9 +144,10 @@ def compare(session: Session, component_name: str, base: str, candidate: str) ->
     cand_samples, cand_exact = pooled_samples(session, after)
     common = sorted(set(base_samples) & set(cand_samples))
     series = {s.id: s for s in session.scalars(select(Series).where(Series.id.in_(common)))}
-    context = component_config(session, component.id).context_counters
-    # KS on the pooled samples: of a CPU share and its CPU per unit of work, the share
-    judged_ids = {s.id for s in judged_among(series.values(), context, ("sample",))}
+    config = component_config(session, component.id)
+    context = config.context_counters
+    # judged as the series API says: by the component's methods, whichever CPU figure each judges
+    judged_ids = {s.id for s in judged_among(series.values(), context, config.levels)}
     rows = []
     for series_id in common:
         old, new = base_samples[series_id], cand_samples[series_id]

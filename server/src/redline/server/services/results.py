@@ -76,8 +76,7 @@ def component_series(session: Session, component_name: str) -> list[SeriesOut]:
     pools: dict[Series, dict[Revision, Pooled]] = defaultdict(dict)
     for series, revision, n, mean, std in rows:
         pools[series].setdefault(revision, Pooled()).add(n, mean, std)
-    levels = {detector.level for detector in config.detectors()}
-    judged_ids = {series.id for series in judged_among(pools, context, levels)}
+    judged_ids = {series.id for series in judged_among(pools, context, config.levels)}
     return [
         SeriesOut(
             **series_ref(series, context, judged_ids).model_dump(),
