@@ -216,6 +216,31 @@ def verdicts(url: str, token: str) -> list[dict[str, Any]]:
     return found
 
 
+def flagged_anywhere(url: str, token: str) -> list[dict[str, Any]]:
+    """Every verdict flagged at the end, in a regression or not, with its reason: what a change
+    that ended in no regression left (a flag dropped by a later judgement, an improvement, one
+    the revision's re-measured run no longer showed); the 2026-12-05 run lost CPU +30 % without
+    a trace in the regressions."""
+    answer = httpx.get(
+        f"{url}/api/v1/components/{COMPONENT}/detections",
+        headers={"Authorization": f"Bearer {token}"},
+        params={"limit": 10_000},
+        timeout=120,
+    )
+    answer.raise_for_status()
+    return [
+        {key: d[key] for key in ("revision", "method", "effect", "direction", "reason")}
+        | {
+            "series": d["series"]["label"],
+            "confirmation": d["confirmation"],
+            "confirmation_reason": d["confirmation_reason"],
+            "regression_id": d["regression_id"],
+        }
+        for d in answer.json()
+        if d["flagged"]
+    ]
+
+
 def scores(
     found: list[dict[str, Any]], titles: list[str], starts: dict[int, Event], pairs: int
 ) -> dict[str, Any]:
@@ -358,6 +383,7 @@ def run(args: argparse.Namespace, work: Path) -> dict[str, Any]:
                 )
             load.active.clear()
             found = verdicts(stack.url, stack.admin_token)
+            anywhere = flagged_anywhere(stack.url, stack.admin_token)
             with engine.connect() as conn:
                 jobs = {
                     job: pair
@@ -398,7 +424,13 @@ def run(args: argparse.Namespace, work: Path) -> dict[str, Any]:
         | {"series": detection["series"]["label"], "regression": detection["regression"]}
         for detection in found
     ]
+    result["flagged_anywhere"] = anywhere
     return result
+
+
+def figures(result: dict[str, Any]) -> dict[str, Any]:
+    """A run's figures without its lists of detections."""
+    return {k: v for k, v in result.items() if k not in ("detections", "flagged_anywhere")}
 
 
 def main() -> int:
@@ -438,7 +470,12 @@ def main() -> int:
     if args.rescore:
         rescored = rescore(args.rescore, args.stretch, args.events)
         args.rescore.write_text(json.dumps(rescored, indent=1) + "\n")
-        print(json.dumps({k: v for k, v in rescored.items() if k != "detections"}, indent=1))
+        print(
+            json.dumps(
+                {k: v for k, v in rescored.items() if k not in ("detections", "flagged_anywhere")},
+                indent=1,
+            )
+        )
         return 0
     # a SIGTERM stops the service and the load as Ctrl-C does, rather than orphaning them
     signal.signal(signal.SIGTERM, signal.default_int_handler)
@@ -451,7 +488,7 @@ def main() -> int:
     text = json.dumps(result, indent=1)
     if args.json:
         args.json.write_text(text + "\n")
-    summary = {k: v for k, v in result.items() if k != "detections"}
+    summary = figures(result)
     for key in ("as_run", "flagged_before_confirmation", *(f"first_{p}_pairs" for p in (1, 2))):
         if key in summary:
             summary[key] = {k: v for k, v in summary[key].items() if k != "events"}
