@@ -282,3 +282,4 @@ def test_the_why_page_quotes_what_the_score_is_and_where_it_flags():
     rule = _rule("execution_shift")
     assert "its score is the weaker of z / threshold and |effect| / min_effect" in rule
     assert "a score of 1 or more is a change" in rule
+    assert "trial" not in rule and "page" not in rule  # a note to the code's reader, not the page's

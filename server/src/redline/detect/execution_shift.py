@@ -58,7 +58,10 @@ def values_for(detector: Levelled, executions: Sequence[np.ndarray]) -> np.ndarr
 class ExecutionShift(Detector):
     """Shift of the executions' median, in units of the baseline executions' robust spread
     (z); its score is the weaker of z / threshold and |effect| / min_effect, so a score of 1
-    or more is a change (the page quotes this paragraph: a trial read 0.902 as the shift).
+    or more is a change.
+
+    (The "why flagged" page quotes the paragraph above: a trial read a score of 0.902 as the
+    shift. A later trial found this note quoted with it.)
 
     Input: one value per execution (`execution_values`), ``level = "execution"`` telling the
     worker and the evaluation to reduce each execution first. With ``b`` the baseline's values

@@ -68,6 +68,7 @@ def require(scope: str) -> Callable[..., ApiToken]:
     ) -> ApiToken:
         return _checked(session, _bearer_secret(credentials), scope)
 
+    check.bearer_only = True  # type: ignore[attr-defined]  # `JsonRoute` answers 401 unread
     return check
 
 
