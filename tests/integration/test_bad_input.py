@@ -651,3 +651,30 @@ def test_a_body_without_a_token_is_401_before_it_is_read(api: Api, path: str):
     assert len(pulled) <= 1, len(pulled)  # what the transport asks for before the app answers
     # with a token, the same route reads and judges the body as before
     assert _post_raw(api, path, b'{"x": 1}').status_code == 422
+
+
+def test_an_admin_corrects_a_revision_sort_key_a_ci_token_gave_far_in_the_future(api: Api):
+    """A trial's ci token gave a revision the time 4102444800 (2100) as its sort key: it sorted
+    above every revision reported after it, and with results stored it could not be deleted
+    (409) nor changed (405). An admin corrects the key; a ci token cannot."""
+    for title, key in (("future", "4102444800"), ("later", "1764900000")):
+        body = {"component": "builder", "title": title, "sort_key": key, "commit": "abc123"}
+        assert api.post("/api/v1/revisions", "ci", body).status_code == 201
+
+    def in_order() -> list[str]:  # as the server orders them (by its order key)
+        return [r["title"] for r in api.client.get("/api/v1/components/builder/revisions").json()]
+
+    assert in_order() == ["later", "future"]
+    path, fix = "/api/v1/components/builder/revisions/future", {"sort_key": 1764800000}
+    refused = api.client.patch(path, json=fix, headers=api.tokens["ci"])
+    assert refused.status_code == 403 and "admin" in refused.text, refused.text
+    assert (
+        api.client.patch(path, json={"title": "x"}, headers=api.tokens["admin"]).status_code == 422
+    )
+    unknown = api.client.patch(f"{path}-nope", json=fix, headers=api.tokens["admin"])
+    assert unknown.status_code == 404, unknown.text
+    answer = api.client.patch(path, json=fix, headers=api.tokens["admin"])
+    assert answer.status_code == 200, answer.text
+    assert in_order() == ["future", "later"]
+    reanalysis = api.client.get("/api/v1/components/builder/reanalysis").json()
+    assert reanalysis["state"] == "queued", reanalysis  # judged again in the new order

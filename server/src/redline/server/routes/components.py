@@ -10,7 +10,7 @@ from redline.server.models import JobState
 from redline.server.schemas.common import Problem, problems
 from redline.server.schemas.components import ComponentCreate, ComponentOut, ComponentSettings
 from redline.server.schemas.results import ChangeOut, Comparison, ExecutionListed, SeriesOut
-from redline.server.schemas.revisions import RevisionDetail, RevisionOut
+from redline.server.schemas.revisions import RevisionDetail, RevisionOut, RevisionPatch
 from redline.server.services import (
     compare,
     component_deletion,
@@ -18,6 +18,7 @@ from redline.server.services import (
     executions,
     read,
     results,
+    revision_keys,
     revisions,
 )
 
@@ -94,6 +95,19 @@ def list_revisions(
 
 @router.get("/{name}/revisions/{title}", responses=NOT_FOUND, dependencies=READ)
 def revision_detail(name: str, title: str, session: SessionDep) -> RevisionDetail:
+    return revisions.revision_detail(session, name, title)
+
+
+@router.patch(
+    "/{name}/revisions/{title}", responses=NOT_FOUND, dependencies=[Depends(require("admin"))]
+)
+def patch_revision(
+    name: str, title: str, data: RevisionPatch, request: Request, session: SessionDep
+) -> RevisionDetail:
+    """Correct a revision's sort key (a CI system's far-future time sorts it above every later
+    revision); the component's history is judged again in the new order."""
+    component = revision_keys.set_sort_key(session, name, title, data.sort_key)
+    request.app.state.tasks.reanalyze(component.id)
     return revisions.revision_detail(session, name, title)
 
 

@@ -24,6 +24,12 @@ class RevisionCreate(RequestBody):
     committed_at: CommitTime | None = None
 
 
+class RevisionPatch(RequestBody):
+    """What an admin may correct of a revision: its sort key (`services.revision_keys`)."""
+
+    sort_key: SortKey = Field(description="orders revisions; '9' < '10' (a whole number: its text)")
+
+
 class RevisionCreated(BaseModel):
     revision_id: int
     title: str = Field(description="the revision's title: the first report's, when reported before")

@@ -139,8 +139,9 @@ def delete_revision(session: Session, name: str, title: str) -> dict[str, int | 
     if measured:
         raise Conflict(
             f"revision {title!r} of {name!r} has {measured} execution(s) stored: its results "
-            "are part of the history later revisions are judged against, and it stays (delete "
-            "the component to remove its whole history)"
+            "are part of the history later revisions are judged against, and it stays (a wrong "
+            'sort key is corrected by PATCH with {"sort_key": ...}; delete the component to '
+            "remove its whole history)"
         )
     held = sum(state in IN_FLIGHT for state in states)
     if held:
