@@ -17,9 +17,10 @@ from fastapi.testclient import TestClient
 from redline.server.app import create_app
 from redline.server.core.config import Settings
 from redline.server.db import session_factory
+from redline.server.models import Job, JobState, Regression, Revision
 from redline.server.schemas.imports import ResultsImport
 from redline.server.services.imports import from_results, store_import
-from sqlalchemy import text
+from sqlalchemy import select, text
 from sqlalchemy.orm import Session
 
 from tests.support.api import Api, api_with
@@ -666,6 +667,34 @@ def test_an_admin_corrects_a_revision_sort_key_a_ci_token_gave_far_in_the_future
 
     assert in_order() == ["later", "future"]
     path, fix = "/api/v1/components/builder/revisions/future", {"sort_key": 1764800000}
+    # refused, changing nothing, while what the old order decided is in use (a reviewer's find):
+    # a regression ending at it, then a confirmation run against it not yet ended
+    with session_factory(api.settings.database_url)() as session:
+        future, later = (
+            session.scalars(select(Revision).where(Revision.title == t)).one()
+            for t in ("future", "later")
+        )
+        regression = Regression(
+            component_id=future.component_id,
+            good_revision_id=later.id,
+            bad_revision_id=future.id,
+            good_key=later.order_key,
+            bad_key=future.order_key,
+        )
+        session.add(regression)
+        session.commit()
+        refused = api.client.patch(path, json=fix, headers=api.tokens["admin"])
+        assert refused.status_code == 409, refused.text
+        assert f"#{regression.id}" in refused.json()["detail"]
+        session.delete(regression)
+        pair = Job(revision_id=later.id, execution_index=7, pair=1, confirms_revision_id=future.id)
+        session.add(pair)
+        session.commit()
+        refused = api.client.patch(path, json=fix, headers=api.tokens["admin"])
+        assert refused.status_code == 409 and "confirmation run" in refused.text, refused.text
+        pair.state = JobState.cancelled
+        session.commit()
+    assert in_order() == ["later", "future"]
     refused = api.client.patch(path, json=fix, headers=api.tokens["ci"])
     assert refused.status_code == 403 and "admin" in refused.text, refused.text
     assert (

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from fastapi import APIRouter, Depends, Request, Response, status
+from fastapi import APIRouter, Depends, HTTPException, Request, Response, status
 from redline.server.api.deps import READ, SessionDep, SettingsDep, require
 from redline.server.api.paging import Cursor, PageSize, next_page
 from redline.server.core.bodies import JsonRoute
@@ -105,9 +105,16 @@ def patch_revision(
     name: str, title: str, data: RevisionPatch, request: Request, session: SessionDep
 ) -> RevisionDetail:
     """Correct a revision's sort key (a CI system's far-future time sorts it above every later
-    revision); the component's history is judged again in the new order."""
+    revision); the component's history is judged again in the new order. 409 while a regression
+    begins or ends at it or confirmation runs of it have not ended (`revision_keys`)."""
     component = revision_keys.set_sort_key(session, name, title, data.sort_key)
-    request.app.state.tasks.reanalyze(component.id)
+    if not request.app.state.tasks.reanalyze(component.id):
+        raise HTTPException(
+            status.HTTP_503_SERVICE_UNAVAILABLE,
+            "the key is corrected, but the re-analysis that judges the history in the new order "
+            f"could not be sent (the queue is unreachable): POST /api/v1/components/{name}/"
+            "reanalysis once it is back",
+        )
     return revisions.revision_detail(session, name, title)
 
 
