@@ -9,6 +9,7 @@ from collections import Counter, defaultdict
 from collections.abc import Collection
 from typing import Any
 
+from redline.detect.config import CHARTED_METHOD as CHARTED
 from redline.detect.confirmation import DROPPED
 from redline.detect.result import waits_for_history
 from redline.recording.format import META_RUN
@@ -340,15 +341,28 @@ def revision_verdicts(
     # a change its re-runs or the history dropped is counted apart: the page said 8 changes
     # where `ci wait` and the verdict, which leave it out, said 7 (a trial)
     dropped = Detection.confirmation == DROPPED
+    # the charted method's flags are counted too: a trial's revision read "no change in 22
+    # series" above rows of KS's "change (increase) +31.6 %", and nothing said why
     query = (
-        select(Revision.title, Detection.verdict, dropped, func.count(), func.min(Detection.reason))
+        select(
+            Revision.title,
+            Detection.method,
+            Detection.verdict,
+            dropped,
+            func.count(),
+            func.min(Detection.reason),
+        )
         .join(Revision, Revision.id == Detection.revision_id)
-        .where(Revision.component_id == component.id, Detection.method == method)
-        .group_by(Revision.title, Detection.verdict, dropped)
+        .where(Revision.component_id == component.id, Detection.method.in_([method, CHARTED]))
+        .group_by(Revision.title, Detection.method, Detection.verdict, dropped)
     )
     if titles is not None:
         query = query.where(Revision.title.in_(list(titles)))
-    for name, verdict, was_dropped, number, reason in session.execute(query):
+    charted: dict[str, int] = defaultdict(int)
+    for name, used, verdict, was_dropped, number, reason in session.execute(query):
+        if used != method:
+            charted[name] += number if verdict == "change" else 0
+            continue
         key = "dropped" if verdict == "change" and was_dropped else verdict
         counts[name][key] = counts[name].get(key, 0) + number
         if verdict == "not enough data":
@@ -371,4 +385,6 @@ def revision_verdicts(
             )
         else:
             said[title] = f"{method}: {WAITING}: {why.get(title, '')}"
+        if charted.get(title) and method != CHARTED:
+            said[title] += f"; {CHARTED}, which charts and does not alarm, flags {charted[title]}"
     return said
