@@ -707,3 +707,25 @@ def test_an_admin_corrects_a_revision_sort_key_a_ci_token_gave_far_in_the_future
     assert in_order() == ["future", "later"]
     reanalysis = api.client.get("/api/v1/components/builder/reanalysis").json()
     assert reanalysis["state"] == "queued", reanalysis  # judged again in the new order
+
+
+def test_a_corrected_sort_key_whose_reanalysis_cannot_be_queued_is_503_saying_what_to_do(
+    services: Services, tmp_path: Path
+):
+    """The key is stored with the re-analysis's request, but the broker (here a port nothing
+    listens on) cannot take the task: the answer says so, and how to send it again."""
+    with api_with(services, tmp_path, redis_url="redis://127.0.0.1:9/0") as api:
+        api.component()
+        body = {"component": "builder", "title": "future", "sort_key": "4102444800"}
+        assert api.post("/api/v1/revisions", "ci", {**body, "commit": "abc123"}).status_code == 201
+        answer = api.client.patch(
+            "/api/v1/components/builder/revisions/future",
+            json={"sort_key": "1764800000"},
+            headers=api.tokens["admin"],
+        )
+        assert answer.status_code == 503, answer.text
+        assert "POST /api/v1/components/builder/reanalysis" in answer.json()["detail"]
+        (listed,) = api.client.get("/api/v1/components/builder/revisions").json()
+        assert listed["sort_key"] == "1764800000"
+        reanalysis = api.client.get("/api/v1/components/builder/reanalysis").json()
+        assert reanalysis["state"] == "queued", reanalysis  # a POST sends it
