@@ -221,13 +221,20 @@ def flagged_anywhere(url: str, token: str) -> list[dict[str, Any]]:
     that ended in no regression left (a flag dropped by a later judgement, an improvement, one
     the revision's re-measured run no longer showed); the 2026-12-05 run lost CPU +30 % without
     a trace in the regressions."""
-    answer = httpx.get(
-        f"{url}/api/v1/components/{COMPONENT}/detections",
-        headers={"Authorization": f"Bearer {token}"},
-        params={"limit": 10_000},
-        timeout=120,
-    )
-    answer.raise_for_status()
+    listed: list[dict[str, Any]] = []
+    params: dict[str, Any] = {"limit": 10_000}
+    while True:  # every page: the list is paged (X-Next-Cursor on a full page)
+        answer = httpx.get(
+            f"{url}/api/v1/components/{COMPONENT}/detections",
+            headers={"Authorization": f"Bearer {token}"},
+            params=params,
+            timeout=120,
+        )
+        answer.raise_for_status()
+        listed += answer.json()
+        if not (following := answer.headers.get("X-Next-Cursor")):
+            break
+        params["cursor"] = following
     return [
         {key: d[key] for key in ("revision", "method", "effect", "direction", "reason")}
         | {
@@ -236,7 +243,7 @@ def flagged_anywhere(url: str, token: str) -> list[dict[str, Any]]:
             "confirmation_reason": d["confirmation_reason"],
             "regression_id": d["regression_id"],
         }
-        for d in answer.json()
+        for d in listed
         if d["flagged"]
     ]
 
@@ -470,12 +477,7 @@ def main() -> int:
     if args.rescore:
         rescored = rescore(args.rescore, args.stretch, args.events)
         args.rescore.write_text(json.dumps(rescored, indent=1) + "\n")
-        print(
-            json.dumps(
-                {k: v for k, v in rescored.items() if k not in ("detections", "flagged_anywhere")},
-                indent=1,
-            )
-        )
+        print(json.dumps(figures(rescored), indent=1))
         return 0
     # a SIGTERM stops the service and the load as Ctrl-C does, rather than orphaning them
     signal.signal(signal.SIGTERM, signal.default_int_handler)

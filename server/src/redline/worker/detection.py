@@ -117,7 +117,7 @@ def analyze(
         return {s: named for s, named in found.items() if only is None or only(s)}
 
     by_level = {level: judged_at(level) for level in config.levels}
-    judged = {k: v for judged_at in by_level.values() for k, v in judged_at.items()}
+    judged = {k: v for at_level in by_level.values() for k, v in at_level.items()}
     baselines = Baselines(session, revision, config, sorted(candidate.keys() & judged), walk)
     baselines.cache.put(revision.id, candidate)
     counts = {s for s, (process, counter) in judged.items() if is_count(process, counter)}
