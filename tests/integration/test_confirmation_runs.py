@@ -55,9 +55,9 @@ from tests.support.recordings import run_metadata, write_recording
 NAME, RUNS, PAIRS = "builder", 3, 2
 
 
-def _cpu(level: float, seed: int) -> dict[str, np.ndarray]:
+def _cpu(level: float, seed: int, counter: str = "cpu") -> dict[str, np.ndarray]:
     rng = np.random.default_rng(seed)
-    return {"cpu": rng.normal(level * (1 + rng.normal(0, 0.01)), level * 0.02, 40)}
+    return {counter: rng.normal(level * (1 + rng.normal(0, 0.01)), level * 0.02, 40)}
 
 
 def _measured(
@@ -68,13 +68,14 @@ def _measured(
     host: Host,
     start: int = 1,
     leased: bool = True,
+    counter: str = "cpu",
     **recorded,
 ) -> None:
     """Revisions r<start>.. measured on ``host`` (as an agent's uploads, or an import's when
     not ``leased``), ingested and judged; ``recorded``: what `write_recording` takes besides
     (``host_percent``)."""
     for number, level in enumerate(levels, start=start):
-        runs = [_cpu(level, number * 10 + i) for i in range(RUNS)]
+        runs = [_cpu(level, number * 10 + i, counter) for i in range(RUNS)]
         executions = add_executions(
             session, tmp_path, NAME, f"r{number}", str(number), runs, **recorded
         )
@@ -172,13 +173,13 @@ def test_pairs_are_queued_interleaved_and_pinned_to_the_host_that_measured_the_r
     ]
     assert {j.pinned_host_id for j in jobs} == {host.id}
     assert all(j.execution_index >= 1000 for j in jobs)
-    # the suite runs again as far as the parameter set with the suspected change, and the
-    # agent is told so
+    # a change of CPU: the parameter set with it runs again alone, and the agent is told so
     assert all(j.cases == [] for j in jobs)
-    assert all(j.parameter_sets == {"throughput": ['{"rate":10}']} for j in jobs)
+    assert all(j.parameter_sets == {"throughput": ['{"rate":10}']} and j.sets_alone for j in jobs)
     first = jobs[0]
     first.lease_expires_at = utcnow()  # as leased: what the agent is told
-    assert leased_job(first).parameter_sets == {"throughput": ['{"rate":10}']}
+    told = leased_job(first)
+    assert told.parameter_sets == {"throughput": ['{"rate":10}']} and told.sets_alone
     first.lease_expires_at = None
     shown = revision_detail(session, NAME, "r4").jobs  # as the API shows the baseline's jobs
     assert [(j.pair, j.confirms) for j in shown] == [(0, None)] * RUNS + [(1, "r5"), (2, "r5")]
@@ -189,6 +190,25 @@ def test_pairs_are_queued_interleaved_and_pinned_to_the_host_that_measured_the_r
     assert lease_job(session, "perf-2", 60, 3) is None  # pinned to perf-1
     leased = [lease_job(session, "perf-1", 60, 3) for _ in range(2)]
     assert [(j.revision.title, j.pair) for j in leased] == [("r4", 1), ("r5", 1)]
+
+
+def test_a_change_in_what_the_component_holds_runs_the_sets_before_it_again(
+    session, database_url, tmp_path
+):
+    """Memory at a parameter set depends on what ran before it (a leak grows over the run): its
+    pairs run the suite as far as the flagged set, not the set alone."""
+    component = create_component(session, ComponentCreate(name=NAME, executions=RUNS))
+    session.add(DetectionConfigRow(component_id=component.id, config={"confirm_pairs": PAIRS}))
+    session.commit()
+    host = register_host(session, RegisterRequest(name="perf-1"))
+    mib = 1024.0 * 1024.0
+    levels = [100 * mib] * 4 + [130 * mib]
+    _measured(session, database_url, tmp_path, levels, host, counter="rss_bytes")
+    assert _r5_detection(session).confirmation == "suspected"
+    jobs = session.scalars(select(Job).where(Job.confirms_revision_id.is_not(None))).all()
+    assert len(jobs) == 2 * PAIRS
+    assert all(j.parameter_sets == {"throughput": ['{"rate":10}']} for j in jobs)
+    assert not any(j.sets_alone for j in jobs)
 
 
 def test_a_pair_starts_once_the_pairs_before_it_are_judged(session, database_url, tmp_path):

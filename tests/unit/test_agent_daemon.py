@@ -85,15 +85,15 @@ def test_an_execution_the_host_was_busy_in_is_run_again_boundedly_and_says_so(
     monkeypatch.delenv("REDLINE_DISTURBED_CPU_PERCENT", raising=False)
     repo, commit = committed_repo(tmp_path / "repo", SUITE_FILES)
     given: list[dict[str, str]] = []
-    chosen: list[tuple[object, object]] = []
+    chosen: list[tuple[object, object, bool]] = []
 
     def run_isolated(
-        suite_path: Path, out: Path, run_metadata: dict, only: object, sets: object
+        suite_path: Path, out: Path, run_metadata: dict, only: object, sets: object, alone: bool
     ) -> RunResult:
         """The run, as the recorder writes it: the host at 90 % of 2 cores while the run's own
         processes used 24 % of one (156 % other load: busy), or at 20 % (16 %: quiet)."""
         given.append(dict(run_metadata))
-        chosen.append((only, sets))
+        chosen.append((only, sets, alone))
         host = 90.0 if busy[len(given) - 1] else 20.0
         cpu = {"cpu_percent": np.full(50, 20.0)}
         write_recording(out, run_metadata, cpu, host_percent=host)
@@ -109,10 +109,10 @@ def test_an_execution_the_host_was_busy_in_is_run_again_boundedly_and_says_so(
     # a confirmation run's job: its cases and parameter sets reach the run, each time
     sets = {"steady": ['{"rate":10}']}
     job = {**_LostLeaseClient().lease(), "repo": str(repo), "commit": commit}
-    job.update(cases=["steady"], parameter_sets=sets)
+    job.update(cases=["steady"], parameter_sets=sets, sets_alone=True)
     out = daemon._run(job, "job-7")
     assert len(given) == runs
-    assert chosen == [(["steady"], sets)] * runs
+    assert chosen == [(["steady"], sets, True)] * runs
     assert "disturbed_runs" not in given[0]
     for attempt, metadata in enumerate(given[1:], start=1):  # each retry says it is one
         assert metadata["disturbed_runs"] == str(attempt)

@@ -59,6 +59,20 @@ def test_a_confirmation_run_runs_the_suite_as_far_as_the_last_named_parameter_se
     assert [len(c.parameter_sets()) for c in choose_sets([LOAD, IDLE], {})] == [4, 1]
 
 
+def test_a_confirmation_run_of_a_change_per_unit_of_work_runs_the_named_sets_alone() -> None:
+    """A change in CPU or a round trip does not depend on what ran before its set (its warm-up
+    settles it): the named sets only, in the suite's order, each case with none named left out."""
+    (load,) = choose_sets([LOAD, IDLE], {"load": ['{"legs":8,"rate":40}']}, alone=True)
+    assert load.name == "load" and load.phases == LOAD.phases
+    assert load.parameter_sets() == [{"legs": 8, "rate": 40}]
+    named = {"load": ['{"legs":8,"rate":10}', '{"legs":2,"rate":40}'], "idle": ["{}"]}
+    (load, idle) = choose_sets([LOAD, IDLE], named, alone=True)
+    assert load.parameter_sets() == [{"legs": 2, "rate": 40}, {"legs": 8, "rate": 10}]
+    assert idle.parameter_sets() == [{}]
+    with pytest.raises(ValidationError, match="has no parameter set"):
+        choose_sets([LOAD], {"load": ['{"legs":4,"rate":10}']}, alone=True)
+
+
 def test_a_parameter_set_or_case_the_commit_lacks_is_named() -> None:
     """The baseline's commit may have other tests: the job fails saying what is missing."""
     with pytest.raises(ValidationError) as caught:

@@ -210,6 +210,7 @@ class AgentDaemon:
                         {**_run_metadata(job), **retried},
                         job.get("cases") or (),
                         job.get("parameter_sets") or {},  # a confirmation run: its flagged sets
+                        bool(job.get("sets_alone")),  # ... run alone (older servers: as far as)
                     )
                 except ChildFailed as exc:  # the reason in a line; where, in the log
                     if exc.trace:

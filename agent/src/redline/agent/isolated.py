@@ -134,11 +134,14 @@ def _child(
     meta: dict[str, str],
     only: list[str],
     sets: dict[str, list[str]] | None = None,
+    alone: bool = False,
 ) -> None:
     os.setsid()  # a terminal's signals reach the agent, not the run behind its back
     _die_with_parent()
     try:
-        result = run_suite(suite_path, out, run_metadata=meta, only=only, parameter_sets=sets)
+        result = run_suite(
+            suite_path, out, run_metadata=meta, only=only, parameter_sets=sets, sets_alone=alone
+        )
     except Exception as exc:  # the agent fails the job with it, and logs where it was raised
         conn.send(("error", f"{type(exc).__name__}: {exc}", traceback.format_exc()))
     except BaseException as exc:  # stopped by the agent: the recording says so
@@ -155,15 +158,17 @@ def run_isolated(
     run_metadata: dict[str, str],
     only: Sequence[str] = (),
     sets: Mapping[str, Sequence[str]] | None = None,
+    alone: bool = False,
 ) -> RunResult:
     """`run_suite` in a child process (``only`` its cases, ``sets`` the parameter sets it ends
-    after); raises `ChildFailed` with the run's error."""
+    after, or with ``alone`` the only ones it runs); raises `ChildFailed` with the run's
+    error."""
     context = multiprocessing.get_context("spawn")
     receive, send = context.Pipe(duplex=False)
     chosen = {case: list(idents) for case, idents in (sets or {}).items()}
     child = context.Process(
         target=_child,
-        args=(send, suite_path, out, run_metadata, list(only), chosen),
+        args=(send, suite_path, out, run_metadata, list(only), chosen, alone),
         name="redline-run",
     )
     child.start()

@@ -302,11 +302,13 @@ def run_suite(
     overrides: Mapping[str, Any] | None = None,
     work_dir: str | Path | None = None,
     parameter_sets: Mapping[str, Collection[str]] | None = None,
+    sets_alone: bool = False,
 ) -> RunResult:
     """Run a suite once (one execution) and write its recording to ``out``.
 
     ``only`` restricts the run to the named test cases, and ``parameter_sets`` ends it after
-    the last of those sets (canonical JSON, `choose_sets`: a confirmation run's); ``overrides``
+    the last of those sets (canonical JSON, `choose_sets`: a confirmation run's), or with
+    ``sets_alone`` runs those sets only; ``overrides``
     replaces parameter values in every parameter set (``{"rate": 40}``). The workspace is made
     in ``work_dir`` (default: ``$REDLINE_WORK_DIR``, else the system's temporary folder) and
     removed afterwards unless ``keep_workspace``; every process logs to
@@ -331,7 +333,7 @@ def run_suite(
     validate_cases(cases)
     cases = select_cases(cases, only, overrides)
     if parameter_sets:
-        cases = choose_sets(cases, parameter_sets)
+        cases = choose_sets(cases, parameter_sets, sets_alone)
     validate_cases(cases)
     out = Path(out).resolve()
     out.parent.mkdir(parents=True, exist_ok=True)

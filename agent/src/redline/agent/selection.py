@@ -62,14 +62,34 @@ class Through:
         return f"Through({self.base.params!r}, {self.last!r})"
 
 
-def choose_sets(cases: Sequence[TestCase], sets: Mapping[str, Collection[str]]) -> list[TestCase]:
+class Only:
+    """A case's parameter sets whose canonical texts are among ``idents``, in the case's order."""
+
+    def __init__(self, base: TestCase, idents: Collection[str]) -> None:
+        self.base = base
+        self.idents = frozenset(idents)
+
+    def __iter__(self) -> Iterator[ParameterSet]:
+        for params in self.base.parameter_sets():
+            if canonical_params(params) in self.idents:
+                yield params
+
+    def __repr__(self) -> str:
+        return f"Only({self.base.params!r}, {sorted(self.idents)!r})"
+
+
+def choose_sets(
+    cases: Sequence[TestCase], sets: Mapping[str, Collection[str]], alone: bool = False
+) -> list[TestCase]:
     """The run as far as the last of the named parameter sets (per case, canonical JSON, as
     `canonical_params` writes them and series name them), in the suite's order: every case and
     set before it as it is, nothing after it (a confirmation run: the flagged sets measured
-    after what ran before them in the flagged run, since a component's counters depend on
-    that: a leak grows over the run, a cache warms). Raises `ValidationError` naming each named
-    set or case the suite does not have (a confirmation run of a commit whose tests changed
-    since)."""
+    after what ran before them in the flagged run, since what a component holds depends on
+    that: a leak grows over the run). With ``alone``, the named sets only, in the suite's order
+    (a confirmation run of changes in what a component does per unit of work, its CPU per
+    operation or a round trip, which each set's warm-up phase settles). Raises
+    `ValidationError` naming each named set or case the suite does not have (a confirmation
+    run of a commit whose tests changed since)."""
     sets = {name: idents for name, idents in sets.items() if idents}
     known = {case.name: case for case in cases}
     problems = [
@@ -89,6 +109,12 @@ def choose_sets(cases: Sequence[TestCase], sets: Mapping[str, Collection[str]]) 
         raise ValidationError(problems)
     if not sets:
         return list(cases)
+    if alone:
+        return [
+            TestCase(case.name, case.phases, Only(case, sets[case.name]))
+            for case in cases
+            if case.name in sets
+        ]
     end = max(index for index, case in enumerate(cases) if case.name in sets)
     case = cases[end]
     last = [

@@ -50,6 +50,19 @@ CONTEXT_COUNTERS: tuple[str, ...] = (
 )
 
 
+#: The counters of what a process holds or has done since it started (memory, bytes read and
+#: written so far, threads, processes, open files): their value at a parameter set depends on
+#: every set that ran before it in the run (a leak grows over the run). What it does per unit of
+#: time or work (CPU, context switches, CPU per operation, a round trip) does not, once the
+#: set's warm-up has run: a confirmation run of such a change runs the flagged sets alone.
+CUMULATIVE: tuple[str, ...] = ("_bytes", "threads", "processes", "fds")
+
+
+def is_cumulative(counter: str) -> bool:
+    """Whether ``counter`` accumulates over a process's life (`CUMULATIVE`)."""
+    return counter.endswith(CUMULATIVE)
+
+
 def kind(process: str) -> str:
     """``counter``, ``driver``, ``host``, ``redline`` or ``recorder``."""
     if process == HOST_PROCESS:

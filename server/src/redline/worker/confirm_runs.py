@@ -5,7 +5,8 @@ request): when a revision's change is flagged and the component asks for ``confi
 worker queues that many pairs of jobs, the baseline revision's then the candidate's, pinned to
 the host that measured the candidate, which leases them in that order (`services.jobs`; a pair
 after the first once the pairs before it are judged, so that pairs that decide spare the rest
-unrun) and runs the suite as far as its last parameter set with a suspected change. Their
+unrun) and runs the parameter sets with a suspected change: alone, or where a change is in what
+the component holds (memory, threads), the suite as far as the last of them. Their
 executions are not the revisions' own (they never enter the revisions' verdicts or baselines);
 once every pair has run, each suspected change of the candidate is judged on the pairs
 (`redline.detect.confirmation.pairs_hold`): "confirmed by k of n pairs", or not confirmed with
@@ -60,7 +61,7 @@ from redline.worker.history import reanalysing
 from redline.worker.quiet_pairs import (
     SUPERSEDED,
     busy_in,
-    flagged_sets,
+    flagged_scope,
     queue_pairs,
     queued_again,
     run_again,
@@ -121,9 +122,9 @@ def queue_confirmations(session: Session, revision: Revision, config: DetectionC
         return 0  # once per baseline; none for a revision whose runs were cancelled with it
     _supersede(session, revision, current, baseline)
     first = max((job.pair for job in earlier), default=0) + 1
-    sets = flagged_sets(session, [d.series_id for d in suspected])
+    scope = flagged_scope(session, [d.series_id for d in suspected])
     pairs = range(first, first + config.confirm_pairs)
-    return queue_pairs(session, revision, baseline, pairs, host_id, sets)
+    return queue_pairs(session, revision, baseline, pairs, host_id, scope)
 
 
 def _measured_on(session: Session, revision: Revision) -> int | None:

@@ -16,9 +16,11 @@ from __future__ import annotations
 
 from collections import defaultdict
 from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
 from datetime import datetime, timedelta
 
 from redline.detect.confirmation import Hold
+from redline.detect.counters import is_cumulative
 from redline.server.core.config import get_settings
 from redline.server.models import (
     FINISHED,
@@ -47,17 +49,32 @@ def quiet_wait() -> timedelta:
     return timedelta(seconds=get_settings().quiet_wait_s)
 
 
-def flagged_sets(session: Session, series: Iterable[int]) -> dict[str, list[str]]:
-    """Per test case, the parameter sets (canonical, as series name them) of ``series``: the
-    agent runs the suite as far as the last of them (`selection.choose_sets`), what ran before
-    them in the flagged run included (a leak grows over a run), and what came after them not,
-    which would cost machine time and confirm nothing."""
+@dataclass(frozen=True)
+class Scope:
+    """What a confirmation run runs: per test case, the parameter sets (canonical, as series
+    name them) with a suspected change, and whether it runs them ``alone`` or the suite as far
+    as the last of them (`selection.choose_sets`)."""
+
+    sets: dict[str, list[str]]
+    alone: bool
+
+
+def flagged_scope(session: Session, series: Iterable[int]) -> Scope:
+    """The parameter sets of ``series``, to run alone where every one of them measures what a
+    component does per unit of time or work (CPU, a round trip), which each set's warm-up
+    settles; where one measures what it holds (memory, threads, files:
+    `counters.is_cumulative`), the suite as far as the last of them, what ran before them in the
+    flagged run included (a leak grows over a run: a set run first shows less of it than the
+    flagged run did third). What comes after the last flagged set never runs: it would cost
+    machine time and confirm nothing."""
     sets: dict[str, set[str]] = defaultdict(set)
-    for case, params in session.execute(
-        select(Series.case, Series.params).where(Series.id.in_(list(series)))
+    alone = True
+    for case, params, counter in session.execute(
+        select(Series.case, Series.params, Series.counter).where(Series.id.in_(list(series)))
     ):
         sets[case].add(params)
-    return {case: sorted(sets[case]) for case in sorted(sets)}
+        alone = alone and not is_cumulative(counter)
+    return Scope({case: sorted(sets[case]) for case in sorted(sets)}, alone)
 
 
 def queue_pairs(
@@ -66,11 +83,12 @@ def queue_pairs(
     baseline: int,
     pairs: range,
     host_id: int,
-    parameter_sets: dict[str, list[str]],
+    scope: Scope,
     not_before: datetime | None = None,
 ) -> int:
     """Queue ``pairs`` (their numbers) of the ``revision`` against its ``baseline`` revision,
-    the baseline's run first, pinned to ``host_id``; returns the jobs queued."""
+    the baseline's run first, pinned to ``host_id``, each running ``scope``; returns the jobs
+    queued."""
     labels = list(revision.component.host_labels or [])
     queued = 0
     for pair in pairs:
@@ -88,7 +106,8 @@ def queue_pairs(
                     confirms_revision_id=revision.id,
                     pinned_host_id=host_id,
                     labels=labels,
-                    parameter_sets=parameter_sets,
+                    parameter_sets=scope.sets,
+                    sets_alone=scope.alone,
                     not_before=not_before,
                 )
             )
@@ -136,8 +155,8 @@ def _queue_again(
         return None
     start = utcnow() + quiet_wait()
     first = max(job.pair for job in jobs) + 1
-    sets = flagged_sets(session, {d.series_id for d in busy})
-    queue_pairs(session, revision, baseline, range(first, first + count), host_id, sets, start)
+    scope = flagged_scope(session, {d.series_id for d in busy})
+    queue_pairs(session, revision, baseline, range(first, first + count), host_id, scope, start)
     return start
 
 

@@ -11,6 +11,7 @@ from redline.server.models.base import Base, utcnow
 from sqlalchemy import (
     JSON,
     BigInteger,
+    Boolean,
     Enum,
     ForeignKey,
     Integer,
@@ -138,6 +139,10 @@ class Job(Base):
     #: run the suite as far as the last of these parameter sets (canonical, as `Series.params`),
     #: per case; {}: all of it (a confirmation run's: the sets with a suspected change)
     parameter_sets: Mapped[dict[str, list[str]]] = mapped_column(JSON, default=dict)
+    #: run those parameter sets only, not as far as the last of them (a confirmation run of
+    #: changes in what a component does per unit of work, not in what it holds:
+    #: `redline.detect.counters.is_cumulative`)
+    sets_alone: Mapped[bool] = mapped_column(Boolean, default=False)
     created: Mapped[datetime] = mapped_column(default=utcnow)
     updated: Mapped[datetime] = mapped_column(default=utcnow, onupdate=utcnow)
     revision: Mapped[Revision] = relationship(back_populates="jobs", foreign_keys=[revision_id])

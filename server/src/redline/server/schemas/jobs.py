@@ -52,6 +52,12 @@ class LeasedJob(BaseModel):
         '[\'{"legs":8,"rate":10}\']}; a confirmation run: those with a suspected change), '
         "everything before it as usual; empty: the whole suite",
     )
+    sets_alone: bool = Field(
+        default=False,
+        description="run only the parameter_sets named, each after its warm-up, not the "
+        "suite as far as the last of them (a confirmation run of a change in CPU or latency; "
+        "one of memory, threads or files runs what came before too, since it depends on it)",
+    )
 
 
 class HeartbeatResponse(BaseModel):

@@ -204,6 +204,7 @@ def leased_job(job: Job) -> LeasedJob:
         lease_expires_at=job.lease_expires_at,
         cases=list(job.cases or []),
         parameter_sets=dict(job.parameter_sets or {}),
+        sets_alone=job.sets_alone,
     )
 
 
