@@ -161,7 +161,9 @@ def wait_idle(engine: sa.Engine, stack: Any, timeout: float = 1800.0) -> None:
 
 def agent_seconds(log: Path) -> dict[int, float]:
     """Seconds per job id, from the agent's log line that starts it to its upload, failure or
-    abandonment."""
+    abandonment, the runs it repeated because the host was busy included. (Until 2026-12-05
+    a repeat's warning restarted the clock: a job run three times counted as its last run, and
+    the loaded part's runs, own and confirming, were counted a third of what they took.)"""
     began: dict[int, datetime] = {}
     spent: dict[int, float] = {}
     for line in log.read_text(errors="replace").splitlines():
@@ -175,7 +177,7 @@ def agent_seconds(log: Path) -> dict[int, float]:
             if job in began:
                 spent[job] = (at - began.pop(job)).total_seconds()
         elif rest.startswith(": "):
-            began[job] = at
+            began.setdefault(job, at)
     return spent
 
 
@@ -417,6 +419,8 @@ def run(args: argparse.Namespace, work: Path) -> dict[str, Any]:
         "agent_seconds_per_revision_confirming": round(confirming / len(commits), 1),
         "confirmation_cost": round(confirming / own, 3) if own else None,
         "confirmation_jobs": sum(1 for pair in jobs.values() if pair > 0),
+        # every job's pair (0: a revision's own run) and agent seconds, to account again
+        "jobs": {str(job): [pair, spent.get(job)] for job, pair in sorted(jobs.items())},
         "stretch": args.stretch,
         "events": args.events,
         "fixed_work": args.fixed_work,
@@ -437,7 +441,7 @@ def run(args: argparse.Namespace, work: Path) -> dict[str, Any]:
 
 def figures(result: dict[str, Any]) -> dict[str, Any]:
     """A run's figures without its lists of detections."""
-    return {k: v for k, v in result.items() if k not in ("detections", "flagged_anywhere")}
+    return {k: v for k, v in result.items() if k not in ("detections", "flagged_anywhere", "jobs")}
 
 
 def main() -> int:

@@ -21,6 +21,7 @@ from redline.server.models import (
     Regression,
     Revision,
     Series,
+    Summary,
 )
 from redline.server.schemas.components import ComponentCreate
 from redline.server.schemas.regressions import DetectionConfigIn
@@ -38,7 +39,7 @@ from sqlalchemy import func, select
 
 from tests.support.api import api_with
 from tests.support.history import add_executions, ingest_and_detect, uploaded
-from tests.support.recordings import run_metadata
+from tests.support.recordings import PROCESS, run_metadata, write_recording
 
 NAME, CASE, PHASE, PARAMS = "svc", "ask", "steady", {"rate": 50}
 QUERY = "FixedRate/Query(svc/get)"
@@ -373,6 +374,38 @@ def test_a_baseline_measured_only_while_the_host_was_busy_is_named_as_the_reason
         cpu = _verdicts(session, r2)[(NAME, "cpu_percent", method)]
         assert cpu.verdict == "not enough data", cpu.reason
         assert "revision r1's runs of this series were all disturbed (host busy" in cpu.reason
+
+
+def test_what_the_component_holds_is_judged_while_the_host_was_busy(
+    session, database_url, tmp_path
+):
+    """Other load moves a component's CPU, not the memory, threads or files it holds: those are
+    judged in a busy phase (a leak's confirmation pairs, busy, were run a second time for them),
+    its CPU is left out."""
+    create_component(session, ComponentCreate(name=NAME, executions=RUNS))
+    rng = np.random.default_rng(5)
+    held = {"rss_bytes": np.full(40, 50e6), "threads": np.full(40, 4.0), "fds": np.full(40, 9.0)}
+    runs = [{"cpu_percent": rng.normal(20.0, 0.4, 40), **held} for _ in range(RUNS)]
+    executions = add_executions(
+        session, tmp_path, NAME, "r1", "1", runs, record=write_recording, host_percent=90.0
+    )
+    ingest_and_detect(database_url, executions)
+    session.expire_all()
+    rows = session.execute(
+        select(Series.counter, Summary.disturbed)
+        .join(Summary, Summary.series_id == Series.id)
+        .where(Series.process == PROCESS)
+    ).all()
+    assert len(rows) == 4 * RUNS
+    assert {counter: busy for counter, busy in rows} == {
+        "cpu_percent": True,
+        "rss_bytes": False,
+        "threads": False,
+        "fds": False,
+    }
+    # and the host's own CPU, which says it was busy, is no component's: left out as before
+    host = select(Summary.disturbed).join(Series).where(Series.process == "host")
+    assert set(session.scalars(host)) == {True}
 
 
 def test_a_short_baseline_says_how_many_executions_it_left_out(session, database_url, tmp_path):
