@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 from redline.detect.config import DetectionConfig
 from redline.detect.confirmation import DEFAULT_CONFIRM_PAIRS
+from redline.recording import SeriesKey
 from redline.server.core.tasks import DETECT_TASK
 from redline.server.db import lock_component
 from redline.server.models import (
@@ -34,6 +35,7 @@ from redline.server.services.ci_verdict import ci_verdict
 from redline.server.services.components import create_component
 from redline.server.services.dashboard import trend_data
 from redline.server.services.fresh_runs import waiting_on
+from redline.server.services.ingestion import series_ids
 from redline.server.services.jobs import fail_job, lease_job, leased_job, register_host
 from redline.server.services.revisions import cancel_revision, revision_detail
 from redline.server.services.trend_view import TrendView
@@ -42,6 +44,7 @@ from redline.worker.confirm_runs import queue_confirmations, settle_pending_pair
 from redline.worker.detection import detect_revision
 from redline.worker.ingest import ingest_execution
 from redline.worker.onward import judge_onward
+from redline.worker.quiet_pairs import Scope, flagged_scope
 from redline.worker.reanalysis import reanalyze_component
 from redline.worker.sweeps import SWEEP_GRACE, unjudged_after_fresh_runs
 from sqlalchemy import delete, select
@@ -105,6 +108,7 @@ def _run(
     level: float,
     onward: bool = False,
     host_percent: float | None = None,
+    counter: str = "cpu",
 ) -> None:
     """What the host's agent does with a leased job: record, upload; then the worker ingests
     and judges the revision ingestion names (the one confirmed, for a confirmation run).
@@ -114,7 +118,7 @@ def _run(
     path = write_recording(
         tmp_path / f"confirm-{job.id}.mcap",
         run,
-        _cpu(level, 1000 + job.id),
+        _cpu(level, 1000 + job.id, counter),
         host_percent=host_percent,
     )
     session.add(
@@ -138,8 +142,11 @@ def _run(
     session.expire_all()
 
 
-def _run_r4_gone(session, database_url: str, tmp_path: Path) -> None:
-    """Every confirmation run leased, at 30 % CPU, but r4's: its commit is gone."""
+def _run_r4_gone(
+    session, database_url: str, tmp_path: Path, counter: str = "cpu", unit: float = 1.0
+) -> None:
+    """Every confirmation run leased, at 30 % CPU (30 ``unit`` of ``counter``), but r4's: its
+    commit is gone."""
     while (job := lease_job(session, "perf-1", 60, 3)) is not None:
         if job.revision.title == "r4":  # what the agent reports when the commit is gone
             job.state, job.reason = JobState.failed, "checkout failed: commit abc123 not found"
@@ -147,7 +154,7 @@ def _run_r4_gone(session, database_url: str, tmp_path: Path) -> None:
             detect_revision(database_url, job.confirms_revision_id)
             session.expire_all()
         else:
-            _run(session, database_url, tmp_path, job, 30.0)
+            _run(session, database_url, tmp_path, job, 30.0 * unit, counter=counter)
 
 
 def _r5_detection(session) -> Detection:
@@ -209,6 +216,21 @@ def test_a_change_in_what_the_component_holds_runs_the_sets_before_it_again(
     assert len(jobs) == 2 * PAIRS
     assert all(j.parameter_sets == {"throughput": ['{"rate":10}']} for j in jobs)
     assert not any(j.sets_alone for j in jobs)
+
+
+def test_pairs_run_their_sets_alone_only_where_no_suspect_depends_on_what_ran_before(session):
+    """Mixed suspects, CPU at one set and memory at another: as far as the last of them both."""
+    component = create_component(session, ComponentCreate(name=NAME, executions=RUNS))
+    keys = [
+        SeriesKey("load", "steady", params, "svc", counter)
+        for params, counter in (('{"rate":10}', "cpu_percent"), ('{"rate":40}', "rss_bytes"))
+    ]
+    ids = series_ids(session, component.id, keys)
+    cpu, memory = (ids[key] for key in keys)
+    both = {"load": ['{"rate":10}', '{"rate":40}']}
+    assert flagged_scope(session, [cpu]) == Scope({"load": ['{"rate":10}']}, alone=True)
+    assert flagged_scope(session, [cpu, memory]) == Scope(both, alone=False)
+    assert not flagged_scope(session, [memory]).alone
 
 
 def test_a_pair_starts_once_the_pairs_before_it_are_judged(session, database_url, tmp_path):
@@ -602,15 +624,23 @@ def _detection(session, title: str) -> Detection:
     ).one()
 
 
-def _missed_then_flagged(session, database_url, tmp_path) -> None:
-    """r1-r5 at 20 % CPU, r6 at 30 %: r6 flagged against r1-r5, its pairs queued. r5's own runs
-    said 20 %, but r5 made the change (its runs missed it, as one execution's noise can): its
-    re-runs are at 30 %."""
+#: A change found a revision late is looked for only where the pairs ran the suite as far as
+#: the flagged set, as the revisions' own runs did (a change in what the component holds): run
+#: alone, a set's level differs from its level in the suite (`settle_pairs`)
+LATE, MIB = "rss_bytes", 1024.0 * 1024.0
+
+
+def _missed_then_flagged(session, database_url, tmp_path, counter: str = LATE) -> None:
+    """r1-r5 at 20 MiB, r6 at 30 MiB (of ``counter``; its unit where it is not memory): r6
+    flagged against r1-r5, its pairs queued. r5's own runs said 20, but r5 made the change (its
+    runs missed it, as one execution's noise can): its re-runs are at 30."""
     component = create_component(session, ComponentCreate(name=NAME, executions=RUNS))
     session.add(DetectionConfigRow(component_id=component.id, config={"confirm_pairs": PAIRS}))
     session.commit()
     host = register_host(session, RegisterRequest(name="perf-1"))
-    _measured(session, database_url, tmp_path, [20.0] * 5 + [30.0], host)
+    unit = MIB if counter == LATE else 1.0
+    levels = [20.0 * unit] * 5 + [30.0 * unit]
+    _measured(session, database_url, tmp_path, levels, host, counter=counter)
     assert _detection(session, "r5").verdict == "no change"
     assert _detection(session, "r6").flagged
 
@@ -625,7 +655,8 @@ def test_a_change_found_a_revision_late_is_moved_to_its_revision_and_confirmed_t
     runs = []
     while (job := lease_job(session, "perf-1", 60, 3)) is not None:
         runs.append((job.pair, job.revision.title, job.confirms_revision.title))
-        _run(session, database_url, tmp_path, job, 20.0 if job.revision.title == "r4" else 30.0)
+        level = 20.0 if job.revision.title == "r4" else 30.0
+        _run(session, database_url, tmp_path, job, level * MIB, counter=LATE)
     # r6's first pair decided it; then r5's two pairs against r4
     assert runs == [(1, "r5", "r6"), (1, "r6", "r6"), (1, "r4", "r5"), (1, "r5", "r5")] + [
         (2, "r4", "r5"),
@@ -672,7 +703,7 @@ def test_a_moved_change_whose_own_pairs_cannot_run_is_dropped_not_settled_by_its
     flag (they would compare them with r5's own, unchanged level): when its pairs cannot run it
     is dropped, saying why."""
     _missed_then_flagged(session, database_url, tmp_path)
-    _run_r4_gone(session, database_url, tmp_path)
+    _run_r4_gone(session, database_url, tmp_path, LATE, MIB)
     moved = _detection(session, "r5")
     assert moved.reason.startswith("found a revision late")
     assert moved.confirmation == "dropped", moved.confirmation_reason
@@ -690,12 +721,30 @@ def test_a_change_moved_back_once_is_not_moved_again(session, database_url, tmp_
     titles = []
     while (job := lease_job(session, "perf-1", 60, 3)) is not None:
         titles.append(job.revision.title)
-        _run(session, database_url, tmp_path, job, 30.0)
+        _run(session, database_url, tmp_path, job, 30.0 * MIB, counter=LATE)
     assert titles == ["r5", "r6", "r4", "r5"], titles
     moved = _detection(session, "r5")
     assert moved.confirmation == "dropped", moved.confirmation_reason
     assert "already at the new level" not in moved.confirmation_reason
     assert _detection(session, "r4").verdict == "no change"
+
+
+def test_a_change_whose_pairs_ran_its_set_alone_is_not_moved_back(session, database_url, tmp_path):
+    """Alone, a set runs first after the component starts, and its level is not the level its
+    revision's own runs measured in the suite (`bench_verdicts`, 2026-12-05: the 8-legs set at
+    +5 % and +11 % over its revision's own run): the pairs' runs of r5 say nothing of r5's own
+    level, so r6's dropped flag stays r6's, and r5 is not judged again."""
+    _missed_then_flagged(session, database_url, tmp_path, counter="cpu")
+    titles = []
+    while (job := lease_job(session, "perf-1", 60, 3)) is not None:
+        assert job.sets_alone
+        titles.append(job.revision.title)
+        _run(session, database_url, tmp_path, job, 30.0)
+    assert titles == ["r5", "r6"], titles  # the first pair decided it; nothing queued for r5
+    late = _detection(session, "r6")
+    assert late.confirmation == "dropped", late.confirmation_reason
+    assert "already at the new level" not in late.confirmation_reason
+    assert _detection(session, "r5").verdict == "no change"
 
 
 def _busy_r5(session, database_url: str, tmp_path: Path, pairs: int, after: list[float]) -> None:

@@ -9,6 +9,7 @@ from typing import Any
 from xml.etree import ElementTree
 
 import numpy as np
+import pyarrow.parquet as pq
 from redline.detect.registry import DEFAULT_METHOD
 from redline.recording import RecordingWriter
 from redline.recording.format import NO_TRAFFIC
@@ -32,6 +33,7 @@ from redline.server.services.detection_config import set_config
 from redline.server.services.gate import gate
 from redline.server.services.jobs import lease_job
 from redline.server.services.revisions import create_revision
+from redline.server.storage import disturbed_series, samples_path
 from redline.worker.detection import detect_revision
 from redline.worker.ingest import ingest_execution
 from redline.worker.reanalysis import reanalyze_component
@@ -397,12 +399,17 @@ def test_what_the_component_holds_is_judged_while_the_host_was_busy(
         .where(Series.process == PROCESS)
     ).all()
     assert len(rows) == 4 * RUNS
-    assert {counter: busy for counter, busy in rows} == {
-        "cpu_percent": True,
-        "rss_bytes": False,
-        "threads": False,
-        "fds": False,
-    }
+    expected = {("cpu_percent", True), ("rss_bytes", False), ("threads", False), ("fds", False)}
+    assert set(rows) == expected  # in every execution alike
+    # and the samples' side table, which detection reads, says the same
+    ids = dict(
+        session.execute(select(Series.counter, Series.id).where(Series.process == PROCESS)).all()
+    )
+    for execution in executions:
+        table = pq.read_table(samples_path(execution.recording_path))
+        busy = disturbed_series(table)
+        assert ids["cpu_percent"] in busy and busy[ids["cpu_percent"]].startswith("host busy:")
+        assert not {ids["rss_bytes"], ids["threads"], ids["fds"]} & set(busy)
     # and the host's own CPU, which says it was busy, is no component's: left out as before
     host = select(Summary.disturbed).join(Series).where(Series.process == "host")
     assert set(session.scalars(host)) == {True}

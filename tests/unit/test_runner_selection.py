@@ -16,6 +16,11 @@ ECHO = ROOT / "examples" / "echo" / "perf" / "redline.toml"
 
 LOAD = TestCase("load", [Phase("p", Param("rate"))], Cartesian(legs=[2, 8], rate=[10, 40]))
 IDLE = TestCase("idle", [Phase("p", Static(1))])
+WARM = TestCase(
+    "warm",
+    [Phase("w", Param("rate"), warmup=True), Phase("p", Param("rate"))],
+    Cartesian(legs=[2, 8], rate=[10, 40]),
+)
 
 
 def test_parse_overrides_reads_json_values_and_falls_back_to_text() -> None:
@@ -61,16 +66,20 @@ def test_a_confirmation_run_runs_the_suite_as_far_as_the_last_named_parameter_se
 
 def test_a_confirmation_run_of_a_change_per_unit_of_work_runs_the_named_sets_alone() -> None:
     """A change in CPU or a round trip does not depend on what ran before its set (its warm-up
-    settles it): the named sets only, in the suite's order, each case with none named left out."""
-    (load,) = choose_sets([LOAD, IDLE], {"load": ['{"legs":8,"rate":40}']}, alone=True)
-    assert load.name == "load" and load.phases == LOAD.phases
-    assert load.parameter_sets() == [{"legs": 8, "rate": 40}]
-    named = {"load": ['{"legs":8,"rate":10}', '{"legs":2,"rate":40}'], "idle": ["{}"]}
-    (load, idle) = choose_sets([LOAD, IDLE], named, alone=True)
-    assert load.parameter_sets() == [{"legs": 2, "rate": 40}, {"legs": 8, "rate": 10}]
-    assert idle.parameter_sets() == [{}]
+    settles it): the named sets only, in the suite's order, each case with none named left out;
+    as far as the last of them where a named case has no warm-up phase to settle it."""
+    (warm,) = choose_sets([LOAD, WARM, IDLE], {"warm": ['{"legs":8,"rate":40}']}, alone=True)
+    assert warm.name == "warm" and warm.phases == WARM.phases
+    assert warm.parameter_sets() == [{"legs": 8, "rate": 40}]
+    named = {"warm": ['{"legs":8,"rate":10}', '{"legs":2,"rate":40}']}
+    (warm,) = choose_sets([WARM, LOAD], named, alone=True)
+    assert warm.parameter_sets() == [{"legs": 2, "rate": 40}, {"legs": 8, "rate": 10}]
+    # LOAD and IDLE have no warm-up: what ran before them runs again
+    named = {"load": ['{"legs":2,"rate":40}'], "warm": ['{"legs":2,"rate":10}']}
+    (load, warm) = choose_sets([LOAD, WARM, IDLE], named, alone=True)
+    assert len(load.parameter_sets()) == 4 and warm.parameter_sets() == [{"legs": 2, "rate": 10}]
     with pytest.raises(ValidationError, match="has no parameter set"):
-        choose_sets([LOAD], {"load": ['{"legs":4,"rate":10}']}, alone=True)
+        choose_sets([WARM], {"warm": ['{"legs":4,"rate":10}']}, alone=True)
 
 
 def test_a_parameter_set_or_case_the_commit_lacks_is_named() -> None:

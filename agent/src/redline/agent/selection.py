@@ -87,7 +87,8 @@ def choose_sets(
     after what ran before them in the flagged run, since what a component holds depends on
     that: a leak grows over the run). With ``alone``, the named sets only, in the suite's order
     (a confirmation run of changes in what a component does per unit of work, its CPU per
-    operation or a round trip, which each set's warm-up phase settles). Raises
+    operation or a round trip, which each set's warm-up phase settles; where a named case has no
+    warm-up phase, as far as the last of them all the same). Raises
     `ValidationError` naming each named set or case the suite does not have (a confirmation
     run of a commit whose tests changed since)."""
     sets = {name: idents for name, idents in sets.items() if idents}
@@ -109,7 +110,7 @@ def choose_sets(
         raise ValidationError(problems)
     if not sets:
         return list(cases)
-    if alone:
+    if alone and all(any(phase.warmup for phase in known[name].phases) for name in sets):
         return [
             TestCase(case.name, case.phases, Only(case, sets[case.name]))
             for case in cases

@@ -156,6 +156,9 @@ def _queue_again(
     start = utcnow() + quiet_wait()
     first = max(job.pair for job in jobs) + 1
     scope = flagged_scope(session, {d.series_id for d in busy})
+    # as the first pairs ran: the changes they left undecided for other reasons (a pair that
+    # failed) are judged on these too
+    scope = Scope(scope.sets, scope.alone and all(job.sets_alone for job in jobs))
     queue_pairs(session, revision, baseline, range(first, first + count), host_id, scope, start)
     return start
 

@@ -134,13 +134,13 @@ class Job(Base):
     #: in the pairs before it (`redline.worker.quiet_pairs`); None for every other job
     not_before: Mapped[datetime | None] = mapped_column(default=None)
     #: the test cases to run; []: all (no job the server makes names any since 2026-11-27: a
-    #: confirmation run names its `parameter_sets`, which end the run, earlier cases included)
+    #: confirmation run names its `parameter_sets` instead)
     cases: Mapped[list[str]] = mapped_column(JSON, default=list)
     #: run the suite as far as the last of these parameter sets (canonical, as `Series.params`),
     #: per case; {}: all of it (a confirmation run's: the sets with a suspected change)
     parameter_sets: Mapped[dict[str, list[str]]] = mapped_column(JSON, default=dict)
     #: run those parameter sets only, not as far as the last of them (a confirmation run of
-    #: changes in what a component does per unit of work, not in what it holds:
+    #: changes in what a component does per unit of work, none in what it has accumulated:
     #: `redline.detect.counters.is_cumulative`)
     sets_alone: Mapped[bool] = mapped_column(Boolean, default=False)
     created: Mapped[datetime] = mapped_column(default=utcnow)

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
-from redline.detect.counters import is_cumulative, kind
+from redline.detect.counters import is_held
 from redline.detect.summary import summarize
 from redline.recording import SeriesKey
 from redline.server.models import Execution, Series, Summary
@@ -82,17 +82,6 @@ def write_samples(
     os.replace(partial, path)
 
 
-def _held(key: SeriesKey) -> bool:
-    """Whether ``key`` is a series of what a component's processes hold (memory, threads, open
-    files: `counters.is_cumulative`), which other load on the host does not move: in
-    `bench_verdicts`' loaded part (2026-12-05), 16 phases measured while the host was busy held
-    memory within 1.2 % of the quiet phases' median (139 quiet ones within 1.1 %) and the same
-    threads and files. Left out as busy, a leak
-    found while a test suite loaded the host re-ran its confirmation pairs once more (4 more
-    whole-suite runs, each repeated as busy)."""
-    return kind(key.process) == "counter" and is_cumulative(key.counter)
-
-
 def store_samples(
     session: Session,
     execution: Execution,
@@ -110,7 +99,8 @@ def store_samples(
     ``disturbed``: (case, phase, params) → why: the series of those segments are summarized and
     charted, but not judged in this execution (`redline.recording.disturbance`); their summaries
     say so (``disturbed``), and confirmation leaves them out. What a component's processes hold
-    (`_held`) is judged all the same.
+    (`counters.is_held`: memory, threads, files) is judged all the same; left out as busy, a
+    leak found while a test suite loaded the host had its confirmation pairs run a second time.
     """
     samples = {key: values for key, values in samples.items() if len(values)}
     ids = series_ids(session, component_id, sorted(samples))
@@ -119,7 +109,9 @@ def store_samples(
     bad = {
         ids[key]: disturbed[(key.case, key.phase, key.params)]
         for key in ids
-        if disturbed and (key.case, key.phase, key.params) in disturbed and not _held(key)
+        if disturbed
+        and (key.case, key.phase, key.params) in disturbed
+        and not is_held(key.process, key.counter)
     }
     rows = [
         Summary(execution_id=execution.id, series_id=ids[key], disturbed=ids[key] in bad, **stats)
