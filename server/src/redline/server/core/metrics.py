@@ -76,20 +76,28 @@ class _Measured:
         if scope["type"] != "http":
             await self.app(scope, receive, send)
             return
-        start, status = time.perf_counter(), 500  # unless a response starts
+        start, status, counted = time.perf_counter(), 500, False  # 500 unless a response starts
+
+        def count() -> None:  # the router names the route in the scope it was given
+            nonlocal counted
+            if not counted:
+                counted = True
+                route = getattr(scope.get("route"), "path", "unmatched")
+                self.latency.labels(scope["method"], route).observe(time.perf_counter() - start)
+                self.requests.labels(scope["method"], route, str(status)).inc()
 
         async def sending(message: Message) -> None:
             nonlocal status
             if message["type"] == "http.response.start":
                 status = message["status"]
+            elif message["type"] == "http.response.body" and not message.get("more_body"):
+                count()  # before the last byte leaves: a client that has its answer finds it counted
             await send(message)
 
         try:
             await self.app(scope, receive, sending)
-        finally:  # the router names the route in the scope it was given
-            route = getattr(scope.get("route"), "path", "unmatched")
-            self.latency.labels(scope["method"], route).observe(time.perf_counter() - start)
-            self.requests.labels(scope["method"], route, str(status)).inc()
+        finally:
+            count()
 
 
 def install(app: FastAPI, settings: Settings) -> None:
