@@ -8,7 +8,6 @@ from __future__ import annotations
 import asyncio
 
 import pytest
-
 from prometheus_client import CollectorRegistry, Counter, Histogram
 from redline.server.core.metrics import _Measured
 

@@ -91,7 +91,7 @@ class _Measured:
             if message["type"] == "http.response.start":
                 status = message["status"]
             elif message["type"] == "http.response.body" and not message.get("more_body"):
-                count()  # before the last byte leaves: a client that has its answer finds it counted
+                count()  # before the last byte: a client with its answer finds it counted
             await send(message)
 
         try:
