@@ -268,7 +268,7 @@ def _analysed_now(database_url: str, title: str) -> None:
 
 def _cached_versions(database_url: str) -> dict[str, str]:
     with session_factory(database_url)() as session:
-        return dict(session.execute(select(FigureCache.view, FigureCache.version)).tuples().all())
+        return dict(session.execute(select(FigureCache.view, FigureCache.version)).all())
 
 
 def test_a_views_data_version_is_read_from_its_own_revisions(client, database_url, tmp_path):

@@ -298,7 +298,7 @@ def _store_staged(
             StagedDetection.series_id, StagedDetection.method, StagedDetection.verdict
         )
     )
-    kept = still_moved(session, revision.id, fresh.tuples())  # its regression keeps its id
+    kept = still_moved(session, revision.id, fresh.all())  # its regression keeps its id
     emptied = session.scalars(
         delete(Detection)
         .where(Detection.revision_id == revision.id, Detection.id.not_in(list(kept.values())))
