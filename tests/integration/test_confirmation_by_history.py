@@ -427,3 +427,47 @@ def test_a_spike_neither_blinds_the_revisions_after_it_nor_stays_suspected(
         r.bad_revision.title: r.confirmation for r in session.scalars(select(Regression))
     }
     assert by_revision == {"r9": "not_confirmed", "r12": "confirmed"}, by_revision
+
+
+def _one_each(session, database_url: str, tmp_path: Path, levels: list[float]) -> None:
+    """Revisions r1.. of one execution each at exactly ``levels`` (samples 0.1 % around)."""
+    rng = np.random.default_rng(5)
+    for number, level in enumerate(levels, start=1):
+        runs = [{"cpu": rng.normal(level, level * 0.001, 40)}]
+        executions = add_executions(session, tmp_path, NAME, f"r{number}", str(number), runs)
+        ingest_and_detect(database_url, executions)
+    session.expire_all()
+
+
+#: eight unchanged revisions (median 100, MAD 0.75: a robust spread of 1.11), then +8 %:
+#: z = 8 / (1.11 x sqrt(1 + 1/8)) = 6.8, between the confirmed threshold (6) and the one for
+#: flags that are regressions at once (8)
+BETWEEN = [100.0, 101.0, 99.0, 100.5, 99.5, 100.0, 101.0, 99.0, 108.0]
+
+
+def test_where_flags_are_confirmed_the_worker_judges_at_the_confirmed_threshold(
+    session, database_url, tmp_path
+):
+    create_component(session, ComponentCreate(name=NAME, executions=1))
+    _one_each(session, database_url, tmp_path, BETWEEN)
+    r9 = _flagged(session)["r9"]
+    assert r9.confirmation == "suspected" and 1 <= r9.score < 8 / 6, r9.score
+    assert session.scalars(select(Regression)).one().confirmation == "suspected"
+
+
+def test_where_every_flag_is_a_regression_at_once_the_worker_judges_at_the_threshold(
+    session, database_url, tmp_path
+):
+    component = create_component(session, ComponentCreate(name=NAME, executions=1))
+    at_once = {"confirm_pairs": 0, "confirm_revisions": 0}
+    session.add(DetectionConfigRow(component_id=component.id, config=at_once))
+    session.commit()
+    _one_each(session, database_url, tmp_path, BETWEEN)
+    assert "r9" not in _flagged(session)
+    r9 = session.scalars(
+        select(Detection)
+        .join(Revision, Revision.id == Detection.revision_id)
+        .where(Revision.title == "r9", Detection.method == "execution_shift")
+    ).one()
+    assert r9.verdict == "no change" and 6 / 8 <= r9.score < 1, r9.score
+    assert session.scalars(select(Regression)).all() == []

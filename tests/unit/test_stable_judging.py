@@ -14,6 +14,7 @@ from redline.agent.suite import SuiteError, load_suite
 from redline.detect.calibration import calibrate, calibrate_series
 from redline.detect.compare import compare_files
 from redline.detect.config import ConfigError, DetectionConfig
+from redline.detect.execution_shift import ExecutionShift
 from redline.recording import RecordingWriter, SeriesKey
 
 KEY = SeriesKey("c", "steady", "{}", "svc", "cpu_percent")
@@ -65,13 +66,16 @@ def test_calibration_sizes_executions_from_the_spread_between_them() -> None:
     steady = calibrate_series(KEY, values, per_revision=1, target=0.05)
     assert steady is not None and steady.cv == pytest.approx(0.0079, abs=0.001)
     assert steady.spread == 0.01  # ExecutionShift's rel_scale: no series counts as quieter
-    # threshold 8 x spread x sqrt(1/1 + 1/15): one execution a revision sees 8.3 % at best
-    assert steady.detectable == pytest.approx(8 * 0.01 * math.sqrt(1 + 1 / 15))
-    assert steady.needed == 4  # 8 x 0.01 x sqrt(1/4 + 1/15) <= 5 %
+    # the service's defaults confirm a flag, so the confirmed threshold, 6, counts:
+    # 6 x spread x sqrt(1/1 + 1/15), one execution a revision sees 6.2 % at best
+    assert steady.detectable == pytest.approx(6 * 0.01 * math.sqrt(1 + 1 / 15))
+    assert steady.needed == 2  # 6 x 0.01 x sqrt(1/2 + 1/15) <= 5 % (at 8 it took 4)
+    unconfirmed = calibrate_series(KEY, values, 1, 0.05, ExecutionShift())
+    assert unconfirmed is not None and unconfirmed.needed == 4  # 8 x 0.01 x sqrt(1/4 + 1/15)
     five = calibrate_series(KEY, values, per_revision=5, target=0.05)
     assert five is not None and five.detectable == 0.05  # the floor, min_effect
     noisy = calibrate_series(KEY, [100.0, 110.0, 90.0, 105.0, 95.0], per_revision=1, target=0.05)
-    assert noisy is not None and noisy.detectable > 0.5
+    assert noisy is not None and noisy.detectable > 0.45  # 6 x 7.4 % x sqrt(1 + 1/15)
     assert noisy.needed is None  # 5 % is out of reach: the baseline's own noise exceeds it
     reachable = calibrate_series(
         KEY, [100.0, 101.0, 99.0, 101.5, 98.5], per_revision=1, target=0.10
@@ -171,3 +175,40 @@ def test_calibration_leaves_out_executions_the_host_was_busy_in(tmp_path: Path) 
     values, busy = _execution_values(recordings, limit=30.0)
     assert values[KEY] == [20.0, 21.0]  # the busy execution's 14 % is not the component's spread
     assert busy[KEY] == 1
+
+
+def test_where_flags_are_confirmed_the_default_method_judges_at_its_confirmed_threshold() -> None:
+    """Confirmed flags (the defaults: 2 pairs, 2 later revisions) are judged at 6; a flag that
+    is a regression at once at 8, as the corpora's goals count them."""
+    confirmed = DetectionConfig.parse(None).detector("execution_shift")
+    assert isinstance(confirmed, ExecutionShift) and confirmed.threshold == 6
+    at_once = DetectionConfig.parse({"confirm_pairs": 0, "confirm_revisions": 0})
+    assert at_once.detector("execution_shift").threshold == 8
+    by_history = DetectionConfig.parse({"confirm_pairs": 0})  # the later revisions confirm
+    assert by_history.detector("execution_shift").threshold == 6
+    # a team that set a threshold is judged at it, confirmed or not
+    chosen = {"thresholds": {"execution_shift": {"threshold": 10}}}
+    assert DetectionConfig.parse(chosen).detector("execution_shift").threshold == 10
+    both = {"thresholds": {"execution_shift": {"threshold": 10, "confirmed_threshold": 5}}}
+    assert DetectionConfig.parse(both).detector("execution_shift").threshold == 5
+    assert (
+        DetectionConfig.parse({**both, "confirm_pairs": 0, "confirm_revisions": 0})
+        .detector("execution_shift")
+        .threshold
+        == 10
+    )
+    # methods without a confirmed bar judge as configured; the stored thresholds are untouched
+    assert DetectionConfig.parse({"methods": ["ks"]}).detector("ks").get_params()["alpha"] > 0
+    assert DetectionConfig.parse(both).as_dict()["thresholds"] == both["thresholds"]
+    with pytest.raises(ConfigError, match="confirmed_threshold"):
+        DetectionConfig.parse({"thresholds": {"execution_shift": {"confirmed_threshold": -1}}})
+
+
+def test_a_shift_between_the_two_thresholds_is_flagged_only_where_it_is_confirmed() -> None:
+    base = np.array([97.0, 103.0, 98.0, 102.0, 99.0, 101.0, 96.0, 104.0])  # median 100
+    spread = 1.4826 * 2.5  # its MAD is 2.5, above the 1 % floor
+    z7 = 100 + 7 * spread * math.sqrt(1 + 1 / len(base))  # z = 7: +27.5 %
+    confirmed = ExecutionShift().confirmed().fit(base).detect(np.array([z7]))
+    at_once = ExecutionShift().fit(base).detect(np.array([z7]))
+    assert confirmed.flagged and not at_once.flagged
+    assert ExecutionShift().threshold == 8  # the copy did not change the detector it came from

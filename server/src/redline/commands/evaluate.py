@@ -49,7 +49,7 @@ def as_json(
 
 
 HEADER = (
-    f"{'method':<17} {'ROC-AUC':>7} {'prec.':>6} {'recall':>6} {'F1':>6} {'TP':>5} {'FP':>5} "
+    f"{'method':<19} {'ROC-AUC':>7} {'prec.':>6} {'recall':>6} {'F1':>6} {'TP':>5} {'FP':>5} "
     f"{'FN':>5} {'FA/100':>7} {'rec>=10%':>10} {'decided':>15}"
 )
 LEGEND = (
@@ -67,7 +67,7 @@ def table_row(name: str, s: MethodScores) -> str:
     large = f"{s.recall_large:.2f} ({s.large})" if s.large else "-"
     decided = f"{s.decided}/{s.units}"
     return (
-        f"{name:<17} {s.roc_auc:>7.3f} {s.precision:>6.3f} {s.recall:>6.3f} {s.f1:>6.3f} "
+        f"{name:<19} {s.roc_auc:>7.3f} {s.precision:>6.3f} {s.recall:>6.3f} {s.f1:>6.3f} "
         f"{s.tp:>5} {s.fp:>5} {s.fn:>5} {s.false_alarms_per_100:>7.1f} {large:>10} "
         f"{decided:>15}{mark}"
     )
@@ -201,7 +201,7 @@ def evaluate_cmd(
     if points:
         typer.echo("change-point F1 (TCPDBench, margin 5, mean over series):")
         for name, value in points.items():
-            typer.echo(f"  {name:<17} {value:.3f}")
+            typer.echo(f"  {name:<19} {value:.3f}")
 
 
 def register(app: typer.Typer) -> None:

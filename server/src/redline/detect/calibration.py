@@ -7,7 +7,8 @@ detector `ExecutionShift` reduces executions), then:
 - ``cv``: the spread between executions, standard deviation over mean;
 - ``spread``: the robust relative spread `ExecutionShift` judges against,
   ``max(1.4826 MAD / |median|, rel_scale)``;
-- ``detectable``: the smallest relative change `ExecutionShift` flags at its defaults, with the
+- ``detectable``: the smallest relative change `ExecutionShift` flags at the service's defaults
+  (which confirm a flag, so at its ``confirmed_threshold``), with the
   suite's executions per revision judged against a full baseline (``baseline_values``):
   ``max(min_effect, threshold * spread * sqrt(1/n_candidate + 1/n_baseline))``;
 - ``needed``: the executions per revision for a target change (None: out of reach at the
@@ -56,7 +57,7 @@ def calibrate_series(
     detector: ExecutionShift | None = None,
 ) -> Calibrated | None:
     """One series' figures from its execution values; None with fewer than two finite ones."""
-    judge = detector or ExecutionShift()
+    judge = detector or ExecutionShift().confirmed()  # the service's defaults confirm flags
     clean = np.asarray([v for v in values if math.isfinite(v)], dtype=np.float64)
     if clean.size < 2:
         return None

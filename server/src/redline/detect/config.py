@@ -161,12 +161,7 @@ class DetectionConfig:
         for name, params in self.thresholds.items():
             if name not in self.methods:
                 raise ConfigError(f"thresholds: {name!r} is not among the methods")
-            allowed = {
-                key: parameter.default
-                for key, parameter in list(
-                    inspect.signature(DETECTORS[name].__init__).parameters.items()
-                )[1:]
-            }
+            allowed = _parameters(name)
             for key, value in params.items():
                 if key not in allowed:
                     raise ConfigError(
@@ -174,9 +169,25 @@ class DetectionConfig:
                     )
                 _check_threshold(f"thresholds.{name}.{key}", value, allowed[key])
 
+    @property
+    def confirms(self) -> bool:
+        """Whether a flagged change is confirmed (by re-runs or the later revisions) before it
+        is a regression: then methods judge at their confirmed bar (`Detector.confirmed`)."""
+        return self.confirm_pairs > 0 or self.confirm_revisions > 0
+
+    def detector(self, name: str) -> Detector:
+        """The configured method ``name`` with its thresholds, as it judges under this
+        configuration. A component that sets ``threshold`` and not ``confirmed_threshold`` is
+        judged at its ``threshold`` whether or not flags are confirmed."""
+        params = dict(self.thresholds.get(name, {}))
+        if "threshold" in params and "confirmed_threshold" in _parameters(name):
+            params.setdefault("confirmed_threshold", params["threshold"])
+        detector = DETECTORS[name](**params)
+        return detector.confirmed() if self.confirms else detector
+
     def detectors(self) -> list[Detector]:
-        """One detector per configured method, with its thresholds."""
-        return [DETECTORS[name](**self.thresholds.get(name, {})) for name in self.methods]
+        """One detector per configured method, as it judges (`detector`)."""
+        return [self.detector(name) for name in self.methods]
 
     @property
     def levels(self) -> frozenset[str]:
@@ -201,3 +212,9 @@ class DetectionConfig:
         """The methods whose flagged changes for the worse become regressions; counts of rare
         events (timeouts, losses) are judged by `CountRate` alone, which always alarms."""
         return (*(self.alarm_methods or self.methods[:1]), CountRate.name)
+
+
+def _parameters(name: str) -> dict[str, Any]:
+    """The keyword parameters of method ``name``'s detector, with their defaults."""
+    parameters = list(inspect.signature(DETECTORS[name].__init__).parameters.items())[1:]
+    return {key: parameter.default for key, parameter in parameters}

@@ -59,6 +59,12 @@ class Detector:
         names = list(inspect.signature(type(self).__init__).parameters)[1:]
         return {name: getattr(self, name) for name in names}
 
+    def confirmed(self) -> Detector:
+        """This detector where its flags are confirmed before they are regressions (by re-runs
+        or the later revisions): itself, unless a method judges at a bar of its own there
+        (`redline.detect.execution_shift.ExecutionShift.confirmed`)."""
+        return self
+
     def fit(self, baseline: object) -> Self:
         self.baseline_ = baseline
         return self

@@ -32,6 +32,9 @@ VARIANTS: dict[str, Callable[..., Detector]] = {
     for name, kind in (("foo", FooRules), ("shang", ShangRegression))
     for how in ("min", "mean")
 }
+#: Offline only: the default method judging at 8 where flags are confirmed too, as it did before
+#: 2026-12-06 (`redline evaluate --confirm N` compares the two bars; docs/detection.md).
+VARIANTS["execution_shift.at8"] = partial(ExecutionShift, confirmed_threshold=8.0)
 #: What `redline evaluate` can measure per series.
 EVALUATED: dict[str, Callable[..., Detector]] = {**DETECTORS, **VARIANTS}
 #: Change points over a whole history (E-divisive): evaluated offline, not a per-revision method.
