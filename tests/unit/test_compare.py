@@ -12,8 +12,9 @@ import numpy as np
 import pytest
 import typer
 from redline.commands.compare import parse_args, register
-from redline.detect.compare import CompareError, SeriesVerdict
+from redline.detect.compare import CompareError
 from redline.detect.compare_junit import series_line
+from redline.detect.comparison import SeriesVerdict
 from redline.detect.result import NOT_ENOUGH_DATA, Detection
 from redline.recording import RecordingWriter
 from redline.recording.format import SeriesKey
@@ -263,8 +264,9 @@ def test_values_apart_but_too_few_for_ks_are_undecided_not_a_pass() -> None:
     unit of work (one value a run) rose 37 % with the sides apart, KS's smallest p with 3 and 3
     values is 0.1, and compare passed it as "no change". Now: not enough data, saying why, and
     the segment is undecided (exit 4); with 5 a side KS calls it; an overlap stays no change."""
-    from redline.detect.compare import Comparison, SegmentVerdict, SeriesVerdict, _judge
+    from redline.detect.compare import _judge
     from redline.detect.compare_junit import junit_xml
+    from redline.detect.comparison import Comparison, SegmentVerdict, SeriesVerdict
     from redline.recording.format import SeriesKey
 
     key = SeriesKey("stream", "steady", '{"rate":50}', "range_filter", "cpu_us_per_op")
@@ -287,8 +289,9 @@ def test_values_apart_but_too_few_for_ks_are_undecided_not_a_pass() -> None:
 def test_a_driver_metric_s_line_names_its_method_s_score_not_a_ks_d() -> None:
     """A trial read ``rtt_p50_us: effect +1176.9%, D 117.688``: a D of KS lies in 0..1; the
     round trip is judged by the change of its median, whose score is another thing."""
-    from redline.detect.compare import SeriesVerdict, _judge
+    from redline.detect.compare import _judge
     from redline.detect.compare_junit import series_line
+    from redline.detect.comparison import SeriesVerdict
     from redline.recording.format import SeriesKey
 
     key = SeriesKey("stats", "steady", '{"rate":50}', "driver", "FixedRate/Query(s):rtt_p50_us")

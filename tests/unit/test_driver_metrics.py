@@ -75,6 +75,7 @@ def record(
     query_path: str = QUERY_PATH,
     query: bool = True,
     reference: list[float] | None = None,
+    rss: float | None = None,
 ) -> Path:
     """One execution: a 2 s 'steady' segment with component, host and own CPU samples (the
     host's with the given ``reference`` timings, in turn), and the driver's Query (at
@@ -89,7 +90,8 @@ def record(
         )
         writer.marker("begin", "c", "steady", PARAMS, warmup=False, t_ns=begin)
         for t_ns in range(begin + 100_000_000, end, 100_000_000):
-            writer.counters("svc", 42, {"cpu_percent": rng.normal(cpu, 0.5)}, t_ns)
+            held = {} if rss is None else {"rss_bytes": rss + rng.normal(0, rss * 0.001)}
+            writer.counters("svc", 42, {"cpu_percent": rng.normal(cpu, 0.5), **held}, t_ns)
             values = {"cpu_percent": host, "cpu_steal_percent": 0.0}
             if reference:
                 values["reference_us"] = reference[t_ns // 100_000_000 % len(reference)]
@@ -382,6 +384,32 @@ def test_compare_does_not_pass_what_a_busy_host_kept_it_from_judging(tmp_path: P
     error = case.find("error")
     assert error is not None and error.get("type") == "NotJudged"
     assert "the host was busy" in error.get("message", "")
+
+
+def test_compare_judges_what_the_component_holds_in_a_phase_the_host_was_busy_in(
+    tmp_path: Path,
+) -> None:
+    """Memory does not move with other load (counters.is_held), as the service judges it: a
+    leak measured on a busy host fails the comparison, its CPU is left out saying so, and the
+    same memory on a busy host passes nothing (the CPU was not judged)."""
+    mib = 1024 * 1024
+    base = [record(tmp_path / f"b{i}.mcap", cpu=20.0 + i / 10, rss=100 * mib) for i in range(3)]
+    leak = [record(tmp_path / f"l{i}.mcap", cpu=15.0, host=95.0, rss=150 * mib) for i in range(3)]
+    comparison = compare_files(base, leak)
+    (segment,) = [s for s in comparison.segments if s.phase == "steady"]
+    assert [v.key.counter for v in segment.changed] == ["rss_bytes"]
+    assert {v.key.counter for v in segment.series} == {"rss_bytes"}  # no CPU, no round trip
+    assert segment.state == "failed" and segment.note.startswith("judged in part: the host")
+    code, output, suite = _compare(tmp_path, base, leak)
+    assert code == 1 and "CHANGED (1)" in output and "judged in part" in output, output
+    (case,) = [c for c in suite.iter("testcase") if c.get("name") == "c/steady[rate=10]"]
+    assert case.find("failure") is not None and case.find("error") is None
+    same = [record(tmp_path / f"s{i}.mcap", cpu=15.0, host=95.0, rss=100 * mib) for i in range(3)]
+    code, output, suite = _compare(tmp_path, base, same)
+    assert code == 4 and "1 segment(s) judged in part (the host was busy)" in output, output
+    (case,) = [c for c in suite.iter("testcase") if c.get("name") == "c/steady[rate=10]"]
+    error = case.find("error")
+    assert error is not None and "its CPU and rates were not" in error.get("message", "")
 
 
 def test_compare_does_not_pass_a_renamed_action_path(tmp_path: Path) -> None:

@@ -155,7 +155,7 @@ def test_why_flagged_labels_are_text_not_markup():
 
 
 def test_compare_labels_are_text_not_markup():
-    from redline.detect.compare import RecordedSeries, SeriesVerdict
+    from redline.detect.comparison import RecordedSeries, SeriesVerdict
     from redline.detect.result import Detection
     from redline.recording import SeriesKey
     from redline.server.schemas.results import Comparison, SeriesComparison, Statistics

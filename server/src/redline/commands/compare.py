@@ -24,7 +24,7 @@ import typer
 from typer.core import TyperCommand, TyperOption
 
 if TYPE_CHECKING:
-    from redline.detect.compare import Comparison, SegmentVerdict
+    from redline.detect.comparison import Comparison, SegmentVerdict
     from typer._click.core import Context  # the Context typer vendors from click
 
 EXIT_CHANGE, EXIT_BAD_INPUT, EXIT_NOT_JUDGED = 1, 2, 4
@@ -124,8 +124,8 @@ def compare_cmd(
     for recorded in (*comparison.baseline, *comparison.candidate):
         for (case, phase, params), why in recorded.disturbed.items():
             typer.echo(
-                f"warning: {recorded.label}: {case}/{phase} {params}: {why} (its "
-                "measurements are not judged)",
+                f"warning: {recorded.label}: {case}/{phase} {params}: {why} (of its "
+                "measurements only what the component holds is judged: memory, threads, files)",
                 err=True,
             )
     changed, lost = comparison.changed, comparison.lost
@@ -141,11 +141,7 @@ def compare_cmd(
         f"{len(changed)} counter(s) changed for the worse in {worse} of "
         f"{len(comparison.segments)} segment(s), {len(comparison.improved)} improved"
         + (f", {len(lost)} only in the baseline (not judged)" if lost else "")
-        + (
-            f", {len(comparison.busy)} segment(s) not judged (the host was busy)"
-            if comparison.busy
-            else ""
-        )
+        + _busy_summary(comparison)
         + f"; JUnit: {args.junit}"
         + (f"; HTML: {args.html}" if args.html else "")
     )
@@ -153,6 +149,16 @@ def compare_cmd(
         raise typer.Exit(EXIT_CHANGE)
     if lost or comparison.busy or comparison.too_few:
         raise typer.Exit(EXIT_NOT_JUDGED)
+
+
+def _busy_summary(comparison: Comparison) -> str:
+    """How many segments the host was busy in: not judged, or judged only in what the
+    component holds."""
+    part = sum(1 for segment in comparison.busy if segment.series)
+    none = len(comparison.busy) - part
+    return (f", {none} segment(s) not judged (the host was busy)" if none else "") + (
+        f", {part} segment(s) judged in part (the host was busy)" if part else ""
+    )
 
 
 def segment_marks(segment: SegmentVerdict) -> str:
@@ -163,7 +169,7 @@ def segment_marks(segment: SegmentVerdict) -> str:
     marks += [f"NOT JUDGED ({len(segment.lost)} only in the baseline)"] if segment.lost else []
     marks += [f"NOT JUDGED ({len(segment.too_few)} too few to decide)"] if segment.too_few else []
     marks += [f"new ({len(segment.new)} only in the candidate)"] if segment.new else []
-    return ", ".join(marks) or segment.note or "ok"
+    return ", ".join([*marks, *([segment.note] if segment.note else [])]) or "ok"
 
 
 def write_outputs(comparison: Comparison, args: CompareArgs) -> None:

@@ -13,13 +13,13 @@ import json
 from typing import Any
 
 from plotly.offline import get_plotlyjs
-from redline.detect.compare import Comparison, RecordedSeries, SegmentVerdict
 from redline.detect.compare_junit import series_line
+from redline.detect.comparison import Comparison, RecordedSeries, SegmentVerdict
 from redline.server.ui.compare_figures import evolution_figure, timeseries_figure
 
 STYLE = """body{font-family:sans-serif;margin:1.5em;max-width:1100px}
 h2{margin-top:2em;border-bottom:1px solid #ccc}.changed{color:#d62728}.ok{color:#2ca02c}
-pre{background:#f6f6f6;padding:.5em;white-space:pre-wrap}.fig{height:300px}"""
+.undecided{color:#b15c00}pre{background:#f6f6f6;padding:.5em;white-space:pre-wrap}.fig{height:300px}"""
 
 
 def _sides(comparison: Comparison) -> list[tuple[str, RecordedSeries]]:
@@ -40,7 +40,10 @@ def _segment_html(
         said += [f"{len(lost)} only in the baseline, not judged"] if lost else []
         status = f'<span class="changed">{", ".join(said)}</span>'
     else:
-        status = f'<span class="ok">{html.escape(segment.note or "no change")}</span>'
+        status = "" if segment.note else '<span class="ok">no change</span>'
+    if segment.note:  # the host was busy: not judged, or only in part; never shown as a pass
+        note = f'<span class="undecided">{html.escape(segment.note)}</span>'
+        status = f"{status} {note}" if status else note
 
     parts = [f"<h2>{html.escape(segment.name)} — {status}</h2>"]
     if segment.series:

@@ -9,19 +9,32 @@ component's CPU judged per unit of work at the host's speed where each side hold
 values of it for KS to decide (five recordings a side at its alpha of 0.01), else by its
 share's samples (`_one_cpu_figure`). Results
 are grouped into one verdict per test case × phase × parameter set. A series only one side holds
-is "not enough data" saying which side (`ONLY_IN`): never a silent pass. Reading the files is the
-only I/O here.
+is "not enough data" saying which side (`ONLY_IN`): never a silent pass. In a segment the host
+was busy in (other load), only what the component holds (memory, threads, files:
+`redline.detect.counters.is_held`) is judged, as the service judges it; the segment says so and
+cannot pass (`BUSY_PART`). Reading the files is the only I/O here.
 """
 
 from __future__ import annotations
 
-import json
 import math
 from collections.abc import Collection, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
+from redline.detect.comparison import (
+    BUSY_PART,
+    ONLY_IN,
+    WHY_DRIVER,
+    WHY_PROCESS,
+    CompareError,
+    Comparison,
+    RecordedSeries,
+    Segment,
+    SegmentVerdict,
+    SeriesVerdict,
+)
 from redline.detect.count_rate import CountRate
 from redline.detect.counters import (
     CONTEXT_COUNTERS,
@@ -29,157 +42,23 @@ from redline.detect.counters import (
     SHARE,
     driver_metric,
     is_count,
+    is_held,
     is_load,
     judged_among,
     kind,
-    worse,
 )
 from redline.detect.methods import KolmogorovSmirnov
 from redline.detect.relative_change import RelativeChange
 from redline.detect.result import Detection, not_enough
-from redline.detect.verdict import TOO_FEW, judge_series
+from redline.detect.verdict import judge_series
 from redline.recording import (
     Recording,
     RecordingError,
     SeriesKey,
-    params_name,
     read_recording,
 )
 from redline.recording.disturbance import DEFAULT_THRESHOLD, recording_disturbances
 from redline.recording.driver import CPU_REFS_PER_OP
-
-Timeline = dict[SeriesKey, list[tuple[int, float]]]
-Segment = tuple[str, str, str]  # case, phase, canonical parameters
-
-#: the reason of a series only one side holds: a renamed action path leaves its old series only
-#: in the baseline and its new one only in the candidate, a report missing from every candidate
-#: run leaves its series only in the baseline. One only in the baseline makes its segment
-#: undecided (`SegmentVerdict.state`); one only in the candidate is new, listed
-ONLY_IN = "only in the {side}: {why}"
-_WHY_DRIVER = "the action path changed or the report is missing"
-_WHY_PROCESS = "the process, test case, phase or parameter set changed, or it was not measured"
-
-
-class CompareError(ValueError):
-    """Input that cannot be compared; the message names the file or what is missing."""
-
-
-@dataclass(frozen=True)
-class RecordedSeries:
-    """One recording's judged series with their sample times, and how plots should name it."""
-
-    path: Path
-    label: str  # file name, with the revision title when the recording has one
-    timeline: Timeline
-    #: (case, phase, params) → why: the segments the host was busy in (a warning, not a verdict)
-    disturbed: dict[Segment, str] = field(default_factory=dict)
-
-
-@dataclass(frozen=True)
-class SeriesVerdict:
-    key: SeriesKey
-    result: Detection  # score: KS's D; verdict "not enough data" names why (too few, constant)
-    baseline_mean: float
-    candidate_mean: float
-    baseline_n: int
-    candidate_n: int
-    #: "baseline" or "candidate" for a series only that side holds (not judged), else ""
-    only_in: str = ""
-
-
-@dataclass(frozen=True)
-class SegmentVerdict:
-    """One test case × phase × parameter set; ``note`` says why it could not be compared (the
-    host was busy)."""
-
-    case: str
-    phase: str
-    params: str
-    series: tuple[SeriesVerdict, ...] = ()
-    note: str = ""
-
-    @property
-    def name(self) -> str:
-        return f"{self.case}/{self.phase}[{params_name_of(self.params)}]"
-
-    @property
-    def changed(self) -> list[SeriesVerdict]:
-        """The changes for the worse (what fails a comparison)."""
-        return [verdict for verdict in self.series if _for_the_worse(verdict)]
-
-    @property
-    def improved(self) -> list[SeriesVerdict]:
-        """The changes for the better: reported, never a failure."""
-        return [v for v in self.series if v.result.flagged and not _for_the_worse(v)]
-
-    @property
-    def lost(self) -> list[SeriesVerdict]:
-        """The series only the baseline holds: measurements the comparison lost, not judged."""
-        return [v for v in self.series if v.only_in == "baseline"]
-
-    @property
-    def too_few(self) -> list[SeriesVerdict]:
-        """The series whose sides did not overlap, too few values a side for KS to call it."""
-        return [v for v in self.series if (v.result.reason or "").startswith(TOO_FEW)]
-
-    @property
-    def new(self) -> list[SeriesVerdict]:
-        """The series only the candidate holds: nothing to compare them with yet."""
-        return [v for v in self.series if v.only_in == "candidate"]
-
-    @property
-    def state(self) -> str:
-        """``failed`` (a change for the worse), ``undecided`` (no such change, but the host
-        was busy, a series only the baseline holds, or one too few values a side kept KS from
-        calling: what was not measured, or not enough, cannot pass),
-        ``skipped`` (a segment only the candidate recorded) or ``passed``."""
-        if self.note:
-            return "undecided"
-        if self.changed:
-            return "failed"
-        if self.lost or self.too_few:
-            return "undecided"
-        if all(v.only_in for v in self.series):
-            return "skipped"
-        return "passed"
-
-
-@dataclass(frozen=True)
-class Comparison:
-    baseline: tuple[RecordedSeries, ...]
-    candidate: tuple[RecordedSeries, ...]
-    segments: tuple[SegmentVerdict, ...] = field(default=())
-
-    @property
-    def changed(self) -> list[SeriesVerdict]:
-        return [verdict for segment in self.segments for verdict in segment.changed]
-
-    @property
-    def improved(self) -> list[SeriesVerdict]:
-        return [verdict for segment in self.segments for verdict in segment.improved]
-
-    @property
-    def lost(self) -> list[SeriesVerdict]:
-        return [verdict for segment in self.segments for verdict in segment.lost]
-
-    @property
-    def too_few(self) -> list[SeriesVerdict]:
-        return [verdict for segment in self.segments for verdict in segment.too_few]
-
-    @property
-    def busy(self) -> list[SegmentVerdict]:
-        """The segments not judged because the host was busy in them."""
-        return [segment for segment in self.segments if segment.note]
-
-
-def _for_the_worse(verdict: SeriesVerdict) -> bool:
-    key = verdict.key
-    return verdict.result.flagged and verdict.result.direction == worse(key.process, key.counter)
-
-
-def params_name_of(canonical: str) -> str:
-    """The printable name of a canonical parameter set, e.g. ``legs=4,rate=10``."""
-    return params_name(json.loads(canonical))
 
 
 def _label(recording: Recording) -> str:
@@ -213,14 +92,15 @@ def load_side(
         busy = recording_disturbances(
             {key: [value for _, value in points] for key, points in everything.items()}, busy_limit
         )
-        # the judged series, and the driver's loads that its counts are rated out of; not a
-        # segment the host was busy in: its values are not the component's own
+        # the judged series, and the driver's loads that its counts are rated out of; in a
+        # segment the host was busy in only what the component holds: the rest is not its own
         # of a CPU share and its CPU per unit of work both: `compare_sides` picks one
         asked = set(judged_among(everything, context, LEVELS))
         timeline = {
             key: points
             for key, points in everything.items()
-            if (key in asked or is_load(key.process, key.counter)) and _segment(key) not in busy
+            if (key in asked or is_load(key.process, key.counter))
+            and (_segment(key) not in busy or is_held(key.process, key.counter))
         }
         loaded.append(
             RecordedSeries(path=path, label=_label(recording), timeline=timeline, disturbed=busy)
@@ -283,7 +163,7 @@ def _verdict(
 
 def _one_sided(key: SeriesKey, held: dict[SeriesKey, np.ndarray], side: str) -> SeriesVerdict:
     """The verdict of a series only ``side`` holds (``held``: that side's samples)."""
-    why = _WHY_DRIVER if kind(key.process) in ("driver", "recorder") else _WHY_PROCESS
+    why = WHY_DRIVER if kind(key.process) in ("driver", "recorder") else WHY_PROCESS
     if is_count(key.process, key.counter):
         method = CountRate.name
     else:
@@ -302,14 +182,18 @@ def _one_sided(key: SeriesKey, held: dict[SeriesKey, np.ndarray], side: str) -> 
     )
 
 
-def _busy(recorded: Sequence[RecordedSeries], judged_segments: set[Segment]) -> dict[Segment, str]:
-    """The segments left unjudged because the host was busy, with which recording said so."""
+def _busy(recorded: Sequence[RecordedSeries]) -> dict[Segment, str]:
+    """The segments the host was busy in, in a recording of either side, with the first
+    recording that said so."""
     found: dict[Segment, str] = {}
     for side in recorded:
         for ident, why in side.disturbed.items():
-            if ident not in judged_segments and ident not in found:
-                found[ident] = f"{side.path.name}: {why}"
+            found.setdefault(ident, f"{side.path.name}: {why}")
     return found
+
+
+def _held_only(verdicts: Sequence[SeriesVerdict]) -> bool:
+    return all(is_held(v.key.process, v.key.counter) for v in verdicts)
 
 
 def decisive_values(alpha: float) -> int:
@@ -371,14 +255,26 @@ def compare_sides(
     by_segment: dict[Segment, list[SeriesVerdict]] = {}
     for key in common:
         by_segment.setdefault(_segment(key), []).append(_verdict(key, base, cand))
-    busy = _busy(baseline + candidate, set(by_segment))
+    busy = _busy(baseline + candidate)
+    # a busy segment whose CPU a side's quiet recordings measured is judged whole
+    whole = {ident for ident, found in by_segment.items() if not _held_only(found)}
     for key in sorted(every - set(common)):
-        if _segment(key) not in busy:  # a side busy in all its runs: said once, below
-            side, held = ("baseline", base) if key in base else ("candidate", cand)
-            by_segment.setdefault(_segment(key), []).append(_one_sided(key, held, side))
-    segments = [SegmentVerdict(*ident, series=tuple(found)) for ident, found in by_segment.items()]
+        ident = _segment(key)
+        if ident in busy and ident not in whole and not is_held(key.process, key.counter):
+            continue  # not measured in quiet: the segment says so, below
+        side, held = ("baseline", base) if key in base else ("candidate", cand)
+        by_segment.setdefault(ident, []).append(_one_sided(key, held, side))
+    segments = [
+        SegmentVerdict(
+            *ident,
+            series=tuple(found),
+            note=BUSY_PART.format(why=busy[ident]) if ident in busy and ident not in whole else "",
+        )
+        for ident, found in by_segment.items()
+    ]
     for ident, why in sorted(busy.items()):
-        segments.append(SegmentVerdict(*ident, note=f"not judged: the host was busy ({why})"))
+        if ident not in by_segment:
+            segments.append(SegmentVerdict(*ident, note=f"not judged: the host was busy ({why})"))
     segments.sort(key=lambda s: (s.case, s.phase, s.params))
     return Comparison(baseline=baseline, candidate=candidate, segments=tuple(segments))
 

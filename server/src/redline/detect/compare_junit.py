@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import xml.etree.ElementTree as ET
 
-from redline.detect.compare import Comparison, SegmentVerdict, SeriesVerdict
+from redline.detect.comparison import Comparison, SegmentVerdict, SeriesVerdict
 from redline.detect.result import NOT_ENOUGH_DATA
 
 SUITE_NAME = "redline compare"
@@ -49,11 +49,12 @@ def series_line(verdict: SeriesVerdict) -> str:
 
 def _testcase(parent: ET.Element, segment: SegmentVerdict) -> None:
     case = ET.SubElement(parent, "testcase", classname=segment.case, name=segment.name, time="0")
-    if segment.note:  # the host was busy: not measured, never a pass
-        ET.SubElement(case, "error", type="NotJudged", message=segment.note)
-        return
     changed, state = segment.changed, segment.state
-    if state == "undecided":
+    if segment.note and not changed:  # the host was busy: not measured, never a pass
+        ET.SubElement(case, "error", type="NotJudged", message=segment.note)
+        if not segment.series:
+            return
+    elif state == "undecided":
         lost, few = segment.lost, segment.too_few
         said = [f"{len(lost)} series only in the baseline"] if lost else []
         said += [f"{len(few)} with too few values a side to decide"] if few else []
@@ -79,7 +80,9 @@ def _testcase(parent: ET.Element, segment: SegmentVerdict) -> None:
         )
         failure.text = "\n".join(series_line(v) for v in changed)
     out = ET.SubElement(case, "system-out")
-    out.text = "\n".join(series_line(v) for v in segment.series)
+    out.text = "\n".join(
+        [*([segment.note] if segment.note else []), *map(series_line, segment.series)]
+    )
 
 
 def junit_xml(comparison: Comparison) -> str:

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from collections import defaultdict
 
-from redline.detect.compare import params_name_of
+from redline.detect.comparison import params_name_of
 from redline.detect.confirmation import DROPPED, HELD, SUSPECTED
 from redline.server.models import Detection, Regression, Revision, Series
 from sqlalchemy import func, select

@@ -6,7 +6,7 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-from redline.detect.compare import RecordedSeries, SeriesVerdict
+from redline.detect.comparison import RecordedSeries, SeriesVerdict
 from redline.recording import SeriesKey
 from redline.server.schemas.results import Comparison
 from redline.server.ui.figures import FLAG_COLOR, SIDE_COLORS, plot_text
