@@ -7,6 +7,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import pytest
 from redline.server.models import (
     Detection,
     DetectionConfigRow,
@@ -445,7 +446,7 @@ def _one_each(session, database_url: str, tmp_path: Path, levels: list[float]) -
 BETWEEN = [100.0, 101.0, 99.0, 100.5, 99.5, 100.0, 101.0, 99.0, 108.0]
 
 
-def test_where_flags_are_confirmed_the_worker_judges_at_the_confirmed_threshold(
+def test_where_reruns_confirm_flags_the_worker_judges_at_the_confirmed_threshold(
     session, database_url, tmp_path
 ):
     create_component(session, ComponentCreate(name=NAME, executions=1))
@@ -455,12 +456,16 @@ def test_where_flags_are_confirmed_the_worker_judges_at_the_confirmed_threshold(
     assert session.scalars(select(Regression)).one().confirmation == "suspected"
 
 
-def test_where_every_flag_is_a_regression_at_once_the_worker_judges_at_the_threshold(
-    session, database_url, tmp_path
+@pytest.mark.parametrize(
+    "config",
+    [{"confirm_pairs": 0, "confirm_revisions": 0}, {"confirm_pairs": 0}],
+    ids=["a regression at once", "the later revisions alone confirm"],
+)
+def test_where_no_rerun_confirms_a_flag_the_worker_judges_at_the_threshold(
+    session, database_url, tmp_path, config
 ):
     component = create_component(session, ComponentCreate(name=NAME, executions=1))
-    at_once = {"confirm_pairs": 0, "confirm_revisions": 0}
-    session.add(DetectionConfigRow(component_id=component.id, config=at_once))
+    session.add(DetectionConfigRow(component_id=component.id, config=config))
     session.commit()
     _one_each(session, database_url, tmp_path, BETWEEN)
     assert "r9" not in _flagged(session)

@@ -31,14 +31,19 @@ def record(
     case: str = "load",
     seed: int = 0,
     rates: tuple[int, ...] = RATES,
+    cores: int | None = None,
 ) -> Path:
     """A finished recording: a warm-up and a 'steady' phase per rate, 150 samples each, of
-    component counters (cpu_percent, rss_bytes) and a host-wide cpu_percent."""
+    component counters (cpu_percent, rss_bytes) and a host-wide cpu_percent; with ``cores``,
+    also the host's cores and Redline's own CPU, from which the reader tells the other load
+    (so whether the host was busy)."""
     factors = cpu_factor or {}
     rng = np.random.default_rng(seed)
     t_ns = 1_000_000_000
     with RecordingWriter(path) as writer:
         writer.metadata("redline.run", {"component": "builder", "revision_title": path.stem})
+        if cores is not None:
+            writer.metadata("redline.host", {"cpu_cores": str(cores)})
         for rate in rates:
             for phase, warmup in (("warmup", True), ("steady", False)):
                 params = {"rate": rate}
@@ -55,6 +60,8 @@ def record(
                     writer.counters(
                         "host", 0, {"cpu_percent": host_factor * rng.normal(30, 1)}, t_ns
                     )
+                    if cores is not None:
+                        writer.counters("redline", 0, {"cpu_percent": 5.0}, t_ns)
                 t_ns += 10_000_000
                 writer.marker("end", case, phase, params, warmup=warmup, t_ns=t_ns)
     return path
@@ -314,3 +321,29 @@ def test_a_series_not_judged_shows_no_effect() -> None:
     )
     line = series_line(verdict)
     assert "effect not judged" in line and "+0.0%" not in line, line
+
+
+def test_a_busy_candidate_is_judged_in_part_where_both_sides_hold_what_it_holds(
+    tmp_path: Path, baseline: list[Path]
+) -> None:
+    """Every candidate run measured on a busy host (other load near 100 % of a core): the
+    rates both sides ran are judged in their memory only, saying so; the rate only the
+    candidate ran has nothing to compare, and says it was not judged, not "judged in part"
+    (a reviewer's find: its memory, one-sided, read as judged)."""
+    busy = [
+        record(tmp_path / f"b{i}.mcap", seed=10 + i, host_factor=3.0, rates=(10, 20, 40), cores=2)
+        for i in range(2)
+    ]
+    code, output = invoke("--baseline", *baseline, "--candidate", *busy, "--junit", tmp_path / "j")
+    assert code == 4, output
+    assert "2 segment(s) judged in part (the host was busy)" in output, output
+    assert "1 segment(s) not judged (the host was busy)" in output, output
+    cases = _cases(tmp_path / "j")
+    for rate in (10, 20):
+        error = cases[f"load/steady[rate={rate}]"].find("error")
+        assert error is not None and error.get("message", "").startswith("judged in part")
+        out = cases[f"load/steady[rate={rate}]"].find("system-out")
+        assert out is not None and "builder.rss_bytes" in (out.text or "")
+        assert "builder.cpu_percent" not in (out.text or "")
+    error = cases["load/steady[rate=40]"].find("error")
+    assert error is not None and error.get("message", "").startswith("not judged: the host")

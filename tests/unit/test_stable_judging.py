@@ -177,15 +177,17 @@ def test_calibration_leaves_out_executions_the_host_was_busy_in(tmp_path: Path) 
     assert busy[KEY] == 1
 
 
-def test_where_flags_are_confirmed_the_default_method_judges_at_its_confirmed_threshold() -> None:
-    """Confirmed flags (the defaults: 2 pairs, 2 later revisions) are judged at 6; a flag that
-    is a regression at once at 8, as the corpora's goals count them."""
+def test_where_reruns_confirm_flags_the_default_method_judges_at_its_confirmed_threshold() -> None:
+    """Flags that re-runs confirm (the default: 2 pairs) are judged at 6; at 8 where a flag is
+    a regression at once, or where the later revisions alone confirm it: CI fails on a change
+    still suspected, before they come."""
     confirmed = DetectionConfig.parse(None).detector("execution_shift")
     assert isinstance(confirmed, ExecutionShift) and confirmed.threshold == 6
+    assert confirmed.step_threshold == 8  # a step found later: no pair judges it
     at_once = DetectionConfig.parse({"confirm_pairs": 0, "confirm_revisions": 0})
     assert at_once.detector("execution_shift").threshold == 8
     by_history = DetectionConfig.parse({"confirm_pairs": 0})  # the later revisions confirm
-    assert by_history.detector("execution_shift").threshold == 6
+    assert by_history.detector("execution_shift").threshold == 8
     # a team that set a threshold is judged at it, confirmed or not
     chosen = {"thresholds": {"execution_shift": {"threshold": 10}}}
     assert DetectionConfig.parse(chosen).detector("execution_shift").threshold == 10
@@ -199,7 +201,9 @@ def test_where_flags_are_confirmed_the_default_method_judges_at_its_confirmed_th
     )
     # methods without a confirmed bar judge as configured; the stored thresholds are untouched
     assert DetectionConfig.parse({"methods": ["ks"]}).detector("ks").get_params()["alpha"] > 0
-    assert DetectionConfig.parse(both).as_dict()["thresholds"] == both["thresholds"]
+    stored = DetectionConfig.parse(chosen)
+    assert stored.detector("execution_shift").threshold == 10
+    assert stored.as_dict()["thresholds"] == chosen["thresholds"]  # not written back
     with pytest.raises(ConfigError, match="confirmed_threshold"):
         DetectionConfig.parse({"thresholds": {"execution_shift": {"confirmed_threshold": -1}}})
 
@@ -208,7 +212,21 @@ def test_a_shift_between_the_two_thresholds_is_flagged_only_where_it_is_confirme
     base = np.array([97.0, 103.0, 98.0, 102.0, 99.0, 101.0, 96.0, 104.0])  # median 100
     spread = 1.4826 * 2.5  # its MAD is 2.5, above the 1 % floor
     z7 = 100 + 7 * spread * math.sqrt(1 + 1 / len(base))  # z = 7: +27.5 %
-    confirmed = ExecutionShift().confirmed().fit(base).detect(np.array([z7]))
-    at_once = ExecutionShift().fit(base).detect(np.array([z7]))
+    judge = ExecutionShift()
+    copy = judge.confirmed()
+    confirmed = copy.fit(base).detect(np.array([z7]))
+    at_once = judge.fit(base).detect(np.array([z7]))
     assert confirmed.flagged and not at_once.flagged
-    assert ExecutionShift().threshold == 8  # the copy did not change the detector it came from
+    assert copy is not judge and judge.threshold == 8 and copy.threshold == 6  # a copy
+
+
+def test_a_step_found_later_is_judged_at_the_unconfirmed_threshold() -> None:
+    """No pair judges a step found at an earlier revision: it keeps the bar `STEP_MARGIN` was
+    measured at (10), where a revision is judged at 6."""
+    before = np.array([97.0, 103.0, 98.0, 102.0, 99.0, 101.0])  # median 100, MAD 2.0
+    after = before + 24.0  # the same residuals: z = 24 / (1.4826 x 2 x sqrt(1/3)) = 14.0
+    found = ExecutionShift().confirmed().step(before, after)
+    assert found.flagged and found.parts[0] == pytest.approx(14.02, abs=0.01)
+    modest = before + 15.0  # z = 8.8: over 6 x 1.25, under 8 x 1.25
+    assert not ExecutionShift().confirmed().step(before, modest).flagged
+    assert ExecutionShift(threshold=5).step(before, modest).flagged  # a bar set lower counts

@@ -154,7 +154,7 @@ def compare_cmd(
 def _busy_summary(comparison: Comparison) -> str:
     """How many segments the host was busy in: not judged, or judged only in what the
     component holds."""
-    part = sum(1 for segment in comparison.busy if segment.series)
+    part = sum(1 for segment in comparison.busy if segment.in_part)
     none = len(comparison.busy) - part
     return (f", {none} segment(s) not judged (the host was busy)" if none else "") + (
         f", {part} segment(s) judged in part (the host was busy)" if part else ""

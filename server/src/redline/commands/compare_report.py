@@ -72,7 +72,14 @@ def html_report(comparison: Comparison) -> str:
     body = "\n".join(_segment_html(s, files, figures) for s in comparison.segments)
     listing = "".join(f"<li>{side}: {html.escape(str(r.path))}</li>" for side, r in files)
     changes = len(comparison.changed)
-    headline = f"{changes} counter(s) changed" if changes else "no change"
+    undecided = sum(1 for segment in comparison.segments if segment.state == "undecided")
+    headline = (
+        f"{changes} counter(s) changed"
+        if changes
+        else f"no change found; {undecided} segment(s) undecided"
+        if undecided
+        else "no change"
+    )
     plot = (
         "for (const [id, fig] of Object.entries(FIGURES)) "
         "Plotly.newPlot(id, fig.data, fig.layout, {responsive: true});"

@@ -10,9 +10,10 @@ values of it for KS to decide (five recordings a side at its alpha of 0.01), els
 share's samples (`_one_cpu_figure`). Results
 are grouped into one verdict per test case × phase × parameter set. A series only one side holds
 is "not enough data" saying which side (`ONLY_IN`): never a silent pass. In a segment the host
-was busy in (other load), only what the component holds (memory, threads, files:
-`redline.detect.counters.is_held`) is judged, as the service judges it; the segment says so and
-cannot pass (`BUSY_PART`). Reading the files is the only I/O here.
+was busy in (other load) in every recording of a side, only what the component holds (memory,
+threads, files: `redline.detect.counters.is_held`) is judged, as the service judges it; the
+segment says so and cannot pass (`BUSY_PART`); busy in some recordings only, it is judged on
+the others. Reading the files is the only I/O here.
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ from pathlib import Path
 import numpy as np
 from redline.detect.comparison import (
     BUSY_PART,
+    NOT_JUDGED_BUSY,
     ONLY_IN,
     WHY_DRIVER,
     WHY_PROCESS,
@@ -256,25 +258,29 @@ def compare_sides(
     for key in common:
         by_segment.setdefault(_segment(key), []).append(_verdict(key, base, cand))
     busy = _busy(baseline + candidate)
-    # a busy segment whose CPU a side's quiet recordings measured is judged whole
+    # a busy segment whose CPU a side's quiet recordings measured is judged whole; one where
+    # both sides hold only what the component holds, in part; one neither, not at all
     whole = {ident for ident, found in by_segment.items() if not _held_only(found)}
+    notes = {
+        ident: (BUSY_PART if ident in by_segment else NOT_JUDGED_BUSY).format(why=why)
+        for ident, why in busy.items()
+        if ident not in whole
+    }
     for key in sorted(every - set(common)):
         ident = _segment(key)
-        if ident in busy and ident not in whole and not is_held(key.process, key.counter):
-            continue  # not measured in quiet: the segment says so, below
+        if ident in notes and not is_held(key.process, key.counter):
+            continue  # not measured in quiet: the segment's note says so
         side, held = ("baseline", base) if key in base else ("candidate", cand)
         by_segment.setdefault(ident, []).append(_one_sided(key, held, side))
     segments = [
-        SegmentVerdict(
-            *ident,
-            series=tuple(found),
-            note=BUSY_PART.format(why=busy[ident]) if ident in busy and ident not in whole else "",
-        )
+        SegmentVerdict(*ident, series=tuple(found), note=notes.get(ident, ""))
         for ident, found in by_segment.items()
     ]
-    for ident, why in sorted(busy.items()):
-        if ident not in by_segment:
-            segments.append(SegmentVerdict(*ident, note=f"not judged: the host was busy ({why})"))
+    segments += [
+        SegmentVerdict(*ident, note=note)
+        for ident, note in sorted(notes.items())
+        if ident not in by_segment
+    ]
     segments.sort(key=lambda s: (s.case, s.phase, s.params))
     return Comparison(baseline=baseline, candidate=candidate, segments=tuple(segments))
 

@@ -50,22 +50,17 @@ def series_line(verdict: SeriesVerdict) -> str:
 def _testcase(parent: ET.Element, segment: SegmentVerdict) -> None:
     case = ET.SubElement(parent, "testcase", classname=segment.case, name=segment.name, time="0")
     changed, state = segment.changed, segment.state
-    if segment.note and not changed:  # the host was busy: not measured, never a pass
-        ET.SubElement(case, "error", type="NotJudged", message=segment.note)
-        if not segment.series:
-            return
-    elif state == "undecided":
+    if state == "undecided":  # the host was busy, or series not judged: never a pass
         lost, few = segment.lost, segment.too_few
         said = [f"{len(lost)} series only in the baseline"] if lost else []
         said += [f"{len(few)} with too few values a side to decide"] if few else []
-        error = ET.SubElement(
-            case,
-            "error",
-            type="NotJudged",
-            message=f"{', '.join(said)}, not judged: "
-            + ", ".join(f"{v.key.process}.{v.key.counter}" for v in (*lost, *few)),
-        )
+        named = ", ".join(f"{v.key.process}.{v.key.counter}" for v in (*lost, *few))
+        message = [segment.note] if segment.note else []
+        message += [f"{', '.join(said)}, not judged: {named}"] if said else []
+        error = ET.SubElement(case, "error", type="NotJudged", message="; ".join(message))
         error.text = "\n".join(series_line(v) for v in (*lost, *few))
+        if not segment.series:
+            return
     elif state == "skipped":
         ET.SubElement(case, "skipped", message="recorded only in the candidate: nothing to compare")
     if changed:

@@ -32,6 +32,8 @@ BUSY_PART = (
     "judged in part: the host was busy ({why}); what the component holds (memory, threads, "
     "files) was judged, its CPU and rates were not"
 )
+#: A segment the host was busy in where the two sides hold nothing in common to judge
+NOT_JUDGED_BUSY = "not judged: the host was busy ({why})"
 
 
 class CompareError(ValueError):
@@ -71,6 +73,11 @@ class SegmentVerdict:
     params: str
     series: tuple[SeriesVerdict, ...] = ()
     note: str = ""
+
+    @property
+    def in_part(self) -> bool:
+        """Judged only in what the component holds: the host was busy (`BUSY_PART`)."""
+        return self.note.startswith(BUSY_PART.split(":", 1)[0])
 
     @property
     def name(self) -> str:
@@ -143,7 +150,8 @@ class Comparison:
 
     @property
     def busy(self) -> list[SegmentVerdict]:
-        """The segments not judged because the host was busy in them."""
+        """The segments the host was busy in that were not judged whole: not at all, or only
+        in what the component holds (`SegmentVerdict.in_part`)."""
         return [segment for segment in self.segments if segment.note]
 
 

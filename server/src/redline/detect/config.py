@@ -171,9 +171,10 @@ class DetectionConfig:
 
     @property
     def confirms(self) -> bool:
-        """Whether a flagged change is confirmed (by re-runs or the later revisions) before it
-        is a regression: then methods judge at their confirmed bar (`Detector.confirmed`)."""
-        return self.confirm_pairs > 0 or self.confirm_revisions > 0
+        """Whether re-runs confirm a flagged change before it is a regression or fails CI:
+        then methods judge at their confirmed bar (`Detector.confirmed`). Not the later
+        revisions alone: CI fails on a change still suspected, before they come."""
+        return self.confirm_pairs > 0
 
     def detector(self, name: str) -> Detector:
         """The configured method ``name`` with its thresholds, as it judges under this

@@ -298,9 +298,7 @@ def evaluate_corpus(
         if name == CHANGE_POINT_METHOD:
             outcomes = run_change_points(corpus, units_of(corpus, step))
         else:
-            # confirmed as the service confirms: at the bar a confirmed flag is judged at
-            judge = EVALUATED[name]()
-            outcomes = run_detector(judge.confirmed() if confirm else judge, corpus, confirm, step)
+            outcomes = run_detector(EVALUATED[name](), corpus, confirm, step)
         results[name] = summarize(outcomes)
         if finished is not None:
             finished(name, results[name], outcomes)

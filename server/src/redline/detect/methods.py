@@ -60,8 +60,8 @@ class Detector:
         return {name: getattr(self, name) for name in names}
 
     def confirmed(self) -> Detector:
-        """This detector where its flags are confirmed before they are regressions (by re-runs
-        or the later revisions): itself, unless a method judges at a bar of its own there
+        """This detector where re-runs confirm its flags before they are regressions: itself,
+        unless a method judges at a bar of its own there
         (`redline.detect.execution_shift.ExecutionShift.confirmed`)."""
         return self
 

@@ -8,7 +8,7 @@ from functools import partial
 
 from redline.detect.association_rules import FooRules
 from redline.detect.counter_clusters import ShangRegression
-from redline.detect.execution_shift import BuildShift, ExecutionShift
+from redline.detect.execution_shift import CONFIRMED_THRESHOLD, BuildShift, ExecutionShift
 from redline.detect.median_shift import MedianShift
 from redline.detect.methods import Detector, KolmogorovSmirnov, MannWhitney, WelchT
 from redline.detect.relative_change import RelativeChange
@@ -32,9 +32,10 @@ VARIANTS: dict[str, Callable[..., Detector]] = {
     for name, kind in (("foo", FooRules), ("shang", ShangRegression))
     for how in ("min", "mean")
 }
-#: Offline only: the default method judging at 8 where flags are confirmed too, as it did before
-#: 2026-12-06 (`redline evaluate --confirm N` compares the two bars; docs/detection.md).
-VARIANTS["execution_shift.at8"] = partial(ExecutionShift, confirmed_threshold=8.0)
+#: Offline only: the default method at its confirmed threshold (6), as the service judges where
+#: re-runs confirm; with `redline evaluate --confirm N`, what reaches the later revisions when
+#: no pair could judge it (docs/detection.md, "The confirmed threshold").
+VARIANTS["execution_shift.at6"] = partial(ExecutionShift, threshold=CONFIRMED_THRESHOLD)
 #: What `redline evaluate` can measure per series.
 EVALUATED: dict[str, Callable[..., Detector]] = {**DETECTORS, **VARIANTS}
 #: Change points over a whole history (E-divisive): evaluated offline, not a per-revision method.

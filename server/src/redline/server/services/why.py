@@ -149,13 +149,8 @@ def why_flagged(session: Session, detection_id: int) -> WhyFlagged:
         session, series.id, detection.baseline_revision_id, detection.baseline_revisions
     )
     config = component_config(session, revision.component_id)
-    if detection.method in DETECTORS:  # as it judges: where flags are confirmed, at that bar
-        judge = (
-            config.detector(detection.method)
-            if detection.method in config.methods
-            else DETECTORS[detection.method]()
-        )
-        thresholds = judge.get_params()
+    if detection.method in DETECTORS:  # as it judges: where re-runs confirm, at that bar
+        thresholds = config.detector(detection.method).get_params()
         thresholds.pop("confirmed_threshold", None)  # ``threshold`` is the bar it judged at
     else:
         thresholds = dict(config.thresholds.get(detection.method, {}))
