@@ -187,6 +187,7 @@ def test_pairs_are_queued_interleaved_and_pinned_to_the_host_that_measured_the_r
     first.lease_expires_at = utcnow()  # as leased: what the agent is told
     told = leased_job(first)
     assert told.parameter_sets == {"throughput": ['{"rate":10}']} and told.sets_alone
+    assert told.busy_matters  # CPU on a busy host is not the component's: run again at once
     first.lease_expires_at = None
     shown = revision_detail(session, NAME, "r4").jobs  # as the API shows the baseline's jobs
     assert [(j.pair, j.confirms) for j in shown] == [(0, None)] * RUNS + [(1, "r5"), (2, "r5")]
@@ -216,6 +217,11 @@ def test_a_change_in_what_the_component_holds_runs_the_sets_before_it_again(
     assert len(jobs) == 2 * PAIRS
     assert all(j.parameter_sets == {"throughput": ['{"rate":10}']} for j in jobs)
     assert not any(j.sets_alone for j in jobs)
+    # memory is judged on a busy host too: the agent need not run it again at once
+    assert not any(j.busy_matters for j in jobs)
+    first = jobs[0]
+    first.lease_expires_at = utcnow()
+    assert not leased_job(first).busy_matters
 
 
 def test_pairs_run_their_sets_alone_only_where_no_suspect_depends_on_what_ran_before(session):
@@ -229,8 +235,9 @@ def test_pairs_run_their_sets_alone_only_where_no_suspect_depends_on_what_ran_be
     cpu, memory = (ids[key] for key in keys)
     both = {"load": ['{"rate":10}', '{"rate":40}']}
     assert flagged_scope(session, [cpu]) == Scope({"load": ['{"rate":10}']}, alone=True)
-    assert flagged_scope(session, [cpu, memory]) == Scope(both, alone=False)
-    assert not flagged_scope(session, [memory]).alone
+    assert flagged_scope(session, [cpu, memory]) == Scope(both, alone=False, busy_matters=True)
+    held = flagged_scope(session, [memory])
+    assert not held.alone and not held.busy_matters
 
 
 def test_a_pair_starts_once_the_pairs_before_it_are_judged(session, database_url, tmp_path):

@@ -68,11 +68,13 @@ SUITE_FILES = {
 
 
 @pytest.mark.parametrize(
-    ("busy", "retries", "runs"),
+    ("busy", "retries", "runs", "matters"),
     [
-        ((False,), 2, 1),  # a quiet host: run once
-        ((True, True, False), 2, 3),  # busy twice, quiet the third time
-        ((True, True, True), 1, 2),  # busy throughout: bounded, the last run is kept
+        ((False,), 2, 1, True),  # a quiet host: run once
+        ((True, True, False), 2, 3, True),  # busy twice, quiet the third time
+        ((True, True, True), 1, 2, True),  # busy throughout: bounded, the last run is kept
+        # a confirmation run of what the component holds only: judged on a busy host too
+        ((True, True, True), 2, 1, False),
     ],
 )
 def test_an_execution_the_host_was_busy_in_is_run_again_boundedly_and_says_so(
@@ -81,6 +83,7 @@ def test_an_execution_the_host_was_busy_in_is_run_again_boundedly_and_says_so(
     busy: tuple[bool, ...],
     retries: int,
     runs: int,
+    matters: bool,
 ) -> None:
     monkeypatch.delenv("REDLINE_DISTURBED_CPU_PERCENT", raising=False)
     repo, commit = committed_repo(tmp_path / "repo", SUITE_FILES)
@@ -109,7 +112,7 @@ def test_an_execution_the_host_was_busy_in_is_run_again_boundedly_and_says_so(
     # a confirmation run's job: its cases and parameter sets reach the run, each time
     sets = {"steady": ['{"rate":10}']}
     job = {**_LostLeaseClient().lease(), "repo": str(repo), "commit": commit}
-    job.update(cases=["steady"], parameter_sets=sets, sets_alone=True)
+    job.update(cases=["steady"], parameter_sets=sets, sets_alone=True, busy_matters=matters)
     out = daemon._run(job, "job-7")
     assert len(given) == runs
     assert chosen == [(["steady"], sets, True)] * runs

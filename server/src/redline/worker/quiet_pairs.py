@@ -20,7 +20,7 @@ from dataclasses import dataclass
 from datetime import datetime, timedelta
 
 from redline.detect.confirmation import Hold
-from redline.detect.counters import is_cumulative
+from redline.detect.counters import is_cumulative, is_held
 from redline.server.core.config import get_settings
 from redline.server.models import (
     FINISHED,
@@ -57,6 +57,9 @@ class Scope:
 
     sets: dict[str, list[str]]
     alone: bool
+    #: whether a busy phase spoils the runs: not where every suspect is of what the component
+    #: holds (`counters.is_held`), which is judged in a busy phase too
+    busy_matters: bool = True
 
 
 def flagged_scope(session: Session, series: Iterable[int]) -> Scope:
@@ -66,15 +69,19 @@ def flagged_scope(session: Session, series: Iterable[int]) -> Scope:
     `counters.is_cumulative`), the suite as far as the last of them, what ran before them in the
     flagged run included (a leak grows over a run: a set run first shows less of it than the
     flagged run did third). What comes after the last flagged set never runs: it would cost
-    machine time and confirm nothing."""
+    machine time and confirm nothing. Where every one of them is of what the component holds
+    (`counters.is_held`), a busy phase does not matter: the agent need not run it again."""
     sets: dict[str, set[str]] = defaultdict(set)
-    alone = True
-    for case, params, counter in session.execute(
-        select(Series.case, Series.params, Series.counter).where(Series.id.in_(list(series)))
+    alone, held = True, True
+    for case, params, process, counter in session.execute(
+        select(Series.case, Series.params, Series.process, Series.counter).where(
+            Series.id.in_(list(series))
+        )
     ):
         sets[case].add(params)
         alone = alone and not is_cumulative(counter)
-    return Scope({case: sorted(sets[case]) for case in sorted(sets)}, alone)
+        held = held and is_held(process, counter)
+    return Scope({case: sorted(sets[case]) for case in sorted(sets)}, alone, not held)
 
 
 def queue_pairs(
@@ -108,6 +115,7 @@ def queue_pairs(
                     labels=labels,
                     parameter_sets=scope.sets,
                     sets_alone=scope.alone,
+                    busy_matters=scope.busy_matters,
                     not_before=not_before,
                 )
             )
@@ -158,7 +166,11 @@ def _queue_again(
     scope = flagged_scope(session, {d.series_id for d in busy})
     # as the first pairs ran: the changes they left undecided for other reasons (a pair that
     # failed) are judged on these too
-    scope = Scope(scope.sets, scope.alone and all(job.sets_alone for job in jobs))
+    scope = Scope(
+        scope.sets,
+        scope.alone and all(job.sets_alone for job in jobs),
+        scope.busy_matters or any(job.busy_matters for job in jobs),
+    )
     queue_pairs(session, revision, baseline, range(first, first + count), host_id, scope, start)
     return start
 

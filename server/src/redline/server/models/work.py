@@ -143,6 +143,10 @@ class Job(Base):
     #: changes in what a component does per unit of work, none in what it has accumulated:
     #: `redline.detect.counters.is_cumulative`)
     sets_alone: Mapped[bool] = mapped_column(Boolean, default=False)
+    #: whether a phase the host was busy in spoils the run, so the agent runs it again at once
+    #: (false: a confirmation run of changes in what a component holds only, judged anyway:
+    #: `redline.detect.counters.is_held`)
+    busy_matters: Mapped[bool] = mapped_column(Boolean, default=True)
     created: Mapped[datetime] = mapped_column(default=utcnow)
     updated: Mapped[datetime] = mapped_column(default=utcnow, onupdate=utcnow)
     revision: Mapped[Revision] = relationship(back_populates="jobs", foreign_keys=[revision_id])

@@ -58,6 +58,12 @@ class LeasedJob(BaseModel):
         "suite as far as the last of them (a confirmation run of a change in CPU or latency; "
         "one of memory, threads or files runs what came before too, since it depends on it)",
     )
+    busy_matters: bool = Field(
+        default=True,
+        description="whether a phase the host was busy in spoils the run, so that the agent "
+        "runs it again at once (false: a confirmation run of changes in memory, threads or "
+        "files only, which are judged in a busy phase too)",
+    )
 
 
 class HeartbeatResponse(BaseModel):

@@ -205,6 +205,7 @@ def leased_job(job: Job) -> LeasedJob:
         cases=list(job.cases or []),
         parameter_sets=dict(job.parameter_sets or {}),
         sets_alone=job.sets_alone,
+        busy_matters=job.busy_matters,
     )
 
 
