@@ -18,6 +18,7 @@ from redline.server.models import (
 from redline.server.schemas.components import ComponentCreate
 from redline.server.services.components import create_component
 from redline.server.services.revisions import revision_verdicts
+from redline.server.services.why import why_flagged
 from redline.worker.detection import detect_revision
 from redline.worker.ingest import ingest_execution
 from redline.worker.reanalysis import reanalyze_component
@@ -454,6 +455,8 @@ def test_where_reruns_confirm_flags_the_worker_judges_at_the_confirmed_threshold
     r9 = _flagged(session)["r9"]
     assert r9.confirmation == "suspected" and 1 <= r9.score < 8 / 6, r9.score
     assert session.scalars(select(Regression)).one().confirmation == "suspected"
+    shown = why_flagged(session, r9.id).thresholds  # the "why flagged" page: the bar judged at
+    assert shown["threshold"] == 6 and "confirmed_threshold" not in shown
 
 
 @pytest.mark.parametrize(
@@ -476,3 +479,4 @@ def test_where_no_rerun_confirms_a_flag_the_worker_judges_at_the_threshold(
     ).one()
     assert r9.verdict == "no change" and 6 / 8 <= r9.score < 1, r9.score
     assert session.scalars(select(Regression)).all() == []
+    assert why_flagged(session, r9.id).thresholds["threshold"] == 8
