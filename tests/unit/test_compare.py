@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 import typer
 from redline.commands.compare import parse_args, register
-from redline.detect.compare import CompareError
+from redline.detect.compare import CompareError, compare_files
 from redline.detect.compare_junit import series_line
 from redline.detect.comparison import SeriesVerdict
 from redline.detect.result import NOT_ENOUGH_DATA, Detection
@@ -77,7 +77,14 @@ def invoke(*args: str | Path) -> tuple[int, str]:
 
 @pytest.fixture
 def baseline(tmp_path: Path) -> list[Path]:
-    return [record(tmp_path / "r1.mcap", seed=1), record(tmp_path / "r2.mcap", seed=2)]
+    """Three runs: fewer a side cannot tell a change in CPU from run-to-run noise
+    (`redline.detect.compare.MIN_RUNS`)."""
+    return [record(tmp_path / f"r{i}.mcap", seed=i) for i in (1, 2, 7)]
+
+
+def tripled(tmp_path: Path) -> list[Path]:
+    """Three runs of the candidate whose CPU at rate 10 tripled."""
+    return [record(tmp_path / f"t{i}.mcap", cpu_factor={10: 3.0}, seed=i) for i in (3, 4, 5)]
 
 
 def _cases(junit: Path) -> dict[str, ET.Element]:
@@ -89,9 +96,9 @@ def _cases(junit: Path) -> dict[str, ET.Element]:
 def test_tripled_cpu_fails_only_its_parameter_set_with_effect_d_and_p(
     tmp_path: Path, baseline: list[Path]
 ) -> None:
-    candidate = record(tmp_path / "r3.mcap", cpu_factor={10: 3.0}, seed=3)
+    candidate = tripled(tmp_path)
     junit = tmp_path / "out.xml"
-    code, output = invoke("--baseline", *baseline, "--candidate", candidate, "--junit", junit)
+    code, output = invoke("--baseline", *baseline, "--candidate", *candidate, "--junit", junit)
     assert code == 1, output
     cases = _cases(junit)
     assert sorted(cases) == ["load/steady[rate=10]", "load/steady[rate=20]"]  # warm-up left out
@@ -129,13 +136,13 @@ def test_host_wide_counters_are_not_judged(tmp_path: Path, baseline: list[Path])
 def test_html_report_is_self_contained_and_plots_the_changed_counter(
     tmp_path: Path, baseline: list[Path]
 ) -> None:
-    candidate = record(tmp_path / "r3.mcap", cpu_factor={10: 3.0}, seed=3)
+    candidate = tripled(tmp_path)
     report = tmp_path / "report.html"
     code, _ = invoke(
         "--baseline",
         *baseline,
         "--candidate",
-        candidate,
+        *candidate,
         "--junit",
         tmp_path / "out.xml",
         "--html",
@@ -146,7 +153,7 @@ def test_html_report_is_self_contained_and_plots_the_changed_counter(
     assert not re.search(r"<(script|link)[^>]*\s(src|href)\s*=\s*[\"']?(https?:)?//", text)
     assert len(text) > 1_000_000  # plotly.js itself is inlined
     assert "builder.cpu_percent: raw samples" in text
-    assert text.count("Plotly.newPlot") == 1 and "r3.mcap (r3)" in text
+    assert text.count("Plotly.newPlot") == 1 and "t3.mcap (t3)" in text
 
 
 def test_truncated_recording_is_bad_input_named(tmp_path: Path, baseline: list[Path]) -> None:
@@ -347,3 +354,37 @@ def test_a_busy_candidate_is_judged_in_part_where_both_sides_hold_what_it_holds(
         assert "builder.cpu_percent" not in (out.text or "")
     error = cases["load/steady[rate=40]"].find("error")
     assert error is not None and error.get("message", "").startswith("not judged: the host")
+
+
+def test_runs_of_unchanged_code_at_levels_of_their_own_are_no_failure(tmp_path: Path) -> None:
+    """A trial compared one recording against one of unchanged code: 9 of 15 comparisons
+    failed (cpu_percent +13.6 %, p 0.0066; +37.3 % between two runs of one commit), since a
+    run's samples share that run's level and KS took them for the code's. One a side is now
+    too few to tell (undecided, exit 4); with three, a change must show in every run."""
+
+    def runs(name: str, levels: list[float]) -> list[Path]:
+        return [
+            record(tmp_path / f"{name}{i}.mcap", cpu_factor={10: level, 20: level}, seed=i)
+            for i, level in enumerate(levels)
+        ]
+
+    one, other = runs("a", [1.0]), runs("b", [1.14])  # two runs, the second 14 % busier
+    code, output = invoke("--baseline", *one, "--candidate", *other, "--junit", tmp_path / "j1")
+    assert code == 4, output
+    assert "builder.cpu_percent: not enough data (too few values to decide: 1 and 1" in output
+    assert "record more executions a side (5 and 5 suffice)" in output
+    base, cand = runs("c", [1.0, 1.3, 0.95]), runs("d", [1.25, 1.05, 1.35])  # levels overlap
+    comparison = compare_files(base, cand)
+    assert comparison.changed == []
+    overlapping = [
+        v
+        for segment in comparison.segments
+        for v in segment.series
+        if "the recordings overlap" in v.result.reason
+    ]
+    assert overlapping, "KS flagged the pooled samples, the runs overlapping said no change"
+    assert all(v.result.verdict == "no change" for v in overlapping)
+    # a change of every run is one
+    worse = runs("e", [1.4, 1.45, 1.5])
+    flagged = {(v.key.params, v.key.counter) for v in compare_files(base, worse).changed}
+    assert flagged == {('{"rate":10}', "cpu_percent"), ('{"rate":20}', "cpu_percent")}

@@ -274,7 +274,11 @@ def test_redline_compare_judges_the_cpu_per_unit_of_work_only_where_both_sides_h
     assert changed(base, slow) == set()
     # fewer than five a side (or one side without the reference): the share's samples decide
     assert changed(base[:4], slow[:4]) == {"cpu_percent"}
-    assert changed(base[:1], slow[:1]) == {"cpu_percent"}
+    assert changed(base[:3], slow[:3]) == {"cpu_percent"}
+    # one a side: a run's samples share its level; not enough to tell a change from the noise
+    (segment,) = [s for s in compare_files(base[:1], slow[:1]).segments if s.phase == "steady"]
+    assert segment.changed == [] and [v.key.counter for v in segment.too_few] == ["cpu_percent"]
+    assert segment.state == "undecided"
     older = runs("o", 20.0, None)  # an older agent's baseline, without the reference
     heavier = runs("h", 26.0, 300.0)
     assert changed(older, heavier) == {"cpu_percent"}

@@ -39,8 +39,9 @@ def _split(path: Path, user: float, system: float) -> Path:
 
 
 def test_the_cpu_split_moving_while_the_total_holds_is_no_change(tmp_path: Path) -> None:
-    base = [_split(tmp_path / "a.mcap", user=20, system=10)]
-    moved = [_split(tmp_path / "b.mcap", user=15, system=15)]  # user -25 %, system +50 %
+    # three runs a side: fewer cannot tell a change from run-to-run noise (`compare.MIN_RUNS`)
+    base = [_split(tmp_path / f"a{i}.mcap", user=20, system=10) for i in range(3)]
+    moved = [_split(tmp_path / f"b{i}.mcap", user=15, system=15) for i in range(3)]
     assert compare_files(base, moved).changed == []
     judged = compare_files(base, moved, context=())  # asked for: judged
     assert {v.key.counter for v in judged.changed} == {"cpu_system_percent"}  # up: worse

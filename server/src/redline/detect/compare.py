@@ -51,8 +51,8 @@ from redline.detect.counters import (
 )
 from redline.detect.methods import KolmogorovSmirnov
 from redline.detect.relative_change import RelativeChange
-from redline.detect.result import Detection, not_enough
-from redline.detect.verdict import judge_series
+from redline.detect.result import NO_CHANGE, Detection, not_enough
+from redline.detect.verdict import TOO_FEW, judge_series
 from redline.recording import (
     Recording,
     RecordingError,
@@ -148,6 +148,59 @@ def _judge(
     if kind(key.process) != "counter":
         return judge_series(RelativeChange(), key.counter, base[key], cand[key])
     return judge_series(KolmogorovSmirnov(), key.counter, base[key], cand[key])
+
+
+#: The fewest recordings a side from which a change in what a component does (its CPU, its
+#: rates; not what it holds) can be told from run-to-run noise: one run's samples share that
+#: run's level, so KS over them answers for the run, not the code (a trial: unchanged code
+#: failed 9 of 15 comparisons of one recording against one, cpu_percent +13.6 %, p 0.0066, and
+#: +37.3 % between two runs of the same commit). With n a side a change must also show in every
+#: recording (`_across_runs`), which unchanged code does by chance once in C(2n, n) per
+#: direction: 1 in 20 at 3, 252 at 5.
+MIN_RUNS = 3
+
+
+def _runs(side: Sequence[RecordedSeries]) -> dict[SeriesKey, list[float]]:
+    """Each series' median in each recording of a side."""
+    found: dict[SeriesKey, list[float]] = {}
+    for recorded in side:
+        for key, points in recorded.timeline.items():
+            if points:
+                found.setdefault(key, []).append(float(np.median([v for _, v in points])))
+    return found
+
+
+def _across_runs(
+    verdict: SeriesVerdict, base: dict[SeriesKey, list[float]], cand: dict[SeriesKey, list[float]]
+) -> SeriesVerdict:
+    """A change KS found in the pooled samples of what a component does, kept only where the
+    recordings can tell it from run-to-run noise: at least `MIN_RUNS` a side ("too few" below
+    that: undecided, never a failure), every candidate recording beyond every baseline one
+    (else no change: the runs overlap). What the component holds (memory, threads, files)
+    barely moves from run to run and is judged on its samples as before."""
+    key, found = verdict.key, verdict.result
+    if not found.flagged or kind(key.process) != "counter" or is_held(key.process, key.counter):
+        return verdict
+    before, after = base.get(key, []), cand.get(key, [])
+    p_value = found.p_value if found.p_value is not None else math.nan
+    if min(len(before), len(after)) < MIN_RUNS:
+        reason = (
+            f"{TOO_FEW} {len(before)} and {len(after)} recording(s) a side (KS on their "
+            f"samples: effect {found.effect:+.1%}, p {p_value:.2g}); a run's samples share "
+            f"its level, so fewer than {MIN_RUNS} a side cannot tell a change from run-to-run "
+            "noise: record more executions a side (5 and 5 suffice)"
+        )
+        return replace(verdict, result=not_enough(found.method, reason))
+    up = found.direction == "increase"
+    apart = min(after) > max(before) if up else max(after) < min(before)
+    if apart:
+        return verdict
+    reason = (
+        f"KS on the pooled samples: effect {found.effect:+.1%}, p {p_value:.2g}; but the "
+        f"recordings overlap (baseline {min(before):.4g}-{max(before):.4g}, candidate "
+        f"{min(after):.4g}-{max(after):.4g}): run-to-run noise, not a change of every run"
+    )
+    return replace(verdict, result=replace(found, verdict=NO_CHANGE, reason=reason))
 
 
 def _verdict(
@@ -255,8 +308,10 @@ def compare_sides(
             f"the same test cases, phases and parameter sets)"
         )
     by_segment: dict[Segment, list[SeriesVerdict]] = {}
+    runs = _runs(baseline), _runs(candidate)
     for key in common:
-        by_segment.setdefault(_segment(key), []).append(_verdict(key, base, cand))
+        found = _across_runs(_verdict(key, base, cand), *runs)
+        by_segment.setdefault(_segment(key), []).append(found)
     busy = _busy(baseline + candidate)
     # a busy segment whose CPU a side's quiet recordings measured is judged whole; one where
     # both sides hold only what the component holds, in part; one neither, not at all
