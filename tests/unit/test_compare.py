@@ -176,6 +176,10 @@ def test_unreadable_and_missing_files_are_bad_input(tmp_path: Path, baseline: li
             "--baseline", bad, "--candidate", *baseline, "--junit", tmp_path / "out.xml"
         )
         assert code == 2 and f"baseline recording {bad}" in output
+        assert "unpack" not in output  # the library's detail (a trial read "unpack requires a
+        # buffer of 8 bytes" for a text file)
+    code, output = invoke("--baseline", text, "--candidate", *baseline, "--junit", tmp_path / "o")
+    assert "notes.mcap is not an MCAP file (it does not begin as one" in output, output
 
 
 def test_no_common_series_is_bad_input(tmp_path: Path, baseline: list[Path]) -> None:

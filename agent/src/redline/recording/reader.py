@@ -379,9 +379,26 @@ def _decode_counters(recording: Recording, raw: list[bytes]) -> None:
             return
 
 
+#: how every MCAP file begins (the MCAP specification's magic)
+MCAP_MAGIC = b"\x89MCAP0\r\n"
+
+
+def _begins_as_mcap(path: Path) -> bool:
+    try:
+        with path.open("rb") as file:
+            return file.read(len(MCAP_MAGIC)) == MCAP_MAGIC
+    except OSError:
+        return False
+
+
 def _check_strict(recording: Recording) -> None:
     name = recording.path.name
     if recording.problem and not recording.profile:
+        if not _begins_as_mcap(recording.path):  # the library's detail says nothing useful then
+            raise RecordingError(
+                f"{name} is not an MCAP file (it does not begin as one: a recording is what "
+                "`redline run` or an agent writes)"
+            )
         raise RecordingError(f"{name} is not an MCAP file ({recording.problem})")
     if recording.problem or not recording.complete:
         detail = recording.problem or "no footer"
