@@ -8,10 +8,8 @@ upload, and refuses anything that is not a finished Redline recording.
 from __future__ import annotations
 
 import json
-import struct
 from bisect import bisect_left, bisect_right
 from collections import Counter
-from collections.abc import Iterator
 from dataclasses import dataclass, field
 from io import BytesIO
 from operator import itemgetter
@@ -22,7 +20,7 @@ from typing import Any
 from mcap.data_stream import ReadDataStream
 from mcap.opcode import Opcode
 from mcap.records import Attachment, Channel, Chunk, Footer, Header, Message, Metadata
-from mcap.stream_reader import StreamReader, breakup_chunk
+from mcap.stream_reader import breakup_chunk
 from redline.recording.disturbance import OTHER_CPU, other_load
 from redline.recording.driver import (
     CPU_PER_OP,
@@ -51,6 +49,15 @@ from redline.recording.format import (
     PROFILE,
     SeriesKey,
     canonical_params,
+)
+from redline.recording.mcap_bytes import (
+    CHANNEL_ID,
+    LOG_TIME,
+    MESSAGE_HEAD,
+    RECORD,
+    begins_as_mcap,
+    chunk_data,
+    records,
 )
 
 
@@ -241,52 +248,32 @@ def _by_counter(samples: list[dict[str, Any]], timed: bool) -> dict[tuple[str, s
     return grouped
 
 
-def _records(path: Path) -> Iterator[Any]:
-    with open(path, "rb") as stream:
-        yield from StreamReader(stream, skip_magic=False, emit_chunks=True).records
-
-
-_RECORD = struct.Struct("<BQ")  # opcode, length
-_CHANNEL_ID = struct.Struct("<H")
-_LOG_TIME = struct.Struct("<Q")  # after the channel id (u16) and the sequence (u32)
-_MESSAGE_HEAD = 22  # channel id u16, sequence u32, log time u64, publish time u64
-
-
-def _chunk_data(chunk: Chunk) -> bytes | None:
-    """A chunk's records, decompressed; None for a compression only mcap itself knows."""
-    if chunk.compression == "zstd":
-        import zstandard
-
-        return zstandard.decompress(chunk.data, chunk.uncompressed_size)
-    return chunk.data if chunk.compression == "" else None
-
-
 def _take_chunk(
     recording: Recording, chunk: Chunk, channels: dict[int, tuple[int, str]], counters: list[bytes]
 ) -> None:
     """The messages and channels of one chunk, parsed in place (mcap's reader goes byte by byte,
     which made reading the file most of an ingest)."""
-    data = _chunk_data(chunk)
+    data = chunk_data(chunk)
     if data is None:
         for record in breakup_chunk(chunk):
             _take_record(recording, record, channels, counters)
         return
     position, end = 0, len(data)
     while position < end:
-        opcode, length = _RECORD.unpack_from(data, position)
-        position += _RECORD.size
+        opcode, length = RECORD.unpack_from(data, position)
+        position += RECORD.size
         if opcode == Opcode.MESSAGE:
-            kind, topic = channels.get(_CHANNEL_ID.unpack_from(data, position)[0], (_TRAFFIC, ""))
+            kind, topic = channels.get(CHANNEL_ID.unpack_from(data, position)[0], (_TRAFFIC, ""))
             if kind == _COUNTERS:
-                counters.append(data[position + _MESSAGE_HEAD : position + length])
+                counters.append(data[position + MESSAGE_HEAD : position + length])
             elif kind == _TRAFFIC:
                 recording.traffic[topic] += 1
                 if recording.events is not None:
-                    stamp = _LOG_TIME.unpack_from(data, position + 6)[0]
-                    recording.events.append((topic, stamp, length - _MESSAGE_HEAD))
+                    stamp = LOG_TIME.unpack_from(data, position + 6)[0]
+                    recording.events.append((topic, stamp, length - MESSAGE_HEAD))
             else:
                 _take_message(
-                    recording, kind, topic, data[position + _MESSAGE_HEAD : position + length]
+                    recording, kind, topic, data[position + MESSAGE_HEAD : position + length]
                 )
         elif opcode == Opcode.CHANNEL:
             channel = Channel.read(ReadDataStream(BytesIO(data[position : position + length])))
@@ -328,7 +315,7 @@ def read_recording(path: str | Path, *, strict: bool = True, events: bool = Fals
     channels: dict[int, tuple[int, str]] = {}
     counters: list[bytes] = []  # decoded at the end in one call: JSON per message dominated
     try:
-        for record in _records(path):
+        for record in records(path):
             _take_record(recording, record, channels, counters)
     except Exception as exc:  # the mcap library raises several types for a damaged file
         recording.problem = _problem(exc)
@@ -379,22 +366,10 @@ def _decode_counters(recording: Recording, raw: list[bytes]) -> None:
             return
 
 
-#: how every MCAP file begins (the MCAP specification's magic)
-MCAP_MAGIC = b"\x89MCAP0\r\n"
-
-
-def _begins_as_mcap(path: Path) -> bool:
-    try:
-        with path.open("rb") as file:
-            return file.read(len(MCAP_MAGIC)) == MCAP_MAGIC
-    except OSError:
-        return False
-
-
 def _check_strict(recording: Recording) -> None:
     name = recording.path.name
     if recording.problem and not recording.profile:
-        if not _begins_as_mcap(recording.path):  # the library's detail says nothing useful then
+        if not begins_as_mcap(recording.path):  # the library's detail says nothing useful then
             raise RecordingError(
                 f"{name} is not an MCAP file (it does not begin as one: a recording is what "
                 "`redline run` or an agent writes)"
