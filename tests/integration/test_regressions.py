@@ -308,3 +308,37 @@ def test_a_regression_names_the_revisions_inside_its_range_that_were_not_judged(
     assert detail["between_count"] == 2
     page = api.client.get(f"/regressions/{regression['id']}").text
     assert 'id="between"' in page and ">r3</a> (the host was busy" in page
+
+
+def test_a_patch_changes_only_the_fields_it_gives(api, database_url, tmp_path):
+    """A new-user trial sent one field by PUT, as documented a whole configuration, and reset
+    the demo's alarm method and pairs. PATCH changes what it names; thresholds per parameter."""
+    history(database_url, tmp_path, [20.0, 20.0])
+    whole = {
+        "methods": ["execution_shift", "ks"],
+        "alarm_methods": ["ks"],
+        "confirm_pairs": 3,
+        "thresholds": {"ks": {"min_effect": 0.5}, "execution_shift": {"threshold": 9}},
+        "reanalyze": False,
+    }
+    assert api.put("/detection-config", "admin", whole).status_code == 200
+    body = {"confirm_pairs": 1, "thresholds": {"execution_shift": {"confirmed_threshold": 5}}}
+    answer = api.patch("/detection-config", "admin", {**body, "reanalyze": False})
+    assert answer.status_code == 200, answer.text
+    stored = api.get("/detection-config").json()
+    assert stored["alarm_methods"] == ["ks"] and stored["confirm_pairs"] == 1
+    assert stored["thresholds"] == {
+        "ks": {"min_effect": 0.5},
+        "execution_shift": {"threshold": 9, "confirmed_threshold": 5},
+    }
+    assert api.get("/reanalysis").json()["state"] == "none"
+    # validated as a whole, nothing stored when refused; admin only
+    bad = api.patch("/detection-config", "admin", {"thresholds": {"ks": {"alpha": 5}}})
+    assert bad.status_code == 400 and "thresholds.ks.alpha" in bad.json()["detail"], bad.text
+    assert api.patch("/detection-config", "ci", {"confirm_pairs": 0}).status_code == 403
+    typo = api.patch("/detection-config", "admin", {"confirm_pair": 0})
+    assert typo.status_code == 422 and "confirm_pair" in typo.text
+    assert api.get("/detection-config").json() == stored
+    # and it queues a re-analysis unless told not to, as PUT does
+    assert api.patch("/detection-config", "admin", {"window": 5}).status_code == 200
+    assert api.get("/reanalysis").json()["state"] == "queued"

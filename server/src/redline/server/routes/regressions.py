@@ -9,7 +9,7 @@ from fastapi import APIRouter, Depends, Query, Request, Response, status
 from redline.server.api.deps import READ, SessionDep, require
 from redline.server.api.paging import Cursor, PageSize, next_page
 from redline.server.core.bodies import JsonRoute
-from redline.server.models import ApiToken, RegressionState
+from redline.server.models import ApiToken, Component, RegressionState
 from redline.server.schemas.common import Responses, problems
 from redline.server.schemas.regressions import (
     AccuracyOut,
@@ -24,6 +24,7 @@ from redline.server.schemas.regressions import (
 )
 from redline.server.services import detection_config, regressions
 from redline.server.services.components import get_component
+from sqlalchemy.orm import Session
 
 router = APIRouter(prefix="/api/v1/components", tags=["regressions"], route_class=JsonRoute)
 NOT_FOUND = problems(404, description="unknown component or regression")
@@ -110,8 +111,25 @@ def get_detection_config(name: str, session: SessionDep) -> DetectionConfigOut:
 def put_detection_config(
     name: str, data: DetectionConfigIn, request: Request, session: SessionDep
 ) -> DetectionConfigOut:
-    """Store the configuration; with ``reanalyze`` (default) the history is analysed again."""
+    """Store the configuration, every field left out at its default; with ``reanalyze``
+    (default) the history is analysed again."""
     component = detection_config.set_config(session, name, data)
+    return _stored(name, component, data, request, session)
+
+
+@router.patch("/{name}/detection-config", responses=BAD, dependencies=[Depends(require("admin"))])
+def patch_detection_config(
+    name: str, data: DetectionConfigIn, request: Request, session: SessionDep
+) -> DetectionConfigOut:
+    """Change only the fields given (``thresholds`` per method and parameter), the rest as
+    stored; with ``reanalyze`` (default) the history is analysed again."""
+    component = detection_config.patch_config(session, name, data)
+    return _stored(name, component, data, request, session)
+
+
+def _stored(
+    name: str, component: Component, data: DetectionConfigIn, request: Request, session: Session
+) -> DetectionConfigOut:
     if data.reanalyze:
         detection_config.request_reanalysis(session, component)
         request.app.state.tasks.reanalyze(component.id)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+from typing import Any
 
 from redline.detect.config import ConfigError, DetectionConfig
 from redline.server.models import Component, DetectionConfigRow, Reanalysis, utcnow
@@ -36,9 +37,27 @@ def get_config(session: Session, component_name: str) -> DetectionConfigOut:
 
 
 def set_config(session: Session, component_name: str, data: DetectionConfigIn) -> Component:
-    """Validate and store the configuration; BadRequest names the field at fault."""
+    """Validate and store the configuration (a field left out takes its default); BadRequest
+    names the field at fault."""
     component = get_component(session, component_name)
-    fields = data.model_dump(exclude={"reanalyze"})
+    _store(session, component, data.model_dump(exclude={"reanalyze"}))
+    return component
+
+
+def patch_config(session: Session, component_name: str, data: DetectionConfigIn) -> Component:
+    """Change only the fields given, over the stored configuration (a trial's one-field `PUT`
+    reset the rest: the demo's alarm method and pairs); ``thresholds`` merge per method, one
+    parameter at a time. Validated as a whole; BadRequest names the field at fault."""
+    component = get_component(session, component_name)
+    merged = component_config(session, component.id).as_dict()
+    given = data.model_dump(exclude_unset=True, exclude={"reanalyze"})
+    for method, params in given.pop("thresholds", {}).items():
+        merged["thresholds"][method] = {**merged["thresholds"].get(method, {}), **params}
+    _store(session, component, {**merged, **given})
+    return component
+
+
+def _store(session: Session, component: Component, fields: dict[str, Any]) -> None:
     try:
         config = DetectionConfig.parse(fields)
     except ConfigError as exc:
@@ -50,7 +69,6 @@ def set_config(session: Session, component_name: str, data: DetectionConfigIn) -
         .on_conflict_do_update(index_elements=["component_id"], set_=stored)
     )
     session.commit()
-    return component
 
 
 def request_reanalysis(session: Session, component: Component) -> None:
