@@ -16,7 +16,7 @@ from __future__ import annotations
 
 from collections import defaultdict
 from collections.abc import Iterable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from datetime import datetime, timedelta
 
 from redline.detect.confirmation import Hold
@@ -165,12 +165,8 @@ def _queue_again(
     first = max(job.pair for job in jobs) + 1
     scope = flagged_scope(session, {d.series_id for d in busy})
     # as the first pairs ran: the changes they left undecided for other reasons (a pair that
-    # failed) are judged on these too
-    scope = Scope(
-        scope.sets,
-        scope.alone and all(job.sets_alone for job in jobs),
-        scope.busy_matters or any(job.busy_matters for job in jobs),
-    )
+    # failed) are judged on these too (a busy phase matters here: held series are never busy)
+    scope = replace(scope, alone=scope.alone and all(job.sets_alone for job in jobs))
     queue_pairs(session, revision, baseline, range(first, first + count), host_id, scope, start)
     return start
 
