@@ -560,6 +560,36 @@ def test_why_flagged_shows_what_was_compared(client, database_url, tmp_path):
     assert page.status_code == 200 and "missing baseline" in page.text, page.text[-500:]
 
 
+def test_why_flagged_shows_the_thresholds_the_verdict_was_judged_by(client, database_url, tmp_path):
+    """A configuration saved without re-analysis leaves the old verdicts as they were judged:
+    their page shows the thresholds that judged them, not the new ones (it read the current
+    configuration); a verdict judged before they were kept says it shows the current ones."""
+    history(database_url, tmp_path, [20.0, 20.0, 20.0, 200.0])
+    flagged = next(
+        d
+        for d in client.get("/api/v1/components/builder/detections?revision=r4").json()
+        if d["flagged"] and d["series"]["counter"] == "cpu"
+    )
+    saved = client.patch(
+        "/api/v1/components/builder/detection-config",
+        json={"thresholds": {"ks": {"alpha": 0.0001}}, "reanalyze": False},
+        headers=_admin(client),
+    )
+    assert saved.status_code == 200, saved.text
+    assert saved.json()["thresholds"]["ks"]["alpha"] == 0.0001
+    row = re.compile(r"<tr><th>thresholds</th><td>(.*?)</td></tr>", re.S)
+    shown = row.search(client.get(f"/detections/{flagged['id']}").text).group(1)
+    assert "alpha = 0.01," in shown and "0.0001" not in shown, shown
+    assert 'id="thresholds-now"' not in shown
+    with session_factory(database_url)() as session:  # as stored before 0030
+        session.execute(
+            text("UPDATE detection SET config_id = NULL WHERE id = :id"), {"id": flagged["id"]}
+        )
+        session.commit()
+    shown = row.search(client.get(f"/detections/{flagged['id']}").text).group(1)
+    assert "alpha = 0.0001," in shown and 'id="thresholds-now"' in shown, shown
+
+
 def test_execution_page_has_raw_counters_parameters_the_log_and_the_recording(
     client, database_url, tmp_path
 ):

@@ -33,6 +33,10 @@ class CountRate:
         self.alpha = alpha
         self.min_rate = min_rate
 
+    def get_params(self) -> dict[str, float]:
+        """Its parameters, as a `redline.detect.methods.Detector` gives them."""
+        return {"alpha": self.alpha, "min_rate": self.min_rate}
+
     def compare(
         self, events_b: float, total_b: float, events_c: float, total_c: float
     ) -> Detection:

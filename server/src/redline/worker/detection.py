@@ -35,7 +35,7 @@ from redline.detect.result import Detection as Verdict
 from redline.detect.verdict import floored, judge_series
 from redline.server.db import bulk_insert, lock_component, lock_revision, session_scope
 from redline.server.models import Detection, Revision, utcnow
-from redline.server.services.detection_config import component_config
+from redline.server.services.detection_config import component_config, judging_config_id
 from redline.worker.baselines import Baseline, Baselines
 from redline.worker.confirm_runs import queue_confirmations, settle_pending_pairs
 from redline.worker.confirmation import confirm_by_history
@@ -247,6 +247,8 @@ def store(
     # two stores of one component taking their locks in different orders would deadlock
     lock_component(session, revision.component_id)
     config = config or component_config(session, revision.component_id)
+    config_id = judging_config_id(session, revision.component_id, config)
+    rows = [row | {"config_id": config_id} for row in rows]
     own = [row for row in rows if row["revision_id"] == revision.id]
     _store_steps(session, [row for row in rows if row["revision_id"] != revision.id], config)
     kept = still_moved(

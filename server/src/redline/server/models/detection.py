@@ -56,6 +56,24 @@ class DetectionConfigRow(Base):
     updated: Mapped[datetime] = mapped_column(default=utcnow, onupdate=utcnow)
 
 
+class JudgingConfig(Base):
+    """A detection configuration as a component's verdicts were judged by: its fields and each
+    method's parameters as they judged (defaults filled in), one row per distinct one
+    (``digest``), so a verdict can say what judged it after the configuration changed again
+    (a save with ``"reanalyze": false`` keeps the old verdicts; the "why flagged" page showed
+    the new thresholds beside them)."""
+
+    __tablename__ = "judging_config"
+    __table_args__ = (UniqueConstraint("component_id", "digest"),)
+    id: Mapped[int] = mapped_column(primary_key=True)
+    component_id: Mapped[int] = mapped_column(ForeignKey("component.id", ondelete="CASCADE"))
+    digest: Mapped[str] = mapped_column(String(64))
+    config: Mapped[dict[str, Any]] = mapped_column(JSON)
+    #: method name -> its parameters as it judged (`redline.detect.config.DetectionConfig.detector`)
+    params: Mapped[dict[str, Any]] = mapped_column(JSON)
+    created: Mapped[datetime] = mapped_column(default=utcnow)
+
+
 class Regression(Base):
     """Flagged detections of one component whose revision ranges overlap.
 
@@ -147,6 +165,8 @@ class Detection(VerdictColumns, Base):
     regression_id: Mapped[int | None] = mapped_column(
         ForeignKey("regression.id", ondelete="SET NULL"), index=True, default=None
     )
+    #: the configuration it was judged by (None: judged before 0030 kept it)
+    config_id: Mapped[int | None] = mapped_column(ForeignKey("judging_config.id"), default=None)
     series: Mapped[Series] = relationship()
     revision: Mapped[Revision] = relationship(foreign_keys=[revision_id])
     baseline_revision: Mapped[Revision | None] = relationship(foreign_keys=[baseline_revision_id])

@@ -2,14 +2,18 @@
 
 from __future__ import annotations
 
+import hashlib
+import json
 import logging
 from typing import Any
 
 from redline.detect.config import ConfigError, DetectionConfig
-from redline.server.models import Component, DetectionConfigRow, Reanalysis, utcnow
+from redline.detect.count_rate import CountRate
+from redline.server.models import Component, DetectionConfigRow, JudgingConfig, Reanalysis, utcnow
 from redline.server.schemas.regressions import DetectionConfigIn, DetectionConfigOut, ReanalysisOut
 from redline.server.services.components import get_component
 from redline.server.services.errors import BadRequest
+from sqlalchemy import select
 from sqlalchemy.dialects.postgresql import insert
 from sqlalchemy.orm import Session
 
@@ -29,6 +33,33 @@ def component_config(session: Session, component_id: int) -> DetectionConfig:
             exc,
         )
         return DetectionConfig()
+
+
+def judging_config_id(session: Session, component_id: int, config: DetectionConfig) -> int:
+    """The id of the `JudgingConfig` row of ``config`` for the component, made the first time a
+    verdict is judged by it: its fields, and each method's parameters as it judges (the count
+    method, which every component's rare events are judged by, included)."""
+    params = {d.name: d.get_params() for d in config.detectors()}
+    params[CountRate.name] = CountRate().get_params()
+    kept = {"config": config.as_dict(), "params": params}
+    digest = hashlib.sha256(json.dumps(kept, sort_keys=True).encode()).hexdigest()
+    session.execute(
+        insert(JudgingConfig)
+        .values(component_id=component_id, digest=digest, created=utcnow(), **kept)
+        .on_conflict_do_nothing(index_elements=["component_id", "digest"])
+    )
+    return session.scalars(
+        select(JudgingConfig.id).where(
+            JudgingConfig.component_id == component_id, JudgingConfig.digest == digest
+        )
+    ).one()
+
+
+def judged_params(session: Session, config_id: int | None, method: str) -> dict[str, Any] | None:
+    """``method``'s parameters as they judged under the kept configuration ``config_id``; None
+    when it is not known (a verdict judged before configurations were kept)."""
+    row = session.get(JudgingConfig, config_id) if config_id is not None else None
+    return dict(row.params[method]) if row is not None and method in row.params else None
 
 
 def get_config(session: Session, component_name: str) -> DetectionConfigOut:

@@ -5,8 +5,9 @@ its baseline pooled. This gathers what it judged from the stored summaries: each
 value (the median of its samples, what `execution_shift` judges) and its distribution (the
 32-quantile sketch, from which a sample-level method's two sides are drawn as ECDFs), for the
 candidate revision and the baseline's revisions (the newest ``baseline_revisions`` revisions up
-to the newest baseline revision that measured the series); the thresholds of the method as the
-component configures them, the counter's absolute floor, and the confirmation pairs' values when
+to the newest baseline revision that measured the series); the method's thresholds as they judged
+it (kept with the verdict; for one judged before they were kept, as the component is configured
+now, and the page says so), the counter's absolute floor, and the confirmation pairs' values when
 the change was re-run. Only the revisions' own executions count, as for the detection itself.
 """
 
@@ -29,7 +30,7 @@ from redline.server.models import (
     revision_place,
 )
 from redline.server.schemas.regressions import DetectionOut
-from redline.server.services.detection_config import component_config
+from redline.server.services.detection_config import component_config, judged_params
 from redline.server.services.jobs import current_pairs
 from redline.server.services.regressions import detection_by_id
 from sqlalchemy import select
@@ -55,6 +56,9 @@ class WhyFlagged:
     baseline: list[ExecutionValue]
     baseline_titles: list[str]  # oldest first
     thresholds: dict[str, Any]
+    #: whether ``thresholds`` are those the verdict was judged by (kept with it) or, for a
+    #: verdict judged before they were kept, the component's configuration as it is now
+    thresholds_judged: bool
     floor: float
     rule: str  # what the method's score is and how it decides, in its own words
     #: (pair, baseline's median, candidate's median, whether the host was busy in either run:
@@ -148,12 +152,11 @@ def why_flagged(session: Session, detection_id: int) -> WhyFlagged:
     baseline = baseline_revisions(
         session, series.id, detection.baseline_revision_id, detection.baseline_revisions
     )
-    config = component_config(session, revision.component_id)
-    if detection.method in DETECTORS:  # as it judges: where re-runs confirm, at that bar
-        thresholds = config.detector(detection.method).get_params()
-        thresholds.pop("confirmed_threshold", None)  # ``threshold`` is the bar it judged at
-    else:
-        thresholds = dict(config.thresholds.get(detection.method, {}))
+    thresholds = judged_params(session, detection.config_id, detection.method)
+    judged = thresholds is not None
+    if thresholds is None:
+        thresholds = _configured_now(session, revision.component_id, detection.method)
+    thresholds.pop("confirmed_threshold", None)  # ``threshold`` is the bar it judged at
     return WhyFlagged(
         component=revision.component.name,
         detection=out,
@@ -161,10 +164,20 @@ def why_flagged(session: Session, detection_id: int) -> WhyFlagged:
         baseline=_values(session, series.id, [r.id for r in baseline]),
         baseline_titles=[r.title for r in baseline],
         thresholds=thresholds,
+        thresholds_judged=judged,
         floor=absolute_floor(series.counter),
         rule=_rule(detection.method),
         pairs=_pairs(session, detection),
     )
+
+
+def _configured_now(session: Session, component_id: int, method: str) -> dict[str, Any]:
+    """``method``'s parameters as the component's configuration sets them now, as it judges:
+    where re-runs confirm, at that bar."""
+    config = component_config(session, component_id)
+    if method in DETECTORS:
+        return config.detector(method).get_params()
+    return dict(config.thresholds.get(method, {}))
 
 
 def _rule(method: str) -> str:
