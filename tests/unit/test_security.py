@@ -149,7 +149,8 @@ def test_why_flagged_labels_are_text_not_markup():
     )  # fmt: skip
     why = WhyFlagged(
         component="c", detection=detection, candidate=[value(LINK, 3.0)],
-        baseline=[value("r1", 2.0)], baseline_titles=["r1"], thresholds={}, floor=0.0, rule="",
+        baseline=[value("r1", 2.0)], baseline_titles=["r1"], thresholds={},
+        thresholds_judged=True, floor=0.0, rule="",
     )  # fmt: skip
     _markup_is_text(why_figures(why))
 

@@ -104,6 +104,30 @@ def test_missing_test_module_is_named(tmp_path: Path) -> None:
     assert ":2:" in message and "test module 'test_gone.py' does not exist" in message
 
 
+def test_every_problem_of_a_suite_is_named_at_once(tmp_path: Path) -> None:
+    """A new user fixed a suite one error per run: each part is checked apart, and each
+    problem gets its own line with the file and line number."""
+    text = (
+        'name = "demo"\nexecutons = 2\nsampling_hz = -1\ntests = ["test_demo.py", "test_a.py",'
+        ' "test_b.py"]\n\n[[component]]\nname = "demo"\ncommand = ["python", "demo.py"]\n'
+        'start_timout = 3\nstop_timeout = 0\n\n[[fixture]]\nname = "host"\n'
+        'command = ["x"]\n'
+    )
+    lines = error_of(tmp_path, text).splitlines()
+    suite = tmp_path / "redline.toml"
+    assert lines == [
+        f"{suite}:2: unknown field 'executons' in the suite (allowed: affinity, build, component,"
+        " executions, fixture, name, sampling_hz, tests, transport)",
+        f"{suite}:4: test modules 'test_a.py', 'test_b.py' do not exist (relative to the suite"
+        " file)",
+        f"{suite}:9: unknown field 'start_timout' in [[component]] #1 (allowed: command, cpus,"
+        " cwd, env, name, ready, start_timeout, stop_timeout)",
+        f"{suite}:13: [[fixture]] #1: 'host' is reserved for Redline's own series (reserved:"
+        " driver, host, recorder, redline)",
+        f"{suite}:3: the suite: 'sampling_hz' must be a positive number, got -1",
+    ]
+
+
 def test_missing_file_is_named(tmp_path: Path) -> None:
     with pytest.raises(SuiteError, match="cannot read the suite file"):
         load_suite(tmp_path / "nothing.toml")

@@ -43,18 +43,20 @@ from __future__ import annotations
 import hashlib
 import re
 import sys
-import tomllib
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
+from functools import partial
 from pathlib import Path
 from typing import Any
 
 from redline.agent.affinity import Affinity, parse_affinity, parse_cores
 from redline.agent.network import TRANSPORTS
 from redline.agent.placeholders import PLACEHOLDERS, substitute, unknown_placeholders
+from redline.agent.suite_checks import Checker, SuiteError, parse_toml, string_list
 from redline.recording.driver import DRIVER_PROCESS, RECORDER_PROCESS
 from redline.recording.format import HOST_PROCESS, OWN_PROCESS
 
+_TOP_REQUIRED = ("name", "tests", "component")
 _TOP = {
     "name",
     "tests",
@@ -72,10 +74,6 @@ _READY = {"log", "delay", "key", "liveliness"}
 
 #: process names Redline records its own series under: the host, its own processes, the driver
 RESERVED_NAMES = frozenset({HOST_PROCESS, OWN_PROCESS, DRIVER_PROCESS, RECORDER_PROCESS})
-
-
-class SuiteError(ValueError):
-    """A suite file that cannot be used; the message names the file, the line and the field."""
 
 
 @dataclass(frozen=True)
@@ -126,88 +124,7 @@ class Suite:
         return self.path.parent
 
 
-class _Checker:
-    """Reads fields out of the parsed TOML, turning every mistake into a SuiteError with a line."""
-
-    def __init__(self, path: Path, text: str) -> None:
-        self.path = path
-        self.lines = text.splitlines()
-
-    def line_of(self, key: str, section: str | None = None, index: int = 0) -> int | None:
-        start = 0
-        if section is not None:
-            headers = [
-                n
-                for n, line in enumerate(self.lines)
-                if re.match(rf"^\s*\[\[\s*{re.escape(section)}\s*\]\]", line)
-            ]
-            if index >= len(headers):
-                return None
-            start = headers[index]
-        pattern = re.compile(rf"^\s*{re.escape(key)}\s*=|^\s*\[\[?\s*{re.escape(key)}\s*\]")
-        for number in range(start, len(self.lines)):
-            in_next_table = self.lines[number].lstrip().startswith("[")
-            if number > start and section is not None and in_next_table:
-                break
-            if pattern.match(self.lines[number]):
-                return number + 1
-        return None if section is None else start + 1
-
-    def fail(
-        self, message: str, key: str, section: str | None = None, index: int = 0
-    ) -> SuiteError:
-        line = self.line_of(key, section, index)
-        where = f"{self.path}:{line}" if line else str(self.path)
-        return SuiteError(f"{where}: {message}")
-
-    def unknown(
-        self,
-        table: dict[str, Any],
-        allowed: set[str],
-        what: str,
-        section: str | None = None,
-        index: int = 0,
-    ) -> None:
-        for key in table:
-            if key not in allowed:
-                raise self.fail(
-                    f"unknown field {key!r} in {what} (allowed: {', '.join(sorted(allowed))})",
-                    key,
-                    section,
-                    index,
-                )
-
-    def number(
-        self,
-        value: Any,
-        key: str,
-        what: str,
-        section: str | None = None,
-        index: int = 0,
-        *,
-        integer: bool = False,
-    ) -> float:
-        kinds = (int,) if integer else (int, float)
-        if isinstance(value, bool) or not isinstance(value, kinds) or value <= 0:
-            kind = "a positive integer" if integer else "a positive number"
-            raise self.fail(f"{what}: {key!r} must be {kind}, got {value!r}", key, section, index)
-        return value
-
-
-def _string_list(
-    checker: _Checker, value: Any, key: str, what: str, section: str | None = None, index: int = 0
-) -> tuple[str, ...]:
-    if not isinstance(value, list) or not value or not all(isinstance(v, str) for v in value):
-        raise checker.fail(
-            f"{what}: {key!r} must be a non-empty list of strings, got {value!r}",
-            key,
-            section,
-            index,
-        )
-    return tuple(value)
-
-
-def _ready(checker: _Checker, value: Any, what: str, section: str, index: int) -> ReadyCheck:
+def _ready(checker: Checker, value: Any, what: str, section: str, index: int) -> ReadyCheck:
     if not isinstance(value, dict) or len(value) != 1:
         raise checker.fail(
             f"{what}: 'ready' must be one of {{log = \"regex\"}}, "
@@ -235,7 +152,7 @@ def _ready(checker: _Checker, value: Any, what: str, section: str, index: int) -
     return ReadyCheck(kind, setting)
 
 
-def _process(checker: _Checker, table: Any, section: str, index: int) -> ProcessSpec:
+def _process(checker: Checker, table: Any, section: str, index: int) -> ProcessSpec:
     what = f"[[{section}]] #{index + 1}"
     if not isinstance(table, dict):
         raise checker.fail(f"{section!r} must be an array of tables ([[{section}]])", section)
@@ -261,7 +178,7 @@ def _process(checker: _Checker, table: Any, section: str, index: int) -> Process
             section,
             index,
         )
-    command = _string_list(checker, table["command"], "command", what, section, index)
+    command = string_list(checker, table["command"], "command", what, section, index)
     for name in unknown_placeholders(command):
         known = ", ".join(f"{{{known}}}" for known in PLACEHOLDERS)
         raise checker.fail(
@@ -300,7 +217,7 @@ def _process(checker: _Checker, table: Any, section: str, index: int) -> Process
     )
 
 
-def _transport(checker: _Checker, value: Any) -> str:
+def _transport(checker: Checker, value: Any) -> str:
     if value not in TRANSPORTS:
         raise checker.fail(
             f"'transport' must be one of {', '.join(map(repr, TRANSPORTS))}, got {value!r}",
@@ -309,75 +226,96 @@ def _transport(checker: _Checker, value: Any) -> str:
     return str(value)
 
 
-def _parse(path: Path) -> tuple[bytes, str, dict[str, Any]]:
-    try:
-        raw = path.read_bytes()
-        text = raw.decode("utf-8")
-    except UnicodeDecodeError as exc:
-        raise SuiteError(f"{path}: not UTF-8 text: {exc}") from None
-    except OSError as exc:
-        raise SuiteError(f"{path}: cannot read the suite file: {exc.strerror or exc}") from None
-    try:
-        return raw, text, tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        found = re.search(r"\(at line (\d+), column (\d+)\)", str(exc))
-        message = re.sub(r"\s*\(at line \d+, column \d+\)", "", str(exc))
-        where = f"{path}:{found.group(1)}:{found.group(2)}" if found else str(path)
-        raise SuiteError(f"{where}: malformed TOML: {message}") from None
-
-
 def load_suite(path: str | Path) -> Suite:
-    """Load and check a suite file; raise `SuiteError` naming the file, line and field at fault."""
+    """Load and check a suite file; raise `SuiteError` naming the file, line and field at fault,
+    one line for each problem found (each part is checked apart: a new user fixed a suite one
+    error per run)."""
     path = Path(path).resolve()
-    raw, text, data = _parse(path)
-    checker = _Checker(path, text)
-    checker.unknown(data, _TOP, "the suite")
-    for required in ("name", "tests", "component"):
-        if required not in data:
-            raise SuiteError(f"{path}: missing required field {required!r}")
-    if not isinstance(data["name"], str) or not data["name"]:
-        raise checker.fail("'name' must be a non-empty string", "name")
-    tests = _string_list(checker, data["tests"], "tests", "the suite")
-    for test in tests:
-        if not (path.parent / test).is_file():
-            raise checker.fail(
-                f"test module {test!r} does not exist (relative to the suite file)", "tests"
-            )
-    build = data.get("build")
-    if isinstance(build, str):
-        build = ("sh", "-c", build)
-    elif build is not None:
-        build = _string_list(checker, build, "build", "the suite")
-    sections = {}
+    raw, text, data = parse_toml(path)
+    checker, problems = Checker(path, text), []
+
+    def checked(check: Callable[[], Any], fallback: Any = None) -> Any:
+        try:
+            return check()
+        except SuiteError as exc:
+            problems.append(str(exc))
+            return fallback
+
+    checked(lambda: checker.unknown(data, _TOP, "the suite"), None)
+    problems += [f"{path}: missing required field {r!r}" for r in _TOP_REQUIRED if r not in data]
+    name = data.get("name", "")
+    if "name" in data and (not isinstance(name, str) or not name):
+        problems.append(str(checker.fail("'name' must be a non-empty string", "name")))
+    tests = checked(lambda: _tests(checker, data.get("tests")), ())
+    build = checked(lambda: _build(checker, data.get("build")), None)
+    sections: dict[str, tuple[ProcessSpec, ...]] = {}
     for section in ("component", "fixture"):
         tables = data.get(section, [])
         if not isinstance(tables, list):
-            raise checker.fail(f"{section!r} must be written as [[{section}]] tables", section)
-        sections[section] = tuple(_process(checker, t, section, i) for i, t in enumerate(tables))
-    if not sections["component"]:
-        raise SuiteError(f"{path}: the suite names no [[component]]")
-    try:
-        affinity = parse_affinity(data.get("affinity"))
-    except ValueError as exc:
-        raise checker.fail(str(exc), "affinity") from None
+            tables = checked(partial(_not_tables, checker, section), [])
+        sections[section] = tuple(
+            spec
+            for i, t in enumerate(tables)
+            if (spec := checked(partial(_process, checker, t, section, i)))
+        )
+    if "component" in data and not data["component"]:
+        problems.append(f"{path}: the suite names no [[component]]")
+    affinity = checked(lambda: _affinity(checker, data.get("affinity")), parse_affinity(None))
+    executions = checked(
+        lambda: checker.number(data.get("executions", 1), "executions", "the suite", integer=True),
+        1,
+    )
+    sampling_hz = checked(
+        lambda: checker.number(data.get("sampling_hz", 10.0), "sampling_hz", "the suite"), 10.0
+    )
+    transport = checked(lambda: _transport(checker, data.get("transport", "tcp")), "tcp")
+    if problems:
+        raise SuiteError("\n".join(problems))
     for section, specs in sections.items():  # a process without its own cores: the components'
         sections[section] = tuple(
             spec if spec.cpus else replace(spec, cpus=affinity.of("components")) for spec in specs
         )
     return Suite(
         path=path,
-        name=data["name"],
+        name=name,
         tests=tuple((path.parent / t).resolve() for t in tests),
         components=sections["component"],
         fixtures=sections["fixture"],
         build=build,
-        executions=int(
-            checker.number(data.get("executions", 1), "executions", "the suite", integer=True)
-        ),
-        sampling_hz=float(
-            checker.number(data.get("sampling_hz", 10.0), "sampling_hz", "the suite")
-        ),
-        transport=_transport(checker, data.get("transport", "tcp")),
+        executions=int(executions),
+        sampling_hz=float(sampling_hz),
+        transport=transport,
         sha256=hashlib.sha256(raw).hexdigest(),
         affinity=affinity,
     )
+
+
+def _tests(checker: Checker, value: Any) -> tuple[str, ...]:
+    if value is None:
+        return ()  # reported as missing
+    tests = string_list(checker, value, "tests", "the suite")
+    missing = [t for t in tests if not (checker.path.parent / t).is_file()]
+    if missing:
+        named = ", ".join(map(repr, missing))
+        verb = "does not exist" if len(missing) == 1 else "do not exist"
+        noun = "module" if len(missing) == 1 else "modules"
+        message = f"test {noun} {named} {verb} (relative to the suite file)"
+        raise checker.fail(message, "tests")
+    return tests
+
+
+def _build(checker: Checker, build: Any) -> tuple[str, ...] | None:
+    if isinstance(build, str):
+        return ("sh", "-c", build)
+    return None if build is None else string_list(checker, build, "build", "the suite")
+
+
+def _not_tables(checker: Checker, section: str) -> list[Any]:
+    raise checker.fail(f"{section!r} must be written as [[{section}]] tables", section)
+
+
+def _affinity(checker: Checker, value: Any) -> Affinity:
+    try:
+        return parse_affinity(value)
+    except ValueError as exc:
+        raise checker.fail(str(exc), "affinity") from None
