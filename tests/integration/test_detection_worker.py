@@ -13,6 +13,7 @@ from redline.server.models import (
     Detection,
     DetectionConfigRow,
     Execution,
+    JudgingConfig,
     Reanalysis,
     Regression,
     Revision,
@@ -612,6 +613,15 @@ def test_a_reanalysis_judges_by_the_configuration_it_was_planned_with(
     methods = {(title, method) for title, method in _verdicts(session)}
     assert {method for _, method in methods} == {"mann_whitney"}
     assert {title for title, _ in methods} == {f"r{n}" for n in range(1, 8)}
+    # each verdict keeps the configuration it was judged by, staged ones and r7's alike (the
+    # why-flagged page shows it: a reviewer found the staged ones stored without it)
+    kept = session.execute(
+        select(Detection.config_id, JudgingConfig.config).outerjoin(
+            JudgingConfig, JudgingConfig.id == Detection.config_id
+        )
+    ).all()
+    assert kept and {config_id is not None for config_id, _ in kept} == {True}
+    assert {tuple(config["methods"]) for _, config in kept} == {("mann_whitney",)}
 
 
 def test_a_database_outage_in_a_part_leaves_the_run_going_for_the_task_to_try_again(

@@ -118,14 +118,33 @@ def test_every_problem_of_a_suite_is_named_at_once(tmp_path: Path) -> None:
     assert lines == [
         f"{suite}:2: unknown field 'executons' in the suite (allowed: affinity, build, component,"
         " executions, fixture, name, sampling_hz, tests, transport)",
+        f"{suite}:3: the suite: 'sampling_hz' must be a positive number, got -1",
         f"{suite}:4: test modules 'test_a.py', 'test_b.py' do not exist (relative to the suite"
         " file)",
         f"{suite}:9: unknown field 'start_timout' in [[component]] #1 (allowed: command, cpus,"
         " cwd, env, name, ready, start_timeout, stop_timeout)",
         f"{suite}:13: [[fixture]] #1: 'host' is reserved for Redline's own series (reserved:"
         " driver, host, recorder, redline)",
-        f"{suite}:3: the suite: 'sampling_hz' must be a positive number, got -1",
     ]
+
+
+@pytest.mark.parametrize(
+    ("text", "expected"),
+    [  # each once, as a SuiteError naming the file (a reviewer's OSError, ValueError, repeats)
+        (VALID.replace("test_demo.py", "t" * 300), ["test module 'ttt"]),
+        (VALID + 'cwd = "a\\u0000b"\n', ["'cwd' must be a path string"]),
+        (
+            'name = "x"\ntests = ["test_demo.py"]\ncomponent = [1, 2, "s"]\n',
+            ["'component' must be an array of tables"],
+        ),
+        ('name = "x"\ntests = ["test_demo.py"]\n[component]\n', ["written as [[component]]"]),
+    ],
+)
+def test_a_hostile_suite_gets_each_problem_once(tmp_path: Path, text: str, expected: list[str]):
+    lines = error_of(tmp_path, text).splitlines()
+    assert len(lines) == len(expected) and str(tmp_path) in lines[0], lines
+    for line, part in zip(lines, expected, strict=True):
+        assert part in line, lines
 
 
 def test_missing_file_is_named(tmp_path: Path) -> None:

@@ -194,7 +194,7 @@ def _process(checker: Checker, table: Any, section: str, index: int) -> ProcessS
     if not isinstance(env, dict) or not all(isinstance(v, str) for v in env.values()):
         raise checker.fail(f"{what}: 'env' must be a table of strings", "env", section, index)
     cwd = table.get("cwd", ".")
-    if not isinstance(cwd, str):
+    if not isinstance(cwd, str) or "\0" in cwd:
         raise checker.fail(f"{what}: 'cwd' must be a path string", "cwd", section, index)
     ready = table.get("ready")
     try:
@@ -258,7 +258,7 @@ def load_suite(path: str | Path) -> Suite:
             for i, t in enumerate(tables)
             if (spec := checked(partial(_process, checker, t, section, i)))
         )
-    if "component" in data and not data["component"]:
+    if data.get("component") == []:
         problems.append(f"{path}: the suite names no [[component]]")
     affinity = checked(lambda: _affinity(checker, data.get("affinity")), parse_affinity(None))
     executions = checked(
@@ -269,8 +269,9 @@ def load_suite(path: str | Path) -> Suite:
         lambda: checker.number(data.get("sampling_hz", 10.0), "sampling_hz", "the suite"), 10.0
     )
     transport = checked(lambda: _transport(checker, data.get("transport", "tcp")), "tcp")
-    if problems:
-        raise SuiteError("\n".join(problems))
+    if problems:  # in the file's order, each once
+        lines = dict.fromkeys(line for problem in problems for line in problem.splitlines())
+        raise SuiteError("\n".join(sorted(lines, key=checker.line_in)))
     for section, specs in sections.items():  # a process without its own cores: the components'
         sections[section] = tuple(
             spec if spec.cpus else replace(spec, cpus=affinity.of("components")) for spec in specs
@@ -294,7 +295,7 @@ def _tests(checker: Checker, value: Any) -> tuple[str, ...]:
     if value is None:
         return ()  # reported as missing
     tests = string_list(checker, value, "tests", "the suite")
-    missing = [t for t in tests if not (checker.path.parent / t).is_file()]
+    missing = [t for t in tests if not _is_file(checker.path.parent / t)]
     if missing:
         named = ", ".join(map(repr, missing))
         verb = "does not exist" if len(missing) == 1 else "do not exist"
@@ -302,6 +303,14 @@ def _tests(checker: Checker, value: Any) -> tuple[str, ...]:
         message = f"test {noun} {named} {verb} (relative to the suite file)"
         raise checker.fail(message, "tests")
     return tests
+
+
+def _is_file(path: Path) -> bool:
+    """Whether ``path`` is a file; False for a name no file can have (too long, a NUL)."""
+    try:
+        return path.is_file()
+    except (OSError, ValueError):
+        return False
 
 
 def _build(checker: Checker, build: Any) -> tuple[str, ...] | None:

@@ -39,6 +39,11 @@ class Checker:
                 return number + 1
         return None if section is None else start + 1
 
+    def line_in(self, message: str) -> int:
+        """The line a message of `fail` names (0 when it names none)."""
+        found = re.match(rf"{re.escape(str(self.path))}:(\d+)", message)
+        return int(found.group(1)) if found else 0
+
     def fail(
         self, message: str, key: str, section: str | None = None, index: int = 0
     ) -> SuiteError:

@@ -29,7 +29,7 @@ from redline.server.models import (
     StagedRevision,
     utcnow,
 )
-from redline.server.services.detection_config import component_config
+from redline.server.services.detection_config import component_config, judging_config_id
 from redline.worker.confirm_runs import settle_pending_pairs
 from redline.worker.confirmation import confirm_by_history
 from redline.worker.detection import judge_revision, store
@@ -248,6 +248,7 @@ def _store_batch(session: Session, component_id: int, run: int, planned: list[in
     )
     revisions = {r.id: r for r in session.scalars(select(Revision).where(Revision.id.in_(batch)))}
     config = run_config(session, row)
+    config_id = judging_config_id(session, component_id, config)
     fresh, stored = row.from_database, []
     for revision_id in batch:
         revision = revisions.get(revision_id)
@@ -271,7 +272,7 @@ def _store_batch(session: Session, component_id: int, run: int, planned: list[in
             if judged is not None:
                 store(session, revision, judged.rows, config=config)
             continue
-        _store_staged(session, revision, run, config.alarming, revision_id in flagged)
+        _store_staged(session, revision, run, config.alarming, revision_id in flagged, config_id)
         stored.append(revision_id)
     if stored:
         session.execute(
@@ -282,9 +283,15 @@ def _store_batch(session: Session, component_id: int, run: int, planned: list[in
 
 
 def _store_staged(
-    session: Session, revision: Revision, run: int, alarming: Collection[str], flagged: bool
+    session: Session,
+    revision: Revision,
+    run: int,
+    alarming: Collection[str],
+    flagged: bool,
+    config_id: int,
 ) -> None:
-    """Replace the revision's verdicts with its staged ones, by series, each series' methods in
+    """Replace the revision's verdicts with its staged ones, judged by the kept configuration
+    ``config_id``, by series, each series' methods in
     order (the order detection stores the flagged ones in, which grouping follows), and group
     its changes into regressions: when it has ``flagged`` ones, or when the verdicts replaced
     belonged to regressions (which may be left empty); otherwise grouping finds nothing to do."""
@@ -306,13 +313,18 @@ def _store_staged(
     ).all()
     session.execute(  # all but the kept verdicts' series and methods
         text(
-            f"INSERT INTO detection ({DETECTION_COLUMNS}) SELECT {DETECTION_COLUMNS} "
-            "FROM staged_detection s WHERE component_id = :component AND run = :run "
+            f"INSERT INTO detection ({DETECTION_COLUMNS}, config_id) "
+            f"SELECT {DETECTION_COLUMNS}, :config FROM staged_detection s WHERE component_id = :component AND run = :run "
             "AND revision_id = :revision AND NOT EXISTS (SELECT 1 FROM detection d WHERE "
             "d.revision_id = s.revision_id AND d.series_id = s.series_id AND d.method = s.method) "
             "ORDER BY series_id, id"
         ),
-        {"component": revision.component_id, "run": run, "revision": revision.id},
+        {
+            "component": revision.component_id,
+            "run": run,
+            "revision": revision.id,
+            "config": config_id,
+        },
     )
     if flagged or any(regression is not None for regression in emptied):
         group_revision(session, revision, alarming)

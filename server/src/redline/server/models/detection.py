@@ -166,7 +166,9 @@ class Detection(VerdictColumns, Base):
         ForeignKey("regression.id", ondelete="SET NULL"), index=True, default=None
     )
     #: the configuration it was judged by (None: judged before 0030 kept it)
-    config_id: Mapped[int | None] = mapped_column(ForeignKey("judging_config.id"), default=None)
+    config_id: Mapped[int | None] = mapped_column(
+        ForeignKey("judging_config.id"), index=True, default=None
+    )
     series: Mapped[Series] = relationship()
     revision: Mapped[Revision] = relationship(foreign_keys=[revision_id])
     baseline_revision: Mapped[Revision | None] = relationship(foreign_keys=[baseline_revision_id])

@@ -42,8 +42,11 @@ def upgrade() -> None:
         "detection",
         sa.Column("config_id", sa.Integer(), sa.ForeignKey("judging_config.id"), nullable=True),
     )
+    # a component's deletion removes its rows: each one's foreign key check looks here
+    op.create_index("ix_detection_config_id", "detection", ["config_id"])
 
 
 def downgrade() -> None:
+    op.drop_index("ix_detection_config_id", table_name="detection")
     op.drop_column("detection", "config_id")
     op.drop_table("judging_config")
