@@ -314,9 +314,10 @@ def _store_staged(
     session.execute(  # all but the kept verdicts' series and methods
         text(
             f"INSERT INTO detection ({DETECTION_COLUMNS}, config_id) "
-            f"SELECT {DETECTION_COLUMNS}, :config FROM staged_detection s WHERE component_id = :component AND run = :run "
-            "AND revision_id = :revision AND NOT EXISTS (SELECT 1 FROM detection d WHERE "
-            "d.revision_id = s.revision_id AND d.series_id = s.series_id AND d.method = s.method) "
+            f"SELECT {DETECTION_COLUMNS}, :config FROM staged_detection s "
+            "WHERE component_id = :component AND run = :run AND revision_id = :revision "
+            "AND NOT EXISTS (SELECT 1 FROM detection d WHERE d.revision_id = s.revision_id "
+            "AND d.series_id = s.series_id AND d.method = s.method) "
             "ORDER BY series_id, id"
         ),
         {
