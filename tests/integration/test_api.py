@@ -547,6 +547,27 @@ def test_non_mcap_upload_is_refused_and_fails_the_job(api: Api):
     )
 
 
+@pytest.mark.parametrize(
+    ("topic", "data", "words"),
+    [  # what a hostile-input probe uploaded: accepted, then ingestion failed with a KeyError
+        # or TypeError and left the job "uploaded" for good; a 500 for the nesting
+        ("@redline/counters/x", b'{"x": 1}', "counter sample 151 has no integer t_ns"),
+        ("@redline/markers", b"1", "phase marker 3 is not an object"),
+        ("@redline/driver/x", b'{"t_ns": "soon"}', "driver report 1 has a t_ns that is not"),
+        ("@redline/counters/x", b"[" * 100_000 + b"]" * 100_000, "counter sample 151 is not JSON"),
+        ("@redline/markers", b"[" * 100_000 + b"]" * 100_000, "RecursionError"),
+    ],
+)
+def test_a_recording_holding_a_message_redline_does_not_write_is_refused_naming_it(
+    api: Api, tmp_path: Path, topic: str, data: bytes, words: str
+):
+    api.component()
+    api.revision("r1", "1")
+    job = api.lease()
+    recording = recording_for(job, tmp_path / "r1.mcap", extra=(topic, data))
+    _assert_refused(api, job["id"], recording, words)
+
+
 def test_recording_made_for_another_job_is_refused(api: Api, tmp_path: Path):
     api.component()
     api.revision("r1", "1")

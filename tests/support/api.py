@@ -156,8 +156,16 @@ def api_with(services: Services, tmp_path: Path, **settings: Any) -> Iterator[Ap
         yield Api(client, config, tokens)
 
 
-def recording_for(job: dict, path: Path, cpu: float = 20.0, seed: int = 0, **run: str) -> bytes:
-    """A finished recording made for the leased ``job``; ``run`` overrides metadata fields."""
+def recording_for(
+    job: dict,
+    path: Path,
+    cpu: float = 20.0,
+    seed: int = 0,
+    extra: tuple[str, bytes] | None = None,
+    **run: str,
+) -> bytes:
+    """A finished recording made for the leased ``job``; ``run`` overrides metadata fields;
+    ``extra`` is one more message, as given (`write_recording`)."""
     rng = np.random.default_rng(seed)
     metadata = {
         "job_id": str(job["id"]),
@@ -169,7 +177,7 @@ def recording_for(job: dict, path: Path, cpu: float = 20.0, seed: int = 0, **run
         **run,
     }
     counters = {"cpu": rng.normal(cpu, cpu / 10, 150), "rss": rng.normal(5e7, 1e5, 150)}
-    return write_recording(path, metadata, counters).read_bytes()
+    return write_recording(path, metadata, counters, extra=extra).read_bytes()
 
 
 def expire_lease(api: Api, job_id: int) -> None:

@@ -19,10 +19,12 @@ def write_recording(
     warmup: dict[str, np.ndarray] | None = None,
     process: str = PROCESS,
     host_percent: float | None = None,
+    extra: tuple[str, bytes] | None = None,
 ) -> Path:
     """A finished Redline recording: one segment per phase, one counter sample per 10 ms;
     with ``host_percent``, the host's CPU (% of its 2 cores) and Redline's own beside each
-    sample (`redline.recording.disturbance`)."""
+    sample (`redline.recording.disturbance`); with ``extra``, one more message (topic, bytes)
+    written as given, after them."""
     with RecordingWriter(path) as writer:
         writer.metadata("redline.run", run)
         if host_percent is not None:
@@ -41,6 +43,8 @@ def write_recording(
                     writer.counters("redline", 0, {"cpu_percent": 4.0}, t_ns)
             t_ns += 10_000_000
             writer.marker("end", CASE, phase, PARAMS, warmup=is_warmup, t_ns=t_ns)
+        if extra is not None:
+            writer.write(extra[0], extra[1], encoding="json", t_ns=t_ns)
     return path
 
 

@@ -59,6 +59,7 @@ from redline.recording.mcap_bytes import (
     chunk_data,
     records,
 )
+from redline.recording.shapes import keep_well_formed
 
 
 class RecordingError(ValueError):
@@ -93,6 +94,8 @@ class Recording:
     #: each component or fixture process's output (its end), by process name
     logs: dict[str, str] = field(default_factory=dict)
     problem: str = ""
+    #: the first message not of a shape Redline writes (`redline.recording.shapes`), left out
+    malformed: str = ""
 
     @property
     def run(self) -> dict[str, str]:
@@ -320,6 +323,7 @@ def read_recording(path: str | Path, *, strict: bool = True, events: bool = Fals
     except Exception as exc:  # the mcap library raises several types for a damaged file
         recording.problem = _problem(exc)
     _decode_counters(recording, counters)
+    recording.malformed = keep_well_formed(recording.counters, recording.markers, recording.driver)
     if strict:
         _check_strict(recording)
     return recording
@@ -355,14 +359,15 @@ def _decode_counters(recording: Recording, raw: list[bytes]) -> None:
         recording.counters = json.loads(b"[" + b",".join(raw) + b"]") if raw else []
         if len(recording.counters) == len(raw):
             return
-    except ValueError:
+    except (ValueError, RecursionError):
         pass
     recording.counters = []
-    for data in raw:
+    for number, data in enumerate(raw, 1):
         try:
             recording.counters.append(json.loads(data))
-        except ValueError as exc:
-            recording.problem = recording.problem or _problem(exc)
+        except (ValueError, RecursionError) as exc:
+            problem = f"counter sample {number} is not JSON ({_problem(exc)[:120]})"
+            recording.problem = recording.problem or problem
             return
 
 
@@ -378,6 +383,10 @@ def _check_strict(recording: Recording) -> None:
     if recording.problem or not recording.complete:
         detail = recording.problem or "no footer"
         raise RecordingError(f"{name} is truncated or damaged: {detail}")
+    if recording.malformed:
+        raise RecordingError(
+            f"{name} holds a message Redline does not write: {recording.malformed}"
+        )
     if recording.profile != PROFILE:
         raise RecordingError(
             f"{name} is an MCAP file but not a Redline recording "
