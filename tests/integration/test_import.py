@@ -142,6 +142,50 @@ def test_malformed_lnt_reports_are_400_naming_the_fault(api: Api):
     assert api.client.get("/api/v1/components/clang/revisions").json() == []
 
 
+def test_names_too_long_to_keep_are_refused_not_cut_and_nothing_is_stored(api: Api):
+    """A probe's two LNT tests named alike for their first 200 characters were pooled into one
+    series (cut to 200, silently), its over-long machine name cut; 80 parameters of a generic
+    result and a 3,000-letter repository were answered "the database is unavailable; try again
+    later" (503): each is a 4xx naming what is too long, and nothing is stored."""
+    report = lnt_report()
+    report["tests"] = [
+        {"name": "n" * 200 + "A", "execution_time": [1.0]},
+        {"name": "n" * 200 + "B", "execution_time": [100.0]},
+    ]
+    answer = send_lnt(api, report)
+    assert answer.status_code == 400, answer.text
+    assert "tests[0].name 'nnnn" in answer.json()["detail"]
+    assert "is 201 characters long (at most 200)" in answer.json()["detail"]
+    report = lnt_report()
+    report["machine"]["name"] = "m" * 5000
+    answer = send_lnt(api, report)
+    assert answer.status_code == 400 and "machine.name" in answer.json()["detail"], answer.text
+    report = lnt_report(order="9" * 300)
+    answer = send_lnt(api, report)
+    assert answer.status_code == 400 and "llvm_project_revision" in answer.json()["detail"]
+    params = {f"{n:02d}" + "k" * 18: "v" * 30 for n in range(80)}
+    answer = api.client.post(
+        "/api/v1/import/results",
+        json={
+            "component": "clang",
+            "revision": "r1",
+            "sort_key": "1",
+            "results": [{"case": "c", "params": params, "counter": "t", "values": [1.0]}],
+        },
+        headers=api.tokens["ci"],
+    )
+    assert answer.status_code == 422, answer.text
+    assert "is too long to store" in answer.json()["detail"] and "at most 2000" in answer.text
+    assert api.client.get("/api/v1/components/clang/revisions").json() == []
+    long_repo = {"name": "rr", "repo": "https://x.example/" + "a" * 3000}
+    answer = api.post("/api/v1/components", "admin", long_repo)
+    assert answer.status_code == 422 and "1000 characters" in answer.text, answer.text
+    patched = api.client.patch(
+        "/api/v1/components/clang", json={"repo": long_repo["repo"]}, headers=api.tokens["admin"]
+    )
+    assert patched.status_code == 422 and "1000 characters" in patched.text, patched.text
+
+
 @pytest.mark.parametrize(
     ("field", "given", "said"),
     [

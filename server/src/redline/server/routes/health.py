@@ -45,7 +45,18 @@ def _reason(error: BaseException) -> str:
 
 async def database_unavailable(request: Request, error: Exception) -> JSONResponse:
     """The app's handler for DATABASE_DOWN: agents keep their recordings and try again. The
-    cause goes to the log too (a trial's 503 left only its access line there)."""
+    cause goes to the log too (a trial's 503 left only its access line there). A value over
+    one of Postgres's limits (SQLSTATE class 54, "program limit exceeded": an index row over
+    2,704 bytes) is the request's fault, which psycopg raises as an OperationalError too: 422,
+    where a retry would fail the same way (a probe was told to try again later)."""
+    if str(getattr(getattr(error, "orig", None), "sqlstate", "") or "").startswith("54"):
+        log.warning(
+            "%s %s: 422, over a limit: %s", request.method, request.url.path, _reason(error)
+        )
+        return JSONResponse(
+            {"detail": f"a value of the request is too large to store ({_reason(error)})"},
+            status_code=422,
+        )
     log.warning("%s %s: 503, the database: %s", request.method, request.url.path, _reason(error))
     return JSONResponse(
         {"detail": f"the database is unavailable ({_reason(error)}); try again later"},

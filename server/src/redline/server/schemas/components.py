@@ -15,11 +15,17 @@ from redline.server.schemas.fields import (
     Word,
 )
 
+#: a repository's URL or path, at most: it is indexed (Postgres indexes 2,704 bytes a row), and
+#: a probe's 3,000 letters were answered "the database is unavailable"
+REPO_LENGTH = 1_000
+
 
 class ComponentSettings(RequestBody):
     """What PATCH may change; every field is optional there."""
 
-    repo: str | None = Field(default=None, description="URL or path; https/ssh/.git all match")
+    repo: str | None = Field(
+        default=None, max_length=REPO_LENGTH, description="URL or path; https/ssh/.git all match"
+    )
     branch: Branch | None = Field(
         default=None,
         description="the default branch; pushes to it become revisions",
@@ -56,6 +62,7 @@ class ComponentCreate(RequestBody):
     name: ComponentName
     repo: str = Field(
         default="",
+        max_length=REPO_LENGTH,
         description="https://, ssh:// or git:// URL, or user@host:path; "
         "a local path or file:// only where REDLINE_ALLOW_FILE_REPOS is set",
     )

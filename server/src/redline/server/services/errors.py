@@ -25,6 +25,11 @@ class Unprocessable(ServiceError):
     status_code = 422
 
 
+class TooLongToStore(Unprocessable, ValueError):
+    """A name too long for its index (Postgres refuses an index row over 2,704 bytes); a
+    ValueError too, so a recording naming one fails its job instead of being retried."""
+
+
 class NotFound(ServiceError):
     status_code = 404
 

@@ -20,6 +20,7 @@ from redline.detect.counters import is_held
 from redline.detect.summary import summarize
 from redline.recording import SeriesKey
 from redline.server.models import Execution, Series, Summary
+from redline.server.services.errors import TooLongToStore
 from redline.server.storage import DISTURBED, NOT_JUDGED, samples_path
 from sqlalchemy import delete, select
 from sqlalchemy.dialects.postgresql import insert
@@ -31,8 +32,23 @@ Samples = dict[SeriesKey, list[float]]
 SERIES_PER_INSERT = 5_000
 
 
+#: a series' case, phase, parameters, process and counter together, in UTF-8 bytes: Postgres
+#: indexes at most 2,704 bytes a row, and an import of 80 parameters was answered "the database
+#: is unavailable" (a 503 no retry could help)
+SERIES_KEY_BYTES = 2_000
+
+
 def series_ids(session: Session, component_id: int, keys: list[SeriesKey]) -> dict[SeriesKey, int]:
-    """Create the series named that do not exist yet (race-free); return every key's id."""
+    """Create the series named that do not exist yet (race-free); return every key's id.
+    `TooLongToStore` names the first key over `SERIES_KEY_BYTES`."""
+    for key in keys:
+        size = len("".join((key.case, key.phase, key.params, key.process, key.counter)).encode())
+        if size > SERIES_KEY_BYTES:
+            label = f"{key.case}/{key.phase}[{key.params}] {key.process}.{key.counter}"
+            raise TooLongToStore(
+                f"series {label[:80]!r}... is too long to store: its case, phase, parameters, "
+                f"process and counter take {size} bytes (at most {SERIES_KEY_BYTES})"
+            )
     if keys:
         rows = [
             dict(

@@ -59,11 +59,21 @@ def _values(test: str, metric: str, value: Any) -> list[float]:
         raise BadRequest(f"LNT report: test {test!r} metric {metric!r}: {exc}") from None
 
 
+#: the longest name kept (a series' case and counter, a host's name, a revision's title)
+NAME_LENGTH = 200
+
+
 def _checked(where: str, value: str, check: Callable[[str], str] = one_line) -> str:
-    """``value`` cut to 200 characters if ``check`` passes it, else a BadRequest naming
-    ``where``: a CR/LF in a test's name would break the pages' rows."""
+    """``value`` if ``check`` passes it and it is at most `NAME_LENGTH` characters long, else a
+    BadRequest naming ``where``: a CR/LF in a test's name would break the pages' rows, and two
+    tests' names cut to their first 200 characters were pooled into one series (a probe)."""
+    if len(value) > NAME_LENGTH:
+        raise BadRequest(
+            f"LNT report: {where} {value[:80]!r}... is {len(value)} characters long "
+            f"(at most {NAME_LENGTH})"
+        )
     try:
-        return check(value[:200])
+        return check(value)
     except ValueError as exc:
         raise BadRequest(f"LNT report: {where} {value[:80]!r} {exc}") from None
 
@@ -159,7 +169,7 @@ def parse_lnt(body: bytes, component: str, order_field: str = ORDER_FIELD) -> Im
         # a NaN read as "no order field" sent its author looking for a missing one
         said = f"must be text or a whole number, not {order!r}"[:120]
         raise BadRequest(f"LNT report: run field {order_field!r} {said}")
-    title = str(order)[:200]
+    title = _checked(f"run field {order_field!r}", str(order), lambda text: text)
     try:
         path_segment(title)
     except ValueError as exc:  # the revision's title must be addressable in the API's URLs
