@@ -284,8 +284,32 @@ def test_the_agent_refuses_a_token_file_other_users_can_read(tmp_path: Path, mod
     assert "rl_secret" not in done.output
 
 
+@pytest.mark.parametrize("command", ["report", "wait"])
+def test_ci_commands_take_no_token_on_the_command_line_only_a_file_or_the_environment(
+    tmp_path: Path, command: str
+):
+    """`ci report --token rl_...` showed the token to every user of the machine in ps (a
+    probe): the command line takes no token; a file other users can read is refused."""
+    from redline.cli import ci_cmd
+    from typer.testing import CliRunner
+
+    app = typer.Typer()
+    ci_cmd.register(app)  # `redline ci` alone
+    base = ["ci", command, "--server", "http://127.0.0.1:9", "--component", "c"]
+    given = CliRunner().invoke(app, [*base, "--token", "rl_secret"], env={"COLUMNS": "200"})
+    assert given.exit_code == 2 and "No such option: --token" in given.output, given.output
+    token_file = tmp_path / "token"
+    token_file.write_text("rl_secret\n")
+    token_file.chmod(0o644)
+    shared = CliRunner().invoke(
+        app, [*base, "--token-file", str(token_file)], env={"COLUMNS": "200"}
+    )
+    assert shared.exit_code == 2 and "chmod 600" in shared.output, shared.output
+    assert "rl_secret" not in given.output + shared.output
+
+
 def test_the_agent_reads_a_token_file_only_its_owner_can_read(tmp_path: Path):
-    from redline.cli.agent_cmd import read_token
+    from redline.cli.tokens import read_token
 
     token_file = tmp_path / "token"
     token_file.write_text("rl_secret\n")

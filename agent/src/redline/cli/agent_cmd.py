@@ -12,6 +12,7 @@ from types import FrameType
 from typing import TYPE_CHECKING, Annotated
 
 import typer
+from redline.cli.tokens import read_token
 
 if TYPE_CHECKING:
     from redline.agent.daemon import AgentDaemon
@@ -103,28 +104,6 @@ def agent(
 def host_name(template: str) -> str:
     """The name the agent acts as: ``template`` with '{hostname}' the machine's."""
     return template.replace("{hostname}", socket.gethostname())
-
-
-def read_token(token_file: Path | None) -> str:
-    """The agent's token: from ``token_file`` (which only its owner may read) or
-    ``REDLINE_TOKEN``; a clear error naming both otherwise."""
-    if token_file is not None:
-        try:
-            mode = token_file.stat().st_mode
-            token = token_file.read_text().strip()
-        except OSError as exc:
-            raise typer.BadParameter(
-                f"cannot read {token_file}: {exc.strerror}", param_hint="--token-file"
-            ) from None
-        if mode & 0o077:
-            raise typer.BadParameter(
-                f"{token_file} is readable by other users (mode {mode & 0o777:o}); "
-                f"chmod 600 {token_file}",
-                param_hint="--token-file",
-            )
-        if not token:
-            raise typer.BadParameter(f"{token_file} is empty", param_hint="--token-file")
-        return token
     token = os.environ.get("REDLINE_TOKEN", "").strip()
     if not token:
         raise typer.BadParameter(

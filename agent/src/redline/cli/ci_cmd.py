@@ -24,6 +24,7 @@ from urllib.parse import quote, urlsplit
 
 import httpx
 import typer
+from redline.cli.tokens import TokenFile, read_token
 
 PASSED, CHANGED, BAD_INPUT, JOBS_FAILED, UNDECIDED = 0, 1, 2, 3, 4
 #: how long a revision may take to appear (its push is still being reported) before "unknown"
@@ -197,14 +198,7 @@ def wait(
             help="the revision's title (default: HEAD's first 12 digits, as `ci report` gives it)"
         ),
     ] = None,
-    token: Annotated[
-        str,
-        typer.Option(
-            help="a token with the 'read' or 'ci' scope (where reading needs one); better set "
-            "REDLINE_TOKEN than pass it here, where other users of the machine see it in ps",
-            envvar="REDLINE_TOKEN",
-        ),
-    ] = "",
+    token_file: TokenFile = None,
     junit: Annotated[Path | None, typer.Option(help="write the verdict as JUnit XML here")] = None,
     timeout: Annotated[float, typer.Option(min=1, help="seconds to wait for the verdict")] = 3600,
     fail_on: Annotated[
@@ -239,6 +233,7 @@ def wait(
         if (why := unaddressable(option, name)) is not None:
             fail(why)
 
+    token = read_token(token_file, required=False)
     headers = {"Authorization": f"Bearer {token}"} if token else {}
     base = f"/api/v1/components/{quote(component, safe='')}/revisions/{quote(revision, safe='')}"
     started = time.monotonic()

@@ -18,6 +18,7 @@ from urllib.parse import urlsplit
 import httpx
 import typer
 from redline.cli.ci_cmd import BAD_INPUT, detail, no_token, unaddressable
+from redline.cli.tokens import TokenFile, read_token
 
 #: a title of the first 12 hex digits, as `git rev-parse --short=12` and the push webhook give
 TITLE_DIGITS = 12
@@ -58,14 +59,7 @@ def git_head(what: str, commit: str = "HEAD") -> str:
 def report(
     component: Annotated[str, typer.Option(help="the component's name")],
     server: Annotated[str, typer.Option(help="URL of the Redline server", envvar="REDLINE_SERVER")],
-    token: Annotated[
-        str,
-        typer.Option(
-            help="a token with the 'ci' scope; better set REDLINE_TOKEN than pass it here, "
-            "where other users of the machine see it in ps",
-            envvar="REDLINE_TOKEN",
-        ),
-    ] = "",
+    token_file: TokenFile = None,
     commit: Annotated[
         str, typer.Option(help="what the hosts build (default: HEAD's full id)")
     ] = "",
@@ -93,6 +87,7 @@ def report(
         # the full id git resolved (HEAD~1 or main was refused, or taken for another commit)
         commit, title, sort_key = full, title or full[:TITLE_DIGITS], sort_key or when
     body |= {"commit": commit, "title": title, "sort_key": sort_key}
+    token = read_token(token_file, required=False)
     headers = {"Authorization": f"Bearer {token}"} if token else {}
     try:
         answer = httpx.post(
