@@ -249,6 +249,21 @@ def test_logged_urls_have_their_credentials_redacted(
     assert "token=***" in logged and "view=1" in logged
 
 
+@pytest.mark.parametrize(
+    ("url", "kept"),
+    [  # a probe's client_secret was logged as sent: any name ending in a credential's word
+        ("/cb?client_secret=CS1&state=ok", "/cb?client_secret=***&state=ok"),
+        ("/h?x_api_key=K2", "/h?x_api_key=***"),
+        ("/h?hub.signature=S3&auth=A4", "/h?hub.signature=***&auth=***"),
+        ("/h?monkey=banana&keyboard=1", "/h?monkey=***&keyboard=1"),
+    ],
+)
+def test_query_credentials_are_redacted_by_the_ending_of_their_names(url: str, kept: str):
+    from redline.server.core.logs import redact
+
+    assert redact(url) == kept
+
+
 def test_repository_urls_normalize_across_https_ssh_and_dot_git():
     keys = {
         repo_key(url)

@@ -116,3 +116,12 @@ def test_a_stored_url_that_cannot_be_sent_to_fails_its_delivery_for_good_saying_
         deliver._post(client, "http://hooks.example.com/a\tb", b"{}", {}, timeout=1.0)
     assert failed.value.permanent
     assert str(failed.value).startswith("invalid URL: Invalid non-printable ASCII character")
+
+
+@pytest.mark.parametrize("url", ["https://user:s3cret@hooks.example/x", "https://token@h.example/"])
+def test_a_target_url_carrying_a_user_or_password_is_refused(url) -> None:
+    # a probe's showed in full in the settings page and in the API's answers to admins
+    with pytest.raises(ValidationError, match="must not carry a user or password"):
+        SubscriptionCreate(kind="webhook", url=url)
+    with pytest.raises(ValidationError, match="commit status a 'token' instead"):
+        CommitStatusTarget(provider="github", repository="a/b", api_url=url, token="t")

@@ -9,9 +9,11 @@ from datetime import UTC, datetime
 
 from redline.server.core.security import TOKEN_PREFIX
 
-#: a credential in a URL's query (``?token=...``), and a Redline token wherever it appears
+#: a credential in a URL's query (``?token=...``, ``&client_secret=...``: any name ending in
+#: one of these words), and a Redline token wherever it appears
 _CREDENTIAL = re.compile(
-    r"(?P<name>[?&](?:token|access_token|api_key|key|secret|password|signature)=)[^&\s\"']*",
+    r"(?P<name>[?&][\w.-]*?(?:token|key|secret|password|passwd|signature|sig|auth|credentials?)=)"
+    r"[^&\s\"']*",
     re.IGNORECASE,
 )
 _TOKEN = re.compile(r"(?<![A-Za-z0-9_])" + re.escape(TOKEN_PREFIX) + r"[A-Za-z0-9_-]{20,}")

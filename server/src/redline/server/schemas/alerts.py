@@ -40,13 +40,20 @@ EmailAddress = Annotated[str, Field(max_length=320), AfterValidator(email_addres
 
 def http_url(value: str) -> str:
     """``value`` if it is an http(s) URL with a host ("" passes: none given), with no space or
-    control character in it (httpx refuses to send those: each delivery would fail)."""
+    control character in it (httpx refuses to send those: each delivery would fail), and no
+    user or password in it (a probe's showed in the settings page and the API's answers)."""
     if not value:
         return value
     printable(value)
     parts = urlsplit(value)
     if parts.scheme not in ("http", "https") or not parts.hostname:
         raise ValueError("must be an http:// or https:// URL with a host")
+    if parts.username is not None or parts.password is not None:
+        # it would be shown in the pages and the API's answers, and logged by proxies
+        raise ValueError(
+            "must not carry a user or password (user:password@): give the subscription a "
+            "'secret' (it signs each body) or the commit status a 'token' instead"
+        )
     refused = refused_address(parts.hostname)
     if refused is not None:
         raise ValueError(f"must not point at this host: {refused}")
