@@ -177,6 +177,19 @@ def test_names_too_long_to_keep_are_refused_not_cut_and_nothing_is_stored(api: A
     assert answer.status_code == 422, answer.text
     assert "is too long to store" in answer.json()["detail"] and "at most 2000" in answer.text
     assert api.client.get("/api/v1/components/clang/revisions").json() == []
+    # a name in the path of a 422 is quoted in short too (a probe's answer was 100 kB)
+    answer = api.client.post(
+        "/api/v1/import/results",
+        json={
+            "component": "clang",
+            "revision": "r1",
+            "sort_key": "1",
+            "results": [{"case": "c", "params": {"p" * 100_000: 1}, "counter": "t", "values": [1]}],
+        },
+        headers=api.tokens["ci"],
+    )
+    assert answer.status_code == 422 and len(answer.content) < 2_000, len(answer.content)
+    assert "pppp" in answer.text
     long_repo = {"name": "rr", "repo": "https://x.example/" + "a" * 3000}
     answer = api.post("/api/v1/components", "admin", long_repo)
     assert answer.status_code == 422 and "1000 characters" in answer.text, answer.text

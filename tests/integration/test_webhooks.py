@@ -227,5 +227,13 @@ def test_without_a_secret_every_delivery_is_told_so(services: Services, tmp_path
         for body in (github_push(), b'{"not": "a push"}', b"not json"):
             answer = send_github(bare, body)
             assert answer.status_code == 401, answer.text
-            assert "no webhook secret is configured" in answer.json()["detail"], body
+            assert "webhook secret is configured" in answer.json()["detail"], body
+        # one Redline cannot read names no repository: only the server-wide secret could
+        # verify it, which is what it is told (a probe's, signed with its component's own
+        # secret, read "no webhook secret is configured")
+        answer = send_github(bare, b"not json", secret="own-secret-of-builder")
+        assert answer.json()["detail"].startswith(
+            "no server-wide webhook secret is configured, and only it can verify this body: it "
+            "is no push Redline can read ("
+        ), answer.text
         assert counts(bare) == (0, 0)

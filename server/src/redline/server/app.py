@@ -204,6 +204,9 @@ async def _invalid(request: Request, exc: Exception) -> Response:
     errors = [
         {
             **error,
+            # a key in the path is input too: a 100,000-character parameter name was quoted
+            # whole (a probe's 422 was 100 kB)
+            "loc": [_excerpt(part) if isinstance(part, str) else part for part in error["loc"]],
             "msg": error_words(error),
             "input": _excerpt(_unquoted(tuple(error["loc"]), error.get("input"))),
         }

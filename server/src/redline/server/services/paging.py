@@ -33,7 +33,8 @@ def decode_cursor(cursor: str, *kinds: type) -> tuple[Any, ...]:
         or len(values) != len(kinds)
         or not all(type(value) is kind for value, kind in zip(values, kinds, strict=True))
     ):
-        raise BadRequest(f"malformed cursor {cursor[:100]!r}; pass back an X-Next-Cursor")
+        given = f"{cursor[:80]!r}" + ("..." if len(cursor) > 80 else "")
+        raise BadRequest(f"malformed cursor {given}; pass back an X-Next-Cursor")
     return tuple(values)
 
 

@@ -233,10 +233,17 @@ def authenticate_push(
     except BadRequest as unreadable:
         if not verify(default_secret):
             # a component's own secret is found through the repository the push names
+            # a probe's body, signed with its component's own secret, was told "no webhook
+            # secret is configured": say which secret was the one that could be checked
+            said = (
+                f"{verify.proof} does not match the server-wide secret"
+                if default_secret
+                else "no server-wide webhook secret is configured"
+            )
             raise Unauthorized(
-                f"{_unverified({default_secret}, verify.proof)}: the body is no push Redline "
-                f"can read ({unreadable.detail[:200]}), so only the server-wide secret could "
-                "sign it"
+                f"{said}, and only it can verify this body: it is no push Redline can read "
+                f"({unreadable.detail[:200]}), and a component's own secret is found through the "
+                "repository a push names"
             ) from None
         raise
     candidates = _of_repository(session, push)
