@@ -163,31 +163,18 @@ def test_names_too_long_to_keep_are_refused_not_cut_and_nothing_is_stored(api: A
     report = lnt_report(order="9" * 300)
     answer = send_lnt(api, report)
     assert answer.status_code == 400 and "llvm_project_revision" in answer.json()["detail"]
-    params = {f"{n:02d}" + "k" * 18: "v" * 30 for n in range(80)}
-    answer = api.client.post(
-        "/api/v1/import/results",
-        json={
-            "component": "clang",
-            "revision": "r1",
-            "sort_key": "1",
-            "results": [{"case": "c", "params": params, "counter": "t", "values": [1.0]}],
-        },
-        headers=api.tokens["ci"],
-    )
+
+    def with_params(params: dict) -> object:
+        one = {"case": "c", "params": params, "counter": "t", "values": [1.0]}
+        body = {"component": "clang", "revision": "r1", "sort_key": "1", "results": [one]}
+        return api.client.post("/api/v1/import/results", json=body, headers=api.tokens["ci"])
+
+    answer = with_params({f"{n:02d}" + "k" * 18: "v" * 30 for n in range(80)})
     assert answer.status_code == 422, answer.text
     assert "is too long to store" in answer.json()["detail"] and "at most 2000" in answer.text
     assert api.client.get("/api/v1/components/clang/revisions").json() == []
     # a name in the path of a 422 is quoted in short too (a probe's answer was 100 kB)
-    answer = api.client.post(
-        "/api/v1/import/results",
-        json={
-            "component": "clang",
-            "revision": "r1",
-            "sort_key": "1",
-            "results": [{"case": "c", "params": {"p" * 100_000: 1}, "counter": "t", "values": [1]}],
-        },
-        headers=api.tokens["ci"],
-    )
+    answer = with_params({"p" * 100_000: 1})
     assert answer.status_code == 422 and len(answer.content) < 2_000, len(answer.content)
     assert "pppp" in answer.text
     long_repo = {"name": "rr", "repo": "https://x.example/" + "a" * 3000}
