@@ -44,6 +44,24 @@ def test_a_passing_database_outage_leaves_the_job_uploaded_for_a_retry(
     assert _job(session, execution).state == JobState.done
 
 
+def test_an_error_the_data_raises_fails_the_job_instead_of_retrying_it_for_good(
+    session, database_url, tmp_path, monkeypatch
+):
+    """A probe's recording made ingestion raise KeyError: its job stayed "uploaded", queued
+    again every ten minutes, and its component could not be deleted."""
+    (execution,) = cpu_history(session, tmp_path, [20.0])
+
+    def broken(*_args):
+        raise KeyError("t_ns")
+
+    monkeypatch.setattr(ingest_module, "in_reach", broken)
+    with pytest.raises(KeyError):
+        ingest_execution(database_url, execution.id)
+    job = _job(session, execution)
+    assert job.state == JobState.failed
+    assert job.reason.startswith("ingest failed on the recording's data (KeyError: 't_ns')")
+
+
 def test_stale_uploads_are_requeued_periodically(session, database_url, tmp_path):
     stuck, fresh, done = cpu_history(session, tmp_path, [20.0, 20.0, 20.0])
     ingest_execution(database_url, done.id)

@@ -68,6 +68,18 @@ def ingest_execution(database_url: str, execution_id: int) -> list[int]:
     return ingest(database_url, execution_id).revisions
 
 
+#: errors a recording's data raises in the reading, whatever the database does: a job meeting
+#: one is failed, not left "uploaded" to be queued again every ten minutes for good (a probe's
+#: sample without a time did, and its component could no longer be deleted)
+CONTENT_ERRORS: tuple[type[Exception], ...] = (
+    KeyError,
+    TypeError,
+    AttributeError,
+    IndexError,
+    RecursionError,
+)
+
+
 def ingest(database_url: str, execution_id: int) -> Ingested:
     """Ingest one execution in one transaction and mark its job done.
 
@@ -77,8 +89,8 @@ def ingest(database_url: str, execution_id: int) -> Ingested:
     fresh run of a baseline the host was busy in, also the revisions that lacked it
     (`redline.worker.remeasure`). Those, and for new results the later revisions in reach, are
     marked as not yet analysed.
-    A bad recording (`RecordingError`, or another ValueError from its data) marks the job
-    failed with the reason and is raised again. Any other error (a database or broker outage,
+    A bad recording (`RecordingError`, or another ValueError from its data, or one of
+    `CONTENT_ERRORS`) marks the job failed with the reason and is raised again. Any other error (a database or broker outage,
     storage) is raised leaving the job `uploaded`, for the task's retries or the periodic
     re-queue to ingest it later: a passing outage must not fail a good recording.
     """
@@ -105,6 +117,14 @@ def ingest(database_url: str, execution_id: int) -> Ingested:
             return found
     except ValueError as exc:  # RecordingError is one
         _fail(database_url, execution_id, f"ingest failed: {exc}")
+        raise
+    except CONTENT_ERRORS as exc:  # the same data fails the same way at every retry
+        _fail(
+            database_url,
+            execution_id,
+            f"ingest failed on the recording's data ({type(exc).__name__}: {str(exc)[:200]}); "
+            "a fault of Redline's reader: report it with the recording",
+        )
         raise
 
 
