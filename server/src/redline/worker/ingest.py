@@ -90,9 +90,10 @@ def ingest(database_url: str, execution_id: int) -> Ingested:
     (`redline.worker.remeasure`). Those, and for new results the later revisions in reach, are
     marked as not yet analysed.
     A bad recording (`RecordingError`, or another ValueError from its data, or one of
-    `CONTENT_ERRORS`) marks the job failed with the reason and is raised again. Any other error (a database or broker outage,
-    storage) is raised leaving the job `uploaded`, for the task's retries or the periodic
-    re-queue to ingest it later: a passing outage must not fail a good recording.
+    `CONTENT_ERRORS`) marks the job failed with the reason and is raised again. Any other
+    error (a database or broker outage, storage) is raised leaving the job `uploaded`, for the
+    task's retries or the periodic re-queue to ingest it later: a passing outage must not fail
+    a good recording.
     """
     try:
         with session_scope(database_url) as session:
