@@ -245,7 +245,7 @@ def test_the_defaults_make_no_regression_of_unchanged_code_run_once_per_revision
     ).one()
     assert (
         r3.verdict == "not enough data"
-        and "- 4 short, which the revisions after it will add" in r3.reason
+        and "- 4 short: judged again as later revisions are measured" in r3.reason
     )
 
 

@@ -142,7 +142,7 @@ def check_samples(
     if len(base) < min_baseline:
         return (
             f"{SHORT_BASELINE} {len(base)}, needs at least {min_baseline} "
-            f"- {min_baseline - len(base)} short, which the revisions after it will add"
+            f"- {min_baseline - len(base)} short: judged again as later revisions are measured"
         )
     if len(cand) < min_candidate:
         return f"too few samples: candidate has {len(cand)}, needs at least {min_candidate}"

@@ -7,7 +7,8 @@ run afresh because the host was busy in all its runs (`redline.worker.remeasure`
 the worse that confirmation dropped is not a failure; one still suspected is (the later revisions
 may drop it, the CI run cannot wait for them), and says so. A test case left without a verdict
 because the host stayed busy, or because its method failed, is "undecided", an error in JUnit:
-never a silent pass.
+never a silent pass; so is one the alarm methods cannot judge yet where the charted method sees
+a change for the worse of `UNJUDGED_LARGE` or more (after the component's first revision).
 """
 
 from __future__ import annotations
@@ -227,18 +228,21 @@ def ci_verdict(session: Session, component_name: str, title: str) -> CiVerdict:
             ]
             # a component's own counter before the driver's metrics: what a developer changed
             first, series = min(busy or lacking or found, key=lambda f: f[1].process == DRIVER)
-            undecided += bool(busy)
-            skipped += not busy
+            seen = charted[(case, phase, params)]
+            large = not opening and any(abs(d.effect or 0.0) >= UNJUDGED_LARGE for d, _ in seen)
+            undecided += bool(busy) or large
+            skipped += not (busy or large)
             some = f" ({len(lacking)} of {len(found)} verdicts)" if lacking else ""
             verdict = CaseVerdict(
                 case=case,
                 phase=phase,
                 parameters=json.loads(params),
-                state="undecided" if busy else "skipped",
+                state="undecided" if busy or large else "skipped",
                 reason=f"not enough data{some}: {series.process} {series.counter}: "
                 + (FIRST if opening and not busy else "")
                 + first.reason
-                + _charted_note(charted[(case, phase, params)]),
+                + _charted_note(seen)
+                + (LARGE_UNJUDGED if large else ""),
                 changes=changes,
             )
         else:
@@ -263,6 +267,16 @@ def ci_verdict(session: Session, component_name: str, title: str) -> CiVerdict:
         cases=cases,
         page=f"/components/{quote(component.name)}/revisions/{quote(revision.title)}",
     )
+
+
+#: a change for the worse the charted method sees in a test case the alarm methods cannot judge
+#: yet that is too large to pass as skipped: undecided instead (a trial's tripled work, +112 to
+#: +161 % CPU, passed skipped in 3 of its 4 parameter sets, its baselines too short)
+UNJUDGED_LARGE = 0.5
+LARGE_UNJUDGED = (
+    f": a change of {UNJUDGED_LARGE:.0%} or more is not passed unjudged (undecided until the "
+    "alarm methods can judge it)"
+)
 
 
 #: how a case of a component's first measured revision begins its reason: a busy host there

@@ -378,10 +378,17 @@ def revision_verdicts(
         if changed:
             said[title] = f"{method}: {changed} change(s), {same} series unchanged{not_confirmed}"
         elif same or not_confirmed:
-            said[title] = f"{method}: no change in {same} series{not_confirmed}" + (
-                f", {unknown} not judged" + (" yet" if waits_for_history(why[title]) else "")
-                if unknown
-                else ""
+            # "the 20 series judged": a trial read "no change in 20 series, 51 not judged" as
+            # the revision's verdict, KS flagging its CPU +150 % beside it
+            said[title] = (
+                f"{method}: no change in {'the ' if unknown else ''}{same} series"
+                + (" judged" if unknown else "")
+                + not_confirmed
+                + (
+                    f", {unknown} not judged" + (" yet" if waits_for_history(why[title]) else "")
+                    if unknown
+                    else ""
+                )
             )
         else:
             said[title] = f"{method}: {WAITING}: {why.get(title, '')}"
