@@ -129,12 +129,19 @@ def test_a_repository_url_carrying_a_password_or_token_is_refused_never_echoed(a
 
 
 def test_local_repositories_only_when_the_server_allows_them(services: Services, tmp_path: Path):
+    folder = tmp_path / "git" / "builder.git"
+    folder.mkdir(parents=True)
     with api_with(services, tmp_path, allow_file_repos=True) as api:
-        for repo in ("/srv/git/builder.git", "file:///srv/git/builder.git"):
+        for repo in (str(folder), f"file://{folder}"):
             answer = api.post(
                 "/api/v1/components", "admin", {"name": f"c{len(repo)}", "repo": repo}
             )
             assert answer.status_code == 201, answer.text
+        # a path that is no folder here is said so at once (a trial's mistyped path was taken,
+        # and its first job failed inside a long git command line)
+        for repo in ("/srv/git/nope.git", "file:///srv/git/nope.git"):
+            answer = api.post("/api/v1/components", "admin", {"name": "nope", "repo": repo})
+            assert answer.status_code == 422 and "no such folder on this machine" in answer.text
         assert (
             api.post(
                 "/api/v1/components", "admin", {"name": "rel", "repo": "relative/path.git"}

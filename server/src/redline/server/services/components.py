@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import difflib
+from pathlib import Path
 
 from redline.agent.checkout import refused_repo, without_credentials
 from redline.server.models import Component, Revision
@@ -30,8 +31,13 @@ def component_out(component: Component) -> ComponentOut:
 
 
 def check_repo(repo: str, allow_file: bool) -> None:
-    """Unprocessable unless a performance host may fetch ``repo`` (empty: none set yet)."""
+    """Unprocessable unless a performance host may fetch ``repo`` (empty: none set yet); a local
+    one must be a folder here (local paths are for one machine, `redline up`'s: a trial's
+    mistyped path was taken, and its first job failed inside a long git command line)."""
     reason = refused_repo(repo, allow_file) if repo else None
+    local = repo.removeprefix("file://") if repo.startswith(("/", "file://")) else None
+    if reason is None and local is not None and not Path(local).is_dir():
+        reason = "no such folder on this machine (a local repository is read where it is)"
     if reason is not None:
         raise Unprocessable(f"repo {without_credentials(repo)[:200]!r}: {reason}")
 
