@@ -160,6 +160,13 @@ def test_a_change_in_a_history_too_short_to_judge_is_found_at_its_revision_later
     r4 = found["r4"]
     assert r4.direction == "increase" and 0.9 < r4.effect < 1.1
     assert r4.baseline_revisions == 3 and "found when r6 was judged" in r4.reason
+    # its page shows the bar it was held to, not the confirmed one beside it (a reviewer)
+    from redline.server.services.why import why_flagged
+
+    why = why_flagged(session, r4.id)
+    assert (why.thresholds["threshold"], why.thresholds_judged) == (10.0, True)
+    assert why.bar == "a step found later: judged at 8 × 1.25, and no pair judges it"
+    assert why_flagged(session, found["r10"].id).bar == ""
     # the revisions after it are judged against the new level, from r4 on
     assert found["r10"].verdict == "no change" and found["r10"].baseline_revisions == 6
     regression = session.scalars(select(Regression)).one()

@@ -16,7 +16,7 @@ from __future__ import annotations
 import copy
 import math
 from collections.abc import Sequence
-from typing import ClassVar
+from typing import Any, ClassVar
 
 import numpy as np
 from redline.detect.median_shift import (
@@ -37,6 +37,9 @@ STEP_SIDE = 3
 #: found 1-2 false steps in 4,000 at 1.0 and none in 24,000 at 1.25; a doubling is found in
 #: 90 % of histories with one execution a revision, +50 % in about half (tests/unit).
 STEP_MARGIN = 1.25
+#: how the reason of a step's verdict begins (`redline.worker.detection`): judged at
+#: ``step_threshold`` times `STEP_MARGIN`, not at ``threshold``
+STEP_FOUND = "found when "
 #: The threshold where a flag is a suspicion that re-runs confirm before it is a regression or
 #: fails CI (the service's default: `confirm_pairs` 2), not a regression at once or by the later
 #: revisions alone (``threshold``: CI fails on a change still suspected, and the later revisions
@@ -127,6 +130,11 @@ class ExecutionShift(Detector):
         self.min_baseline = min_baseline
         self.min_candidate = min_candidate
         self.confirmed_threshold = confirmed_threshold
+
+    def params_as_judged(self) -> dict[str, Any]:
+        """With ``step_threshold``: where re-runs confirm, ``threshold`` is the confirmed bar
+        and a step's is kept nowhere else."""
+        return self.get_params() | {"step_threshold": self.step_threshold}
 
     def confirmed(self) -> ExecutionShift:
         """This detector where a flag is only a suspicion until re-runs confirm it

@@ -59,6 +59,11 @@ class Detector:
         names = list(inspect.signature(type(self).__init__).parameters)[1:]
         return {name: getattr(self, name) for name in names}
 
+    def params_as_judged(self) -> dict[str, Any]:
+        """Its parameters as a verdict keeps them (`redline.server.models.JudgingConfig`): its
+        own, and any bar it judges at that none of them holds."""
+        return self.get_params()
+
     def confirmed(self) -> Detector:
         """This detector where re-runs confirm its flags before they are regressions: itself,
         unless a method judges at a bar of its own there

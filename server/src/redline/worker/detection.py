@@ -29,6 +29,7 @@ import numpy as np
 from redline.detect.config import DetectionConfig
 from redline.detect.count_rate import CountRate
 from redline.detect.counters import is_count
+from redline.detect.execution_shift import STEP_FOUND
 from redline.detect.methods import Detector
 from redline.detect.result import NOT_MEASURED, SHORT_BASELINE, not_enough
 from redline.detect.result import Detection as Verdict
@@ -191,7 +192,7 @@ def _step(
     baselines.restart(series_id, detector, step.revision_id)
     found = replace(
         found,
-        reason=f"found when {revision.title} was judged: it could not be judged when measured "
+        reason=f"{STEP_FOUND}{revision.title} was judged: it could not be judged when measured "
         f"(too few values before it); its {len(step.after)} values and those after it against "
         f"the {len(step.before.values)} before it",
     )

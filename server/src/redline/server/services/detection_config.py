@@ -39,7 +39,7 @@ def judging_config_id(session: Session, component_id: int, config: DetectionConf
     """The id of the `JudgingConfig` row of ``config`` for the component, made the first time a
     verdict is judged by it: its fields, and each method's parameters as it judges (the count
     method, which every component's rare events are judged by, included)."""
-    params = {d.name: d.get_params() for d in config.detectors()}
+    params = {d.name: d.params_as_judged() for d in config.detectors()}
     params[CountRate.name] = CountRate().get_params()
     kept = {"config": config.as_dict(), "params": params}
     digest = hashlib.sha256(json.dumps(kept, sort_keys=True).encode()).hexdigest()

@@ -17,6 +17,7 @@ import inspect
 from dataclasses import dataclass, field
 from typing import Any
 
+from redline.detect.execution_shift import STEP_FOUND, STEP_MARGIN
 from redline.detect.floors import absolute_floor
 from redline.detect.registry import DETECTORS
 from redline.server.models import (
@@ -61,6 +62,8 @@ class WhyFlagged:
     thresholds_judged: bool
     floor: float
     rule: str  # what the method's score is and how it decides, in its own words
+    #: why ``threshold`` is not the configured one ("" when it is)
+    bar: str = ""
     #: (pair, baseline's median, candidate's median, whether the host was busy in either run:
     #: then it was left out, as confirmation leaves it out)
     pairs: list[tuple[int, float | None, float | None, bool]] = field(default_factory=list)
@@ -157,6 +160,11 @@ def why_flagged(session: Session, detection_id: int) -> WhyFlagged:
     if thresholds is None:
         thresholds = _configured_now(session, revision.component_id, detection.method)
     thresholds.pop("confirmed_threshold", None)  # ``threshold`` is the bar it judged at
+    step = thresholds.pop("step_threshold", None)
+    bar = ""
+    if step is not None and detection.reason.startswith(STEP_FOUND):  # a step's own bar
+        thresholds["threshold"] = round(STEP_MARGIN * step, 6)
+        bar = f"a step found later: judged at {step:g} × {STEP_MARGIN:g}, and no pair judges it"
     return WhyFlagged(
         component=revision.component.name,
         detection=out,
@@ -165,6 +173,7 @@ def why_flagged(session: Session, detection_id: int) -> WhyFlagged:
         baseline_titles=[r.title for r in baseline],
         thresholds=thresholds,
         thresholds_judged=judged,
+        bar=bar,
         floor=absolute_floor(series.counter),
         rule=_rule(detection.method),
         pairs=_pairs(session, detection),
@@ -176,7 +185,7 @@ def _configured_now(session: Session, component_id: int, method: str) -> dict[st
     where re-runs confirm, at that bar."""
     config = component_config(session, component_id)
     if method in DETECTORS:
-        return config.detector(method).get_params()
+        return config.detector(method).params_as_judged()
     return dict(config.thresholds.get(method, {}))
 
 
