@@ -556,6 +556,18 @@ def test_non_mcap_upload_is_refused_and_fails_the_job(api: Api):
         ("@redline/driver/x", b'{"t_ns": "soon"}', "driver report 1 has a t_ns that is not"),
         ("@redline/counters/x", b"[" * 100_000 + b"]" * 100_000, "counter sample 151 is not JSON"),
         ("@redline/markers", b"[" * 100_000 + b"]" * 100_000, "RecursionError"),
+        # a reviewer's: a whole number no float holds (OverflowError at ingestion), and a
+        # Publish report's count that is text (TypeError)
+        (
+            "@redline/counters/x",
+            b'{"t_ns": 1, "process": "x", "values": {"cpu": 1' + b"0" * 400 + b"}}",
+            "counter sample 151 has a number too large for a float",
+        ),
+        (
+            "@redline/driver/x",
+            b'{"action": "Publish", "published": "x"}',
+            "driver report 1 has a published count that is not a number",
+        ),
     ],
 )
 def test_a_recording_holding_a_message_redline_does_not_write_is_refused_naming_it(

@@ -27,7 +27,8 @@ from redline.server.models import (
 from redline.server.schemas.components import ComponentCreate
 from redline.server.schemas.regressions import DetectionConfigIn
 from redline.server.schemas.revisions import RevisionCreate
-from redline.server.services.ci_verdict import ci_verdict, junit_xml
+from redline.server.services.ci_junit import junit_xml
+from redline.server.services.ci_verdict import ci_verdict
 from redline.server.services.components import create_component
 from redline.server.services.detection_config import set_config
 from redline.server.services.gate import gate

@@ -316,11 +316,14 @@ def test_ci_commands_take_no_token_on_the_command_line_only_a_file_or_the_enviro
     token_file = tmp_path / "token"
     token_file.write_text("rl_secret\n")
     token_file.chmod(0o644)
+    junit = ["--junit", str(tmp_path / "out.xml")] if command == "wait" else []
     shared = CliRunner().invoke(
-        app, [*base, "--token-file", str(token_file)], env={"COLUMNS": "200"}
+        app, [*base, "--token-file", str(token_file), *junit], env={"COLUMNS": "200"}
     )
     assert shared.exit_code == 2 and "chmod 600" in shared.output, shared.output
     assert "rl_secret" not in given.output + shared.output
+    if junit:  # the CI step keeps its report in every case (a reviewer's find)
+        assert "chmod 600" in (tmp_path / "out.xml").read_text()
 
 
 def test_the_agent_reads_a_token_file_only_its_owner_can_read(tmp_path: Path):

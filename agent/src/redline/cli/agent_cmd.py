@@ -104,13 +104,6 @@ def agent(
 def host_name(template: str) -> str:
     """The name the agent acts as: ``template`` with '{hostname}' the machine's."""
     return template.replace("{hostname}", socket.gethostname())
-    token = os.environ.get("REDLINE_TOKEN", "").strip()
-    if not token:
-        raise typer.BadParameter(
-            "give the agent's token in REDLINE_TOKEN or a file (--token-file FILE, mode 600)",
-            param_hint="--token-file",
-        )
-    return token
 
 
 class _Signals:

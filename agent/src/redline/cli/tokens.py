@@ -14,6 +14,7 @@ TokenFile = Annotated[
     Path | None,
     typer.Option(
         help="a file holding the token, readable by you only (chmod 600); else REDLINE_TOKEN",
+        dir_okay=False,
     ),
 ]
 

@@ -138,12 +138,15 @@ def segment_of(report: dict[str, Any], segments: Iterable[Any]) -> Any | None:
     return None
 
 
+#: the field of each action's report that counts the work it delivered (`work_done`)
+WORK_FIELDS = {"Publish": "published", "Query": "count", "Replay": "messages"}
+
+
 def work_done(reports: Iterable[dict[str, Any]]) -> float:
     """The units of work reports say the driver delivered: samples published (by `Publish` or
     replayed), queries answered. Not what `Listen` received: that is the component's output,
     judged by Listen's own rate and losses (counted here, a lost output would read as more CPU
     per unit of work, and an output per input would count the work twice)."""
-    fields = {"Publish": "published", "Query": "count", "Replay": "messages"}
     return float(
-        sum(report.get(fields.get(str(report.get("action")), ""), 0) for report in reports)
+        sum(report.get(WORK_FIELDS.get(str(report.get("action")), ""), 0) for report in reports)
     )

@@ -7,7 +7,11 @@ from __future__ import annotations
 
 from typing import Any
 
+from redline.recording.driver import WORK_FIELDS
+
 _NUMBER_OR_NONE = frozenset({int, float, type(None)})
+#: a whole number a float holds (10**400 made ingestion raise OverflowError)
+_LARGEST = 10**300
 
 
 def _sample(item: Any) -> str:
@@ -22,6 +26,8 @@ def _sample(item: Any) -> str:
         return "has no values object"
     if not _NUMBER_OR_NONE.issuperset(map(type, values.values())):
         return "has a value that is not a number"
+    if any(type(value) is int and not -_LARGEST < value < _LARGEST for value in values.values()):
+        return "has a number too large for a float"
     return ""
 
 
@@ -40,10 +46,13 @@ def _marker(item: Any) -> str:
 def _report(item: Any) -> str:
     if type(item) is not dict:
         return "is not an object"
-    if "t_ns" in item and type(item["t_ns"]) is not int:
-        return "has a t_ns that is not an integer"
+    if "t_ns" in item and type(item["t_ns"]) not in (int, float):  # a custom action's own
+        return "has a t_ns that is not a number"
     if item.get("params") is not None and type(item["params"]) is not dict:
         return "has params that are not an object"
+    work = WORK_FIELDS.get(str(item.get("action")))
+    if work is not None and type(item.get(work, 0)) not in (int, float):
+        return f"has a {work} count that is not a number"
     return ""
 
 

@@ -77,6 +77,7 @@ CONTENT_ERRORS: tuple[type[Exception], ...] = (
     AttributeError,
     IndexError,
     RecursionError,
+    ArithmeticError,  # OverflowError: a whole number too large for a float
 )
 
 
@@ -124,7 +125,7 @@ def ingest(database_url: str, execution_id: int) -> Ingested:
             database_url,
             execution_id,
             f"ingest failed on the recording's data ({type(exc).__name__}: {str(exc)[:200]}); "
-            "a fault of Redline's reader: report it with the recording",
+            "a fault of Redline's: report it with the recording",
         )
         raise
 

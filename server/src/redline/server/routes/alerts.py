@@ -19,7 +19,7 @@ from redline.server.schemas.alerts import (
     SubscriptionUpdate,
 )
 from redline.server.schemas.common import problems
-from redline.server.services import ci_verdict, subscriptions
+from redline.server.services import ci_junit, ci_verdict, subscriptions
 from redline.server.services.components import get_component
 
 router = APIRouter(prefix="/api/v1", tags=["alerts"], route_class=JsonRoute)
@@ -196,7 +196,7 @@ def revision_junit(
     ``X-Redline-Verdict`` says pending, done or failed (a pending file is not final)."""
     verdict = ci_verdict.ci_verdict(session, name, title)
     return Response(
-        ci_verdict.junit_xml(verdict, fail_on),
+        ci_junit.junit_xml(verdict, fail_on),
         media_type="application/xml",
         headers={"X-Redline-Verdict": verdict.state},
     )

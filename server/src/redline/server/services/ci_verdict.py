@@ -14,10 +14,10 @@ a change for the worse of `UNJUDGED_LARGE` or more (after the component's first 
 from __future__ import annotations
 
 import json
+import math
 from collections import defaultdict
 from typing import Any
 from urllib.parse import quote
-from xml.etree import ElementTree
 
 from redline.detect.config import CHARTED_METHOD
 from redline.detect.confirmation import DROPPED, SUSPECTED
@@ -31,7 +31,7 @@ from redline.detect.result import (
 )
 from redline.recording.disturbance import names_busy_host
 from redline.recording.driver import DRIVER_PROCESS as DRIVER
-from redline.recording.format import NO_TRAFFIC_MARK, canonical_params
+from redline.recording.format import NO_TRAFFIC_MARK
 from redline.server.models import (
     FINISHED,
     Detection,
@@ -229,7 +229,11 @@ def ci_verdict(session: Session, component_name: str, title: str) -> CiVerdict:
             # a component's own counter before the driver's metrics: what a developer changed
             first, series = min(busy or lacking or found, key=lambda f: f[1].process == DRIVER)
             seen = charted[(case, phase, params)]
-            large = not opening and any(abs(d.effect or 0.0) >= UNJUDGED_LARGE for d, _ in seen)
+            unjudged = {s.id for d, s in found if d.verdict == NOT_ENOUGH_DATA}
+            large = not opening and any(
+                s.id in unjudged and UNJUDGED_LARGE <= abs(d.effect or 0.0) < math.inf
+                for d, s in seen
+            )
             undecided += bool(busy) or large
             skipped += not (busy or large)
             some = f" ({len(lacking)} of {len(found)} verdicts)" if lacking else ""
@@ -321,79 +325,3 @@ def _charted_note(flagged: list[tuple[Detection, Series]]) -> str:
     ]
     more = f" and {len(flagged) - 3} more" if len(flagged) > 3 else ""
     return f"; {CHARTED_METHOD}, which charts but does not alarm, flags {', '.join(said)}{more}"
-
-
-def _describe(change: dict[str, Any]) -> str:
-    effect = "n/a" if change["effect"] is None else f"{change['effect'] * 100:+.1f} %"
-    p_value = "n/a" if change["p_value"] is None else f"{change['p_value']:.2g}"
-    state, why = change["confirmation"], change["confirmation_reason"]
-    confirmation = state  # the reason, when there is one, names the state itself or follows it
-    if why:
-        confirmation = why if why.startswith(state) else f"{state}: {why}"
-    return (
-        f"{change['process']} {change['counter']} {effect} ({change['method']}, p={p_value}, "
-        f"confirmation: {confirmation})"
-    )
-
-
-def junit_xml(verdict: CiVerdict, fail_on: str = "regression") -> str:
-    """One testsuite, one testcase per test case x phase x parameter set: failed (one failure
-    listing every change ``fail_on`` counts: regression: for the worse; any: either way; none:
-    listed, not failed), skipped with its reason where there is no verdict yet, an error where
-    the host stayed busy. The header counts test cases, as JUnit readers do."""
-    suite = ElementTree.Element(
-        "testsuite", name=f"redline.{verdict.component}", tests=str(len(verdict.cases))
-    )
-    failures = skipped = errors = 0
-    tests = len(verdict.cases)
-    if verdict.state == "failed":  # no green report for a revision whose jobs never ran
-        errors += 1
-        tests += 1
-        element = ElementTree.SubElement(
-            suite, "testcase", classname=f"redline.{verdict.component}", name="performance jobs"
-        )
-        ElementTree.SubElement(element, "error", message=verdict.reason or "the jobs failed")
-    for case in verdict.cases:
-        element = ElementTree.SubElement(
-            suite,
-            "testcase",
-            classname=f"redline.{verdict.component}.{case.case}",
-            name=f"{case.phase} {canonical_params(case.parameters)}".strip(),
-        )
-        if case.state == "skipped":
-            skipped += 1
-            ElementTree.SubElement(element, "skipped", message=case.reason)
-            continue
-        if case.state == "undecided":  # no green report for a measurement the host spoiled
-            errors += fail_on != "none"
-            kind = "error" if fail_on != "none" else "skipped"
-            ElementTree.SubElement(element, kind, message=f"undecided: {case.reason}")
-            skipped += kind == "skipped"
-            continue
-        told = [
-            c
-            for c in case.changes
-            if (fail_on == "any" or (fail_on == "regression" and c["worse"]))
-        ]
-        if told:  # one failure per test case, every change it counts in its text
-            failures += 1
-            kinds = ["regression" if c["worse"] else "improvement" for c in told]
-            kind = "regression" if "regression" in kinds else "improvement"
-            message = f"{kind}: {_describe(told[0])}" + (
-                f" and {len(told) - 1} more" if len(told) > 1 else ""
-            )
-            failure = ElementTree.SubElement(element, "failure", message=message, type=kind)
-            failure.text = "\n".join(
-                f"{k}: {_describe(c)}" for k, c in zip(kinds, told, strict=True)
-            )
-        rest = [c for c in case.changes if c not in told]
-        if rest:
-            out = ElementTree.SubElement(element, "system-out")
-            out.text = "\n".join(
-                ("regression: " if c["worse"] else "improvement: ") + _describe(c) for c in rest
-            )
-    suite.set("failures", str(failures))
-    suite.set("skipped", str(skipped))
-    suite.set("errors", str(errors))
-    suite.set("tests", str(tests))
-    return ElementTree.tostring(suite, encoding="unicode", xml_declaration=True)

@@ -35,7 +35,8 @@ def check_repo(repo: str, allow_file: bool) -> None:
     one must be a folder here (local paths are for one machine, `redline up`'s: a trial's
     mistyped path was taken, and its first job failed inside a long git command line)."""
     reason = refused_repo(repo, allow_file) if repo else None
-    local = repo.removeprefix("file://") if repo.startswith(("/", "file://")) else None
+    scheme_less = repo[7:] if repo[:7].lower() == "file://" else repo
+    local = scheme_less if scheme_less.startswith("/") else None
     if reason is None and local is not None and not Path(local).is_dir():
         reason = "no such folder on this machine (a local repository is read where it is)"
     if reason is not None:

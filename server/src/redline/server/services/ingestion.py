@@ -36,6 +36,8 @@ SERIES_PER_INSERT = 5_000
 #: indexes at most 2,704 bytes a row, and an import of 80 parameters was answered "the database
 #: is unavailable" (a 503 no retry could help)
 SERIES_KEY_BYTES = 2_000
+#: a series' case, phase, process and counter each, in characters (their columns' length)
+NAME_LENGTH = 200
 
 
 def series_ids(session: Session, component_id: int, keys: list[SeriesKey]) -> dict[SeriesKey, int]:
@@ -43,12 +45,19 @@ def series_ids(session: Session, component_id: int, keys: list[SeriesKey]) -> di
     `TooLongToStore` names the first key over `SERIES_KEY_BYTES`."""
     for key in keys:
         size = len("".join((key.case, key.phase, key.params, key.process, key.counter)).encode())
+        label = f"{key.case}/{key.phase}[{key.params}] {key.process}.{key.counter}"
         if size > SERIES_KEY_BYTES:
-            label = f"{key.case}/{key.phase}[{key.params}] {key.process}.{key.counter}"
             raise TooLongToStore(
                 f"series {label[:80]!r}... is too long to store: its case, phase, parameters, "
                 f"process and counter take {size} bytes (at most {SERIES_KEY_BYTES})"
             )
+        named = {"case": key.case, "phase": key.phase, "process": key.process}
+        for what, name in (named | {"counter": key.counter}).items():
+            if len(name) > NAME_LENGTH:  # a column of 200 (a recording's: an API's are checked)
+                raise TooLongToStore(
+                    f"series {label[:80]!r}...: its {what} is {len(name)} characters long "
+                    f"(at most {NAME_LENGTH})"
+                )
     if keys:
         rows = [
             dict(
