@@ -23,6 +23,7 @@ from redline.server.models import (
     Revision,
     Series,
     Summary,
+    utcnow,
 )
 from redline.server.schemas.components import ComponentCreate
 from redline.server.schemas.regressions import DetectionConfigIn
@@ -38,7 +39,7 @@ from redline.server.storage import disturbed_series, samples_path
 from redline.worker.detection import detect_revision
 from redline.worker.ingest import ingest_execution
 from redline.worker.reanalysis import reanalyze_component
-from sqlalchemy import func, select
+from sqlalchemy import func, select, update
 
 from tests.support.api import api_with
 from tests.support.history import add_executions, ingest_and_detect, uploaded
@@ -660,6 +661,13 @@ def test_the_newest_of_several_revisions_waits_for_the_earlier_ones_it_lacks(
     session.expire_all()  # the worker's sessions changed r2's jobs (uploaded -> done)
     waiting = ci_verdict(session, NAME, "r2")
     assert waiting.state == "pending" and "earlier revision, r1" in waiting.waiting_for
+    # queued for detection again meanwhile (another revision's results came in): still what
+    # it waits for in the end (a trial's `ci wait` said the one and the other by turns)
+    session.execute(update(Revision).where(Revision.title == "r2").values(analyzed_at=None))
+    session.commit()
+    again = ci_verdict(session, NAME, "r2")
+    assert again.waiting_for == "an earlier revision, r1, to be measured: its baseline", again
+    session.execute(update(Revision).where(Revision.title == "r2").values(analyzed_at=utcnow()))
     for job in earlier.jobs:
         job.state = JobState.cancelled  # superseded: it will never be its baseline
     session.commit()

@@ -93,6 +93,9 @@ def _pending(session: Session, revision: Revision) -> tuple[str, str]:
             "analyzing": "detection to judge its results",
         }
         said = waits.get(state, state)
+        earlier = _earlier_unmeasured(session, revision) if state == "analyzing" else None
+        if earlier is not None:  # what it waits for in the end: `ci wait` said each by turns
+            said = f"an earlier revision, {earlier}, to be measured: its baseline"
         if state == "queued":
             said += _no_host_for(session, [job for job in own if job.state == JobState.queued])
         return "pending", said
