@@ -109,16 +109,18 @@ def _run(
     onward: bool = False,
     host_percent: float | None = None,
     counter: str = "cpu",
+    also: dict[str, np.ndarray] | None = None,
 ) -> None:
     """What the host's agent does with a leased job: record, upload; then the worker ingests
     and judges the revision ingestion names (the one confirmed, for a confirmation run).
-    ``host_percent``: the host's CPU beside the run (90: busy, the run disturbed)."""
+    ``host_percent``: the host's CPU beside the run (90: busy, the run disturbed); ``also``:
+    more counters recorded beside ``counter``."""
     revision = job.revision
     run = run_metadata(job, NAME, revision.title, revision.sort_key)
     path = write_recording(
         tmp_path / f"confirm-{job.id}.mcap",
         run,
-        _cpu(level, 1000 + job.id, counter),
+        _cpu(level, 1000 + job.id, counter) | (also or {}),
         host_percent=host_percent,
     )
     session.add(
@@ -278,6 +280,48 @@ def test_pairs_that_show_the_change_confirm_it_and_stay_out_of_the_verdicts(
     assert (detection.effect, detection.baseline_revisions) == (effect, own)
     regression = session.scalars(select(Regression)).one()
     assert regression.confirmation == "confirmed"
+
+
+@pytest.mark.parametrize(("time_moved", "state"), [(False, "dropped"), (True, "held")])
+def test_a_cpu_change_shown_only_in_units_of_the_host_reference_is_not_confirmed(
+    session, database_url, tmp_path, time_moved: bool, state: str
+):
+    """bench_verdicts, 2026-12-06: an unchanged revision's pairs showed its CPU per operation
+    +20.6 % and +27.6 % in units of the host's reference work (the reference ran faster in both
+    candidate runs) and +1.2 % and +8.9 % in CPU time: confirmed, a false regression. The CPU
+    time must show it too (`redline.worker.cpu_time`); a change of the code moves both."""
+    component = create_component(session, ComponentCreate(name=NAME, executions=RUNS))
+    session.add(DetectionConfigRow(component_id=component.id, config={"confirm_pairs": PAIRS}))
+    session.commit()
+    host = register_host(session, RegisterRequest(name="perf-1"))
+    for number, (refs, cpu_us) in enumerate([(20.0, 1000.0)] * 4 + [(30.0, 1500.0)], start=1):
+        runs = [
+            _cpu(refs, number * 10 + i, "cpu_refs_per_op")
+            | _cpu(cpu_us, number * 10 + i + 5, "cpu_us_per_op")
+            for i in range(RUNS)
+        ]
+        executions = add_executions(session, tmp_path, NAME, f"r{number}", str(number), runs)
+        for execution in executions:
+            session.get_one(Job, execution.job_id).host_id = host.id
+        session.commit()
+        ingest_and_detect(database_url, executions)
+    session.expire_all()
+    assert _r5_detection(session).confirmation == "suspected"
+    while (job := lease_job(session, "perf-1", 60, 3)) is not None:
+        candidate = job.revision.title == "r5"
+        cpu_us = 1500.0 if candidate and time_moved else 1000.0
+        also = _cpu(cpu_us, 2000 + job.id, "cpu_us_per_op")
+        level = 30.0 if candidate else 20.0
+        _run(session, database_url, tmp_path, job, level, counter="cpu_refs_per_op", also=also)
+    detection = _r5_detection(session)
+    assert detection.confirmation == state, detection.confirmation_reason
+    if not time_moved:
+        assert detection.confirmation_reason.startswith(
+            "not confirmed: in the CPU time itself the change showed in "
+        )
+        assert "in units of the host's reference work it was confirmed by 2 of 2 pairs" in (
+            detection.confirmation_reason
+        )
 
 
 def _run_all(session, database_url: str, tmp_path: Path, busy=lambda job: False) -> None:

@@ -56,6 +56,7 @@ from redline.server.services.fresh_runs import fresh_run_between
 from redline.server.services.jobs import current_pairs
 from redline.server.services.revisions import CANCELLED, UNFINISHED
 from redline.worker.confirmation import baseline_noise
+from redline.worker.cpu_time import REFERENCE_ONLY, in_cpu_time, pair_values
 from redline.worker.found_late import move_back
 from redline.worker.history import reanalysing
 from redline.worker.quiet_pairs import (
@@ -174,24 +175,6 @@ def _values(session: Session, jobs: list[Job]) -> dict[tuple[int, int, int], tup
     return {(s, pair, rid): (p50, mean) for s, pair, rid, p50, mean in rows}
 
 
-def _measured(
-    values: dict[tuple[int, int, int], tuple[float, float]],
-    series_id: int,
-    pairs: list[int],
-    baseline: int,
-    candidate: int,
-) -> list[tuple[float, float]]:
-    """The series' (baseline, candidate) medians of each of ``pairs``; NaN where one is missing."""
-    nan = (math.nan, math.nan)
-    return [
-        (
-            values.get((series_id, pair, baseline), nan)[0],
-            values.get((series_id, pair, candidate), nan)[0],
-        )
-        for pair in pairs
-    ]
-
-
 def settle_pairs(session: Session, revision: Revision) -> bool:
     """Judge the revision's suspected changes on its confirmation pairs once they all ran;
     False (nothing settled) when it has none. While they run, the reason says how far."""
@@ -244,7 +227,7 @@ def settle_pairs(session: Session, revision: Revision) -> bool:
     alone = any(job.sets_alone for job in jobs)
     rerunnable = not alone and _rerunnable(session, session.get_one(Revision, baseline))
     for detection, process, counter in suspected:
-        measured = _measured(values, detection.series_id, pairs, baseline, revision.id)
+        measured = pair_values(values, detection.series_id, pairs, baseline, revision.id)
         count = is_count(process, counter)
         found = _judged(detection, count, baseline, busy, measured, len(pairs))
         # the pairs judge it: not a count, nor a series measured against another baseline
@@ -254,6 +237,7 @@ def settle_pairs(session: Session, revision: Revision) -> bool:
                 measured, detection.direction, detection.effect or 0.0, wanted,
                 noises[detection.id],
             )  # fmt: skip
+            found = in_cpu_time(session, detection, found, values, pairs, revision.id, wanted)
             if failed:
                 found = replace(found, reason=f"{found.reason} (failed: {'; '.join(failed)})")
         if judged and found.state == SUSPECTED and detection.series_id in busy and not again:
@@ -265,7 +249,8 @@ def settle_pairs(session: Session, revision: Revision) -> bool:
         if again and detection.series_id in busy:
             reason += f"; {len(again - spared)} of them run again after the host was busy"
         detection.confirmation, detection.confirmation_reason = found.state, reason
-        if found.state == DROPPED and rerunnable:  # perhaps its baseline revision changed it
+        # perhaps its baseline revision changed it (not where the reference alone moved)
+        if found.state == DROPPED and rerunnable and not reason.startswith(REFERENCE_ONLY):
             earlier = move_back(session, detection, revision, [b for b, _ in measured])
             if earlier is not None:
                 moved.append(earlier)
@@ -345,7 +330,7 @@ def _decided(
     for detection, process, counter in suspected:
         if is_count(process, counter) or detection.baseline_revision_id != baseline:
             continue  # the pairs do not judge it (`settle_pairs`)
-        measured = _measured(values, detection.series_id, complete, baseline, revision.id)
+        measured = pair_values(values, detection.series_id, complete, baseline, revision.id)
         effect, noise = detection.effect or 0.0, noises[detection.id]
         if not pairs_decided(measured, detection.direction, effect, pending, noise, wanted):
             return False

@@ -83,10 +83,13 @@ def _baseline(levels: list[tuple[str, int, np.ndarray]], newest: int, pooled: in
     return np.concatenate([values for _, _, values in levels[first : newest + 1]])
 
 
-def baseline_values(session: Session, detection: Detection) -> np.ndarray | None:
+def baseline_values(
+    session: Session, detection: Detection, series_id: int | None = None
+) -> np.ndarray | None:
     """The execution values (medians) of the baseline the detection was judged against, from
-    the stored summaries; None when they are gone."""
-    levels = _levels(session, detection.series_id, count=False)
+    the stored summaries (of ``series_id`` over the same revisions, when given); None when they
+    are gone."""
+    levels = _levels(session, detection.series_id if series_id is None else series_id, False)
     newest = next(
         (i for i, (_, rid, _) in enumerate(levels) if rid == detection.baseline_revision_id),
         None,
@@ -94,11 +97,11 @@ def baseline_values(session: Session, detection: Detection) -> np.ndarray | None
     return None if newest is None else _baseline(levels, newest, detection.baseline_revisions)
 
 
-def baseline_noise(session: Session, detection: Detection) -> float:
+def baseline_noise(session: Session, detection: Detection, series_id: int | None = None) -> float:
     """How much one execution value of the detection's baseline varies, relative to its level
     (`redline.detect.confirmation.relative_noise`); NaN when its baseline's summaries are gone.
     The bar a confirmation pair must pass (`redline.detect.confirmation.pair_bar`)."""
-    values = baseline_values(session, detection)
+    values = baseline_values(session, detection, series_id)
     return math.nan if values is None else relative_noise(values)
 
 
