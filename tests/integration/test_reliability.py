@@ -348,7 +348,8 @@ def _two_hundred_jobs(service: Service) -> list[int]:
     answer = httpx.post(
         f"{service.stack.url}/api/v1/components",
         headers=service.headers("admin"),
-        json={"name": "raced", "repo": "/nowhere.git", "suite": "s.toml", "executions": 10},
+        # a folder that is there (a local repository must be); its jobs are leased, never run
+        json={"name": "raced", "repo": str(service.root), "suite": "s.toml", "executions": 10},
     )
     assert answer.status_code == 201, answer.text
     for n in range(20):
