@@ -42,22 +42,11 @@ NAME_LENGTH = 200
 
 def series_ids(session: Session, component_id: int, keys: list[SeriesKey]) -> dict[SeriesKey, int]:
     """Create the series named that do not exist yet (race-free); return every key's id.
-    `TooLongToStore` names the first key over `SERIES_KEY_BYTES`."""
+    `TooLongToStore` names the first key that cannot be stored (`_unstorable`)."""
     for key in keys:
-        size = len("".join((key.case, key.phase, key.params, key.process, key.counter)).encode())
-        label = f"{key.case}/{key.phase}[{key.params}] {key.process}.{key.counter}"
-        if size > SERIES_KEY_BYTES:
-            raise TooLongToStore(
-                f"series {label[:80]!r}... is too long to store: its case, phase, parameters, "
-                f"process and counter take {size} bytes (at most {SERIES_KEY_BYTES})"
-            )
-        named = {"case": key.case, "phase": key.phase, "process": key.process}
-        for what, name in (named | {"counter": key.counter}).items():
-            if len(name) > NAME_LENGTH:  # a column of 200 (a recording's: an API's are checked)
-                raise TooLongToStore(
-                    f"series {label[:80]!r}...: its {what} is {len(name)} characters long "
-                    f"(at most {NAME_LENGTH})"
-                )
+        if (why := _unstorable(key)) is not None:
+            label = f"{key.case}/{key.phase}[{key.params}] {key.process}.{key.counter}"
+            raise TooLongToStore(f"series {label[:80]!r}...{why}")
     if keys:
         rows = [
             dict(
@@ -76,6 +65,22 @@ def series_ids(session: Session, component_id: int, keys: list[SeriesKey]) -> di
     known = session.scalars(select(Series).where(Series.component_id == component_id))
     by_key = {SeriesKey(s.case, s.phase, s.params, s.process, s.counter): s.id for s in known}
     return {key: by_key[key] for key in keys}
+
+
+def _unstorable(key: SeriesKey) -> str | None:
+    """Why the series cannot be stored (its key over `SERIES_KEY_BYTES`, a name over its
+    column's `NAME_LENGTH`: a recording's names, which no API schema checked), or None."""
+    size = len("".join((key.case, key.phase, key.params, key.process, key.counter)).encode())
+    if size > SERIES_KEY_BYTES:
+        return (
+            " is too long to store: its case, phase, parameters, process and counter take "
+            f"{size} bytes (at most {SERIES_KEY_BYTES})"
+        )
+    named = (("case", key.case), ("phase", key.phase), ("process", key.process))
+    for what, name in (*named, ("counter", key.counter)):
+        if len(name) > NAME_LENGTH:
+            return f": its {what} is {len(name)} characters long (at most {NAME_LENGTH})"
+    return None
 
 
 def write_samples(
