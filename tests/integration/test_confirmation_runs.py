@@ -759,7 +759,7 @@ def test_a_moved_change_whose_own_pairs_cannot_run_is_dropped_not_settled_by_its
     assert moved.reason.startswith("found a revision late")
     assert moved.confirmation == "dropped", moved.confirmation_reason
     assert moved.confirmation_reason.startswith(
-        "not confirmed: found a revision late, and its own pairs could not decide it (re-runs "
+        "not confirmed: found late, and its own pairs could not decide it (re-runs "
         "could not decide: no confirmation pair could run (r4: checkout failed"
     ), moved.confirmation_reason
 

@@ -205,6 +205,12 @@ def pair_bar(effect: float, noise: float) -> float:
 #: how the reason of a verdict moved back to the revision that made the change begins
 #: (`redline.worker.found_late`), and the mark that it is not moved again
 FOUND_LATE = "found a revision late"
+#: how the reason of a change the later revisions' level found at an earlier revision begins
+#: (`redline.worker.held_level`)
+LEVEL_HELD = "found later"
+#: the reasons of changes found after their revision was judged, whose own runs missed them:
+#: confirmed by pairs of their own or not at all, and never moved back again
+FOUND_LATER = (FOUND_LATE, LEVEL_HELD)
 
 
 @dataclass(frozen=True)

@@ -40,6 +40,12 @@ STEP_MARGIN = 1.25
 #: how the reason of a step's verdict begins (`redline.worker.detection`): judged at
 #: ``step_threshold`` times `STEP_MARGIN`, not at ``threshold``
 STEP_FOUND = "found when "
+#: the revisions from a revision on (its own included) that `ExecutionShift.held` judges it by:
+#: Perfherder's fore window. On the corpora's first executions (`benchmarks/held_level.py`: the
+#: 7 revisions before, 4 from it on, at 6) it flagged none of 3,046 unchanged positions, where
+#: the revision's one run alone flagged 179, and with that run found 19 of 25 labelled changes
+#: where the run alone found 16.
+HELD_AFTER = 4
 #: The threshold where a flag is a suspicion that re-runs confirm before it is a regression or
 #: fails CI (the service's default: `confirm_pairs` 2), not a regression at once or by the later
 #: revisions alone (``threshold``: CI fails on a change still suspected, and the later revisions
@@ -180,6 +186,17 @@ class ExecutionShift(Detector):
         ``threshold`` times `STEP_MARGIN` (the unconfirmed one: `confirmed` leaves it) and
         ``min_effect``. Each stretch needs `STEP_SIDE`
         values, both together ``min_baseline``."""
+        return self._between(before, after, STEP_MARGIN * self.step_threshold)
+
+    def held(self, before: np.ndarray, after: np.ndarray) -> Detection:
+        """A revision judged again once `HELD_AFTER` revisions from it on are measured: whether
+        they hold a level its own run(s) did not show beyond the noise (``after`` their values,
+        ``before`` those of the revisions before it). Judged as `step` is, at ``threshold``:
+        asked once per revision and series, not at several revisions, and only where re-runs
+        confirm what it flags (`redline.worker.held_level`)."""
+        return self._between(before, after, self.threshold)
+
+    def _between(self, before: np.ndarray, after: np.ndarray, threshold: float) -> Detection:
         before, after = before[np.isfinite(before)], after[np.isfinite(after)]
         if min(len(before), len(after)) < STEP_SIDE or len(before) + len(after) < self.min_baseline:
             return not_enough(
@@ -198,7 +215,7 @@ class ExecutionShift(Detector):
             1e-12,
         )
         z = abs(new - old) / (spread * math.sqrt(1 / len(after) + 1 / len(before)))
-        return self._decided(z, relative_effect(old, new), STEP_MARGIN * self.step_threshold)
+        return self._decided(z, relative_effect(old, new), threshold)
 
 
 def strongest_step(

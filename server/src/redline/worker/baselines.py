@@ -12,7 +12,7 @@ import numpy as np
 from redline.detect.baseline import lookback, take_recent
 from redline.detect.config import DetectionConfig
 from redline.detect.count_rate import CountRate
-from redline.detect.execution_shift import ExecutionShift, strongest_step
+from redline.detect.execution_shift import HELD_AFTER, ExecutionShift, strongest_step
 from redline.detect.methods import Levelled
 from redline.detect.result import Detection
 from redline.server.models import Execution, Revision
@@ -42,13 +42,18 @@ class Baseline:
 
 @dataclass(frozen=True)
 class Step:
-    """A step found at an earlier revision that could not be judged when it was measured
-    (`Baselines.step`): that revision, what was before it, its values and those after it."""
+    """A step looked for at an earlier revision: one that could not be judged when it was
+    measured (`Baselines.step`), or whose own run showed no change (`Baselines.held`): that
+    revision, what was before it, its values and those after it, and what was found."""
 
     revision_id: int
     before: Baseline
     after: np.ndarray
     found: Detection
+
+    @property
+    def values_before(self) -> int:
+        return 0 if self.before.values is None else len(self.before.values)
 
 
 class Baselines:
@@ -155,6 +160,36 @@ class Baselines:
             Baseline(np.concatenate(stretches[:k]), before[-1][0], len(before)),
             np.concatenate([*stretches[k:], candidate[np.isfinite(candidate)]]),
             found,
+        )
+
+    def held(self, series_id: int, detector: Levelled, candidate: np.ndarray | None) -> Step | None:
+        """The revision `HELD_AFTER` revisions back, this one included, judged again on their
+        values (`ExecutionShift.held`) against the earlier baseline revisions', when its own
+        run(s) showed no change: where they hold a new level, as a `Step` (found or not).
+        None where it cannot be asked: another baseline policy or method, a revision judged
+        otherwise than "no change" (flagged, or not enough data) at or after it, fewer than
+        ``min_baseline`` values before it."""
+        if (
+            self.config.baseline != "recent"
+            or not isinstance(detector, ExecutionShift)
+            or candidate is None
+        ):
+            return None
+        oldest_first = self._revisions(series_id, detector)[::-1]
+        k = len(oldest_first) + 1 - HELD_AFTER
+        keys = [(series_id, detector.name, revision_id) for revision_id, _ in oldest_first[k:]]
+        if k < 1 or any(key in self.flagged or key in self.undecided for key in keys):
+            return None
+        stretches = [values[np.isfinite(values)] for _, values in oldest_first]
+        before = np.concatenate(stretches[:k])
+        if len(before) < detector.min_baseline:
+            return None
+        after = np.concatenate([*stretches[k:], candidate[np.isfinite(candidate)]])
+        return Step(
+            oldest_first[k][0],
+            Baseline(before, oldest_first[k - 1][0], k),
+            after,
+            detector.held(before, after),
         )
 
     def restart(self, series_id: int, detector: Levelled, revision_id: int) -> None:

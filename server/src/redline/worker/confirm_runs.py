@@ -225,7 +225,7 @@ def settle_pairs(session: Session, revision: Revision) -> bool:
     # component starts, and its level is not the one its revision's own runs measured (in
     # bench_verdicts, 2026-12-05, the 8-legs set ran 5-11 % above its revision's own run)
     alone = any(job.sets_alone for job in jobs)
-    rerunnable = not alone and _rerunnable(session, session.get_one(Revision, baseline))
+    may_move = not alone and rerunnable(session, session.get_one(Revision, baseline))
     for detection, process, counter in suspected:
         measured = pair_values(values, detection.series_id, pairs, baseline, revision.id)
         count = is_count(process, counter)
@@ -250,13 +250,13 @@ def settle_pairs(session: Session, revision: Revision) -> bool:
             reason += f"; {len(again - spared)} of them run again after the host was busy"
         detection.confirmation, detection.confirmation_reason = found.state, reason
         # perhaps its baseline revision changed it (not where the reference alone moved)
-        if found.state == DROPPED and rerunnable and not reason.startswith(REFERENCE_ONLY):
+        if found.state == DROPPED and may_move and not reason.startswith(REFERENCE_ONLY):
             earlier = move_back(session, detection, revision, [b for b, _ in measured])
             if earlier is not None:
                 moved.append(earlier)
     run_again(session, revision, baseline, jobs, left)
     for earlier in moved:
-        _confirm_moved(session, earlier)
+        confirm_found_late(session, earlier)
     return True
 
 
@@ -289,7 +289,7 @@ def _judged(
     return Hold(SUSPECTED, f"{UNDECIDED}: {why}; {LATER_DECIDE}")
 
 
-def _rerunnable(session: Session, revision: Revision) -> bool:
+def rerunnable(session: Session, revision: Revision) -> bool:
     """Whether a change moved back to the revision (`redline.worker.found_late`) can have pairs
     of its own: its pairs ran already, or, where no re-analysis is storing (which queues no
     machine time), an agent measured it."""
@@ -300,10 +300,11 @@ def _rerunnable(session: Session, revision: Revision) -> bool:
     )
 
 
-def _confirm_moved(session: Session, revision: Revision) -> None:
-    """Pairs for a revision a change was moved back to (`redline.worker.found_late`), against its
-    own baseline revision, unless a re-analysis is storing (the pairs queued when the change was
-    first moved are judged then); judged as far as they ran."""
+def confirm_found_late(session: Session, revision: Revision) -> None:
+    """Pairs for a revision a change was found at late (moved back to it,
+    `redline.worker.found_late`, or a level the later revisions hold, `redline.worker.held_level`),
+    against its own baseline revision, unless a re-analysis is storing (the pairs queued when the
+    change was first found are judged then); judged as far as they ran."""
     if not reanalysing(session, revision.component_id):
         queue_confirmations(session, revision, component_config(session, revision.component_id))
     settle_pairs(session, revision)

@@ -19,7 +19,7 @@ from collections.abc import Collection, Mapping
 import numpy as np
 from redline.detect.confirmation import (
     DROPPED,
-    FOUND_LATE,
+    FOUND_LATER,
     HOLD_SHARE,
     LATER_DECIDE,
     LOOKBACK,
@@ -140,11 +140,11 @@ def settle(
     run afresh, which a change spanning it waits for. (A
     trial's README commit was flagged on a noisy counter and "held" because the next revision
     raised CPU threefold, and that counter with it.)"""
-    if detection.reason.startswith(FOUND_LATE):
+    if detection.reason.startswith(FOUND_LATER):
         # its own runs missed the change (so it was found late): the history cannot settle it
         detection.confirmation, detection.confirmation_reason = (
             DROPPED,
-            "not confirmed: found a revision late, and its own pairs could not decide it ("
+            "not confirmed: found late, and its own pairs could not decide it ("
             f"{detection.confirmation_reason or 'none ran'}); its own runs missed the change",
         )
         return

@@ -31,9 +31,9 @@ from redline.detect.count_rate import CountRate
 from redline.detect.counters import is_count
 from redline.detect.execution_shift import STEP_FOUND
 from redline.detect.methods import Detector
-from redline.detect.result import NOT_MEASURED, SHORT_BASELINE, not_enough
+from redline.detect.result import NO_CHANGE, NOT_MEASURED, SHORT_BASELINE, not_enough
 from redline.detect.result import Detection as Verdict
-from redline.detect.verdict import floored, judge_series
+from redline.detect.verdict import judge_series
 from redline.server.db import bulk_insert, lock_component, lock_revision, session_scope
 from redline.server.models import Detection, Revision, utcnow
 from redline.server.services.detection_config import component_config, judging_config_id
@@ -42,6 +42,7 @@ from redline.worker.confirm_runs import queue_confirmations, settle_pending_pair
 from redline.worker.confirmation import confirm_by_history
 from redline.worker.found_late import still_moved
 from redline.worker.grouping import group_revision
+from redline.worker.held_level import confirm_held, held_level, rerunnable_only
 from redline.worker.history import (
     count_totals,
     judged_counters,
@@ -49,7 +50,7 @@ from redline.worker.history import (
     reanalysing,
 )
 from redline.worker.remeasure import queue_for_baselines
-from redline.worker.rows import Judged, KsChange, detection_row, ks_change
+from redline.worker.rows import Judged, KsChange, detection_row, ks_change, step_row
 from redline.worker.samples import Samples, read_samples
 from sqlalchemy import Table, delete, select
 from sqlalchemy.orm import Session
@@ -136,21 +137,29 @@ def analyze(
     ]
     totals = count_totals(session, counts)
     changes = []
+    # judged new: a re-analysis queues no pairs, which alone may confirm a level found so
+    watch_held = walk is None and config.confirms
     for series_id in sorted(judged.keys() - absent.keys()):
         if series_id in counts:
             base, verdict = _judge_count(baselines, revision.id, series_id, totals.get(series_id))
             verdict = _noted(verdict, partial.get(series_id))
             rows.append(detection_row(series_id, revision.id, base, verdict))
             continue
+        counter = judged[series_id][1]
         for detector in asking(series_id):
             values = baselines.values(revision.id, series_id, detector)
-            step = _step(baselines, revision, series_id, detector, judged[series_id][1], values)
+            step = _step(baselines, revision, series_id, detector, counter, values)
             if step is not None:
                 rows.append(step)
             base = baselines.of(series_id, detector)
             verdict = judge_series(
                 detector, judged[series_id][1], base.values, values, missing=base.missing
             )
+            if watch_held and verdict.verdict == NO_CHANGE:
+                found = baselines.held(series_id, detector, values)
+                held = held_level(series_id, found, counter, revision)
+                if held is not None:
+                    rows.append(held)
             if base.values is not None and verdict.reason.startswith(SHORT_BASELINE):
                 left = baselines.left_out(series_id, detector, len(base.values))
                 if left:
@@ -182,21 +191,19 @@ def _step(
     """The verdict of an earlier revision that could not be judged when it was measured, when
     this revision shows that the series stepped there (`Baselines.step`); the baselines then
     start at it, this revision's included. None when there is no such step."""
-    step = baselines.step(series_id, detector, values)
-    if step is None:
-        return None
-    assert step.before.values is not None
-    found = floored(step.found, counter, step.before.values, step.after)
-    if not found.flagged:
-        return None
-    baselines.restart(series_id, detector, step.revision_id)
-    found = replace(
-        found,
-        reason=f"{STEP_FOUND}{revision.title} was judged: it could not be judged when measured "
-        f"(too few values before it); its {len(step.after)} values and those after it against "
-        f"the {len(step.before.values)} before it",
+    row = step_row(
+        series_id,
+        baselines.step(series_id, detector, values),
+        counter,
+        lambda step: (
+            f"{STEP_FOUND}{revision.title} was judged: it could not be judged when "
+            f"measured (too few values before it); its {len(step.after)} values and those after "
+            f"it against the {step.values_before} before it"
+        ),
     )
-    return detection_row(series_id, step.revision_id, step.before, found)
+    if row is not None:
+        baselines.restart(series_id, detector, row["revision_id"])
+    return row
 
 
 def _judge_count(
@@ -251,7 +258,8 @@ def store(
     config_id = judging_config_id(session, revision.component_id, config)
     rows = [row | {"config_id": config_id} for row in rows]
     own = [row for row in rows if row["revision_id"] == revision.id]
-    _store_steps(session, [row for row in rows if row["revision_id"] != revision.id], config)
+    earlier = rerunnable_only(session, [row for row in rows if row["revision_id"] != revision.id])
+    _store_steps(session, earlier, config)
     kept = still_moved(
         session, revision.id, ((r["series_id"], r["method"], r["verdict"]) for r in own)
     )
@@ -266,6 +274,7 @@ def store(
     if rerun:  # new results only: a re-analysis never queues machine time for old revisions
         queue_for_baselines(session, revision, own, config.baseline)  # first: pairs wait on it
         queue_confirmations(session, revision, config)
+        confirm_held(session, earlier)
     settle_pending_pairs(session, revision.component_id)
     if not reanalysing(session, revision.component_id):
         confirm_by_history(
@@ -276,9 +285,9 @@ def store(
 
 
 def _store_steps(session: Session, rows: list[dict[str, Any]], config: DetectionConfig) -> None:
-    """The verdicts of earlier revisions a step was found at (`_step`), each replacing that
-    revision's verdict of its series and method, grouped into regressions (the earlier
-    revisions first, as a re-analysis stores them)."""
+    """The verdicts of earlier revisions a step or a held level was found at (`_step`,
+    `held_level`), each replacing that revision's verdict of its series and method, grouped
+    into regressions (the earlier revisions first, as a re-analysis stores them)."""
     if not rows:  # nearly always: no step found
         return
     for row in rows:

@@ -16,7 +16,8 @@ The moved verdict outlives the revision's own verdicts being stored again, by ne
 re-analysis (both judge it on its own executions, which did not show the change): `still_moved`
 keeps it unless it is now judged a change on its own. A regression it opened keeps its id.
 
-Once only: a change moved back (its reason begins `FOUND_LATE`) is not moved again, or a host
+Once only: a change moved back (its reason begins `FOUND_LATE`), or found at its revision by
+the level the later revisions hold (`redline.worker.held_level`), is not moved again, or a host
 that slowed down since the history was measured would walk every dropped flag back through it,
 two runs a revision.
 """
@@ -25,12 +26,12 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
 
-from redline.detect.confirmation import FOUND_LATE, PAIR_SDS, already_moved
+from redline.detect.confirmation import FOUND_LATE, FOUND_LATER, PAIR_SDS, already_moved
 from redline.detect.result import CHANGE, NO_CHANGE
 from redline.server.models import Detection, Revision
 from redline.worker.confirmation import baseline_values
 from redline.worker.grouping import group_detection
-from sqlalchemy import select
+from sqlalchemy import or_, select
 from sqlalchemy.orm import Session
 
 
@@ -42,7 +43,7 @@ def move_back(
     a suspected change in a regression, and ``detection``'s reason says where the change went
     (as it does again when these pairs moved it before). None when they do not, or when it was
     moved once already or judged a change already."""
-    if detection.reason.startswith(FOUND_LATE) or detection.baseline_revision_id is None:
+    if detection.reason.startswith(FOUND_LATER) or detection.baseline_revision_id is None:
         return None
     earlier = session.scalar(
         select(Detection).where(
@@ -89,7 +90,8 @@ def _went(detection: Detection, revision: Revision, moved: float) -> None:
 def still_moved(
     session: Session, revision_id: int, fresh: Iterable[tuple[int, str, str]]
 ) -> dict[tuple[int, str], int]:
-    """Of the revision's verdicts moved back to it, those that storing its ``fresh`` verdicts
+    """Of the revision's verdicts found late (moved back to it, or a level held after it:
+    `FOUND_LATER`), those that storing its ``fresh`` verdicts
     ((series id, method, verdict) each) keeps, by (series id, method): those it judges "no
     change" again on its own executions, which missed the change. The fresh verdicts of those
     series and methods are not stored."""
@@ -97,7 +99,8 @@ def still_moved(
         (series_id, method): ident
         for ident, series_id, method in session.execute(
             select(Detection.id, Detection.series_id, Detection.method).where(
-                Detection.revision_id == revision_id, Detection.reason.startswith(FOUND_LATE)
+                Detection.revision_id == revision_id,
+                or_(*(Detection.reason.startswith(found) for found in FOUND_LATER)),
             )
         )
     }

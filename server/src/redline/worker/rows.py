@@ -4,7 +4,8 @@ revision's `Judged` result."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import dataclass, replace
 from datetime import datetime
 from typing import Any
 
@@ -12,8 +13,9 @@ import numpy as np
 from redline.detect.config import CHARTED_METHOD
 from redline.detect.result import NOT_ENOUGH_DATA
 from redline.detect.result import Detection as Verdict
+from redline.detect.verdict import floored
 from redline.server.models import utcnow
-from redline.worker.baselines import Baseline
+from redline.worker.baselines import Baseline, Step
 
 
 def detection_row(
@@ -38,6 +40,21 @@ def detection_row(
         confirmation_reason="",
         created=utcnow(),
     )
+
+
+def step_row(
+    series_id: int, step: Step | None, counter: str, reason: Callable[[Step], str]
+) -> dict[str, Any] | None:
+    """The row of the earlier revision ``step`` was looked for at, when a step is found there
+    beyond the counter's floor (`floored`), its reason ``reason(step)``; else None."""
+    if step is None:
+        return None
+    assert step.before.values is not None
+    found = floored(step.found, counter, step.before.values, step.after)
+    if not found.flagged:
+        return None
+    found = replace(found, reason=reason(step))
+    return detection_row(series_id, step.revision_id, step.before, found)
 
 
 @dataclass(frozen=True)
