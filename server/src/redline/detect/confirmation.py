@@ -261,6 +261,11 @@ def _moves(complete: Sequence[tuple[float, float]]) -> list[float]:
     return [(c - b) / abs(b) for b, c in complete]
 
 
+def pair_moves(pairs: Sequence[tuple[float, float]]) -> list[float]:
+    """Each complete pair's move of its candidate from its baseline, relative."""
+    return _moves(_complete(pairs))
+
+
 def _shows(move: float, direction: str, bar: float) -> bool:
     """Whether one pair's relative move shows a change flagged ``direction``: beyond ``bar``
     (`pair_bar`) that way."""

@@ -237,7 +237,7 @@ def settle_pairs(session: Session, revision: Revision) -> bool:
                 measured, detection.direction, detection.effect or 0.0, wanted,
                 noises[detection.id],
             )  # fmt: skip
-            found = in_cpu_time(session, detection, found, values, pairs, revision.id, wanted)
+            found = in_cpu_time(session, detection, found, values, pairs, revision.id)
             if failed:
                 found = replace(found, reason=f"{found.reason} (failed: {'; '.join(failed)})")
         if judged and found.state == SUSPECTED and detection.series_id in busy and not again:
