@@ -152,9 +152,7 @@ def analyze(
             if step is not None:
                 rows.append(step)
             base = baselines.of(series_id, detector)
-            verdict = judge_series(
-                detector, judged[series_id][1], base.values, values, missing=base.missing
-            )
+            verdict = judge_series(detector, counter, base.values, values, missing=base.missing)
             if watch_held and verdict.verdict == NO_CHANGE:
                 found = baselines.held(series_id, detector, values)
                 held = held_level(series_id, found, counter, revision)
