@@ -233,15 +233,16 @@ def token_create(
 ) -> None:
     """Create a token and print it; it is stored only as a hash and cannot be shown again."""
     from redline.server.db import session_factory
-    from redline.server.services.errors import ServiceError
+    from redline.server.services.errors import BadRequest, ServiceError
     from redline.server.services.tokens import issue_token
 
     with session_factory(_settings().database_url)() as session:
         try:
             _, secret = issue_token(session, name, scopes, host)
-        except ServiceError as exc:  # an unknown scope, or a live token of that name
+        except ServiceError as exc:  # bad input (an unknown scope...), or a live token so named
             typer.echo(exc.detail, err=True)
-            raise typer.Exit(1) from None
+            # 2, as for any bad option: what was asked is wrong, not the state it met
+            raise typer.Exit(2 if isinstance(exc, BadRequest) else 1) from None
     typer.echo(secret)
 
 
