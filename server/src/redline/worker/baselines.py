@@ -69,6 +69,9 @@ class Baselines:
     ) -> None:
         """``walk``: what a re-analysis knows of the earlier revisions; else it is read."""
         self.session, self.config = session, config
+        #: each (series, method)'s baseline revisions with their values (`_revisions`): asked by
+        #: the verdict, the held level and the notes on it; forgotten when the baseline restarts
+        self._taken: dict[tuple[int, str], list[tuple[int, np.ndarray]]] = {}
         #: per earlier revision, its series no execution may be judged by, with why
         self._unjudged: dict[int, dict[int, str]] = {}
         self.cache = walk.cache if walk else SampleCache(lookback(config.window) + 1)
@@ -100,6 +103,12 @@ class Baselines:
 
     def _revisions(self, series_id: int, detector: Levelled) -> list[tuple[int, np.ndarray]]:
         """The baseline's revisions, newest first, with the detector's values of the series."""
+        key = (series_id, detector.name)
+        if key not in self._taken:
+            self._taken[key] = self._take(series_id, detector)
+        return self._taken[key]
+
+    def _take(self, series_id: int, detector: Levelled) -> list[tuple[int, np.ndarray]]:
         if self.config.baseline == "pinned":
             ids = [self.pinned] if self.pinned is not None else []
         else:
@@ -197,6 +206,7 @@ class Baselines:
         key = (series_id, detector.name, revision_id)
         self.flagged.add(key)
         self.undecided.discard(key)
+        self._taken.pop((series_id, detector.name), None)
 
     def left_out(self, series_id: int, detector: Levelled, used: int) -> int:
         """How many executions of the baseline's revisions gave it no value of the series, for

@@ -290,9 +290,10 @@ def _judged(
 
 
 def rerunnable(session: Session, revision: Revision) -> bool:
-    """Whether a change moved back to the revision (`redline.worker.found_late`) can have pairs
-    of its own: its pairs ran already, or, where no re-analysis is storing (which queues no
-    machine time), an agent measured it."""
+    """Whether a change found at the revision late (moved back to it, `redline.worker.found_late`,
+    or a held level, `redline.worker.held_level`) can have pairs of its own: its pairs ran
+    already, or, where no re-analysis is storing (which queues no machine time), an agent
+    measured it."""
     if session.scalar(select(exists().where(Job.confirms_revision_id == revision.id))):
         return True
     return not reanalysing(session, revision.component_id) and (
