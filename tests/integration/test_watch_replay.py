@@ -38,7 +38,7 @@ def test_five_clean_minutes_replayed_raise_nothing(model: Path) -> None:
 def test_a_busy_thread_added_halfway_alarms_within_10_steps(model: Path) -> None:
     run = read_run(CLEAN)
     (process,) = [name for name in run.samples if name == "objectbuilder"]
-    middle = (run.segments[0].begin_ns + run.segments[-1].end_ns) // 2
+    middle = _middle(run)
     run.samples[process] = [
         (t, {**values, "cpu_percent": values["cpu_percent"] + 40.0 * (t >= middle)})
         for t, values in run.samples[process]
@@ -49,6 +49,42 @@ def test_a_busy_thread_added_halfway_alarms_within_10_steps(model: Path) -> None
     raised_by = found[: found.index(started[0])]  # an alarm follows the step that raised it
     at = next(item.t_ns for item in reversed(raised_by) if isinstance(item, Step))
     assert 0 <= (at - middle) / 1e9 <= 10.0
+
+
+def test_a_neighbours_burst_in_the_recording_is_told_busy_and_raises_nothing(model: Path) -> None:
+    """A neighbour spinning a core for 10 s halfway: the host's CPU rises by a core, and the
+    component's for the same traffic by 40 % of one (contention on 2 cores). Those steps are busy
+    and their CPU unjudged; the same rise with the host's CPU left as it was alarms."""
+    middle = _middle(read_run(CLEAN))
+
+    def spin(t: int) -> bool:
+        return middle <= t < middle + 10 * 10**9
+
+    def burst(host_too: bool) -> list:
+        run = read_run(CLEAN)
+        cores = run.cores
+        run.samples["objectbuilder"] = [
+            (t, {**v, "cpu_percent": v["cpu_percent"] + 40.0 * spin(t)})
+            for t, v in run.samples["objectbuilder"]
+        ]
+        if host_too:  # % of all CPUs: a core of `cores`
+            run.context["host"] = [
+                (t, {**v, "cpu_percent": v.get("cpu_percent", 0.0) + 100.0 / cores * spin(t)})
+                for t, v in run.context["host"]
+            ]
+        return replay(ModelFile.load(model), run)
+
+    told = burst(host_too=True)
+    busy = [s for s in told if isinstance(s, Step) and s.host_busy]
+    assert 8 <= len(busy) <= 12 + 4, len(busy)  # its own steps, and a few of the recording's
+    assert all(s.other_cpu is not None for s in told if isinstance(s, Step))
+    assert [a for a in told if isinstance(a, Alarm)] == []
+    blind = [a for a in burst(host_too=False) if isinstance(a, Alarm) and a.started]
+    assert blind and blind[0].target == "cpu_percent", blind
+
+
+def _middle(run) -> int:
+    return (run.segments[0].begin_ns + run.segments[-1].end_ns) // 2
 
 
 def test_the_command_line_replays_and_refuses_what_it_cannot_read(model: Path, tmp_path) -> None:

@@ -12,7 +12,17 @@ import sklearn.base
 from redline.predict.dataset import DataError, dataset, read_run
 from redline.predict.features import NS, FeatureSpec, _range_max, extract, unseen
 from redline.predict.model import ModelFile
-from redline.predict.watch import ANCHOR_STEPS, HOLD, EventWindow, Residuals, calibrate, smooth
+from redline.predict.watch import (
+    ANCHOR_STEPS,
+    HOLD,
+    USUAL_STEPS,
+    Contention,
+    EventWindow,
+    Residuals,
+    calibrate,
+    other_cpu,
+    smooth,
+)
 
 from tests.support.predict import SMALL, record
 
@@ -216,6 +226,49 @@ def test_a_gross_fault_from_before_watching_began_alarms_however_the_process_sta
     stalled = Residuals("cpu_percent", threshold=6.8)  # not gross: its offset is only reported
     assert not any(stalled.update(1.0, 10.0) for _ in range(30))
     assert stalled.offset == pytest.approx(-9.0)
+
+
+def test_a_neighbours_burst_leaves_the_cpu_unjudged_while_the_components_own_fault_alarms():
+    """A clean objectbuilder's CPU for the same traffic rose 12 % of a core, beyond its
+    threshold of 10, while a neighbour spun on the other core (a fresh-clone CI run, 2026-11-24):
+    a step the host was busy in is left out of the CPU's judgement. Memory is judged as ever,
+    and a busy thread in the component itself is in its own CPU, not in the other load."""
+    host = Contention(limit=30.0)
+    clean = Residuals("cpu_percent", threshold=10.0)
+    blind = Residuals("cpu_percent", threshold=10.0)  # the same steps, the host's load unknown
+    memory = Residuals("rss_bytes", threshold=1.6e6)
+    said, said_blind, said_memory, busy = [], [], [], []
+    for step in range(60):
+        neighbour = 25 <= step < 33  # a core spun by another process for 8 s
+        other = 12.0 + (100.0 if neighbour else 0.0)  # the test's driver and the rest: 12 %
+        busy.append(host.busy(other))
+        cpu = 20.0 + (17.4 if neighbour else 0.0)
+        said.append(clean.update(cpu, 20.0, busy[-1]))
+        said_blind.append(blind.update(cpu, 20.0))
+        said_memory.append(memory.update(40e6 + 5e6 * neighbour, 40e6, busy[-1]))
+    assert busy == [25 <= step < 33 for step in range(60)]
+    assert not any(said) and clean.busy_steps == 8 and clean.offset == pytest.approx(0.0)
+    assert any(a is not None and a.started for a in said_blind)  # what it raised before
+    assert any(a is not None and a.started for a in said_memory)  # memory is not left out
+    # the component's own busy thread: its CPU rises, the other load does not
+    own = [clean.update(20.0 + 90.0, 20.0, host.busy(12.0)) for _ in range(HOLD)]
+    assert own[-1] is not None and own[-1].started
+
+
+def test_other_load_becomes_the_usual_when_it_stays_and_is_told_from_the_hosts_cpu():
+    host = Contention(limit=30.0)
+    assert not host.busy(None)  # a host that cannot be read is not busy
+    # the first step is its own usual: a robot's other components use 1.5 cores throughout
+    assert not any(host.busy(150.0) for _ in range(USUAL_STEPS))
+    rising = [host.busy(150.0 + 60.0) for _ in range(USUAL_STEPS)]  # another job starts, stays
+    assert rising[0] and not rising[-1]
+    assert sum(rising) == USUAL_STEPS // 2  # busy until half the usual steps are its level
+    # 2 cores at 40 % busy and 5 % stolen: 90 % of a core, of which the component and Redline
+    # used 30: 60 % by others; never below 0; unknown without the host's CPU
+    assert other_cpu({"cpu_percent": 40.0, "cpu_steal_percent": 5.0}, 30.0, 2) == 60.0
+    assert other_cpu({"cpu_percent": 10.0}, 30.0, 2) == 0.0
+    assert other_cpu({}, 30.0, 2) is None
+    assert other_cpu({"cpu_percent": 40.0}, float("nan"), 2) is None
 
 
 def test_the_live_window_gives_the_features_of_the_same_events():

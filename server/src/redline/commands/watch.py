@@ -14,7 +14,9 @@ processes of the same code differ by more than the model's error), and by its le
 gross; that first offset is printed (``{"offset": target, ...}`` with --json). It also listens to
 the model's responses (keys the component answered on at every step of its training at which it
 received traffic): when traffic keeps coming in and nothing goes out on one, it alarms
-(``silence:KEY``), as a stall that the CPU does not show would.
+(``silence:KEY``), as a stall that the CPU does not show would. While the host is busy with other
+work (what else used its CPU beyond its usual level by the agent's disturbance threshold), the CPU
+is not judged, and it says so (``{"host": "busy", ...}``; every step has ``other_cpu_percent``).
 With ``--replay`` it watches a recording instead, step by step in the recording's time
 (`redline.predict.replay`): a model checked against a run of any length in seconds.
 Exit status 2 on bad input (no such process, a model of another version, a recording without the
@@ -104,6 +106,42 @@ def _reporter(server: str | None, component: str | None, process: str) -> Callab
     return post
 
 
+class _Sampler:
+    """The component's process tree (`TreeSampler`), and what else used the host since the
+    previous sample: the host's CPU less the tree's and this watcher's own
+    (`redline.predict.watch.other_cpu`), judged by `Contention` (``busy``)."""
+
+    def __init__(self, name: str, pid: int) -> None:
+        from redline.agent.procstat import ProcessSampler
+        from redline.agent.sampling import HostSampler, TreeSampler
+        from redline.predict.watch import Contention
+        from redline.recording.disturbance import threshold
+        from redline.recording.format import OWN_PROCESS
+
+        self.tree = TreeSampler(name, pid)
+        self.host = HostSampler()
+        self.own = ProcessSampler(OWN_PROCESS, os.getpid())
+        self.contention = Contention(threshold())
+        self.cores = os.cpu_count() or 0
+        self.other: float | None = None
+        self.busy = False
+
+    def sample(self) -> dict[str, float]:
+        """The tree's counters (OSError once the component is gone); ``other`` and ``busy``."""
+        from redline.predict.watch import other_cpu
+
+        measured = self.tree.sample()
+        used = measured.get("cpu_percent", float("nan")) + self.own.sample()["cpu_percent"]
+        self.other = other_cpu(self.host.sample(), used, self.cores)
+        self.busy = self.contention.busy(self.other)
+        return measured
+
+    def close(self) -> None:
+        self.tree.close()
+        self.host.close()
+        self.own.close()
+
+
 def _session(config: Path | None):
     import zenoh
 
@@ -165,7 +203,6 @@ def watch_cmd(
 ) -> None:
     """Watch a running component for resource faults with a model of its usage."""
     from redline.agent.interrupts import set_on_signals
-    from redline.agent.sampling import TreeSampler
     from redline.predict.dataset import RESPONSE_WINDOW_S, TARGETS, DataError
     from redline.predict.features import OUT, FeatureSpec
     from redline.predict.model import ModelFile
@@ -192,7 +229,7 @@ def watch_cmd(
     session = _session(zenoh_config)
     subscribers = listen(session, window)
     subscribers += listen(session, answers)
-    sampler = TreeSampler(loaded.process, pid)
+    sampler = _Sampler(loaded.process, pid)
     typer.echo(
         f"watching {loaded.process} (pid {pid}) on {len(subscribers)} keys; thresholds: "
         + ", ".join(f"{t} {r.threshold:.4g}" for t, r in residuals.items())
@@ -205,6 +242,7 @@ def watch_cmd(
         _say_alarm(alarm, as_json)
 
     sampler.sample()  # the CPU rate is over the time since the previous sample
+    host_busy = False
     began = time.monotonic()
     # until the longest window is full, the features undercount what the component heard
     # before the watcher started: predictions too low, and an alarm for nothing
@@ -217,6 +255,9 @@ def watch_cmd(
                 typer.echo(f"the component (pid {pid}) has exited", err=True)
                 break
             now = time.time_ns()
+            if sampler.busy != host_busy:
+                host_busy = sampler.busy
+                _say_host(sampler.other, host_busy, as_json)
             predicted = loaded.predict(window.features(now)[None, :])
             values = {t: float(measured.get(t, 0.0)) for t in TARGETS}
             guesses = {t: float(predicted[t][0]) for t in TARGETS}
@@ -225,7 +266,9 @@ def watch_cmd(
             answered = {s.key: answers.heard(now, RESPONSE_WINDOW_S, s.key) for s in silences}
             if not warming:
                 unknown = [t for t in residuals.values() if t.offset is None]
-                alarms = judge_step(residuals, silences, values, guesses, received, answered)
+                alarms = judge_step(
+                    residuals, silences, values, guesses, received, answered, host_busy
+                )
                 for tracker in unknown:
                     if tracker.offset is not None:  # measured by this step's residual
                         _say_offset(tracker, as_json)
@@ -233,7 +276,10 @@ def watch_cmd(
                     say(alarm)
             if as_json:
                 heard = window.heard(now, interval)
-                typer.echo(json.dumps(Step(now, warming, heard, answered, values, guesses).line()))
+                step = Step(
+                    now, warming, heard, answered, values, guesses, sampler.other, host_busy
+                )
+                typer.echo(json.dumps(step.line()))
             if duration is not None and time.monotonic() - began >= duration:
                 break
     finally:
@@ -250,6 +296,20 @@ def _say_alarm(alarm: Alarm, as_json: bool) -> None:
         if as_json
         else f"{said}: {alarm.target} residual {alarm.residual:+.4g} "
         f"(threshold {alarm.threshold:.4g}) at step {alarm.step}"
+    )
+
+
+def _say_host(other: float | None, busy: bool, as_json: bool) -> None:
+    """The host became busy with other work (its CPU residual left out until it is not), or
+    quiet again."""
+    if as_json:
+        typer.echo(json.dumps({"host": "busy" if busy else "quiet", "other_cpu_percent": other}))
+        return
+    typer.echo(
+        f"host busy: other load {other or 0:.0f} % of a core; its CPU is not judged meanwhile"
+        if busy
+        else "host quiet again: its CPU is judged",
+        err=True,
     )
 
 

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 from redline.predict.features import IN, NS, WINDOWS, Event, FeatureSpec, extract, spec_for
 from redline.recording.disturbance import recording_disturbances, threshold
-from redline.recording.format import HOST_PROCESS, OWN_PROCESS, canonical_params
+from redline.recording.format import HOST_PROCESS, META_HOST, OWN_PROCESS, canonical_params
 from redline.recording.reader import Recording, RecordingError, Segment, read_recording
 
 #: what a model predicts: the monitor's counters of one component process
@@ -44,6 +44,10 @@ class Run:
     samples: dict[str, list[tuple[int, dict[str, float]]]]  # process -> (t_ns, values)
     #: measured segments another process's load disturbed, with why (case, phase, params)
     disturbed: dict[tuple[str, str, str], str] = field(default_factory=dict)
+    #: the host's samples and Redline's own (`HOST_PROCESS`, `OWN_PROCESS`), and the host's
+    #: cores: what else used the host at each step of a replay (`redline.predict.replay`)
+    context: dict[str, list[tuple[int, dict[str, float]]]] = field(default_factory=dict)
+    cores: int = 0
 
 
 @dataclass
@@ -79,15 +83,21 @@ def read_run(path: str | Path) -> Run:
     }
     segments = [s for s in recording.segments() if not s.warmup]
     samples: dict[str, list[tuple[int, dict[str, float]]]] = {}
+    context: dict[str, list[tuple[int, dict[str, float]]]] = {}
     for sample in recording.counters:
         process = sample.get("process", "")
-        if process in (HOST_PROCESS, OWN_PROCESS) or not isinstance(sample.get("values"), dict):
+        if not isinstance(sample.get("values"), dict):
             continue
-        samples.setdefault(process, []).append((int(sample["t_ns"]), sample["values"]))
+        into = context if process in (HOST_PROCESS, OWN_PROCESS) else samples
+        into.setdefault(process, []).append((int(sample["t_ns"]), sample["values"]))
     if not samples:
         raise DataError(f"{path}: no component process was monitored")
     disturbed = recording_disturbances(recording.series_samples(), threshold())
-    return Run(Path(path), events, received, segments, samples, dict(disturbed))
+    cores = str(recording.metadata.get(META_HOST, {}).get("cpu_cores", ""))
+    return Run(
+        Path(path), events, received, segments, samples, dict(disturbed), context,
+        int(cores) if cores.isdigit() else 0,
+    )  # fmt: skip
 
 
 def component_process(runs: Sequence[Run], process: str | None) -> str:
@@ -109,14 +119,17 @@ def component_process(runs: Sequence[Run], process: str | None) -> str:
 
 
 def step_targets(
-    samples: list[tuple[int, dict[str, float]]], times: np.ndarray
+    samples: list[tuple[int, dict[str, float]]],
+    times: np.ndarray,
+    counters: Sequence[str] = TARGETS,
 ) -> dict[str, np.ndarray]:
-    """Per target, the mean of the samples in (t - step, t]; NaN where there is none."""
+    """Per target (or other counter), the mean of the samples in (t - step, t]; NaN where there
+    is none."""
     stamps = np.array([t for t, _ in samples], dtype=np.int64)
     order = np.argsort(stamps, kind="stable")
     stamps = stamps[order]
     out = {}
-    for target in TARGETS:
+    for target in counters:
         values = np.array([float(samples[i][1].get(target, np.nan)) for i in order])
         totals = np.concatenate(([0.0], np.cumsum(np.nan_to_num(values))))
         valid = np.concatenate(([0], np.cumsum(~np.isnan(values))))

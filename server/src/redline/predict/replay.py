@@ -8,7 +8,8 @@ of the monitor's samples of the component's process over the step, the very valu
 learnt from (`redline.predict.dataset`); what it heard, the recorder's arrival times. Steps run
 each second from the first measured segment's start to the last one's end; until the longest
 feature window is full they are warming, and judge nothing, as live. A step without a counter
-sample of the process is left out.
+sample of the process is left out. What else used the host in a step comes from the host's and
+Redline's own samples, as live (`redline.predict.watch.Contention`).
 """
 
 from __future__ import annotations
@@ -26,7 +27,17 @@ from redline.predict.dataset import (
 )
 from redline.predict.features import NS, extract
 from redline.predict.model import ModelFile
-from redline.predict.watch import Alarm, Residuals, Silence, Step, judge_step
+from redline.predict.watch import (
+    Alarm,
+    Contention,
+    Residuals,
+    Silence,
+    Step,
+    judge_step,
+    other_cpu,
+)
+from redline.recording.disturbance import threshold
+from redline.recording.format import HOST_PROCESS, OWN_PROCESS
 
 
 def replay(model: ModelFile, run: Run) -> list[Step | Alarm]:
@@ -44,6 +55,7 @@ def replay(model: ModelFile, run: Run) -> list[Step | Alarm]:
     times, measured = times[kept], {t: values[kept] for t, values in measured.items()}
     if not len(times):
         raise DataError(f"{run.path}: no counter sample of process {process!r} to replay")
+    others = _other_cpu(run, times)
     predicted = model.predict(extract(run.events, times, model.spec))
     known = model.spec.keys
     heard = np.array(sorted(stamp for key, stamp, _ in run.events if key in known), np.int64)
@@ -55,6 +67,7 @@ def replay(model: ModelFile, run: Run) -> list[Step | Alarm]:
     answered = {key: in_window(stamps, times, RESPONSE_WINDOW_S) for key, stamps in answers.items()}
     residuals = {t: Residuals(t, model.metrics[t]["threshold"]) for t in TARGETS}
     silences = [Silence(key) for key in model.responses]
+    contention = Contention(threshold())
     warm_until = begin + int(max(model.spec.windows) * NS)
     out: list[Step | Alarm] = []
     for index, t_ns in enumerate(times.tolist()):
@@ -62,7 +75,30 @@ def replay(model: ModelFile, run: Run) -> list[Step | Alarm]:
         values = {t: float(measured[t][index]) for t in TARGETS}
         guesses = {t: float(predicted[t][index]) for t in TARGETS}
         said = {key: int(counts[index]) for key, counts in answered.items()}
-        out.append(Step(t_ns, warming, int(received[index]), said, values, guesses))
+        other = others[index]
+        busy = contention.busy(other)
+        out.append(Step(t_ns, warming, int(received[index]), said, values, guesses, other, busy))
         if not warming:
-            out += judge_step(residuals, silences, values, guesses, int(received[index]), said)
+            count = int(received[index])
+            out += judge_step(residuals, silences, values, guesses, count, said, busy)
     return out
+
+
+def _other_cpu(run: Run, times: np.ndarray) -> list[float | None]:
+    """What else used the host at each step (`redline.predict.watch.other_cpu`): the host's CPU
+    less every monitored process's and Redline's own, each the mean of its samples in the step;
+    None at every step of a recording without the host's or Redline's samples."""
+    host, own = run.context.get(HOST_PROCESS), run.context.get(OWN_PROCESS)
+    if not host or not own or run.cores <= 0:
+        return [None] * len(times)
+    host_cpu = step_targets(host, times, ("cpu_percent", "cpu_steal_percent"))
+    used = sum(
+        (np.nan_to_num(step_targets(samples, times, ("cpu_percent",))["cpu_percent"])
+         for samples in [own, *run.samples.values()]),
+        np.zeros(len(times)),
+    )  # fmt: skip
+    return [
+        other_cpu({name: float(values[index]) for name, values in host_cpu.items()},
+                  float(used[index]), run.cores)
+        for index in range(len(times))
+    ]  # fmt: skip

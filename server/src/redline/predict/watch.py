@@ -19,16 +19,26 @@ workers stall, memory keeps growing); one present before watching began is seen 
 (a busy thread: tens of % of a core), and the offset is reported for a person to judge. The CPU
 offset then follows the process's clean steps (`DRIFTING`): its cost for the same traffic
 wanders, within a run and between hosts, by more than a threshold.
+
+A step in which the host was busy with other work (`Contention`) says nothing of the component's
+CPU: on 2 cores the same traffic cost a clean objectbuilder 12 % of a core more while a
+neighbour spun, beyond its threshold of 10. Its CPU residual is left out, as the agent leaves a
+disturbed phase out of the verdicts (`redline.recording.disturbance`), and the step says so.
 """
 
 from __future__ import annotations
 
+import math
 import threading
 from collections import deque
+from collections.abc import Mapping
 from dataclasses import dataclass
+from statistics import median
 
 import numpy as np
 from redline.predict.features import NS, Event, FeatureSpec, extract
+from redline.recording.disturbance import other_load
+from redline.recording.format import HOST_PROCESS, OWN_PROCESS
 
 #: weight of the newest residual in the smoothed one (one step a second)
 SMOOTHING = 0.3
@@ -60,6 +70,12 @@ DRIFT_STEPS = 30
 #: a later +6.6 % a move of +9.5 beyond a threshold of 8.3 in a clean CI run, and shrank what a
 #: stall takes away by as much)
 OFFSET_FLOOR = 0.5
+#: targets another process's load moves: their residual is left out of a step the host was
+#: busy in (memory is the component's own, whatever else runs)
+CONTENDED = frozenset({"cpu_percent"})
+#: steps whose other load is the host's usual: a step beyond their median by the disturbance
+#: threshold is busy (a robot's other components may use cores throughout; a burst is judged)
+USUAL_STEPS = 30
 
 
 def smooth(residuals: np.ndarray, weight: float = SMOOTHING) -> np.ndarray:
@@ -137,6 +153,10 @@ class Step:
     answered: dict[str, int]
     measured: dict[str, float]
     predicted: dict[str, float]
+    #: what else used the host in the step, in % of one core (None: not known), and whether
+    #: that made it busy (`Contention`)
+    other_cpu: float | None = None
+    host_busy: bool = False
 
     def line(self) -> dict:
         return {
@@ -146,7 +166,46 @@ class Step:
             "answered": self.answered,
             "measured": self.measured,
             "predicted": self.predicted,
+            "other_cpu_percent": self.other_cpu,
+            "host_busy": self.host_busy,
         }
+
+
+def other_cpu(host: Mapping[str, float], used: float, cores: int) -> float | None:
+    """What else used the host in a step, in % of one core, as the agent tells a disturbed phase
+    (`redline.recording.disturbance.other_load`): the host's busy and stolen CPU (``host``, % of
+    all CPUs, as `HostSampler` gives them) times its ``cores``, less what the component's
+    processes and Redline's own ``used`` (% of one core); None where it cannot be told."""
+    busy, stolen = host.get("cpu_percent", math.nan), host.get("cpu_steal_percent", 0.0)
+    if not (math.isfinite(busy) and math.isfinite(used)):
+        return None
+    stolen = stolen if math.isfinite(stolen) else 0.0
+    return other_load(
+        {
+            (HOST_PROCESS, "cpu_percent"): [busy],
+            (HOST_PROCESS, "cpu_steal_percent"): [stolen],
+            (OWN_PROCESS, "cpu_percent"): [used],
+        },
+        cores,
+    )
+
+
+class Contention:
+    """Whether the host was busy with other work in a step: its other load (the host's CPU less
+    the component's and the watcher's, in % of one core) beyond the median of the previous
+    `USUAL_STEPS` steps' by more than ``limit`` (the agent's disturbance threshold, 30 % of a
+    core by default). A level that stays becomes the usual within half as many steps."""
+
+    def __init__(self, limit: float) -> None:
+        self.limit = limit
+        self._recent: deque[float] = deque(maxlen=USUAL_STEPS)
+
+    def busy(self, other: float | None) -> bool:
+        if other is None:
+            return False
+        usual = median(self._recent) if self._recent else other
+        self._recent.append(other)
+        return other - usual > self.limit
 
 
 class Residuals:
@@ -160,6 +219,7 @@ class Residuals:
         self.moved: float | None = None  # the smoothed residual less the offset
         self.offset: float | None = None
         self.step = 0
+        self.busy_steps = 0  # steps left out, the host busy with other work
         self.active = False
         self._streak = 0
         self._first: list[float] = []
@@ -175,9 +235,14 @@ class Residuals:
     def _smooth(level: float | None, value: float) -> float:
         return value if level is None else SMOOTHING * value + (1 - SMOOTHING) * level
 
-    def update(self, measured: float, predicted: float) -> Alarm | None:
-        residual = measured - predicted
+    def update(self, measured: float, predicted: float, busy: bool = False) -> Alarm | None:
+        """Judge one step; ``busy``: the host was busy with other work, and a `CONTENDED`
+        target's residual is left out (nothing of it moves: level, offset, streak)."""
         self.step += 1
+        if busy and self.target in CONTENDED:
+            self.busy_steps += 1
+            return None
+        residual = measured - predicted
         self.level = self._smooth(self.level, residual)
         gross = abs(self.level) > GROSS * self.threshold
         if self.offset is None:
@@ -258,9 +323,10 @@ def judge_step(
     predicted: dict[str, float],
     received: int,
     answered: dict[str, int],
+    busy: bool = False,
 ) -> list[Alarm]:
     """One judged step, live or replayed: each target's residual, then each response's
-    silence; the alarms it started or ended."""
-    alarms = [tracker.update(measured[t], predicted[t]) for t, tracker in residuals.items()]
+    silence; the alarms it started or ended. ``busy``: the host was (`Contention`)."""
+    alarms = [tracker.update(measured[t], predicted[t], busy) for t, tracker in residuals.items()]
     alarms += [silence.update(received, answered[silence.key]) for silence in silences]
     return [alarm for alarm in alarms if alarm is not None]
