@@ -29,8 +29,15 @@ from redline.detect.counters import (
 from redline.detect.relative_change import RelativeChange
 from redline.detect.verdict import judge_series
 from redline.recording import RecordingWriter, SeriesKey, read_recording
-from redline.recording.disturbance import OTHER_CPU, recording_disturbances
+from redline.recording.disturbance import (
+    OTHER_CPU,
+    disturbed,
+    other_load,
+    other_peak,
+    recording_disturbances,
+)
 from redline.recording.driver import DRIVER_PROCESS, report_values, series_name
+from redline.recording.format import HOST_PROCESS, OWN_PROCESS
 from redline.testing import Context, FixedRate, Parallel, Publish, Query, Sequence
 from redline.testing.paths import action_paths
 from typer.testing import CliRunner
@@ -296,6 +303,46 @@ def test_other_load_is_the_hosts_cpu_beyond_the_runs_own(tmp_path: Path) -> None
     assert reason.startswith("host busy: other load 135 % of a core")
     blind = read_recording(record(tmp_path / "o.mcap", with_own=False))  # an older recording
     assert not [k for k in blind.series_samples() if k.counter == OTHER_CPU]
+
+
+def test_a_load_that_came_and_went_within_a_phase_disturbs_it() -> None:
+    """The benchmark's load (a core switched on and off every 3-30 s) over a 4-s phase: on for
+    one second of it, the phase's mean other load stays under 30 % of a core, and that second
+    moved the component's CPU; in a phase of a minute, one busy second does not disturb it."""
+
+    def phase(seconds: int, busy: set[int]) -> list[dict]:
+        samples = []
+        for tick in range(seconds * 10):  # the monitor's 10 Hz: component, host, own
+            t = tick * 10**8 + 5 * 10**7
+            other = 100.0 if tick // 10 in busy else 4.0  # % of one core
+            host = (20.0 + 5.0 + other) / 2  # % of both cores
+            samples += [
+                {"t_ns": t, "process": "comp", "values": {"cpu_percent": 20.0}},
+                {"t_ns": t + 1000, "process": HOST_PROCESS, "values": {"cpu_percent": host}},
+                {"t_ns": t + 2000, "process": OWN_PROCESS, "values": {"cpu_percent": 5.0}},
+            ]
+        return samples
+
+    def judged(seconds: int, busy: set[int]) -> tuple[float, float | None, dict]:
+        samples = phase(seconds, busy)
+        by_counter: dict = {}
+        for sample in samples:
+            key = (sample["process"], "cpu_percent")
+            by_counter.setdefault(key, []).append(sample["values"]["cpu_percent"])
+        mean = other_load(by_counter, 2)
+        peak = other_peak(samples, 0, seconds * 10**9, 2)
+        segment = ("case", "steady", "{}")
+        return mean, peak, disturbed({segment: [mean]}, 30.0, {segment: [peak]})
+
+    mean, peak, found = judged(4, {2})
+    assert mean == pytest.approx(28.0) and peak == pytest.approx(71.2)
+    assert list(found.values()) == [
+        "host busy: other load 71 % of a core in the busiest tenth of the phase's seconds "
+        "(over 30 %)"
+    ]
+    assert judged(60, {30})[2] == {}  # a second of a minute
+    assert judged(4, set())[1:] == (pytest.approx(4.0), {})  # quiet
+    assert other_peak(phase(4, set())[:5], 0, 5 * 10**8, 2) is None  # under a second
 
 
 def test_counts_of_rare_events_are_judged_as_rates() -> None:

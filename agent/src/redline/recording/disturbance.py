@@ -4,27 +4,38 @@ A verdict is only as good as the measurement under it: another job on a performa
 an unchanged component's CPU by 13 to 27 % (issue 11). For every segment the reader derives the
 host series `OTHER_CPU`: the host's busy and stolen CPU (% of all CPUs, times the cores) minus
 what the run's own processes used (the components, and Redline's runner, recorder and monitor,
-process ``redline``), in % of one core. A segment whose other load exceeds the threshold
-(`threshold`: ``REDLINE_DISTURBED_CPU_PERCENT``, default `DEFAULT_THRESHOLD`, chosen from the
-measurements in docs/detection.md) is disturbed: its series get the verdict "not enough data
-(host busy ...)", the agent runs the execution again (boundedly), and `redline run` and `redline
-compare` say so.
+process ``redline``), in % of one core; and `OTHER_PEAK`, the same over each whole second of
+the segment, in its busiest tenth of them. A segment whose other load, or that, exceeds the
+threshold (`threshold`: ``REDLINE_DISTURBED_CPU_PERCENT``, default `DEFAULT_THRESHOLD`, chosen
+from the measurements in docs/detection.md) is disturbed: its series get the verdict "not
+enough data (host busy ...)", the agent runs the execution again (boundedly), and `redline run`
+and `redline compare` say so.
 """
 
 from __future__ import annotations
 
 import os
+from bisect import bisect_right
 from collections.abc import Mapping, Sequence
+from statistics import quantiles
 from typing import Any
 
 from redline.recording.format import HOST_PROCESS, OWN_PROCESS
 
 #: The host series of what else used the host during a segment, in % of one core.
 OTHER_CPU = "other_cpu_percent"
+#: ... and in the busiest tenth of its whole seconds (their 90th percentile): a load that came and
+#: went within a phase moved the component's CPU in it while the phase's mean stayed under the
+#: threshold (the benchmark's load, a core switched on and off every 3-30 s, over 4-s phases);
+#: a tenth, so that one busy second in a phase of minutes does not disturb it all
+OTHER_PEAK = "other_cpu_p90_percent"
+#: the share of a phase's seconds that `OTHER_PEAK` reaches beyond
+PEAK_SHARE = 0.1
 #: Other load, in % of one core, above which a phase is disturbed (docs/detection.md).
 DEFAULT_THRESHOLD = 30.0
 THRESHOLD_VARIABLE = "REDLINE_DISTURBED_CPU_PERCENT"
 
+SECOND_NS = 1_000_000_000
 Segment = tuple[str, str, str]  # case, phase, canonical parameters
 #: what every disturbed segment's reason starts with, and a verdict it left undecided names
 BUSY = "host busy:"
@@ -68,15 +79,52 @@ def other_load(by_counter: Mapping[tuple[str, str], Sequence[Any]], cores: int) 
     return round(max(0.0, (_mean(host) + _mean(stolen)) * cores - used), 3)
 
 
-def disturbed(others: Mapping[Segment, Sequence[float]], limit: float) -> dict[Segment, str]:
+def other_peak(
+    samples: Sequence[Mapping[str, Any]], begin_ns: int, end_ns: int, cores: int
+) -> float | None:
+    """What else used the host in the busiest `PEAK_SHARE` of the whole seconds from
+    ``begin_ns`` to ``end_ns`` (the 90th percentile of each second's `other_load` of its
+    ``samples``: the monitor's, in time order); None in a segment shorter than a second, or
+    without the samples to tell."""
+    times = [sample["t_ns"] for sample in samples]
+    seconds = []
+    for second in range(begin_ns, end_ns - SECOND_NS + 1, SECOND_NS):
+        by_counter: dict[tuple[str, str], list[float]] = {}
+        for sample in samples[
+            bisect_right(times, second) : bisect_right(times, second + SECOND_NS)
+        ]:
+            for counter in ("cpu_percent", "cpu_steal_percent"):
+                value = sample["values"].get(counter)
+                if value is not None:
+                    by_counter.setdefault((sample["process"], counter), []).append(float(value))
+        other = other_load(by_counter, cores)
+        if other is not None:
+            seconds.append(other)
+    if len(seconds) < 2:
+        return seconds[0] if seconds else None
+    return round(quantiles(seconds, n=round(1 / PEAK_SHARE), method="inclusive")[-1], 3)
+
+
+def disturbed(
+    others: Mapping[Segment, Sequence[float]],
+    limit: float,
+    peaks: Mapping[Segment, Sequence[float]] | None = None,
+) -> dict[Segment, str]:
     """The disturbed segments, each with the reason its verdicts give, from each segment's
-    other load (the `OTHER_CPU` values of its executions: disturbed when any is over)."""
+    other load (the `OTHER_CPU` values of its executions) and the most of it in a second
+    (`OTHER_PEAK`): disturbed when any is over."""
     found = {}
-    for segment, values in others.items():
-        worst = max(values, default=0.0)
+    for segment in dict.fromkeys([*others, *(peaks or {})]):
+        worst = max(others.get(segment, ()), default=0.0)
+        peak = max((peaks or {}).get(segment, ()), default=0.0)
         if worst > limit:
             found[segment] = (
                 f"{BUSY} other load {worst:.0f} % of a core during the phase (over {limit:g} %)"
+            )
+        elif peak > limit:
+            found[segment] = (
+                f"{BUSY} other load {peak:.0f} % of a core in the busiest tenth of the "
+                f"phase's seconds (over {limit:g} %)"
             )
     return found
 
@@ -85,11 +133,12 @@ def recording_disturbances(
     samples: Mapping[Any, Sequence[float]], limit: float
 ) -> dict[Segment, str]:
     """The disturbed segments of one recording's samples (`Recording.series_samples`)."""
-    return disturbed(
-        {
+
+    def of(counter: str) -> dict[Segment, Sequence[float]]:
+        return {
             (key.case, key.phase, key.params): values
             for key, values in samples.items()
-            if key.process == HOST_PROCESS and key.counter == OTHER_CPU
-        },
-        limit,
-    )
+            if key.process == HOST_PROCESS and key.counter == counter
+        }
+
+    return disturbed(of(OTHER_CPU), limit, of(OTHER_PEAK))

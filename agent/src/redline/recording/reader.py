@@ -21,7 +21,7 @@ from mcap.data_stream import ReadDataStream
 from mcap.opcode import Opcode
 from mcap.records import Attachment, Channel, Chunk, Footer, Header, Message, Metadata
 from mcap.stream_reader import breakup_chunk
-from redline.recording.disturbance import OTHER_CPU, other_load
+from redline.recording.disturbance import OTHER_CPU, OTHER_PEAK, other_load, other_peak
 from redline.recording.driver import (
     CPU_PER_OP,
     CPU_REFS_PER_OP,
@@ -158,6 +158,10 @@ class Recording:
             if other is not None:
                 key = SeriesKey(segment.case, segment.phase, params, HOST_PROCESS, OTHER_CPU)
                 grouped.setdefault(key, []).append((segment.end_ns, other) if timed else other)
+                peak = other_peak(inside, segment.begin_ns, segment.end_ns, cores)
+                if peak is not None:
+                    key = SeriesKey(segment.case, segment.phase, params, HOST_PROCESS, OTHER_PEAK)
+                    grouped.setdefault(key, []).append((segment.end_ns, peak) if timed else peak)
         self._add_driver(grouped, every, include_warmup, timed)
         return grouped
 
