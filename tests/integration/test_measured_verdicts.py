@@ -611,6 +611,22 @@ def test_a_case_not_judged_yet_names_the_change_the_charted_method_sees(
     assert "ks, which" not in quiet.reason  # nothing flagged: nothing said
 
 
+def test_a_large_change_of_the_cpu_share_is_undecided_where_its_per_unit_figure_is_unjudged(
+    session, database_url, tmp_path
+):
+    """A new user's CPU +214 to +357 % passed `redline ci wait` (exit 0, every case skipped,
+    2026-12-06): with the host's reference recorded, the alarm method judges the CPU per unit
+    of work at the host's speed (too few baseline values yet) and KS, charted, the CPU share
+    beside it, the same figure: its +357 % was on another series than the one left unjudged."""
+    create_component(session, ComponentCreate(name=NAME, executions=RUNS))
+    ingest_and_detect(database_url, _revision(session, tmp_path, 1, reference=300.0))
+    ingest_and_detect(database_url, _revision(session, tmp_path, 2, cpu=60.0, reference=300.0))
+    session.expire_all()
+    (case,) = ci_verdict(session, NAME, "r2").cases
+    assert case.state == "undecided", case
+    assert "flags svc cpu_percent +200 %" in case.reason and "not passed unjudged" in case.reason
+
+
 def test_a_smaller_change_not_judged_yet_is_named_and_skipped(session, database_url, tmp_path):
     create_component(session, ComponentCreate(name=NAME, executions=RUNS))
     ingest_and_detect(database_url, _revision(session, tmp_path, 1))

@@ -151,6 +151,12 @@ S = TypeVar("S", bound=Named)
 LEVELS = ("sample", "execution", "build")
 
 
+def figure(process: str, counter: str) -> tuple[str, str]:
+    """The measurement a series is a figure of: a process's CPU share and its CPU per unit of
+    work at the host's speed are one (`one_cpu_figure`), every other counter its own."""
+    return process, SHARE if counter == CPU_REFS_PER_OP else counter
+
+
 def one_cpu_figure(series: Iterable[S], levels: Collection[str] = LEVELS) -> list[S]:
     """``series`` (judged ones) less the CPU figure that methods judging at ``levels`` do not
     ask of: a component's CPU share and its CPU per unit of work at the host's speed

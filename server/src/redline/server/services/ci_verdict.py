@@ -21,7 +21,7 @@ from urllib.parse import quote
 
 from redline.detect.config import CHARTED_METHOD
 from redline.detect.confirmation import DROPPED, SUSPECTED
-from redline.detect.counters import worse
+from redline.detect.counters import figure, worse
 from redline.detect.result import (
     HISTORY_REASONS,
     METHOD_FAILED,
@@ -232,9 +232,14 @@ def ci_verdict(session: Session, component_name: str, title: str) -> CiVerdict:
             # a component's own counter before the driver's metrics: what a developer changed
             first, series = min(busy or lacking or found, key=lambda f: f[1].process == DRIVER)
             seen = charted[(case, phase, params)]
-            unjudged = {s.id for d, s in found if d.verdict == NOT_ENOUGH_DATA}
+            # judged: a figure an alarm method decided, in whichever of its series (KS charts
+            # the CPU share, the default method judges the CPU per unit of work beside it)
+            judged = {
+                figure(s.process, s.counter) for d, s in found if d.verdict != NOT_ENOUGH_DATA
+            }
             large = not opening and any(
-                s.id in unjudged and UNJUDGED_LARGE <= abs(d.effect or 0.0) < math.inf
+                figure(s.process, s.counter) not in judged
+                and UNJUDGED_LARGE <= abs(d.effect or 0.0) < math.inf
                 for d, s in seen
             )
             undecided += bool(busy) or large
