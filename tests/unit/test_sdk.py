@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 from redline.testing import (
     Action,
@@ -18,6 +20,8 @@ from redline.testing import (
     ValidationError,
     validate_cases,
 )
+from redline.testing.cases import case_problems
+from redline.testing.replay import Replay
 
 from tests.support.actions import Repeat
 
@@ -170,7 +174,7 @@ def test_validation_names_every_malformed_key_expression_before_the_run() -> Non
     with pytest.raises(ValidationError) as caught:
         validate_cases([case])
     problems = caught.value.problems
-    assert len(problems) == 5, problems
+    assert len(problems) == 6, problems
     assert problems[0].startswith(
         "test case 'keys', phase 'send': Publish: 'a//b' is not a "
         "valid key expression (empty chunks are forbidden"
@@ -178,4 +182,34 @@ def test_validation_names_every_malformed_key_expression_before_the_run() -> Non
     assert "Query: 'svc/*x'" in problems[1] and "'*' may only" not in problems[1]
     assert "phase 'receive': WaitFor: 'bad#'" in problems[2]
     assert "Replay keys: 'robot/$x'" in problems[3] and "Replay remap: 'sim/'" in problems[4]
+    assert problems[5] == "test case 'keys', phase 'replay': Replay: no recording at r.mcap"
     assert "/root/.cargo" not in str(caught.value)
+
+
+def test_a_replayed_recording_is_found_beside_its_test_module_wherever_the_run_started(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A new user's `Replay("drive.mcap")` ran from the suite's folder and failed from its
+    parent, 3.3 s into the run (2026-12-06): a relative recording is the test module's
+    neighbour, as the suite's test modules are the suite's, and a missing one is named before
+    anything runs."""
+    from redline.agent.loader import load_test_cases
+
+    perf = tmp_path / "perf"
+    perf.mkdir()
+    (perf / "drive.mcap").write_bytes(b"")
+    (perf / "test_replay.py").write_text(
+        "from redline.testing import Cartesian, Phase, Replay, TestCase\n"
+        "found = TestCase('found', [Phase('go', Replay('drive.mcap'))], Cartesian(x=[1]))\n"
+        "lost = TestCase('lost', [Phase('go', Replay('gone.mcap'))], Cartesian(x=[1]))\n"
+    )
+    monkeypatch.chdir(tmp_path)  # the suite's parent, as `redline run perf/suite.toml`
+    found, lost = load_test_cases([perf / "test_replay.py"])
+    replay = found.phases[0].action
+    assert replay.path("drive.mcap") == perf.resolve() / "drive.mcap"
+    assert case_problems(found) == []
+    assert case_problems(lost) == [
+        f"test case 'lost', phase 'go': Replay: no recording at gone.mcap (in {perf.resolve()}, "
+        "the test module's folder)"
+    ]
+    assert Replay(str(perf / "drive.mcap")).problems() == []  # absolute: as given

@@ -11,6 +11,7 @@ from types import ModuleType
 
 from redline.agent.suite import SuiteError
 from redline.testing import TestCase
+from redline.testing.replay import LOADING_FROM
 
 
 def _where(exc: BaseException, path: Path) -> str:
@@ -36,12 +37,14 @@ def import_module(path: Path) -> ModuleType:
     before = set(sys.modules)
     sys.modules[name] = module
     sys.path.insert(0, str(path.parent))
+    loading = LOADING_FROM.set(path.parent.resolve())  # where its `Replay`s find recordings
     try:
         spec.loader.exec_module(module)
     except Exception as exc:
         detail = "".join(traceback.format_exception_only(exc)).strip()
         raise SuiteError(f"{_where(exc, path)}: cannot import test module: {detail}") from exc
     finally:
+        LOADING_FROM.reset(loading)
         sys.path.remove(str(path.parent))
         _forget_modules_from(path.parent, set(sys.modules) - before)
         sys.modules.pop(name, None)

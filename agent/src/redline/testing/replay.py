@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Iterator, Mapping, Sequence
+from contextvars import ContextVar
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -16,6 +17,11 @@ from redline.testing.actions import Action, resolve
 from redline.testing.context import Context
 from redline.testing.metrics import latency_summary
 from redline.testing.middleware import key_problems
+
+#: the folder of the test module being imported (`redline.agent.loader`): a `Replay` made there
+#: finds a relative recording in it, wherever the run was started from, as the suite finds its
+#: test modules beside it
+LOADING_FROM: ContextVar[Path | None] = ContextVar("redline_loading_from", default=None)
 
 
 @dataclass(frozen=True)
@@ -86,11 +92,13 @@ def load_recorded(
 class Replay(Action):
     """Publish the samples of an MCAP recording on their keys, with their original spacing.
 
-    ``recording`` is a path (or ``Param``); ``speed`` divides the gaps (2.0 = twice as fast);
-    ``keys`` selects channels by key expression (``["robot/scan", "robot/odom/**"]``);
-    ``remap`` renames key prefixes (``{"robot": "sim/robot"}``); ``loop`` replays it again and
-    again until interrupted (True) or that many times (a number). Redline's own channels are
-    skipped. Reports messages sent and lateness percentiles; returns the number of messages sent.
+    ``recording`` is a path (or ``Param``), a relative one taken from the folder of the test
+    module that made the action (else from the current folder); ``speed`` divides the gaps
+    (2.0 = twice as fast); ``keys`` selects channels by key expression (``["robot/scan",
+    "robot/odom/**"]``); ``remap`` renames key prefixes (``{"robot": "sim/robot"}``); ``loop``
+    replays it again and again until interrupted (True) or that many times (a number). Redline's
+    own channels are skipped. Reports messages sent and lateness percentiles; returns the number
+    of messages sent.
     """
 
     def __init__(
@@ -107,17 +115,34 @@ class Replay(Action):
         self.keys = list(keys) if keys else None
         self.remap = dict(remap or {})
         self.loop = loop
+        self.folder = LOADING_FROM.get()
         self._loaded: dict[str, list[Recorded]] = {}
 
     def problems(self) -> list[str]:
-        return key_problems("Replay keys", *(self.keys or [])) + key_problems(
+        found = key_problems("Replay keys", *(self.keys or [])) + key_problems(
             "Replay remap", *self.remap.values()
         )
+        if isinstance(self.recording, str | Path) and not self.path(self.recording).is_file():
+            found.append(f"Replay: no recording at {self._where(self.recording)}")
+        return found
 
-    def _load(self, path: str) -> list[Recorded]:
-        if path not in self._loaded:
-            self._loaded[path] = load_recorded(path, self.keys, self.remap)
-        return self._loaded[path]
+    def path(self, recording: str | Path) -> Path:
+        """Where ``recording`` is: a relative path in the folder of the module that made it."""
+        given = Path(recording)
+        return given if given.is_absolute() or self.folder is None else self.folder / given
+
+    def _where(self, recording: str | Path) -> str:
+        if Path(recording).is_absolute() or self.folder is None:
+            return str(recording)
+        return f"{recording} (in {self.folder}, the test module's folder)"
+
+    def _load(self, recording: str) -> list[Recorded]:
+        if recording not in self._loaded:
+            path = self.path(recording)
+            if not path.is_file():
+                raise FileNotFoundError(f"Replay: no recording at {self._where(recording)}")
+            self._loaded[recording] = load_recorded(path, self.keys, self.remap)
+        return self._loaded[recording]
 
     def _passes(self) -> int | None:
         if self.loop is True:
