@@ -14,6 +14,7 @@ from pathlib import Path
 import pyarrow.parquet as pq
 import pytest
 from fastapi.testclient import TestClient
+from redline.detect.registry import DETECTORS, TITLES
 from redline.recording.format import canonical_params
 from redline.server.db import session_factory
 from redline.server.models import Execution, FigureCache, Host, Job, Revision, Series, utcnow
@@ -139,6 +140,9 @@ def test_regressions_filter_by_method_and_come_a_page_at_a_time(
     numbers = [f'href="/regressions/{r["id"]}"' for r in every]
     page = client.get("/regressions?method=ks").text
     assert all(link in page for link in numbers) and '<option value="ks" selected>' in page
+    # each method by what it is: a new user took "foo" (Foo et al.) for leftover test code
+    assert '<option value="foo">Foo et al. 2010, association rules</option>' in page
+    assert set(TITLES) == set(DETECTORS)
     assert "No regression matches." in client.get("/regressions?method=welch_t").text
     bad = client.get("/regressions?method=nonsense")
     assert bad.status_code == 400 and "method: one of" in html.unescape(bad.text)

@@ -341,6 +341,9 @@ def test_a_load_that_came_and_went_within_a_phase_disturbs_it() -> None:
         "(over 30 %)"
     ]
     assert judged(60, {30})[2] == {}  # a second of a minute
+    # just over: not "30 % ... (over 30 %)", as a new user read it
+    (just,) = disturbed({("c", "p", "{}"): [30.4]}, 30.0).values()
+    assert just == "host busy: other load 30.4 % of a core during the phase (over 30 %)"
     assert judged(4, set())[1:] == (pytest.approx(4.0), {})  # quiet
     assert other_peak(phase(4, set())[:5], 0, 5 * 10**8, 2) is None  # under a second
 

@@ -119,14 +119,24 @@ def disturbed(
         peak = max((peaks or {}).get(segment, ()), default=0.0)
         if worst > limit:
             found[segment] = (
-                f"{BUSY} other load {worst:.0f} % of a core during the phase (over {limit:g} %)"
+                f"{BUSY} other load {_over(worst, limit)} % of a core during the phase "
+                f"(over {limit:g} %)"
             )
         elif peak > limit:
             found[segment] = (
-                f"{BUSY} other load {peak:.0f} % of a core in the busiest tenth of the "
+                f"{BUSY} other load {_over(peak, limit)} % of a core in the busiest tenth of the "
                 f"phase's seconds (over {limit:g} %)"
             )
     return found
+
+
+def _over(value: float, limit: float) -> str:
+    """``value`` (over ``limit``) as a whole number, or with the decimals that keep it over the
+    limit ("30 % ... (over 30 %)" read as a contradiction)."""
+    for digits in range(3):
+        if round(value, digits) > limit:
+            return f"{value:.{digits}f}"
+    return f"{value:.3f}"
 
 
 def recording_disturbances(

@@ -339,7 +339,7 @@ def pairs_hold(
     moved = ", ".join(f"{100 * move:+.1f} %" for move in moves)
     lacking = max(0, wanted - len(complete))  # incomplete: NaN, or never ran
     missing = (
-        f"; {lacking} pair(s) gave no value of it (a run measured while the host was busy, or "
+        f"; {lacking} more pair(s) gave no value of it (a run measured while the host was busy, or "
         "one that did not run)"
         if lacking
         else ""

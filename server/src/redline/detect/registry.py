@@ -26,6 +26,18 @@ DETECTORS: dict[str, Callable[..., Detector]] = {
     "shang": ShangRegression,
     "relative_change": RelativeChange,
 }
+#: What each method is, for a person choosing among them (the regressions page's filter)
+TITLES: dict[str, str] = {
+    "execution_shift": "execution shift, the default",
+    "build_shift": "build shift",
+    "ks": "Kolmogorov-Smirnov, charted",
+    "mann_whitney": "Mann-Whitney U",
+    "welch_t": "Welch's t-test",
+    "median_shift": "median shift",
+    "foo": "Foo et al. 2010, association rules",
+    "shang": "Shang et al. 2015, counter clusters",
+    "relative_change": "relative change",
+}
 #: Offline only: Foo's and Shang's scores aggregated as the paper also tried (min, mean).
 VARIANTS: dict[str, Callable[..., Detector]] = {
     f"{name}.{how}": partial(kind, aggregate=how)

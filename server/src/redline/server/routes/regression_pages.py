@@ -9,7 +9,7 @@ from urllib.parse import urlencode
 from fastapi import Request, Response
 from fastapi.responses import HTMLResponse, RedirectResponse
 from pydantic import ValidationError
-from redline.detect.registry import DETECTORS
+from redline.detect.registry import DETECTORS, TITLES
 from redline.server.api.deps import SessionDep
 from redline.server.models import RegressionState
 from redline.server.schemas.regressions import TriageRequest
@@ -81,6 +81,7 @@ def regressions_page(
             "states": list(RegressionState.__members__),
             "confirmations": CONFIRMATIONS,
             "methods": list(DETECTORS),
+            "titles": TITLES,
             "first": urlencode(chosen) if cursor else None,
             "following": urlencode({**chosen, "cursor": following}) if following else None,
         },
