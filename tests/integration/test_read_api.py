@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -132,6 +133,19 @@ def test_openapi_gives_every_route_a_response_model(api: Api):
 
 #: calls whose JSON body another system writes, read for the fields Redline needs only
 FOREIGN_BODIES = {"/api/v1/webhooks/github", "/api/v1/webhooks/gitlab", "/api/v1/import/lnt"}
+
+
+def test_the_interactive_api_page_loads_nothing_from_the_internet(api: Api):
+    """A new user's `/docs` was blank in a lab without the internet: FastAPI's page loads
+    Swagger UI from a CDN. Redline serves those files itself."""
+    page = api.client.get("/docs")
+    assert page.status_code == 200 and "/openapi.json" in page.text
+    sources = re.findall(r'(?:src|href)="([^"]+)"', page.text)
+    assert sources and all(source.startswith("/") for source in sources), sources
+    for source in sources:
+        served = api.client.get(source)
+        assert served.status_code == 200 and len(served.content) > 500, source
+    assert api.client.get("/redoc").status_code == 404  # FastAPI's other page, from a CDN too
 
 
 def test_every_json_body_refuses_a_field_it_does_not_know(api: Api):

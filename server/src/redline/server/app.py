@@ -26,6 +26,7 @@ from redline.server.core.tasks import TaskSender
 from redline.server.routes import (
     agent,
     alerts,
+    api_docs,
     components,
     executions,
     health,
@@ -280,6 +281,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         version="1",
         summary="Performance regressions, per revision",
         lifespan=_lifespan,
+        docs_url=None,  # served from Redline's own files (`api_docs`), not a CDN
+        redoc_url=None,
     )
     app.state.settings = settings
     app.state.tasks = TaskSender(settings)
@@ -309,5 +312,6 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         learning,
     ):
         app.include_router(module.router)
+    api_docs.mount(app)
     web.mount(app, settings)
     return app
