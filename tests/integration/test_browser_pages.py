@@ -330,3 +330,16 @@ def test_keyboard_reaches_every_control(site, browser, name):
             break
     missed = sorted(set(controls) - reached)
     assert not missed, f"{path}: controls {missed} of {len(controls)} never got the focus"
+
+
+def test_the_interactive_api_page_shows_every_call_without_the_internet(site, browser) -> None:
+    """A new user's `/docs` was blank without the internet (FastAPI loads Swagger UI from a
+    CDN); Swagger UI 4, served locally, cannot render the OpenAPI 3.1 document FastAPI makes
+    (a reviewer's find). The page, in Chromium: the calls listed, nothing from another host."""
+    watched = Watched(browser, site[0])
+    watched.visit(f"{site[0]}/docs")
+    watched.page.wait_for_selector(".opblock-summary-path", timeout=15_000)
+    paths = watched.page.locator(".opblock-summary-path").all_inner_texts()
+    assert "/api/v1/components" in [p.replace("\u200b", "") for p in paths], paths[:5]
+    assert "Unable to render" not in watched.page.content()
+    assert watched.foreign == [] and watched.errors == [], (watched.foreign, watched.errors)

@@ -212,4 +212,9 @@ def test_a_replayed_recording_is_found_beside_its_test_module_wherever_the_run_s
         f"test case 'lost', phase 'go': Replay: no recording at gone.mcap (in {perf.resolve()}, "
         "the test module's folder)"
     ]
-    assert Replay(str(perf / "drive.mcap")).problems() == []  # absolute: as given
+    assert Replay(str(perf / "drive.mcap")).missing() == []  # absolute: as given
+    # a case not chosen is no reason to refuse a run: files are looked for once cases are chosen
+    validate_cases([lost], files=False)
+    # a suite written before: its recording where its author ran it from, and only there
+    (tmp_path / "gone.mcap").write_bytes(b"")
+    assert case_problems(lost) == [] and replay.path("gone.mcap") == Path("gone.mcap")

@@ -5,11 +5,11 @@ an unchanged component's CPU by 13 to 27 % (issue 11). For every segment the rea
 host series `OTHER_CPU`: the host's busy and stolen CPU (% of all CPUs, times the cores) minus
 what the run's own processes used (the components, and Redline's runner, recorder and monitor,
 process ``redline``), in % of one core; and `OTHER_PEAK`, the same over each whole second of
-the segment, in its busiest tenth of them. A segment whose other load, or that, exceeds the
-threshold (`threshold`: ``REDLINE_DISTURBED_CPU_PERCENT``, default `DEFAULT_THRESHOLD`, chosen
-from the measurements in docs/detection.md) is disturbed: its series get the verdict "not
-enough data (host busy ...)", the agent runs the execution again (boundedly), and `redline run`
-and `redline compare` say so.
+the segment, in its busiest tenth of them. A segment whose other load,
+or that, exceeds the threshold (`threshold`: ``REDLINE_DISTURBED_CPU_PERCENT``, default
+`DEFAULT_THRESHOLD`, chosen from the measurements in docs/detection.md) is disturbed: its series
+get the verdict "not enough data (host busy ...)", the agent runs the execution again
+(boundedly), and `redline run` and `redline compare` say so.
 """
 
 from __future__ import annotations
@@ -24,10 +24,11 @@ from redline.recording.format import HOST_PROCESS, OWN_PROCESS
 
 #: The host series of what else used the host during a segment, in % of one core.
 OTHER_CPU = "other_cpu_percent"
-#: ... and in the busiest tenth of its whole seconds (their 90th percentile): a load that came and
-#: went within a phase moved the component's CPU in it while the phase's mean stayed under the
-#: threshold (the benchmark's load, a core switched on and off every 3-30 s, over 4-s phases);
-#: a tenth, so that one busy second in a phase of minutes does not disturb it all
+#: ... and in the busiest tenth of its whole seconds (their 90th percentile):
+#: a load that came and went within a phase moved the component's CPU in it while the phase's
+#: mean stayed under the threshold (the benchmark's load, a core switched on and off every 3-30
+#: s, over 4-s phases); a tenth, so that one busy second in a phase of minutes does not disturb
+#: it all
 OTHER_PEAK = "other_cpu_p90_percent"
 #: the share of a phase's seconds that `OTHER_PEAK` reaches beyond
 PEAK_SHARE = 0.1
@@ -36,6 +37,9 @@ DEFAULT_THRESHOLD = 30.0
 THRESHOLD_VARIABLE = "REDLINE_DISTURBED_CPU_PERCENT"
 
 SECOND_NS = 1_000_000_000
+#: the host's CPU is a rate over a window ending at its sample of half a second or a tick more
+#: (`WindowRate`, at the monitor's 10 Hz)
+HOST_WINDOW_NS = 500_000_000
 Segment = tuple[str, str, str]  # case, phase, canonical parameters
 #: what every disturbed segment's reason starts with, and a verdict it left undecided names
 BUSY = "host busy:"
@@ -82,26 +86,42 @@ def other_load(by_counter: Mapping[tuple[str, str], Sequence[Any]], cores: int) 
 def other_peak(
     samples: Sequence[Mapping[str, Any]], begin_ns: int, end_ns: int, cores: int
 ) -> float | None:
-    """What else used the host in the busiest `PEAK_SHARE` of the whole seconds from
-    ``begin_ns`` to ``end_ns`` (the 90th percentile of each second's `other_load` of its
-    ``samples``: the monitor's, in time order); None in a segment shorter than a second, or
-    without the samples to tell."""
-    times = [sample["t_ns"] for sample in samples]
-    seconds = []
-    for second in range(begin_ns, end_ns - SECOND_NS + 1, SECOND_NS):
-        by_counter: dict[tuple[str, str], list[float]] = {}
-        for sample in samples[
-            bisect_right(times, second) : bisect_right(times, second + SECOND_NS)
-        ]:
-            for counter in ("cpu_percent", "cpu_steal_percent"):
-                value = sample["values"].get(counter)
-                if value is not None:
-                    by_counter.setdefault((sample["process"], counter), []).append(float(value))
-        other = other_load(by_counter, cores)
-        if other is not None:
-            seconds.append(other)
+    """What else used the host in the busiest `PEAK_SHARE` of the whole seconds of the phase
+    from ``begin_ns`` to ``end_ns`` (the 90th percentile of each second's other load), from the
+    monitor's ``samples`` in time order. The host's CPU is a rate over its last `HOST_WINDOW_NS`
+    or so, the processes' over their last tick: at each host sample, the processes' ticks in its
+    window are taken off it, so that a heavier phase before, or a component whose CPU jumps from
+    tick to tick, is no one else's load (a sample whose window began before the phase is left
+    out); a second's other load is the mean of its host samples'. None where it cannot be told."""
+    host: list[tuple[int, float]] = []
+    used: dict[str, tuple[list[int], list[float]]] = {}
+    for sample in samples:
+        values, t_ns = sample["values"], sample["t_ns"]
+        cpu = values.get("cpu_percent")
+        if cpu is None:
+            continue
+        if sample["process"] == HOST_PROCESS:
+            if t_ns - HOST_WINDOW_NS >= begin_ns:
+                host.append((t_ns, float(cpu) + float(values.get("cpu_steal_percent") or 0.0)))
+        else:
+            times, cpus = used.setdefault(sample["process"], ([], []))
+            times.append(t_ns)
+            cpus.append(float(cpu))
+    if not host or OWN_PROCESS not in used or cores <= 0:
+        return None
+    by_second: dict[int, list[float]] = {}
+    for t_ns, busy in host:
+        second = (t_ns - begin_ns - 1) // SECOND_NS  # (begin + k s, begin + (k + 1) s]
+        if begin_ns + (second + 1) * SECOND_NS > end_ns:
+            continue  # whole seconds only
+        total = 0.0
+        for times, cpus in used.values():
+            lo, hi = bisect_right(times, t_ns - HOST_WINDOW_NS), bisect_right(times, t_ns)
+            total += sum(cpus[lo:hi]) / (hi - lo) if hi > lo else 0.0
+        by_second.setdefault(second, []).append(busy * cores - total)
+    seconds = [max(0.0, sum(others) / len(others)) for others in by_second.values()]
     if len(seconds) < 2:
-        return seconds[0] if seconds else None
+        return round(seconds[0], 3) if seconds else None
     return round(quantiles(seconds, n=round(1 / PEAK_SHARE), method="inclusive")[-1], 3)
 
 

@@ -57,6 +57,11 @@ class Action:
         expression); the runner names the case and phase. Children are checked on their own."""
         return []
 
+    def missing(self) -> list[str]:
+        """Files this action needs that are not there (a recording to replay), found after the
+        cases to run were chosen: a file of a case not chosen is no reason to refuse the run."""
+        return []
+
     def walk(self) -> Iterator[Action]:
         """This action and every action in its tree."""
         yield self

@@ -168,8 +168,9 @@ class ValidationError(ValueError):
         super().__init__("invalid performance tests:\n  " + "\n  ".join(problems))
 
 
-def case_problems(case: TestCase) -> list[str]:
-    """Every reason ``case`` cannot run: missing parameters, duplicate phases, no parameter sets."""
+def case_problems(case: TestCase, files: bool = True) -> list[str]:
+    """Every reason ``case`` cannot run: missing parameters, duplicate phases, no parameter sets;
+    and, with ``files``, files its actions need that are not there (`Action.missing`)."""
     sets = case.parameter_sets()
     problems = [] if sets else [f"test case {case.name!r}: its parameter provider yields no sets"]
     seen: set[str] = set()
@@ -180,7 +181,7 @@ def case_problems(case: TestCase) -> list[str]:
         for action in phase.action.walk():
             problems += [
                 f"test case {case.name!r}, phase {phase.name!r}: {problem}"
-                for problem in action.problems()
+                for problem in action.problems() + (action.missing() if files else [])
             ]
         for param in sorted(phase.action.params_used()):
             lacking = [s.name for s in sets if param not in s]
@@ -192,14 +193,15 @@ def case_problems(case: TestCase) -> list[str]:
     return problems
 
 
-def validate_cases(cases: Sequence[TestCase]) -> None:
-    """Raise `ValidationError` naming every problem of every case at once; do nothing if none."""
+def validate_cases(cases: Sequence[TestCase], files: bool = True) -> None:
+    """Raise `ValidationError` naming every problem of every case at once; do nothing if none.
+    ``files``: whether the files the cases need are looked for (once they are chosen)."""
     problems: list[str] = [] if cases else ["no test cases were found"]
     names: set[str] = set()
     for case in cases:
         if case.name in names:
             problems.append(f"test case {case.name!r} is defined twice")
         names.add(case.name)
-        problems.extend(case_problems(case))
+        problems.extend(case_problems(case, files))
     if problems:
         raise ValidationError(problems)

@@ -119,17 +119,24 @@ class Replay(Action):
         self._loaded: dict[str, list[Recorded]] = {}
 
     def problems(self) -> list[str]:
-        found = key_problems("Replay keys", *(self.keys or [])) + key_problems(
+        return key_problems("Replay keys", *(self.keys or [])) + key_problems(
             "Replay remap", *self.remap.values()
         )
+
+    def missing(self) -> list[str]:
         if isinstance(self.recording, str | Path) and not self.path(self.recording).is_file():
-            found.append(f"Replay: no recording at {self._where(self.recording)}")
-        return found
+            return [f"Replay: no recording at {self._where(self.recording)}"]
+        return []  # a `Param`'s is looked for when it runs
 
     def path(self, recording: str | Path) -> Path:
-        """Where ``recording`` is: a relative path in the folder of the module that made it."""
+        """Where ``recording`` is: a relative path in the folder of the module that made it, or
+        in the current folder where only that has it (as a suite written before 2026-12-06
+        found it, run from where its author ran it)."""
         given = Path(recording)
-        return given if given.is_absolute() or self.folder is None else self.folder / given
+        if given.is_absolute() or self.folder is None:
+            return given
+        beside = self.folder / given
+        return given if not beside.is_file() and given.is_file() else beside
 
     def _where(self, recording: str | Path) -> str:
         if Path(recording).is_absolute() or self.folder is None:

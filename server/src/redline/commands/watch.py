@@ -121,7 +121,11 @@ class _Sampler:
         self.tree = TreeSampler(name, pid)
         self.host = HostSampler()
         self.own = ProcessSampler(OWN_PROCESS, os.getpid())
-        self.contention = Contention(threshold())
+        try:
+            self.contention = Contention(threshold())
+        except ValueError as exc:  # REDLINE_DISTURBED_CPU_PERCENT is no number
+            self.close()
+            raise _fail(str(exc)) from None
         self.cores = os.cpu_count() or 0
         self.other: float | None = None
         self.busy = False
@@ -257,7 +261,7 @@ def watch_cmd(
             now = time.time_ns()
             if sampler.busy != host_busy:
                 host_busy = sampler.busy
-                _say_host(sampler.other, host_busy, as_json)
+                _say_host(sampler.other, sampler.contention.usual, host_busy, as_json)
             predicted = loaded.predict(window.features(now)[None, :])
             values = {t: float(measured.get(t, 0.0)) for t in TARGETS}
             guesses = {t: float(predicted[t][0]) for t in TARGETS}
@@ -299,16 +303,18 @@ def _say_alarm(alarm: Alarm, as_json: bool) -> None:
     )
 
 
-def _say_host(other: float | None, busy: bool, as_json: bool) -> None:
+def _say_host(other: float | None, usual: float | None, busy: bool, as_json: bool) -> None:
     """The host became busy with other work (its CPU residual left out until it is not), or
-    quiet again."""
+    quiet again; with the other load and its usual level, from which busy is told."""
     if as_json:
-        typer.echo(json.dumps({"host": "busy" if busy else "quiet", "other_cpu_percent": other}))
+        said = {"host": "busy" if busy else "quiet", "other_cpu_percent": other, "usual": usual}
+        typer.echo(json.dumps(said))
         return
+    load = f"other load {other or 0:.0f} % of a core, usually {usual or 0:.0f} %"
     typer.echo(
-        f"host busy: other load {other or 0:.0f} % of a core; its CPU is not judged meanwhile"
+        f"host busy: {load}; the component's CPU is not judged meanwhile"
         if busy
-        else "host quiet again: its CPU is judged",
+        else f"host quiet again ({load}): the component's CPU is judged",
         err=True,
     )
 

@@ -198,14 +198,15 @@ class Contention:
 
     def __init__(self, limit: float) -> None:
         self.limit = limit
+        self.usual: float | None = None  # the median the last step was judged against
         self._recent: deque[float] = deque(maxlen=USUAL_STEPS)
 
     def busy(self, other: float | None) -> bool:
         if other is None:
             return False
-        usual = median(self._recent) if self._recent else other
+        self.usual = median(self._recent) if self._recent else other
         self._recent.append(other)
-        return other - usual > self.limit
+        return other - self.usual > self.limit
 
 
 class Residuals:

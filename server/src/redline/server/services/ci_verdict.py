@@ -232,13 +232,13 @@ def ci_verdict(session: Session, component_name: str, title: str) -> CiVerdict:
             # a component's own counter before the driver's metrics: what a developer changed
             first, series = min(busy or lacking or found, key=lambda f: f[1].process == DRIVER)
             seen = charted[(case, phase, params)]
-            # judged: a figure an alarm method decided, in whichever of its series (KS charts
+            # a figure an alarm method could not judge, in whichever of its series (KS charts
             # the CPU share, the default method judges the CPU per unit of work beside it)
-            judged = {
+            unjudged = {figure(s.process, s.counter) for _, s in found} - {
                 figure(s.process, s.counter) for d, s in found if d.verdict != NOT_ENOUGH_DATA
             }
             large = not opening and any(
-                figure(s.process, s.counter) not in judged
+                figure(s.process, s.counter) in unjudged
                 and UNJUDGED_LARGE <= abs(d.effect or 0.0) < math.inf
                 for d, s in seen
             )
