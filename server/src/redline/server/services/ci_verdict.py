@@ -16,6 +16,7 @@ from __future__ import annotations
 import json
 import math
 from collections import defaultdict
+from collections.abc import Sequence
 from typing import Any
 from urllib.parse import quote
 
@@ -189,9 +190,39 @@ def ci_verdict(session: Session, component_name: str, title: str) -> CiVerdict:
     component = get_component(session, component_name)
     revision = get_revision(session, component, title)
     state, said = _pending(session, revision)
-    alarming = component_config(session, component.id).alarming
-    groups: dict[tuple[str, str, str], list[tuple[Detection, Series]]] = defaultdict(list)
-    charted: dict[tuple[str, str, str], list[tuple[Detection, Series]]] = defaultdict(list)
+    groups, charted = _by_case(session, revision, component_config(session, component.id).alarming)
+    opening = _first(session, revision)
+    cases = [_case_verdict(key, found, charted[key], opening) for key, found in groups.items()]
+    worse_count = sum(change["worse"] for case in cases for change in case.changes)
+    regressions = worse_count
+    improvements = sum(len(case.changes) for case in cases) - worse_count
+    skipped = sum(case.state == "skipped" for case in cases)
+    undecided = sum(case.state == "undecided" for case in cases)
+    return CiVerdict(
+        component=component.name,
+        revision=revision.title,
+        state=state,
+        waiting_for=said if state == "pending" else "",
+        reason=said if state == "failed" else "",
+        regressions=regressions,
+        improvements=improvements,
+        skipped=skipped,
+        undecided=undecided,
+        cases=cases,
+        page=f"/components/{quote(component.name)}/revisions/{quote(revision.title)}",
+    )
+
+
+Found = list[tuple[Detection, Series]]
+
+
+def _by_case(
+    session: Session, revision: Revision, alarming: Sequence[str]
+) -> tuple[dict[tuple[str, str, str], Found], dict[tuple[str, str, str], Found]]:
+    """The revision's verdicts of the alarm methods, and the charted method's flags for the
+    worse, per test case x phase x parameter set."""
+    groups: dict[tuple[str, str, str], Found] = defaultdict(list)
+    charted: dict[tuple[str, str, str], Found] = defaultdict(list)
     for detection, series in session.execute(
         select(Detection, Series)
         .join(Series, Series.id == Detection.series_id)
@@ -206,78 +237,62 @@ def ci_verdict(session: Session, component_name: str, title: str) -> CiVerdict:
             groups[key].append((detection, series))
         elif detection.flagged and detection.direction == worse(series.process, series.counter):
             charted[key].append((detection, series))
-    cases = []
-    regressions = improvements = skipped = undecided = 0
-    opening = _first(session, revision)
-    for (case, phase, params), found in groups.items():
-        changes = [_change(d, s) for d, s in found if d.flagged and d.confirmation != DROPPED]
-        worse_count = sum(c["worse"] for c in changes)
-        regressions += worse_count
-        improvements += len(changes) - worse_count
-        lacking = [
-            (d, s)
-            for d, s in found
-            if d.verdict == NOT_ENOUGH_DATA
-            and (_undecided(d.reason) or waits_for_history(d.reason))
-        ]
-        if not worse_count and (lacking or all(d.verdict == NOT_ENOUGH_DATA for d, _ in found)):
-            # passed only when every series that can be judged was: a CPU series still short of
-            # baseline values beside a judged count of timeouts is no pass (a trial saw 2.5x the
-            # CPU pass that way, 2026-11-24)
-            busy = [
-                (d, s)
-                for d, s in lacking
-                if _undecided(d.reason) and not (opening and names_busy_host(d.reason))
-            ]
-            # a component's own counter before the driver's metrics: what a developer changed
-            first, series = min(busy or lacking or found, key=lambda f: f[1].process == DRIVER)
-            seen = charted[(case, phase, params)]
-            # a figure an alarm method could not judge, in whichever of its series (KS charts
-            # the CPU share, the default method judges the CPU per unit of work beside it)
-            unjudged = {figure(s.process, s.counter) for _, s in found} - {
-                figure(s.process, s.counter) for d, s in found if d.verdict != NOT_ENOUGH_DATA
-            }
-            large = not opening and any(
-                figure(s.process, s.counter) in unjudged
-                and UNJUDGED_LARGE <= abs(d.effect or 0.0) < math.inf
-                for d, s in seen
-            )
-            undecided += bool(busy) or large
-            skipped += not (busy or large)
-            some = f" ({len(lacking)} of {len(found)} verdicts)" if lacking else ""
-            verdict = CaseVerdict(
-                case=case,
-                phase=phase,
-                parameters=json.loads(params),
-                state="undecided" if busy or large else "skipped",
-                reason=f"not enough data{some}: {series.process} {series.counter}: "
-                + (FIRST if opening and not busy else "")
-                + first.reason
-                + _charted_note(seen)
-                + (LARGE_UNJUDGED if large else ""),
-                changes=changes,
-            )
-        else:
-            verdict = CaseVerdict(
-                case=case,
-                phase=phase,
-                parameters=json.loads(params),
-                state="failed" if worse_count else "passed",
-                changes=changes,
-            )
-        cases.append(verdict)
-    return CiVerdict(
-        component=component.name,
-        revision=revision.title,
-        state=state,
-        waiting_for=said if state == "pending" else "",
-        reason=said if state == "failed" else "",
-        regressions=regressions,
-        improvements=improvements,
-        skipped=skipped,
-        undecided=undecided,
-        cases=cases,
-        page=f"/components/{quote(component.name)}/revisions/{quote(revision.title)}",
+    return groups, charted
+
+
+def _case_verdict(
+    key: tuple[str, str, str], found: Found, seen: Found, opening: bool
+) -> CaseVerdict:
+    """One test case x phase x parameter set: failed, passed, or, where a series that can be
+    judged has no verdict yet, skipped or undecided (``seen``: the charted method's flags)."""
+    case, phase, params = key
+    changes = [_change(d, s) for d, s in found if d.flagged and d.confirmation != DROPPED]
+    worse_count = sum(c["worse"] for c in changes)
+    lacking = [
+        (d, s)
+        for d, s in found
+        if d.verdict == NOT_ENOUGH_DATA and (_undecided(d.reason) or waits_for_history(d.reason))
+    ]
+    if worse_count or not (lacking or all(d.verdict == NOT_ENOUGH_DATA for d, _ in found)):
+        return CaseVerdict(
+            case=case,
+            phase=phase,
+            parameters=json.loads(params),
+            state="failed" if worse_count else "passed",
+            changes=changes,
+        )
+    # passed only when every series that can be judged was: a CPU series still short of
+    # baseline values beside a judged count of timeouts is no pass (a trial saw 2.5x the CPU
+    # pass that way, 2026-11-24)
+    busy = [
+        (d, s)
+        for d, s in lacking
+        if _undecided(d.reason) and not (opening and names_busy_host(d.reason))
+    ]
+    # a component's own counter before the driver's metrics: what a developer changed
+    first, series = min(busy or lacking or found, key=lambda f: f[1].process == DRIVER)
+    # a figure an alarm method could not judge, in whichever of its series (KS charts the CPU
+    # share, the default method judges the CPU per unit of work beside it)
+    unjudged = {figure(s.process, s.counter) for _, s in found} - {
+        figure(s.process, s.counter) for d, s in found if d.verdict != NOT_ENOUGH_DATA
+    }
+    large = not opening and any(
+        figure(s.process, s.counter) in unjudged
+        and UNJUDGED_LARGE <= abs(d.effect or 0.0) < math.inf
+        for d, s in seen
+    )
+    some = f" ({len(lacking)} of {len(found)} verdicts)" if lacking else ""
+    return CaseVerdict(
+        case=case,
+        phase=phase,
+        parameters=json.loads(params),
+        state="undecided" if busy or large else "skipped",
+        reason=f"not enough data{some}: {series.process} {series.counter}: "
+        + (FIRST if opening and not busy else "")
+        + first.reason
+        + _charted_note(seen)
+        + (LARGE_UNJUDGED if large else ""),
+        changes=changes,
     )
 
 
