@@ -73,6 +73,12 @@ def test_unknown_component_field_is_named_with_its_line(tmp_path: Path) -> None:
     assert ":8:" in message and "unknown field 'stop_timout' in [[component]] #1" in message
 
 
+def test_an_unknown_field_of_an_inline_table_is_named_with_its_line(tmp_path: Path) -> None:
+    """A new user's `ready = { logg = ... }` was named at the [[component]] header, line 4."""
+    message = error_of(tmp_path, VALID.replace('{ log = "ready" }', '{ logg = "ready" }'))
+    assert ":7: unknown field 'logg' in [[component]] #1 'ready'" in message, message
+
+
 def test_missing_required_fields_are_named(tmp_path: Path) -> None:
     assert "missing required field 'tests'" in error_of(
         tmp_path, VALID.replace('tests = ["test_demo.py"]\n', "")

@@ -30,12 +30,15 @@ class Checker:
             if index >= len(headers):
                 return None
             start = headers[index]
-        pattern = re.compile(rf"^\s*{re.escape(key)}\s*=|^\s*\[\[?\s*{re.escape(key)}\s*\]")
+        # a key of its own line, a table's header, or a key inside an inline table
+        # (``ready = { logg = "..." }``: a new user's typo was named at the section's header)
+        name = re.escape(key)
+        pattern = re.compile(rf"^\s*{name}\s*=|^\s*\[\[?\s*{name}\s*\]|[{{,]\s*{name}\s*=")
         for number in range(start, len(self.lines)):
             in_next_table = self.lines[number].lstrip().startswith("[")
             if number > start and section is not None and in_next_table:
                 break
-            if pattern.match(self.lines[number]):
+            if pattern.search(self.lines[number]):
                 return number + 1
         return None if section is None else start + 1
 
