@@ -540,6 +540,30 @@ def test_a_fresh_run_that_could_not_run_leaves_its_revision_as_it_was(
     assert verdict.state == "done" and [c.state for c in verdict.cases] == ["undecided"]
 
 
+def test_a_change_after_a_revision_the_host_was_busy_in_names_it_in_the_ci_failure(
+    session, database_url, tmp_path
+):
+    """bench_verdicts (2026-12-06): timeouts made at r24 were flagged at r25, the host busy in
+    every run of r24's and in its fresh run; r25's CI job failed for a change that may be r24's
+    and did not say so. The failure names the revisions of the range that did not measure it."""
+    create_component(session, ComponentCreate(name=NAME, executions=RUNS))
+    for number, recorded in ((1, {}), (2, {}), (3, {"host_percent": 90.0}), (4, {"cpu": 60.0})):
+        ingest_and_detect(database_url, _revision(session, tmp_path, number, **recorded))
+    session.expire_all()
+    fresh = _fresh_run(session, tmp_path, "r3", host_percent=90.0)  # busy again
+    for revision_id in ingest_execution(database_url, fresh.id):
+        detect_revision(database_url, revision_id)
+    session.expire_all()
+    verdict = ci_verdict(session, NAME, "r4")
+    changes = [change for case in verdict.cases for change in case.changes if change["worse"]]
+    assert changes and all("r3 (" in change["between"] for change in changes), changes
+    failure = ElementTree.fromstring(junit_xml(verdict)).find("testcase/failure")
+    assert failure is not None
+    assert "it may be the change of an earlier revision that did not measure it: r3 (" in (
+        failure.text or ""
+    )
+
+
 def test_a_fresh_run_is_queued_one_level_back_never_walking_a_busy_history(
     session, database_url, tmp_path
 ):

@@ -226,3 +226,13 @@ def test_a_run_written_to_a_log_keeps_every_name_whole(monkeypatch: pytest.Monke
         assert captured.get().count(name) == 2, captured.get()
     finally:
         run_cmd._console.cache_clear()
+
+
+def test_ci_waits_table_says_a_change_may_be_an_earlier_revisions() -> None:
+    """The console says what the JUnit file says: a change for the worse whose range holds a
+    revision that did not measure it (the host busy in its runs) may be that revision's."""
+    from redline.cli.ci_cmd import _marks
+
+    change = {"worse": True, "confirmation": "held", "between": "r24 (the host was busy ...)"}
+    assert _marks(change) == " (may be an earlier revision's: r24 (the host was busy ...))"
+    assert _marks({"worse": True, "confirmation": "held"}) == ""

@@ -100,6 +100,8 @@ def _marks(change: dict[str, Any]) -> str:
     marks = [] if change["worse"] else ["better"]
     if change.get("confirmation") == "suspected":
         marks.append("suspected: not confirmed yet")
+    if change.get("between"):  # revisions of its range that did not measure it
+        marks.append(f"may be an earlier revision's: {change['between']}")
     return f" ({'; '.join(marks)})" if marks else ""
 
 

@@ -16,10 +16,13 @@ def describe(change: dict[str, Any]) -> str:
     confirmation = state  # the reason, when there is one, names the state itself or follows it
     if why:
         confirmation = why if why.startswith(state) else f"{state}: {why}"
+    between = change.get("between")
     return (
         f"{change['process']} {change['counter']} {effect} ({change['method']}, p={p_value}, "
         f"confirmation: {confirmation})"
-    )
+        + (f"; it may be the change of an earlier revision that did not measure it: {between}"
+           if between else "")
+    )  # fmt: skip
 
 
 def junit_xml(verdict: CiVerdict, fail_on: str = "regression") -> str:

@@ -40,6 +40,7 @@ from redline.server.models import (
     Host,
     Job,
     JobState,
+    Regression,
     Revision,
     Series,
     revision_place,
@@ -48,6 +49,7 @@ from redline.server.schemas.alerts import CaseVerdict, CiVerdict
 from redline.server.services.components import get_component, get_revision
 from redline.server.services.detection_config import component_config
 from redline.server.services.fresh_runs import fresh_run_between, fresh_runs_under_way
+from redline.server.services.regression_range import revisions_between
 from redline.server.services.revisions import own_jobs, revision_state
 from sqlalchemy import func, or_, select
 from sqlalchemy.orm import Session
@@ -193,6 +195,7 @@ def ci_verdict(session: Session, component_name: str, title: str) -> CiVerdict:
     groups, charted = _by_case(session, revision, component_config(session, component.id).alarming)
     opening = _first(session, revision)
     cases = [_case_verdict(key, found, charted[key], opening) for key, found in groups.items()]
+    _name_unmeasured(session, cases)
     worse_count = sum(change["worse"] for case in cases for change in case.changes)
     regressions = worse_count
     improvements = sum(len(case.changes) for case in cases) - worse_count
@@ -211,6 +214,29 @@ def ci_verdict(session: Session, component_name: str, title: str) -> CiVerdict:
         cases=cases,
         page=f"/components/{quote(component.name)}/revisions/{quote(revision.title)}",
     )
+
+
+def _name_unmeasured(session: Session, cases: list[CaseVerdict]) -> None:
+    """Give each change for the worse the revisions inside its regression's range that did not
+    measure it (``between``: measured while the host was busy, failed, not run): the change may
+    be theirs. A bench run's timeouts, made at r24, were flagged at r25 when the host was busy
+    in every run of r24's, and r25's CI job failed for them."""
+    ranges: dict[int, str] = {}
+    for change in (c for case in cases for c in case.changes):
+        regression_id = change["regression"]
+        if not change["worse"] or regression_id is None:
+            continue
+        if regression_id not in ranges:
+            regression = session.get(Regression, regression_id)
+            listed, total = revisions_between(session, regression) if regression else ([], 0)
+            named = "; ".join(f"{r.title} ({r.why})" for r in listed[:NAMED])
+            ranges[regression_id] = named + (f"; {total - NAMED} more" if total > NAMED else "")
+        if ranges[regression_id]:
+            change["between"] = ranges[regression_id]
+
+
+#: revisions of a range a change for the worse names, at most
+NAMED = 3
 
 
 Found = list[tuple[Detection, Series]]
