@@ -131,8 +131,8 @@ def disturbed(
     peaks: Mapping[Segment, Sequence[float]] | None = None,
 ) -> dict[Segment, str]:
     """The disturbed segments, each with the reason its verdicts give, from each segment's
-    other load (the `OTHER_CPU` values of its executions) and the most of it in a second
-    (`OTHER_PEAK`): disturbed when any is over."""
+    other load (the `OTHER_CPU` values of its executions) and that of its busiest tenth of
+    seconds (`OTHER_PEAK`): disturbed when any is over."""
     found = {}
     for segment in dict.fromkeys([*others, *(peaks or {})]):
         worst = max(others.get(segment, ()), default=0.0)

@@ -124,9 +124,10 @@ class Replay(Action):
         )
 
     def missing(self) -> list[str]:
-        if isinstance(self.recording, str | Path) and not self.path(self.recording).is_file():
-            return [f"Replay: no recording at {self._where(self.recording)}"]
-        return []  # a `Param`'s is looked for when it runs
+        if not isinstance(self.recording, str | Path):
+            return []  # a `Param`'s is looked for when it runs
+        lost = self._lost(self.recording)
+        return [lost] if lost else []
 
     def path(self, recording: str | Path) -> Path:
         """Where ``recording`` is: a relative path in the folder of the module that made it, or
@@ -138,17 +139,20 @@ class Replay(Action):
         beside = self.folder / given
         return given if not beside.is_file() and given.is_file() else beside
 
-    def _where(self, recording: str | Path) -> str:
+    def _lost(self, recording: str | Path) -> str | None:
+        """Why ``recording`` cannot be replayed: it is not where `path` looks; None: it is."""
+        if self.path(recording).is_file():
+            return None
         if Path(recording).is_absolute() or self.folder is None:
-            return str(recording)
-        return f"{recording} (in {self.folder}, the test module's folder)"
+            return f"Replay: no recording at {recording}"
+        return f"Replay: no recording at {recording} (in {self.folder}, the test module's folder)"
 
     def _load(self, recording: str) -> list[Recorded]:
         if recording not in self._loaded:
-            path = self.path(recording)
-            if not path.is_file():
-                raise FileNotFoundError(f"Replay: no recording at {self._where(recording)}")
-            self._loaded[recording] = load_recorded(path, self.keys, self.remap)
+            lost = self._lost(recording)
+            if lost:
+                raise FileNotFoundError(lost)
+            self._loaded[recording] = load_recorded(self.path(recording), self.keys, self.remap)
         return self._loaded[recording]
 
     def _passes(self) -> int | None:

@@ -93,11 +93,9 @@ def read_run(path: str | Path) -> Run:
     if not samples:
         raise DataError(f"{path}: no component process was monitored")
     disturbed = recording_disturbances(recording.series_samples(), threshold())
-    cores = str(recording.metadata.get(META_HOST, {}).get("cpu_cores", ""))
-    return Run(
-        Path(path), events, received, segments, samples, dict(disturbed), context,
-        int(cores) if cores.isdigit() else 0,
-    )  # fmt: skip
+    given = str(recording.metadata.get(META_HOST, {}).get("cpu_cores", ""))
+    cores = int(given) if given.isdigit() else 0
+    return Run(Path(path), events, received, segments, samples, dict(disturbed), context, cores)
 
 
 def component_process(runs: Sequence[Run], process: str | None) -> str:

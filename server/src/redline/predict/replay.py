@@ -93,12 +93,17 @@ def _other_cpu(run: Run, times: np.ndarray) -> list[float | None]:
         return [None] * len(times)
     host_cpu = step_targets(host, times, ("cpu_percent", "cpu_steal_percent"))
     used = sum(
-        (np.nan_to_num(step_targets(samples, times, ("cpu_percent",))["cpu_percent"])
-         for samples in [own, *run.samples.values()]),
+        (
+            np.nan_to_num(step_targets(samples, times, ("cpu_percent",))["cpu_percent"])
+            for samples in [own, *run.samples.values()]
+        ),
         np.zeros(len(times)),
-    )  # fmt: skip
+    )
     return [
-        other_cpu({name: float(values[index]) for name, values in host_cpu.items()},
-                  float(used[index]), run.cores)
+        other_cpu(
+            {name: float(values[index]) for name, values in host_cpu.items()},
+            float(used[index]),
+            run.cores,
+        )
         for index in range(len(times))
-    ]  # fmt: skip
+    ]

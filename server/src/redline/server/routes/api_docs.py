@@ -1,6 +1,7 @@
-"""The interactive API page, ``/docs``: Swagger UI from files Redline serves itself (the
-``swagger-ui-bundle`` package), as it serves plotly.js. FastAPI's own page loads Swagger UI from a
-CDN, and a lab without the internet saw a blank page (a new user's trial, 2026-12-06)."""
+"""The interactive API page, ``/docs``: Swagger UI 5 from files Redline serves itself (the
+``swagger-ui-bundle-v2`` package), as it serves plotly.js. FastAPI's own page loads Swagger UI
+from a CDN, and a lab without the internet saw a blank page (a new user's trial, 2026-12-06);
+Swagger UI 4 cannot render the OpenAPI 3.1 document FastAPI makes."""
 
 from __future__ import annotations
 

@@ -20,9 +20,12 @@ def describe(change: dict[str, Any]) -> str:
     return (
         f"{change['process']} {change['counter']} {effect} ({change['method']}, p={p_value}, "
         f"confirmation: {confirmation})"
-        + (f"; it may be the change of an earlier revision that did not measure it: {between}"
-           if between else "")
-    )  # fmt: skip
+        + (
+            f"; it may be the change of an earlier revision that did not measure it: {between}"
+            if between
+            else ""
+        )
+    )
 
 
 def junit_xml(verdict: CiVerdict, fail_on: str = "regression") -> str:

@@ -196,9 +196,8 @@ def ci_verdict(session: Session, component_name: str, title: str) -> CiVerdict:
     opening = _first(session, revision)
     cases = [_case_verdict(key, found, charted[key], opening) for key, found in groups.items()]
     _name_unmeasured(session, cases)
-    worse_count = sum(change["worse"] for case in cases for change in case.changes)
-    regressions = worse_count
-    improvements = sum(len(case.changes) for case in cases) - worse_count
+    regressions = sum(change["worse"] for case in cases for change in case.changes)
+    improvements = sum(len(case.changes) for case in cases) - regressions
     skipped = sum(case.state == "skipped" for case in cases)
     undecided = sum(case.state == "undecided" for case in cases)
     return CiVerdict(
