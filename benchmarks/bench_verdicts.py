@@ -365,6 +365,8 @@ def run(args: argparse.Namespace, work: Path) -> dict[str, Any]:
             config: dict[str, Any] = {"confirm_pairs": args.pairs, "reanalyze": False}
             if args.threshold is not None:
                 config["thresholds"] = {"execution_shift": {"threshold": args.threshold}}
+            if args.thresholds:
+                config["thresholds"] = json.loads(args.thresholds)
             answer = httpx.put(
                 f"{stack.url}/api/v1/components/{COMPONENT}/detection-config",
                 headers=admin,
@@ -398,6 +400,17 @@ def run(args: argparse.Namespace, work: Path) -> dict[str, Any]:
                     job: pair
                     for job, pair in conn.execute(sa.text("SELECT id, pair FROM job")).all()
                 }
+                # every upload's revision and recording, to judge the kept recordings again
+                recordings = [
+                    list(row)
+                    for row in conn.execute(
+                        sa.text(
+                            "SELECT j.id, r.title, j.pair, e.recording_path FROM execution e "
+                            "JOIN job j ON j.id = e.job_id JOIN revision r ON r.id = j.revision_id "
+                            "ORDER BY j.id"
+                        )
+                    ).all()
+                ]
         finally:
             stack.stop()
             engine.dispose()
@@ -411,6 +424,7 @@ def run(args: argparse.Namespace, work: Path) -> dict[str, Any]:
         "revisions": len(commits),
         "pairs": args.pairs,
         "execution_shift_threshold": args.threshold,
+        "thresholds": json.loads(args.thresholds) if args.thresholds else None,
         "wall_seconds": round(time.monotonic() - began),
         "load_revisions": [load_from, load_to],
         "load_switches": load.switches,
@@ -436,12 +450,14 @@ def run(args: argparse.Namespace, work: Path) -> dict[str, Any]:
         for detection in found
     ]
     result["flagged_anywhere"] = anywhere
+    result["recordings"] = recordings
     return result
 
 
 def figures(result: dict[str, Any]) -> dict[str, Any]:
     """A run's figures without its lists of detections."""
-    return {k: v for k, v in result.items() if k not in ("detections", "flagged_anywhere", "jobs")}
+    lists = ("detections", "flagged_anywhere", "jobs", "recordings")
+    return {k: v for k, v in result.items() if k not in lists}
 
 
 def main() -> int:
@@ -450,6 +466,11 @@ def main() -> int:
     parser.add_argument("--stretch", type=int, default=6, help="revisions from event to event")
     parser.add_argument(
         "--threshold", type=float, help="execution_shift's threshold (default: its own)"
+    )
+    parser.add_argument(
+        "--thresholds",
+        help="the component's thresholds as JSON, e.g. "
+        '\'{"execution_shift": {"min_effect": 0.03}}\'',
     )
     parser.add_argument(
         "--load-share",
