@@ -36,6 +36,7 @@ def api(services: Services, database_url: str, tmp_path: Path) -> Iterator[Api]:
         storage_dir=tmp_path / "storage",
         queue=f"test-{uuid.uuid4().hex[:8]}",
         max_upload_bytes=2_000_000,
+        max_unpacked_bytes=32 * 1024**2,
         lease_seconds=60,
         max_attempts=2,
     )
@@ -545,6 +546,20 @@ def test_non_mcap_upload_is_refused_and_fails_the_job(api: Api):
     _assert_refused(
         api, job["id"], b"PK\x03\x04 this is a zip, not a recording" * 20, "not an MCAP file"
     )
+
+
+def test_an_upload_that_unpacks_beyond_the_limit_is_refused_naming_the_setting(
+    api: Api, tmp_path: Path
+):
+    """A few kilobytes of upload that unpack to gigabytes held the server's memory (any host
+    holding a job may send one): here 40 MiB of zeros in a file of a few KiB."""
+    api.component()
+    api.revision("r1", "1")
+    job = api.lease()
+    data = recording_for(job, tmp_path / "r1.mcap", extra=("robot/scan", bytes(40 * 1024**2)))
+    assert len(data) < 100_000
+    _assert_refused(api, job["id"], data, "unpack to more than 33554432 bytes")
+    assert "REDLINE_MAX_UNPACKED_BYTES" in api.job(job["id"])["reason"]
 
 
 @pytest.mark.parametrize(

@@ -88,3 +88,79 @@ def test_a_process_log_is_attached_and_only_its_end_kept_when_long(tmp_path: Pat
     with open(path, "rb") as stream:  # standard MCAP attachments, for any MCAP tool
         names = [a.name for a in make_reader(stream).iter_attachments()]
     assert names == ["log/c", "log/chatty"]
+
+
+def _chunk(compression: str, data: bytes, declared: int):  # noqa: ANN202
+    from mcap.records import Chunk
+
+    return Chunk(
+        compression=compression,
+        data=data,
+        message_end_time=0,
+        message_start_time=0,
+        uncompressed_crc=0,
+        uncompressed_size=declared,
+    )
+
+
+def _peak_and_error(action) -> tuple[int, Exception | None]:  # noqa: ANN001
+    """The most memory ``action()`` held at once, and what it raised."""
+    import tracemalloc
+
+    tracemalloc.start()
+    try:
+        action()
+    except Exception as exc:  # noqa: BLE001 - the test asserts on it
+        return tracemalloc.get_traced_memory()[1], exc
+    finally:
+        tracemalloc.stop()
+    return tracemalloc.get_traced_memory()[1], None
+
+
+def test_a_recording_that_unpacks_beyond_its_limit_is_refused_before_it_is_unpacked(
+    tmp_path: Path,
+) -> None:
+    """Any host holding a job uploads a recording the server reads at once: a few kilobytes
+    that unpack to gigabytes held its memory. Here 40 MiB of zeros in one chunk (a 4 KiB file)
+    against a limit of 8 MiB: refused, naming the limit, without unpacking it."""
+    path = tmp_path / "bomb.mcap"
+    with RecordingWriter(path) as writer:
+        writer.write("robot/scan", bytes(40 * 1024**2), t_ns=1_000)
+        writer.metadata("redline.run", {"component": "x"})
+    assert path.stat().st_size < 64 * 1024
+    peak, error = _peak_and_error(lambda: read_recording(path, max_unpacked=8 * 1024**2))
+    assert isinstance(error, RecordingError)
+    assert "unpack to more than 8388608 bytes" in str(error) and peak < 4 * 1024**2
+    assert read_recording(path).traffic["robot/scan"] == 1  # within the default limit: read
+
+
+@pytest.mark.parametrize("compression", ["zstd", "lz4"])
+def test_a_chunk_that_unpacks_to_more_than_it_declares_is_refused_without_unpacking_it(
+    compression: str,
+) -> None:
+    import lz4.frame
+    import zstandard
+    from redline.recording.mcap_bytes import Unpacked
+
+    zeros = bytes(64 * 1024**2)
+    packed = (zstandard.compress if compression == "zstd" else lz4.frame.compress)(zeros)
+    unpacked = Unpacked(1024**4)
+    # the frame says how large it is: the library alone would unpack all of it
+    peak, error = _peak_and_error(lambda: unpacked.chunk(_chunk(compression, packed, 1)))
+    assert "unpacks to more bytes, not the 1 it declares" in str(error) and peak < 16 * 1024**2
+    with pytest.raises(ValueError, match="declares 1099511627776 bytes unpacked, more than"):
+        unpacked.chunk(_chunk(compression, packed, 1024**4))
+    assert unpacked.chunk(_chunk(compression, packed, len(zeros))) == zeros
+
+
+def test_a_chunk_of_anything_but_schemas_channels_and_messages_is_damage() -> None:
+    from redline.recording.mcap_bytes import chunk_records
+
+    with pytest.raises(ValueError, match=r"opcode 0x00, 0 bytes at byte 0\) that is not"):
+        list(chunk_records(bytes(1024)))
+    message = bytes([0x05]) + (30).to_bytes(8, "little")  # a message 30 bytes long, cut at 10
+    with pytest.raises(ValueError, match="opcode 0x05, 30 bytes at byte 0"):
+        list(chunk_records(message + bytes(10)))
+    with pytest.raises(ValueError, match="ends inside a record's header, at byte 39"):
+        list(chunk_records(message + bytes(30) + b"\x05"))
+    assert list(chunk_records(message + bytes(30))) == [(0x05, 9, 30)]

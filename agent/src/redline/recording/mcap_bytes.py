@@ -10,6 +10,7 @@ from contextlib import suppress
 from pathlib import Path
 from typing import Any
 
+from mcap.opcode import Opcode
 from mcap.records import Chunk
 from mcap.stream_reader import StreamReader
 
@@ -19,6 +20,66 @@ RECORD = struct.Struct("<BQ")  # opcode, length
 CHANNEL_ID = struct.Struct("<H")
 LOG_TIME = struct.Struct("<Q")  # after the channel id (u16) and the sequence (u32)
 MESSAGE_HEAD = 22  # channel id u16, sequence u32, log time u64, publish time u64
+#: the records a chunk may hold (the MCAP specification)
+IN_CHUNK = frozenset((Opcode.SCHEMA, Opcode.CHANNEL, Opcode.MESSAGE))
+#: the most one chunk may unpack to: Redline's writer closes a chunk past 1 MiB, so only a
+#: message larger than that makes a larger one (a map, a point cloud)
+MAX_CHUNK_BYTES = 256 * 1024**2
+#: the most a recording's chunks may unpack to in all, unless the reader is told otherwise
+#: (the server: ``REDLINE_MAX_UNPACKED_BYTES``): 8 GiB, a minute of raw 1080p camera frames
+MAX_UNPACKED_BYTES = 8 * 1024**3
+
+
+class Unpacked:
+    """What a recording's chunks may unpack to in all (``limit`` bytes), counted as they are
+    unpacked: a chunk is unpacked before its records are read, so a few kilobytes that unpack
+    to gigabytes (an upload of any host holding a job) would otherwise hold the server's memory
+    and CPU; a chunk must also unpack to the size it declares."""
+
+    def __init__(self, limit: int) -> None:
+        self.limit, self.total = limit, 0
+
+    def chunk(self, chunk: Chunk) -> bytes:
+        """The chunk's records, decompressed, or ValueError naming the bound it broke."""
+        declared = chunk.uncompressed_size
+        if declared > MAX_CHUNK_BYTES:
+            raise ValueError(
+                f"a chunk declares {declared} bytes unpacked, more than the {MAX_CHUNK_BYTES} "
+                "a chunk may hold"
+            )
+        if self.total + declared > self.limit:
+            raise ValueError(
+                f"its chunks unpack to more than {self.limit} bytes (REDLINE_MAX_UNPACKED_BYTES)"
+            )
+        data = _decompressed(chunk.compression, chunk.data, declared)
+        if len(data) != declared:
+            raise ValueError(
+                f"a chunk unpacks to {'more' if len(data) > declared else len(data)} bytes, "
+                f"not the {declared} it declares"
+            )
+        self.total += declared
+        return data
+
+
+def _decompressed(compression: str, data: bytes, declared: int) -> bytes:
+    """At most ``declared`` + 1 bytes of ``data`` decompressed: one more tells a chunk that
+    holds more than it declares."""
+    if compression == "":
+        return data
+    if compression == "zstd":
+        import zstandard
+
+        with zstandard.ZstdDecompressor().stream_reader(data) as reader:
+            parts, wanted = [], declared + 1
+            while wanted > 0 and (part := reader.read(wanted)):
+                parts.append(part)
+                wanted -= len(part)
+        return b"".join(parts)
+    if compression == "lz4":
+        import lz4.frame
+
+        return lz4.frame.LZ4FrameDecompressor().decompress(data, max_length=declared + 1)
+    raise ValueError(f"a chunk is compressed with {compression!r}, which Redline does not read")
 
 
 def records(path: Path) -> Iterator[Any]:
@@ -26,13 +87,24 @@ def records(path: Path) -> Iterator[Any]:
         yield from StreamReader(stream, skip_magic=False, emit_chunks=True).records
 
 
-def chunk_data(chunk: Chunk) -> bytes | None:
-    """A chunk's records, decompressed; None for a compression only mcap itself knows."""
-    if chunk.compression == "zstd":
-        import zstandard
-
-        return zstandard.decompress(chunk.data, chunk.uncompressed_size)
-    return chunk.data if chunk.compression == "" else None
+def chunk_records(data: bytes) -> Iterator[tuple[int, int, int]]:
+    """Each record of a chunk's records (``data``, unpacked) as (opcode, where its content
+    begins, its length). A chunk holds schemas, channels and messages only, each within it:
+    anything else is damage, a ValueError (a chunk of zeros would otherwise be walked nine bytes
+    at a time)."""
+    position, end = 0, len(data)
+    while position < end:
+        if position + RECORD.size > end:
+            raise ValueError(f"a chunk ends inside a record's header, at byte {position}")
+        opcode, length = RECORD.unpack_from(data, position)
+        position += RECORD.size
+        if opcode not in IN_CHUNK or length > end - position:
+            raise ValueError(
+                f"a chunk holds a record (opcode {opcode:#04x}, {length} bytes at byte "
+                f"{position - RECORD.size}) that is not a schema, channel or message within it"
+            )
+        yield opcode, position, length
+        position += length
 
 
 def begins_as_mcap(path: Path) -> bool:

@@ -20,7 +20,6 @@ from typing import Any
 from mcap.data_stream import ReadDataStream
 from mcap.opcode import Opcode
 from mcap.records import Attachment, Channel, Chunk, Footer, Header, Message, Metadata
-from mcap.stream_reader import breakup_chunk
 from redline.recording.disturbance import OTHER_CPU, OTHER_PEAK, other_load, other_peak
 from redline.recording.driver import (
     CPU_PER_OP,
@@ -53,10 +52,11 @@ from redline.recording.format import (
 from redline.recording.mcap_bytes import (
     CHANNEL_ID,
     LOG_TIME,
+    MAX_UNPACKED_BYTES,
     MESSAGE_HEAD,
-    RECORD,
+    Unpacked,
     begins_as_mcap,
-    chunk_data,
+    chunk_records,
     records,
 )
 from redline.recording.shapes import keep_well_formed
@@ -256,19 +256,11 @@ def _by_counter(samples: list[dict[str, Any]], timed: bool) -> dict[tuple[str, s
 
 
 def _take_chunk(
-    recording: Recording, chunk: Chunk, channels: dict[int, tuple[int, str]], counters: list[bytes]
+    recording: Recording, data: bytes, channels: dict[int, tuple[int, str]], counters: list[bytes]
 ) -> None:
-    """The messages and channels of one chunk, parsed in place (mcap's reader goes byte by byte,
-    which made reading the file most of an ingest)."""
-    data = chunk_data(chunk)
-    if data is None:
-        for record in breakup_chunk(chunk):
-            _take_record(recording, record, channels, counters)
-        return
-    position, end = 0, len(data)
-    while position < end:
-        opcode, length = RECORD.unpack_from(data, position)
-        position += RECORD.size
+    """The messages and channels of one chunk's records (``data``, unpacked), parsed in place
+    (mcap's reader goes byte by byte, which made reading the file most of an ingest)."""
+    for opcode, position, length in chunk_records(data):
         if opcode == Opcode.MESSAGE:
             kind, topic = channels.get(CHANNEL_ID.unpack_from(data, position)[0], (_TRAFFIC, ""))
             if kind == _COUNTERS:
@@ -285,15 +277,12 @@ def _take_chunk(
         elif opcode == Opcode.CHANNEL:
             channel = Channel.read(ReadDataStream(BytesIO(data[position : position + length])))
             channels[channel.id] = (_kind(channel.topic), channel.topic)
-        position += length
 
 
 def _take_record(
     recording: Recording, record: Any, channels: dict[int, tuple[int, str]], counters: list[bytes]
 ) -> None:
-    if isinstance(record, Chunk):
-        _take_chunk(recording, record, channels, counters)
-    elif isinstance(record, Message):
+    if isinstance(record, Message):
         kind, topic = channels.get(record.channel_id, (_TRAFFIC, ""))
         if kind == _COUNTERS:
             counters.append(record.data)
@@ -314,16 +303,27 @@ def _take_record(
         recording.complete = True
 
 
-def read_recording(path: str | Path, *, strict: bool = True, events: bool = False) -> Recording:
+def read_recording(
+    path: str | Path,
+    *,
+    strict: bool = True,
+    events: bool = False,
+    max_unpacked: int = MAX_UNPACKED_BYTES,
+) -> Recording:
     """Read a recording; with ``strict``, raise RecordingError unless it is a finished one;
-    with ``events``, keep every traffic sample's key, time and size (`Recording.events`)."""
+    with ``events``, keep every traffic sample's key, time and size (`Recording.events`). Its
+    chunks may unpack to ``max_unpacked`` bytes in all (`Unpacked`): beyond, it is damaged."""
     path = Path(path)
     recording = Recording(path=path, events=[] if events else None)
     channels: dict[int, tuple[int, str]] = {}
     counters: list[bytes] = []  # decoded at the end in one call: JSON per message dominated
+    unpacked = Unpacked(max_unpacked)
     try:
         for record in records(path):
-            _take_record(recording, record, channels, counters)
+            if isinstance(record, Chunk):
+                _take_chunk(recording, unpacked.chunk(record), channels, counters)
+            else:
+                _take_record(recording, record, channels, counters)
     except Exception as exc:  # the mcap library raises several types for a damaged file
         recording.problem = _problem(exc)
     _decode_counters(recording, counters)

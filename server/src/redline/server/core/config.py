@@ -9,6 +9,7 @@ from typing import Literal
 
 from pydantic import Field, SecretStr
 from pydantic_settings import BaseSettings, SettingsConfigDict
+from redline.recording.mcap_bytes import MAX_UNPACKED_BYTES
 
 #: the installed package: the UI's templates and static files, and the migrations, ship in it
 PACKAGE = Path(str(files("redline.server")))
@@ -28,6 +29,8 @@ class Settings(BaseSettings):
     lease_seconds: int = 120
     max_attempts: int = 3
     max_upload_bytes: int = 2 * 1024**3  # one MCAP recording
+    # what an upload's chunks may unpack to in all: a small file must not unpack to gigabytes
+    max_unpacked_bytes: int = MAX_UNPACKED_BYTES
     max_webhook_bytes: int = 25 * 1024**2  # GitHub's own cap on a delivery
     max_import_bytes: int = 32 * 1024**2  # an LNT report or a results import
     max_json_bytes: int = 1024**2  # any other request body

@@ -85,7 +85,15 @@ def _check_before_reading(settings: Settings, job_id: int, claimed: str, host: s
 
 def _accept(settings: Settings, job_id: int, staged: Staged, claimed: str, host: str) -> Accepted:
     with session_factory(settings.database_url)() as session:
-        return accept_recording(session, settings.storage_dir, job_id, staged, claimed, host)
+        return accept_recording(
+            session,
+            settings.storage_dir,
+            job_id,
+            staged,
+            claimed,
+            host,
+            max_unpacked=settings.max_unpacked_bytes,
+        )
 
 
 @router.put(

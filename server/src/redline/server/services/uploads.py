@@ -16,6 +16,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from redline.recording import Recording, RecordingError, read_recording
+from redline.recording.mcap_bytes import MAX_UNPACKED_BYTES
 from redline.server.models import Execution, Job, JobState
 from redline.server.services.errors import (
     BadRequest,
@@ -96,9 +97,9 @@ def _mismatch(recording: Recording, job: Job) -> str:
     return ""
 
 
-def _check(staged: Staged, job: Job) -> tuple[Recording | None, str]:
+def _check(staged: Staged, job: Job, unpacked: int) -> tuple[Recording | None, str]:
     try:
-        recording = read_recording(staged.path, strict=True)
+        recording = read_recording(staged.path, strict=True, max_unpacked=unpacked)
     except RecordingError as exc:
         return None, f"recording for job {job.id}: {exc}".replace(staged.path.name, "upload")
     return recording, _mismatch(recording, job).replace(staged.path.name, "upload")
@@ -161,11 +162,13 @@ def accept_recording(
     staged: Staged,
     claimed_sha256: str,
     host_name: str,
+    max_unpacked: int = MAX_UNPACKED_BYTES,
 ) -> Accepted:
     """Store a staged upload from ``host_name`` as the job's execution, or refuse it naming
     the problem.
 
-    Invalid recordings fail the job with the same reason they are refused with.
+    Invalid recordings fail the job with the same reason they are refused with, among them
+    one whose chunks unpack to more than ``max_unpacked`` bytes.
     """
     if claimed_sha256.strip().lower() != staged.sha256:
         raise BadRequest(
@@ -178,7 +181,7 @@ def accept_recording(
     repeated = _existing(session, job, staged.sha256, host_name)
     if repeated is not None:
         return repeated
-    recording, problem = _check(staged, job)
+    recording, problem = _check(staged, job, max_unpacked)
     if problem or recording is None:
         job.state, job.reason, job.lease_expires_at = JobState.failed, problem, None
         if job.remeasures_job_id is not None:  # the sweep has those that waited judged
