@@ -230,3 +230,19 @@ def test_a_ping_is_authenticated_by_a_components_own_secret(services: Services, 
 
 
 # --- secrets stay out of logs --------------------------------------------------------------
+
+
+def test_a_database_error_does_not_quote_the_secret_it_was_writing(database_url: str):
+    """An error while writing a component's webhook secret (or a subscription's, or a commit
+    status's token) is logged with its traceback, whose text quoted the statement's parameters,
+    the secret among them (a security review's find)."""
+    from redline.server.db import get_engine
+    from sqlalchemy import text
+    from sqlalchemy.exc import DBAPIError
+
+    secret = "whsec-not-for-the-log"
+    with get_engine(database_url).connect() as conn, pytest.raises(DBAPIError) as raised:
+        # fails beside the secret, as a constraint beside a secret's column does
+        conn.execute(text("SELECT CAST(:secret AS text), 1 / 0"), {"secret": secret})
+    assert "division by zero" in str(raised.value)
+    assert secret not in str(raised.value) and "hidden due to hide_parameters" in str(raised.value)

@@ -48,11 +48,17 @@ def get_engine(database_url: str) -> Engine:
     """One engine per database URL in this process: a pool of at most ``REDLINE_DB_POOL_SIZE`` +
     ``REDLINE_DB_MAX_OVERFLOW`` connections; with ``REDLINE_DB_PGBOUNCER``, none of its own
     (PgBouncer pools) and no prepared statements (which its transaction mode cannot keep: psycopg
-    prepares a statement on a connection after its fifth use)."""
+    prepares a statement on a connection after its fifth use). A statement's parameters are
+    kept out of its errors (``hide_parameters``): an error writing a webhook secret, a
+    subscription's or a commit status's would otherwise quote it into the traceback that the
+    server logs."""
     settings = get_settings()
     if settings.db_pgbouncer:
         return create_engine(
-            database_url, poolclass=NullPool, connect_args={"prepare_threshold": None}
+            database_url,
+            poolclass=NullPool,
+            connect_args={"prepare_threshold": None},
+            hide_parameters=True,
         )
     return create_engine(
         database_url,
@@ -60,6 +66,7 @@ def get_engine(database_url: str) -> Engine:
         pool_size=settings.db_pool_size,
         max_overflow=settings.db_max_overflow,
         pool_timeout=settings.db_pool_timeout_s,
+        hide_parameters=True,
     )
 
 
