@@ -303,6 +303,83 @@ def test_an_agent_token_naming_its_host_acts_for_that_host_only(api: Api):
     )
 
 
+def test_a_host_registers_only_with_the_labels_its_token_was_given(api: Api):
+    """A component's host labels say which hosts run its jobs; a host naming its own labels
+    leased any component's (a security review's find). Now an admin gives the token its labels
+    and the host registers with those or fewer."""
+    api.component("needs_gpu", host_labels=["gpu"])
+    gpu_job = api.revision("g1", "1", component="needs_gpu")["job_ids"][0]
+    made = api.post(
+        "/api/v1/tokens",
+        "admin",
+        {"name": "team-box", "scopes": ["agent"], "host": "team1", "labels": ["x86", "quiet"]},
+    )
+    assert made.status_code == 201 and made.json()["labels"] == ["quiet", "x86"], made.text
+    own = {"Authorization": f"Bearer {made.json()['token']}"}
+    claimed = {"name": "team1", "labels": ["quiet", "gpu", "fast"]}
+    refused = api.client.post("/api/v1/agent/register", json=claimed, headers=own)
+    assert refused.status_code == 403, refused.text
+    assert "with the labels quiet, x86, not fast, gpu" in refused.json()["detail"]
+    assert "revoke this token and create one with --labels" in refused.json()["detail"]
+    for labels in ([], ["quiet"], ["x86", "quiet"]):  # those it was given, or fewer
+        body = {"name": "team1", "labels": labels}
+        answer = api.client.post("/api/v1/agent/register", json=body, headers=own)
+        assert answer.status_code == 200, answer.text
+    leased = api.client.post("/api/v1/agent/lease", json={"host": "team1"}, headers=own)
+    assert leased.status_code == 204  # the gpu component's job is not its to run
+    # nor when the host's row says gpu (registered so under an admin's or a revoked token)
+    widened = {"name": "team1", "labels": ["gpu"]}
+    api.client.post("/api/v1/agent/register", json=widened, headers=api.tokens["admin"])
+    leased = api.client.post("/api/v1/agent/lease", json={"host": "team1"}, headers=own)
+    assert leased.status_code == 204, leased.text
+    api.post("/api/v1/agent/register", "agent", {"name": "perf1", "labels": ["gpu"]})
+    assert api.lease()["id"] == gpu_job
+    listed = {
+        t["name"]: t for t in api.client.get("/api/v1/tokens", headers=api.tokens["admin"]).json()
+    }
+    assert listed["team-box"]["labels"] == ["quiet", "x86"]
+    # labels are an agent token's, and words
+    body = {"name": "ci3", "scopes": ["ci"], "labels": ["gpu"]}
+    answer = api.post("/api/v1/tokens", "admin", body)
+    assert answer.status_code == 400 and "labels ['gpu'] are an agent token's" in answer.text
+    body = {"name": "a3", "scopes": ["agent"], "host": "h3", "labels": ["two words"]}
+    answer = api.post("/api/v1/tokens", "admin", body)
+    assert answer.status_code == 422 and answer.json()["detail"][0]["loc"] == ["body", "labels", 0]
+
+
+def test_an_agent_refused_its_labels_says_why_and_stops(api: Api, tmp_path: Path):
+    """A refusal of its token is no passing outage: the agent says the server's reason and
+    exits, rather than retry for good behind "Client error '403 Forbidden'"."""
+    import os
+    import subprocess
+    import sys
+
+    secret = api.tokens["agent"]["Authorization"].removeprefix("Bearer ")
+    redline = str(Path(sys.executable).parent / "redline")
+    with live_server(api.settings) as url:
+        done = subprocess.run(
+            [
+                redline,
+                "agent",
+                "--server",
+                url,
+                "--name",
+                "perf1",
+                "--label",
+                "root",
+                "--work",
+                str(tmp_path / "work"),
+            ],  # fmt: skip
+            env={**os.environ, "REDLINE_TOKEN": secret},
+            capture_output=True,
+            text=True,
+            timeout=120,
+        )
+    assert done.returncode == 1, done.stderr
+    assert "the server refused to register 'perf1'" in done.stderr
+    assert "labels gpu, quiet, not root" in done.stderr and secret not in done.stderr
+
+
 def test_an_agent_token_must_be_bound_to_a_host(api: Api):
     """One that may act as any host is not issued; only an agent token has a host."""
     for body in ({"name": "any", "scopes": ["agent"]}, {"name": "any", "scopes": ["ci", "agent"]}):
@@ -558,7 +635,7 @@ def test_an_upload_that_unpacks_beyond_the_limit_is_refused_naming_the_setting(
     job = api.lease()
     data = recording_for(job, tmp_path / "r1.mcap", extra=("robot/scan", bytes(40 * 1024**2)))
     assert len(data) < 100_000
-    _assert_refused(api, job["id"], data, "unpack to more than 33554432 bytes")
+    _assert_refused(api, job["id"], data, "upload unpacks to more than 32 MiB, the server's limit")
     assert "REDLINE_MAX_UNPACKED_BYTES" in api.job(job["id"])["reason"]
 
 

@@ -170,3 +170,53 @@ def test_the_credentials_migration_strips_passwords_and_tokens_from_stored_repos
         for table in ("component", "revision"):
             kept = connection.execute(sa.text(f"SELECT repo FROM {table} ORDER BY id")).scalars()
             assert list(kept) == list(stored.values()), table
+
+
+def test_the_token_labels_migration_gives_each_agent_token_its_hosts_labels(services: Services):
+    """Migration 0031: a host registers with the labels its token was given. A token issued
+    before gets the labels its hosts registered with so far (a pool's, those of every host its
+    prefix names), so that no running agent loses its jobs; other tokens get none."""
+    import sqlalchemy as sa
+    from alembic import command
+    from redline.server.db import alembic_config
+
+    database_url, _ = fresh_database(services.database_url)
+    command.upgrade(alembic_config(database_url), "0030")
+    with get_engine(database_url).begin() as connection:
+        for name, labels in (
+            ("perf-1", '["x86", "quiet"]'),
+            ("compose-a", '["gpu"]'),
+            ("compose-b", '["quiet", "gpu"]'),
+            ("compose", '["root"]'),  # the prefix alone is not of the pool
+        ):
+            connection.execute(
+                sa.text(
+                    "INSERT INTO host (name, fingerprint, labels, last_seen)"
+                    " VALUES (:name, '{}', CAST(:labels AS json), now())"
+                ),
+                {"name": name, "labels": labels},
+            )
+        for number, (name, scopes, host) in enumerate(
+            (
+                ("perf-1", '["agent"]', "perf-1"),
+                ("pool", '["agent"]', "compose-*"),
+                ("unseen", '["agent"]', "perf-9"),
+                ("ci", '["ci"]', None),
+            )
+        ):
+            connection.execute(
+                sa.text(
+                    "INSERT INTO api_token (name, token_hash, scopes, created, revoked, host)"
+                    " VALUES (:name, :hash, CAST(:scopes AS json), now(), false, :host)"
+                ),
+                {"name": name, "hash": str(number) * 64, "scopes": scopes, "host": host},
+            )
+    migrate(database_url)
+    with get_engine(database_url).connect() as connection:
+        labels = dict(connection.execute(sa.text("SELECT name, labels FROM api_token")).all())
+    assert labels == {
+        "perf-1": ["quiet", "x86"],
+        "pool": ["gpu", "quiet"],
+        "unseen": [],
+        "ci": [],
+    }

@@ -261,7 +261,8 @@ def test_cli_lists_and_revokes_tokens(api: Api):
         [*command, "list"], env=env, capture_output=True, text=True, cwd=ROOT, check=True
     ).stdout
     assert "\tci\tci\t" in listed and "never" in listed
-    assert listed.splitlines()[0] == "id\tname\tscopes\thost\tcreated\tlast used\tstate"
+    assert listed.splitlines()[0] == "id\tname\tscopes\thost\tlabels\tcreated\tlast used\tstate"
+    assert "\tagent\tagent\tperf1\tgpu,quiet\t" in listed  # the tests' agent token
     done = subprocess.run(
         [*command, "revoke", "ci"], env=env, capture_output=True, text=True, cwd=ROOT
     )
@@ -285,12 +286,13 @@ def test_cli_creates_a_host_bound_token_one_live_per_name(api: Api):
         command = [redline, "token", "create", name, *options]
         return subprocess.run(command, env=env, capture_output=True, text=True, cwd=ROOT)
 
-    made = create("perf-1", "--scopes", "agent", "--host", "perf-1")
+    made = create("perf-1", "--scopes", "agent", "--host", "perf-1", "--labels", "x86, quiet")
     assert made.returncode == 0, made.stderr
     secret = made.stdout.strip()
     with session_factory(api.settings.database_url)() as session:
         stored = session.scalar(select(ApiToken).where(ApiToken.name == "perf-1"))
         assert stored is not None and stored.host == "perf-1" and stored.scopes == ["agent"]
+        assert stored.labels == ["quiet", "x86"]
     own = {"Authorization": f"Bearer {secret}"}
     answer = api.client.post("/api/v1/agent/lease", json={"host": "perf-9"}, headers=own)
     assert answer.status_code == 403 and "perf-1" in answer.json()["detail"]
@@ -301,6 +303,8 @@ def test_cli_creates_a_host_bound_token_one_live_per_name(api: Api):
     assert anywhere.returncode == 2 and "--host" in anywhere.stderr and not anywhere.stdout
     bad = create("other", "--scopes", "root")
     assert bad.returncode == 2 and "'root'" in bad.stderr
+    spaced = create("other", "--scopes", "agent", "--host", "h", "--labels", "two words")
+    assert spaced.returncode == 2 and "labels: 'two words': " in spaced.stderr
 
 
 def test_a_database_command_without_a_database_says_so_without_a_traceback(tmp_path: Path) -> None:

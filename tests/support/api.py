@@ -22,6 +22,7 @@ from redline.server.db import migrate, session_factory
 from redline.server.models import Job, utcnow
 from redline.server.services.tokens import issue_token
 from sqlalchemy import text, update
+from sqlalchemy.orm import Session
 
 from tests.support.history import TABLES
 from tests.support.recordings import write_recording
@@ -29,6 +30,7 @@ from tests.support.servers import Services
 
 SCOPES = ("admin", "ci", "triage", "agent", "read")
 HOST = "perf1"  # the host the tests' ``agent`` token is bound to
+LABELS = ("gpu", "quiet")  # the labels the tests' agent tokens may register their hosts with
 
 
 @dataclass
@@ -45,7 +47,7 @@ class Api:
         key = f"agent@{host}"
         if key not in self.tokens:
             with session_factory(self.settings.database_url)() as session:
-                secret = issue_token(session, f"agent-{host}", "agent", host)[1]
+                secret = issue_token(session, f"agent-{host}", "agent", host, LABELS)[1]
             self.tokens[key] = {"Authorization": f"Bearer {secret}"}
         return self.tokens[key]
 
@@ -127,16 +129,14 @@ def emptied_with_tokens(database_url: str) -> dict[str, dict[str, str]]:
     with session_factory(database_url)() as session:
         session.execute(text(f"TRUNCATE {TABLES} RESTART IDENTITY CASCADE"))
         session.commit()
-        return {
-            scope: {
-                "Authorization": f"Bearer {issue_token(session, scope, scope, _host(scope))[1]}"
-            }
-            for scope in SCOPES
-        }
+        return {scope: {"Authorization": f"Bearer {_issue(session, scope)}"} for scope in SCOPES}
 
 
-def _host(scope: str) -> str | None:
-    return HOST if scope == "agent" else None
+def _issue(session: Session, scope: str) -> str:
+    """The secret of a new token named after ``scope`` (the agent's bound to ``HOST``)."""
+    if scope == "agent":
+        return issue_token(session, scope, scope, HOST, LABELS)[1]
+    return issue_token(session, scope, scope)[1]
 
 
 @contextmanager

@@ -12,8 +12,11 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
 PAGES = sorted([ROOT / "README.md", *(ROOT / "docs").glob("*.md")])
-#: a token in an argument: a bearer header written out, or a token option given a value
-ON_THE_COMMAND_LINE = re.compile(r"""-H\s+["']Authorization: Bearer|--token[= ]+["$]""")
+#: a token in an argument: a bearer header written out (``-H``, ``--header``, with or without a
+#: space), a user and password (``-u``), or a token option given a value
+ON_THE_COMMAND_LINE = re.compile(
+    r"""(-H|--header)\s*["']?Authorization:|\s(-u|--user)\s+\S+:|--token[= ]+["$]"""
+)
 
 
 @pytest.mark.parametrize("page", PAGES, ids=lambda page: page.name)

@@ -130,8 +130,12 @@ def test_a_recording_that_unpacks_beyond_its_limit_is_refused_before_it_is_unpac
     assert path.stat().st_size < 64 * 1024
     peak, error = _peak_and_error(lambda: read_recording(path, max_unpacked=8 * 1024**2))
     assert isinstance(error, RecordingError)
-    assert "unpack to more than 8388608 bytes" in str(error) and peak < 4 * 1024**2
-    assert read_recording(path).traffic["robot/scan"] == 1  # within the default limit: read
+    assert "bomb.mcap unpacks to more than 8 MiB, the server's limit" in str(error)
+    assert "REDLINE_MAX_UNPACKED_BYTES" in str(error) and peak < 4 * 1024**2
+    # not damaged: too large for that limit, and read where none is set (the server's own
+    # stored recordings, one's own)
+    assert "damaged" not in str(error)
+    assert read_recording(path).traffic["robot/scan"] == 1
 
 
 @pytest.mark.parametrize("compression", ["zstd", "lz4"])

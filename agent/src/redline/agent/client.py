@@ -21,8 +21,23 @@ class UploadRejected(RuntimeError):
     """The server refused the recording (4xx): retrying the same file cannot help."""
 
 
+class Refused(RuntimeError):
+    """The server refused this agent's token for what it asked (401, 403): asking again, with
+    the same token, cannot help."""
+
+
 class ServerUnavailable(RuntimeError):
     """The server could not be reached or answered 5xx after every attempt: try again later."""
+
+
+def _detail(answer: httpx.Response) -> str:
+    """The server's reason (its JSON ``detail``), else the start of what answered (a proxy's
+    page)."""
+    try:
+        detail = answer.json().get("detail")
+    except (ValueError, AttributeError):  # not JSON, or not an object
+        detail = None
+    return str(detail) if detail else f"{answer.status_code} {answer.text[:300]}"
 
 
 def sha256_of(path: Path) -> str:
@@ -59,6 +74,8 @@ class ServerClient:
                 "labels": labels,
             },
         )
+        if answer.status_code in (401, 403):  # a token revoked, or not this host's or labels'
+            raise Refused(f"the server refused to register {self.host!r}: {_detail(answer)}")
         answer.raise_for_status()
         return int(answer.json()["host_id"])
 

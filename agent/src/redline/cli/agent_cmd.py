@@ -41,7 +41,10 @@ def agent(
     work: Annotated[Path, typer.Option(help="folder for clones, recordings and the spool")] = Path(
         ".redline-agent"
     ),
-    label: Annotated[list[str] | None, typer.Option(help="host labels (repeatable)")] = None,
+    label: Annotated[
+        list[str] | None,
+        typer.Option(help="host labels (repeatable), among those its token was given"),
+    ] = None,
     poll: Annotated[float, typer.Option(help="seconds between retries after an error")] = 2.0,
     wait: Annotated[
         int,
@@ -77,7 +80,7 @@ def agent(
     SIGTERM or SIGINT: finish the current job, then stop; a second signal, or the end of the grace
     period, releases the job back to the queue instead. Spooled recordings wait for the next start.
     """
-    from redline.agent.client import ServerClient
+    from redline.agent.client import Refused, ServerClient
     from redline.agent.daemon import AgentDaemon, AgentStopping
 
     token = read_token(token_file)
@@ -99,6 +102,9 @@ def agent(
         daemon.run_forever()
     except AgentStopping:
         log.info("agent stopped")
+    except Refused as exc:  # its token will not do: say why and stop, not retry for good
+        typer.echo(str(exc), err=True)
+        raise typer.Exit(1) from None
 
 
 def host_name(template: str) -> str:

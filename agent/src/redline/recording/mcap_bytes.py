@@ -25,18 +25,29 @@ IN_CHUNK = frozenset((Opcode.SCHEMA, Opcode.CHANNEL, Opcode.MESSAGE))
 #: the most one chunk may unpack to: Redline's writer closes a chunk past 1 MiB, so only a
 #: message larger than that makes a larger one (a map, a point cloud)
 MAX_CHUNK_BYTES = 256 * 1024**2
-#: the most a recording's chunks may unpack to in all, unless the reader is told otherwise
-#: (the server: ``REDLINE_MAX_UNPACKED_BYTES``): 8 GiB, a minute of raw 1080p camera frames
-MAX_UNPACKED_BYTES = 8 * 1024**3
+#: the most an upload's chunks may unpack to in all (the server's ``REDLINE_MAX_UNPACKED_BYTES``,
+#: its upload check's only): 16 GiB, twice a throughput test's two minutes of 64 KiB messages
+#: at 1 kHz, which the recorder keeps whole (`Message.raw`'s zeros pack to almost nothing)
+MAX_UNPACKED_BYTES = 16 * 1024**3
+
+
+class TooLarge(ValueError):
+    """A recording whose chunks unpack to more than the reader may unpack: not damaged, too
+    large for the limit."""
+
+
+def _size(count: int) -> str:
+    return f"{count / 1024**3:g} GiB" if count >= 1024**3 else f"{count / 1024**2:g} MiB"
 
 
 class Unpacked:
-    """What a recording's chunks may unpack to in all (``limit`` bytes), counted as they are
-    unpacked: a chunk is unpacked before its records are read, so a few kilobytes that unpack
-    to gigabytes (an upload of any host holding a job) would otherwise hold the server's memory
-    and CPU; a chunk must also unpack to the size it declares."""
+    """What a recording's chunks unpack to, counted as they are unpacked: a chunk is unpacked
+    before its records are read, so a few kilobytes that unpack to gigabytes (an upload of any
+    host holding a job) would otherwise hold the server's memory; each chunk to at most
+    `MAX_CHUNK_BYTES` and to the size it declares, all of them to ``limit`` bytes (None: no
+    limit, for recordings the server already took, and one's own)."""
 
-    def __init__(self, limit: int) -> None:
+    def __init__(self, limit: int | None) -> None:
         self.limit, self.total = limit, 0
 
     def chunk(self, chunk: Chunk) -> bytes:
@@ -47,9 +58,10 @@ class Unpacked:
                 f"a chunk declares {declared} bytes unpacked, more than the {MAX_CHUNK_BYTES} "
                 "a chunk may hold"
             )
-        if self.total + declared > self.limit:
-            raise ValueError(
-                f"its chunks unpack to more than {self.limit} bytes (REDLINE_MAX_UNPACKED_BYTES)"
+        if self.limit is not None and self.total + declared > self.limit:
+            raise TooLarge(
+                f"unpacks to more than {_size(self.limit)}, the server's limit "
+                "(REDLINE_MAX_UNPACKED_BYTES)"
             )
         data = _decompressed(chunk.compression, chunk.data, declared)
         if len(data) != declared:

@@ -52,8 +52,8 @@ from redline.recording.format import (
 from redline.recording.mcap_bytes import (
     CHANNEL_ID,
     LOG_TIME,
-    MAX_UNPACKED_BYTES,
     MESSAGE_HEAD,
+    TooLarge,
     Unpacked,
     begins_as_mcap,
     chunk_records,
@@ -304,15 +304,12 @@ def _take_record(
 
 
 def read_recording(
-    path: str | Path,
-    *,
-    strict: bool = True,
-    events: bool = False,
-    max_unpacked: int = MAX_UNPACKED_BYTES,
+    path: str | Path, *, strict: bool = True, events: bool = False, max_unpacked: int | None = None
 ) -> Recording:
     """Read a recording; with ``strict``, raise RecordingError unless it is a finished one;
     with ``events``, keep every traffic sample's key, time and size (`Recording.events`). Its
-    chunks may unpack to ``max_unpacked`` bytes in all (`Unpacked`): beyond, it is damaged."""
+    chunks may unpack to ``max_unpacked`` bytes in all (`Unpacked`; None: no limit), else
+    RecordingError, strict or not."""
     path = Path(path)
     recording = Recording(path=path, events=[] if events else None)
     channels: dict[int, tuple[int, str]] = {}
@@ -324,6 +321,8 @@ def read_recording(
                 _take_chunk(recording, unpacked.chunk(record), channels, counters)
             else:
                 _take_record(recording, record, channels, counters)
+    except TooLarge as exc:
+        raise RecordingError(f"{path.name} {exc}") from None
     except Exception as exc:  # the mcap library raises several types for a damaged file
         recording.problem = _problem(exc)
     _decode_counters(recording, counters)

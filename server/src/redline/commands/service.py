@@ -230,6 +230,13 @@ def token_create(
     host: Annotated[
         str | None, typer.Option(help="for an agent token: the one host it may act as")
     ] = None,
+    labels: Annotated[
+        str,
+        typer.Option(
+            help="for an agent token, comma-separated: the labels its host may register with "
+            "(none: it runs only the jobs of components that ask for no label)"
+        ),
+    ] = "",
 ) -> None:
     """Create a token and print it; it is stored only as a hash and cannot be shown again."""
     from redline.server.db import session_factory
@@ -238,7 +245,8 @@ def token_create(
 
     with session_factory(_settings().database_url)() as session:
         try:
-            _, secret = issue_token(session, name, scopes, host)
+            wanted = [label.strip() for label in labels.split(",") if label.strip()]
+            _, secret = issue_token(session, name, scopes, host, wanted)
         except ServiceError as exc:  # bad input (an unknown scope...), or a live token so named
             typer.echo(exc.detail, err=True)
             # 2, as for any bad option: what was asked is wrong, not the state it met
@@ -249,18 +257,19 @@ def token_create(
 @token_app.command("list")
 @needs_database
 def token_list() -> None:
-    """List tokens: id, name, scopes, host, created, last used, revoked."""
+    """List tokens: id, name, scopes, host, labels, created, last used, revoked."""
     from redline.server.db import session_factory
     from redline.server.services.tokens import list_tokens
 
     with session_factory(_settings().database_url)() as session:
-        typer.echo("id\tname\tscopes\thost\tcreated\tlast used\tstate")
+        typer.echo("id\tname\tscopes\thost\tlabels\tcreated\tlast used\tstate")
         for token in list_tokens(session):
             used = token.last_used.isoformat(timespec="seconds") if token.last_used else "never"
             state = "revoked" if token.revoked else "live"
             typer.echo(
                 f"{token.id}\t{token.name}\t{','.join(token.scopes)}\t"
-                f"{token.host or '-'}\t{token.created:%Y-%m-%d}\t{used}\t{state}"
+                f"{token.host or '-'}\t{','.join(token.labels or []) or '-'}\t"
+                f"{token.created:%Y-%m-%d}\t{used}\t{state}"
             )
 
 

@@ -96,6 +96,29 @@ def ensure_own_host(token: ApiToken, host: str) -> None:
         )
 
 
+def token_labels(token: ApiToken) -> list[str] | None:
+    """The host labels an agent token was given (an admin's to give); None for an admin
+    token without a host, which may claim any."""
+    if token.host is None and "admin" in token.scopes:
+        return None
+    return list(token.labels or [])
+
+
+def ensure_own_labels(token: ApiToken, labels: list[str]) -> None:
+    """An agent token's host registers with the labels an admin gave the token, or fewer, 403
+    otherwise: a component's ``host_labels`` say which hosts run its jobs, and a host naming
+    its own would lease any component's."""
+    allowed = token_labels(token)
+    foreign = sorted(set(labels) - set(allowed)) if allowed is not None else []
+    if foreign:
+        raise HTTPException(
+            status.HTTP_403_FORBIDDEN,
+            f"token {token.name!r} may register its host with the labels "
+            f"{', '.join(allowed or []) or 'none'}, not {', '.join(foreign)}: an admin gives a "
+            "host its labels (revoke this token and create one with --labels A,B)",
+        )
+
+
 READ_COOKIE = "redline_token"
 
 

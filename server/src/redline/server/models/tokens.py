@@ -26,6 +26,8 @@ class ApiToken(Base):
     last_used: Mapped[datetime | None] = mapped_column(default=None)
     revoked: Mapped[bool] = mapped_column(Boolean, default=False)
     host: Mapped[str | None] = mapped_column(String(200), default=None)  # an agent token's host
+    # an agent token's labels: those its host may register with (an admin's to give)
+    labels: Mapped[list[str]] = mapped_column(JSON, default=list)
 
 
 class User(Base):

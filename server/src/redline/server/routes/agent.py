@@ -12,7 +12,9 @@ from redline.server.api.deps import (
     SessionDep,
     SettingsDep,
     ensure_own_host,
+    ensure_own_labels,
     require_agent,
+    token_labels,
 )
 from redline.server.core.bodies import JsonRoute
 from redline.server.core.config import Settings
@@ -37,12 +39,13 @@ RECHECK_S = 0.5
 @router.post("/register")
 def register(data: RegisterRequest, session: SessionDep, token: AgentToken) -> RegisterResponse:
     ensure_own_host(token, data.name)
+    ensure_own_labels(token, data.labels)
     return RegisterResponse(host_id=jobs.register_host(session, data).id)
 
 
-def _lease_once(settings: Settings, host: str) -> LeasedJob | None:
+def _lease_once(settings: Settings, host: str, allowed: list[str] | None) -> LeasedJob | None:
     with session_factory(settings.database_url)() as session:
-        job = jobs.lease_job(session, host, settings.lease_seconds, settings.max_attempts)
+        job = jobs.lease_job(session, host, settings.lease_seconds, settings.max_attempts, allowed)
         return None if job is None else jobs.leased_job(job)
 
 
@@ -73,9 +76,10 @@ async def lease(
     answer is leased nothing: a job leased as it went is given back.
     """
     ensure_own_host(token, data.host)
+    allowed = token_labels(token)
     deadline = time.monotonic() + wait
     while not await request.is_disconnected():
-        job = await run_in_threadpool(_lease_once, settings, data.host)
+        job = await run_in_threadpool(_lease_once, settings, data.host, allowed)
         if job is not None and await request.is_disconnected():
             # the agent went away while it was leased: no one would run it before the lease
             # lapsed (a killed agent's long poll kept a job from the next agent for minutes)

@@ -266,7 +266,11 @@ async def create_token_form(request: Request, session: SessionDep) -> HTMLRespon
     try:
         signin.authorize(signed_in(request), form.get("csrf", ""), ADMIN)
         _, secret = tokens.issue_token(
-            session, form.get("name", "").strip(), form.get("scopes", ""), form.get("host") or None
+            session,
+            form.get("name", "").strip(),
+            form.get("scopes", ""),
+            form.get("host") or None,
+            [label.strip() for label in form.get("labels", "").split(",") if label.strip()],
         )
     except (Forbidden, BadRequest, Conflict) as exc:
         return problem(request, exc)

@@ -6,6 +6,7 @@ from datetime import datetime
 
 from pydantic import BaseModel, ConfigDict, Field
 from redline.server.schemas.common import RequestBody
+from redline.server.schemas.fields import Word
 
 
 class TokenCreate(RequestBody):
@@ -13,6 +14,11 @@ class TokenCreate(RequestBody):
     scopes: list[str] = Field(min_length=1, description="ci, triage, agent, read, admin")
     host: str | None = Field(
         default=None, max_length=200, description="for an agent token: the one host it may act as"
+    )
+    labels: list[Word] = Field(
+        default_factory=list,
+        max_length=100,
+        description="for an agent token: the labels its host may register with",
     )
 
 
@@ -22,6 +28,7 @@ class TokenOut(BaseModel):
     name: str
     scopes: list[str]
     host: str | None
+    labels: list[str]
     created: datetime
     last_used: datetime | None
     revoked: bool

@@ -66,7 +66,8 @@ def _no_host_for(session: Session, queued: list[Job]) -> str:
         if not any(set(needed) <= labels for labels in hosts):
             return (
                 f" (no registered host has the label(s) {', '.join(map(repr, needed))} they "
-                "need: give one `redline agent --label`, or change the component's host_labels)"
+                "need: give one `redline agent --label` (and its token `--labels`), or change the "
+                "component's host_labels)"
             )
     return ""
 

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Collection, Sequence
 from datetime import datetime, timedelta
 
 from redline.server.db import lock_component
@@ -99,10 +99,16 @@ def _served(session: Session, component_id: int, now: datetime) -> None:
 
 
 def lease_job(
-    session: Session, host_name: str, lease_seconds: int, max_attempts: int
+    session: Session,
+    host_name: str,
+    lease_seconds: int,
+    max_attempts: int,
+    allowed: Collection[str] | None = None,
 ) -> Job | None:
     """Hand the host the next queued (or abandoned) job whose pool it is in (it has every label
-    the job asks for); None when there is none.
+    the job asks for, of those its token was given: ``allowed``, None for any); None when
+    there is none. The host's row keeps the labels it registered with, perhaps under a token
+    revoked since, which a token given fewer must not lease with.
 
     Confirmation and re-measuring runs go first, in the order they were queued. Other jobs go
     to the component served longest ago (``last_leased_at``; never served first), and within
@@ -118,7 +124,8 @@ def lease_job(
         or_(Job.state == JobState.queued, and_(Job.state.in_(HELD), Job.lease_expires_at < now)),
         or_(Job.not_before.is_(None), Job.not_before <= now),  # a pair run again after a busy spell
     )
-    in_pool = cast(Job.labels, JSONB).contained_by(list(host.labels or []))  # has every label
+    labels = [label for label in host.labels or [] if allowed is None or label in allowed]
+    in_pool = cast(Job.labels, JSONB).contained_by(labels)  # has every label
     # a confirmation run goes to the host that measured the revision it confirms, and its pairs
     # go in the order they were queued (baseline, candidate, baseline, ...) before other work;
     # so does a fresh run of a disturbed execution, which a later revision's verdict may await

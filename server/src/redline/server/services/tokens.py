@@ -2,14 +2,18 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
+from pydantic import TypeAdapter, ValidationError
 from redline.server.core.security import hash_token, new_token, parse_scopes, pool_or_host
 from redline.server.models import ApiToken, utcnow
-from redline.server.schemas.fields import escaped, path_segment
+from redline.server.schemas.fields import Word, escaped, path_segment
 from redline.server.services.errors import BadRequest, Conflict, NotFound
 from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
 TOKEN_NAME_LOCK = 0x544B  # "TK": the first key of the advisory lock an issuer takes per name
+_LABELS = TypeAdapter(list[Word])
 
 
 def authenticate(session: Session, secret: str) -> ApiToken | None:
@@ -24,16 +28,25 @@ def authenticate(session: Session, secret: str) -> ApiToken | None:
 
 
 def issue_token(
-    session: Session, name: str, scopes: str | list[str], host: str | None = None
+    session: Session,
+    name: str,
+    scopes: str | list[str],
+    host: str | None = None,
+    labels: Sequence[str] = (),
 ) -> tuple[ApiToken, str]:
     """A new token and its secret (shown once: only its hash is stored); a token with the
     ``agent`` scope must be bound to ``host`` (a name, or ``PREFIX*``: a pool of hosts whose
-    names start so), and only it has one; one live token per name.
+    names start so), and only it has one, and ``labels``, the ones its host may register with
+    (none: it runs the jobs of components that ask for no label); one live token per name.
     The one way tokens are made (API, CLI and the settings page)."""
     try:
         parsed = parse_scopes(scopes)
         if host:
             pool_or_host(host)
+        kept = sorted(set(_LABELS.validate_python(list(labels))))
+    except ValidationError as exc:
+        problem = exc.errors()[0]
+        raise BadRequest(f"labels: {problem['input']!r}: {problem['msg']}") from None
     except ValueError as exc:
         raise BadRequest(str(exc)) from None
     try:  # a CR/LF made `redline token list` print a second row; a '/' no URL could revoke
@@ -54,13 +67,17 @@ def issue_token(
         )
     if host and "agent" not in parsed:
         raise BadRequest(f"host {host!r} binds an agent token; this token has no 'agent' scope")
+    if kept and "agent" not in parsed:
+        raise BadRequest(f"labels {kept} are an agent token's; this token has no 'agent' scope")
     # one issuer per name at a time, so two at once cannot both find no live token
     session.execute(select(func.pg_advisory_xact_lock(TOKEN_NAME_LOCK, func.hashtext(name))))
     live = session.scalar(select(ApiToken).where(ApiToken.name == name, ~ApiToken.revoked))
     if live is not None:
         raise Conflict(f"a live token named {name!r} exists; revoke it first")
     secret = new_token()
-    token = ApiToken(name=name, token_hash=hash_token(secret), scopes=parsed, host=host)
+    token = ApiToken(
+        name=name, token_hash=hash_token(secret), scopes=parsed, host=host, labels=kept
+    )
     session.add(token)
     session.commit()
     return token, secret
