@@ -592,6 +592,17 @@ def test_redline_run_prints_the_driver_table_and_warns_of_a_busy_host(
     assert "charted, not judged" in warning
 
 
+def test_redline_runs_table_says_what_an_action_that_measures_nothing_did() -> None:
+    """A Publish measures nothing but its count: its row said "-", which read as a failure."""
+    from redline.cli.run_summary import measured
+
+    assert measured({"published": 400.0}) == "400 published"
+    assert measured({"messages": 1200.0}) == "1200 messages replayed"
+    # an action that measured something shows that, not its counts
+    assert measured({"rate_achieved": 10.0, "iterations": 80.0}) == "10.0/s achieved"
+    assert measured({}) == "-"
+
+
 def test_cpu_per_op_counts_the_work_delivered_not_the_samples_listened_to(tmp_path: Path) -> None:
     """Listen's `received` counts the component's output (judged by Listen's own rate and
     losses), not work the driver delivered: counted too, a lost output would read as CPU per

@@ -22,6 +22,13 @@ _SHOWN = (
     ("wait_p99_us", "p99 {:.0f} µs"),
     ("lateness_p99_us", "lateness p99 {:.0f} µs"),
 )
+#: how much an action did, shown when it measured nothing else (a Publish: its count)
+_DONE = (
+    ("published", "{:.0f} published"),
+    ("messages", "{:.0f} messages replayed"),
+    ("received", "{:.0f} received"),
+    ("sent", "{:.0f} sent"),
+)
 #: counts of rare events, shown out of their totals
 _COUNTED = (
     ("timeouts", ("queries", "waits")),
@@ -60,12 +67,15 @@ def process_table(samples: Samples) -> Table:
 
 def measured(fields: Mapping[str, float]) -> str:
     """One action's measurements in a line: ``rtt p50 590 µs, p99 1200 µs, 3 of 4217
-    timeouts``."""
+    timeouts``; for one that measured nothing, what it did (``400 published``: a row of "-"
+    read as a Publish that failed)."""
     parts = [form.format(fields[name]) for name, form in _SHOWN if name in fields]
     for name, totals in _COUNTED:
         total = next((fields[t] for t in totals if t in fields), None)
         if name in fields and total is not None:
             parts.append(f"{fields[name]:.0f} of {total:.0f} {name}")
+    if not parts:
+        parts = [form.format(fields[name]) for name, form in _DONE if name in fields]
     return ", ".join(parts) or "-"
 
 
