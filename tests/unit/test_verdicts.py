@@ -31,14 +31,21 @@ def test_the_absolute_floor_keeps_a_tiny_significant_change_quiet():
     assert quiet.verdict == "no change" and "absolute floor" in quiet.reason
 
 
-def test_the_cpu_in_references_is_not_floored_as_if_in_microseconds():
-    """``cpu_refs_per_op`` counts the host's reference work (about 350 µs here), not µs: CPU
-    +10 % at the example's 8 legs (8-9 references an operation) moved it by 0.85, under the
-    1.0 that a microsecond count needs, and the default method called it no change."""
+@pytest.mark.parametrize(
+    ("level", "factor"),
+    [
+        (8.5, 1.10),  # CPU +10 % at the example's 8 legs (8-9 references an operation): +0.85
+        (0.3, 3.0),  # a light component's CPU tripled (0.3 references, about 100 µs): +0.6
+    ],
+)
+def test_the_cpu_in_references_is_not_floored_as_if_in_microseconds(level, factor):
+    """``cpu_refs_per_op`` counts the host's reference work (280-430 µs here), not µs: under
+    the 1.0 that a microsecond count needs, each of these was called no change by the default
+    method (a component under one reference an operation could not be flagged on CPU)."""
     from redline.detect.execution_shift import ExecutionShift
 
     rng = np.random.default_rng(3)
-    base, cand = rng.normal(8.5, 0.08, 12), np.array([8.5 * 1.10])
+    base, cand = rng.normal(level, level / 100, 12), np.array([level * factor])
     judge = ExecutionShift().confirmed()
     assert judge_series(judge, "cpu_refs_per_op", base, cand).flagged
     # the same figures in microseconds are within a microsecond's floor: no change
