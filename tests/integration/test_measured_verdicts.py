@@ -651,6 +651,24 @@ def test_a_large_change_of_the_cpu_share_is_undecided_where_its_per_unit_figure_
     assert "flags svc cpu_percent +200 %" in case.reason and "not passed unjudged" in case.reason
 
 
+def test_a_cpu_share_moved_by_a_slower_host_is_sized_at_the_hosts_speed(
+    session, database_url, tmp_path
+):
+    """A new user's README-only commit got `redline ci wait` exit 4 (2026-12-06): the host ran
+    36 % slower than for the revision before it (its reference 293 µs against 215), KS charted
+    the CPU share +50 %, and the rule for large unjudged changes took that share, while the
+    CPU per unit of work at the host's speed, the figure the alarm method judges, moved +10 %."""
+    create_component(session, ComponentCreate(name=NAME, executions=RUNS))
+    ingest_and_detect(database_url, _revision(session, tmp_path, 1, reference=300.0))
+    # the share +60 % on a host 45 % slower: +10 % at the host's speed
+    slower = _revision(session, tmp_path, 2, cpu=32.0, reference=436.0)
+    ingest_and_detect(database_url, slower)
+    session.expire_all()
+    (case,) = ci_verdict(session, NAME, "r2").cases
+    assert case.state == "skipped", case
+    assert "flags svc cpu_percent +60 %" in case.reason and "not passed unjudged" not in case.reason
+
+
 def test_a_smaller_change_not_judged_yet_is_named_and_skipped(session, database_url, tmp_path):
     create_component(session, ComponentCreate(name=NAME, executions=RUNS))
     ingest_and_detect(database_url, _revision(session, tmp_path, 1))

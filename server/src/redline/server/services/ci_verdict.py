@@ -49,6 +49,7 @@ from redline.server.schemas.alerts import CaseVerdict, CiVerdict
 from redline.server.services.components import get_component, get_revision
 from redline.server.services.detection_config import component_config
 from redline.server.services.fresh_runs import fresh_run_between, fresh_runs_under_way
+from redline.server.services.host_speed import at_host_speed
 from redline.server.services.regression_range import revisions_between
 from redline.server.services.revisions import own_jobs, revision_state
 from sqlalchemy import func, or_, select
@@ -195,7 +196,10 @@ def ci_verdict(session: Session, component_name: str, title: str) -> CiVerdict:
     state, said = _pending(session, revision)
     groups, charted = _by_case(session, revision, component_config(session, component.id).alarming)
     opening = _first(session, revision)
-    cases = [_case_verdict(key, found, charted[key], opening) for key, found in groups.items()]
+    sized = at_host_speed(session, revision, (f for flags in charted.values() for f in flags))
+    cases = [
+        _case_verdict(key, found, charted[key], opening, sized) for key, found in groups.items()
+    ]
     _name_unmeasured(session, cases)
     regressions = sum(change["worse"] for case in cases for change in case.changes)
     improvements = sum(len(case.changes) for case in cases) - regressions
@@ -267,10 +271,15 @@ def _by_case(
 
 
 def _case_verdict(
-    key: tuple[str, str, str], found: Found, seen: Found, opening: bool
+    key: tuple[str, str, str],
+    found: Found,
+    seen: Found,
+    opening: bool,
+    sized: dict[int, float] | None = None,
 ) -> CaseVerdict:
     """One test case x phase x parameter set: failed, passed, or, where a series that can be
-    judged has no verdict yet, skipped or undecided (``seen``: the charted method's flags)."""
+    judged has no verdict yet, skipped or undecided (``seen``: the charted method's flags;
+    ``sized``: those of them sized at the host's speed, `at_host_speed`)."""
     case, phase, params = key
     changes = [_change(d, s) for d, s in found if d.flagged and d.confirmation != DROPPED]
     worse_count = sum(c["worse"] for c in changes)
@@ -304,7 +313,7 @@ def _case_verdict(
     }
     large = not opening and any(
         figure(s.process, s.counter) in unjudged
-        and UNJUDGED_LARGE <= abs(d.effect or 0.0) < math.inf
+        and UNJUDGED_LARGE <= abs((sized or {}).get(d.id, d.effect or 0.0)) < math.inf
         for d, s in seen
     )
     some = f" ({len(lacking)} of {len(found)} verdicts)" if lacking else ""
