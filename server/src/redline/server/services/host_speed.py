@@ -16,8 +16,8 @@ from statistics import median
 
 from redline.detect.counters import SHARE
 from redline.recording.driver import CPU_REFS_PER_OP
-from redline.server.models import Detection, Execution, Job, Revision, Series, Summary
-from redline.server.services.why import baseline_revisions
+from redline.server.models import Detection, Revision, Series
+from redline.server.services.why import baseline_revisions, execution_values
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
@@ -56,20 +56,7 @@ def at_host_speed(
 
 
 def _medians(session: Session, series_id: int, revision_ids: list[int]) -> list[float]:
-    """The series' value (median) in each of the revisions' own executions measured while the
-    host was not busy."""
-    if not revision_ids:
-        return []
-    return list(
-        session.scalars(
-            select(Summary.p50)
-            .join(Execution, Execution.id == Summary.execution_id)
-            .join(Job, Job.id == Execution.job_id)
-            .where(
-                Summary.series_id == series_id,
-                Execution.revision_id.in_(revision_ids),
-                Job.pair == 0,
-                Summary.disturbed.is_(False),
-            )
-        )
-    )
+    """The series' value in each of the revisions' own executions measured while the host was
+    not busy."""
+    found = execution_values(session, series_id, revision_ids)
+    return [value.median for value in found if not value.disturbed]

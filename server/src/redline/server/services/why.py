@@ -69,7 +69,10 @@ class WhyFlagged:
     pairs: list[tuple[int, float | None, float | None, bool]] = field(default_factory=list)
 
 
-def _values(session: Session, series_id: int, revision_ids: list[int]) -> list[ExecutionValue]:
+def execution_values(
+    session: Session, series_id: int, revision_ids: list[int]
+) -> list[ExecutionValue]:
+    """The series' value in each of the revisions' own executions (not confirmation runs')."""
     rows = session.execute(
         select(Revision.title, Execution.id, Summary.p50, Summary.mean, Summary.n, Summary.sketch)
         .add_columns(Summary.disturbed)
@@ -168,8 +171,8 @@ def why_flagged(session: Session, detection_id: int) -> WhyFlagged:
     return WhyFlagged(
         component=revision.component.name,
         detection=out,
-        candidate=_values(session, series.id, [revision.id]),
-        baseline=_values(session, series.id, [r.id for r in baseline]),
+        candidate=execution_values(session, series.id, [revision.id]),
+        baseline=execution_values(session, series.id, [r.id for r in baseline]),
         baseline_titles=[r.title for r in baseline],
         thresholds=thresholds,
         thresholds_judged=judged,
