@@ -664,7 +664,9 @@ def test_a_regression_judged_again_without_its_change_is_withdrawn_with_its_figu
     (before,) = api.client.get(f"{BASE}/regressions").json()
     assert before["confirmation"] == "suspected"
     said = before["confirmation_reason"]
-    assert re.search(r"; the largest: component cpu \[rate=10\] \+\d+ % at r6$", said), said
+    assert re.search(
+        r"; the largest: throughput/publish: component cpu \[rate=10\] \+\d+ % at r6$", said
+    ), said
     counted = '<a href="/regressions?component=builder">1</a>'
     assert counted in api.client.get("/").text  # the home page's open regressions
     database_url = api.settings.database_url

@@ -79,7 +79,10 @@ def test_a_change_is_suspected_then_confirmed_when_the_next_revisions_keep_it(
     (regression,) = session.scalars(select(Regression))
     assert regression.confirmation == "suspected"
     said = regression.confirmation_reason
-    assert "still suspected: component cpu [rate=10]: waiting for 2 more revision(s)" in said
+    assert (
+        "still suspected: throughput/publish: component cpu [rate=10]: waiting for 2 more "
+        "revision(s)" in said
+    )
     assert _flagged(session)["r5"].confirmation == "suspected"
     _judge(session, database_url, tmp_path, [30.0], start=6)
     assert session.scalars(select(Regression)).one().confirmation == "suspected"  # 1 of 2
@@ -87,7 +90,7 @@ def test_a_change_is_suspected_then_confirmed_when_the_next_revisions_keep_it(
     regression = session.scalars(select(Regression)).one()
     assert regression.confirmation == "confirmed", regression.confirmation_reason
     assert regression.confirmation_reason.startswith(
-        "1 of 1 flagged change(s) confirmed (component cpu [rate=10]: held: "
+        "1 of 1 flagged change(s) confirmed (throughput/publish: component cpu [rate=10]: held: "
     ), regression.confirmation_reason
     r5 = _flagged(session)["r5"]
     assert r5.confirmation == "held" and "flagged at +5" in r5.confirmation_reason
@@ -128,8 +131,9 @@ def test_revisions_measured_while_the_host_was_busy_neither_hold_a_change_nor_dr
     assert session.scalar(busy) == 2 * RUNS  # r6's and r7's, every series of them
     r5 = _flagged(session)["r5"]
     assert r5.confirmation == "suspected", r5.confirmation_reason
-    assert "still suspected: component cpu [rate=10]: waiting for 2 more revision(s)" in (
-        session.scalars(select(Regression)).one().confirmation_reason
+    assert (
+        "still suspected: throughput/publish: component cpu [rate=10]: waiting for 2 more "
+        "revision(s)" in (session.scalars(select(Regression)).one().confirmation_reason)
     )
     _judge(session, database_url, tmp_path, [20.0, 20.2], start=8)
     r5 = _flagged(session)["r5"]

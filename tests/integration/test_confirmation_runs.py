@@ -865,8 +865,8 @@ def test_a_change_after_a_revision_the_host_was_busy_in_waits_for_its_fresh_run(
     regression = session.get_one(Regression, r5.regression_id)
     assert (  # naming the series whose pairs it quotes (a trial's quoted one set's pairs
         # beside another set's largest change)
-        "flagged change(s) confirmed (component cpu [rate=10]: confirmed by 2 of 2 pairs"
-        in regression.confirmation_reason
+        "flagged change(s) confirmed (throughput/publish: component cpu [rate=10]: confirmed "
+        "by 2 of 2 pairs" in regression.confirmation_reason
     )
 
 

@@ -17,10 +17,11 @@ from sqlalchemy.orm import Session
 CONFIRMED, NOT_CONFIRMED = "confirmed", "not_confirmed"
 
 
-def _label(process: str, counter: str, params: str) -> str:
-    """A series in words: "builder uss_bytes [grid=60]"."""
+def _label(case: str, phase: str, process: str, counter: str, params: str) -> str:
+    """A series in words: "sweep/steady: builder uss_bytes [grid=60]" (without its test case
+    and phase, a trial's two cases at rate=50 read as one)."""
     named = params_name_of(params)
-    return f"{process} {counter}" + (f" [{named}]" if named else "")
+    return f"{case}/{phase}: {process} {counter}" + (f" [{named}]" if named else "")
 
 
 def _newest_reasons(session: Session, component_id: int) -> dict[tuple[int, str], str]:
@@ -30,7 +31,7 @@ def _newest_reasons(session: Session, component_id: int) -> dict[tuple[int, str]
     beside another's largest change, neither named."""
     rows = session.execute(
         select(Detection.regression_id, Detection.confirmation, Detection.confirmation_reason)
-        .add_columns(Series.process, Series.counter, Series.params)
+        .add_columns(Series.case, Series.phase, Series.process, Series.counter, Series.params)
         .join(Regression, Regression.id == Detection.regression_id)
         .join(Series, Series.id == Detection.series_id)
         .where(
@@ -41,8 +42,8 @@ def _newest_reasons(session: Session, component_id: int) -> dict[tuple[int, str]
         .order_by(Detection.regression_id, Detection.confirmation, Detection.id.desc())
     )
     return {
-        (rid, state): f"{_label(process, counter, params)}: {reason}"
-        for rid, state, reason, process, counter, params in rows
+        (rid, state): f"{_label(case, phase, process, counter, params)}: {reason}"
+        for rid, state, reason, case, phase, process, counter, params in rows
         if rid is not None
     }
 
@@ -51,8 +52,8 @@ def _largest_changes(session: Session, component_id: int) -> dict[int, str]:
     """Per regression of the component, its largest change in words ("builder cpu +208 % at
     r3"): the figures its summary keeps, which stay when it is withdrawn."""
     rows = session.execute(
-        select(Detection.regression_id, Detection.effect, Series.process, Series.counter)
-        .add_columns(Series.params, Revision.title)
+        select(Detection.regression_id, Detection.effect, Series.case, Series.phase)
+        .add_columns(Series.process, Series.counter, Series.params, Revision.title)
         .join(Regression, Regression.id == Detection.regression_id)
         .join(Series, Series.id == Detection.series_id)
         .join(Revision, Revision.id == Detection.revision_id)
@@ -65,8 +66,8 @@ def _largest_changes(session: Session, component_id: int) -> dict[int, str]:
         .order_by(Detection.regression_id, func.abs(Detection.effect).desc(), Detection.id)
     )
     return {
-        rid: f"{_label(process, counter, params)} {effect * 100:+.0f} % at {title}"
-        for rid, effect, process, counter, params, title in rows
+        rid: f"{_label(case, phase, process, counter, params)} {effect * 100:+.0f} % at {title}"
+        for rid, effect, case, phase, process, counter, params, title in rows
         if rid is not None
     }
 
