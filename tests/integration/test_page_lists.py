@@ -17,7 +17,16 @@ from fastapi.testclient import TestClient
 from redline.detect.registry import DETECTORS, TITLES
 from redline.recording.format import canonical_params
 from redline.server.db import session_factory
-from redline.server.models import Execution, FigureCache, Host, Job, Revision, Series, utcnow
+from redline.server.models import (
+    Execution,
+    FigureCache,
+    Host,
+    Job,
+    Regression,
+    Revision,
+    Series,
+    utcnow,
+)
 from redline.server.routes import regression_pages, web
 from redline.server.services import compare
 from redline.server.services.signin import SESSION_COOKIE, create_user
@@ -156,6 +165,31 @@ def test_regressions_filter_by_method_and_come_a_page_at_a_time(
         address = f"/regressions?{html.unescape(following.group(1))}" if following else ""
         assert not following or "method=ks" in address  # the filters go with the cursor
     assert sorted(seen) == sorted(str(r["id"]) for r in every) and len(set(seen)) == len(seen)
+
+
+def test_the_regressions_page_lists_those_that_stand_unless_asked_for_all(
+    client, database_url, tmp_path
+):
+    """A new user found a noisy rss_bytes "regression", dropped by its re-runs, listed beside
+    the real one: the page lists the confirmed and suspected ones unless asked for all."""
+    history(database_url, tmp_path, [20.0, 20.0, 200.0, 200.0, 800.0])
+    every = client.get(f"{API}/regressions").json()
+    dropped, *standing = every
+    with session_factory(database_url)() as session:
+        session.execute(
+            update(Regression)
+            .where(Regression.id == dropped["id"])
+            .values(confirmation="not_confirmed")
+        )
+        session.commit()
+    link = f'href="/regressions/{dropped["id"]}"'
+    page = client.get("/regressions").text
+    assert link not in page and all(f'href="/regressions/{r["id"]}"' in page for r in standing)
+    assert '<option value="standing" selected>confirmed or suspected</option>' in page
+    assert link in client.get("/regressions?confirmation=all").text
+    assert link in client.get("/regressions?confirmation=not_confirmed").text
+    listed = client.get(f"{API}/regressions?confirmation=standing").json()
+    assert [r["id"] for r in listed] == [r["id"] for r in standing]
 
 
 def _disturbed(database_url: str, title: str, legs: int, why: str) -> None:

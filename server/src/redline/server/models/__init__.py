@@ -12,6 +12,7 @@ from redline.server.models.alerts import (
 from redline.server.models.base import Base, utcnow
 from redline.server.models.detection import (
     FALSE_POSITIVE_STATES,
+    STANDING,
     TRUE_POSITIVE_STATES,
     WITHDRAWN,
     Detection,
@@ -46,6 +47,7 @@ __all__ = [
     "FINISHED",
     "HELD",
     "UNENDED",
+    "STANDING",
     "WITHDRAWN",
     "Alert",
     "AlertedChange",

@@ -41,6 +41,9 @@ class RegressionState(enum.StrEnum):
 #: it had been (`redline.worker.grouping`), not deleted (a trial's regression vanished, and the
 #: alert's link to it with it)
 WITHDRAWN = "withdrawn"
+#: The regressions that stand: those the re-runs or the later revisions confirmed and those
+#: still suspected (the regressions page's default; a filter value of the list, "standing")
+STANDING = ("suspected", "confirmed")
 
 #: Triage labels as ground truth for a method's precision (ignored, new, acknowledged: no label).
 TRUE_POSITIVE_STATES = frozenset({RegressionState.confirmed, RegressionState.fixed})

@@ -26,6 +26,10 @@ from redline.server.ui.pages import (
 
 router = page_router()
 CONFIRMATIONS = ("suspected", "confirmed", "not_confirmed", "withdrawn")
+#: the list's default: the regressions that stand (confirmed or suspected); "all" shows every
+#: one, those the re-runs or later revisions dropped too (a new user found a dropped, noisy
+#: rss_bytes "regression" listed beside the real one)
+STANDING, ALL = "standing", "all"
 #: regressions on a page of the list (the next ones are a link away, by the API's cursor)
 PAGE = 100
 
@@ -34,7 +38,7 @@ def _checked(state: str, confirmation: str, method: str) -> None:
     """A `BadRequest` naming a filter whose value is none of those it takes."""
     for name, value, allowed in (
         ("state", state, list(RegressionState.__members__)),
-        ("confirmation", confirmation, CONFIRMATIONS),
+        ("confirmation", confirmation, (STANDING, ALL, *CONFIRMATIONS)),
         ("method", method, list(DETECTORS)),
     ):
         if value and value not in allowed:
@@ -47,7 +51,7 @@ def regressions_page(
     session: SessionDep,
     component: str = "",
     state: str = "",
-    confirmation: str = "",
+    confirmation: str = STANDING,
     method: str = "",
     cursor: str = "",
 ) -> HTMLResponse:
@@ -63,7 +67,7 @@ def regressions_page(
             session,
             component or None,
             state or None,
-            confirmation or None,
+            None if confirmation in ("", ALL) else confirmation,
             limit=PAGE,
             cursor=cursor or None,
             method=method or None,

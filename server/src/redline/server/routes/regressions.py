@@ -37,16 +37,17 @@ def list_regressions(
     session: SessionDep,
     response: Response,
     state: RegressionState | None = None,
-    confirmation: Literal["suspected", "confirmed", "not_confirmed", "withdrawn"] | None = None,
+    confirmation: Literal["suspected", "confirmed", "not_confirmed", "withdrawn", "standing"]
+    | None = None,
     method: str | None = None,
     limit: PageSize = None,
     cursor: Cursor = None,
 ) -> list[RegressionOut]:
     """Flagged changes for the worse grouped by overlapping revision ranges, newest first;
     ``?state=`` (triage), ``?confirmation=`` (suspected until the later revisions confirm it
-    or not) and ``?method=`` (a method that flagged a change in it) filter. Paged with
-    ``limit``: a full page carries ``X-Next-Cursor``, passed back as ``cursor`` for the next;
-    without ``limit``, all."""
+    or not; ``standing``: suspected or confirmed) and ``?method=`` (a method that flagged a
+    change in it) filter. Paged with ``limit``: a full page carries ``X-Next-Cursor``, passed
+    back as ``cursor`` for the next; without ``limit``, all."""
     found, following = regressions.list_regressions(
         session, name, state, confirmation, limit, cursor, method
     )

@@ -7,6 +7,7 @@ from collections import defaultdict
 
 from redline.server.models import (
     FALSE_POSITIVE_STATES,
+    STANDING,
     TRUE_POSITIVE_STATES,
     WITHDRAWN,
     Component,
@@ -73,7 +74,8 @@ def list_regressions(
     method: str | None = None,
 ) -> tuple[list[RegressionOut], str | None]:
     """The component's regressions, newest range first (every component's when None, newest
-    first); ``state`` (triage), ``confirmation`` (suspected, confirmed, not_confirmed) and
+    first); ``state`` (triage), ``confirmation`` (suspected, confirmed, not_confirmed,
+    withdrawn, or standing: suspected or confirmed) and
     ``method`` (one of the methods that flagged a change in it) filter; ``limit`` of them
     after ``cursor``, and the next page's cursor (None after the last)."""
     query = (
@@ -101,7 +103,9 @@ def list_regressions(
         query = query.where(Regression.state == RegressionState(state))
         if confirmation is None:  # a triage queue holds what is still found, not the withdrawn
             query = query.where(Regression.confirmation != WITHDRAWN)
-    if confirmation is not None:
+    if confirmation == "standing":
+        query = query.where(Regression.confirmation.in_(STANDING))
+    elif confirmation is not None:
         query = query.where(Regression.confirmation == confirmation)
     if method is not None:
         flagged_by = exists().where(
