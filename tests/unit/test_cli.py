@@ -182,7 +182,7 @@ def test_ci_waits_undecided_exit_names_each_cases_own_reason():
     from redline.cli.ci_cmd import _undecided_message
 
     missing = (
-        "not enough data (1 of 1 verdicts): benchmark execution_time: not measured in this "
+        "not enough data for 1 of its 1 series: benchmark execution_time: not measured in this "
         "revision, though the revision before measured it"
     )
     verdict = {

@@ -316,7 +316,8 @@ def _case_verdict(
         and UNJUDGED_LARGE <= abs((sized or {}).get(d.id, d.effect or 0.0)) < math.inf
         for d, s in seen
     )
-    some = f" ({len(lacking)} of {len(found)} verdicts)" if lacking else ""
+    # which verdicts it counts, said (a new user: "(1 of 16 verdicts)" said nothing)
+    some = f" for {len(lacking)} of its {len(found)} series" if lacking else ""
     return CaseVerdict(
         case=case,
         phase=phase,
