@@ -815,6 +815,65 @@ def test_a_change_whose_pairs_ran_its_set_alone_is_not_moved_back(session, datab
     assert _detection(session, "r5").verdict == "no change"
 
 
+def test_a_change_whose_revision_could_not_be_judged_is_found_there_by_its_own_runs(
+    session, database_url, tmp_path
+):
+    """A new user's history, one execution a revision: work tripled at r7, confirmed; then
+    +67 % at r12, when r7's restarted baseline held 5 of the 6 values needed ("not enough
+    data"). r13 was flagged against r7-r12 (still the old median), its pairs against r12 (the
+    same code, the set run alone) dropped it, and r12 was never a regression. Now r12's own run,
+    against its own baseline, says the change came with it, and r12's own pairs confirm it."""
+    component = create_component(session, ComponentCreate(name=NAME, executions=1))
+    session.add(DetectionConfigRow(component_id=component.id, config={"confirm_pairs": PAIRS}))
+    session.commit()
+    host = register_host(session, RegisterRequest(name="perf-1"))
+
+    def level(title: str) -> float:
+        number = int(title[1:])
+        return 20.0 if number < 7 else 60.0 if number < 12 else 100.0
+
+    def run_pairs() -> list[tuple[str, str]]:
+        ran = []
+        while (job := lease_job(session, "perf-1", 60, 3)) is not None:
+            ran.append((job.revision.title, job.confirms_revision.title))
+            _run(session, database_url, tmp_path, job, level(job.revision.title))
+        return ran
+
+    for number in range(1, 14):
+        title = f"r{number}"
+        (execution,) = add_executions(
+            session, tmp_path, NAME, title, str(number), [_cpu(level(title), number)]
+        )
+        job = session.get_one(Job, execution.job_id)
+        job.host_id, job.attempts = host.id, 1
+        session.commit()
+        ingest_and_detect(database_url, [execution])
+        session.expire_all()
+        run_pairs()
+    assert _detection(session, "r7").confirmation == "held"
+    late, moved = _detection(session, "r13"), _detection(session, "r12")
+    assert late.confirmation == "dropped", late.confirmation_reason
+    assert "r12's own run(s) were already at the new level (+" in late.confirmation_reason
+    assert moved.flagged and moved.reason.startswith(
+        "found a revision late: r13's confirmation pairs showed nothing against it, and its own "
+        "run(s) sat +6"
+    ), moved.reason
+    assert moved.confirmation == "held", moved.confirmation_reason
+    regressions = {
+        (r.good_revision.title, r.bad_revision.title): r.confirmation
+        for r in session.scalars(select(Regression))
+    }
+    assert regressions[("r11", "r12")] == "confirmed", regressions
+    assert ci_verdict(session, NAME, "r13").regressions == 0
+    # a re-analysis judges r12 afresh ("not enough data" on its own run): the verdict its own
+    # run and pairs made stays
+    said = (moved.verdict, moved.reason, moved.confirmation)
+    reanalyze_component(database_url, component.id)
+    session.expire_all()
+    again = _detection(session, "r12")
+    assert (again.verdict, again.reason, again.confirmation) == said
+
+
 def _busy_r5(session, database_url: str, tmp_path: Path, pairs: int, after: list[float]) -> None:
     """r1-r4 at 20 % CPU; r5 at 30 %, every run measured while the host was busy (so never
     judged); then ``after`` from r6 on, on a quiet host."""

@@ -57,7 +57,7 @@ from redline.server.services.jobs import current_pairs
 from redline.server.services.revisions import CANCELLED, UNFINISHED
 from redline.worker.confirmation import baseline_noise
 from redline.worker.cpu_time import REFERENCE_ONLY, in_cpu_time, pair_values
-from redline.worker.found_late import move_back
+from redline.worker.found_late import move_back, move_back_unjudged
 from redline.worker.history import reanalysing
 from redline.worker.quiet_pairs import (
     SUPERSEDED,
@@ -225,7 +225,8 @@ def settle_pairs(session: Session, revision: Revision) -> bool:
     # component starts, and its level is not the one its revision's own runs measured (in
     # bench_verdicts, 2026-12-05, the 8-legs set ran 5-11 % above its revision's own run)
     alone = any(job.sets_alone for job in jobs)
-    may_move = not alone and rerunnable(session, session.get_one(Revision, baseline))
+    may_judge = rerunnable(session, session.get_one(Revision, baseline))
+    may_move = not alone and may_judge
     for detection, process, counter in suspected:
         measured = pair_values(values, detection.series_id, pairs, baseline, revision.id)
         count = is_count(process, counter)
@@ -250,8 +251,12 @@ def settle_pairs(session: Session, revision: Revision) -> bool:
             reason += f"; {len(again - spared)} of them run again after the host was busy"
         detection.confirmation, detection.confirmation_reason = found.state, reason
         # perhaps its baseline revision changed it (not where the reference alone moved)
-        if found.state == DROPPED and may_move and not reason.startswith(REFERENCE_ONLY):
-            earlier = move_back(session, detection, revision, [b for b, _ in measured])
+        if found.state == DROPPED and not reason.startswith(REFERENCE_ONLY):
+            earlier = (
+                move_back(session, detection, revision, [b for b, _ in measured])
+                if may_move
+                else None
+            ) or (move_back_unjudged(session, detection, revision) if may_judge else None)
             if earlier is not None:
                 moved.append(earlier)
     run_again(session, revision, baseline, jobs, left)

@@ -97,6 +97,17 @@ def baseline_values(
     return None if newest is None else _baseline(levels, newest, detection.baseline_revisions)
 
 
+def own_values(session: Session, detection: Detection) -> np.ndarray | None:
+    """The execution values (medians) of the detection's own revision, measured undisturbed;
+    None without any."""
+    found = [
+        v
+        for _, rid, v in _levels(session, detection.series_id, False)
+        if rid == detection.revision_id
+    ]
+    return found[0] if found else None
+
+
 def baseline_noise(session: Session, detection: Detection, series_id: int | None = None) -> float:
     """How much one execution value of the detection's baseline varies, relative to its level
     (`redline.detect.confirmation.relative_noise`); NaN when its baseline's summaries are gone.

@@ -26,13 +26,40 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
 
-from redline.detect.confirmation import FOUND_LATE, FOUND_LATER, PAIR_SDS, already_moved
-from redline.detect.result import CHANGE, NO_CHANGE
+from redline.detect.confirmation import FOUND_LATE, FOUND_LATER, PAIR_SDS, Earlier, already_moved
+from redline.detect.result import CHANGE, NO_CHANGE, NOT_ENOUGH_DATA, waits_for_history
 from redline.server.models import Detection, Revision
-from redline.worker.confirmation import baseline_values
+from redline.worker.confirmation import baseline_values, own_values
 from redline.worker.grouping import group_detection
 from sqlalchemy import or_, select
 from sqlalchemy.orm import Session
+
+
+def _of_baseline(session: Session, detection: Detection) -> Detection | None:
+    """The verdict of ``detection``'s series and method at its baseline revision; None for a
+    change moved once already (found late), or one without a baseline revision."""
+    if detection.reason.startswith(FOUND_LATER) or detection.baseline_revision_id is None:
+        return None
+    return session.scalar(
+        select(Detection).where(
+            Detection.series_id == detection.series_id,
+            Detection.revision_id == detection.baseline_revision_id,
+            Detection.method == detection.method,
+        )
+    )
+
+
+def _figures(found: Earlier, direction: str) -> tuple[str, str]:
+    """How far it moved and the bar it passed, in words ("+18.2 %", "+4.0 %")."""
+    sign = 1.0 if direction == "increase" else -1.0
+    return f"{100 * found.moved:+.1f} %", f"{100 * sign * found.bar:+.1f} %"
+
+
+def _changed(earlier: Detection, detection: Detection, found: Earlier, reason: str) -> None:
+    """``earlier`` made a suspected change, the way ``detection`` was flagged, by ``found``."""
+    earlier.verdict, earlier.flagged, earlier.direction = CHANGE, True, detection.direction
+    earlier.effect, earlier.score, earlier.p_value = found.moved, abs(found.moved / found.bar), None
+    earlier.reason = reason
 
 
 def move_back(
@@ -43,15 +70,7 @@ def move_back(
     a suspected change in a regression, and ``detection``'s reason says where the change went
     (as it does again when these pairs moved it before). None when they do not, or when it was
     moved once already or judged a change already."""
-    if detection.reason.startswith(FOUND_LATER) or detection.baseline_revision_id is None:
-        return None
-    earlier = session.scalar(
-        select(Detection).where(
-            Detection.series_id == detection.series_id,
-            Detection.revision_id == detection.baseline_revision_id,
-            Detection.method == detection.method,
-        )
-    )
+    earlier = _of_baseline(session, detection)
     if earlier is None:
         return None
     if earlier.reason.startswith(f"{FOUND_LATE}: {candidate.title}'s ") and earlier.effect:
@@ -65,23 +84,63 @@ def move_back(
         return None
     revision = earlier.revision
     was = f"{100 * earlier.effect:+.1f} %" if earlier.effect is not None else "no figure"
-    sign = 1.0 if detection.direction == "increase" else -1.0
-    moved, bar = f"{100 * found.moved:+.1f} %", f"{100 * sign * found.bar:+.1f} %"
-    earlier.verdict, earlier.flagged, earlier.direction = CHANGE, True, detection.direction
-    earlier.effect, earlier.score, earlier.p_value = found.moved, abs(found.moved / found.bar), None
-    earlier.reason = (
+    moved, bar = _figures(found, detection.direction)
+    _changed(
+        earlier,
+        detection,
+        found,
         f"{FOUND_LATE}: {candidate.title}'s confirmation pairs ran it {moved} from its own "
         f"baseline (beyond {bar}, {PAIR_SDS:g} sd of a pair's noise) and {candidate.title} no "
-        f"further; its own run(s) had shown {was}, no change"
+        f"further; its own run(s) had shown {was}, no change",
     )
     group_detection(session, earlier, revision)
     _went(detection, revision, found.moved)
     return revision
 
 
-def _went(detection: Detection, revision: Revision, moved: float) -> None:
+def move_back_unjudged(
+    session: Session, detection: Detection, candidate: Revision
+) -> Revision | None:
+    """The baseline revision of ``detection`` (a change of ``candidate`` its pairs dropped)
+    when that revision could not be judged when measured (too few baseline values) and its own
+    run(s) sit beyond `PAIR_SDS` of its baseline's noise, the flagged way: the change came
+    with it, before ``candidate``. Its verdict then becomes a suspected change, which its own
+    pairs decide (`confirm_found_late`). A new user's +67 % CPU, made while the baseline
+    restarted after a confirmed tripling, was flagged a revision late, dropped by pairs of
+    identical code, and never a regression. Its own runs, not the pairs': the pairs ran the
+    flagged sets alone, whose level is not the suite's (`move_back` is for pairs that ran the
+    suite as far as their sets)."""
+    earlier = _of_baseline(session, detection)
+    if (
+        earlier is None
+        or earlier.verdict != NOT_ENOUGH_DATA
+        or not waits_for_history(earlier.reason)
+    ):
+        return None
+    own, runs = baseline_values(session, earlier), own_values(session, earlier)
+    found = None if own is None or runs is None else already_moved(runs, own, detection.direction)
+    if found is None:
+        return None
+    revision = earlier.revision
+    moved, bar = _figures(found, detection.direction)
+    _changed(
+        earlier,
+        detection,
+        found,
+        f"{FOUND_LATE}: {candidate.title}'s confirmation pairs showed nothing against it, and "
+        f"its own run(s) sat {moved} from its own baseline (beyond {bar}, {PAIR_SDS:g} sd of a "
+        "pair's noise), which had too few values to judge them when they were measured",
+    )
+    group_detection(session, earlier, revision)
+    _went(detection, revision, found.moved, "own run(s)")
+    return revision
+
+
+def _went(
+    detection: Detection, revision: Revision, moved: float, runs: str = "runs in these pairs"
+) -> None:
     detection.confirmation_reason += (
-        f"; {revision.title}'s runs in these pairs were already at the new level "
+        f"; {revision.title}'s {runs} were already at the new level "
         f"({100 * moved:+.1f} % on its own baseline): the change is {revision.title}'s, re-run "
         "against its own baseline"
     )
@@ -93,8 +152,9 @@ def still_moved(
     """Of the revision's verdicts found late (moved back to it, or a level held after it:
     `FOUND_LATER`), those that storing its ``fresh`` verdicts
     ((series id, method, verdict) each) keeps, by (series id, method): those it judges "no
-    change" again on its own executions, which missed the change. The fresh verdicts of those
-    series and methods are not stored."""
+    change" again on its own executions, which missed the change, or "not enough data" (its
+    baseline still too short, `move_back_unjudged`). The fresh verdicts of those series and
+    methods are not stored."""
     moved = {
         (series_id, method): ident
         for ident, series_id, method in session.execute(
@@ -109,5 +169,5 @@ def still_moved(
     return {
         (series_id, method): moved[(series_id, method)]
         for series_id, method, verdict in fresh
-        if (series_id, method) in moved and verdict == NO_CHANGE
+        if (series_id, method) in moved and verdict in (NO_CHANGE, NOT_ENOUGH_DATA)
     }
