@@ -259,7 +259,9 @@ def store(
     earlier = rerunnable_only(session, [row for row in rows if row["revision_id"] != revision.id])
     _store_steps(session, earlier, config)
     kept = still_moved(
-        session, revision.id, ((r["series_id"], r["method"], r["verdict"]) for r in own)
+        session,
+        revision.id,
+        ((r["series_id"], r["method"], r["verdict"], r["reason"]) for r in own),
     )
     own = [row for row in own if (row["series_id"], row["method"]) not in kept]
     session.execute(

@@ -26,13 +26,26 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
 
-from redline.detect.confirmation import FOUND_LATE, FOUND_LATER, PAIR_SDS, Earlier, already_moved
+from redline.detect.confirmation import (
+    FOUND_LATE,
+    FOUND_LATER,
+    HOLD_SHARE,
+    PAIR_SDS,
+    Earlier,
+    already_moved,
+)
+from redline.detect.execution_shift import STEP_SIDE
 from redline.detect.result import CHANGE, NO_CHANGE, NOT_ENOUGH_DATA, waits_for_history
 from redline.server.models import Detection, Revision
 from redline.worker.confirmation import baseline_values, own_values
 from redline.worker.grouping import group_detection
 from sqlalchemy import or_, select
 from sqlalchemy.orm import Session
+
+#: how the reasons of the two moves go on after "found a revision late: rN's ": by the pairs'
+#: runs of the baseline revision (`move_back`), by its own runs (`move_back_unjudged`)
+PAIRS_RAN = "confirmation pairs ran it"
+OWN_RUNS = "confirmation pairs showed nothing against it, and its own run(s)"
 
 
 def _of_baseline(session: Session, detection: Detection) -> Detection | None:
@@ -73,7 +86,10 @@ def move_back(
     earlier = _of_baseline(session, detection)
     if earlier is None:
         return None
-    if earlier.reason.startswith(f"{FOUND_LATE}: {candidate.title}'s ") and earlier.effect:
+    if (
+        earlier.reason.startswith(f"{FOUND_LATE}: {candidate.title}'s {PAIRS_RAN}")
+        and earlier.effect
+    ):
         _went(detection, earlier.revision, earlier.effect)  # moved by these pairs before
         return None
     if earlier.verdict != NO_CHANGE:
@@ -89,7 +105,7 @@ def move_back(
         earlier,
         detection,
         found,
-        f"{FOUND_LATE}: {candidate.title}'s confirmation pairs ran it {moved} from its own "
+        f"{FOUND_LATE}: {candidate.title}'s {PAIRS_RAN} {moved} from its own "
         f"baseline (beyond {bar}, {PAIR_SDS:g} sd of a pair's noise) and {candidate.title} no "
         f"further; its own run(s) had shown {was}, no change",
     )
@@ -112,14 +128,24 @@ def move_back_unjudged(
     suite as far as their sets)."""
     earlier = _of_baseline(session, detection)
     if (
+        earlier is not None
+        and earlier.effect
+        and earlier.reason.startswith(f"{FOUND_LATE}: {candidate.title}'s {OWN_RUNS}")
+    ):  # moved when these pairs were judged before (a re-analysis judges them again)
+        _went(detection, earlier.revision, earlier.effect, "own run(s)")
+        return None
+    if (
         earlier is None
         or earlier.verdict != NOT_ENOUGH_DATA
         or not waits_for_history(earlier.reason)
     ):
         return None
     own, runs = baseline_values(session, earlier), own_values(session, earlier)
-    found = None if own is None or runs is None else already_moved(runs, own, detection.direction)
-    if found is None:
+    if own is None or runs is None or len(own) < STEP_SIDE:
+        return None  # a baseline of one or two values says nothing of its noise
+    found = already_moved(runs, own, detection.direction)
+    # the step the dropped flag saw, not a few per cent the short baseline's noise allows
+    if found is None or abs(found.moved) < HOLD_SHARE * abs(detection.effect or 0.0):
         return None
     revision = earlier.revision
     moved, bar = _figures(found, detection.direction)
@@ -127,9 +153,9 @@ def move_back_unjudged(
         earlier,
         detection,
         found,
-        f"{FOUND_LATE}: {candidate.title}'s confirmation pairs showed nothing against it, and "
-        f"its own run(s) sat {moved} from its own baseline (beyond {bar}, {PAIR_SDS:g} sd of a "
-        "pair's noise), which had too few values to judge them when they were measured",
+        f"{FOUND_LATE}: {candidate.title}'s {OWN_RUNS} sat {moved} from its own baseline "
+        f"(beyond {bar}, {PAIR_SDS:g} sd of a pair's noise), which had too few values to judge "
+        "them when they were measured",
     )
     group_detection(session, earlier, revision)
     _went(detection, revision, found.moved, "own run(s)")
@@ -147,11 +173,11 @@ def _went(
 
 
 def still_moved(
-    session: Session, revision_id: int, fresh: Iterable[tuple[int, str, str]]
+    session: Session, revision_id: int, fresh: Iterable[tuple[int, str, str, str]]
 ) -> dict[tuple[int, str], int]:
     """Of the revision's verdicts found late (moved back to it, or a level held after it:
     `FOUND_LATER`), those that storing its ``fresh`` verdicts
-    ((series id, method, verdict) each) keeps, by (series id, method): those it judges "no
+    ((series id, method, verdict, reason) each) keeps, by (series id, method): those it judges "no
     change" again on its own executions, which missed the change, or "not enough data" (its
     baseline still too short, `move_back_unjudged`). The fresh verdicts of those series and
     methods are not stored."""
@@ -168,6 +194,7 @@ def still_moved(
         return {}
     return {
         (series_id, method): moved[(series_id, method)]
-        for series_id, method, verdict in fresh
-        if (series_id, method) in moved and verdict in (NO_CHANGE, NOT_ENOUGH_DATA)
+        for series_id, method, verdict, reason in fresh
+        if (series_id, method) in moved
+        and (verdict == NO_CHANGE or (verdict == NOT_ENOUGH_DATA and waits_for_history(reason)))
     }

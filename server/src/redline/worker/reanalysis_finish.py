@@ -302,7 +302,10 @@ def _store_staged(
     )
     fresh = session.execute(
         staged.with_only_columns(
-            StagedDetection.series_id, StagedDetection.method, StagedDetection.verdict
+            StagedDetection.series_id,
+            StagedDetection.method,
+            StagedDetection.verdict,
+            StagedDetection.reason,
         )
     )
     kept = still_moved(session, revision.id, fresh.all())  # its regression keeps its id

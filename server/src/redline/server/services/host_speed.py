@@ -11,6 +11,7 @@ CPU per unit of work +10 %, and `redline ci wait` said "undecided" (exit 4).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterable
 from statistics import median
 
@@ -27,8 +28,8 @@ def at_host_speed(
 ) -> dict[int, float]:
     """By detection id, each charted change of a CPU share as its segment's CPU per unit of
     work in units of the host's reference moved (the revision's undisturbed executions against
-    those of the revisions the change was judged against); a change without that figure on
-    both sides is not listed."""
+    those of the revisions the change was judged against), 0 where it fell; a change without
+    that figure on both sides is not listed."""
     sized = {}
     for detection, series in charted:
         if series.counter != SHARE:
@@ -51,7 +52,9 @@ def at_host_speed(
         before = _medians(session, per_unit, [r.id for r in pooled])
         after = _medians(session, per_unit, [revision.id])
         if before and after and median(before) > 0:
-            sized[detection.id] = median(after) / median(before) - 1
+            moved = median(after) / median(before) - 1
+            # the worse way only (a share's is up): a per-unit figure that fell is no worse
+            sized[detection.id] = max(0.0, moved)
     return sized
 
 
@@ -59,4 +62,4 @@ def _medians(session: Session, series_id: int, revision_ids: list[int]) -> list[
     """The series' value in each of the revisions' own executions measured while the host was
     not busy."""
     found = execution_values(session, series_id, revision_ids)
-    return [value.median for value in found if not value.disturbed]
+    return [v.median for v in found if not v.disturbed and math.isfinite(v.median)]
