@@ -652,6 +652,10 @@ def test_settings_pages_are_for_administrators_and_change_what_the_api_does(
     assert client.get("/settings").text.count(secret) == 0  # shown once, never again
     headers = {"Authorization": f"Bearer {secret}"}
     assert client.post("/api/v1/revisions", headers=headers, json={}).status_code == 422  # live
+    # an agent token's labels, comma-separated in the form as on the command line
+    agent = {"name": "perf-9", "scopes": "agent", "host": "perf-9", "labels": "x86, quiet"}
+    assert client.post("/settings/tokens", data={**agent, "csrf": csrf}).status_code == 200
+    assert "<td>perf-9</td><td>quiet, x86</td>" in client.get("/settings").text
     form = client.get("/settings/components/builder").text
     bad = client.post("/settings/components/builder", data={"csrf": csrf, "config": "{not json"})
     assert bad.status_code == 400 and "not JSON" in bad.text

@@ -245,8 +245,7 @@ def token_create(
 
     with session_factory(_settings().database_url)() as session:
         try:
-            wanted = [label.strip() for label in labels.split(",") if label.strip()]
-            _, secret = issue_token(session, name, scopes, host, wanted)
+            _, secret = issue_token(session, name, scopes, host, labels)
         except ServiceError as exc:  # bad input (an unknown scope...), or a live token so named
             typer.echo(exc.detail, err=True)
             # 2, as for any bad option: what was asked is wrong, not the state it met

@@ -90,6 +90,12 @@ def baseline_values(
     the stored summaries (of ``series_id`` over the same revisions, when given); None when they
     are gone."""
     levels = _levels(session, detection.series_id if series_id is None else series_id, False)
+    return _baseline_of(levels, detection)
+
+
+def _baseline_of(
+    levels: list[tuple[str, int, np.ndarray]], detection: Detection
+) -> np.ndarray | None:
     newest = next(
         (i for i, (_, rid, _) in enumerate(levels) if rid == detection.baseline_revision_id),
         None,
@@ -97,15 +103,14 @@ def baseline_values(
     return None if newest is None else _baseline(levels, newest, detection.baseline_revisions)
 
 
-def own_values(session: Session, detection: Detection) -> np.ndarray | None:
-    """The execution values (medians) of the detection's own revision, measured undisturbed;
-    None without any."""
-    found = [
-        v
-        for _, rid, v in _levels(session, detection.series_id, False)
-        if rid == detection.revision_id
-    ]
-    return found[0] if found else None
+def baseline_and_own(
+    session: Session, detection: Detection
+) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """`baseline_values` and the execution values of the detection's own revision (measured
+    undisturbed; None without any), from one read of the series' summaries."""
+    levels = _levels(session, detection.series_id, False)
+    own = next((v for _, rid, v in levels if rid == detection.revision_id), None)
+    return _baseline_of(levels, detection), own
 
 
 def baseline_noise(session: Session, detection: Detection, series_id: int | None = None) -> float:

@@ -26,7 +26,7 @@ import numpy as np
 from redline.detect.confirmation import DROPPED, HELD, HOLD_SHARE, Hold, pair_moves
 from redline.recording.driver import CPU_PER_OP, CPU_REFS_PER_OP
 from redline.server.models import Detection, Series
-from sqlalchemy import select
+from redline.server.services.results import beside
 from sqlalchemy.orm import Session
 
 #: how the reason of a change dropped so begins
@@ -63,16 +63,7 @@ def in_cpu_time(
     series = session.get_one(Series, detection.series_id)
     if found.state != HELD or series.counter != CPU_REFS_PER_OP:
         return found
-    raw = session.scalar(
-        select(Series.id).where(
-            Series.component_id == series.component_id,
-            Series.case == series.case,
-            Series.phase == series.phase,
-            Series.params == series.params,
-            Series.process == series.process,
-            Series.counter == CPU_PER_OP,
-        )
-    )
+    raw = beside(session, series, CPU_PER_OP)
     baseline = detection.baseline_revision_id
     if raw is None or baseline is None:
         return found

@@ -37,7 +37,7 @@ from redline.detect.confirmation import (
 from redline.detect.execution_shift import STEP_SIDE
 from redline.detect.result import CHANGE, NO_CHANGE, NOT_ENOUGH_DATA, waits_for_history
 from redline.server.models import Detection, Revision
-from redline.worker.confirmation import baseline_values, own_values
+from redline.worker.confirmation import baseline_and_own, baseline_values
 from redline.worker.grouping import group_detection
 from sqlalchemy import or_, select
 from sqlalchemy.orm import Session
@@ -140,7 +140,7 @@ def move_back_unjudged(
         or not waits_for_history(earlier.reason)
     ):
         return None
-    own, runs = baseline_values(session, earlier), own_values(session, earlier)
+    own, runs = baseline_and_own(session, earlier)
     if own is None or runs is None or len(own) < STEP_SIDE:
         return None  # a baseline of one or two values says nothing of its noise
     found = already_moved(runs, own, detection.direction)

@@ -270,7 +270,7 @@ async def create_token_form(request: Request, session: SessionDep) -> HTMLRespon
             form.get("name", "").strip(),
             form.get("scopes", ""),
             form.get("host") or None,
-            [label.strip() for label in form.get("labels", "").split(",") if label.strip()],
+            form.get("labels", ""),
         )
     except (Forbidden, BadRequest, Conflict) as exc:
         return problem(request, exc)

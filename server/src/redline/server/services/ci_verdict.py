@@ -16,7 +16,7 @@ from __future__ import annotations
 import json
 import math
 from collections import defaultdict
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 from urllib.parse import quote
 
@@ -196,9 +196,15 @@ def ci_verdict(session: Session, component_name: str, title: str) -> CiVerdict:
     state, said = _pending(session, revision)
     groups, charted = _by_case(session, revision, component_config(session, component.id).alarming)
     opening = _first(session, revision)
-    sized = at_host_speed(session, revision, (f for flags in charted.values() for f in flags))
+
+    def size(detection: Detection, series: Series) -> float:
+        """A charted change's size, at the host's speed where it can be had: asked only of
+        those the rule for large unjudged changes weighs, as a `ci wait` polls."""
+        found = at_host_speed(session, revision, detection, series)
+        return detection.effect or 0.0 if found is None else found
+
     cases = [
-        _case_verdict(key, found, charted[key], opening, sized) for key, found in groups.items()
+        _case_verdict(key, found, charted[key], opening, size) for key, found in groups.items()
     ]
     _name_unmeasured(session, cases)
     regressions = sum(change["worse"] for case in cases for change in case.changes)
@@ -275,11 +281,11 @@ def _case_verdict(
     found: Found,
     seen: Found,
     opening: bool,
-    sized: dict[int, float] | None = None,
+    size: Callable[[Detection, Series], float] | None = None,
 ) -> CaseVerdict:
     """One test case x phase x parameter set: failed, passed, or, where a series that can be
     judged has no verdict yet, skipped or undecided (``seen``: the charted method's flags;
-    ``sized``: those of them sized at the host's speed, `at_host_speed`)."""
+    ``size``: a flag's size for the rule on large unjudged changes, by default its effect)."""
     case, phase, params = key
     changes = [_change(d, s) for d, s in found if d.flagged and d.confirmation != DROPPED]
     worse_count = sum(c["worse"] for c in changes)
@@ -313,7 +319,7 @@ def _case_verdict(
     }
     large = not opening and any(
         figure(s.process, s.counter) in unjudged
-        and UNJUDGED_LARGE <= abs((sized or {}).get(d.id, d.effect or 0.0)) < math.inf
+        and UNJUDGED_LARGE <= abs(size(d, s) if size else d.effect or 0.0) < math.inf
         for d, s in seen
     )
     # which verdicts it counts, said (a new user: "(1 of 16 verdicts)" said nothing)

@@ -12,50 +12,37 @@ CPU per unit of work +10 %, and `redline ci wait` said "undecided" (exit 4).
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable
 from statistics import median
 
 from redline.detect.counters import SHARE
 from redline.recording.driver import CPU_REFS_PER_OP
 from redline.server.models import Detection, Revision, Series
+from redline.server.services.results import beside
 from redline.server.services.why import baseline_revisions, execution_values
-from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 
 def at_host_speed(
-    session: Session, revision: Revision, charted: Iterable[tuple[Detection, Series]]
-) -> dict[int, float]:
-    """By detection id, each charted change of a CPU share as its segment's CPU per unit of
-    work in units of the host's reference moved (the revision's undisturbed executions against
-    those of the revisions the change was judged against), 0 where it fell; a change without
-    that figure on both sides is not listed."""
-    sized = {}
-    for detection, series in charted:
-        if series.counter != SHARE:
-            continue
-        per_unit = session.scalar(
-            select(Series.id).where(
-                Series.component_id == series.component_id,
-                Series.case == series.case,
-                Series.phase == series.phase,
-                Series.params == series.params,
-                Series.process == series.process,
-                Series.counter == CPU_REFS_PER_OP,
-            )
-        )
-        if per_unit is None:
-            continue
-        pooled = baseline_revisions(
-            session, series.id, detection.baseline_revision_id, detection.baseline_revisions
-        )
-        before = _medians(session, per_unit, [r.id for r in pooled])
-        after = _medians(session, per_unit, [revision.id])
-        if before and after and median(before) > 0:
-            moved = median(after) / median(before) - 1
-            # the worse way only (a share's is up): a per-unit figure that fell is no worse
-            sized[detection.id] = max(0.0, moved)
-    return sized
+    session: Session, revision: Revision, detection: Detection, series: Series
+) -> float | None:
+    """A charted change of a CPU share (``detection`` of ``series`` at ``revision``) as its
+    segment's CPU per unit of work in units of the host's reference moved (the revision's
+    undisturbed executions against those of the revisions the change was judged against), 0
+    where it fell; None for another series, or without that figure on both sides."""
+    if series.counter != SHARE:
+        return None
+    per_unit = beside(session, series, CPU_REFS_PER_OP)
+    if per_unit is None:
+        return None
+    pooled = baseline_revisions(
+        session, series.id, detection.baseline_revision_id, detection.baseline_revisions
+    )
+    before = _medians(session, per_unit, [r.id for r in pooled])
+    after = _medians(session, per_unit, [revision.id])
+    if not before or not after or median(before) <= 0:
+        return None
+    # the worse way only (a share's is up): a per-unit figure that fell is no worse
+    return max(0.0, median(after) / median(before) - 1)
 
 
 def _medians(session: Session, series_id: int, revision_ids: list[int]) -> list[float]:

@@ -22,6 +22,22 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session, aliased
 
 
+def beside(session: Session, series: Series, counter: str) -> int | None:
+    """The id of the series of ``counter`` measured in the same segment as ``series`` (its
+    component, test case, phase, parameter set and process), None where there is none: a CPU
+    share's per-unit figures, a per-unit figure's CPU time."""
+    return session.scalar(
+        select(Series.id).where(
+            Series.component_id == series.component_id,
+            Series.case == series.case,
+            Series.phase == series.phase,
+            Series.params == series.params,
+            Series.process == series.process,
+            Series.counter == counter,
+        )
+    )
+
+
 def series_ref(
     series: Series,
     context: Collection[str] = CONTEXT_COUNTERS,

@@ -32,17 +32,20 @@ def issue_token(
     name: str,
     scopes: str | list[str],
     host: str | None = None,
-    labels: Sequence[str] = (),
+    labels: str | Sequence[str] = (),
 ) -> tuple[ApiToken, str]:
     """A new token and its secret (shown once: only its hash is stored); a token with the
     ``agent`` scope must be bound to ``host`` (a name, or ``PREFIX*``: a pool of hosts whose
     names start so), and only it has one, and ``labels``, the ones its host may register with
-    (none: it runs the jobs of components that ask for no label); one live token per name.
+    (a list, or comma-separated as the CLI and the settings form give them; none: it runs the
+    jobs of components that ask for no label); one live token per name.
     The one way tokens are made (API, CLI and the settings page)."""
     try:
         parsed = parse_scopes(scopes)
         if host:
             pool_or_host(host)
+        if isinstance(labels, str):
+            labels = [label.strip() for label in labels.split(",") if label.strip()]
         kept = sorted(set(_LABELS.validate_python(list(labels))))
     except ValidationError as exc:
         problem = exc.errors()[0]
