@@ -519,6 +519,11 @@ def test_a_runtime_fault_reaches_the_subscriptions_that_want_its_target_once(
     for field in ("step", "model"):  # past 32 bits: refused by name, not "cannot be stored"
         huge = api.post(f"{BASE}/runtime-alerts", "agent", {**fault, field: 10**20})
         assert huge.status_code == 422 and huge.json()["detail"][0]["loc"] == ["body", field]
+    # an audit's CR/LF in the target made every mail of the alert fail (a header cannot hold it)
+    for field, text in (("target", "cpu\r\nBcc: x@y.example"), ("process", "a\u202eb")):
+        broken = api.post(f"{BASE}/runtime-alerts", "agent", {**fault, field: text})
+        assert broken.status_code == 422, broken.text
+        assert broken.json()["detail"][0]["loc"] == ["body", field], broken.text
     answer = api.post(f"{BASE}/runtime-alerts", "agent", fault)
     assert answer.status_code == 201, answer.text
     database_url = api.settings.database_url

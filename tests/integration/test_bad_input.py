@@ -17,7 +17,7 @@ from fastapi.testclient import TestClient
 from redline.server.app import create_app
 from redline.server.core.config import Settings
 from redline.server.db import session_factory
-from redline.server.models import Job, JobState, Regression, Revision
+from redline.server.models import Job, JobState, Revision
 from redline.server.schemas.imports import ResultsImport
 from redline.server.services.imports import from_results, store_import
 from sqlalchemy import select, text
@@ -25,6 +25,7 @@ from sqlalchemy.orm import Session
 
 from tests.support.api import Api, api_with
 from tests.support.concurrency import interleave
+from tests.support.history import regression_between
 from tests.support.servers import Services
 from tests.support.webhooks import SECRET, counts, github_push, send_github, send_gitlab
 
@@ -635,10 +636,21 @@ def test_ci_and_a_webhook_reporting_one_commit_at_once_make_one_revision(api: Ap
 
 
 @pytest.mark.parametrize("path", ["/api/v1/import/results", "/api/v1/revisions"])
-def test_a_body_without_a_token_is_401_before_it_is_read(api: Api, path: str):
+@pytest.mark.parametrize(
+    ("given", "status", "said"),
+    [
+        (None, 401, "missing bearer token"),
+        ("Bearer rl_made_up", 401, "invalid or revoked token"),  # an audit's: parsed, then 401
+        ("read", 403, "lacks the 'ci' scope"),
+    ],
+)
+def test_a_body_without_a_good_token_is_refused_before_it_is_read(
+    api: Api, path: str, given: str | None, status: int, said: str
+):
     """A trial sent 200 MB with no token to the import: the server read 35 MB of it before its
-    413, where a webhook answers 401 unread. A route that takes a bearer token only refuses
-    a request without one before it reads the body."""
+    413, where a webhook answers 401 unread; an audit's made-up token had 32 MiB of JSON read
+    and parsed on the event loop before its 401. A route that takes a bearer token refuses a
+    request without a live one of its scope before it reads the body."""
     pulled = []
 
     def body() -> Iterator[bytes]:
@@ -646,9 +658,12 @@ def test_a_body_without_a_token_is_401_before_it_is_read(api: Api, path: str):
             pulled.append(1)
             yield b"a" * 50_000
 
-    answer = api.client.post(path, content=body(), headers={"Content-Type": "application/json"})
-    assert answer.status_code == 401, answer.text[:200]
-    assert answer.json()["detail"] == "missing bearer token"
+    headers = {"Content-Type": "application/json"}
+    if given is not None:
+        headers.update(api.tokens.get(given, {"Authorization": given}))
+    answer = api.client.post(path, content=body(), headers=headers)
+    assert answer.status_code == status, answer.text[:200]
+    assert said in answer.json()["detail"], answer.text[:200]
     assert len(pulled) <= 1, len(pulled)  # what the transport asks for before the app answers
     # with a token, the same route reads and judges the body as before
     assert _post_raw(api, path, b'{"x": 1}').status_code == 422
@@ -674,14 +689,7 @@ def test_an_admin_corrects_a_revision_sort_key_a_ci_token_gave_far_in_the_future
             session.scalars(select(Revision).where(Revision.title == t)).one()
             for t in ("future", "later")
         )
-        regression = Regression(
-            component_id=future.component_id,
-            good_revision_id=later.id,
-            bad_revision_id=future.id,
-            good_key=later.order_key,
-            bad_key=future.order_key,
-        )
-        session.add(regression)
+        regression = regression_between(session, later, future)
         session.commit()
         refused = api.client.patch(path, json=fix, headers=api.tokens["admin"])
         assert refused.status_code == 409, refused.text

@@ -129,6 +129,7 @@ def test_deleting_a_component_removes_its_history_and_files_and_keeps_the_others
         "executions": 7,
         "regressions": 1,
         "files": 12,  # each execution's recording and sample table, but the shared one's
+        "tokens_revoked": 0,  # none was bound to it
     }
     assert not any(Path(path).exists() or samples_path(path).exists() for path in paths[1:])
     assert Path(shared).exists() and samples_path(shared).exists()

@@ -237,15 +237,40 @@ def test_generic_results_import_and_compare_two_revisions(api: Api):
     assert empty.status_code == 422
 
 
+VALUES = ["body", "results", 0, "values", 1]
+PARAMETER = ["body", "results", 0, "params", "n"]
+
+
 @pytest.mark.parametrize(
-    "value", ["NaN", "Infinity", "-Infinity", "1e400", "1e308", "-2e30", '"1.0"', "true"]
+    ("given", "where"),
+    [
+        *(
+            (f'"values": [1.0, {value}]', VALUES)
+            for value in (
+                "NaN",
+                "Infinity",
+                "-Infinity",
+                "1e400",
+                "1e308",
+                "-2e30",
+                '"1.0"',
+                "true",
+            )
+        ),
+        # an audit's 400-digit whole-number parameter was stored, and the execution's page,
+        # which charts a counter against a numeric parameter, answered 500
+        *(
+            (f'"params": {{"n": {value}}}, "values": [1.0]', PARAMETER)
+            for value in ("1" + "0" * 400, "-2e30")
+        ),
+    ],
 )
-def test_non_finite_generic_values_are_422_naming_the_field(api: Api, value: str):
+def test_non_finite_generic_values_are_422_naming_the_field(api: Api, given: str, where: list):
     """A trial's 1e308 was taken and broke the statistics (NaN means, a 300-digit change);
     its "1.0" was taken as a number, where the docs promise numbers."""
     body = (
         '{"component": "clang", "revision": "r1", "sort_key": "1", "results": '
-        f'[{{"case": "parse", "counter": "cpu", "values": [1.0, {value}]}}]}}'
+        f'[{{"case": "parse", "counter": "cpu", {given}}}]}}'
     )
     answer = api.client.post(
         "/api/v1/import/results",
@@ -253,7 +278,7 @@ def test_non_finite_generic_values_are_422_naming_the_field(api: Api, value: str
         headers={**api.tokens["ci"], "Content-Type": "application/json"},
     )
     assert answer.status_code == 422, answer.text
-    assert [e["loc"] for e in answer.json()["detail"]] == [["body", "results", 0, "values", 1]]
+    assert [e["loc"] for e in answer.json()["detail"]] == [where], answer.text
     assert api.client.get("/api/v1/components/clang/revisions").json() == []
 
 

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pyarrow.parquet as pq
 import pytest
-from redline.recording.format import SeriesKey
+from redline.recording.format import NO_TRAFFIC, SeriesKey
 from redline.server.models import Detection, Execution, Job, JobState, Revision, Series, Summary
 from redline.server.schemas.components import ComponentCreate
 from redline.server.services.components import create_component
@@ -18,8 +18,10 @@ from redline.worker.detection import detect_revision
 from redline.worker.ingest import ingest_execution
 from redline.worker.onward import judge_onward
 from sqlalchemy import func, select
+from sqlalchemy.exc import DataError
 
-from tests.support.history import add_execution, ingest_and_detect
+from tests.support.history import add_execution, add_executions, ingest_and_detect
+from tests.support.recordings import write_recording
 
 
 def _history(session, tmp_path: Path, factors: list[float], seed: int = 1) -> list[Execution]:
@@ -88,6 +90,55 @@ def test_damaged_recording_fails_the_job_with_the_reason(session, database_url, 
     assert job.state == JobState.failed
     assert "truncated" in job.reason
     assert session.scalar(select(func.count()).select_from(Summary)) == 0
+
+
+@pytest.mark.parametrize(
+    ("process", "counter", "said"),
+    [
+        ("svc\x00x", "cpu", "its process must not contain '\\x00' at position 3"),
+        ("svc", "cpu\x1b[31m", "its counter must not contain '\\x1b' at position 3"),
+    ],
+)
+def test_a_name_with_a_control_character_fails_its_job_naming_it(
+    session, database_url, tmp_path, process: str, counter: str, said: str
+):
+    """An audit's recording named a process with a NUL: Postgres refused the insert with a
+    DataError, which left the job "uploaded" (queued again every few minutes, for good: the
+    revision pending, the component undeletable). A control character in a name now fails its
+    job, naming it; nothing is stored."""
+    create_component(session, ComponentCreate(name="builder"))
+    execution = add_execution(
+        session, tmp_path, "builder", "r1", "1", {counter: np.full(30, 1.0)}, process=process
+    )
+    with pytest.raises(ValueError, match="must not contain"):
+        ingest_execution(database_url, execution.id)
+    session.expire_all()
+    job = session.get(Job, execution.job_id)
+    assert job.state == JobState.failed, job.state
+    assert said in job.reason, job.reason
+    assert session.scalar(select(func.count()).select_from(Series)) == 0
+
+
+def test_a_value_postgres_refuses_fails_its_job_saying_so(session, database_url, tmp_path):
+    """A recording's run metadata said "no traffic" with a warning holding a NUL: the job's
+    reason could not be stored, Postgres's DataError left the job "uploaded" for good (a
+    review's find beside an audit's). It fails the job, saying what the database refused."""
+    create_component(session, ComponentCreate(name="builder"))
+
+    def record(path: Path, run: dict[str, str], counters: dict, **extra) -> Path:
+        run = {**run, "status": NO_TRAFFIC, "warning": "idle\x00"}
+        return write_recording(path, run, counters, **extra)
+
+    (execution,) = add_executions(
+        session, tmp_path, "builder", "r1", "1", [{"cpu": np.full(30, 1.0)}], record=record
+    )
+    with pytest.raises(DataError):
+        ingest_execution(database_url, execution.id)
+    session.expire_all()
+    job = session.get(Job, execution.job_id)
+    assert job.state == JobState.failed, job.state
+    assert job.reason.startswith("ingest failed: the database refused a value the recording "
+                                 "holds (") and "\n" not in job.reason, job.reason  # fmt: skip
 
 
 def _changes(session) -> dict[tuple[str, str], Detection]:

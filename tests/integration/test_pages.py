@@ -60,6 +60,35 @@ def test_component_page_groups_charts_one_line_per_parameter_set(client, databas
     assert all(len(r) == 3 for r in data["revisions"])  # title, commit, time for the hover
 
 
+def test_flags_that_do_not_alarm_are_drawn_only_when_asked(client, database_url, tmp_path):
+    """A new user read KS's open circles, on most unchanged revisions at one execution each, as
+    alarms: a method that charts and does not alarm has its flags drawn only when asked."""
+    history(database_url, tmp_path, [20.0, 20.0, 60.0])
+    with session_factory(database_url)() as session:  # KS charts, the execution-level alarms
+        config = {"methods": ["execution_shift", "ks"], "alarm_methods": ["execution_shift"]}
+        session.execute(text("UPDATE detection_config SET config = CAST(:c AS json)"), {
+            "c": json.dumps(config)})  # fmt: skip
+        session.commit()
+    history(database_url, tmp_path, [60.0, 20.0], start=4)  # KS flags r4 and r5, no regression
+
+    def drawn(query: str) -> dict[str, set[str]]:
+        data = trend_data(client.get(f"/components/builder{query}").text)
+        marks: dict[str, set[str]] = {}
+        for chart in data["charts"]:
+            for trace in chart["figure"]["data"]:
+                if trace.get("name", "").startswith("change"):
+                    marks.setdefault(trace["name"], set()).update(trace["x"])
+        return marks
+
+    asked = drawn("?flags=1")
+    assert {"r4", "r5"} & asked.get("change (flagged, no alarm)", set()), asked
+    default = drawn("")
+    assert "change (flagged, no alarm)" not in default, default
+    # a regression's change is drawn as before, in its regression's state
+    assert any("r3" in revisions for revisions in default.values()), default
+    assert 'name="flags" value="1" checked' in client.get("/components/builder?flags=on").text
+
+
 def test_the_trends_say_why_revisions_without_a_verdict_have_no_marks(
     client, database_url, tmp_path
 ):
@@ -658,7 +687,10 @@ def test_settings_pages_are_for_administrators_and_change_what_the_api_does(
     assert "<td>perf-9</td><td>quiet, x86</td>" in client.get("/settings").text
     form = client.get("/settings/components/builder").text
     bad = client.post("/settings/components/builder", data={"csrf": csrf, "config": "{not json"})
-    assert bad.status_code == 400 and "not JSON" in bad.text
+    assert bad.status_code == 400 and "not valid JSON" in bad.text
+    # an audit's: nested 2,000 deep it was a 500, where the API's body is a 422 naming it
+    deep = client.post("/settings/components/builder", data={"csrf": csrf, "config": "[" * 2000})
+    assert deep.status_code == 400 and "nested deeper than" in deep.text, deep.text[-300:]
     unknown = client.post(
         "/settings/components/builder", data={"csrf": csrf, "config": '{"confirm_pairs": 99}'}
     )

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import base64
 import re
 from collections.abc import Iterator
 from pathlib import Path
@@ -62,6 +63,16 @@ def test_revisions_page_in_sort_key_order_with_a_cursor(api: Api):
     assert seen == ["r1", "r2", "r9", "r10", "r11"] and pages == 3
     bad = api.client.get("/api/v1/components/builder/revisions?limit=2&cursor=@@@")
     assert bad.status_code == 400 and "cursor" in bad.json()["detail"]
+    # an audit's: a cursor of JSON nested 1,200 deep was a 500, anonymously where reading is open
+    nested = base64.urlsafe_b64encode(b"[" * 1200).decode()
+    for path in (
+        "/api/v1/components/builder/revisions",
+        "/api/v1/components/builder/regressions",
+        "/api/v1/components/builder/detections",
+        "/regressions",
+    ):
+        deep = api.client.get(f"{path}?limit=2&cursor={nested}")
+        assert deep.status_code == 400 and "malformed cursor" in deep.text, (path, deep.text[:200])
 
 
 def test_series_filter_by_case_phase_parameter_process_and_counter(api: Api):
@@ -76,6 +87,15 @@ def test_series_filter_by_case_phase_parameter_process_and_counter(api: Api):
     ]
     assert api.client.get(f"{url}?param.legs=3").json() == []
     assert api.client.get(f"{url}?case=other").json() == []
+    # the newest revisions only (an audit's: the whole history was read on every request)
+    imported(api, "r2", "2")
+    points = [[p["revision"] for p in s["points"]] for s in api.client.get(url).json()]
+    assert points and all(p == ["r1", "r2"] for p in points), points
+    newest = [
+        [p["revision"] for p in s["points"]] for s in api.client.get(f"{url}?revisions=1").json()
+    ]
+    assert newest and all(p == ["r2"] for p in newest), newest
+    assert api.client.get(f"{url}?revisions=0").status_code == 422
 
 
 def test_series_points_carry_each_executions_quantiles_and_sketch(api: Api):

@@ -261,7 +261,8 @@ def test_cli_lists_and_revokes_tokens(api: Api):
         [*command, "list"], env=env, capture_output=True, text=True, cwd=ROOT, check=True
     ).stdout
     assert "\tci\tci\t" in listed and "never" in listed
-    assert listed.splitlines()[0] == "id\tname\tscopes\thost\tlabels\tcreated\tlast used\tstate"
+    header = "id\tname\tscopes\thost\tlabels\tcomponents\tcreated\tlast used\tstate"
+    assert listed.splitlines()[0] == header
     assert "\tagent\tagent\tperf1\tgpu,quiet\t" in listed  # the tests' agent token
     done = subprocess.run(
         [*command, "revoke", "ci"], env=env, capture_output=True, text=True, cwd=ROOT
@@ -305,6 +306,17 @@ def test_cli_creates_a_host_bound_token_one_live_per_name(api: Api):
     assert bad.returncode == 2 and "'root'" in bad.stderr
     spaced = create("other", "--scopes", "agent", "--host", "h", "--labels", "two words")
     assert spaced.returncode == 2 and "labels: 'two words': " in spaced.stderr
+    # bound to components, comma-separated as labels are; one that does not exist is refused
+    api.component("builder")
+    bound = create("gitlab-b", "--scopes", "ci", "--components", "builder")
+    assert bound.returncode == 0, bound.stderr
+    rows = subprocess.run(
+        [redline, "token", "list"], env=env, capture_output=True, text=True, cwd=ROOT
+    ).stdout.splitlines()
+    assert rows[0].split("\t")[5] == "components", rows[0]
+    assert {row.split("\t")[1]: row.split("\t")[5] for row in rows[1:]}["gitlab-b"] == "builder"
+    unknown = create("gitlab-c", "--scopes", "ci", "--components", "buidler")
+    assert unknown.returncode == 2 and "unknown component 'buidler'" in unknown.stderr
 
 
 def test_a_database_command_without_a_database_says_so_without_a_traceback(tmp_path: Path) -> None:

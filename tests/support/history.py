@@ -7,7 +7,14 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from redline.server.models import DetectionConfigRow, Execution, Job, JobState
+from redline.server.models import (
+    DetectionConfigRow,
+    Execution,
+    Job,
+    JobState,
+    Regression,
+    Revision,
+)
 from redline.server.schemas.components import ComponentCreate
 from redline.server.schemas.revisions import RevisionCreate
 from redline.server.services.components import create_component
@@ -119,3 +126,19 @@ def ingest_and_detect(database_url: str, executions: list[Execution]) -> None:
         ingest_execution(database_url, execution.id)
     for revision_id in dict.fromkeys(execution.revision_id for execution in executions):
         detect_revision(database_url, revision_id)
+
+
+def regression_between(session, good: Revision, bad: Revision, **fields: Any) -> Regression:
+    """A regression of ``bad``'s component from ``good`` to ``bad``, stored (not committed), as
+    grouping would make one; ``fields`` set more of it."""
+    regression = Regression(
+        component_id=bad.component_id,
+        good_revision_id=good.id,
+        bad_revision_id=bad.id,
+        good_key=good.order_key,
+        bad_key=bad.order_key,
+        **fields,
+    )
+    session.add(regression)
+    session.flush()
+    return regression

@@ -158,12 +158,16 @@ def _junit_error(path: Path, component: str, revision: str, message: str) -> Non
     """A JUnit file that says why there is no verdict (so a CI step keeping it finds one)."""
     from xml.sax.saxutils import quoteattr
 
+    from redline.recording.xml_text import xml_safe
+
     path.write_text(
-        '<?xml version="1.0" encoding="utf-8"?>\n'
-        f'<testsuite name={quoteattr("redline." + component)} tests="1" failures="0" '
-        f'errors="1" skipped="0"><testcase classname={quoteattr("redline." + component)} '
-        f"name={quoteattr(revision + ' verdict')}><error message={quoteattr(message)}/>"
-        "</testcase></testsuite>\n"
+        xml_safe(
+            '<?xml version="1.0" encoding="utf-8"?>\n'
+            f'<testsuite name={quoteattr("redline." + component)} tests="1" failures="0" '
+            f'errors="1" skipped="0"><testcase classname={quoteattr("redline." + component)} '
+            f"name={quoteattr(revision + ' verdict')}><error message={quoteattr(message)}/>"
+            "</testcase></testsuite>\n"
+        )
     )
 
 

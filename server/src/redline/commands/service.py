@@ -237,6 +237,13 @@ def token_create(
             "(none: it runs only the jobs of components that ask for no label)"
         ),
     ] = "",
+    components: Annotated[
+        str,
+        typer.Option(
+            help="for a ci, triage or agent token, comma-separated: the only components it "
+            "acts on (none: every one)"
+        ),
+    ] = "",
 ) -> None:
     """Create a token and print it; it is stored only as a hash and cannot be shown again."""
     from redline.server.db import session_factory
@@ -245,7 +252,7 @@ def token_create(
 
     with session_factory(_settings().database_url)() as session:
         try:
-            _, secret = issue_token(session, name, scopes, host, labels)
+            _, secret = issue_token(session, name, scopes, host, labels, components)
         except ServiceError as exc:  # bad input (an unknown scope...), or a live token so named
             typer.echo(exc.detail, err=True)
             # 2, as for any bad option: what was asked is wrong, not the state it met
@@ -256,18 +263,19 @@ def token_create(
 @token_app.command("list")
 @needs_database
 def token_list() -> None:
-    """List tokens: id, name, scopes, host, labels, created, last used, revoked."""
+    """List tokens: id, name, scopes, host, labels, components, created, last used, revoked."""
     from redline.server.db import session_factory
     from redline.server.services.tokens import list_tokens
 
     with session_factory(_settings().database_url)() as session:
-        typer.echo("id\tname\tscopes\thost\tlabels\tcreated\tlast used\tstate")
+        typer.echo("id\tname\tscopes\thost\tlabels\tcomponents\tcreated\tlast used\tstate")
         for token in list_tokens(session):
             used = token.last_used.isoformat(timespec="seconds") if token.last_used else "never"
             state = "revoked" if token.revoked else "live"
             typer.echo(
                 f"{token.id}\t{token.name}\t{','.join(token.scopes)}\t"
                 f"{token.host or '-'}\t{','.join(token.labels or []) or '-'}\t"
+                f"{','.join(token.components or []) or 'all'}\t"
                 f"{token.created:%Y-%m-%d}\t{used}\t{state}"
             )
 

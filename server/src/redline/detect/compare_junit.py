@@ -15,6 +15,7 @@ import xml.etree.ElementTree as ET
 
 from redline.detect.comparison import Comparison, SegmentVerdict, SeriesVerdict
 from redline.detect.result import NOT_ENOUGH_DATA
+from redline.recording.xml_text import xml_document
 
 SUITE_NAME = "redline compare"
 
@@ -107,4 +108,4 @@ def junit_xml(comparison: Comparison) -> str:
     )
     suites.append(suite)
     ET.indent(suites)
-    return ET.tostring(suites, encoding="unicode", xml_declaration=True) + "\n"
+    return xml_document(suites) + "\n"

@@ -20,6 +20,7 @@ from redline.server.services.fresh_runs import mark_waiting, waiting_on
 from redline.server.services.ingestion import store_samples
 from redline.worker.onward import in_reach
 from sqlalchemy import select, update
+from sqlalchemy.exc import DataError
 from sqlalchemy.orm import Session
 
 log = logging.getLogger(__name__)
@@ -119,6 +120,11 @@ def ingest(database_url: str, execution_id: int) -> Ingested:
             return found
     except ValueError as exc:  # RecordingError is one
         _fail(database_url, execution_id, f"ingest failed: {exc}")
+        raise
+    except DataError as exc:  # a value of the recording's Postgres refuses, at every retry too
+        said = str(exc.orig or exc).splitlines()[0][:200]  # not the statement that follows
+        _fail(database_url, execution_id, f"ingest failed: the database refused a value the "
+              f"recording holds ({said})")  # fmt: skip
         raise
     except CONTENT_ERRORS as exc:  # the same data fails the same way at every retry
         _fail(

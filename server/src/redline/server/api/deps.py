@@ -12,7 +12,7 @@ from redline.server.core.security import PAGE_READERS, READERS, acts_for, grants
 from redline.server.db import session_factory
 from redline.server.models import ApiToken
 from redline.server.services.signin import SESSION_COOKIE, current
-from redline.server.services.tokens import authenticate
+from redline.server.services.tokens import acts_on, authenticate
 from sqlalchemy.orm import Session
 
 _bearer = HTTPBearer(auto_error=False, description="a Redline API token")
@@ -33,14 +33,15 @@ def get_session(settings: SettingsDep) -> Iterator[Session]:
 SessionDep = Annotated[Session, Depends(get_session)]
 
 
-def _checked(session: Session, secret: str | None, *scopes: str) -> ApiToken:
-    """The live token ``secret`` names, granting one of ``scopes``; 401 or 403 otherwise."""
+def _checked(session: Session, secret: str | None, *scopes: str, stamp: bool = True) -> ApiToken:
+    """The live token ``secret`` names, granting one of ``scopes`` (its last use stamped
+    unless not ``stamp``); 401 or 403 otherwise."""
     unauthorized = {"WWW-Authenticate": "Bearer"}
     if not secret:
         raise HTTPException(
             status.HTTP_401_UNAUTHORIZED, "missing bearer token", headers=unauthorized
         )
-    token = authenticate(session, secret)
+    token = authenticate(session, secret, stamp=stamp)
     if token is None:
         raise HTTPException(
             status.HTTP_401_UNAUTHORIZED, "invalid or revoked token", headers=unauthorized
@@ -68,13 +69,26 @@ def require(scope: str) -> Callable[..., ApiToken]:
     ) -> ApiToken:
         return _checked(session, _bearer_secret(credentials), scope)
 
-    check.bearer_only = True  # type: ignore[attr-defined]  # `JsonRoute` answers 401 unread
+    def before_body(request: Request) -> None:
+        """The same check, which `JsonRoute` makes before it reads a body: FastAPI reads and
+        parses it before any dependency, and an audit's made-up token had 32 MiB of JSON parsed
+        on the event loop before its 401."""
+        scheme, _, secret = request.headers.get("authorization", "").partition(" ")
+        given = secret.strip() if scheme.lower() == "bearer" else None
+        with session_factory(get_settings(request).database_url)() as session:
+            _checked(session, given, scope, stamp=False)  # `check` stamps it once
+
+    check.before_body = before_body  # type: ignore[attr-defined]
     return check
 
 
 #: One instance, so that a router's dependency and a handler's parameter share a single check.
 require_agent = require("agent")
 AgentToken = Annotated[ApiToken, Depends(require_agent)]
+require_ci = require("ci")
+CiToken = Annotated[ApiToken, Depends(require_ci)]
+require_triage = require("triage")
+TriageToken = Annotated[ApiToken, Depends(require_triage)]
 
 
 def ensure_own_host(token: ApiToken, host: str) -> None:
@@ -116,6 +130,17 @@ def ensure_own_labels(token: ApiToken, labels: list[str]) -> None:
             f"token {token.name!r} may register its host with the labels "
             f"{', '.join(allowed or []) or 'none'}, not {', '.join(foreign)}: an admin gives a "
             "host its labels (revoke this token and create one with --labels A,B)",
+        )
+
+
+def ensure_component(token: ApiToken, component: str) -> None:
+    """A token bound to components acts on those only, 403 otherwise (an admin binds it:
+    ``redline token create ... --components A,B``)."""
+    if not acts_on(token, component):
+        raise HTTPException(
+            status.HTTP_403_FORBIDDEN,
+            f"token {token.name!r} acts on the components {', '.join(token.components)} only, "
+            f"not {component[:200]!r}",
         )
 
 

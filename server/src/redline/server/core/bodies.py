@@ -20,6 +20,7 @@ from fastapi.dependencies.models import Dependant
 from fastapi.responses import JSONResponse
 from fastapi.routing import APIRoute
 from redline.server.core.config import Settings
+from starlette.concurrency import run_in_threadpool
 from starlette.datastructures import Headers
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
@@ -123,17 +124,21 @@ class JsonRoute(APIRoute):
     def get_route_handler(self) -> Callable[[Request], Coroutine[Any, Any, Response]]:
         handler = super().get_route_handler()
         takes_json = self.body_field is not None
-        bearer_only = takes_json and _bearer_only(self.dependant)
+        checks = list(dict.fromkeys(_before_body(self.dependant))) if takes_json else []
 
         async def handle(request: Request) -> Response:
-            if bearer_only and not _has_bearer(request):
-                # refused before the body is read (FastAPI reads it before the checks run): a
-                # caller with no token sent 200 MB to the import and was read 35 MB (a trial)
-                return JSONResponse(
-                    {"detail": "missing bearer token"},
-                    status_code=401,
-                    headers={"WWW-Authenticate": "Bearer"},
-                )
+            for check in checks:
+                # the token is checked before the body is read (FastAPI reads it before the
+                # checks run): a caller with no token sent 200 MB to the import and was read
+                # 35 MB (a trial); one with a made-up token had 32 MiB parsed (an audit)
+                try:
+                    await run_in_threadpool(check, request)
+                except HTTPException as refused:
+                    return JSONResponse(
+                        {"detail": refused.detail},
+                        status_code=refused.status_code,
+                        headers=refused.headers,
+                    )
             kind = request.headers.get("content-type", "")
             if takes_json and kind and not _is_json(kind):
                 # a form-encoded body (curl -d without -H) was "Input should be a valid
@@ -148,16 +153,13 @@ class JsonRoute(APIRoute):
         return handle
 
 
-def _bearer_only(dependant: Dependant) -> bool:
-    """Whether a check among the route's dependencies admits a bearer token only (``require``)."""
-    return any(
-        getattr(d.call, "bearer_only", False) or _bearer_only(d) for d in dependant.dependencies
-    )
-
-
-def _has_bearer(request: Request) -> bool:
-    scheme, _, secret = request.headers.get("authorization", "").partition(" ")
-    return scheme.lower() == "bearer" and bool(secret.strip())
+def _before_body(dependant: Dependant) -> list[Callable[[Request], None]]:
+    """The route's checks to make before its body is read (a ``require``'s token check)."""
+    found = []
+    for d in dependant.dependencies:
+        check = getattr(d.call, "before_body", None)
+        found += ([check] if check is not None else []) + _before_body(d)
+    return found
 
 
 def _is_json(content_type: str) -> bool:

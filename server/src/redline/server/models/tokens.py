@@ -28,6 +28,8 @@ class ApiToken(Base):
     host: Mapped[str | None] = mapped_column(String(200), default=None)  # an agent token's host
     # an agent token's labels: those its host may register with (an admin's to give)
     labels: Mapped[list[str]] = mapped_column(JSON, default=list)
+    # the components a ci, triage or agent token acts on (an admin's to give); none: every one
+    components: Mapped[list[str]] = mapped_column(JSON, default=list)
 
 
 class User(Base):
@@ -61,3 +63,5 @@ class WebSession(Base):
     csrf: Mapped[str] = mapped_column(String(64))
     created: Mapped[datetime] = mapped_column(default=utcnow)
     expires: Mapped[datetime] = mapped_column()
+    #: not stored: the components its token is bound to, as `signin.current` finds them now
+    components: tuple[str, ...] = ()

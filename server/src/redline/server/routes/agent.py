@@ -43,9 +43,14 @@ def register(data: RegisterRequest, session: SessionDep, token: AgentToken) -> R
     return RegisterResponse(host_id=jobs.register_host(session, data).id)
 
 
-def _lease_once(settings: Settings, host: str, allowed: list[str] | None) -> LeasedJob | None:
+def _lease_once(
+    settings: Settings, host: str, allowed: list[str] | None, components: list[str]
+) -> LeasedJob | None:
+    """A job for ``host`` with the labels its token may lease with, of its components."""
     with session_factory(settings.database_url)() as session:
-        job = jobs.lease_job(session, host, settings.lease_seconds, settings.max_attempts, allowed)
+        job = jobs.lease_job(
+            session, host, settings.lease_seconds, settings.max_attempts, allowed, components
+        )
         return None if job is None else jobs.leased_job(job)
 
 
@@ -76,10 +81,10 @@ async def lease(
     answer is leased nothing: a job leased as it went is given back.
     """
     ensure_own_host(token, data.host)
-    allowed = token_labels(token)
+    bound = (token_labels(token), list(token.components or []))
     deadline = time.monotonic() + wait
     while not await request.is_disconnected():
-        job = await run_in_threadpool(_lease_once, settings, data.host, allowed)
+        job = await run_in_threadpool(_lease_once, settings, data.host, *bound)
         if job is not None and await request.is_disconnected():
             # the agent went away while it was leased: no one would run it before the lease
             # lapsed (a killed agent's long poll kept a job from the next agent for minutes)

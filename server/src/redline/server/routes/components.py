@@ -2,8 +2,18 @@
 
 from __future__ import annotations
 
-from fastapi import APIRouter, Depends, HTTPException, Request, Response, status
-from redline.server.api.deps import READ, SessionDep, SettingsDep, require
+from typing import Annotated
+
+from fastapi import APIRouter, Depends, HTTPException, Query, Request, Response, status
+from redline.server.api.deps import (
+    READ,
+    CiToken,
+    SessionDep,
+    SettingsDep,
+    ensure_component,
+    require,
+    require_ci,
+)
 from redline.server.api.paging import Cursor, PageSize, next_page
 from redline.server.core.bodies import JsonRoute
 from redline.server.models import JobState
@@ -119,10 +129,11 @@ def patch_revision(
 
 
 @router.post(
-    "/{name}/revisions/{title}/cancel", responses=NOT_FOUND, dependencies=[Depends(require("ci"))]
+    "/{name}/revisions/{title}/cancel", responses=NOT_FOUND, dependencies=[Depends(require_ci)]
 )
-def cancel_revision(name: str, title: str, session: SessionDep) -> RevisionDetail:
+def cancel_revision(name: str, title: str, session: SessionDep, token: CiToken) -> RevisionDetail:
     """Cancel the revision's jobs that have not finished; results already stored stay."""
+    ensure_component(token, name)
     return revisions.cancel_revision(session, name, title)
 
 
@@ -169,16 +180,21 @@ def list_series(
     phase: str | None = None,
     process: str | None = None,
     counter: str | None = None,
+    revisions: Annotated[
+        int, Query(ge=1, le=10_000, description="the newest revisions to give points of")
+    ] = results.SERIES_REVISIONS,
 ) -> list[SeriesOut]:
-    """The component's series with one point per revision; filtered by ``case``, ``phase``,
-    ``process``, ``counter`` and parameters as ``param.NAME=VALUE`` (e.g. ``param.legs=8``)."""
+    """The component's series with one point per revision among the newest ``revisions``;
+    filtered by ``case``, ``phase``, ``process``, ``counter`` and parameters as
+    ``param.NAME=VALUE`` (e.g. ``param.legs=8``)."""
     params = {
         key.removeprefix("param."): value
         for key, value in request.query_params.items()
         if key.startswith("param.")
     }
     fields = {"case": case, "phase": phase, "process": process, "counter": counter}
-    return read.filter_series(results.component_series(session, name), fields, params)
+    found = results.component_series(session, name, fields, revisions)
+    return read.filter_series(found, fields, params)
 
 
 @router.get("/{name}/compare", responses=NOT_FOUND, dependencies=READ)

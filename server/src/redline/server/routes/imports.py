@@ -5,18 +5,14 @@ from __future__ import annotations
 from typing import Annotated
 
 from fastapi import APIRouter, Depends, Query, Request, Response, status
-from redline.server.api.deps import SessionDep, SettingsDep, require
+from redline.server.api.deps import CiToken, SessionDep, SettingsDep, ensure_component, require_ci
 from redline.server.core.bodies import JsonRoute
-from redline.server.models import ApiToken
 from redline.server.schemas.common import Problem
 from redline.server.schemas.imports import ImportResult, ResultsImport
 from redline.server.services.imports import from_results, store_import
 from redline.server.services.lnt import ORDER_FIELD, parse_lnt
 from starlette.concurrency import run_in_threadpool
 
-#: one instance, so that the router's dependency and a handler's token share a single check
-require_ci = require("ci")
-CiToken = Annotated[ApiToken, Depends(require_ci)]
 router = APIRouter(
     prefix="/api/v1/import",
     tags=["import"],
@@ -66,6 +62,7 @@ async def import_lnt(
     order_field: Annotated[str, Query(description="the run field that orders runs")] = ORDER_FIELD,
 ) -> ImportResult:
     """One LNT run: each test's metric becomes a series (case = test, counter = metric)."""
+    ensure_component(token, component)
     body = await request.body()
     run = parse_lnt(body, component, order_field)
     result = await run_in_threadpool(
@@ -84,6 +81,7 @@ def import_results(
     token: CiToken,
 ) -> ImportResult:
     """A benchmark's samples per named series, for one revision (docs/api.md)."""
+    ensure_component(token, data.component)
     body = data.model_dump_json().encode()
     admin = "admin" in token.scopes
     stored = store_import(session, settings.storage_dir, from_results(data), body, admin=admin)

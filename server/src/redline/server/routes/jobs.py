@@ -10,12 +10,14 @@ from redline.server.api.deps import (
     AgentToken,
     SessionDep,
     SettingsDep,
+    ensure_component,
     ensure_own_host,
     require_agent,
 )
 from redline.server.core.bodies import JsonRoute
 from redline.server.core.config import Settings
 from redline.server.db import session_factory
+from redline.server.models import ApiToken
 from redline.server.schemas.common import problems
 from redline.server.schemas.jobs import (
     FailRequest,
@@ -33,6 +35,7 @@ from redline.server.services.uploads import (
     check_before_reading,
     stage_upload,
 )
+from sqlalchemy.orm import Session
 from starlette.concurrency import run_in_threadpool
 
 log = logging.getLogger(__name__)
@@ -45,12 +48,20 @@ router = APIRouter(
 PROBLEMS = problems(400, 404, 409, 413)
 
 
+def ensure_own_job(session: Session, token: ApiToken, job_id: int) -> None:
+    """A token bound to components touches their jobs only, 403 otherwise (a pool token bound
+    to one component acts for hosts whose other tokens run others' jobs)."""
+    if token.components and (name := jobs.component_of_job(session, job_id)) is not None:
+        ensure_component(token, name)
+
+
 @router.post("/{job_id}/heartbeat", responses=PROBLEMS)
 def heartbeat(
     job_id: int, data: HostRequest, session: SessionDep, settings: SettingsDep, token: AgentToken
 ) -> HeartbeatResponse:
     """Extend this host's lease; 409 when the job is no longer leased to it."""
     ensure_own_host(token, data.host)
+    ensure_own_job(session, token, job_id)
     job = jobs.heartbeat(session, job_id, data.host, settings.lease_seconds)
     assert job.lease_expires_at is not None
     return HeartbeatResponse(lease_expires_at=job.lease_expires_at)
@@ -60,6 +71,7 @@ def heartbeat(
 def release(job_id: int, data: HostRequest, session: SessionDep, token: AgentToken) -> JobStateOut:
     """Give the job back to the queue without counting an attempt (the agent is stopping)."""
     ensure_own_host(token, data.host)
+    ensure_own_job(session, token, job_id)
     job = jobs.release_job(session, job_id, data.host)
     return JobStateOut(id=job.id, state=job.state.value, reason=job.reason)
 
@@ -70,6 +82,7 @@ def fail(
 ) -> JobStateOut:
     """Fail the job with the agent's reason; 409 when this host does not hold it."""
     ensure_own_host(token, data.host)
+    ensure_own_job(session, token, job_id)
     job, again = jobs.fail_job(session, job_id, data.host, data.reason, data.of_commit)
     if jobs.ended(session, job.revision_id):  # no ingest follows: the verdict is posted now
         request.app.state.tasks.revision_ended(job.revision_id)
@@ -78,8 +91,11 @@ def fail(
     return JobStateOut(id=job.id, state=job.state.value, reason=job.reason)
 
 
-def _check_before_reading(settings: Settings, job_id: int, claimed: str, host: str) -> None:
+def _check_before_reading(
+    settings: Settings, token: ApiToken, job_id: int, claimed: str, host: str
+) -> None:
     with session_factory(settings.database_url)() as session:
+        ensure_own_job(session, token, job_id)
         check_before_reading(session, job_id, claimed, host)
 
 
@@ -132,7 +148,7 @@ async def upload_recording(
             f"{settings.max_upload_bytes} bytes"
         )
     await run_in_threadpool(
-        _check_before_reading, settings, job_id, x_redline_sha256, x_redline_host
+        _check_before_reading, settings, token, job_id, x_redline_sha256, x_redline_host
     )
     staged = await stage_upload(request.stream(), settings.storage_dir, settings.max_upload_bytes)
     try:

@@ -7,7 +7,14 @@ from typing import Annotated
 
 from fastapi import APIRouter, Depends, Query, Request, status
 from fastapi.responses import FileResponse
-from redline.server.api.deps import READ, AgentToken, SessionDep, ensure_own_host, require
+from redline.server.api.deps import (
+    READ,
+    AgentToken,
+    SessionDep,
+    ensure_component,
+    ensure_own_host,
+    require,
+)
 from redline.server.core.bodies import JsonRoute
 from redline.server.schemas.common import problems
 from redline.server.schemas.learning import ModelOut, ModelRequest, RuntimeAlertIn, RuntimeAlertOut
@@ -70,6 +77,7 @@ def report_alert(
     bound = token.host or ""
     data.host = data.host or ("" if bound.endswith("*") else bound)  # a pool's: say which
     ensure_own_host(token, data.host)
+    ensure_component(token, name)
     stored = learning.record_alert(session, name, data)
     request.app.state.tasks.runtime_alert(stored.id)
     return stored

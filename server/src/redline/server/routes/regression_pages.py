@@ -109,8 +109,10 @@ async def triage_form(regression_id: int, request: Request, session: SessionDep)
     form = await form_fields(request)
     back = (f"/regressions/{regression_id}", f"regression #{regression_id}")
     try:
-        who = signin.authorize(signed_in(request), form.get("csrf", ""), "triage")
+        row = signed_in(request)
+        who = signin.authorize(row, form.get("csrf", ""), "triage")
         name = regressions.component_of(session, regression_id)
+        signin.ensure_component(row, name)  # `authorize` found the session
         if not form.get("state"):  # the form sent without a state chosen (a trial met pydantic)
             raise BadRequest(
                 "triage: choose the state to set: acknowledge, confirm, ignore, fixed or false "

@@ -6,10 +6,10 @@ from __future__ import annotations
 from typing import Annotated, Literal
 
 from fastapi import APIRouter, Depends, Query, Request, Response, status
-from redline.server.api.deps import READ, SessionDep, require
+from redline.server.api.deps import READ, SessionDep, TriageToken, ensure_component, require
 from redline.server.api.paging import Cursor, PageSize, next_page
 from redline.server.core.bodies import JsonRoute
-from redline.server.models import ApiToken, Component, RegressionState
+from redline.server.models import Component, RegressionState
 from redline.server.schemas.common import Responses, problems
 from redline.server.schemas.regressions import (
     AccuracyOut,
@@ -66,9 +66,11 @@ def triage_regression(
     regression_id: int,
     change: TriageRequest,
     session: SessionDep,
-    token: Annotated[ApiToken, Depends(require("triage"))],
+    token: TriageToken,
 ) -> RegressionDetail:
-    """Set the triage state (``triage`` or ``admin`` scope); recorded in the history."""
+    """Set the triage state (``triage`` or ``admin`` scope; a token bound to components, of
+    theirs only); recorded in the history."""
+    ensure_component(token, name)
     return regressions.triage(session, name, regression_id, change, token.name)
 
 

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from fastapi import APIRouter, Depends, Response, status
-from redline.server.api.deps import SessionDep, require
+from redline.server.api.deps import CiToken, SessionDep, ensure_component, require_ci
 from redline.server.core.bodies import JsonRoute
 from redline.server.schemas.common import Problem
 from redline.server.schemas.revisions import RevisionCreate, RevisionCreated
@@ -15,17 +15,22 @@ router = APIRouter(prefix="/api/v1/revisions", tags=["revisions"], route_class=J
 @router.post(
     "",
     status_code=status.HTTP_201_CREATED,
-    dependencies=[Depends(require("ci"))],
+    dependencies=[Depends(require_ci)],
     responses={
         200: {"model": RevisionCreated, "description": "reported before: the same commit"},
+        403: {"model": Problem, "description": "a token bound to other components"},
         404: {"model": Problem},
         409: {"model": Problem},
     },
 )
-def report(data: RevisionCreate, session: SessionDep, response: Response) -> RevisionCreated:
+def report(
+    data: RevisionCreate, session: SessionDep, response: Response, token: CiToken
+) -> RevisionCreated:
     """Record the revision and queue one job per execution the component asks for; a report
     of a revision already known with the same commit and sort key answers 200 with it (a
-    re-run CI pipeline must not fail), of another commit 409."""
+    re-run CI pipeline must not fail), of another commit 409. A token bound to components
+    reports theirs only (403)."""
+    ensure_component(token, data.component)
     revision, created = report_revision(session, data)
     if not created:
         response.status_code = status.HTTP_200_OK

@@ -15,6 +15,7 @@ from fastapi import Request, Response
 from fastapi.responses import HTMLResponse, RedirectResponse
 from pydantic import ValidationError
 from redline.server.api.deps import SessionDep, SettingsDep
+from redline.server.core.bodies import BadJson, parse_json
 from redline.server.core.security import grants
 from redline.server.schemas.alerts import SubscriptionCreate, SubscriptionUpdate
 from redline.server.schemas.components import ComponentSettings
@@ -225,9 +226,11 @@ async def component_settings_form(
                 suite=form.get("suite") or None,
                 executions=int(form["executions"]) if form.get("executions") else None,
             )
-            config = DetectionConfigIn.model_validate(json.loads(form.get("config") or "{}"))
-        except json.JSONDecodeError as exc:
-            raise BadRequest(f"detection configuration: not JSON ({exc})") from None
+            config = DetectionConfigIn.model_validate(
+                parse_json((form.get("config") or "{}").encode())
+            )
+        except BadJson as exc:  # as the API's body: '[' * 2000 was a 500 (an audit)
+            raise BadRequest(f"detection configuration: {exc}") from None
         except ValidationError as exc:
             raise BadRequest(form_errors(exc)) from None
         except ValueError:  # int()'s own words ("invalid literal for int() with base 10")
@@ -271,6 +274,7 @@ async def create_token_form(request: Request, session: SessionDep) -> HTMLRespon
             form.get("scopes", ""),
             form.get("host") or None,
             form.get("labels", ""),
+            form.get("components", ""),
         )
     except (Forbidden, BadRequest, Conflict) as exc:
         return problem(request, exc)

@@ -21,7 +21,9 @@ PROBLEMS = problems(400, 404, 409)
 @router.post("", status_code=status.HTTP_201_CREATED, responses=PROBLEMS)
 def create_token(data: TokenCreate, session: SessionDep) -> TokenCreated:
     """A new token; its secret is in this answer only (the server keeps a hash)."""
-    token, secret = tokens.issue_token(session, data.name, data.scopes, data.host, data.labels)
+    token, secret = tokens.issue_token(
+        session, data.name, data.scopes, data.host, data.labels, data.components
+    )
     return TokenCreated(**TokenOut.model_validate(token).model_dump(), token=secret)
 
 

@@ -248,11 +248,13 @@ def param_value(value: Any) -> Any:
     """A parameter's value as an import gives it: text of one line, a number, true or false; a
     NaN was stored and then shown as None, nan and NaN on three pages, and a line break in a
     value broke every label that named its series."""
-    if isinstance(value, bool | int):
+    if isinstance(value, bool):
         return value
-    if isinstance(value, float):
-        if not math.isfinite(value):
+    if isinstance(value, int | float):
+        if isinstance(value, float) and not math.isfinite(value):
             raise ValueError(f"must be a finite number, not {value!r}")
+        if abs(value) > MEASURABLE:  # a 400-digit one made the execution's page a 500
+            raise ValueError(f"must be within ±{MEASURABLE:g}")
         return value
     if isinstance(value, str):
         if len(value) > 200:

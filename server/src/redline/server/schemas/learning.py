@@ -3,11 +3,11 @@
 from __future__ import annotations
 
 from datetime import datetime
-from typing import Any
+from typing import Annotated, Any
 
-from pydantic import BaseModel, Field
+from pydantic import AfterValidator, BaseModel, Field
 from redline.server.schemas.common import RequestBody
-from redline.server.schemas.fields import StoredId, Title
+from redline.server.schemas.fields import StoredId, Title, one_line
 
 
 class ModelRequest(RequestBody):
@@ -43,8 +43,12 @@ class ModelOut(BaseModel):
     file: str | None = Field(description="where to download the model file for `redline watch`")
 
 
+#: one line (an audit's "cpu\r\nx" made every mail of the alert fail; a U+202E reversed it)
+_AlertText = AfterValidator(one_line)
+
+
 class RuntimeAlertIn(RequestBody):
-    target: str = Field(min_length=1, max_length=50)
+    target: Annotated[str, _AlertText] = Field(min_length=1, max_length=50)
     started: bool = Field(description="a fault began (true) or ended (false)")
     residual: float = Field(allow_inf_nan=False)
     threshold: float = Field(allow_inf_nan=False)
@@ -53,9 +57,11 @@ class RuntimeAlertIn(RequestBody):
     host: str = Field(
         default="", max_length=200, description="the reporting token's host (the default); no other"
     )
-    process: str = Field(default="", max_length=200)
+    process: Annotated[str, _AlertText] = Field(default="", max_length=200)
 
 
 class RuntimeAlertOut(RuntimeAlertIn):
+    target: str  # as stored (an older Redline took any text): shown, not judged again
+    process: str
     id: int
     at: datetime

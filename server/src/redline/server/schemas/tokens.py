@@ -20,6 +20,12 @@ class TokenCreate(RequestBody):
         max_length=100,
         description="for an agent token: the labels its host may register with",
     )
+    components: list[str] = Field(
+        default_factory=list,
+        max_length=1000,
+        description="for a ci, triage or agent token: the only components it acts on (reports "
+        "revisions of, triages, runs the jobs and reports run-time alerts of); none: every one",
+    )
 
 
 class TokenOut(BaseModel):
@@ -29,6 +35,7 @@ class TokenOut(BaseModel):
     scopes: list[str]
     host: str | None
     labels: list[str]
+    components: list[str]
     created: datetime
     last_used: datetime | None
     revoked: bool

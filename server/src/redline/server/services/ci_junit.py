@@ -6,6 +6,7 @@ from typing import Any
 from xml.etree import ElementTree
 
 from redline.recording.format import canonical_params
+from redline.recording.xml_text import xml_document
 from redline.server.schemas.alerts import CiVerdict
 
 
@@ -88,4 +89,4 @@ def junit_xml(verdict: CiVerdict, fail_on: str = "regression") -> str:
     suite.set("skipped", str(skipped))
     suite.set("errors", str(errors))
     suite.set("tests", str(tests))
-    return ElementTree.tostring(suite, encoding="unicode", xml_declaration=True)
+    return xml_document(suite)

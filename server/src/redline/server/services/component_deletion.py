@@ -3,10 +3,11 @@ verdicts, regressions and their triage, the alerts about it, its models, subscri
 settings — in one transaction, then its files (recordings, sample tables, model files).
 
 Two new users registered a component by mistake and could not remove it (405): it stayed on the
-home page and in every filter. Nothing else is touched: another component's rows, the hosts,
-the tokens. A component whose jobs a host holds, whose results wait to be ingested, or whose
-model training or re-analysis is under way, is refused (409): deleting under them would fail
-them halfway (and leave a model file no row names).
+home page and in every filter. Nothing else is touched: another component's rows, the hosts, the
+tokens (but for its name among the components a token is bound to: `_unbind`). A component whose
+jobs a host holds, whose results wait to be ingested, or whose model training or re-analysis is
+under way, is refused (409): deleting under them would fail them halfway (and leave a model file no
+row names).
 
 A revision is deleted alone only when nothing was measured of it (`delete_revision`): a commit
 reported by mistake, say, whose checkout failed, stayed "failed" on the home page for good (a
@@ -23,6 +24,7 @@ from redline.server.db import lock_component
 from redline.server.models import (
     Alert,
     AlertedChange,
+    ApiToken,
     Component,
     Detection,
     DetectionConfigRow,
@@ -116,6 +118,7 @@ def delete_component(session: Session, name: str) -> dict[str, int]:
     try:
         for statement in statements:
             session.execute(statement)
+        counts["tokens_revoked"] = _unbind(session, name)
         session.commit()
     except IntegrityError:  # a worker stored a row of it meanwhile (a verdict, a fresh run)
         session.rollback()
@@ -123,6 +126,19 @@ def delete_component(session: Session, name: str) -> dict[str, int]:
     counts["files"] = _remove(session, files)
     log.info("component %s deleted: %s", name, counts)
     return counts
+
+
+def _unbind(session: Session, name: str) -> int:
+    """Take the deleted component's name out of the tokens bound to it, so that none acts on a
+    component made later under that name; a token bound to it alone is revoked, since bound
+    to none it would act on every component (a reviewer's find). How many were revoked."""
+    revoked = 0
+    for token in session.scalars(select(ApiToken).where(~ApiToken.revoked)):
+        if name in (token.components or []):
+            token.components = [other for other in token.components if other != name]
+            if not token.components:
+                token.revoked, revoked = True, revoked + 1
+    return revoked
 
 
 def delete_revision(session: Session, name: str, title: str) -> dict[str, int | str]:

@@ -48,7 +48,7 @@ from redline.server.services.trend_view import (
     choices_of,
     cut_charts,
 )
-from sqlalchemy import ColumnElement, delete, exists, func, select
+from sqlalchemy import ColumnElement, delete, exists, func, or_, select, true
 from sqlalchemy.dialects.postgresql import insert
 from sqlalchemy.orm import Session
 
@@ -161,6 +161,10 @@ def trend_data(
                 Detection.flagged,
                 Detection.revision_id.in_(ids),
                 Detection.series_id.in_(list(chosen)),
+                # a flag in no regression and never confirmed, only when asked (`TrendView.flags`)
+                true()
+                if view.flags
+                else or_(Detection.regression_id.is_not(None), Detection.confirmation.in_(MARKED)),
             )
             .order_by(Detection.regression_id.is_(None), Detection.id)  # regressions first
         )
@@ -209,6 +213,12 @@ def _host_id(session: Session, name: str) -> int:
     return found
 
 
+#: how the pages draw what they show, in a cached page's version: raised when an upgrade draws it
+#: otherwise, so that no page cached before shows the old drawing (2: flags that do not alarm
+#: only when asked)
+DRAWING = 2
+
+
 def data_version(session: Session, component_id: int, shown: Window) -> str:
     """Changes whenever what a view's page shows may have: which revisions it shows (their
     titles and commits), one of them analysed (after every ingest and re-analysis: its time
@@ -227,7 +237,7 @@ def data_version(session: Session, component_id: int, shown: Window) -> str:
     updated = session.scalar(
         select(func.max(Regression.updated)).where(Regression.component_id == component_id)
     )
-    return f"{hashlib.sha256(seen.encode()).hexdigest()[:32]}|{stored}|{updated}"
+    return f"{hashlib.sha256(seen.encode()).hexdigest()[:32]}|{stored}|{updated}|{DRAWING}"
 
 
 #: renders a view's charts: `redline.server.ui.figures.trend_charts`

@@ -25,9 +25,10 @@ class Unprocessable(ServiceError):
     status_code = 422
 
 
-class TooLongToStore(Unprocessable, ValueError):
-    """A name too long for its index (Postgres refuses an index row over 2,704 bytes); a
-    ValueError too, so a recording naming one fails its job instead of being retried."""
+class Unstorable(Unprocessable, ValueError):
+    """A series name Postgres would refuse (an index row over 2,704 bytes, a NUL) or that would
+    break every line naming it; a ValueError too, so a recording naming one fails its job
+    instead of being retried."""
 
 
 class NotFound(ServiceError):

@@ -20,7 +20,8 @@ from redline.detect.counters import is_held
 from redline.detect.summary import summarize
 from redline.recording import SeriesKey
 from redline.server.models import Execution, Series, Summary
-from redline.server.services.errors import TooLongToStore
+from redline.server.schemas.fields import MEASURABLE, one_line
+from redline.server.services.errors import Unstorable
 from redline.server.storage import DISTURBED, NOT_JUDGED, samples_path
 from sqlalchemy import delete, select
 from sqlalchemy.dialects.postgresql import insert
@@ -42,11 +43,11 @@ NAME_LENGTH = 200
 
 def series_ids(session: Session, component_id: int, keys: list[SeriesKey]) -> dict[SeriesKey, int]:
     """Create the series named that do not exist yet (race-free); return every key's id.
-    `TooLongToStore` names the first key that cannot be stored (`_unstorable`)."""
+    `Unstorable` names the first key that cannot be stored (`_unstorable`)."""
     for key in keys:
         if (why := _unstorable(key)) is not None:
             label = f"{key.case}/{key.phase}[{key.params}] {key.process}.{key.counter}"
-            raise TooLongToStore(f"series {label[:80]!r}...{why}")
+            raise Unstorable(f"series {label[:80]!r}...{why}")
     if keys:
         rows = [
             dict(
@@ -69,7 +70,8 @@ def series_ids(session: Session, component_id: int, keys: list[SeriesKey]) -> di
 
 def _unstorable(key: SeriesKey) -> str | None:
     """Why the series cannot be stored (its key over `SERIES_KEY_BYTES`, a name over its
-    column's `NAME_LENGTH`: a recording's names, which no API schema checked), or None."""
+    column's `NAME_LENGTH`, a name or parameter `one_line` refuses, a whole-number parameter
+    beyond ±`MEASURABLE`: a recording's names, which no API schema checked), or None."""
     size = len("".join((key.case, key.phase, key.params, key.process, key.counter)).encode())
     if size > SERIES_KEY_BYTES:
         return (
@@ -80,6 +82,23 @@ def _unstorable(key: SeriesKey) -> str | None:
     for what, name in (*named, ("counter", key.counter)):
         if len(name) > NAME_LENGTH:
             return f": its {what} is {len(name)} characters long (at most {NAME_LENGTH})"
+    # a NUL failed the insert with a DataError that left the job "uploaded" for good, and a
+    # control character broke each line, JUnit report and mail naming the series (an audit)
+    params = json.loads(key.params)
+    texts = [*named, ("counter", key.counter)]
+    if isinstance(params, dict):
+        texts += [("parameter name", name) for name in params]
+        texts += [(f"parameter {name}", v) for name, v in params.items() if isinstance(v, str)]
+    for what, text in texts:
+        try:
+            one_line(text)
+        except ValueError as exc:
+            return f": its {what} {exc}"
+    if isinstance(params, dict):
+        for name, value in params.items():
+            number = isinstance(value, int | float) and not isinstance(value, bool)
+            if number and abs(value) > MEASURABLE:
+                return f": its parameter {name} is beyond ±{MEASURABLE:g}"
     return None
 
 

@@ -19,7 +19,7 @@ from redline.server.models import (
 from redline.server.schemas.jobs import LeasedJob, LeasedRevision, RegisterRequest
 from redline.server.services.errors import Conflict, NotFound
 from redline.server.services.fresh_runs import mark_waiting
-from sqlalchemy import ColumnElement, and_, case, cast, or_, select, update
+from sqlalchemy import ColumnElement, and_, case, cast, or_, select, true, update
 from sqlalchemy.dialects.postgresql import JSONB, insert
 from sqlalchemy.orm import Session, aliased
 
@@ -104,11 +104,13 @@ def lease_job(
     lease_seconds: int,
     max_attempts: int,
     allowed: Collection[str] | None = None,
+    components: Collection[str] = (),
 ) -> Job | None:
     """Hand the host the next queued (or abandoned) job whose pool it is in (it has every label
-    the job asks for, of those its token was given: ``allowed``, None for any); None when
-    there is none. The host's row keeps the labels it registered with, perhaps under a token
-    revoked since, which a token given fewer must not lease with.
+    the job asks for, of those its token was given: ``allowed``, None for any) of the
+    ``components`` its token is bound to (none: of any); None when there is none. The host's
+    row keeps the labels it registered with, perhaps under a token revoked since, which a token
+    given fewer must not lease with.
 
     Confirmation and re-measuring runs go first, in the order they were queued. Other jobs go
     to the component served longest ago (``last_leased_at``; never served first), and within
@@ -136,6 +138,7 @@ def lease_job(
         .join(Revision, Revision.id == Job.revision_id)
         .join(Component, Component.id == Revision.component_id)
         .where(available, in_pool, pinned, _pair_may_start())
+        .where(Component.name.in_(components) if components else true())
         .order_by(
             case((ahead, 0), else_=1),
             case((ahead, Job.id), else_=0),
@@ -213,6 +216,16 @@ def leased_job(job: Job) -> LeasedJob:
         parameter_sets=dict(job.parameter_sets or {}),
         sets_alone=job.sets_alone,
         busy_matters=job.busy_matters,
+    )
+
+
+def component_of_job(session: Session, job_id: int) -> str | None:
+    """The name of the component whose job ``job_id`` is; None when there is no such job."""
+    return session.scalar(
+        select(Component.name)
+        .join(Revision, Revision.component_id == Component.id)
+        .join(Job, Job.revision_id == Revision.id)
+        .where(Job.id == job_id)
     )
 
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 import math
 from collections import defaultdict
-from collections.abc import Collection
+from collections.abc import Collection, Mapping
 
 from redline.detect.config import CHARTED_METHOD
 from redline.detect.counters import CONTEXT_COUNTERS, judged, judged_among, kind, worse
@@ -66,18 +66,40 @@ def series_ref(
     )
 
 
-def component_series(session: Session, component_name: str) -> list[SeriesOut]:
-    """Each series of the component with one point per revision, in sort-key order; whether
-    it is judged as the component's own settings say."""
+#: the newest revisions whose points `component_series` gives unless asked for more
+SERIES_REVISIONS = 1000
+
+
+def component_series(
+    session: Session,
+    component_name: str,
+    segment: Mapping[str, str | None] | None = None,
+    revisions: int = SERIES_REVISIONS,
+) -> list[SeriesOut]:
+    """Each series of the component with one point per revision among the newest
+    ``revisions``, in sort-key order, of the ``segment`` given (its case, phase and process:
+    None, any); whether it is judged as the component's own settings say. The request read
+    every point of the whole history into objects before it filtered them (an audit)."""
     component = get_component(session, component_name)
     config = component_config(session, component.id)
     context = config.context_counters
+    newest = (
+        select(Revision.id)
+        .where(Revision.component_id == component.id)
+        .order_by(Revision.order_key.desc(), Revision.id.desc())
+        .limit(revisions)
+    )
+    chosen = [
+        getattr(Series, name) == value
+        for name, value in (segment or {}).items()
+        if name in ("case", "phase", "process") and value is not None
+    ]  # not the counter: a CPU share is judged by whether its per-unit figure is beside it
     rows = session.execute(
         select(Series, Revision, Summary.n, Summary.mean, Summary.std)
         .join(Summary, Summary.series_id == Series.id)
         .join(Execution, Execution.id == Summary.execution_id)
         .join(Revision, Revision.id == Execution.revision_id)
-        .where(Series.component_id == component.id)
+        .where(Series.component_id == component.id, Revision.id.in_(newest), *chosen)
         .order_by(
             Series.process == HOST_PROCESS,  # the component's series first, then context
             Series.case,

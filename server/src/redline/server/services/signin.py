@@ -195,6 +195,7 @@ def current(session: Session, secret: str | None) -> WebSession | None:
     if not live or opener is None:
         return None
     row.scopes = list(opener.scopes)  # what it may do now, not what it could when it signed in
+    row.components = tuple(getattr(opener, "components", None) or ())  # a bound token's
     return row
 
 
@@ -213,6 +214,22 @@ def authorize(row: WebSession | None, form_token: str, scope: str) -> str:
     if not grants(list(row.scopes), scope):
         raise Forbidden(f"{row.who} lacks the {scope!r} scope")
     return row.who
+
+
+def acts_on(row: WebSession | None, component: str) -> bool:
+    """Whether the session may act on ``component``: opened by a person, or by a token bound
+    to no component or to it (`redline.server.services.tokens.acts_on`)."""
+    return row is not None and (not row.components or component in row.components)
+
+
+def ensure_component(row: WebSession | None, component: str) -> None:
+    """`Forbidden` unless the session acts on ``component`` (`acts_on`)."""
+    if row is None:
+        raise Forbidden("sign in first")
+    if not acts_on(row, component):
+        raise Forbidden(
+            f"{row.who} acts on the components {', '.join(row.components)} only, not {component!r}"
+        )
 
 
 def check_form(row: WebSession, form_token: str) -> None:

@@ -6,7 +6,7 @@ from collections.abc import Sequence
 
 from pydantic import TypeAdapter, ValidationError
 from redline.server.core.security import hash_token, new_token, parse_scopes, pool_or_host
-from redline.server.models import ApiToken, utcnow
+from redline.server.models import ApiToken, Component, utcnow
 from redline.server.schemas.fields import Word, escaped, path_segment
 from redline.server.services.errors import BadRequest, Conflict, NotFound
 from sqlalchemy import func, select
@@ -16,12 +16,13 @@ TOKEN_NAME_LOCK = 0x544B  # "TK": the first key of the advisory lock an issuer t
 _LABELS = TypeAdapter(list[Word])
 
 
-def authenticate(session: Session, secret: str) -> ApiToken | None:
-    """The live token with this secret, its last use stamped; None when unknown or revoked."""
+def authenticate(session: Session, secret: str, stamp: bool = True) -> ApiToken | None:
+    """The live token with this secret, its last use stamped (when ``stamp``); None when
+    unknown or revoked."""
     token = session.scalar(
         select(ApiToken).where(ApiToken.token_hash == hash_token(secret), ~ApiToken.revoked)
     )
-    if token is not None:
+    if token is not None and stamp:
         token.last_used = utcnow()
         session.commit()
     return token
@@ -33,25 +34,26 @@ def issue_token(
     scopes: str | list[str],
     host: str | None = None,
     labels: str | Sequence[str] = (),
+    components: str | Sequence[str] = (),
 ) -> tuple[ApiToken, str]:
     """A new token and its secret (shown once: only its hash is stored); a token with the
     ``agent`` scope must be bound to ``host`` (a name, or ``PREFIX*``: a pool of hosts whose
     names start so), and only it has one, and ``labels``, the ones its host may register with
-    (a list, or comma-separated as the CLI and the settings form give them; none: it runs the
-    jobs of components that ask for no label); one live token per name.
-    The one way tokens are made (API, CLI and the settings page)."""
+    (none: it runs the jobs of components that ask for no label); a ci, triage or agent token
+    may be bound to ``components``, the only ones it acts on (none: every one). Labels and
+    components are lists, or comma-separated as the CLI and the settings form give them. One
+    live token per name. The one way tokens are made (API, CLI and the settings page)."""
     try:
         parsed = parse_scopes(scopes)
         if host:
             pool_or_host(host)
-        if isinstance(labels, str):
-            labels = [label.strip() for label in labels.split(",") if label.strip()]
-        kept = sorted(set(_LABELS.validate_python(list(labels))))
+        kept = sorted(set(_LABELS.validate_python(_listed(labels))))
     except ValidationError as exc:
         problem = exc.errors()[0]
         raise BadRequest(f"labels: {problem['input']!r}: {problem['msg']}") from None
     except ValueError as exc:
         raise BadRequest(str(exc)) from None
+    acting_on = _components(session, parsed, _listed(components))
     try:  # a CR/LF made `redline token list` print a second row; a '/' no URL could revoke
         path_segment(name)
     except ValueError as exc:
@@ -79,11 +81,50 @@ def issue_token(
         raise Conflict(f"a live token named {name!r} exists; revoke it first")
     secret = new_token()
     token = ApiToken(
-        name=name, token_hash=hash_token(secret), scopes=parsed, host=host, labels=kept
+        name=name,
+        token_hash=hash_token(secret),
+        scopes=parsed,
+        host=host,
+        labels=kept,
+        components=acting_on,
     )
     session.add(token)
     session.commit()
     return token, secret
+
+
+def _listed(given: str | Sequence[str]) -> list[str]:
+    """A list as given, or comma-separated text's items."""
+    if isinstance(given, str):
+        return [item.strip() for item in given.split(",") if item.strip()]
+    return list(given)
+
+
+#: the scopes whose acts are a component's: reporting its revisions, triaging its
+#: regressions, running its jobs and reporting its run-time faults
+BINDABLE = ("ci", "triage", "agent")
+
+
+def _components(session: Session, scopes: list[str], names: list[str]) -> list[str]:
+    """The components a token of ``scopes`` is bound to, each one that exists; `BadRequest`
+    naming the first that does not, or when the token's scopes act on no component alone."""
+    if not names:
+        return []
+    if "admin" in scopes or not set(scopes) & set(BINDABLE):
+        raise BadRequest(
+            f"components bind a {', '.join(BINDABLE)} token to what it acts on; a token with "
+            f"the scopes {', '.join(scopes)} reads or administers every component"
+        )
+    known = set(session.scalars(select(Component.name).where(Component.name.in_(names))))
+    for name in names:
+        if name not in known:
+            raise BadRequest(f"components: unknown component {escaped(name)[:80]!r}")
+    return sorted(set(names))
+
+
+def acts_on(token: ApiToken, component: str) -> bool:
+    """Whether ``token`` may act on ``component``: bound to none (every one) or to it."""
+    return not token.components or component in token.components
 
 
 def list_tokens(session: Session) -> list[ApiToken]:

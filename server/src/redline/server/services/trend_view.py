@@ -43,6 +43,9 @@ class TrendView:
     before: str = ""  # a revision's title: the history up to, not including, it
     log: bool = False
     median: bool = False
+    #: the flags of methods that only chart, besides the changes of regressions: KS at one
+    #: execution a revision flags most unchanged ones (a trial read them as alarms)
+    flags: bool = False
 
     @classmethod
     def from_query(cls, query: Mapping[str, str]) -> TrendView:
@@ -70,6 +73,7 @@ class TrendView:
             before=query.get("before", ""),
             log=_flag(query, "log"),
             median=_flag(query, "median"),
+            flags=_flag(query, "flags"),
         )
 
     def query(self, **changes: Any) -> str:
@@ -82,7 +86,7 @@ class TrendView:
             pairs.append(("revisions", str(view.revisions)))
         if view.before:
             pairs.append(("before", view.before))
-        pairs += [(name, "1") for name in ("log", "median") if getattr(view, name)]
+        pairs += [(name, "1") for name in ("log", "median", "flags") if getattr(view, name)]
         return urlencode(pairs)
 
     def selects(self, series: Identified) -> bool:

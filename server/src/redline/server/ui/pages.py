@@ -38,11 +38,14 @@ def signed_in(request: Request) -> WebSession | None:
     return getattr(request.state, "web_session", None)
 
 
-def may(who: WebSession | None, scope: str) -> bool:
-    """Whether the signed-in browser ``who`` may do what ``scope`` allows (a page offers only
-    the forms it may use: a trial signed in with a read token was shown the triage form, and
-    its save answered 403)."""
-    return who is not None and grants(list(who.scopes), scope)
+def may(who: WebSession | None, scope: str, component: str | None = None) -> bool:
+    """Whether the signed-in browser ``who`` may do what ``scope`` allows (on ``component``,
+    when one is named: a session opened with a token bound to others may not). A page offers
+    only the forms it may use: a trial signed in with a read token was shown the triage form,
+    and its save answered 403."""
+    if who is None or not grants(list(who.scopes), scope):
+        return False
+    return component is None or signin.acts_on(who, component)
 
 
 def page(
@@ -50,7 +53,7 @@ def page(
 ) -> HTMLResponse:
     templates: Jinja2Templates = request.app.state.templates
     who = signed_in(request)
-    context = {"signed_in": who, "may": lambda scope: may(who, scope), **context}
+    context = {"signed_in": who, "may": lambda *asked: may(who, *asked), **context}
     return templates.TemplateResponse(request, template, context, status_code=status_code)
 
 
