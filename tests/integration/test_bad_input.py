@@ -347,6 +347,14 @@ def test_a_nul_character_is_a_4xx_naming_where_it_is(api: Api):
     # a backslash followed by "u0000" is text like any other
     fine = b'{"name": "y", "description": "C:\\\\u0000"}'
     assert _post_raw(api, "/api/v1/components", fine, "admin").status_code == 201
+    # in an address: a trial's GET was told "a value in the request cannot be stored:
+    # PostgreSQL text fields cannot contain NUL (0x00) bytes", where nothing was stored
+    for path in ("/api/v1/components/builder/revisions/%00", "/api/v1/components/a%00b"):
+        missing = api.client.get(path)
+        assert missing.status_code == 404, missing.text
+        assert "holds a NUL character (%00)" in missing.text and "PostgreSQL" not in missing.text
+    page = api.client.get("/regressions?component=%00")
+    assert page.status_code == 422 and "component holds a NUL character" in page.text, page.text
 
 
 def test_a_surrogate_pair_is_text_like_any_other(api: Api):

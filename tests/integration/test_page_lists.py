@@ -248,6 +248,22 @@ def test_the_revision_page_folds_the_series_without_a_verdict(client, database_u
     assert judged.count('<a href="/detections/') == 4  # each verdict's why
 
 
+def test_the_revision_page_tells_a_change_for_the_better_from_one_for_the_worse(
+    client, database_url, tmp_path
+):
+    """A trial's unchanged revision showed an improvement in the regressions' pink, as
+    "change (decrease)"; and its confirmation column said "held" where the regression's page
+    says "confirmed"."""
+    history(database_url, tmp_path, [20.0, 20.0, 6.0, 60.0])
+    better = client.get("/components/builder/revisions/r3").text
+    cells = _row(better, "build/steady[legs=2] builder.cpu", "change (decrease, better)")
+    assert cells, better
+    assert '<tr class="improved">' in better and '<tr class="flagged">' not in better
+    worse = client.get("/components/builder/revisions/r4").text
+    assert '<tr class="flagged">' in worse and "change (increase, worse)" in worse
+    assert ">held<" not in worse and ">dropped<" not in worse
+
+
 def test_compare_shows_the_candidates_verdicts_and_pools_ranges(
     client, database_url, tmp_path, monkeypatch
 ):
@@ -259,6 +275,8 @@ def test_compare_shows_the_candidates_verdicts_and_pools_ranges(
     backwards = client.get(f"{API}/compare?base=r2..r1&candidate=r3").json()
     assert backwards["base_revisions"] == ["r1", "r2"]  # a range in sort-key order
     assert client.get(f"{API}/compare?base=r1..r9&candidate=r3").status_code == 404
+    overlapping = client.get(f"{API}/compare?base=r1..r3&candidate=r3")  # a trial's
+    assert overlapping.status_code == 400 and "share r3" in overlapping.text, overlapping.text
 
     page = client.get("/components/builder/compare?base=r1..r2&candidate=r3")
     assert page.status_code == 200 and "Baseline: r1, r2 · candidate: r3" in page.text

@@ -13,7 +13,9 @@ import pytest
 from redline.server.db import session_factory
 from redline.server.models import ApiToken
 from redline.server.services import signin
+from redline.server.services.errors import BadRequest
 from redline.server.services.signin import create_user
+from redline.server.services.tokens import issue_token
 from sqlalchemy import select
 
 from tests.support import ROOT
@@ -246,6 +248,20 @@ def test_a_blank_token_name_is_refused(api: Api):
         "/api/v1/tokens", headers=api.tokens["admin"], json={"name": "   ", "scopes": ["ci"]}
     )
     assert "must not be empty or blank" in blank.text
+
+
+def test_a_token_name_with_a_control_character_is_422_naming_it_once_escaped(api: Api):
+    """A trial's "weird\x07" was a 400 whose message escaped the name twice ('weird\\\\x07'),
+    where docs/api.md promises a 422 naming the character, as for every name."""
+    made = {"name": "weird\x07", "scopes": ["ci"]}
+    refused = api.client.post("/api/v1/tokens", headers=api.tokens["admin"], json=made)
+    assert refused.status_code == 422, refused.text
+    (error,) = refused.json()["detail"]
+    assert error["loc"] == ["body", "name"] and "'\\x07' at position 5" in error["msg"], error
+    database = session_factory(api.settings.database_url)
+    with database() as session, pytest.raises(BadRequest) as told:  # the CLI's and form's way
+        issue_token(session, "weird\x07", "ci")
+    assert told.value.detail.startswith("a token's name 'weird\\x07' must not"), told.value
 
 
 def test_read_access_open_by_default(api: Api):

@@ -236,3 +236,19 @@ def test_ci_waits_table_says_a_change_may_be_an_earlier_revisions() -> None:
     change = {"worse": True, "confirmation": "held", "between": "r24 (the host was busy ...)"}
     assert _marks(change) == " (may be an earlier revision's: r24 (the host was busy ...))"
     assert _marks({"worse": True, "confirmation": "held"}) == ""
+
+
+def test_ci_waits_table_says_why_a_case_is_skipped_before_its_changes() -> None:
+    """A trial's skipped case showed "trialecho ctx_voluntary_per_s -7.7 % (better)" where the
+    reason it has no verdict belongs (the JUnit file said it)."""
+    from redline.cli.ci_cmd import _table
+
+    change = {"process": "echo", "counter": "ctx", "effect": -0.077, "worse": False,
+              "confirmation": "", "method": "execution_shift"}  # fmt: skip
+    why = "not enough data: the baseline has 3, needs 6"
+    case = {"case": "echo", "phase": "steady", "parameters": {}, "state": "skipped",
+            "changes": [change], "reason": why}  # fmt: skip
+    verdict = {"component": "c", "revision": "r5", "cases": [case], "regressions": 0,
+               "improvements": 1, "skipped": 1, "undecided": 0}  # fmt: skip
+    row = next(line for line in _table(verdict, "regression").splitlines() if "skipped" in line)
+    assert row.split("skipped", 1)[1].strip() == f"{why}; also: echo ctx -7.7 % (better)", row

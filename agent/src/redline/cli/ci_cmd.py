@@ -118,6 +118,9 @@ def _table(verdict: dict[str, Any], fail_on: FailOn) -> str:
             for c in case["changes"]
         )
         name = f"{case['case']} / {case['phase']} {_params_text(case['parameters'])}".strip()
+        if case["state"] in ("skipped", "undecided"):  # why first: a trial's skipped case
+            # showed only an improvement, where the JUnit file said why it had no verdict
+            changes = case["reason"] + (f"; also: {changes}" if changes else "")
         rows.append((name, case["state"], changes or case["reason"]))
     width = [max(len(row[i]) for row in rows) for i in range(2)]
     lines = [f"{a:<{width[0]}}  {b:<{width[1]}}  {c}" for a, b, c in rows]

@@ -74,8 +74,20 @@ async def _unstorable(request: Request, exc: Exception) -> Response:
     if "out of range" in reason and (request.method in ("GET", "HEAD") or _huge_path_id(request)):
         missing = NotFound(f"there is nothing at {request.url.path[:200]}: an id out of range")
         return await _service_error(request, missing)
-    refused = Unprocessable(f"a value in the request cannot be stored: {reason}")
-    return await _service_error(request, refused)
+    # a trial's GET of .../revisions/%00 was told a value "cannot be stored", naming Postgres
+    in_path = [key for key, value in request.path_params.items() if "\x00" in str(value)]
+    given = [key for key, value in request.query_params.multi_items() if "\x00" in value]
+    if in_path or given:
+        said = f"{(in_path + given)[0]} holds a NUL character (%00), which no name or value holds"
+        refused: ServiceError = (
+            NotFound(f"there is nothing at {escaped(request.url.path)[:200]}: {said}")
+            if in_path and request.method in ("GET", "HEAD")
+            else Unprocessable(said)
+        )
+        return await _service_error(request, refused)
+    return await _service_error(
+        request, Unprocessable(f"a value in the request cannot be stored: {reason}")
+    )
 
 
 async def _no_route(request: Request, exc: Exception) -> Response:

@@ -3,14 +3,16 @@
 from __future__ import annotations
 
 from datetime import datetime
+from typing import Annotated
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field
 from redline.server.schemas.common import RequestBody
-from redline.server.schemas.fields import Word
+from redline.server.schemas.fields import Word, path_segment
 
 
 class TokenCreate(RequestBody):
-    name: str = Field(min_length=1, max_length=200)
+    # one path segment of one line, refused by name (422) as every name is (a trial's "\x07")
+    name: Annotated[str, AfterValidator(path_segment)] = Field(min_length=1, max_length=200)
     scopes: list[str] = Field(min_length=1, description="ci, triage, agent, read, admin")
     host: str | None = Field(
         default=None, max_length=200, description="for an agent token: the one host it may act as"

@@ -140,6 +140,12 @@ def compare(session: Session, component_name: str, base: str, candidate: str) ->
     component = get_component(session, component_name)
     before = revision_range(session, component, base, "base")
     after = revision_range(session, component, candidate, "candidate")
+    if both := sorted({r.title for r in before} & {r.title for r in after}):
+        # a trial's baseline range held its candidate: a comparison with itself, shown as one
+        raise BadRequest(
+            f"base and candidate share {', '.join(both[:5])}: a revision compared with itself "
+            "shows no change; give a base that ends before the candidate"
+        )
     base_samples, base_exact = pooled_samples(session, before)
     cand_samples, cand_exact = pooled_samples(session, after)
     common = sorted(set(base_samples) & set(cand_samples))
