@@ -353,6 +353,8 @@ def test_a_nul_character_is_a_4xx_naming_where_it_is(api: Api):
         missing = api.client.get(path)
         assert missing.status_code == 404, missing.text
         assert "holds a NUL character (%00)" in missing.text and "PostgreSQL" not in missing.text
+    gone = api.client.delete("/api/v1/tokens/a%00", headers=api.tokens["admin"])  # any method
+    assert gone.status_code == 404 and "holds a NUL character" in gone.text, gone.text
     page = api.client.get("/regressions?component=%00")
     assert page.status_code == 422 and "component holds a NUL character" in page.text, page.text
 

@@ -77,11 +77,12 @@ async def _unstorable(request: Request, exc: Exception) -> Response:
     # a trial's GET of .../revisions/%00 was told a value "cannot be stored", naming Postgres
     in_path = [key for key, value in request.path_params.items() if "\x00" in str(value)]
     given = [key for key, value in request.query_params.multi_items() if "\x00" in value]
-    if in_path or given:
-        said = f"{(in_path + given)[0]} holds a NUL character (%00), which no name or value holds"
-        refused: ServiceError = (
+    if "NUL" in reason and (in_path or given):
+        named = escaped((in_path + given)[0])[:80]
+        said = f"{named} holds a NUL character (%00), which no name or value holds"
+        refused: ServiceError = (  # an address holding one names nothing, whatever the method
             NotFound(f"there is nothing at {escaped(request.url.path)[:200]}: {said}")
-            if in_path and request.method in ("GET", "HEAD")
+            if in_path
             else Unprocessable(said)
         )
         return await _service_error(request, refused)

@@ -305,9 +305,19 @@ def plotly_js() -> FileResponse:
     return FileResponse(PLOTLY_JS, media_type="text/javascript")
 
 
+#: a change's confirmation as the pages say it: as its regression's is said ("held" and "dropped"
+#: are the API's words; a trial read "held" on one page and "confirmed" on the next)
+CONFIRMATION_WORDS = {"held": "confirmed", "dropped": "not confirmed"}
+
+
+def confirmation_word(state: str) -> str:
+    return CONFIRMATION_WORDS.get(state, state)
+
+
 def mount(app: FastAPI, settings: Settings) -> None:
     """Add the UI's routes, templates (``web/templates``) and static files (``web/static``)."""
     app.state.templates = Jinja2Templates(directory=settings.web_dir / "templates")
+    app.state.templates.env.filters["confirmation"] = confirmation_word
     app.include_router(router)
     app.include_router(regression_pages.router)
     app.include_router(signin_pages.router)

@@ -57,7 +57,7 @@ def issue_token(
     try:  # a CR/LF made `redline token list` print a second row; a '/' no URL could revoke
         path_segment(name)
     except ValueError as exc:
-        raise BadRequest(f"a token's name '{escaped(name)[:80]}' {exc}") from None
+        raise BadRequest(f"a token's name '{escaped(name[:80])}' {exc}") from None
     if not name.strip():  # `redline token create ""` made one; the API took "   "
         raise BadRequest("a token's name must not be empty or blank: name who it is for")
     if name.isascii() and name.isdecimal():  # `revoke_token` reads such a name as an id first
