@@ -136,7 +136,7 @@ def ensure_own_labels(token: ApiToken, labels: list[str]) -> None:
 def ensure_component(token: ApiToken, component: str) -> None:
     """A token bound to components acts on those only, 403 otherwise (an admin binds it:
     ``redline token create ... --components A,B``)."""
-    if not acts_on(token, component):
+    if not acts_on(token.components or [], component):
         raise HTTPException(
             status.HTTP_403_FORBIDDEN,
             f"token {token.name!r} acts on the components {', '.join(token.components)} only, "

@@ -29,6 +29,7 @@ from redline.server.core.security import (
     parse_scopes,
 )
 from redline.server.models import ApiToken, User, WebSession, utcnow
+from redline.server.services import tokens
 from redline.server.services.errors import BadRequest, Conflict, Forbidden, NotFound
 from redline.server.services.tokens import authenticate
 from sqlalchemy import delete, select
@@ -219,7 +220,7 @@ def authorize(row: WebSession | None, form_token: str, scope: str) -> str:
 def acts_on(row: WebSession | None, component: str) -> bool:
     """Whether the session may act on ``component``: opened by a person, or by a token bound
     to no component or to it (`redline.server.services.tokens.acts_on`)."""
-    return row is not None and (not row.components or component in row.components)
+    return row is not None and tokens.acts_on(row.components, component)
 
 
 def ensure_component(row: WebSession | None, component: str) -> None:

@@ -122,9 +122,10 @@ def _components(session: Session, scopes: list[str], names: list[str]) -> list[s
     return sorted(set(names))
 
 
-def acts_on(token: ApiToken, component: str) -> bool:
-    """Whether ``token`` may act on ``component``: bound to none (every one) or to it."""
-    return not token.components or component in token.components
+def acts_on(bound: Sequence[str], component: str) -> bool:
+    """Whether a token bound to the components ``bound`` (or a session it opened) may act on
+    ``component``: bound to none (every one) or to it."""
+    return not bound or component in bound
 
 
 def list_tokens(session: Session) -> list[ApiToken]:
