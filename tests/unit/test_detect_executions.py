@@ -283,3 +283,35 @@ def test_the_why_page_quotes_what_the_score_is_and_where_it_flags():
     assert "its score is the weaker of z / threshold and |effect| / min_effect" in rule
     assert "a score of 1 or more is a change" in rule
     assert "trial" not in rule and "page" not in rule  # a note to the code's reader, not the page's
+
+
+def _one_execution_corpus(levels: list[float]) -> Corpus:
+    """One series, one execution a build at ``levels`` (1 % between runs, 2 % in samples)."""
+    rng = np.random.default_rng(11)
+    rows = []
+    for build, level in enumerate(levels):
+        centre = level * (1 + (0.01, -0.01, 0.005, -0.005, 0.0)[build % 5])
+        rows += [("cpu", build, 0, float(v)) for v in rng.normal(centre, level * 0.02, 40)]
+    frame = pd.DataFrame(rows, columns=["series", "build", "execution", "value"])
+    return Corpus("suspected", frame, {"cpu": SeriesLabel("regression", 9)})
+
+
+def test_evaluation_judges_the_build_after_an_undecided_flag_as_the_worker_does() -> None:
+    """`redline.detect.suspected`: a low run at build 8 (flagged), a real +30 % at build 9. The
+    baseline restarted at build 8 was too short; the build is judged against the level before
+    it (builds 0-7), as `tests/integration/test_suspected_level.py` sees the worker do."""
+    judged = {
+        unit.build: (unit, found)
+        for unit, found in walk(ExecutionShift(), _one_execution_corpus([20.0] * 8 + [14.0, 26.0]))
+    }
+    assert judged[8][1].flagged and judged[8][1].direction == "decrease"
+    unit, found = judged[9]
+    assert found.flagged and found.direction == "increase", found.reason
+    assert len(unit.baseline) == 8  # builds 0-7: the flagged build left out
+    # a build at the suspected level shows that change: left undecided, not flagged again
+    held = {
+        unit.build: found
+        for unit, found in walk(ExecutionShift(), _one_execution_corpus([20.0] * 8 + [26.0] * 2))
+    }
+    assert held[8].flagged and held[9].verdict == NOT_ENOUGH_DATA
+    assert "shows that change" in held[9].reason

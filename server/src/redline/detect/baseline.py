@@ -79,11 +79,15 @@ def take_recent(
     window: int = DEFAULT_WINDOW,
     wait: int = DEFAULT_CONFIRM_REVISIONS,
     count: bool = False,
+    past_undecided: bool = False,
 ) -> list[T]:
     """The earlier revisions that form the baseline, taken from ``(revision, its values,
     flagged by the method)`` newest first, and read no further than needed (the iterable may
     compute each revision's values lazily). ``wait``: the revisions after a flag that decide
-    whether it was a spike (`restarts`); ``count``: the values count rare events."""
+    whether it was a spike (`restarts`); ``count``: the values count rare events;
+    ``past_undecided``: read on past a flag fewer than ``wait`` revisions after it measured
+    the series, as if it had not restarted the baseline (the level before it,
+    `redline.detect.suspected`)."""
     items: _Lazy[T] = _Lazy(newest_first)
     taken: list[T] = []
     pooled = 0
@@ -92,7 +96,12 @@ def take_recent(
         item, values, flagged = entry
         taken.append(item)
         pooled += len(values)
-        if flagged and _restarts_at(items, k, need, window, wait, count):
+        undecided = k < wait  # the revisions since it: the ``k`` newer ones read
+        if (
+            flagged
+            and not (past_undecided and undecided)
+            and _restarts_at(items, k, need, window, wait, count)
+        ):
             break  # the newest change the method flagged that held: the baseline starts there
         k += 1
     return taken
@@ -126,6 +135,7 @@ def recent_depth(
     flagged: Callable[[int], bool] = lambda _k: False,
     wait: int = DEFAULT_CONFIRM_REVISIONS,
     count: bool = False,
+    past_undecided: bool = False,
 ) -> int:
     """How many of the newest earlier revisions form the baseline (`take_recent` on values).
 
@@ -139,5 +149,6 @@ def recent_depth(
             window,
             wait,
             count,
+            past_undecided,
         )
     )

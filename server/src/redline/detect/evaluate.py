@@ -20,6 +20,7 @@ from __future__ import annotations
 import bisect
 import math
 from collections.abc import Callable, Iterator, Mapping, Sequence
+from functools import partial
 
 import numpy as np
 from redline.detect.baseline import DEFAULT_WINDOW, lookback, recent_depth
@@ -42,6 +43,7 @@ from redline.detect.methods import Detector
 from redline.detect.registry import CHANGE_POINT_METHOD, DEFAULT_METHOD, EVALUATED
 from redline.detect.result import Detection, direction_of, not_enough
 from redline.detect.scores import MethodScores, Outcome, summarize
+from redline.detect.suspected import past_suspected
 from redline.detect.verdict import judge_series
 
 #: Called with (series done, series in all) as an evaluation walks a corpus.
@@ -144,27 +146,44 @@ def _walk_series(
     runs = [executions for _, executions in builds]
     flags: set[int] = set()
     for k in range(1, len(builds)):
-        depth = recent_depth(
-            values[max(0, k - lookback(window)) : k][::-1],  # all a baseline can reach
-            judge.baseline_values,
-            window,
-            {k - 1 - j for j in flags}.__contains__,  # positions newest first
-            wait,
-            count=kind.count,
-        )
+        reach = values[max(0, k - lookback(window)) : k][::-1]  # all a baseline can reach
+
+        def depth_of(past_undecided: bool, k: int = k, reach: list[np.ndarray] = reach) -> int:
+            return recent_depth(
+                reach,
+                judge.baseline_values,
+                window,
+                {k - 1 - j for j in flags}.__contains__,  # positions newest first
+                wait,
+                count=kind.count,
+                past_undecided=past_undecided,
+            )
+
+        depth = depth_of(False)
         baseline, candidate = np.concatenate(values[k - depth : k]), values[k]
         build = builds[k][0]
-        unit = Unit(
-            series, build, baseline, candidate, build in changes, kind.worse, kind.count, runs, k
-        )
         if kind.count:
             found = rate_verdict(values, totals, k, depth)
+        elif detector.ndim == 2:
+            found = judge_series(detector, kind.counter, baseline[:, None], candidate[:, None])
         else:
-            if detector.ndim == 2:
-                baseline, candidate = baseline[:, None], candidate[:, None]
             # as the worker judges: the detector, then the counter's absolute floor (a series
             # id ending in a known counter name, e.g. "leak/rss_bytes", gets that floor)
             found = judge_series(detector, kind.counter, baseline, candidate)
+            if depth <= wait and (k - depth) in flags and (past := depth_of(True)) > depth:
+                # restarted at a flag still undecided, too short: as `Baselines.past_suspected`
+                found, judged_before = past_suspected(
+                    found,
+                    partial(judge_series, detector, kind.counter, candidate=candidate),
+                    baseline,
+                    np.concatenate(values[k - past : k - depth]),
+                    str(builds[k - depth][0]),
+                )
+                if judged_before:
+                    baseline = np.concatenate(values[k - past : k - depth])
+        unit = Unit(
+            series, build, baseline, candidate, build in changes, kind.worse, kind.count, runs, k
+        )
         if found.flagged:  # a baseline may restart at any flag, a better or a worse one
             flags.add(k)
         yield unit, found

@@ -6,15 +6,17 @@ from __future__ import annotations
 import logging
 from dataclasses import dataclass
 from itertools import islice
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, cast
 
 import numpy as np
 from redline.detect.baseline import lookback, take_recent
 from redline.detect.config import DetectionConfig
 from redline.detect.count_rate import CountRate
 from redline.detect.execution_shift import HELD_AFTER, ExecutionShift, strongest_step
-from redline.detect.methods import Levelled
+from redline.detect.methods import Detector, Levelled
 from redline.detect.result import Detection
+from redline.detect.suspected import past_suspected
+from redline.detect.verdict import judge_series
 from redline.server.models import Execution, Revision
 from redline.worker.history import (
     earlier_than,
@@ -108,7 +110,9 @@ class Baselines:
             self._taken[key] = self._take(series_id, detector)
         return self._taken[key]
 
-    def _take(self, series_id: int, detector: Levelled) -> list[tuple[int, np.ndarray]]:
+    def _take(
+        self, series_id: int, detector: Levelled, past_undecided: bool = False
+    ) -> list[tuple[int, np.ndarray]]:
         if self.config.baseline == "pinned":
             ids = [self.pinned] if self.pinned is not None else []
         else:
@@ -127,7 +131,45 @@ class Baselines:
             self.config.window,
             self.config.confirm_revisions,
             count=isinstance(detector, CountRate),
+            past_undecided=past_undecided,
         )  # fmt: skip
+
+    def past_suspected(
+        self,
+        series_id: int,
+        detector: Detector,
+        counter: str,
+        candidate: np.ndarray | None,
+        base: Baseline,
+        verdict: Detection,
+    ) -> tuple[Baseline, Detection]:
+        """The verdict and its baseline where the series' baseline restarted at a flag that the
+        revisions after it have not yet decided and was too short to judge by: judged against
+        the level before that flag too (`redline.detect.suspected`)."""
+        taken = self._revisions(series_id, detector) if not verdict.decided else []
+        if (
+            self.config.baseline != "recent"
+            or candidate is None
+            or base.values is None
+            or not taken
+            or len(taken) > self.config.confirm_revisions
+            or (series_id, detector.name, taken[-1][0]) not in self.flagged
+        ):
+            return base, verdict
+        past = self._take(series_id, detector, past_undecided=True)
+        if len(past) <= len(taken):
+            return base, verdict
+        older = past[len(taken) :]  # the revisions before the flag
+        before = Baseline(np.concatenate([v for _, v in older]), older[0][0], len(older))
+        flagged = self.session.get(Revision, taken[-1][0])
+        found, judged_before = past_suspected(
+            verdict,
+            lambda values: judge_series(detector, counter, values, candidate),
+            base.values,
+            cast(np.ndarray, before.values),
+            flagged.title if flagged is not None else str(taken[-1][0]),
+        )
+        return (before if judged_before else base), found
 
     def step(self, series_id: int, detector: Levelled, candidate: np.ndarray | None) -> Step | None:
         """A step at one of the baseline's revisions that could not be judged when measured

@@ -153,6 +153,9 @@ def analyze(
                 rows.append(step)
             base = baselines.of(series_id, detector)
             verdict = judge_series(detector, counter, base.values, values, missing=base.missing)
+            base, verdict = baselines.past_suspected(
+                series_id, detector, counter, values, base, verdict
+            )
             if watch_held and verdict.verdict == NO_CHANGE:
                 found = baselines.held(series_id, detector, values)
                 held = held_level(series_id, found, counter, revision)

@@ -1,0 +1,65 @@
+"""Judging a revision while a change flagged just before it is still undecided.
+
+Under the ``recent`` baseline a flag restarts the baseline at once (`redline.detect.baseline`):
+the revisions after a real change are compared with the new level, not flagged again. Until
+``confirm_revisions`` revisions after the flag have measured the series, though, that new level
+is the flagged revision's own values, too few to judge by with one execution a revision: every
+revision there was "not enough data", whether the flag was a real change or noise. A trial saw
+a README-only commit flagged as an improvement make the next two commits' CI verdicts blind
+("skipped: the baseline has 3, needs 6"); a regression made there would have passed unjudged.
+
+So where that restarted baseline is too short, the revision is judged against the level before
+the flag as well (the revisions before it, as the baseline would be read past it; the flagged
+revision's own values left out, which would pull that level towards the suspected one). A change
+for the worse (or better) against it stands, and so does "no change"; only a change in the
+direction of the one suspected, which is that change holding (or a further step the short new
+level cannot tell from it), stays "not enough data", its reason saying so. Whether the flag was
+a change is still settled by its pairs or by the later revisions (`redline.detect.confirmation`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import replace
+
+import numpy as np
+from redline.detect.median_shift import median
+from redline.detect.result import Detection, direction_of, waits_for_history
+
+#: how the reason of a verdict judged against the level before an undecided flag begins
+BEFORE_SUSPECTED = "judged against the level before the change suspected at"
+
+
+def past_suspected(
+    found: Detection,
+    judge: Callable[[np.ndarray], Detection],
+    restarted: np.ndarray,
+    earlier: np.ndarray,
+    at: str,
+) -> tuple[Detection, bool]:
+    """The verdict of a revision whose baseline restarted at a flag still undecided (at
+    revision ``at``): ``found``, judged against ``restarted`` (the values from that flag on),
+    or, where that baseline was too short, ``judge`` against ``earlier`` (the values of the
+    revisions before the flag that a baseline read past it holds). Returns the verdict and
+    whether it was judged against ``earlier``."""
+    restarted, earlier = restarted[np.isfinite(restarted)], earlier[np.isfinite(earlier)]
+    if found.decided or not waits_for_history(found.reason) or not len(restarted):
+        return found, False
+    if not len(earlier):
+        return found, False
+    old = judge(earlier)
+    if not old.decided:
+        return found, False
+    suspected = direction_of(median(restarted) - median(earlier))
+    if old.flagged and old.direction == suspected:
+        return replace(
+            found,
+            reason=f"{found.reason}; against the level before the change suspected at {at} it "
+            f"shows that change ({old.effect:+.1%}): the new level is too short to judge by "
+            "until the revisions after it decide",
+        ), False
+    note = (
+        f"{BEFORE_SUSPECTED} {at}, which the revisions after it have not yet decided (the "
+        f"level from it on has {len(restarted)} value(s), too few)"
+    )
+    return replace(old, reason=f"{old.reason}; {note}" if old.reason else note), True

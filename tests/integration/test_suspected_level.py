@@ -1,0 +1,96 @@
+"""The revisions right after a flag, while the revisions after it have not yet decided it, on
+real Postgres through the worker (`redline.detect.suspected`): one execution a revision, as a
+component's default. Before, every flag restarted the baseline at once, and the next two
+revisions were judged against the flagged one alone: "not enough data", a CI gate blind right
+where a noise flag had just fallen (a trial's README commit, flagged as an improvement)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+from redline.detect.suspected import BEFORE_SUSPECTED
+from redline.server.models import Detection, Revision
+from redline.server.schemas.components import ComponentCreate
+from redline.server.services.components import create_component
+from redline.worker.reanalysis import reanalyze_component
+from sqlalchemy import select
+
+from tests.support.history import add_executions, ingest_and_detect
+
+NAME = "builder"
+
+
+def _history(session, database_url: str, tmp_path: Path, levels: list[float]) -> None:
+    """Revisions r1.. of one execution each around ``levels`` (2 % noise in the samples, a
+    fixed 1 % between runs), judged one by one as the service judges them."""
+    create_component(session, ComponentCreate(name=NAME, executions=1))
+    rng = np.random.default_rng(11)
+    wobble = [0.0, 0.01, -0.01, 0.005, -0.005]
+    for number, level in enumerate(levels, start=1):
+        centre = level * (1 + wobble[number % len(wobble)])
+        runs = [{"cpu": rng.normal(centre, level * 0.02, 60)}]
+        executions = add_executions(session, tmp_path, NAME, f"r{number}", str(number), runs)
+        ingest_and_detect(database_url, executions)
+    session.expire_all()
+
+
+def _verdicts(session) -> dict[str, Detection]:
+    rows = session.execute(
+        select(Detection, Revision.title)
+        .join(Revision, Revision.id == Detection.revision_id)
+        .where(Detection.method == "execution_shift")
+    )
+    return {title: detection for detection, title in rows}
+
+
+def test_a_regression_right_after_a_noise_flag_is_flagged_not_left_undecided(
+    session, database_url, tmp_path
+):
+    """r9 runs low (flagged as an improvement); r10 makes a real +30 %."""
+    _history(session, database_url, tmp_path, [20.0] * 8 + [14.0] + [26.0] * 3)
+    verdicts = _verdicts(session)
+    assert verdicts["r9"].flagged and verdicts["r9"].direction == "decrease"
+    r10 = verdicts["r10"]
+    assert r10.flagged and r10.direction == "increase", (r10.verdict, r10.reason)
+    assert 0.2 < (r10.effect or 0) < 0.4
+    assert f"{BEFORE_SUSPECTED} r9" in r10.reason, r10.reason
+    base = session.get(Revision, r10.baseline_revision_id)
+    assert base is not None and base.title == "r8"  # the level before r9, r9 left out
+    # a re-analysis judges it so too
+    before = {title: (d.verdict, d.reason) for title, d in verdicts.items()}
+    component_id = session.scalars(select(Revision.component_id)).first()
+    reanalyze_component(database_url, component_id)
+    session.expire_all()
+    after = {title: (d.verdict, d.reason) for title, d in _verdicts(session).items()}
+    assert after == before
+
+
+def test_the_revisions_after_a_noise_flag_are_judged_against_the_level_before_it(
+    session, database_url, tmp_path
+):
+    _history(session, database_url, tmp_path, [20.0] * 8 + [14.0] + [20.0] * 3)
+    verdicts = _verdicts(session)
+    assert verdicts["r9"].flagged
+    for title in ("r10", "r11"):
+        assert verdicts[title].verdict == "no change", (title, verdicts[title].reason)
+        assert f"{BEFORE_SUSPECTED} r9" in verdicts[title].reason
+    # by r12 the two after it have decided: a spike, and the baseline reads on past it
+    assert verdicts["r12"].verdict == "no change"
+    assert BEFORE_SUSPECTED not in verdicts["r12"].reason
+
+
+def test_a_revision_that_holds_a_suspected_change_is_not_flagged_again(
+    session, database_url, tmp_path
+):
+    """r9 makes a real +30 %: r10, at its level, shows the same change against the level before
+    it, which is r9's change holding, not a new one."""
+    _history(session, database_url, tmp_path, [20.0] * 8 + [26.0] * 4)
+    verdicts = _verdicts(session)
+    assert verdicts["r9"].flagged and verdicts["r9"].direction == "increase"
+    r10 = verdicts["r10"]
+    assert r10.verdict == "not enough data", r10.reason
+    assert "against the level before the change suspected at r9 it shows that change" in (
+        r10.reason
+    )
+    assert not any(d.flagged for t, d in verdicts.items() if t != "r9")
