@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 from redline.detect.config import DetectionConfig
 from redline.detect.confirmation import DEFAULT_CONFIRM_PAIRS
+from redline.detect.suspected import AT_NEW_LEVEL
 from redline.recording import SeriesKey
 from redline.server.core.tasks import DETECT_TASK
 from redline.server.db import lock_component
@@ -816,13 +817,18 @@ def test_a_change_whose_pairs_ran_its_set_alone_is_not_moved_back(session, datab
 
 
 def _restarted_history(
-    session, database_url: str, tmp_path: Path, r12: float, pairs_r12: float = 100.0
+    session,
+    database_url: str,
+    tmp_path: Path,
+    r12: float,
+    pairs_r12: float = 100.0,
+    new: bool = False,
 ) -> int:
     """One execution a revision: r1-r6 at 20 % CPU, r7-r11 at 60 % (r7 flagged, confirmed:
-    the baseline restarts there), r12's own run at ``r12``, r13 at 100 %: r13 is flagged
-    against r7-r12, which r12 joined with 5 values of the 6 needed ("not enough data"). Every
-    confirmation pair is run as it is leased, r12's re-runs at ``pairs_r12``. The component's
-    id."""
+    the baseline restarts there), r12's own run at ``r12``, r13 at 100 %. ``new``: without
+    r1-r6, a history that begins at r7, so r12 is judged against r7-r11 alone, 5 values of
+    the 6 needed ("not enough data"), and r13 is flagged against r7-r12. Every confirmation
+    pair is run as it is leased, r12's re-runs at ``pairs_r12``. The component's id."""
     component = create_component(session, ComponentCreate(name=NAME, executions=1))
     session.add(DetectionConfigRow(component_id=component.id, config={"confirm_pairs": PAIRS}))
     session.commit()
@@ -834,7 +840,7 @@ def _restarted_history(
             return r12 if own else pairs_r12
         return 20.0 if number < 7 else 60.0 if number < 12 else 100.0
 
-    for number in range(1, 14):
+    for number in range(7 if new else 1, 14):
         title = f"r{number}"
         (execution,) = add_executions(
             session, tmp_path, NAME, title, str(number), [_cpu(level(title), number)]
@@ -849,16 +855,41 @@ def _restarted_history(
     return component.id
 
 
-def test_a_change_whose_revision_could_not_be_judged_is_found_there_by_its_own_runs(
+def test_a_change_made_while_the_baseline_restarts_after_another_is_found_where_it_was_made(
     session, database_url, tmp_path
 ):
     """A new user's history: work tripled at r7, confirmed; then +67 % at r12, when r7's
-    restarted baseline held 5 of the 6 values needed ("not enough data"). r13 was flagged
-    against r7-r12 (still the old median), its pairs against r12 (the same code, the set run
-    alone) dropped it, and r12 was never a regression. Now r12's own run, against its own
-    baseline, says the change came with it, and r12's own pairs confirm it."""
+    restarted baseline held 5 of the 6 values needed. r12 was "not enough data", r13 was
+    flagged against r7-r12 (still the old median), its pairs against r12 (the same code)
+    dropped it, and r12 was never a regression. Now r12 is judged at the new level with the
+    old one's noise (`redline.detect.suspected.at_new_level`), flagged there, and its pairs
+    confirm it; r13 is no change."""
     component_id = _restarted_history(session, database_url, tmp_path, r12=100.0)
     assert _detection(session, "r7").confirmation == "held"
+    r12 = _detection(session, "r12")
+    assert r12.flagged and r12.confirmation == "held", (r12.reason, r12.confirmation_reason)
+    assert f"{AT_NEW_LEVEL} r7 (5 value(s))" in r12.reason, r12.reason
+    assert not _detection(session, "r13").flagged
+    regressions = {
+        (r.good_revision.title, r.bad_revision.title): r.confirmation
+        for r in session.scalars(select(Regression))
+    }
+    assert regressions[("r11", "r12")] == "confirmed", regressions
+    said = (r12.verdict, r12.reason, r12.confirmation)
+    reanalyze_component(database_url, component_id)
+    session.expire_all()
+    again = _detection(session, "r12")
+    assert (again.verdict, again.reason, again.confirmation) == said
+
+
+def test_a_change_whose_revision_could_not_be_judged_is_found_there_by_its_own_runs(
+    session, database_url, tmp_path
+):
+    """A history that begins at r7 (60 % CPU): r12 makes +67 % when r7-r11 hold 5 of the 6
+    values needed ("not enough data"). r13 is flagged against r7-r12 (still the old median),
+    its pairs against r12 (the same code, the set run alone) drop it. r12's own run, against
+    its own baseline, says the change came with it, and r12's own pairs confirm it."""
+    component_id = _restarted_history(session, database_url, tmp_path, r12=100.0, new=True)
     late, moved = _detection(session, "r13"), _detection(session, "r12")
     assert late.confirmation == "dropped", late.confirmation_reason
     assert "r12's own run(s) were already at the new level (+" in late.confirmation_reason
@@ -889,7 +920,7 @@ def test_a_revision_not_judged_is_not_blamed_for_a_dropped_flag_on_a_few_per_cen
     allows, under r13's flag of +67 %; the move asks at least half the dropped flag's step,
     so r12 keeps its "not enough data" and no pair of its runs (its re-runs here at 100 %
     would have confirmed a regression of r12's)."""
-    _restarted_history(session, database_url, tmp_path, r12=62.0)
+    _restarted_history(session, database_url, tmp_path, r12=62.0, new=True)
     late, r12 = _detection(session, "r13"), _detection(session, "r12")
     assert late.flagged and late.confirmation == "dropped", late.confirmation_reason
     assert r12.verdict == "not enough data" and not r12.flagged, r12.reason

@@ -2,14 +2,15 @@
 real Postgres through the worker (`redline.detect.suspected`): one execution a revision, as a
 component's default. Before, every flag restarted the baseline at once, and the next two
 revisions were judged against the flagged one alone: "not enough data", a CI gate blind right
-where a noise flag had just fallen (a trial's README commit, flagged as an improvement)."""
+where a noise flag had just fallen (a trial's README commit, flagged as an improvement); and once
+a change held, the three after them against its few values, short of the six needed."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
 import numpy as np
-from redline.detect.suspected import BEFORE_SUSPECTED
+from redline.detect.suspected import AT_NEW_LEVEL, BEFORE_SUSPECTED
 from redline.server.models import Detection, Revision
 from redline.server.schemas.components import ComponentCreate
 from redline.server.services.components import create_component
@@ -44,6 +45,25 @@ def _verdicts(session) -> dict[str, Detection]:
     return {title: detection for detection, title in rows}
 
 
+def _flagged_up_a_third(session, found: Detection, reason: str, newest: str) -> None:
+    """``found`` is a change of about +30 %, its reason saying ``reason``, judged against a
+    baseline whose newest revision is ``newest``."""
+    assert found.flagged and found.direction == "increase", (found.verdict, found.reason)
+    assert 0.2 < (found.effect or 0) < 0.4
+    assert reason in found.reason, found.reason
+    base = session.get(Revision, found.baseline_revision_id)
+    assert base is not None and base.title == newest
+
+
+def _reanalysed_alike(session, database_url: str, verdicts: dict[str, Detection]) -> None:
+    """A re-analysis of the component judges every revision as the live path did."""
+    before = {title: (d.verdict, d.reason) for title, d in verdicts.items()}
+    component_id = session.scalars(select(Revision.component_id)).first()
+    reanalyze_component(database_url, component_id)
+    session.expire_all()
+    assert {title: (d.verdict, d.reason) for title, d in _verdicts(session).items()} == before
+
+
 def test_a_regression_right_after_a_noise_flag_is_flagged_not_left_undecided(
     session, database_url, tmp_path
 ):
@@ -51,19 +71,9 @@ def test_a_regression_right_after_a_noise_flag_is_flagged_not_left_undecided(
     _history(session, database_url, tmp_path, [20.0] * 8 + [14.0] + [26.0] * 3)
     verdicts = _verdicts(session)
     assert verdicts["r9"].flagged and verdicts["r9"].direction == "decrease"
-    r10 = verdicts["r10"]
-    assert r10.flagged and r10.direction == "increase", (r10.verdict, r10.reason)
-    assert 0.2 < (r10.effect or 0) < 0.4
-    assert f"{BEFORE_SUSPECTED} r9" in r10.reason, r10.reason
-    base = session.get(Revision, r10.baseline_revision_id)
-    assert base is not None and base.title == "r8"  # the level before r9, r9 left out
-    # a re-analysis judges it so too
-    before = {title: (d.verdict, d.reason) for title, d in verdicts.items()}
-    component_id = session.scalars(select(Revision.component_id)).first()
-    reanalyze_component(database_url, component_id)
-    session.expire_all()
-    after = {title: (d.verdict, d.reason) for title, d in _verdicts(session).items()}
-    assert after == before
+    # judged against the level before r9, r9 left out
+    _flagged_up_a_third(session, verdicts["r10"], f"{BEFORE_SUSPECTED} r9", "r8")
+    _reanalysed_alike(session, database_url, verdicts)
 
 
 def test_the_revisions_after_a_noise_flag_are_judged_against_the_level_before_it(
@@ -94,3 +104,32 @@ def test_a_revision_that_holds_a_suspected_change_is_not_flagged_again(
         r10.reason
     )
     assert not any(d.flagged for t, d in verdicts.items() if t != "r9")
+
+
+def test_once_a_change_held_the_revisions_after_it_are_judged_at_its_new_level(
+    session, database_url, tmp_path
+):
+    """r9 makes +30 %, which r10 and r11 hold; r12 adds another +30 %. Before, r12 was judged
+    against r9-r11 alone (3 values, needs 6: "not enough data"), so the second change passed
+    CI unjudged and was pooled into the new level; now the new level is judged with the noise
+    of the one before it (`ExecutionShift.at_new_level`)."""
+    _history(session, database_url, tmp_path, [20.0] * 8 + [26.0] * 3 + [34.0] + [34.0] * 2)
+    verdicts = _verdicts(session)
+    assert verdicts["r9"].flagged and verdicts["r9"].confirmation == "held"
+    _flagged_up_a_third(session, verdicts["r12"], f"{AT_NEW_LEVEL} r9 (3 value(s))", "r11")
+    assert verdicts["r12"].baseline_revisions == 3
+    flagged = sorted(title for title, d in verdicts.items() if d.flagged)
+    assert flagged == ["r12", "r9"], flagged
+    _reanalysed_alike(session, database_url, verdicts)
+
+
+def test_a_revision_at_a_held_change_s_level_is_no_change_not_undecided(
+    session, database_url, tmp_path
+):
+    _history(session, database_url, tmp_path, [20.0] * 8 + [26.0] * 7)
+    verdicts = _verdicts(session)
+    for title in ("r12", "r13", "r14"):
+        assert verdicts[title].verdict == "no change", (title, verdicts[title].reason)
+        assert f"{AT_NEW_LEVEL} r9" in verdicts[title].reason
+    assert verdicts["r15"].verdict == "no change"  # r9-r14, six values: judged by them alone
+    assert AT_NEW_LEVEL not in verdicts["r15"].reason

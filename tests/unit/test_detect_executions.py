@@ -315,3 +315,37 @@ def test_evaluation_judges_the_build_after_an_undecided_flag_as_the_worker_does(
     }
     assert held[8].flagged and held[9].verdict == NOT_ENOUGH_DATA
     assert "shows that change" in held[9].reason
+
+
+def test_a_short_new_level_is_judged_with_the_old_level_s_relative_noise() -> None:
+    """`ExecutionShift.at_new_level`: 8 values at 20 (1 % noise), a new level of 3 at 26."""
+    rng = np.random.default_rng(2)
+    earlier = 20.0 * (1 + rng.normal(0, 0.01, 8))
+    level = 26.0 * (1 + rng.normal(0, 0.01, 3))
+    judge = ExecutionShift().confirmed()
+    # at the new level: no change; 1 % noise in 26's units, not in 20's
+    same = judge.at_new_level(level, earlier, np.array([26.0 * 1.01]))
+    assert same.verdict == NO_CHANGE, same
+    # +30 % on the new level: z = 7.8 / (0.26 x sqrt(4/3)) is far beyond 6
+    raised = judge.at_new_level(level, earlier, np.array([33.8]))
+    assert raised.verdict == CHANGE and raised.effect == pytest.approx(0.3, abs=0.03)
+    # too few in all: says so
+    few = judge.at_new_level(level, earlier[:2], np.array([33.8]))
+    assert few.verdict == NOT_ENOUGH_DATA and "needs 6 in all" in few.reason
+    # a count that does not vary: a tenth of one, so one more thread on 15 is a change
+    threads = judge.at_new_level(np.full(3, 15.0), np.full(8, 14.0), np.array([16.0]))
+    assert threads.verdict == CHANGE and threads.parts[0] == pytest.approx(1 / (0.1 * 2 / 3**0.5))
+
+
+def test_evaluation_judges_a_held_change_s_short_new_level_as_the_worker_does() -> None:
+    """A +30 % at build 8 that holds, another at build 11: build 11's baseline (builds 8-10,
+    3 values) was too short to judge by; judged at the new level with the old one's noise."""
+    judged = {
+        unit.build: found
+        for unit, found in walk(
+            ExecutionShift(), _one_execution_corpus([20.0] * 8 + [26.0] * 3 + [34.0] * 2)
+        )
+    }
+    assert judged[8].flagged and not judged[9].flagged and not judged[10].flagged
+    assert judged[11].flagged and judged[11].direction == "increase", judged[11].reason
+    assert "judged against the new level since the change at 8 (3 value(s))" in judged[11].reason

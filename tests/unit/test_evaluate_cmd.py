@@ -87,9 +87,11 @@ def test_executions_option_uses_only_the_first_executions(tmp_path: Path) -> Non
         app, ["evaluate", corpus, "--methods", "execution_shift", "--executions", "1"]
     )
     # one execution a build: a baseline needs 6 builds, so builds 1-5 abstain in both series,
-    # and cpu's builds 9-13 too (its baseline restarts at the change it flagged at build 8)
+    # and cpu's builds 9-10 too: they show the change flagged at build 8, which the builds
+    # after it have not yet decided; from build 11 the new level (3-5 values) is judged with
+    # the old one's noise (`redline.detect.suspected`; before, builds 11-13 abstained too)
     decided = next(word for word in one.stdout.splitlines()[2].split() if "/" in word)
-    assert decided == "11/26", one.output
+    assert decided == "14/26", one.output
 
 
 def test_unknown_method_and_missing_corpus_are_named_with_exit_2(tmp_path: Path) -> None:

@@ -43,7 +43,7 @@ from redline.detect.methods import Detector
 from redline.detect.registry import CHANGE_POINT_METHOD, DEFAULT_METHOD, EVALUATED
 from redline.detect.result import Detection, direction_of, not_enough
 from redline.detect.scores import MethodScores, Outcome, summarize
-from redline.detect.suspected import past_suspected
+from redline.detect.suspected import at_new_level, past_suspected
 from redline.detect.verdict import judge_series
 
 #: Called with (series done, series in all) as an evaluation walks a corpus.
@@ -146,14 +146,15 @@ def _walk_series(
     runs = [executions for _, executions in builds]
     flags: set[int] = set()
     for k in range(1, len(builds)):
-        reach = values[max(0, k - lookback(window)) : k][::-1]  # all a baseline can reach
 
-        def depth_of(past_undecided: bool, k: int = k, reach: list[np.ndarray] = reach) -> int:
+        def depth_of(past_undecided: bool, at: int = k, first: int = k) -> int:
+            """The depth of the baseline of the build at ``at``, among those from ``first`` -
+            lookback on (the ones the build judged now looks through)."""
             return recent_depth(
-                reach,
+                values[max(0, first - lookback(window)) : at][::-1],
                 judge.baseline_values,
                 window,
-                {k - 1 - j for j in flags}.__contains__,  # positions newest first
+                {at - 1 - j for j in flags}.__contains__,  # positions newest first
                 wait,
                 count=kind.count,
                 past_undecided=past_undecided,
@@ -170,8 +171,21 @@ def _walk_series(
             # as the worker judges: the detector, then the counter's absolute floor (a series
             # id ending in a known counter name, e.g. "leak/rss_bytes", gets that floor)
             found = judge_series(detector, kind.counter, baseline, candidate)
-            if depth <= wait and (k - depth) in flags and (past := depth_of(True)) > depth:
-                # restarted at a flag still undecided, too short: as `Baselines.past_suspected`
+            flag = k - depth  # where a baseline restarted at a flag begins
+            if depth > wait and flag in flags:  # one that held: as `Baselines.after_flag`
+                older = values[flag - depth_of(False, at=flag) : flag]
+                if older:
+                    found = at_new_level(
+                        found,
+                        detector,
+                        kind.counter,
+                        baseline,
+                        np.concatenate(older),
+                        candidate,
+                        str(builds[flag][0]),
+                    )
+            elif flag in flags and (past := depth_of(True)) > depth:
+                # restarted at a flag still undecided, too short: as `Baselines.after_flag`
                 found, judged_before = past_suspected(
                     found,
                     partial(judge_series, detector, kind.counter, candidate=candidate),

@@ -196,6 +196,33 @@ class ExecutionShift(Detector):
         confirm what it flags (`redline.worker.held_level`)."""
         return self._between(before, after, self.threshold)
 
+    def at_new_level(self, level: np.ndarray, earlier: np.ndarray, cand: np.ndarray) -> Detection:
+        """A revision judged against a new level too short to judge by alone (``level``: the
+        values since a change that held, fewer than ``min_baseline``), its noise read from the
+        level before the change as well (``earlier``): the spread of both levels' values
+        relative to their own medians, times the new one (a level 30 % higher varies 30 % more
+        in its units), at least `spread_floor` of it; ``z`` counts the new level's median as
+        known from its own values only (``sqrt(1/len(cand) + 1/len(level))``). At
+        ``threshold``, as `_detect`. `redline.detect.suspected.at_new_level`."""
+        level, earlier = level[np.isfinite(level)], earlier[np.isfinite(earlier)]
+        cand = cand[np.isfinite(cand)]
+        new, old = median(level) if len(level) else 0.0, median(earlier) if len(earlier) else 0.0
+        if not len(cand) or len(level) + len(earlier) < self.min_baseline or 0.0 in (new, old):
+            return not_enough(
+                self.name,
+                f"too few values for the new level: {len(level)} at it, {len(earlier)} before "
+                f"(needs {self.min_baseline} in all)",
+            )
+        relative = np.concatenate([(earlier - old) / abs(old), (level - new) / abs(new)])
+        spread = max(
+            MAD_TO_SD * median(np.abs(relative)) * abs(new),
+            spread_floor(level, new, self.rel_scale),
+            1e-12,
+        )
+        after = median(cand)
+        z = abs(after - new) / (spread * math.sqrt(1 / len(cand) + 1 / len(level)))
+        return self._decided(z, relative_effect(new, after), self.threshold)
+
     def _between(self, before: np.ndarray, after: np.ndarray, threshold: float) -> Detection:
         before, after = before[np.isfinite(before)], after[np.isfinite(after)]
         if min(len(before), len(after)) < STEP_SIDE or len(before) + len(after) < self.min_baseline:

@@ -23,11 +23,15 @@ from collections.abc import Callable
 from dataclasses import replace
 
 import numpy as np
+from redline.detect.execution_shift import ExecutionShift
 from redline.detect.median_shift import median
 from redline.detect.result import Detection, direction_of, waits_for_history
+from redline.detect.verdict import floored
 
 #: how the reason of a verdict judged against the level before an undecided flag begins
 BEFORE_SUSPECTED = "judged against the level before the change suspected at"
+#: how the reason of a verdict judged against a short new level (`at_new_level`) begins
+AT_NEW_LEVEL = "judged against the new level since the change at"
 
 
 def past_suspected(
@@ -63,3 +67,37 @@ def past_suspected(
         f"level from it on has {len(restarted)} value(s), too few)"
     )
     return replace(old, reason=f"{old.reason}; {note}" if old.reason else note), True
+
+
+def at_new_level(
+    found: Detection,
+    detector: object,
+    counter: str,
+    level: np.ndarray,
+    earlier: np.ndarray,
+    candidate: np.ndarray,
+    at: str,
+) -> Detection:
+    """The verdict of a revision whose baseline restarted at a change that held (at revision
+    ``at``): ``found``, or, where that new level (``level``, its values) was too short to judge
+    by, `ExecutionShift.at_new_level` against it with the noise of the level before it
+    (``earlier``: the values the flagged revision's own baseline holds), and the counter's
+    absolute floor. Without it, the revisions after a real change were "not enough data"
+    until six values at the new level existed: with one execution a revision, a second change
+    made in the five revisions after the first passed CI unjudged and was pooled into the new
+    level. Only for `ExecutionShift`'s kind (one value an execution or a revision)."""
+    if (
+        found.decided
+        or not waits_for_history(found.reason)
+        or not isinstance(detector, ExecutionShift)
+    ):
+        return found
+    judged = detector.at_new_level(level, earlier, candidate)
+    if not judged.decided:
+        return found
+    judged = floored(judged, counter, level, candidate)
+    note = (
+        f"{AT_NEW_LEVEL} {at} ({len(level[np.isfinite(level)])} value(s)), with the noise of "
+        "the level before it too"
+    )
+    return replace(judged, reason=f"{judged.reason}; {note}" if judged.reason else note)

@@ -15,7 +15,7 @@ from redline.detect.count_rate import CountRate
 from redline.detect.execution_shift import HELD_AFTER, ExecutionShift, strongest_step
 from redline.detect.methods import Detector, Levelled
 from redline.detect.result import Detection
-from redline.detect.suspected import past_suspected
+from redline.detect.suspected import at_new_level, past_suspected
 from redline.detect.verdict import judge_series
 from redline.server.models import Execution, Revision
 from redline.worker.history import (
@@ -111,12 +111,21 @@ class Baselines:
         return self._taken[key]
 
     def _take(
-        self, series_id: int, detector: Levelled, past_undecided: bool = False
+        self,
+        series_id: int,
+        detector: Levelled,
+        past_undecided: bool = False,
+        before: int | None = None,
     ) -> list[tuple[int, np.ndarray]]:
+        """The baseline's revisions with their values, newest first; ``past_undecided``: read
+        past a flag not yet decided (`take_recent`); ``before``: the baseline of that earlier
+        revision as ``recent`` reads it from there, among the revisions this one looks through."""
         if self.config.baseline == "pinned":
             ids = [self.pinned] if self.pinned is not None else []
         else:
             ids = self.previous.get(series_id, [])
+        if before is not None:
+            ids = ids[ids.index(before) + 1 :] if before in ids else []
         present = (
             (i, values) for i in ids if (values := self.values(i, series_id, detector)) is not None
         )
@@ -134,7 +143,7 @@ class Baselines:
             past_undecided=past_undecided,
         )  # fmt: skip
 
-    def past_suspected(
+    def after_flag(
         self,
         series_id: int,
         detector: Detector,
@@ -143,31 +152,41 @@ class Baselines:
         base: Baseline,
         verdict: Detection,
     ) -> tuple[Baseline, Detection]:
-        """The verdict and its baseline where the series' baseline restarted at a flag that the
-        revisions after it have not yet decided and was too short to judge by: judged against
-        the level before that flag too (`redline.detect.suspected`)."""
+        """The verdict and its baseline where the series' baseline restarted at a flag and was
+        too short to judge by (`redline.detect.suspected`): while the revisions after the flag
+        have not yet decided it, judged against the level before it too (`past_suspected`);
+        once they held it, against the new level with the noise of the one before it
+        (`at_new_level`)."""
         taken = self._revisions(series_id, detector) if not verdict.decided else []
         if (
             self.config.baseline != "recent"
             or candidate is None
             or base.values is None
             or not taken
-            or len(taken) > self.config.confirm_revisions
             or (series_id, detector.name, taken[-1][0]) not in self.flagged
         ):
             return base, verdict
+        flag = self.session.get(Revision, taken[-1][0])
+        at = flag.title if flag is not None else str(taken[-1][0])
+        if len(taken) > self.config.confirm_revisions:  # the change held
+            older = self._take(series_id, detector, before=taken[-1][0])
+            if not older:
+                return base, verdict
+            earlier = np.concatenate([values for _, values in older])
+            return base, at_new_level(
+                verdict, detector, counter, base.values, earlier, candidate, at
+            )
         past = self._take(series_id, detector, past_undecided=True)
         if len(past) <= len(taken):
             return base, verdict
         older = past[len(taken) :]  # the revisions before the flag
         before = Baseline(np.concatenate([v for _, v in older]), older[0][0], len(older))
-        flagged = self.session.get(Revision, taken[-1][0])
         found, judged_before = past_suspected(
             verdict,
             lambda values: judge_series(detector, counter, values, candidate),
             base.values,
             cast(np.ndarray, before.values),
-            flagged.title if flagged is not None else str(taken[-1][0]),
+            at,
         )
         return (before if judged_before else base), found
 

@@ -153,7 +153,7 @@ def analyze(
                 rows.append(step)
             base = baselines.of(series_id, detector)
             verdict = judge_series(detector, counter, base.values, values, missing=base.missing)
-            base, verdict = baselines.past_suspected(
+            base, verdict = baselines.after_flag(
                 series_id, detector, counter, values, base, verdict
             )
             if watch_held and verdict.verdict == NO_CHANGE:
