@@ -10,6 +10,7 @@ from pathlib import Path
 import pytest
 from redline.server.db import session_factory
 from redline.server.models import Job
+from redline.server.services import webhooks
 from sqlalchemy import select
 
 from tests.support.api import Api, api_with
@@ -228,12 +229,42 @@ def test_without_a_secret_every_delivery_is_told_so(services: Services, tmp_path
             answer = send_github(bare, body)
             assert answer.status_code == 401, answer.text
             assert "webhook secret is configured" in answer.json()["detail"], body
-        # one Redline cannot read names no repository: only the server-wide secret could
-        # verify it, which is what it is told (a probe's, signed with its component's own
-        # secret, read "no webhook secret is configured")
+        # once a component has a secret of its own, a body Redline cannot read names no
+        # repository: only the server-wide secret could verify it, which is what it is told (a
+        # probe's, signed with its component's own secret, read "no webhook secret is
+        # configured")
+        bare.post(
+            "/api/v1/components",
+            "admin",
+            {"name": "builder", "repo": "https://github.com/org/builder", "suite": "perf/r.toml"}
+            | {"webhook_secret": "own-secret-of-builder"},
+        ).raise_for_status()
         answer = send_github(bare, b"not json", secret="own-secret-of-builder")
         assert answer.json()["detail"].startswith(
             "no server-wide webhook secret is configured, and only it can verify this body: it "
             "is no push Redline can read ("
         ), answer.text
         assert counts(bare) == (0, 0)
+
+
+def test_where_no_component_has_its_own_secret_a_forged_delivery_is_never_parsed(
+    api: Api, monkeypatch: pytest.MonkeyPatch
+):
+    """An audit: a forged delivery had its body parsed as JSON, and its repository looked up,
+    before its signature was refused. With only the server-wide secret in force, the HMAC comes
+    first."""
+    parsed: list[bytes] = []
+    real = webhooks.parse_push
+
+    def spy(body: bytes) -> webhooks.Push:
+        parsed.append(body)
+        return real(body)
+
+    monkeypatch.setattr(webhooks, "parse_push", spy)
+    forged = send_github(api, b"[" * 1000 + b"]" * 1000, secret="guessed")
+    assert forged.status_code == 401, forged.text
+    assert forged.json()["detail"] == "webhook signature (X-Hub-Signature-256) does not match"
+    assert send_github(api, github_push(), secret="guessed").status_code == 401
+    assert parsed == [] and counts(api) == (0, 0)
+    assert send_github(api, github_push()).status_code == 200  # signed: parsed and recorded
+    assert parsed == [github_push()]

@@ -34,7 +34,7 @@ from redline.server.services.revision_reports import (
     same_commit,
 )
 from redline.server.services.revisions import new_revision
-from sqlalchemy import select
+from sqlalchemy import exists, select
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
@@ -219,6 +219,12 @@ def _unverified(secrets: set[str], proof: str) -> str:
     return f"{proof} does not match" if any(secrets) else "no webhook secret is configured"
 
 
+def _own_secrets(session: Session) -> bool:
+    """Whether any component has a webhook secret of its own."""
+    own = Component.webhook_secret.is_not(None) & (Component.webhook_secret != "")
+    return bool(session.scalar(select(exists().where(own))))
+
+
 def authenticate_push(
     session: Session, body: bytes, verify: Verifier, default_secret: str
 ) -> tuple[Push, list[Component]]:
@@ -226,8 +232,12 @@ def authenticate_push(
 
     Raises Unauthorized when no applicable secret (a matching component's own, else
     ``default_secret``) authenticates the delivery, BadRequest when an authentic body is not a
-    push event.
+    push event. Where no component has a secret of its own, the server-wide one is the only one
+    that can verify the delivery, and it is checked before the body is read: a forged delivery
+    costs an HMAC, not a JSON parse and a query for its repository.
     """
+    if not verify(default_secret) and not _own_secrets(session):
+        raise Unauthorized(_unverified({default_secret}, verify.proof))
     try:
         push = parse_push(body)
     except BadRequest as unreadable:
