@@ -882,6 +882,22 @@ def test_a_change_made_while_the_baseline_restarts_after_another_is_found_where_
     assert (again.verdict, again.reason, again.confirmation) == said
 
 
+def test_pairs_of_a_change_judged_at_a_short_new_level_must_show_half_its_step(
+    session, database_url, tmp_path
+):
+    """r12's +67 % is judged at r7's new level of 5 values; its pairs show +8 %. The bar read
+    from 5 values of 1 % noise was the 2.5 % floor, which +8 % passes: a review's simulation
+    had two noise pairs pass such a bar 4.3 % of the time on 3 values. A baseline of fewer than
+    6 values gives the pairs half the flagged step instead (`baseline_noise`)."""
+    _restarted_history(session, database_url, tmp_path, r12=100.0, pairs_r12=65.0)
+    r12 = _detection(session, "r12")
+    assert r12.flagged and AT_NEW_LEVEL in r12.reason, r12.reason
+    assert r12.confirmation == "dropped", r12.confirmation_reason
+    assert "+8." in r12.confirmation_reason and "beyond +33." in r12.confirmation_reason, (
+        r12.confirmation_reason
+    )
+
+
 def test_a_change_whose_revision_could_not_be_judged_is_found_there_by_its_own_runs(
     session, database_url, tmp_path
 ):

@@ -329,12 +329,30 @@ def test_a_short_new_level_is_judged_with_the_old_level_s_relative_noise() -> No
     # +30 % on the new level: z = 7.8 / (0.26 x sqrt(4/3)) is far beyond 6
     raised = judge.at_new_level(level, earlier, np.array([33.8]))
     assert raised.verdict == CHANGE and raised.effect == pytest.approx(0.3, abs=0.03)
-    # too few in all: says so
-    few = judge.at_new_level(level, earlier[:2], np.array([33.8]))
-    assert few.verdict == NOT_ENOUGH_DATA and "needs 6 in all" in few.reason
+    # too few before it, or at it (with confirm_revisions 0 a flag holds at once: a new level
+    # of its one value would make the next, unchanged revision a change), says so
+    few = judge.at_new_level(level, earlier[:5], np.array([33.8]))
+    assert few.verdict == NOT_ENOUGH_DATA and "5 before it (needs 6)" in few.reason
+    alone = judge.at_new_level(level[:1], earlier, np.array([20.0]))
+    assert alone.verdict == NOT_ENOUGH_DATA and "1 at it (needs 3)" in alone.reason
     # a count that does not vary: a tenth of one, so one more thread on 15 is a change
     threads = judge.at_new_level(np.full(3, 15.0), np.full(8, 14.0), np.array([16.0]))
     assert threads.verdict == CHANGE and threads.parts[0] == pytest.approx(1 / (0.1 * 2 / 3**0.5))
+
+
+def test_after_a_fall_noise_that_does_not_shrink_with_the_level_raises_no_alarm() -> None:
+    """A review: 100 +- 3 falling to 20 +- 3 (the noise a fixed overhead's, not a share of the
+    level); the relative spread alone put it at 0.6 and flagged 28 % of unchanged revisions
+    at threshold 6. Judged by the larger of the relative and the absolute spread, the rate is
+    what the method gives on a long baseline (about 1 in 100 of these noisy draws or fewer)."""
+    rng = np.random.default_rng(8)
+    judge = ExecutionShift().confirmed()
+    flagged = 0
+    for _ in range(2000):
+        earlier, level = rng.normal(100.0, 3.0, 15), rng.normal(20.0, 3.0, 3)
+        found = judge.at_new_level(level, earlier, rng.normal(20.0, 3.0, 1))
+        flagged += found.flagged
+    assert flagged <= 20, flagged  # 0 here; the relative spread alone flagged 500-600
 
 
 def test_evaluation_judges_a_held_change_s_short_new_level_as_the_worker_does() -> None:
@@ -349,3 +367,24 @@ def test_evaluation_judges_a_held_change_s_short_new_level_as_the_worker_does() 
     assert judged[8].flagged and not judged[9].flagged and not judged[10].flagged
     assert judged[11].flagged and judged[11].direction == "increase", judged[11].reason
     assert "judged against the new level since the change at 8 (3 value(s))" in judged[11].reason
+
+
+def test_a_spike_and_the_flag_the_other_way_after_it_leave_no_baseline_at_the_spike() -> None:
+    """A review: a low run at build 8 (flagged), 26 at build 9 (flagged the other way against
+    the level before 8), then 21 throughout. Build 9's restart was tested against build 8's
+    one value ("held"), and the level before build 9 was read as build 8 alone; both now read
+    past a flag at most ``wait`` builds before (`redline.detect.baseline._restarts_at`)."""
+    judged = {
+        unit.build: (unit, found)
+        for unit, found in walk(
+            ExecutionShift(), _one_execution_corpus([20.0] * 8 + [14.0, 26.0] + [21.0] * 8)
+        )
+    }
+    assert [b for b, (_, found) in judged.items() if found.flagged] == [8, 9]
+    for build in range(10, 18):
+        assert judged[build][1].verdict == NO_CHANGE, (build, judged[build][1].reason)
+    # from build 12 both flags are decided as spikes: the baseline pools past them (it
+    # restarted at build 9 before, as a level 26 "held" against build 8's 14)
+    for build in range(12, 18):
+        unit, found = judged[build]
+        assert len(unit.baseline) == 10 and "new level" not in found.reason, build

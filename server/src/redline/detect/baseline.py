@@ -85,23 +85,21 @@ def take_recent(
     flagged by the method)`` newest first, and read no further than needed (the iterable may
     compute each revision's values lazily). ``wait``: the revisions after a flag that decide
     whether it was a spike (`restarts`); ``count``: the values count rare events;
-    ``past_undecided``: read on past a flag fewer than ``wait`` revisions after it measured
-    the series, as if it had not restarted the baseline (the level before it,
-    `redline.detect.suspected`)."""
+    ``past_undecided``: leave out a flag fewer than ``wait`` revisions after it measured the
+    series, and read on past it, as if it had not restarted the baseline (the level before
+    it, `redline.detect.suspected`)."""
     items: _Lazy[T] = _Lazy(newest_first)
     taken: list[T] = []
     pooled = 0
     k = 0
     while len(taken) < window and pooled < need and (entry := items.get(k)) is not None:
         item, values, flagged = entry
+        if flagged and past_undecided and k < wait:  # the revisions since it: the k newer ones
+            k += 1
+            continue
         taken.append(item)
         pooled += len(values)
-        undecided = k < wait  # the revisions since it: the ``k`` newer ones read
-        if (
-            flagged
-            and not (past_undecided and undecided)
-            and _restarts_at(items, k, need, window, wait, count)
-        ):
+        if flagged and _restarts_at(items, k, need, window, wait, count):
             break  # the newest change the method flagged that held: the baseline starts there
         k += 1
     return taken
@@ -109,7 +107,10 @@ def take_recent(
 
 def _restarts_at(items: _Lazy[T], k: int, need: int, window: int, wait: int, count: bool) -> bool:
     """`restarts` at the ``k``-th newest revision, its own baseline read as `take_recent` reads
-    one (up to the flag before it, that one included)."""
+    one (up to the flag before it, that one included), but past a flag at most ``wait``
+    revisions before it, which it may have been judged past (`redline.detect.suspected`): a
+    spike and the flag the other way right after it (a change against the level before the
+    spike) were otherwise judged by the spike's one value, which "held" it."""
     since = [entry[1] for j in range(k - 1, -1, -1) if (entry := items.get(j)) is not None]
     if len(since) < wait:
         return True  # cheap, and the common case right after a flag
@@ -121,10 +122,12 @@ def _restarts_at(items: _Lazy[T], k: int, need: int, window: int, wait: int, cou
         entry = items.get(j)
         if entry is None:
             break
+        j += 1
+        if entry[2] and j - k - 1 <= wait:  # a flag this one came at most wait after
+            continue
         before.append(entry[1])
         if entry[2]:
             break
-        j += 1
     return restarts(before, flagged[1], since, wait, count)
 
 

@@ -23,7 +23,7 @@ from collections.abc import Callable, Iterator, Mapping, Sequence
 from functools import partial
 
 import numpy as np
-from redline.detect.baseline import DEFAULT_WINDOW, lookback, recent_depth
+from redline.detect.baseline import DEFAULT_WINDOW, lookback, recent_depth, take_recent
 from redline.detect.changepoint import EDivisive
 from redline.detect.changepoint_f1 import MARGIN, binary_segmentation, f_measure
 from redline.detect.confirmation import DEFAULT_CONFIRM_REVISIONS, HELD, LOOKBACK, hold
@@ -146,23 +146,31 @@ def _walk_series(
     runs = [executions for _, executions in builds]
     flags: set[int] = set()
     for k in range(1, len(builds)):
+        first = max(0, k - lookback(window))  # all a baseline can reach
 
-        def depth_of(past_undecided: bool, at: int = k, first: int = k) -> int:
-            """The depth of the baseline of the build at ``at``, among those from ``first`` -
-            lookback on (the ones the build judged now looks through)."""
-            return recent_depth(
-                values[max(0, first - lookback(window)) : at][::-1],
+        def level_before(flag: int, first: int = first) -> list[int]:
+            """The positions of the flagged build's own baseline, as `Baselines._take` reads it
+            with ``before`` and ``past_undecided``."""
+            return take_recent(
+                ((p, values[p], p in flags) for p in range(flag - 1, first - 1, -1)),
                 judge.baseline_values,
                 window,
-                {at - 1 - j for j in flags}.__contains__,  # positions newest first
                 wait,
                 count=kind.count,
-                past_undecided=past_undecided,
+                past_undecided=True,
             )
 
-        depth = depth_of(False)
+        depth = recent_depth(
+            values[first:k][::-1],
+            judge.baseline_values,
+            window,
+            {k - 1 - j for j in flags}.__contains__,  # positions newest first
+            wait,
+            count=kind.count,
+        )
         baseline, candidate = np.concatenate(values[k - depth : k]), values[k]
         build = builds[k][0]
+        flag = k - depth  # where a baseline restarted at a flag begins
         if kind.count:
             found = rate_verdict(values, totals, k, depth)
         elif detector.ndim == 2:
@@ -171,30 +179,23 @@ def _walk_series(
             # as the worker judges: the detector, then the counter's absolute floor (a series
             # id ending in a known counter name, e.g. "leak/rss_bytes", gets that floor)
             found = judge_series(detector, kind.counter, baseline, candidate)
-            flag = k - depth  # where a baseline restarted at a flag begins
-            if depth > wait and flag in flags:  # one that held: as `Baselines.after_flag`
-                older = values[flag - depth_of(False, at=flag) : flag]
-                if older:
+            if not found.decided and flag in flags and (older := level_before(flag)):
+                # restarted at a flag and too short: as `Baselines.after_flag`
+                earlier = np.concatenate([values[p] for p in older])
+                at = str(builds[flag][0])
+                if depth > wait:  # the change held
                     found = at_new_level(
-                        found,
-                        detector,
-                        kind.counter,
-                        baseline,
-                        np.concatenate(older),
-                        candidate,
-                        str(builds[flag][0]),
+                        found, detector, kind.counter, baseline, earlier, candidate, at
                     )
-            elif flag in flags and (past := depth_of(True)) > depth:
-                # restarted at a flag still undecided, too short: as `Baselines.after_flag`
-                found, judged_before = past_suspected(
-                    found,
-                    partial(judge_series, detector, kind.counter, candidate=candidate),
-                    baseline,
-                    np.concatenate(values[k - past : k - depth]),
-                    str(builds[k - depth][0]),
-                )
-                if judged_before:
-                    baseline = np.concatenate(values[k - past : k - depth])
+                else:
+                    found, judged_before = past_suspected(
+                        found,
+                        partial(judge_series, detector, kind.counter, candidate=candidate),
+                        baseline,
+                        earlier,
+                        at,
+                    )
+                    baseline = earlier if judged_before else baseline
         unit = Unit(
             series, build, baseline, candidate, build in changes, kind.worse, kind.count, runs, k
         )

@@ -1,4 +1,4 @@
-"""Judging a revision while a change flagged just before it is still undecided.
+"""Judging a revision whose baseline restarted at a flag and is too short to judge by.
 
 Under the ``recent`` baseline a flag restarts the baseline at once (`redline.detect.baseline`):
 the revisions after a real change are compared with the new level, not flagged again. Until
@@ -9,12 +9,14 @@ a README-only commit flagged as an improvement make the next two commits' CI ver
 ("skipped: the baseline has 3, needs 6"); a regression made there would have passed unjudged.
 
 So where that restarted baseline is too short, the revision is judged against the level before
-the flag as well (the revisions before it, as the baseline would be read past it; the flagged
-revision's own values left out, which would pull that level towards the suspected one). A change
-for the worse (or better) against it stands, and so does "no change"; only a change in the
-direction of the one suspected, which is that change holding (or a further step the short new
-level cannot tell from it), stays "not enough data", its reason saying so. Whether the flag was
-a change is still settled by its pairs or by the later revisions (`redline.detect.confirmation`).
+the flag as well (`past_suspected`: the flagged revision's own baseline, read past any flag at
+most ``confirm_revisions`` before it; the flagged values left out, which would pull that level
+towards the suspected one). A change for the worse (or better) against it stands, and so does
+"no change"; only a change in the direction of the one suspected, which is that change holding
+(or a further step the short new level cannot tell from it), stays "not enough data", its
+reason saying so. Whether the flag was a change is still settled by its pairs or by the later
+revisions (`redline.detect.confirmation`). Once they held it, the new level is judged with the
+noise of the level before it (`at_new_level`) until it holds enough values alone.
 """
 
 from __future__ import annotations

@@ -6,7 +6,7 @@ from __future__ import annotations
 import logging
 from dataclasses import dataclass
 from itertools import islice
-from typing import TYPE_CHECKING, cast
+from typing import TYPE_CHECKING
 
 import numpy as np
 from redline.detect.baseline import lookback, take_recent
@@ -117,9 +117,10 @@ class Baselines:
         past_undecided: bool = False,
         before: int | None = None,
     ) -> list[tuple[int, np.ndarray]]:
-        """The baseline's revisions with their values, newest first; ``past_undecided``: read
-        past a flag not yet decided (`take_recent`); ``before``: the baseline of that earlier
-        revision as ``recent`` reads it from there, among the revisions this one looks through."""
+        """The baseline's revisions with their values, newest first; ``before``: the baseline
+        of that earlier revision as ``recent`` reads it from there, among the revisions this one
+        looks through; ``past_undecided``: leaving out the flags not yet decided there
+        (`take_recent`)."""
         if self.config.baseline == "pinned":
             ids = [self.pinned] if self.pinned is not None else []
         else:
@@ -160,35 +161,31 @@ class Baselines:
         taken = self._revisions(series_id, detector) if not verdict.decided else []
         if (
             self.config.baseline != "recent"
+            or detector.ndim == 2  # as the evaluation: methods judging counters together
             or candidate is None
             or base.values is None
             or not taken
             or (series_id, detector.name, taken[-1][0]) not in self.flagged
         ):
             return base, verdict
+        older = self._take(series_id, detector, past_undecided=True, before=taken[-1][0])
+        if not older:
+            return base, verdict
         flag = self.session.get(Revision, taken[-1][0])
         at = flag.title if flag is not None else str(taken[-1][0])
+        earlier = np.concatenate([values for _, values in older])
         if len(taken) > self.config.confirm_revisions:  # the change held
-            older = self._take(series_id, detector, before=taken[-1][0])
-            if not older:
-                return base, verdict
-            earlier = np.concatenate([values for _, values in older])
             return base, at_new_level(
                 verdict, detector, counter, base.values, earlier, candidate, at
             )
-        past = self._take(series_id, detector, past_undecided=True)
-        if len(past) <= len(taken):
-            return base, verdict
-        older = past[len(taken) :]  # the revisions before the flag
-        before = Baseline(np.concatenate([v for _, v in older]), older[0][0], len(older))
         found, judged_before = past_suspected(
             verdict,
             lambda values: judge_series(detector, counter, values, candidate),
             base.values,
-            cast(np.ndarray, before.values),
+            earlier,
             at,
         )
-        return (before if judged_before else base), found
+        return (Baseline(earlier, older[0][0], len(older)) if judged_before else base), found
 
     def step(self, series_id: int, detector: Levelled, candidate: np.ndarray | None) -> Step | None:
         """A step at one of the baseline's revisions that could not be judged when measured

@@ -113,12 +113,23 @@ def baseline_and_own(
     return _baseline_of(levels, detection), own
 
 
+#: the fewest values a baseline's noise is read from (`baseline_noise`): the default method's
+#: ``min_baseline``
+NOISE_VALUES = 6
+
+
 def baseline_noise(session: Session, detection: Detection, series_id: int | None = None) -> float:
     """How much one execution value of the detection's baseline varies, relative to its level
-    (`redline.detect.confirmation.relative_noise`); NaN when its baseline's summaries are gone.
-    The bar a confirmation pair must pass (`redline.detect.confirmation.pair_bar`)."""
+    (`redline.detect.confirmation.relative_noise`); NaN when its baseline's summaries are gone,
+    or hold fewer than `NOISE_VALUES` values (a change judged at a new level of 3-5 values, a
+    KS baseline of a revision or two), whose spread says little: the pairs' bar is then a share
+    of the flagged step (`redline.detect.confirmation.pair_bar`), not a spread that three
+    values can put near 0 (a review's simulation: two noise pairs passed 4.3 % of the time on
+    3 values, 1.3 % on 15)."""
     values = baseline_values(session, detection, series_id)
-    return math.nan if values is None else relative_noise(values)
+    if values is None or np.isfinite(values).sum() < NOISE_VALUES:
+        return math.nan
+    return relative_noise(values)
 
 
 def _later_revisions(session: Session, key: str, revision_id: int, detection: Detection) -> int:
