@@ -271,6 +271,15 @@ def test_ci_report_reports_head_and_ci_wait_waits_for_it_by_default(server, tmp_
         assert revision.message.startswith("Speed up the hash")
     again = redline("report")  # a re-run pipeline
     assert again.returncode == 0 and "reported before with this commit" in again.stderr
+    assert "not applied" not in again.stderr
+    # a title or sort key given again is not applied, and it says so (a trial got the old
+    # title back and no word)
+    retitled = redline("report", "--title", "mytitle", "--sort-key", "99999999999")
+    assert retitled.returncode == 0 and retitled.stdout == f"{full[:12]}\n", retitled.stderr
+    assert (
+        "--title and --sort-key not applied: a revision keeps its first report's title and sort "
+        f"key (an admin corrects a sort key: PATCH /api/v1/components/hashed/revisions/{full[:12]})"
+    ) in retitled.stderr, retitled.stderr
     waited = redline("wait", "--timeout", "1", "--poll", "0.2")  # HEAD's revision: no verdict yet
     assert waited.returncode == 2 and "still waiting for" in waited.stderr, waited.stderr
     assert "has no revision" not in waited.stderr

@@ -76,6 +76,7 @@ def report(
         _stop(f"--server {server!r}: not an http:// or https:// URL")
     if (why := unaddressable("--component", component)) is not None:
         _stop(why)
+    given = [option for option, value in (("--title", title), ("--sort-key", sort_key)) if value]
     body: dict[str, Any] = {"component": component, "branch": branch}
     if not (commit and title and sort_key):  # what is not given comes from git
         try:
@@ -99,8 +100,17 @@ def report(
         _stop(f"HTTP {answer.status_code}: {detail(answer)}" + no_token(answer, token, "ci"))
     said = answer.json()
     jobs, title = len(said.get("job_ids", [])), said.get("title", title)  # the first report's
+    # a revision keeps its first report's title and sort key: say so where others were given
+    # (a trial's --title on a known commit got the old title back, and no word)
+    kept = (
+        f"; {' and '.join(given)} not applied: a revision keeps its first report's title and "
+        "sort key (an admin corrects a sort key: PATCH "
+        f"/api/v1/components/{component}/revisions/{title})"
+        if answer.status_code == 200 and given
+        else ""
+    )
     typer.echo(
-        f"{component} {title}: reported before with this commit ({jobs} job(s))"
+        f"{component} {title}: reported before with this commit ({jobs} job(s)){kept}"
         if answer.status_code == 200
         else f"{component} {title} reported: {jobs} job(s) queued",
         err=True,

@@ -52,6 +52,20 @@ class EmbeddedServices:
     postgres: Any = None
     redis: Any = None
 
+    def gone(self) -> str:
+        """Which embedded server is no longer running, and where its log is; "" while both
+        run. A trial's embedded Redis got a SIGTERM from outside: `redline up` said nothing,
+        served on, and every job uploaded after it waited for an analysis that never came."""
+        if self.redis is not None and not self.redis.pid:  # 0 once its pid file is gone
+            return f"the embedded Redis exited (its log: {self.redis.logfile})"
+        if self.postgres is not None:
+            import psutil
+
+            pid = self.postgres.get_pid()
+            if not pid or not psutil.pid_exists(pid):
+                return f"the embedded Postgres exited (its log: {self.postgres.log})"
+        return ""
+
     def stop(self) -> None:
         if self.redis is not None:
             _stop_redis(self.redis)

@@ -279,6 +279,9 @@ class Stack:
         )
 
     def check_children(self) -> None:
+        gone = self.embedded.gone() if self.embedded is not None else ""
+        if gone:
+            raise StackError(f"{gone}; start `redline up` again: its data in {self.data} is kept")
         for child in self.children:
             code = child.process.poll()
             if code is not None:
