@@ -17,7 +17,7 @@ from redline.server.models import (
 )
 from redline.server.schemas.components import ComponentCreate
 from redline.server.services.components import create_component
-from redline.server.services.revisions import revision_verdicts
+from redline.server.services.revision_summaries import revision_verdicts
 from redline.server.services.why import why_flagged
 from redline.worker.detection import detect_revision
 from redline.worker.ingest import ingest_execution
@@ -484,3 +484,28 @@ def test_where_no_rerun_confirms_a_flag_the_worker_judges_at_the_threshold(
     assert r9.verdict == "no change" and 6 / 8 <= r9.score < 1, r9.score
     assert session.scalars(select(Regression)).all() == []
     assert why_flagged(session, r9.id).thresholds["threshold"] == 8
+
+
+def test_a_revision_partly_not_judged_for_a_busy_host_says_so_on_the_component_page(
+    session, database_url, tmp_path
+):
+    """A trial's revision read "no change in the 4 series judged, 11 not judged" where CI said
+    undecided: the host was busy. What a component holds (its memory) is judged in a busy
+    phase, its CPU is not; the page's row now says why."""
+    _component(session)
+    rng = np.random.default_rng(3)
+    for number, busy in enumerate([None] * 6 + [90.0], start=1):
+        runs = [
+            {"cpu": rng.normal(20.0, 0.4, 40), "rss_bytes": rng.normal(5e7, 1e5, 40)}
+            for _ in range(RUNS)
+        ]
+        extra = {"host_percent": busy} if busy else {}
+        executions = add_executions(
+            session, tmp_path, NAME, f"r{number}", str(number), runs, **extra
+        )
+        ingest_and_detect(database_url, executions)
+    session.expire_all()
+    said = revision_verdicts(session, NAME, ["r6", "r7"])
+    assert "host was busy" not in said["r6"], said
+    assert said["r7"].startswith("execution_shift: no change in the 1 series judged"), said
+    assert said["r7"].endswith("1 not judged (some because the host was busy)"), said

@@ -45,7 +45,7 @@ from redline.server.services import (
 )
 from redline.server.services.errors import BadRequest, NotFound
 from redline.server.services.gate import gate
-from redline.server.services.revisions import WAITING
+from redline.server.services.revision_summaries import WAITING, revision_verdicts
 from redline.server.ui.compare_figures import comparison_figure
 from redline.server.ui.detail_figures import execution_figures, why_figures
 from redline.server.ui.figures import trend_charts
@@ -93,7 +93,7 @@ def component_page(name: str, request: Request, session: SessionDep) -> HTMLResp
     except (NotFound, BadRequest) as exc:
         return problem(request, exc)
     newest = revisions.newest_revisions(session, name, LISTED)
-    verdicts = revisions.revision_verdicts(session, name, [r.title for r in newest])
+    verdicts = revision_verdicts(session, name, [r.title for r in newest])
     return page(
         request,
         "component.html",

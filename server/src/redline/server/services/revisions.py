@@ -5,20 +5,15 @@ from __future__ import annotations
 
 import base64
 import re
-from collections import Counter, defaultdict
-from collections.abc import Collection
+from collections import Counter
 from typing import Any
 
-from redline.detect.config import CHARTED_METHOD as CHARTED
-from redline.detect.confirmation import DROPPED
-from redline.detect.result import waits_for_history
 from redline.recording.format import META_RUN
 from redline.server.db import lock_component
 from redline.server.models import (
     DID_NOT_RUN,
     UNENDED,
     Component,
-    Detection,
     Execution,
     Job,
     JobState,
@@ -33,17 +28,15 @@ from redline.server.schemas.revisions import (
     RevisionOut,
 )
 from redline.server.services.components import get_component, get_revision
-from redline.server.services.detection_config import component_config
 from redline.server.services.errors import BadRequest, Conflict, Forbidden, NotFound
 from redline.server.services.fresh_runs import mark_waiting
 from redline.server.services.repos import repo_key
-from sqlalchemy import func, literal, or_, select, tuple_
+from redline.server.services.revision_summaries import revision_verdicts
+from sqlalchemy import literal, or_, select, tuple_
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session, selectinload
 
 _DIGITS = re.compile(r"\d+")
-#: what a revision without a verdict yet is said to have (`revision_verdicts`)
-WAITING = "not enough data yet"
 #: the reason of the jobs `cancel_revision` cancels
 CANCELLED = "cancelled"
 
@@ -326,72 +319,3 @@ def run_note(run: dict[str, Any]) -> str:
     status, warning = str(run.get("status") or "ok"), str(run.get("warning") or "")
     said += [": ".join(part for part in (status if status != "ok" else "", warning) if part)]
     return "; ".join(part for part in said if part)
-
-
-def revision_verdicts(
-    session: Session, component_name: str, titles: Collection[str] | None = None
-) -> dict[str, str]:
-    """Per revision title (of every revision, or of ``titles``), what its alarm method said in a
-    few words: its changes, no change, or why there is no verdict yet (the baseline it still
-    waits for)."""
-    component = get_component(session, component_name)
-    method = component_config(session, component.id).alarming[0]
-    counts: dict[str, dict[str, int]] = defaultdict(dict)
-    why: dict[str, str] = {}
-    # a change its re-runs or the history dropped is counted apart: the page said 8 changes
-    # where `ci wait` and the verdict, which leave it out, said 7 (a trial)
-    dropped = Detection.confirmation == DROPPED
-    # the charted method's flags are counted too: a trial's revision read "no change in 22
-    # series" above rows of KS's "change (increase) +31.6 %", and nothing said why
-    query = (
-        select(
-            Revision.title,
-            Detection.method,
-            Detection.verdict,
-            dropped,
-            func.count(),
-            func.min(Detection.reason),
-        )
-        .join(Revision, Revision.id == Detection.revision_id)
-        .where(Revision.component_id == component.id, Detection.method.in_([method, CHARTED]))
-        .group_by(Revision.title, Detection.method, Detection.verdict, dropped)
-    )
-    if titles is not None:
-        query = query.where(Revision.title.in_(list(titles)))
-    charted: dict[str, int] = defaultdict(int)
-    for name, used, verdict, was_dropped, number, reason in session.execute(query):
-        if used != method:
-            charted[name] += number if verdict == "change" else 0
-            continue
-        key = "dropped" if verdict == "change" and was_dropped else verdict
-        counts[name][key] = counts[name].get(key, 0) + number
-        if verdict == "not enough data":
-            why[name] = reason
-    said = {}
-    for title, by in counts.items():
-        changed, same, unknown = (
-            by.get("change", 0),
-            by.get("no change", 0),
-            by.get("not enough data", 0),
-        )
-        not_confirmed = f", {by['dropped']} flagged but not confirmed" if by.get("dropped") else ""
-        if changed:
-            said[title] = f"{method}: {changed} change(s), {same} series unchanged{not_confirmed}"
-        elif same or not_confirmed:
-            # "the 20 series judged": a trial read "no change in 20 series, 51 not judged" as
-            # the revision's verdict, KS flagging its CPU +150 % beside it
-            said[title] = (
-                f"{method}: no change in {'the ' if unknown else ''}{same} series"
-                + (" judged" if unknown else "")
-                + not_confirmed
-                + (
-                    f", {unknown} not judged" + (" yet" if waits_for_history(why[title]) else "")
-                    if unknown
-                    else ""
-                )
-            )
-        else:
-            said[title] = f"{method}: {WAITING}: {why.get(title, '')}"
-        if charted.get(title) and method != CHARTED:
-            said[title] += f"; {CHARTED}, which charts and does not alarm, flags {charted[title]}"
-    return said
