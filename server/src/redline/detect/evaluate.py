@@ -20,7 +20,6 @@ from __future__ import annotations
 import bisect
 import math
 from collections.abc import Callable, Iterator, Mapping, Sequence
-from functools import partial
 
 import numpy as np
 from redline.detect.baseline import DEFAULT_WINDOW, lookback, recent_depth, take_recent
@@ -43,7 +42,7 @@ from redline.detect.methods import Detector
 from redline.detect.registry import CHANGE_POINT_METHOD, DEFAULT_METHOD, EVALUATED
 from redline.detect.result import Detection, direction_of, not_enough
 from redline.detect.scores import MethodScores, Outcome, summarize
-from redline.detect.suspected import at_new_level, past_suspected
+from redline.detect.suspected import after_flag
 from redline.detect.verdict import judge_series
 
 #: Called with (series done, series in all) as an evaluation walks a corpus.
@@ -182,20 +181,17 @@ def _walk_series(
             if not found.decided and flag in flags and (older := level_before(flag)):
                 # restarted at a flag and too short: as `Baselines.after_flag`
                 earlier = np.concatenate([values[p] for p in older])
-                at = str(builds[flag][0])
-                if depth > wait:  # the change held
-                    found = at_new_level(
-                        found, detector, kind.counter, baseline, earlier, candidate, at
-                    )
-                else:
-                    found, judged_before = past_suspected(
-                        found,
-                        partial(judge_series, detector, kind.counter, candidate=candidate),
-                        baseline,
-                        earlier,
-                        at,
-                    )
-                    baseline = earlier if judged_before else baseline
+                found, judged_before = after_flag(
+                    found,
+                    detector,
+                    kind.counter,
+                    baseline,
+                    earlier,
+                    candidate,
+                    str(builds[flag][0]),
+                    held=depth > wait,
+                )
+                baseline = earlier if judged_before else baseline
         unit = Unit(
             series, build, baseline, candidate, build in changes, kind.worse, kind.count, runs, k
         )

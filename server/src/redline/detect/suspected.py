@@ -23,17 +23,40 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import replace
+from functools import partial
 
 import numpy as np
 from redline.detect.execution_shift import ExecutionShift
 from redline.detect.median_shift import median
+from redline.detect.methods import Detector
 from redline.detect.result import Detection, direction_of, waits_for_history
-from redline.detect.verdict import floored
+from redline.detect.verdict import floored, judge_series
 
 #: how the reason of a verdict judged against the level before an undecided flag begins
 BEFORE_SUSPECTED = "judged against the level before the change suspected at"
 #: how the reason of a verdict judged against a short new level (`at_new_level`) begins
 AT_NEW_LEVEL = "judged against the new level since the change at"
+
+
+def after_flag(
+    found: Detection,
+    detector: Detector,
+    counter: str,
+    restarted: np.ndarray,
+    earlier: np.ndarray,
+    candidate: np.ndarray,
+    at: str,
+    held: bool,
+) -> tuple[Detection, bool]:
+    """The verdict of a revision whose baseline restarted at the flag at revision ``at``
+    (``restarted``: the values from it on; ``earlier``: those of the flagged revision's own
+    baseline), as the worker and the offline evaluation both judge it: `at_new_level` once
+    the revisions after the flag ``held`` it, else `past_suspected`. Returns the verdict and
+    whether it was judged against ``earlier``."""
+    if held:
+        return at_new_level(found, detector, counter, restarted, earlier, candidate, at), False
+    judge = partial(judge_series, detector, counter, candidate=candidate)
+    return past_suspected(found, judge, restarted, earlier, at)
 
 
 def past_suspected(
@@ -49,9 +72,11 @@ def past_suspected(
     revisions before the flag that a baseline read past it holds). Returns the verdict and
     whether it was judged against ``earlier``."""
     restarted, earlier = restarted[np.isfinite(restarted)], earlier[np.isfinite(earlier)]
-    if found.decided or not waits_for_history(found.reason) or not len(restarted):
-        return found, False
-    if not len(earlier):
+    if (
+        found.decided
+        or not waits_for_history(found.reason)
+        or not (len(restarted) and len(earlier))
+    ):
         return found, False
     old = judge(earlier)
     if not old.decided:
@@ -73,7 +98,7 @@ def past_suspected(
 
 def at_new_level(
     found: Detection,
-    detector: object,
+    detector: Detector,
     counter: str,
     level: np.ndarray,
     earlier: np.ndarray,

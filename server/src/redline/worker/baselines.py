@@ -15,8 +15,7 @@ from redline.detect.count_rate import CountRate
 from redline.detect.execution_shift import HELD_AFTER, ExecutionShift, strongest_step
 from redline.detect.methods import Detector, Levelled
 from redline.detect.result import Detection
-from redline.detect.suspected import at_new_level, past_suspected
-from redline.detect.verdict import judge_series
+from redline.detect.suspected import after_flag
 from redline.server.models import Execution, Revision
 from redline.worker.history import (
     earlier_than,
@@ -158,12 +157,12 @@ class Baselines:
         have not yet decided it, judged against the level before it too (`past_suspected`);
         once they held it, against the new level with the noise of the one before it
         (`at_new_level`)."""
-        taken = self._revisions(series_id, detector) if not verdict.decided else []
+        if verdict.decided or candidate is None or base.values is None:
+            return base, verdict
+        taken = self._revisions(series_id, detector)
         if (
             self.config.baseline != "recent"
             or detector.ndim == 2  # as the evaluation: methods judging counters together
-            or candidate is None
-            or base.values is None
             or not taken
             or (series_id, detector.name, taken[-1][0]) not in self.flagged
         ):
@@ -172,18 +171,16 @@ class Baselines:
         if not older:
             return base, verdict
         flag = self.session.get(Revision, taken[-1][0])
-        at = flag.title if flag is not None else str(taken[-1][0])
         earlier = np.concatenate([values for _, values in older])
-        if len(taken) > self.config.confirm_revisions:  # the change held
-            return base, at_new_level(
-                verdict, detector, counter, base.values, earlier, candidate, at
-            )
-        found, judged_before = past_suspected(
+        found, judged_before = after_flag(
             verdict,
-            lambda values: judge_series(detector, counter, values, candidate),
+            detector,
+            counter,
             base.values,
             earlier,
-            at,
+            candidate,
+            flag.title if flag is not None else str(taken[-1][0]),
+            held=len(taken) > self.config.confirm_revisions,
         )
         return (Baseline(earlier, older[0][0], len(older)) if judged_before else base), found
 
