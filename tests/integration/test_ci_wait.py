@@ -103,6 +103,40 @@ def test_no_change_passes_and_no_baseline_is_skipped_with_its_reason(server, tmp
     assert skipped is not None and "not enough data" in skipped.get("message", "")
 
 
+def test_a_later_revision_is_told_of_the_regression_still_open_before_it(server, tmp_path):
+    """A trial's unchanged commits after a suspected regression each passed with exit 0 and no
+    word that the code they carried was suspected slower (2026-12-06): r7 is told of r6's, in
+    the table, the JSON and the JUnit file, and no longer once it is triaged as fixed; r3,
+    before it, is told of none."""
+    _, _, api = server
+    out = tmp_path / "junit.xml"
+    later = wait(server, "--revision", "r7", "--junit", str(out))
+    assert later.returncode == 0, later.stdout + later.stderr
+    said = re.search(
+        r"1 regression\(s\) still open before this revision.*\n  #(\d+) suspected, triage new: "
+        r"after r5, shows at r6: .*cpu .*\+\d+ % at r6  http://\S+/regressions/(\d+)",
+        later.stdout,
+    )
+    assert said is not None and said[1] == said[2], later.stdout
+    number = int(said[1])
+    suite_out = ElementTree.parse(out).getroot().find("system-out")
+    assert suite_out is not None and f"regression #{number} still open" in (suite_out.text or "")
+    verdict = api.client.get(
+        "/api/v1/components/builder/revisions/r7/verdict", headers=api.headers("read")
+    ).json()
+    assert verdict["regressions"] == 0 and verdict["open_before_total"] == 1
+    assert verdict["open_before"][0]["page"] == f"/regressions/{number}"
+    before = wait(server, "--revision", "r3", "--junit", str(out))
+    assert "still open" not in before.stdout and ElementTree.parse(out).find("system-out") is None
+    triage = f"/api/v1/components/builder/regressions/{number}"
+    try:
+        fixed = api.client.patch(triage, json={"state": "fixed"}, headers=api.headers("triage"))
+        assert fixed.status_code == 200, fixed.text
+        assert "still open" not in wait(server, "--revision", "r7").stdout
+    finally:  # the module's other tests see the regression as they found it
+        api.client.patch(triage, json={"state": "new"}, headers=api.headers("triage"))
+
+
 def test_a_verdict_the_busy_host_left_undecided_exits_4_never_0(server, tmp_path):
     """A trial from outside saw a 4x regression pass where every run of the baseline had been
     disturbed (2026-11-24): exit 0 with skipped test cases."""

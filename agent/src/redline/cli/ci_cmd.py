@@ -137,6 +137,26 @@ def _table(verdict: dict[str, Any], fail_on: FailOn) -> str:
     return "\n".join(lines)
 
 
+def _open_before(verdict: dict[str, Any], server: str) -> str:
+    """The regressions still open before the revision, which its own verdict does not count (a
+    trial's commits after a suspected regression passed with no word of it)."""
+    found = verdict["open_before"]
+    total = verdict.get("open_before_total", len(found))
+    lines = [
+        f"{total} regression(s) still open before this revision (not counted in its verdict: "
+        "it carries them unless it undid them; triage them on their pages):"
+    ]
+    lines += [
+        f"  #{r['id']} {r['confirmation']}, triage {r['state']}: after {r['good_revision']}, "
+        f"shows at {r['bad_revision']}: {r['largest']}  {server}{r['page']}"
+        for r in found
+    ]
+    if total > len(found):
+        listed = f"{server}/regressions?component={quote(verdict['component'])}"
+        lines.append(f"  and {total - len(found)} more: {listed}")
+    return "\n".join(lines)
+
+
 #: how much of each undecided case's reason the exit message quotes
 REASON_CHARS = 300
 
@@ -312,6 +332,8 @@ def wait(
         typer.echo(f"page: {server.rstrip('/')}{verdict['page']}")
         _stop(JOBS_FAILED, f"the revision's performance jobs failed: {verdict['reason']}")
     typer.echo(_table(verdict, fail_on))
+    if verdict.get("open_before"):
+        typer.echo(_open_before(verdict, server.rstrip("/")))
     typer.echo(f"page: {server.rstrip('/')}{verdict['page']}")
     changed = {
         FailOn.regression: verdict["regressions"],

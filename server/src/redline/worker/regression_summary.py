@@ -7,21 +7,14 @@ from __future__ import annotations
 
 from collections import defaultdict
 
-from redline.detect.comparison import params_name_of
 from redline.detect.confirmation import DROPPED, HELD, SUSPECTED
-from redline.server.models import Detection, Regression, Revision, Series
+from redline.server.models import Detection, Regression, Series
+from redline.server.services.open_regressions import largest_changes, series_label
 from sqlalchemy import func, select
 from sqlalchemy.dialects.postgresql import distinct_on
 from sqlalchemy.orm import Session
 
 CONFIRMED, NOT_CONFIRMED = "confirmed", "not_confirmed"
-
-
-def _label(case: str, phase: str, process: str, counter: str, params: str) -> str:
-    """A series in words: "sweep/steady: builder uss_bytes [grid=60]" (without its test case
-    and phase, a trial's two cases at rate=50 read as one)."""
-    named = params_name_of(params)
-    return f"{case}/{phase}: {process} {counter}" + (f" [{named}]" if named else "")
 
 
 def _newest_reasons(session: Session, component_id: int) -> dict[tuple[int, str], str]:
@@ -42,32 +35,8 @@ def _newest_reasons(session: Session, component_id: int) -> dict[tuple[int, str]
         .order_by(Detection.regression_id, Detection.confirmation, Detection.id.desc())
     )
     return {
-        (rid, state): f"{_label(case, phase, process, counter, params)}: {reason}"
+        (rid, state): f"{series_label(case, phase, process, counter, params)}: {reason}"
         for rid, state, reason, case, phase, process, counter, params in rows
-        if rid is not None
-    }
-
-
-def _largest_changes(session: Session, component_id: int) -> dict[int, str]:
-    """Per regression of the component, its largest change in words ("builder cpu +208 % at
-    r3"): the figures its summary keeps, which stay when it is withdrawn."""
-    rows = session.execute(
-        select(Detection.regression_id, Detection.effect, Series.case, Series.phase)
-        .add_columns(Series.process, Series.counter, Series.params, Revision.title)
-        .join(Regression, Regression.id == Detection.regression_id)
-        .join(Series, Series.id == Detection.series_id)
-        .join(Revision, Revision.id == Detection.revision_id)
-        .where(
-            Regression.component_id == component_id,
-            Detection.effect.is_not(None),
-            Detection.confirmation != DROPPED,  # a spike it dropped is not its change
-        )
-        .ext(distinct_on(Detection.regression_id))
-        .order_by(Detection.regression_id, func.abs(Detection.effect).desc(), Detection.id)
-    )
-    return {
-        rid: f"{_label(case, phase, process, counter, params)} {effect * 100:+.0f} % at {title}"
-        for rid, effect, case, phase, process, counter, params, title in rows
         if rid is not None
     }
 
@@ -84,7 +53,7 @@ def summarize_regressions(session: Session, component_id: int) -> None:
         if regression_id is not None:  # joined to a regression: typed as nullable all the same
             states[regression_id][state] = number
     reasons = _newest_reasons(session, component_id)
-    largest = _largest_changes(session, component_id)
+    largest = largest_changes(session, component_id)
     for regression in session.scalars(
         select(Regression).where(Regression.component_id == component_id)
     ):

@@ -200,6 +200,16 @@ class CaseVerdict(BaseModel):
     reason: str = ""
 
 
+class OpenRegression(BaseModel):
+    id: int
+    good_revision: str = Field(description="the newest revision before the change")
+    bad_revision: str = Field(description="the newest revision showing it")
+    confirmation: Literal["suspected", "confirmed"]
+    state: str = Field(description="its triage state: new, acknowledged or confirmed")
+    largest: str = Field(description="its largest change, in words")
+    page: str
+
+
 class CiVerdict(BaseModel):
     component: str
     revision: str
@@ -218,3 +228,11 @@ class CiVerdict(BaseModel):
     )
     cases: list[CaseVerdict]
     page: str = Field(description="the revision's page")
+    open_before: list[OpenRegression] = Field(
+        default_factory=list,
+        description="regressions of the component still open (suspected or confirmed, not "
+        "triaged as fixed, ignored or a false positive) whose change shows before this "
+        "revision, newest first: the revision carries them unless it undid them. They do not "
+        "count in its own verdict",
+    )
+    open_before_total: int = Field(default=0, description="how many there are in all")

@@ -29,6 +29,17 @@ def describe(change: dict[str, Any]) -> str:
     )
 
 
+def open_before_text(verdict: CiVerdict) -> str:
+    """The regressions still open before the revision, one a line, and how many more."""
+    lines = [
+        f"regression #{r.id} still open before this revision ({r.confirmation}, triage: "
+        f"{r.state}; after {r.good_revision}, shows at {r.bad_revision}): {r.largest}"
+        for r in verdict.open_before
+    ]
+    more = verdict.open_before_total - len(verdict.open_before)
+    return "\n".join(lines + ([f"and {more} more open before it"] if more > 0 else []))
+
+
 def junit_xml(verdict: CiVerdict, fail_on: str = "regression") -> str:
     """One testsuite, one testcase per test case x phase x parameter set: failed (one failure
     listing every change ``fail_on`` counts: regression: for the worse; any: either way; none:
@@ -85,6 +96,9 @@ def junit_xml(verdict: CiVerdict, fail_on: str = "regression") -> str:
             out.text = "\n".join(
                 ("regression: " if c["worse"] else "improvement: ") + describe(c) for c in rest
             )
+    if verdict.open_before:  # not this revision's failures, but what it carries: said
+        out = ElementTree.SubElement(suite, "system-out")
+        out.text = open_before_text(verdict)
     suite.set("failures", str(failures))
     suite.set("skipped", str(skipped))
     suite.set("errors", str(errors))

@@ -50,6 +50,7 @@ from redline.server.services.components import get_component, get_revision
 from redline.server.services.detection_config import component_config
 from redline.server.services.fresh_runs import fresh_run_between, fresh_runs_under_way
 from redline.server.services.host_speed import at_host_speed
+from redline.server.services.open_regressions import open_before
 from redline.server.services.regression_range import revisions_between
 from redline.server.services.revisions import own_jobs, revision_state
 from sqlalchemy import func, or_, select
@@ -211,6 +212,7 @@ def ci_verdict(session: Session, component_name: str, title: str) -> CiVerdict:
     improvements = sum(len(case.changes) for case in cases) - regressions
     skipped = sum(case.state == "skipped" for case in cases)
     undecided = sum(case.state == "undecided" for case in cases)
+    before, before_total = open_before(session, revision) if state == "done" else ([], 0)
     return CiVerdict(
         component=component.name,
         revision=revision.title,
@@ -223,6 +225,8 @@ def ci_verdict(session: Session, component_name: str, title: str) -> CiVerdict:
         undecided=undecided,
         cases=cases,
         page=f"/components/{quote(component.name)}/revisions/{quote(revision.title)}",
+        open_before=before,
+        open_before_total=before_total,
     )
 
 

@@ -1,0 +1,104 @@
+"""The regressions of a component still open before a revision: what a CI job of a later commit
+is told beside its own verdict. A trial's unchanged commits after a suspected regression each
+passed `ci wait` with exit 0 and no word that the code they carried was suspected slower.
+
+Open: standing (suspected or confirmed, not dropped by its confirmation runs nor withdrawn) and
+not triaged away (new, acknowledged or confirmed; not fixed, ignored or a false positive), with
+its change before the revision (the newest revision showing it earlier than this one).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+
+from redline.detect.comparison import params_name_of
+from redline.detect.confirmation import DROPPED
+from redline.server.models import (
+    STANDING,
+    Detection,
+    Regression,
+    RegressionState,
+    Revision,
+    Series,
+)
+from redline.server.schemas.alerts import OpenRegression
+from sqlalchemy import func, literal, select, tuple_
+from sqlalchemy.dialects.postgresql import distinct_on
+from sqlalchemy.orm import Session, selectinload
+
+#: triage states in which a regression is still open
+OPEN_STATES = (RegressionState.new, RegressionState.acknowledged, RegressionState.confirmed)
+#: open regressions a verdict names at most (it counts them all)
+NAMED = 3
+
+
+def series_label(case: str, phase: str, process: str, counter: str, params: str) -> str:
+    """A series in words: "sweep/steady: builder uss_bytes [grid=60]" (without its test case
+    and phase, a trial's two cases at rate=50 read as one)."""
+    named = params_name_of(params)
+    return f"{case}/{phase}: {process} {counter}" + (f" [{named}]" if named else "")
+
+
+def largest_changes(
+    session: Session, component_id: int, ids: Iterable[int] | None = None
+) -> dict[int, str]:
+    """Per regression of the component (of ``ids`` only, when given), its largest change in
+    words ("builder cpu +208 % at r3"): the figures its summary keeps, which stay when it is
+    withdrawn."""
+    query = (
+        select(Detection.regression_id, Detection.effect, Series.case, Series.phase)
+        .add_columns(Series.process, Series.counter, Series.params, Revision.title)
+        .join(Regression, Regression.id == Detection.regression_id)
+        .join(Series, Series.id == Detection.series_id)
+        .join(Revision, Revision.id == Detection.revision_id)
+        .where(
+            Regression.component_id == component_id,
+            Detection.effect.is_not(None),
+            Detection.confirmation != DROPPED,  # a spike it dropped is not its change
+        )
+        .ext(distinct_on(Detection.regression_id))
+        .order_by(Detection.regression_id, func.abs(Detection.effect).desc(), Detection.id)
+    )
+    if ids is not None:
+        query = query.where(Detection.regression_id.in_(list(ids)))
+    return {
+        rid: f"{series_label(case, phase, process, counter, params)} {effect * 100:+.0f} % "
+        f"at {title}"
+        for rid, effect, case, phase, process, counter, params, title in session.execute(query)
+        if rid is not None
+    }
+
+
+def open_before(session: Session, revision: Revision) -> tuple[list[OpenRegression], int]:
+    """The component's open regressions whose change shows before ``revision``, newest first,
+    at most `NAMED`; and how many there are in all."""
+    where = (
+        Regression.component_id == revision.component_id,
+        Regression.confirmation.in_(STANDING),
+        Regression.state.in_(OPEN_STATES),
+        tuple_(Regression.bad_key, Regression.bad_revision_id)
+        < tuple_(literal(revision.order_key, Regression.bad_key.type), literal(revision.id)),
+    )
+    total = session.scalar(select(func.count()).select_from(Regression).where(*where)) or 0
+    if not total:
+        return [], 0
+    found = session.scalars(
+        select(Regression)
+        .where(*where)
+        .options(selectinload(Regression.good_revision), selectinload(Regression.bad_revision))
+        .order_by(Regression.bad_key.desc(), Regression.id.desc())
+        .limit(NAMED)
+    ).all()
+    largest = largest_changes(session, revision.component_id, [r.id for r in found])
+    return [
+        OpenRegression(
+            id=regression.id,
+            good_revision=regression.good_revision.title,
+            bad_revision=regression.bad_revision.title,
+            confirmation=regression.confirmation,
+            state=regression.state.value,
+            largest=largest.get(regression.id, ""),
+            page=f"/regressions/{regression.id}",
+        )
+        for regression in found
+    ], total
