@@ -106,7 +106,8 @@ def test_no_change_passes_and_no_baseline_is_skipped_with_its_reason(server, tmp
 def test_a_later_revision_is_told_of_the_regression_still_open_before_it(server, tmp_path):
     """A trial's unchanged commits after a suspected regression each passed with exit 0 and no
     word that the code they carried was suspected slower (2026-12-06): r7 is told of r6's, in
-    the table, the JSON and the JUnit file, and no longer once it is triaged as fixed; r3,
+    the table, the JSON, the JUnit file and its page, and no longer once it is triaged as
+    fixed; r3,
     before it, is told of none."""
     _, _, api = server
     out = tmp_path / "junit.xml"
@@ -126,6 +127,17 @@ def test_a_later_revision_is_told_of_the_regression_still_open_before_it(server,
     ).json()
     assert verdict["regressions"] == 0 and verdict["open_before_total"] == 1
     assert verdict["open_before"][0]["page"] == f"/regressions/{number}"
+    page = api.client.get("/components/builder/revisions/r7", headers=api.headers("read"))
+    assert re.search(
+        rf'<div id="open-before"><p>1 regression of builder still open before this revision.*'
+        rf'<a href="/regressions/{number}">#{number}</a>',
+        page.text,
+        re.S,
+    ), page.text
+    assert (
+        "open-before"
+        not in api.client.get("/components/builder/revisions/r3", headers=api.headers("read")).text
+    )
     before = wait(server, "--revision", "r3", "--junit", str(out))
     assert "still open" not in before.stdout and ElementTree.parse(out).find("system-out") is None
     triage = f"/api/v1/components/builder/regressions/{number}"

@@ -7,13 +7,13 @@ but not whether CI passed; `redline ci` and ``/verdict`` said it, the page did n
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 from redline.detect.result import METHOD_FAILED, NOT_MEASURED_MARK
 from redline.recording.disturbance import names_busy_host
 from redline.recording.format import NO_TRAFFIC_MARK
 from redline.server.models import Regression
-from redline.server.schemas.alerts import CiVerdict
+from redline.server.schemas.alerts import CiVerdict, OpenRegression
 from redline.server.services.ci_verdict import ci_verdict
 from sqlalchemy import select
 from sqlalchemy.orm import Session
@@ -26,6 +26,10 @@ class Gate:
     words: str
     #: the regressions of the revision's changes for the worse: (id, confirmation, its reason)
     regressions: tuple[tuple[int, str, str], ...] = ()
+    #: the component's regressions still open before it, which the gate does not count, and
+    #: how many there are in all (`redline.server.services.open_regressions`)
+    before: tuple[OpenRegression, ...] = ()
+    before_total: int = 0
 
 
 def _plural(count: int, one: str) -> str:
@@ -85,6 +89,14 @@ def _words(verdict: CiVerdict) -> tuple[str, str]:
 
 def gate(session: Session, component: str, title: str) -> Gate:
     verdict = ci_verdict(session, component, title)
+    return replace(
+        _gate(session, verdict),
+        before=tuple(verdict.open_before),
+        before_total=verdict.open_before_total,
+    )
+
+
+def _gate(session: Session, verdict: CiVerdict) -> Gate:
     state, words = _words(verdict)
     if state != "failed":
         return Gate(state, words)
