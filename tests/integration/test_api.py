@@ -201,6 +201,38 @@ def test_a_commit_reported_under_its_full_and_its_short_sha_is_one_revision(api:
         assert session.scalar(select(func.count()).select_from(Job)) == 4  # none for repeats
 
 
+def test_a_revision_is_found_by_its_commit_hash_full_or_abbreviated(api: Api):
+    """A trial's `ci wait --revision 2b2a811` (and with the full SHA) waited 2 minutes for a
+    revision `ci report` had titled by 12 digits, and gave up "has no revision"."""
+    api.component()
+    full, other = "2b2a811aa80c" + "0" * 28, "2b2a811bb" + "1" * 31
+    for title, commit, key in ((full[:12], full, "1"), ("v2", other, "2")):
+        made = api.post(
+            "/api/v1/revisions",
+            "ci",
+            {"component": "builder", "title": title, "commit": commit, "sort_key": key},
+        )
+        assert made.status_code == 201, made.text
+    base = "/api/v1/components/builder/revisions/"
+    for asked in (full, full[:9], full[:12].upper(), other[:12]):
+        found = api.client.get(base + asked)
+        assert found.status_code == 200, (asked, found.text)
+        assert found.json()["title"] == ("v2" if asked == other[:12] else full[:12]), asked
+        verdict = api.client.get(base + asked + "/verdict", headers=api.headers("ci"))
+        assert verdict.status_code == 200 and verdict.json()["revision"] == found.json()["title"]
+    page = api.client.get("/components/builder/revisions/" + full)
+    assert page.status_code == 200 and full[:12] in page.text
+    # seven digits both commits start with: which one is not guessed, both are named
+    both = api.client.get(base + full[:7])
+    assert both.status_code == 404, both.text
+    assert all(t in both.json()["detail"] for t in (full[:12], "'v2'", "give more of the hash"))
+    # a hash of no commit, and a title that is no hash, are not found as before
+    for asked in ("2b2a812", "nightly"):
+        missing = api.client.get(base + asked)
+        assert missing.status_code == 404
+        assert missing.json()["detail"] == f"component 'builder' has no revision {asked!r}"
+
+
 def test_a_failed_revision_says_it_failed_and_why_not_that_a_verdict_is_coming(api: Api):
     """A trial's revision whose every job failed read "No verdict yet ... has not been
     analysed", as if it were still coming, and its API verdict was ""."""

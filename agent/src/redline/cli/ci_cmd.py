@@ -224,7 +224,8 @@ def wait(
     revision: Annotated[
         str | None,
         typer.Option(
-            help="the revision's title (default: HEAD's first 12 digits, as `ci report` gives it)"
+            help="the revision's title, or its commit's hash, full or abbreviated (default: "
+            "HEAD's first 12 digits, as `ci report` gives it)"
         ),
     ] = None,
     token_file: TokenFile = None,

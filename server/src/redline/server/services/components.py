@@ -8,9 +8,10 @@ from pathlib import Path
 from redline.agent.checkout import refused_repo, without_credentials
 from redline.server.models import Component, Revision
 from redline.server.schemas.components import ComponentCreate, ComponentOut, ComponentSettings
+from redline.server.schemas.fields import COMMIT_HASH
 from redline.server.services.errors import Conflict, NotFound, Unprocessable
 from redline.server.services.repos import repo_key
-from sqlalchemy import func, select
+from sqlalchemy import Select, and_, func, literal, or_, select
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
@@ -115,10 +116,66 @@ def _named_alike(session: Session, name: str) -> str | None:
 
 
 def get_revision(session: Session, component: Component, title: str) -> Revision:
-    """The component's revision titled ``title``; NotFound naming both otherwise."""
+    """The component's revision titled ``title``, or else of the commit whose hash it is, full
+    or abbreviated (a trial's `ci wait --revision 2b2a811`, and with the full SHA, waited 2
+    minutes for a revision titled by 12 digits, and gave up); NotFound naming both otherwise,
+    or the revisions a too short hash names."""
     revision = session.scalar(
         select(Revision).where(Revision.component_id == component.id, Revision.title == title)
     )
-    if revision is None:
-        raise NotFound(f"component {component.name!r} has no revision {title!r}")
-    return revision
+    if revision is not None:
+        return revision
+    if COMMIT_HASH.fullmatch(title):
+        found = session.scalars(_of_commit(component, title).limit(AMBIGUOUS + 1)).all()
+        if len(found) == 1:
+            return found[0]
+        if found:
+            named = ", ".join(repr(r.title) for r in found[:AMBIGUOUS])
+            raise NotFound(
+                f"component {component.name!r} has no revision {title!r}, and the commits of "
+                f"several start with it ({named}{', ...' if len(found) > AMBIGUOUS else ''}): "
+                "give more of the hash"
+            )
+    raise NotFound(f"component {component.name!r} has no revision {title!r}")
+
+
+#: revisions named when an abbreviated hash is ambiguous
+AMBIGUOUS = 3
+
+
+def same_commit(first: str, second: str) -> bool:
+    """Do two commit names name one commit: equal, or hashes of 7 hex digits or more one of
+    which abbreviates the other (a 12-digit title's commit and the full SHA)."""
+    if first == second:
+        return True
+    if not (COMMIT_HASH.fullmatch(first) and COMMIT_HASH.fullmatch(second)):
+        return False
+    first, second = first.lower(), second.lower()
+    return first.startswith(second) or second.startswith(first)
+
+
+def revision_of_commit(session: Session, component: Component, commit: str) -> Revision | None:
+    """The component's first revision of ``commit`` (`same_commit`), whatever its title; None
+    for a name that is not a hash (a branch, "main", names a commit that moves)."""
+    if not COMMIT_HASH.fullmatch(commit):
+        return None
+    return session.scalars(_of_commit(component, commit).limit(1)).first()
+
+
+def _of_commit(component: Component, commit: str) -> Select[Revision]:
+    """The component's revisions of ``commit``, a hash (`same_commit`), first reported first."""
+    stored, given = func.lower(Revision.commit), commit.lower()
+    return (
+        select(Revision)
+        .where(
+            Revision.component_id == component.id,
+            or_(
+                stored.startswith(given),
+                and_(
+                    Revision.commit.regexp_match(COMMIT_HASH.pattern),
+                    literal(given).startswith(stored),
+                ),
+            ),
+        )
+        .order_by(Revision.id)
+    )

@@ -19,16 +19,11 @@ from redline.recording import SeriesKey, canonical_params
 from redline.server.db import share_component
 from redline.server.models import Component, Execution, Host, Job, JobState, Revision, Summary
 from redline.server.schemas.imports import ImportResult, ResultsImport
-from redline.server.services.components import get_component
+from redline.server.services.components import get_component, revision_of_commit, same_commit
 from redline.server.services.errors import Conflict, Forbidden
 from redline.server.services.home import IMPORTED
 from redline.server.services.ingestion import store_samples
-from redline.server.services.revision_reports import (
-    cannot_run,
-    reports_take_turns,
-    revision_of_commit,
-    same_commit,
-)
+from redline.server.services.revision_reports import cannot_run, reports_take_turns
 from redline.server.services.revisions import order_key
 from sqlalchemy import func, select
 from sqlalchemy.dialects.postgresql import insert

@@ -4,52 +4,16 @@
 from __future__ import annotations
 
 from redline.server.models import Component, Job, JobState, Revision
-from redline.server.schemas.fields import COMMIT_HASH
 from redline.server.schemas.revisions import RevisionCreate
-from redline.server.services.components import get_component
+from redline.server.services.components import get_component, revision_of_commit, same_commit
 from redline.server.services.errors import Conflict
 from redline.server.services.revisions import (
     CANCELLED,
     create_revision,
     require_own_repository,
 )
-from sqlalchemy import and_, func, literal, or_, select
+from sqlalchemy import func, select
 from sqlalchemy.orm import Session
-
-
-def same_commit(first: str, second: str) -> bool:
-    """Do two commit names name one commit: equal, or hashes of 7 hex digits or more one of
-    which abbreviates the other (a 12-digit title's commit and the full SHA)."""
-    if first == second:
-        return True
-    if not (COMMIT_HASH.fullmatch(first) and COMMIT_HASH.fullmatch(second)):
-        return False
-    first, second = first.lower(), second.lower()
-    return first.startswith(second) or second.startswith(first)
-
-
-def revision_of_commit(session: Session, component: Component, commit: str) -> Revision | None:
-    """The component's first revision of ``commit`` (`same_commit`), whatever its title; None
-    for a name that is not a hash (a branch, "main", names a commit that moves)."""
-    if not COMMIT_HASH.fullmatch(commit):
-        return None
-    stored, given = func.lower(Revision.commit), commit.lower()
-    return session.scalars(
-        select(Revision)
-        .where(
-            Revision.component_id == component.id,
-            or_(
-                stored.startswith(given),
-                and_(
-                    Revision.commit.regexp_match(COMMIT_HASH.pattern),
-                    literal(given).startswith(stored),
-                ),
-            ),
-        )
-        .order_by(Revision.id)
-        .limit(1)
-    ).first()
-
 
 #: the first key of the advisory lock that reports of one component's revisions take turns on
 REPORT_LOCK = 0x5252  # "RR"

@@ -28,7 +28,7 @@ from redline.server.schemas.revisions import (
     RevisionOut,
 )
 from redline.server.services.components import get_component, get_revision
-from redline.server.services.errors import BadRequest, Conflict, Forbidden, NotFound
+from redline.server.services.errors import BadRequest, Conflict, Forbidden
 from redline.server.services.fresh_runs import mark_waiting
 from redline.server.services.repos import repo_key
 from redline.server.services.revision_summaries import revision_verdicts
@@ -275,21 +275,20 @@ def _unmeasured(jobs: list[Job]) -> str:
 
 def revision_detail(session: Session, component_name: str, title: str) -> RevisionDetail:
     component = get_component(session, component_name)
-    revision = session.scalar(
+    found = get_revision(session, component, title)  # by its title, or its commit's hash
+    revision = session.scalars(
         select(Revision)
-        .where(Revision.component_id == component.id, Revision.title == title)
+        .where(Revision.id == found.id)
         .options(
             selectinload(Revision.jobs).selectinload(Job.execution),
             selectinload(Revision.jobs).selectinload(Job.host),
         )
-    )
-    if revision is None:
-        raise NotFound(f"component {component_name!r} has no revision {title!r}")
+    ).one()
     return RevisionDetail(
         **_revision_out(revision),
         component=component.name,
         jobs=[job_out(job) for job in revision.jobs],
-        verdict=revision_verdicts(session, component_name, [title]).get(title)
+        verdict=revision_verdicts(session, component_name, [revision.title]).get(revision.title)
         or _unmeasured(own_jobs(revision)),
     )
 

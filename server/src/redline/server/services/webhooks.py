@@ -25,14 +25,10 @@ from redline.server.schemas.webhooks import (
     RefusedCommit,
     WebhookResult,
 )
+from redline.server.services.components import revision_of_commit, same_commit
 from redline.server.services.errors import BadRequest, ServiceError
 from redline.server.services.repos import repo_key
-from redline.server.services.revision_reports import (
-    cannot_run,
-    reports_take_turns,
-    revision_of_commit,
-    same_commit,
-)
+from redline.server.services.revision_reports import cannot_run, reports_take_turns
 from redline.server.services.revisions import new_revision
 from sqlalchemy import exists, select
 from sqlalchemy.exc import IntegrityError
