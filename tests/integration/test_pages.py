@@ -18,7 +18,12 @@ from redline.server.models import FigureCache
 from redline.server.schemas.revisions import RevisionCreate
 from redline.server.services.errors import BadRequest, Conflict
 from redline.server.services.revisions import create_revision
-from redline.server.services.signin import SESSION_COOKIE, check_password, create_user
+from redline.server.services.signin import (
+    SESSION_COOKIE,
+    check_password,
+    create_user,
+    current,
+)
 from redline.server.services.tokens import issue_token
 from redline.server.services.trend_view import MAX_CHARTS
 from sqlalchemy import func, select, text
@@ -480,6 +485,32 @@ def test_a_triage_to_no_state_names_the_field_and_the_states_not_pydantic(
     said = html.unescape(re.search(r'class="problem">(.*?)</p>', none.text, re.S).group(1))
     assert none.status_code == 400 and said.startswith("triage: choose the state to set"), said
     assert _state(client, number) == "new"
+
+
+def test_a_form_value_no_text_holds_is_a_page_naming_it_never_a_500(client, database_url, tmp_path):
+    """A review (2026-12-06): a triage comment holding a NUL reached the database, whose refusal
+    rolled the session back, and the error page, reading who was signed in from the expired
+    session row, answered 500; so did a token name past 200 characters from the settings form."""
+    number = _regression(client, database_url, tmp_path)
+    with session_factory(database_url)() as session:
+        create_user(session, "ada", "correct horse battery", "triage,admin")
+    sign_in(client, {"name": "ada", "password": "correct horse battery"})
+    csrf = form_token(client.get(f"/regressions/{number}").text)
+    form = {"state": "confirmed", "comment": "a\x00b", "csrf": csrf}
+    answer = client.post(f"/regressions/{number}/triage", data=form)
+    said = html.unescape(re.search(r'class="problem">(.*?)</p>', answer.text, re.S).group(1))
+    assert answer.status_code == 422 and "'comment' holds a NUL" in said, said
+    assert _state(client, number) == "new"
+    long = client.post("/settings/tokens", data={"name": "n" * 201, "scopes": "ci", "csrf": csrf})
+    assert long.status_code == 400 and "at most 200 characters" in long.text
+    # what the error page reads of the session survives the request's session rolled back and
+    # closed, as a failed write leaves it before the error page is drawn
+    with session_factory(database_url)() as session:
+        row = current(session, client.cookies.get(SESSION_COOKIE))
+        assert row is not None
+        session.rollback()
+        session.close()
+        assert (row.who, row.scopes, len(row.csrf)) == ("ada", ["admin", "triage"], len(csrf))
 
 
 def test_a_pasted_token_signs_in_with_its_own_scopes_only(client, database_url, tmp_path):

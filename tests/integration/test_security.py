@@ -1,6 +1,7 @@
 """Least privilege at the edges: where a performance host's code comes from, which repository a
 push names (real Postgres and Redis through the app, real git). The rules themselves, the
-checkout and what charts and logs show are in tests/unit/test_security.py."""
+checkout and what charts and logs show are in tests/unit/test_security.py; what the agent takes
+from a lease, against a real HTTP server."""
 
 from __future__ import annotations
 
@@ -9,11 +10,13 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+from redline.agent.client import ServerClient
 from redline.server.db import session_factory
 from redline.server.models import Revision
 from sqlalchemy import update
 
 from tests.support.api import Api, api_with
+from tests.support.receivers import http_receiver
 from tests.support.servers import Services
 from tests.support.webhooks import SECRET, counts, send_github, send_gitlab
 
@@ -246,3 +249,19 @@ def test_a_database_error_does_not_quote_the_secret_it_was_writing(database_url:
         conn.execute(text("SELECT CAST(:secret AS text), 1 / 0"), {"secret": secret})
     assert "division by zero" in str(raised.value)
     assert secret not in str(raised.value) and "hidden due to hide_parameters" in str(raised.value)
+
+
+@pytest.mark.parametrize("given", ['"x/../.."', "7.0", "true", "null"])
+def test_the_agent_runs_no_job_whose_id_is_no_number(given: str):
+    """A review: the id names the job's folders, which the agent empties; a server (or whoever
+    sits in the middle of plain http) sending "x/../.." would have had it empty others."""
+    with http_receiver() as server:
+        server.bodies[LEASE] = b'{"id": %s, "commit": "abc"}' % given.encode()
+        client = ServerClient(server.url, "token", "perf1")
+        with pytest.raises(ValueError, match="id is no number"):
+            client.lease()
+        server.bodies[LEASE] = b'{"id": 7, "commit": "abc"}'
+        assert client.lease() == {"id": 7, "commit": "abc"}
+
+
+LEASE = "/api/v1/agent/lease"

@@ -15,7 +15,14 @@ from sqlalchemy import select
 
 from tests.support.api import Api, api_with
 from tests.support.servers import Services
-from tests.support.webhooks import COMMITS, SECRET, counts, github_push, send_github
+from tests.support.webhooks import (
+    COMMITS,
+    SECRET,
+    counts,
+    github_push,
+    send_github,
+    send_gitlab,
+)
 
 
 @pytest.fixture
@@ -175,6 +182,33 @@ def test_component_secret_overrides_the_setting(api: Api):
         )
         assert weak.status_code == 422 and said in weak.text, weak.text
     assert send_github(api, github_push(), secret="own-secret-of-builder").status_code == 200
+
+
+def test_a_repository_no_url_parser_reads_is_refused_never_a_500(api: Api):
+    """A review (2026-12-06): "https://[x" (an unclosed IPv6 bracket) made `repo_key` raise, so
+    a forged delivery answered 500 before its signature was checked where a component has a
+    secret of its own, as did a ci report naming it and an admin's setting."""
+    api.client.patch(
+        "/api/v1/components/builder",
+        json={"webhook_secret": "own-secret-of-builder"},
+        headers=api.tokens["admin"],
+    ).raise_for_status()
+    forged = github_push(repo="https://[forged")
+    assert send_github(api, forged, secret="guessed").status_code == 401
+    assert send_gitlab(api, forged, token="guessed").status_code == 401
+    report = {"component": "builder", "title": "t1", "sort_key": "1", "commit": "a" * 40}
+    answer = api.post("/api/v1/revisions", "ci", {**report, "repo": "https://[x"})
+    assert answer.status_code == 403 and "own repository" in answer.text, answer.text
+    for change in ({"repo": "https://[x/org/repo"}, {"repo": "ssh://h:port/org/x.git"}):
+        refused = api.client.patch(
+            "/api/v1/components/builder", json=change, headers=api.tokens["admin"]
+        )
+        assert refused.status_code == 422 and "not a URL git can read" in refused.text
+    made = api.post("/api/v1/components", "admin", {"name": "odd", "repo": "https://[x/o/r"})
+    assert made.status_code == 422 and "not a URL git can read" in made.text
+    assert counts(api) == (0, 0)
+    shown = api.client.get("/api/v1/components/builder").json()
+    assert shown["repo"] == "https://github.com/Org/Builder.git"  # nothing stored was lost
 
 
 def test_gitlab_push_with_its_token_creates_revisions(api: Api):

@@ -31,12 +31,14 @@ class Request:
 
 @dataclass
 class Receiver:
-    """``answers[path]``: statuses given in turn (then 200); ``delays[path]``: seconds to wait."""
+    """``answers[path]``: statuses given in turn (then 200); ``delays[path]``: seconds to wait;
+    ``bodies[path]``: the body a success answers with (else ``{"ok": true}``)."""
 
     url: str
     requests: list[Request] = field(default_factory=list)
     answers: dict[str, list[int]] = field(default_factory=dict)
     delays: dict[str, float] = field(default_factory=dict)
+    bodies: dict[str, bytes] = field(default_factory=dict)
 
     def to(self, path: str) -> list[Request]:
         return [r for r in self.requests if r.path == path]
@@ -61,7 +63,8 @@ def http_receiver() -> Iterator[Receiver]:
                 self.send_response(status)
                 self.send_header("Content-Type", "application/json")
                 self.end_headers()
-                self.wfile.write(b'{"ok": true}' if status < 300 else b'{"error": "down"}')
+                ok = receiver.bodies.get(self.path, b'{"ok": true}')
+                self.wfile.write(ok if status < 300 else b'{"error": "down"}')
             except (BrokenPipeError, ConnectionResetError):
                 pass  # the caller gave up (a timeout): what a slow receiver sees
 

@@ -100,6 +100,9 @@ def test_repository_rules_name_the_reason():
     assert "scheme 'ext'" in (refused_repo("ext::sh -c x", allow_file=False) or "")
     assert "http" in (refused_repo("http://h/x.git", allow_file=False) or "")
     assert refused_repo("/srv/x.git", allow_file=True) is None
+    # what no URL parser reads (a review: "https://[x" made the API answer 500)
+    for url in ("https://[x/org/repo", "ssh://git@github.com:port/org/x.git"):
+        assert "not a URL git can read" in (refused_repo(url, allow_file=False) or ""), url
 
 
 LINK = '<a href="https://evil.example/phish">click</a>'
@@ -277,6 +280,7 @@ def test_repository_urls_normalize_across_https_ssh_and_dot_git():
     assert keys == {"github.com/org/repo"}
     assert repo_key("https://github.com/org/other") != "github.com/org/repo"
     assert repo_key("") == ""
+    assert repo_key("https://[forged") == ""  # matches nothing, raises nothing
 
 
 @pytest.mark.parametrize("mode", [0o644, 0o640, 0o604])

@@ -18,6 +18,7 @@ import re
 import shutil
 import subprocess
 from pathlib import Path
+from urllib.parse import urlsplit
 
 SCHEMES = ("https", "ssh", "git")
 #: What a mirror holds: branches and tags, which only those who may push to the repository
@@ -71,6 +72,10 @@ def refused_repo(url: str, allow_file: bool) -> str | None:
         authority = url[match.end() :].split("/", 1)[0]
         if any(part.startswith("-") for part in re.split(r"[@:]", authority)):
             return "a repository URL's user, host or port must not start with '-'"
+        try:
+            urlsplit(url).port  # noqa: B018 (read for its check: an unclosed '[', a port of letters)
+        except ValueError as error:
+            return f"not a URL git can read: {error}"
         if "@" in authority and (scheme != "ssh" or ":" in authority.rsplit("@", 1)[0]):
             return (  # the URL is shown on pages and in the API, and put on git's command line
                 "a repository URL must not carry a password or token (https://user:token@...): "

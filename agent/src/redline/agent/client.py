@@ -90,7 +90,13 @@ class ServerClient:
         if answer.status_code == 204:
             return None
         answer.raise_for_status()
-        return dict(answer.json())
+        job = dict(answer.json())
+        # the id names the job's folders (`job-{id}`), which are emptied: a number, or nothing
+        # is run (a review: a server, or a man in the middle of plain http, could have sent
+        # "x/../..")
+        if type(job.get("id")) is not int:
+            raise ValueError(f"the server leased a job whose id is no number: {job.get('id')!r}")
+        return job
 
     def heartbeat(self, job_id: int) -> None:
         answer = self._http.post(f"/api/v1/jobs/{job_id}/heartbeat", json={"host": self.host})

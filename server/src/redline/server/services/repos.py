@@ -13,14 +13,19 @@ def repo_key(url: str) -> str:
 
     ``https://github.com/Org/Repo.git``, ``git@github.com:org/repo`` and
     ``ssh://git@github.com:22/org/repo.git`` all give ``github.com/org/repo``. A local path
-    (``/src/builder.git``) keeps its path. An empty URL gives ``""``, which matches nothing.
+    (``/src/builder.git``) keeps its path. An empty URL gives ``""``, which matches nothing, and
+    so does one no URL parser reads (``https://[x``: a review's forged webhook delivery made it
+    a 500 before its signature was checked).
     """
     text = url.strip()
     if not text:
         return ""
     if "://" in text:
-        parts = urlsplit(text)
-        host = (parts.hostname or "") if parts.scheme != "file" else ""
+        try:
+            parts = urlsplit(text)
+            host = (parts.hostname or "") if parts.scheme != "file" else ""
+        except ValueError:  # an unclosed '[' of an IPv6 host
+            return ""
         path = parts.path
     elif (match := _SCP_LIKE.match(text)) and not text.startswith("/"):
         host, path = match["host"], match["path"]

@@ -195,6 +195,9 @@ def current(session: Session, secret: str | None) -> WebSession | None:
         live = opener is not None and not opener.disabled
     if not live or opener is None:
         return None
+    # the request's own copy, which no rollback expires: a form whose write failed rolled the
+    # session back, and its error page, reading who is signed in, answered 500 (a review)
+    session.expunge(row)
     row.scopes = list(opener.scopes)  # what it may do now, not what it could when it signed in
     row.components = tuple(getattr(opener, "components", None) or ())  # a bound token's
     return row

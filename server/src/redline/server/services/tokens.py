@@ -28,6 +28,10 @@ def authenticate(session: Session, secret: str, stamp: bool = True) -> ApiToken 
     return token
 
 
+#: the longest name or host a token may have (the API's schema says so too)
+NAME_CHARS = 200
+
+
 def issue_token(
     session: Session,
     name: str,
@@ -58,6 +62,9 @@ def issue_token(
         path_segment(name)
     except ValueError as exc:
         raise BadRequest(f"a token's name '{escaped(name[:80])}' {exc}") from None
+    for field, given in (("name", name), ("host", host or "")):  # the settings form's too
+        if len(given) > NAME_CHARS:
+            raise BadRequest(f"a token's {field} is at most {NAME_CHARS} characters")
     if not name.strip():  # `redline token create ""` made one; the API took "   "
         raise BadRequest("a token's name must not be empty or blank: name who it is for")
     if name.isascii() and name.isdecimal():  # `revoke_token` reads such a name as an id first

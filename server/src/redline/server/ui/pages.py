@@ -15,7 +15,7 @@ from redline.server.core.bodies import JsonRoute
 from redline.server.core.security import grants
 from redline.server.models import WebSession
 from redline.server.services import signin
-from redline.server.services.errors import ServiceError
+from redline.server.services.errors import ServiceError, Unprocessable
 
 
 def _web_session(request: Request, session: SessionDep) -> None:
@@ -102,6 +102,14 @@ def form_errors(exc: ValidationError) -> str:
 
 
 async def form_fields(request: Request) -> dict[str, str]:
-    """An urlencoded form's fields (the last value of each); its size is bounded like any body."""
+    """An urlencoded form's fields (the last value of each); its size is bounded like any body.
+    A field holding a NUL (``%00``), which no stored text can, is refused naming it, as the
+    API's JSON is (a review's triage comment reached the database, which refused it)."""
     fields = parse_qs((await request.body()).decode(errors="replace"), keep_blank_values=True)
+    for name, values in fields.items():
+        if any("\x00" in value for value in (name, *values)):
+            raise Unprocessable(
+                f"the form's field {name.replace(chr(0), '')[:80]!r} holds a NUL "
+                "character (%00), which no text holds"
+            )
     return {name: values[-1] for name, values in fields.items()}
