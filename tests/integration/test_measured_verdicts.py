@@ -564,6 +564,30 @@ def test_a_change_after_a_revision_the_host_was_busy_in_names_it_in_the_ci_failu
     )
 
 
+def test_a_change_judged_against_the_revision_before_it_names_no_earlier_revision(
+    session, database_url, tmp_path
+):
+    """A trial (2026-12-06): a regression held two changes of one revision, one judged against
+    the revision just before it, the other (its parameter set busy in the revisions between)
+    against one further back. The first's CI failure said it "may be the change of an earlier
+    revision that did not measure it: <the revision just before> (measured, within the span of
+    the regression's changes)". What a change names is read from its own baseline: here the
+    regression's range is widened as the other change had made it."""
+    revision = _history(session, database_url, tmp_path, {"cpu": 60.0})
+    flagged = [d for d in _verdicts(session, revision).values() if d.regression_id]
+    assert flagged and {d.baseline_revision_id for d in flagged} == {
+        session.scalars(select(Revision.id).where(Revision.title == "r3")).one()
+    }
+    regression = session.get_one(Regression, flagged[0].regression_id)
+    r1 = session.scalars(select(Revision).where(Revision.title == "r1")).one()
+    regression.good_revision_id, regression.good_key = r1.id, r1.order_key
+    session.commit()
+    verdict = ci_verdict(session, NAME, "r4")
+    changes = [change for case in verdict.cases for change in case.changes if change["worse"]]
+    assert changes and not any(change.get("between") for change in changes), changes
+    assert "may be the change of an earlier revision" not in junit_xml(verdict)
+
+
 def test_a_fresh_run_is_queued_one_level_back_never_walking_a_busy_history(
     session, database_url, tmp_path
 ):

@@ -40,7 +40,6 @@ from redline.server.models import (
     Host,
     Job,
     JobState,
-    Regression,
     Revision,
     Series,
     revision_place,
@@ -51,7 +50,7 @@ from redline.server.services.detection_config import component_config
 from redline.server.services.fresh_runs import fresh_run_between, fresh_runs_under_way
 from redline.server.services.host_speed import at_host_speed
 from redline.server.services.open_regressions import open_before
-from redline.server.services.regression_range import revisions_between
+from redline.server.services.regression_range import unmeasured_before
 from redline.server.services.revisions import own_jobs, revision_state
 from sqlalchemy import func, or_, select
 from sqlalchemy.orm import Session
@@ -188,6 +187,7 @@ def _change(detection: Detection, series: Series) -> dict[str, Any]:
         "confirmation": detection.confirmation or "none",
         "confirmation_reason": detection.confirmation_reason,
         "regression": detection.regression_id,
+        "detection": detection.id,
     }
 
 
@@ -231,22 +231,18 @@ def ci_verdict(session: Session, component_name: str, title: str) -> CiVerdict:
 
 
 def _name_unmeasured(session: Session, cases: list[CaseVerdict]) -> None:
-    """Give each change for the worse the revisions inside its regression's range that did not
-    measure it (``between``: measured while the host was busy, failed, not run): the change may
-    be theirs. A bench run's timeouts, made at r24, were flagged at r25 when the host was busy
-    in every run of r24's, and r25's CI job failed for them."""
-    ranges: dict[int, str] = {}
+    """Give each change for the worse the revisions between its baseline and its revision that
+    did not measure it (``between``: measured while the host was busy, failed, not run): the
+    change may be theirs. A bench run's timeouts, made at r24, were flagged at r25 when the host
+    was busy in every run of r24's, and r25's CI job failed for them."""
     for change in (c for case in cases for c in case.changes):
-        regression_id = change["regression"]
-        if not change["worse"] or regression_id is None:
+        if not change["worse"]:
             continue
-        if regression_id not in ranges:
-            regression = session.get(Regression, regression_id)
-            listed, total = revisions_between(session, regression) if regression else ([], 0)
-            named = "; ".join(f"{r.title} ({r.why})" for r in listed[:NAMED])
-            ranges[regression_id] = named + (f"; {total - NAMED} more" if total > NAMED else "")
-        if ranges[regression_id]:
-            change["between"] = ranges[regression_id]
+        listed = unmeasured_before(session, session.get_one(Detection, change["detection"]))
+        named = "; ".join(f"{r.title} ({r.why})" for r in listed[:NAMED])
+        if listed:
+            more = len(listed) - NAMED
+            change["between"] = named + (f"; {more} more" if more > 0 else "")
 
 
 #: revisions of a range a change for the worse names, at most

@@ -21,11 +21,13 @@ from redline.server.models import (
 )
 from redline.server.schemas.regressions import RevisionBetween
 from redline.server.services.revisions import UNFINISHED, own_jobs, revision_state
-from sqlalchemy import func, select, tuple_
+from sqlalchemy import Select, func, literal, select, tuple_
 from sqlalchemy.orm import Session, selectinload
 
 #: revisions listed at most; the page and the API say how many more there are
 MOST = 20
+#: why a revision measured in a regression's range is not its good one
+MEASURED = "measured, within the span of the regression's changes"
 
 
 def _why(revision: Revision, busy: set[int], measured: set[int]) -> str:
@@ -44,7 +46,7 @@ def _why(revision: Revision, busy: set[int], measured: set[int]) -> str:
         return f"not judged yet (its runs are {state})"
     if revision.id not in measured:
         return "it did not measure these series"
-    return "measured, within the span of the regression's changes"
+    return MEASURED
 
 
 def revisions_between(
@@ -59,19 +61,51 @@ def revisions_between(
     )
     flagged = select(Detection.revision_id).where(Detection.regression_id == regression.id)
     found = (*inside, Revision.id.not_in(flagged))  # its own changes are listed already
-    shown = list(
-        session.scalars(
-            select(Revision)
-            .where(*found)
-            .order_by(Revision.order_key, Revision.id)
-            .limit(MOST)
-            .options(selectinload(Revision.jobs))
-        )
-    )
+    shown = _revisions(session, found, MOST)
     if not shown:
         return [], 0
     total = session.scalar(select(func.count()).select_from(Revision).where(*found)) or 0
     series = select(Detection.series_id).where(Detection.regression_id == regression.id)
+    return _said(session, shown, series), total
+
+
+def unmeasured_before(session: Session, detection: Detection) -> list[RevisionBetween]:
+    """The revisions between a flagged change's baseline (the newest revision it was judged
+    against) and its own revision that did not measure its series, oldest first, each with why:
+    the change may be theirs. Per change, not per regression: a trial's change judged against
+    the revision just before it was said to be maybe that revision's, "measured, within the
+    span of the regression's changes", because another change of its regression reached back
+    further."""
+    if detection.baseline_revision_id is None:
+        return []
+    ends = [session.get_one(Revision, detection.baseline_revision_id)]
+    ends.append(session.get_one(Revision, detection.revision_id))
+    low, high = (tuple_(literal(r.order_key, Revision.order_key.type), literal(r.id)) for r in ends)
+    inside = (
+        Revision.component_id == ends[1].component_id,
+        revision_place() > low,
+        revision_place() < high,
+    )
+    shown = _revisions(session, inside, None)
+    series = select(literal(detection.series_id))
+    return [said for said in _said(session, shown, series) if said.why != MEASURED]
+
+
+def _revisions(session: Session, where: tuple, limit: int | None) -> list[Revision]:
+    return list(
+        session.scalars(
+            select(Revision)
+            .where(*where)
+            .order_by(Revision.order_key, Revision.id)
+            .limit(limit)
+            .options(selectinload(Revision.jobs))
+        )
+    )
+
+
+def _said(session: Session, shown: list[Revision], series: Select) -> list[RevisionBetween]:
+    """Each of ``shown`` with why it did not measure ``series`` (a query of series ids), or
+    that it did (`MEASURED`)."""
     rows = session.execute(
         select(Execution.revision_id, Summary.disturbed)
         .join(Summary, Summary.execution_id == Execution.id)
@@ -85,8 +119,7 @@ def revisions_between(
     ).all()
     measured = {revision_id for revision_id, disturbed in rows if not disturbed}
     busy = {revision_id for revision_id, disturbed in rows if disturbed} - measured
-    listed = [
+    return [
         RevisionBetween(title=revision.title, why=_why(revision, busy, measured))
         for revision in shown
     ]
-    return listed, total
