@@ -252,6 +252,9 @@ def test_a_failed_revision_says_it_failed_and_why_not_that_a_verdict_is_coming(a
     page = html.unescape(api.client.get("/components/builder/revisions/r1").text)
     assert detail["verdict"] in page and "not been analysed" not in page
     assert "No verdict yet" not in page
+    # the component page's row too (a trial's failed first commit had an empty verdict cell)
+    listed = html.unescape(api.client.get("/components/builder").text)
+    assert "no verdict: its jobs failed (why: its page)" in listed
 
 
 def test_revisions_are_listed_in_sort_key_order_with_their_state(api: Api):

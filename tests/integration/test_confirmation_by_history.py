@@ -249,7 +249,7 @@ def test_the_defaults_make_no_regression_of_unchanged_code_run_once_per_revision
     ).one()
     assert (
         r3.verdict == "not enough data"
-        and "- 4 short: judged again as later revisions are measured" in r3.reason
+        and "needs 6: 4 short; judged again as later revisions are measured" in r3.reason
     )
 
 
@@ -491,12 +491,12 @@ def test_a_revision_partly_not_judged_for_a_busy_host_says_so_on_the_component_p
 ):
     """A trial's revision read "no change in the 4 series judged, 11 not judged" where CI said
     undecided: the host was busy. What a component holds (its memory) is judged in a busy
-    phase, its CPU is not; the page's row now says why."""
+    phase, its CPU is not; the page's row now says why, and that the CPU was among them."""
     _component(session)
     rng = np.random.default_rng(3)
     for number, busy in enumerate([None] * 6 + [90.0], start=1):
         runs = [
-            {"cpu": rng.normal(20.0, 0.4, 40), "rss_bytes": rng.normal(5e7, 1e5, 40)}
+            {"cpu_percent": rng.normal(20.0, 0.4, 40), "rss_bytes": rng.normal(5e7, 1e5, 40)}
             for _ in range(RUNS)
         ]
         extra = {"host_percent": busy} if busy else {}
@@ -508,4 +508,7 @@ def test_a_revision_partly_not_judged_for_a_busy_host_says_so_on_the_component_p
     said = revision_verdicts(session, NAME, ["r6", "r7"])
     assert "host was busy" not in said["r6"], said
     assert said["r7"].startswith("execution_shift: no change in the 1 series judged"), said
-    assert said["r7"].endswith("1 not judged (some because the host was busy)"), said
+    # and its CPU was among them (a trial's CPU change read "no change in the 13 series judged")
+    assert said["r7"].endswith(
+        "1 not judged (some because the host was busy; its CPU among them)"
+    ), said

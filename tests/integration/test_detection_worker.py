@@ -65,7 +65,7 @@ def test_default_methods_judge_every_series_and_flag_the_tripled_one(
     assert found[("r8", "ks")].p_value < 1e-6 and found[("r8", "ks")].effect > 1.5
     assert found[("r8", "execution_shift")].baseline_revisions == 7
     assert found[("r6", "execution_shift")].verdict == "not enough data"
-    assert "baseline has 5, needs at least 6" in found[("r6", "execution_shift")].reason
+    assert "baseline has 5, needs 6" in found[("r6", "execution_shift")].reason
     (regression,) = session.scalars(select(Regression))
     assert regression.state == "new"
     # execution_shift's flag raises it; KS's is stored and charted, not an alarm by default
@@ -101,7 +101,7 @@ def test_execution_shift_judges_executions_and_restarts_its_baseline_after_a_cha
     )
     ingest_and_detect(database_url, executions)
     found = {title: d for (title, _), d in _verdicts(session).items()}
-    assert "too few samples: baseline has 3, needs at least 6" in found["r2"].reason
+    assert "too few samples: baseline has 3, needs 6" in found["r2"].reason
     assert [t for t, d in sorted(found.items(), key=lambda i: int(i[0][1:])) if d.flagged] == ["r7"]
     assert found["r6"].baseline_revisions == 5  # 15 execution values: r1..r5
     r7 = found["r7"].revision_id

@@ -200,6 +200,10 @@ def test_bad_filters_and_unknown_things_are_pages_naming_them(client, database_u
     assert nul.status_code == 400 and "before: must not contain control" in nul.text, nul.text
     missing = client.get("/components/nope")
     assert missing.status_code == 404 and "nope" in missing.text
+    # one side alone is checked too (a trial's ?base=zzz&candidate= answered "Choose two")
+    alone = client.get("/components/builder/compare?base=zzz&candidate=")
+    assert alone.status_code == 404 and "zzz" in alone.text
+    assert client.get("/components/builder/compare?base=r1").status_code == 200
     assert client.get("/components/builder/revisions/r99").status_code == 404
     assert client.get("/regressions/999999").status_code == 404
     assert client.get("/regressions?state=closed").status_code == 400

@@ -141,8 +141,8 @@ def check_samples(
             return f"{name} contains NaN/inf ({bad} values)"
     if len(base) < min_baseline:
         return (
-            f"{SHORT_BASELINE} {len(base)}, needs at least {min_baseline} "
-            f"- {min_baseline - len(base)} short: judged again as later revisions are measured"
+            f"{SHORT_BASELINE} {len(base)}, needs {min_baseline}: {min_baseline - len(base)} "
+            "short; judged again as later revisions are measured"
         )
     if len(cand) < min_candidate:
         return f"too few samples: candidate has {len(cand)}, needs at least {min_candidate}"

@@ -94,6 +94,9 @@ def component_page(name: str, request: Request, session: SessionDep) -> HTMLResp
         return problem(request, exc)
     newest = revisions.newest_revisions(session, name, LISTED)
     verdicts = revision_verdicts(session, name, [r.title for r in newest])
+    for revision in newest:  # a trial's failed first commit had an empty cell
+        if revision.title not in verdicts and revision.state in ("failed", "cancelled"):
+            verdicts[revision.title] = f"no verdict: its jobs {revision.state} (why: its page)"
     return page(
         request,
         "component.html",
@@ -239,6 +242,9 @@ def compare_page(
     try:
         component = components.get_component(session, name)
         choices = revisions.newest_revisions(session, name, COMPARE_CHOICES)
+        for side, spec in (("base", base), ("candidate", candidate)):
+            if spec:  # one side given alone is checked too (a trial's ?base=zzz answered 200)
+                compare.revision_range(session, component, spec, side)
         found = compare.compare(session, name, base, candidate) if base and candidate else None
         verdicts = compare.candidate_verdicts(session, name, candidate) if found else {}
     except (NotFound, BadRequest) as exc:

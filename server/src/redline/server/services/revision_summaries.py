@@ -10,11 +10,27 @@ from redline.detect.config import CHARTED_METHOD as CHARTED
 from redline.detect.confirmation import DROPPED
 from redline.detect.result import waits_for_history
 from redline.recording.disturbance import BUSY
-from redline.server.models import Detection, Revision
+from redline.recording.driver import CPU_REFS_PER_OP, DRIVER_PROCESS
+from redline.server.models import Detection, Revision, Series
 from redline.server.services.components import get_component
 from redline.server.services.detection_config import component_config
 from sqlalchemy import func, select
 from sqlalchemy.orm import Session
+
+#: the component's CPU figures, which a headline names when they were not judged
+CPU_FIGURES = (CPU_REFS_PER_OP, "cpu_percent")
+
+
+def _among(busy: bool, cpu: bool) -> str:
+    """What the headline adds of the series not judged: the host busy in some, the CPU among
+    them."""
+    said = [
+        part
+        for part, found in (("some because the host was busy", busy), ("its CPU among them", cpu))
+        if found
+    ]
+    return f" ({'; '.join(said)})" if said else ""
+
 
 #: what a revision without a verdict yet is said to have (`revision_verdicts`)
 WAITING = "not enough data yet"
@@ -44,8 +60,10 @@ def revision_verdicts(
             func.count(),
             func.min(Detection.reason),
             func.bool_or(Detection.reason.contains(BUSY)),
+            func.bool_or(Series.counter.in_(CPU_FIGURES) & (Series.process != DRIVER_PROCESS)),
         )
         .join(Revision, Revision.id == Detection.revision_id)
+        .join(Series, Series.id == Detection.series_id)
         .where(Revision.component_id == component.id, Detection.method.in_([method, CHARTED]))
         .group_by(Revision.title, Detection.method, Detection.verdict, dropped)
     )
@@ -53,7 +71,10 @@ def revision_verdicts(
         query = query.where(Revision.title.in_(list(titles)))
     charted: dict[str, int] = defaultdict(int)
     busy: dict[str, bool] = defaultdict(bool)  # a series not judged because the host was busy
-    for name, used, verdict, was_dropped, number, reason, was_busy in session.execute(query):
+    cpu: dict[str, bool] = defaultdict(bool)  # the component's CPU among those not judged
+    for name, used, verdict, was_dropped, number, reason, was_busy, of_cpu in session.execute(
+        query
+    ):
         if used != method:
             charted[name] += number if verdict == "change" else 0
             continue
@@ -61,6 +82,7 @@ def revision_verdicts(
         counts[name][key] = counts[name].get(key, 0) + number
         if verdict == "not enough data":
             why[name], busy[name] = reason, busy[name] or bool(was_busy)
+            cpu[name] = cpu[name] or bool(of_cpu)
     said = {}
     for title, by in counts.items():
         changed, same, unknown = (
@@ -84,8 +106,9 @@ def revision_verdicts(
                     else ""
                 )
                 # a trial's revision read "no change in the 4 series judged, 11 not judged"
-                # where CI said undecided, the host busy
-                + (" (some because the host was busy)" if busy[title] else "")
+                # where CI said undecided, the host busy; and another's "no change in the 13
+                # series judged" where its CPU, which its change was in, was not judged yet
+                + _among(busy[title], bool(unknown) and cpu[title])
             )
         else:
             said[title] = f"{method}: {WAITING}: {why.get(title, '')}"
