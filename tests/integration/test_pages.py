@@ -366,6 +366,12 @@ def test_revision_and_regression_pages_link_each_other(client, database_url, tmp
     assert said.startswith("A change for the worse found by ks or count_rate is a regression")
     listed = client.get("/regressions?component=builder&confirmation=suspected")
     assert listed.status_code == 200
+    # each with its largest change (a trial found the size only on the regression's own page)
+    largest = regressions[0]["largest"]
+    assert re.fullmatch(r".*builder cpu.* \+\d+ % at r3", largest), largest
+    assert f"<td>{html.escape(largest)}</td>" in listed.text
+    detail = client.get(f"/api/v1/components/builder/regressions/{number}").json()
+    assert detail["largest"] == largest
 
 
 def test_home_page_lists_components_hosts_and_the_queue(client, database_url, tmp_path):

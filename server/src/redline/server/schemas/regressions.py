@@ -59,6 +59,9 @@ class RegressionOut(BaseModel):
         "changes was found (its reason says what it had been, with its largest change)"
     )
     confirmation_reason: str
+    largest: str = Field(
+        default="", description="its largest change in words (not counting those dropped)"
+    )
     methods: list[str] = Field(description="methods with a flagged detection in it")
     detections: int
     created: datetime

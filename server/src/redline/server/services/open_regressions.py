@@ -22,7 +22,7 @@ from redline.server.models import (
     Series,
 )
 from redline.server.schemas.alerts import OpenRegression
-from sqlalchemy import func, literal, select, tuple_
+from sqlalchemy import func, literal, select, true, tuple_
 from sqlalchemy.dialects.postgresql import distinct_on
 from sqlalchemy.orm import Session, selectinload
 
@@ -40,11 +40,11 @@ def series_label(case: str, phase: str, process: str, counter: str, params: str)
 
 
 def largest_changes(
-    session: Session, component_id: int, ids: Iterable[int] | None = None
+    session: Session, component_id: int | None, ids: Iterable[int] | None = None
 ) -> dict[int, str]:
-    """Per regression of the component (of ``ids`` only, when given), its largest change in
-    words ("builder cpu +208 % at r3"): the figures its summary keeps, which stay when it is
-    withdrawn."""
+    """Per regression of the component (of any component: None; of ``ids`` only, when given),
+    its largest change in words ("builder cpu +208 % at r3"): the figures its summary keeps,
+    which stay when it is withdrawn."""
     query = (
         select(Detection.regression_id, Detection.effect, Series.case, Series.phase)
         .add_columns(Series.process, Series.counter, Series.params, Revision.title)
@@ -52,7 +52,7 @@ def largest_changes(
         .join(Series, Series.id == Detection.series_id)
         .join(Revision, Revision.id == Detection.revision_id)
         .where(
-            Regression.component_id == component_id,
+            Regression.component_id == component_id if component_id is not None else true(),
             Detection.effect.is_not(None),
             Detection.confirmation != DROPPED,  # a spike it dropped is not its change
         )

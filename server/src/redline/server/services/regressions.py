@@ -29,6 +29,7 @@ from redline.server.schemas.regressions import (
 )
 from redline.server.services.components import get_component, get_revision
 from redline.server.services.errors import BadRequest, NotFound
+from redline.server.services.open_regressions import largest_changes
 from redline.server.services.paging import after_newest_first, decode_cursor, encode_cursor
 from redline.server.services.regression_range import revisions_between
 from redline.server.services.results import series_ref
@@ -122,7 +123,11 @@ def list_regressions(
             else encode_cursor(end.id)
         )
     methods = _methods(session, [regression.id for regression, _ in found])
-    return [RegressionOut(**_out(r, name, *methods[r.id])) for r, name in found], following
+    largest = largest_changes(session, None, [regression.id for regression, _ in found])
+    return [
+        RegressionOut(**_out(r, name, *methods[r.id]), largest=largest.get(r.id, ""))
+        for r, name in found
+    ], following
 
 
 def detection_by_id(session: Session, detection_id: int) -> tuple[Detection, DetectionOut]:
@@ -208,6 +213,9 @@ def regression_detail(
     between, count = revisions_between(session, regression)
     return RegressionDetail(
         **_out(regression, component_name, methods, len(flagged)),
+        largest=largest_changes(session, regression.component_id, [regression.id]).get(
+            regression.id, ""
+        ),
         flagged=flagged,
         history=history,
         between=between,
