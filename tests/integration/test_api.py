@@ -19,6 +19,8 @@ from redline.server.core.security import hash_token
 from redline.server.core.tasks import broker_url, queue_of
 from redline.server.db import session_factory
 from redline.server.models import ApiToken, Execution, Job, JobState
+from redline.server.schemas.revisions import RevisionCreate
+from redline.server.services.revisions import create_revision
 from redline.worker.detection import detect_revision
 from redline.worker.ingest import ingest_execution
 from sqlalchemy import func, select, update
@@ -222,10 +224,26 @@ def test_a_revision_is_found_by_its_commit_hash_full_or_abbreviated(api: Api):
         assert verdict.status_code == 200 and verdict.json()["revision"] == found.json()["title"]
     page = api.client.get("/components/builder/revisions/" + full)
     assert page.status_code == 200 and full[:12] in page.text
-    # seven digits both commits start with: which one is not guessed, both are named
+    # seven digits both commits start with: which one is not guessed, both are named (a 400,
+    # not "no revision", which `ci wait` would wait two minutes to see appear)
     both = api.client.get(base + full[:7])
-    assert both.status_code == 404, both.text
-    assert all(t in both.json()["detail"] for t in (full[:12], "'v2'", "give more of the hash"))
+    assert both.status_code == 400, both.text
+    assert all(t in both.json()["detail"] for t in (full[:12], "'v2'", "give more of it"))
+    assert "has no revision" not in both.json()["detail"]
+    # one commit under two titles (reported before they were one revision): not "several"
+    with session_factory(api.settings.database_url)() as session:
+        for title, commit in (("t-short", "c0ffee1"), ("t-full", "c0ffee1" + "2" * 33)):
+            create_revision(
+                session,
+                RevisionCreate(component="builder", title=title, commit=commit, sort_key="5"),
+            )
+    assert api.client.get(base + "c0ffee12").json()["title"] == "t-short"
+    # what deletes, moves or cancels a revision names it by its title only
+    admin, ci = api.headers("admin"), api.headers("ci")
+    assert api.client.delete(base + full, headers=admin).status_code == 404
+    moved = api.client.patch(base + full, json={"sort_key": "9"}, headers=admin)
+    assert moved.status_code == 404
+    assert api.client.post(base + full + "/cancel", headers=ci).status_code == 404
     # a hash of no commit, and a title that is no hash, are not found as before
     for asked in ("2b2a812", "nightly"):
         missing = api.client.get(base + asked)

@@ -17,7 +17,7 @@ import pytest
 import typer
 from redline.cli import ci_cmd
 from redline.server.db import session_factory
-from redline.server.models import Job, JobState, Revision
+from redline.server.models import Job, JobState, Regression, Revision
 from redline.server.schemas.components import ComponentCreate
 from redline.server.services.components import create_component
 from sqlalchemy import select
@@ -140,6 +140,8 @@ def test_a_later_revision_is_told_of_the_regression_still_open_before_it(server,
     )
     before = wait(server, "--revision", "r3", "--junit", str(out))
     assert "still open" not in before.stdout and ElementTree.parse(out).find("system-out") is None
+    own = wait(server, "--revision", "r6")  # its own regression is its verdict, not before it
+    assert own.returncode == 1 and "still open" not in own.stdout, own.stdout
     triage = f"/api/v1/components/builder/regressions/{number}"
     try:
         fixed = api.client.patch(triage, json={"state": "fixed"}, headers=api.headers("triage"))
@@ -147,6 +149,16 @@ def test_a_later_revision_is_told_of_the_regression_still_open_before_it(server,
         assert "still open" not in wait(server, "--revision", "r7").stdout
     finally:  # the module's other tests see the regression as they found it
         api.client.patch(triage, json={"state": "new"}, headers=api.headers("triage"))
+    # one its re-runs dropped (not confirmed) or a re-analysis withdrew is not open either
+    with session_factory(api.settings.database_url)() as session:
+        regression = session.get_one(Regression, number)
+        regression.confirmation = "not_confirmed"
+        session.commit()
+        try:
+            assert "still open" not in wait(server, "--revision", "r7").stdout
+        finally:
+            regression.confirmation = "suspected"
+            session.commit()
 
 
 def test_a_verdict_the_busy_host_left_undecided_exits_4_never_0(server, tmp_path):

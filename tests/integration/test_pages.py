@@ -511,8 +511,16 @@ def test_a_form_value_no_text_holds_is_a_page_naming_it_never_a_500(client, data
     said = html.unescape(re.search(r'class="problem">(.*?)</p>', answer.text, re.S).group(1))
     assert answer.status_code == 422 and "'comment' holds a NUL" in said, said
     assert _state(client, number) == "new"
-    long = client.post("/settings/tokens", data={"name": "n" * 201, "scopes": "ci", "csrf": csrf})
-    assert long.status_code == 400 and "at most 200 characters" in long.text
+    long = client.post("/settings/tokens", data={"name": "n" * 195, "scopes": "ci", "csrf": csrf})
+    assert long.status_code == 400 and "at most 194 characters" in long.text
+    # the longest name signs in: its session is "token <name>", 200 characters
+    made = client.post("/settings/tokens", data={"name": "n" * 194, "scopes": "read", "csrf": csrf})
+    secret = re.search(r'<code id="new-token">([^<]+)</code>', made.text).group(1)
+    client.post("/signout", data={"csrf": csrf})
+    assert sign_in(client, {"token": secret}).status_code in (200, 303)
+    assert "token " + "n" * 194 in client.get("/").text
+    client.post("/signout", data={"csrf": form_token(client.get("/").text)})
+    sign_in(client, {"name": "ada", "password": "correct horse battery"})
     # what the error page reads of the session survives the request's session rolled back and
     # closed, as a failed write leaves it before the error page is drawn
     with session_factory(database_url)() as session:

@@ -252,3 +252,33 @@ def test_ci_waits_table_says_why_a_case_is_skipped_before_its_changes() -> None:
                "improvements": 1, "skipped": 1, "undecided": 0}  # fmt: skip
     row = next(line for line in _table(verdict, "regression").splitlines() if "skipped" in line)
     assert row.split("skipped", 1)[1].strip() == f"{why}; also: echo ctx -7.7 % (better)", row
+
+
+def test_ci_wait_names_three_open_regressions_before_a_revision_and_counts_the_rest():
+    """The regressions still open before a revision: up to three named, with their pages, and
+    how many more, with where to see them (the verdict's ``open_before``)."""
+    from redline.cli.ci_cmd import _open_before
+
+    found = [
+        {
+            "id": number,
+            "confirmation": "confirmed",
+            "state": "new",
+            "good_revision": f"r{number - 1}",
+            "bad_revision": f"r{number}",
+            "largest": f"case/steady: svc cpu_percent +{number}0 % at r{number}",
+            "page": f"/regressions/{number}",
+        }
+        for number in (9, 7, 5)
+    ]
+    verdict = {"component": "my svc", "open_before": found, "open_before_total": 5}
+    lines = _open_before(verdict, "http://h:8080").splitlines()
+    assert lines[0].startswith("5 regression(s) still open before this revision")
+    assert lines[1] == (
+        "  #9 confirmed, triage new: after r8, shows at r9: case/steady: svc cpu_percent +90 % "
+        "at r9  http://h:8080/regressions/9"
+    )
+    assert lines[-1] == (
+        "  and 2 more, among the component's: http://h:8080/regressions?component=my%20svc"
+    )
+    assert len(lines) == 5

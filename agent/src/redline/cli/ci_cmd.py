@@ -153,7 +153,7 @@ def _open_before(verdict: dict[str, Any], server: str) -> str:
     ]
     if total > len(found):
         listed = f"{server}/regressions?component={quote(verdict['component'])}"
-        lines.append(f"  and {total - len(found)} more: {listed}")
+        lines.append(f"  and {total - len(found)} more, among the component's: {listed}")
     return "\n".join(lines)
 
 

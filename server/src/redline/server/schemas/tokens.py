@@ -9,10 +9,16 @@ from pydantic import AfterValidator, BaseModel, ConfigDict, Field
 from redline.server.schemas.common import RequestBody
 from redline.server.schemas.fields import Word, path_segment
 
+#: the longest token name: a session it opens is someone's "token <name>", at most 200
+#: characters (a review: a name of 195-200 was issued, and signing in with it failed)
+TOKEN_NAME_CHARS = 200 - len("token ")
+
 
 class TokenCreate(RequestBody):
     # one path segment of one line, refused by name (422) as every name is (a trial's "\x07")
-    name: Annotated[str, AfterValidator(path_segment)] = Field(min_length=1, max_length=200)
+    name: Annotated[str, AfterValidator(path_segment)] = Field(
+        min_length=1, max_length=TOKEN_NAME_CHARS
+    )
     scopes: list[str] = Field(min_length=1, description="ci, triage, agent, read, admin")
     host: str | None = Field(
         default=None, max_length=200, description="for an agent token: the one host it may act as"

@@ -235,10 +235,14 @@ def _name_unmeasured(session: Session, cases: list[CaseVerdict]) -> None:
     did not measure it (``between``: measured while the host was busy, failed, not run): the
     change may be theirs. A bench run's timeouts, made at r24, were flagged at r25 when the host
     was busy in every run of r24's, and r25's CI job failed for them."""
-    for change in (c for case in cases for c in case.changes):
-        if not change["worse"]:
-            continue
-        listed = unmeasured_before(session, session.get_one(Detection, change["detection"]))
+    worse = [c for case in cases for c in case.changes if c["worse"]]
+    if not worse:
+        return
+    found = unmeasured_before(
+        session, [session.get_one(Detection, change["detection"]) for change in worse]
+    )
+    for change in worse:
+        listed = found.get(change["detection"], [])
         named = "; ".join(f"{r.title} ({r.why})" for r in listed[:NAMED])
         if listed:
             more = len(listed) - NAMED

@@ -146,7 +146,7 @@ def delete_revision(session: Session, name: str, title: str) -> dict[str, int | 
     its jobs: what went. NotFound for an unknown one; Conflict when it has results (they are
     part of the history later revisions were judged against), or while a host holds one of
     its jobs (cancel it first)."""
-    revision = get_revision(session, get_component(session, name), title)
+    revision = get_revision(session, get_component(session, name), title, exact=True)
     reports_take_turns(session, revision.component_id)  # a report of its commit waits
     lock_component(session, revision.component_id)  # so does a verdict of it
     mine = or_(Job.revision_id == revision.id, Job.confirms_revision_id == revision.id)

@@ -9,7 +9,7 @@ from redline.agent.checkout import refused_repo, without_credentials
 from redline.server.models import Component, Revision
 from redline.server.schemas.components import ComponentCreate, ComponentOut, ComponentSettings
 from redline.server.schemas.fields import COMMIT_HASH
-from redline.server.services.errors import Conflict, NotFound, Unprocessable
+from redline.server.services.errors import BadRequest, Conflict, NotFound, Unprocessable
 from redline.server.services.repos import repo_key
 from sqlalchemy import Select, and_, func, literal, or_, select
 from sqlalchemy.exc import IntegrityError
@@ -115,26 +115,29 @@ def _named_alike(session: Session, name: str) -> str | None:
     )
 
 
-def get_revision(session: Session, component: Component, title: str) -> Revision:
-    """The component's revision titled ``title``, or else of the commit whose hash it is, full
-    or abbreviated (a trial's `ci wait --revision 2b2a811`, and with the full SHA, waited 2
+def get_revision(
+    session: Session, component: Component, title: str, exact: bool = False
+) -> Revision:
+    """The component's revision titled ``title``, or else (unless ``exact``: what deletes or
+    moves a revision names it by its title) of the commit whose hash it is, full or
+    abbreviated (a trial's `ci wait --revision 2b2a811`, and with the full SHA, waited 2
     minutes for a revision titled by 12 digits, and gave up); NotFound naming both otherwise,
-    or the revisions a too short hash names."""
+    BadRequest naming the revisions of several commits a too short hash starts."""
     revision = session.scalar(
         select(Revision).where(Revision.component_id == component.id, Revision.title == title)
     )
     if revision is not None:
         return revision
-    if COMMIT_HASH.fullmatch(title):
+    if not exact and COMMIT_HASH.fullmatch(title):
         found = session.scalars(_of_commit(component, title).limit(AMBIGUOUS + 1)).all()
-        if len(found) == 1:
-            return found[0]
+        if found and all(same_commit(found[0].commit, other.commit) for other in found):
+            return found[0]  # one commit (reported under two titles before they were one)
         if found:
             named = ", ".join(repr(r.title) for r in found[:AMBIGUOUS])
-            raise NotFound(
-                f"component {component.name!r} has no revision {title!r}, and the commits of "
-                f"several start with it ({named}{', ...' if len(found) > AMBIGUOUS else ''}): "
-                "give more of the hash"
+            raise BadRequest(  # not "no revision": `ci wait` would wait for it to appear
+                f"the hash {title!r} starts the commits of several of component "
+                f"{component.name!r}'s revisions ({named}"
+                f"{', ...' if len(found) > AMBIGUOUS else ''}): give more of it"
             )
     raise NotFound(f"component {component.name!r} has no revision {title!r}")
 

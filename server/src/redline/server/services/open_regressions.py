@@ -86,7 +86,9 @@ def open_before(session: Session, revision: Revision) -> tuple[list[OpenRegressi
         select(Regression)
         .where(*where)
         .options(selectinload(Regression.good_revision), selectinload(Regression.bad_revision))
-        .order_by(Regression.bad_key.desc(), Regression.id.desc())
+        .order_by(
+            Regression.bad_key.desc(), Regression.bad_revision_id.desc(), Regression.id.desc()
+        )
         .limit(NAMED)
     ).all()
     largest = largest_changes(session, revision.component_id, [r.id for r in found])

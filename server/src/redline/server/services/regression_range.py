@@ -10,6 +10,8 @@ busy (charted, not judged). The change may be its; a new-user trial's regression
 
 from __future__ import annotations
 
+from collections import defaultdict
+
 from redline.server.models import (
     Detection,
     Execution,
@@ -66,48 +68,77 @@ def revisions_between(
         return [], 0
     total = session.scalar(select(func.count()).select_from(Revision).where(*found)) or 0
     series = select(Detection.series_id).where(Detection.regression_id == regression.id)
-    return _said(session, shown, series), total
+    measured: dict[int, bool] = {}  # any of its series measured quietly: measured
+    for by_revision in _measured(session, shown, series).values():
+        for revision_id, busy in by_revision.items():
+            measured[revision_id] = measured.get(revision_id, True) and busy
+    return _said(shown, measured), total
 
 
-def unmeasured_before(session: Session, detection: Detection) -> list[RevisionBetween]:
-    """The revisions between a flagged change's baseline (the newest revision it was judged
-    against) and its own revision that did not measure its series, oldest first, each with why:
-    the change may be theirs. Per change, not per regression: a trial's change judged against
-    the revision just before it was said to be maybe that revision's, "measured, within the
-    span of the regression's changes", because another change of its regression reached back
-    further."""
-    if detection.baseline_revision_id is None:
-        return []
-    ends = [session.get_one(Revision, detection.baseline_revision_id)]
-    ends.append(session.get_one(Revision, detection.revision_id))
-    low, high = (tuple_(literal(r.order_key, Revision.order_key.type), literal(r.id)) for r in ends)
-    inside = (
-        Revision.component_id == ends[1].component_id,
-        revision_place() > low,
-        revision_place() < high,
+def unmeasured_before(
+    session: Session, detections: list[Detection]
+) -> dict[int, list[RevisionBetween]]:
+    """Per flagged change (by detection id), the revisions between its baseline (the newest
+    revision it was judged against) and its own revision that did not measure its series,
+    oldest first, at most `MOST`, each with why: the change may be theirs. Per change, not per
+    regression: a trial's change judged against the revision just before it was said to be
+    maybe that revision's, "measured, within the span of the regression's changes", because
+    another change of its regression reached back further. Changes of one span share its reads
+    (a verdict is polled while CI waits: a query or two a span, not a change)."""
+    spans: dict[tuple[int, int], list[Detection]] = defaultdict(list)
+    for detection in detections:
+        if detection.baseline_revision_id is not None:
+            spans[(detection.baseline_revision_id, detection.revision_id)].append(detection)
+    found: dict[int, list[RevisionBetween]] = {}
+    for (low_id, high_id), changes in spans.items():
+        low, high = (session.get_one(Revision, i) for i in (low_id, high_id))
+        inside = (
+            Revision.component_id == high.component_id,
+            revision_place() > tuple_(literal(low.order_key, Revision.order_key.type), low.id),
+            revision_place() < tuple_(literal(high.order_key, Revision.order_key.type), high.id),
+        )
+        # the nearest ones: a baseline pinned long ago spans the whole history since
+        shown = _revisions(session, inside, SPAN, newest=True)[::-1]
+        if not shown:
+            continue
+        rows = _measured(session, shown, [d.series_id for d in changes])
+        for detection in changes:
+            said = _said(shown, rows.get(detection.series_id, {}))
+            found[detection.id] = [r for r in said if r.why != MEASURED][:MOST]
+    return found
+
+
+#: revisions of a change's span read at most, the nearest to it
+SPAN = 200
+
+
+def _revisions(
+    session: Session, where: tuple, limit: int | None, newest: bool = False
+) -> list[Revision]:
+    order = (
+        (Revision.order_key.desc(), Revision.id.desc())
+        if newest
+        else (Revision.order_key, Revision.id)
     )
-    shown = _revisions(session, inside, None)
-    series = select(literal(detection.series_id))
-    return [said for said in _said(session, shown, series) if said.why != MEASURED]
-
-
-def _revisions(session: Session, where: tuple, limit: int | None) -> list[Revision]:
     return list(
         session.scalars(
             select(Revision)
             .where(*where)
-            .order_by(Revision.order_key, Revision.id)
+            .order_by(*order)
             .limit(limit)
             .options(selectinload(Revision.jobs))
         )
     )
 
 
-def _said(session: Session, shown: list[Revision], series: Select) -> list[RevisionBetween]:
-    """Each of ``shown`` with why it did not measure ``series`` (a query of series ids), or
-    that it did (`MEASURED`)."""
-    rows = session.execute(
-        select(Execution.revision_id, Summary.disturbed)
+def _measured(
+    session: Session, shown: list[Revision], series: Select | list[int]
+) -> dict[int, dict[int, bool]]:
+    """Per series of ``series`` (ids, or a query of them), per revision of ``shown`` with a
+    summary of it from its own runs: whether every one was measured while the host was busy."""
+    found: dict[int, dict[int, bool]] = defaultdict(dict)
+    for revision_id, series_id, disturbed in session.execute(
+        select(Execution.revision_id, Summary.series_id, Summary.disturbed)
         .join(Summary, Summary.execution_id == Execution.id)
         .join(Job, Job.id == Execution.job_id)
         .where(
@@ -116,9 +147,17 @@ def _said(session: Session, shown: list[Revision], series: Select) -> list[Revis
             Summary.series_id.in_(series),
         )
         .distinct()
-    ).all()
-    measured = {revision_id for revision_id, disturbed in rows if not disturbed}
-    busy = {revision_id for revision_id, disturbed in rows if disturbed} - measured
+    ):
+        seen = found[series_id]
+        seen[revision_id] = seen.get(revision_id, True) and disturbed
+    return found
+
+
+def _said(shown: list[Revision], busy_in: dict[int, bool]) -> list[RevisionBetween]:
+    """Each of ``shown`` with why it did not measure the series (``busy_in``: per revision
+    with a summary of them, whether the host was busy in all its runs), or that it did."""
+    measured = {revision_id for revision_id, busy in busy_in.items() if not busy}
+    busy = {revision_id for revision_id, was in busy_in.items() if was}
     return [
         RevisionBetween(title=revision.title, why=_why(revision, busy, measured))
         for revision in shown

@@ -30,7 +30,7 @@ def set_sort_key(session: Session, component_name: str, title: str, sort_key: st
     changed) while a regression or unfinished confirmation runs depend on its place."""
     component = get_component(session, component_name)
     lock_component(session, component.id)  # as the worker storing verdicts takes it
-    revision = get_revision(session, component, title)
+    revision = get_revision(session, component, title, exact=True)
     bounding = session.scalars(
         select(Regression.id).where(
             Regression.confirmation != WITHDRAWN,

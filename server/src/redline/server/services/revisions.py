@@ -244,7 +244,7 @@ def cancel_revision(session: Session, component_name: str, title: str) -> Revisi
     beside it included), for a superseded commit, say: none is leased again,
     and an agent running one learns it at its next heartbeat (409) and abandons it. Jobs
     already uploaded or finished keep their results."""
-    revision = get_revision(session, get_component(session, component_name), title)
+    revision = get_revision(session, get_component(session, component_name), title, exact=True)
     lock_component(session, revision.component_id)  # before its jobs' rows: `mark_waiting`
     jobs = session.scalars(
         select(Job)

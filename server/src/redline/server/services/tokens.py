@@ -8,6 +8,7 @@ from pydantic import TypeAdapter, ValidationError
 from redline.server.core.security import hash_token, new_token, parse_scopes, pool_or_host
 from redline.server.models import ApiToken, Component, utcnow
 from redline.server.schemas.fields import Word, escaped, path_segment
+from redline.server.schemas.tokens import TOKEN_NAME_CHARS
 from redline.server.services.errors import BadRequest, Conflict, NotFound
 from sqlalchemy import func, select
 from sqlalchemy.orm import Session
@@ -26,10 +27,6 @@ def authenticate(session: Session, secret: str, stamp: bool = True) -> ApiToken 
         token.last_used = utcnow()
         session.commit()
     return token
-
-
-#: the longest name or host a token may have (the API's schema says so too)
-NAME_CHARS = 200
 
 
 def issue_token(
@@ -62,9 +59,9 @@ def issue_token(
         path_segment(name)
     except ValueError as exc:
         raise BadRequest(f"a token's name '{escaped(name[:80])}' {exc}") from None
-    for field, given in (("name", name), ("host", host or "")):  # the settings form's too
-        if len(given) > NAME_CHARS:
-            raise BadRequest(f"a token's {field} is at most {NAME_CHARS} characters")
+    for field, given, most in (("name", name, TOKEN_NAME_CHARS), ("host", host or "", 200)):
+        if len(given) > most:  # the settings form's too, which no schema checks
+            raise BadRequest(f"a token's {field} is at most {most} characters")
     if not name.strip():  # `redline token create ""` made one; the API took "   "
         raise BadRequest("a token's name must not be empty or blank: name who it is for")
     if name.isascii() and name.isdecimal():  # `revoke_token` reads such a name as an id first
