@@ -623,3 +623,31 @@ def test_cpu_per_op_counts_the_work_delivered_not_the_samples_listened_to(tmp_pa
     samples = read_recording(path).series_samples()
     (per_op,) = [v for k, v in samples.items() if k.counter == "cpu_us_per_op"]
     assert per_op[0] == pytest.approx(0.4e6 / 100)  # 0.4 CPU-s over the 100 published
+
+
+def test_threads_and_address_space_are_left_out_in_a_busy_phase_as_the_cpu_is():
+    """A bench run (2026-12-06): a busy spell started a thread (+1 thread, +75.5 MB of address
+    space), and confirmation pairs measured while the host was busy confirmed it: a false
+    regression. Memory and files are judged in a busy phase still (other load does not move
+    them); threads and address space, like the CPU, only in a quiet one."""
+    from redline.detect.counters import left_out
+    from redline.recording import SeriesKey
+
+    def key(phase: str, counter: str, process: str = "svc") -> SeriesKey:
+        return SeriesKey("c", phase, "{}", process, counter)
+
+    keys = [
+        key(phase, counter)
+        for phase in ("busy", "quiet")
+        for counter in ("cpu_percent", "rss_bytes", "fds", "threads", "vms_bytes")
+    ] + [key("busy", "rtt_p50_us", "driver")]
+    why = "host busy: other load 104 % of a core during the phase (over 30 %)"
+    out = left_out(keys, {("c", "busy", "{}"): why})
+    assert {(k.phase, k.counter) for k in out} == {
+        ("busy", "cpu_percent"),
+        ("busy", "threads"),
+        ("busy", "vms_bytes"),
+        ("busy", "rtt_p50_us"),
+    }
+    assert set(out.values()) == {why}
+    assert left_out(keys, {}) == {}  # a quiet run: everything judged

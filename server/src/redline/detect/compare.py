@@ -10,10 +10,11 @@ values of it for KS to decide (five recordings a side at its alpha of 0.01), els
 share's samples (`_one_cpu_figure`). Results
 are grouped into one verdict per test case × phase × parameter set. A series only one side holds
 is "not enough data" saying which side (`ONLY_IN`): never a silent pass. In a segment the host
-was busy in (other load) in every recording of a side, only what the component holds (memory,
-threads, files: `redline.detect.counters.is_held`) is judged, as the service judges it; the
-segment says so and cannot pass (`BUSY_PART`); busy in some recordings only, it is judged on
-the others. Reading the files is the only I/O here.
+was busy in (other load) in every recording of a side, only what the component holds and other
+load does not move (memory, files: `redline.detect.counters.is_held`; not its threads and
+address space) is judged, as the service judges it; the segment says so and cannot pass
+(`BUSY_PART`); busy in some recordings only, it is judged on the others. Reading the files is
+the only I/O here.
 """
 
 from __future__ import annotations
@@ -43,11 +44,13 @@ from redline.detect.counters import (
     LEVELS,
     SHARE,
     driver_metric,
+    holds,
     is_count,
     is_held,
     is_load,
     judged_among,
     kind,
+    left_out,
 )
 from redline.detect.methods import KolmogorovSmirnov
 from redline.detect.relative_change import RelativeChange
@@ -98,11 +101,11 @@ def load_side(
         # segment the host was busy in only what the component holds: the rest is not its own
         # of a CPU share and its CPU per unit of work both: `compare_sides` picks one
         asked = set(judged_among(everything, context, LEVELS))
+        out = left_out(everything, busy)  # a busy segment's, but what the component holds
         timeline = {
             key: points
             for key, points in everything.items()
-            if (key in asked or is_load(key.process, key.counter))
-            and (_segment(key) not in busy or is_held(key.process, key.counter))
+            if (key in asked or is_load(key.process, key.counter)) and key not in out
         }
         loaded.append(
             RecordedSeries(path=path, label=_label(recording), timeline=timeline, disturbed=busy)
@@ -179,7 +182,7 @@ def _across_runs(
     (else no change: the runs overlap). What the component holds (memory, threads, files)
     barely moves from run to run and is judged on its samples as before."""
     key, found = verdict.key, verdict.result
-    if not found.flagged or kind(key.process) != "counter" or is_held(key.process, key.counter):
+    if not found.flagged or kind(key.process) != "counter" or holds(key.process, key.counter):
         return verdict
     before, after = base.get(key, []), cand.get(key, [])
     p_value = found.p_value if found.p_value is not None else math.nan

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
-from redline.detect.counters import is_held
+from redline.detect.counters import left_out
 from redline.detect.summary import summarize
 from redline.recording import SeriesKey
 from redline.server.models import Execution, Series, Summary
@@ -148,20 +148,15 @@ def store_samples(
     ``disturbed``: (case, phase, params) → why: the series of those segments are summarized and
     charted, but not judged in this execution (`redline.recording.disturbance`); their summaries
     say so (``disturbed``), and confirmation leaves them out. What a component's processes hold
-    (`counters.is_held`: memory, threads, files) is judged all the same; left out as busy, a
-    leak found while a test suite loaded the host had its confirmation pairs run a second time.
+    (`counters.is_held`: memory, files) is judged all the same; left out as busy, a leak found
+    while a test suite loaded the host had its confirmation pairs run a second time. Its threads
+    and address space, which other load can move, are left out as busy (`counters.left_out`).
     """
     samples = {key: values for key, values in samples.items() if len(values)}
     ids = series_ids(session, component_id, sorted(samples))
     session.execute(delete(Summary).where(Summary.execution_id == execution.id))
     summaries = {key: summarize(np.asarray(samples[key], dtype=np.float64)) for key in ids}
-    bad = {
-        ids[key]: disturbed[(key.case, key.phase, key.params)]
-        for key in ids
-        if disturbed
-        and (key.case, key.phase, key.params) in disturbed
-        and not is_held(key.process, key.counter)
-    }
+    bad = {ids[key]: why for key, why in left_out(ids, disturbed or {}).items()}
     rows = [
         Summary(execution_id=execution.id, series_id=ids[key], disturbed=ids[key] in bad, **stats)
         for key, stats in summaries.items()
