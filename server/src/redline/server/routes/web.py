@@ -45,7 +45,7 @@ from redline.server.services import (
 )
 from redline.server.services.errors import BadRequest, NotFound
 from redline.server.services.gate import gate
-from redline.server.services.revision_summaries import WAITING, revision_verdicts
+from redline.server.services.revision_summaries import WAITING
 from redline.server.ui.compare_figures import comparison_figure
 from redline.server.ui.detail_figures import execution_figures, why_figures
 from redline.server.ui.figures import trend_charts
@@ -92,11 +92,7 @@ def component_page(name: str, request: Request, session: SessionDep) -> HTMLResp
         trends = dashboard.cached_page(session, component, view, trend_charts)
     except (NotFound, BadRequest) as exc:
         return problem(request, exc)
-    newest = revisions.newest_revisions(session, name, LISTED)
-    verdicts = revision_verdicts(session, name, [r.title for r in newest])
-    for revision in newest:  # a trial's failed first commit had an empty cell
-        if revision.title not in verdicts and revision.state in ("failed", "cancelled"):
-            verdicts[revision.title] = f"no verdict: its jobs {revision.state} (why: its page)"
+    newest, verdicts = revisions.newest_with_verdicts(session, name, LISTED)
     return page(
         request,
         "component.html",

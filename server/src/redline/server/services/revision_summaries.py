@@ -8,6 +8,7 @@ from collections.abc import Collection
 
 from redline.detect.config import CHARTED_METHOD as CHARTED
 from redline.detect.confirmation import DROPPED
+from redline.detect.counters import SHARE
 from redline.detect.result import waits_for_history
 from redline.recording.disturbance import BUSY
 from redline.recording.driver import CPU_REFS_PER_OP, DRIVER_PROCESS
@@ -18,7 +19,7 @@ from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
 #: the component's CPU figures, which a headline names when they were not judged
-CPU_FIGURES = (CPU_REFS_PER_OP, "cpu_percent")
+CPU_FIGURES = (CPU_REFS_PER_OP, SHARE)
 
 
 def _among(busy: bool, cpu: bool) -> str:

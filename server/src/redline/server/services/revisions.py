@@ -184,6 +184,18 @@ def list_revisions(
 
 def newest_revisions(session: Session, component_name: str, limit: int) -> list[RevisionOut]:
     """The component's ``limit`` last revisions in sort-key order, the last first."""
+    return [revision_out(revision) for revision in _newest(session, component_name, limit)]
+
+
+def newest_with_verdicts(
+    session: Session, component_name: str, limit: int
+) -> tuple[list[RevisionOut], dict[str, str]]:
+    """`newest_revisions` and what each one's verdict says (`verdicts_of`), from one read."""
+    newest = _newest(session, component_name, limit)
+    return [revision_out(r) for r in newest], verdicts_of(session, component_name, newest)
+
+
+def _newest(session: Session, component_name: str, limit: int) -> list[Revision]:
     component = get_component(session, component_name)
     query = (
         select(Revision)
@@ -192,7 +204,16 @@ def newest_revisions(session: Session, component_name: str, limit: int) -> list[
         .options(selectinload(Revision.jobs))
         .limit(limit)
     )
-    return [revision_out(revision) for revision in session.scalars(query)]
+    return list(session.scalars(query))
+
+
+def verdicts_of(session: Session, component_name: str, revisions: list[Revision]) -> dict[str, str]:
+    """Per revision (its jobs loaded) that has one, its verdict in a few words: what its alarm
+    method said (`revision_verdicts`), or why none will come, its jobs failed or cancelled (a
+    trial's failed first commit had an empty cell on the component page)."""
+    said = revision_verdicts(session, component_name, [r.title for r in revisions])
+    found = {r.title: said.get(r.title) or _unmeasured(own_jobs(r)) for r in revisions}
+    return {title: words for title, words in found.items() if words}
 
 
 def revision_out(revision: Revision) -> RevisionOut:
@@ -288,8 +309,7 @@ def revision_detail(session: Session, component_name: str, title: str) -> Revisi
         **_revision_out(revision),
         component=component.name,
         jobs=[job_out(job) for job in revision.jobs],
-        verdict=revision_verdicts(session, component_name, [revision.title]).get(revision.title)
-        or _unmeasured(own_jobs(revision)),
+        verdict=verdicts_of(session, component_name, [revision]).get(revision.title, ""),
     )
 
 
