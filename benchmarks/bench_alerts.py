@@ -59,7 +59,7 @@ from redline.server.models import (
     Subscription,
 )
 from redline.server.services.revisions import order_key
-from redline.worker.deliver import http_client
+from redline.worker.sending import http_client
 from sqlalchemy import func, select
 
 

@@ -5,6 +5,8 @@ that comes in after its lease lapsed; a URL aimed at the cloud's metadata servic
 
 from __future__ import annotations
 
+import time
+from concurrent.futures import ThreadPoolExecutor
 from datetime import timedelta
 from pathlib import Path
 
@@ -12,7 +14,8 @@ import pytest
 from redline.agent.network import free_port
 from redline.server.db import session_factory
 from redline.server.models import Delivery, Subscription
-from redline.worker.deliver import attempt, claim, deliver_due, http_client, record
+from redline.worker.deliver import attempt, claim, deliver_due, record
+from redline.worker.sending import http_client
 from sqlalchemy import update
 
 from tests.support import alerting
@@ -190,3 +193,62 @@ def test_a_url_aimed_at_the_metadata_service_is_refused_when_set_and_never_asked
         "refused: 169.254.169.254 is a link-local or cloud metadata address"
     ), log
     assert not receiver.to("/hook")
+
+
+def test_a_receiver_trickling_its_answer_is_cut_off_and_its_try_failed(api, tmp_path, receiver):
+    """A review: the timeout bounds each read, so an answer of a byte every few seconds held a
+    send thread for ever. A failed try reads its answer for at most 3 timeouts (here 1 s)."""
+    receiver.answers["/drip"] = [500]
+    receiver.drips["/drip"] = 0.4  # its 17 bytes take 7 s; each well within the 1 s timeout
+    _, error = failed_once(api, tmp_path, eager(receiver, "/drip"))
+    assert error.startswith('HTTP 500: {"err') and '"down"}' not in error, error
+    assert error.endswith("(cut: no whole answer within 3 s)"), error
+
+
+def test_a_send_under_way_keeps_its_lease_and_no_other_run_sends_it_too(api, tmp_path, receiver):
+    """A review: a receiver slower than the lease had its delivery taken by another run, and
+    then another, until every send thread waited on it."""
+    receiver.delays["/slow"] = 2.5  # longer than the lease below, within the timeout
+    hook = subscribe(api, eager(receiver, "/slow"))
+    revisions(api, tmp_path, [10.0] * 5 + [14.0])
+    scan(api)
+    patient = api.settings.model_copy(update={"alert_timeout_s": 10.0})
+    database_url = api.settings.database_url
+    with ThreadPoolExecutor(1) as pool:  # one run, its lease 0.6 s, renewed while it sends
+        running = pool.submit(deliver_due, database_url, patient, 2, timedelta(seconds=0.6))
+        while not receiver.to("/slow"):
+            time.sleep(0.05)
+        for _ in range(8):  # another run looks, the first lease long lapsed
+            time.sleep(0.25)
+            assert claim(database_url, 10, timedelta(minutes=5)) == [], "taken twice"
+        assert running.result(timeout=60)["sent"] == 1
+    (log,) = deliveries(api, hook["id"])
+    assert (log["state"], log["attempts"]) == ("delivered", 1)
+    assert len(receiver.to("/slow")) == 1
+
+
+def test_a_delivery_whose_worker_stopped_on_its_last_try_is_failed_not_sent_again(
+    api, tmp_path, receiver
+):
+    hook = subscribe(api, eager(receiver, "/hook"))
+    revisions(api, tmp_path, [10.0] * 5 + [14.0])
+    scan(api)
+    database_url = api.settings.database_url
+    (taken,) = claim(database_url, 10, lease=timedelta(0), max_attempts=1)  # then it "died"
+    assert claim(database_url, 10, lease=timedelta(minutes=5), max_attempts=1) == []
+    (log,) = deliveries(api, hook["id"])
+    assert (log["state"], log["attempts"]) == ("failed", 1), log
+    assert "its lease lapsed on its last try (1): the worker stopped mid-send" in log["last_error"]
+    assert receiver.to("/hook") == [] and taken.delivery.attempts == 1
+
+
+def test_a_mail_taken_is_delivered_however_the_server_answers_quit(api, tmp_path, mailbox):
+    """A review: smtplib's `with` raises when QUIT is answered other than 221, after the mail
+    was taken; the try counted as failed and the mail was sent again, up to ten times."""
+    mailbox.answers["QUIT"] = ["421 4.3.2 shutting down"]
+    ident = subscribe(api, MAIL)["id"]
+    revisions(api, tmp_path, [10.0] * 5 + [14.0])
+    alert(api)
+    assert len(mailbox.messages) == 1
+    (log,) = deliveries(api, ident)
+    assert (log["state"], log["attempts"], log["last_error"]) == ("delivered", 1, "")

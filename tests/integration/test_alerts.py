@@ -35,6 +35,7 @@ from redline.worker.alerts import PERIOD, runtime_alerts, scan_component
 from redline.worker.deliver import deliver_due
 from redline.worker.detection import detect_revision
 from redline.worker.digests import send_digests
+from redline.worker.follow_ups import tell_listened
 from redline.worker.ingest import ingest_execution
 from redline.worker.reanalysis import reanalyze_component
 from redline.worker.statuses import commit_status
@@ -139,6 +140,29 @@ def test_filters_decide_who_hears_and_unconfirmed_can_be_asked_for(api, tmp_path
     assert deliveries(api, early["id"])[0]["state"] == "delivered"
 
 
+def test_an_improvement_still_being_judged_holds_back_only_its_own(api, tmp_path, receiver):
+    """A review: a revision still being judged held back its improvement, and with it (its
+    regression id None in the set of those waiting) every other improvement of the component."""
+    subscribe(api, {"kind": "webhook", "url": receiver.url + "/better", "direction": "improvement"})
+    revisions(api, tmp_path, [10.0] * 5 + [6.0])
+    database_url = api.settings.database_url
+
+    def judged_at(when: object) -> None:
+        with session_factory(database_url)() as session:
+            session.execute(update(Revision).where(Revision.title == "r6").values(analyzed_at=when))
+            session.commit()
+
+    judged_at(None)  # r6 ingested anew, not judged yet
+    revisions(api, tmp_path, [3.0], first=7)
+    alert(api)
+    told = [json.loads(r.body)["alerts"][0]["changes"][0]["revision"]["title"]
+            for r in receiver.to("/better")]  # fmt: skip
+    assert told == ["r7"], told
+    judged_at(utcnow())
+    alert(api)
+    assert len(receiver.to("/better")) == 2
+
+
 def test_a_failing_receiver_is_retried_with_the_same_delivery_id_and_told_once(
     api, tmp_path, receiver
 ):
@@ -234,6 +258,31 @@ def test_a_digest_gathers_the_alerts_of_its_period_into_one_message(api, tmp_pat
     assert "at r6" in text and "at r10" in text
 
 
+def test_alerts_waiting_for_a_digest_go_out_when_it_is_switched_to_immediate(
+    api, tmp_path, mailbox
+):
+    """A review: a digest's waiting alerts had no delivery yet, and the digest sender looks
+    only at digest subscriptions: switched to immediate, they were never sent."""
+    body = {"kind": "email", "address": "lead@robots.example", "delivery": "digest",
+            "confirmed_only": False}  # fmt: skip
+    ident = subscribe(api, body)["id"]
+    revisions(api, tmp_path, [10.0] * 5 + [14.0])
+    alert(api)
+    assert not mailbox.messages  # gathered for the digest
+    switched = api.client.patch(
+        f"{BASE}/subscriptions/{ident}", json={"delivery": "immediate"}, headers=api.tokens["admin"]
+    )
+    assert switched.status_code == 200, switched.text
+    with session_factory(api.settings.database_url)() as session:
+        assert len(send_digests(session)) == 1  # at the next beat, not a day later
+        assert send_digests(session) == []  # and once
+        session.commit()
+    alert(api)
+    (mail,) = mailbox.messages
+    assert mail["Subject"] == "[Redline] digest: 1 alert(s)"
+    assert "at r6" in mail.get_body(("plain",)).get_content()
+
+
 def test_a_digest_leaves_out_a_regression_set_aside_since_its_alert(api, tmp_path, mailbox):
     """A trial's digest told a regression marked a false positive hours before as "confirmed"."""
     subscribe(
@@ -278,6 +327,26 @@ def test_a_growing_regression_is_updated_once_a_period_with_its_new_series_only(
     (grown,) = update_body["alerts"]
     assert [c["counter"] for c in grown["changes"]] == ["rss"]
     assert grown["regression"]["id"] == json.loads(first.body)["alerts"][0]["regression"]["id"]
+
+
+def test_a_growth_held_back_is_told_by_the_beat_with_no_commit_after_it(api, tmp_path, receiver):
+    """A review: the held-back growth waited for a scan, and scans ran only after a detection:
+    on a quiet component, days. The digests' beat (every 15 minutes) now scans too."""
+    subscribe(api, eager(receiver, "/hook"))
+    cpu_and_rss(api, tmp_path)
+    alert(api)
+    grow_by_rss(api)
+    alert(api)
+    assert len(receiver.requests) == 1  # within the period
+    database_url = api.settings.database_url
+    assert tell_listened(database_url) == []  # the beat, still within it
+    a_period_later(api)
+    assert len(tell_listened(database_url)) == 1  # no detection, no commit: the beat alone
+    deliver_due(database_url, api.settings)
+    assert [json.loads(r.body)["event"] for r in receiver.requests] == [
+        "regression",
+        "regression.updated",
+    ]
 
 
 @pytest.mark.parametrize("provider", ["github", "gitlab"])
@@ -672,7 +741,7 @@ def test_a_regression_judged_again_without_its_change_is_withdrawn_with_its_figu
     assert re.search(
         r"; the largest: throughput/publish: component cpu \[rate=10\] \+\d+ % at r6$", said
     ), said
-    counted = '<a href="/regressions?component=builder">1</a>'
+    counted = '<a href="/regressions?component=builder&amp;state=open">1</a>'
     assert counted in api.client.get("/").text  # the home page's open regressions
     database_url = api.settings.database_url
 

@@ -26,6 +26,7 @@ from typer.testing import CliRunner
 from tests.support.api import api_with
 from tests.support.git import GIT
 from tests.support.history import add_executions, cpu_history, ingest_and_detect
+from tests.support.receivers import flaky_proxy
 from tests.support.servers import live_server
 
 REDLINE = str(Path(sys.executable).parent / "redline")
@@ -62,8 +63,12 @@ def _busy_baseline(session, database_url: str, tmp: Path) -> None:
     session.commit()
 
 
-def wait(server, *args: str, token: str | None = None) -> subprocess.CompletedProcess:
+def wait(
+    server, *args: str, token: str | None = None, via: str | None = None
+) -> subprocess.CompletedProcess:
+    """`redline ci wait` against the server (or ``via``, a proxy in front of it)."""
     url, read, _ = server
+    url = via or url
     env = {"PATH": "/usr/bin:/bin", "REDLINE_TOKEN": read if token is None else token}
     return subprocess.run(
         [REDLINE, "ci", "wait", "--server", url, "--component", "builder", "--poll", "0.2", *args],
@@ -90,6 +95,28 @@ def test_a_change_for_the_worse_fails_with_1_and_a_junit_failure(server, tmp_pat
     assert "confirmation: suspected" in failure.get("message", "")
     # --fail-on none: the same verdict, reported, never failing
     assert wait(server, "--revision", "r6", "--fail-on", "none").returncode == 0
+
+
+def test_a_proxys_502_while_the_server_restarts_is_waited_for_not_read_as_a_change(
+    server, tmp_path
+):
+    """A review: a 502 from the proxy fetching the JUnit file raised, and Python's exit 1 said
+    "a change" of an unchanged commit; a 502 while polling was exit 2 at once."""
+    out = tmp_path / "junit.xml"
+    with flaky_proxy(server[0]) as proxy:
+        proxy.answers = {"/verdict": [502, 503], "/junit": [502, 504]}
+        done = wait(server, "--revision", "r3", "--junit", str(out), via=proxy.url)
+        assert done.returncode == 0, done.stderr
+        assert done.stderr.count("not reachable (HTTP 50") == 4, done.stderr
+        assert [p.split("?")[0].rsplit("/", 1)[1] for p in proxy.seen].count("junit") == 3
+        suite = ElementTree.parse(out).getroot()
+        assert (suite.get("tests"), suite.get("failures"), suite.get("errors")) == ("1", "0", "0")
+        # a JUnit file the server refuses is no pass and no change: exit 2, said in the file
+        proxy.answers = {"/junit": [500]}
+        refused = wait(server, "--revision", "r6", "--junit", str(out), via=proxy.url)
+    assert refused.returncode == 2, refused.stderr
+    said = "the verdict came, but not its JUnit file: HTTP 500"
+    assert said in refused.stderr and said in out.read_text()
 
 
 def test_no_change_passes_and_no_baseline_is_skipped_with_its_reason(server, tmp_path):

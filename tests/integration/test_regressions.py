@@ -342,3 +342,54 @@ def test_a_patch_changes_only_the_fields_it_gives(api, database_url, tmp_path):
     # and it queues a re-analysis unless told not to, as PUT does
     assert api.patch("/detection-config", "admin", {"window": 5}).status_code == 200
     assert api.get("/reanalysis").json()["state"] == "queued"
+
+
+def _open_count_on_home(api: Client) -> str:
+    row = api.client.get("/").text.split('id="components"', 1)[1].split("</tr>", 2)[1]
+    return row.rsplit("<td>", 1)[-1]
+
+
+def test_an_open_regression_is_counted_and_marked_and_one_dropped_or_fixed_is_not(
+    api, database_url, tmp_path
+):
+    """The home page counted a regression its confirmation runs had dropped (not_confirmed) as
+    open; the component page's revision rows named no regression at all."""
+    history(database_url, tmp_path, [20.0, 20.0, 60.0, 60.0])
+    (regression,) = api.get("/regressions").json()
+    ident = regression["id"]
+    assert (regression["good_revision"], regression["bad_revision"]) == ("r2", "r3")
+    assert 'state=open">1</a>' in _open_count_on_home(api)
+    assert [r["id"] for r in api.get("/regressions?state=open").json()] == [ident]
+    rows = api.client.get("/components/builder").text.split('id="revisions"', 1)[1]
+    marks = {
+        row.split("</a>", 1)[0].rsplit(">", 1)[1]: row.split('class="open-in">', 1)[1]
+        for row in rows.split("</table>", 1)[0].split("<tr>")[2:]
+    }
+    assert marks["r3"].startswith(f'<a href="/regressions/{ident}"')
+    assert "(suspected)" in marks["r3"]
+    assert [marks[t].startswith("</td>") for t in ("r4", "r2", "r1")] == [True] * 3
+    # dropped by its confirmation runs: no longer open anywhere
+    with session_factory(database_url)() as session:
+        session.execute(
+            text("UPDATE regression SET confirmation = 'not_confirmed' WHERE id = :id"),
+            {"id": ident},
+        )
+        session.commit()
+    assert _open_count_on_home(api).startswith("0")
+    assert api.get("/regressions?state=open").json() == []
+    dropped = api.get("/regressions?state=open&confirmation=not_confirmed").json()
+    assert [r["id"] for r in dropped] == [ident]
+    assert 'class="open-in"><a' not in api.client.get("/components/builder").text
+    every = api.client.get("/regressions?component=builder&state=open&confirmation=all").text
+    assert f"/regressions/{ident}" in every  # the page's "all" keeps the dropped one
+    # standing again, but triaged as fixed: not open either
+    with session_factory(database_url)() as session:
+        session.execute(
+            text("UPDATE regression SET confirmation = 'confirmed' WHERE id = :id"), {"id": ident}
+        )
+        session.commit()
+    assert api.patch(f"/regressions/{ident}", "triage", {"state": "fixed"}).status_code == 200
+    assert _open_count_on_home(api).startswith("0")
+    assert api.get("/regressions?state=open").json() == []
+    page = api.client.get("/regressions?component=builder&state=open")
+    assert page.status_code == 200 and f"/regressions/{ident}" not in page.text

@@ -21,6 +21,25 @@ import httpx
 from redline.agent.network import free_port
 
 
+class Quiet(BaseHTTPRequestHandler):
+    def log_message(self, *args: object) -> None:
+        pass
+
+
+@contextmanager
+def serving(handler: type[BaseHTTPRequestHandler]) -> Iterator[str]:
+    """An HTTP server of ``handler`` on a free port of 127.0.0.1, on threads; yields its URL."""
+    server = ThreadingHTTPServer(("127.0.0.1", 0), handler)
+    server.daemon_threads = True
+    thread = threading.Thread(target=server.serve_forever, daemon=True)
+    thread.start()
+    try:
+        yield f"http://127.0.0.1:{server.server_address[1]}"
+    finally:
+        server.shutdown()
+        server.server_close()
+
+
 @dataclass
 class Request:
     method: str
@@ -32,13 +51,15 @@ class Request:
 @dataclass
 class Receiver:
     """``answers[path]``: statuses given in turn (then 200); ``delays[path]``: seconds to wait;
-    ``bodies[path]``: the body a success answers with (else ``{"ok": true}``)."""
+    ``bodies[path]``: the body a success answers with (else ``{"ok": true}``); ``drips[path]``:
+    seconds between the answer's bytes (a receiver trickling its answer)."""
 
     url: str
     requests: list[Request] = field(default_factory=list)
     answers: dict[str, list[int]] = field(default_factory=dict)
     delays: dict[str, float] = field(default_factory=dict)
     bodies: dict[str, bytes] = field(default_factory=dict)
+    drips: dict[str, float] = field(default_factory=dict)
 
     def to(self, path: str) -> list[Request]:
         return [r for r in self.requests if r.path == path]
@@ -49,7 +70,7 @@ def http_receiver() -> Iterator[Receiver]:
     lock = threading.Lock()
     receiver = Receiver(url="")
 
-    class Handler(BaseHTTPRequestHandler):
+    class Handler(Quiet):
         def _answer(self) -> None:
             body = self.rfile.read(int(self.headers.get("Content-Length") or 0))
             with lock:  # recorded as it arrives, answered after the delay
@@ -64,33 +85,28 @@ def http_receiver() -> Iterator[Receiver]:
                 self.send_header("Content-Type", "application/json")
                 self.end_headers()
                 ok = receiver.bodies.get(self.path, b'{"ok": true}')
-                self.wfile.write(ok if status < 300 else b'{"error": "down"}')
+                answer = ok if status < 300 else b'{"error": "down"}'
+                drip = receiver.drips.get(self.path)
+                for start in range(0, len(answer), 1 if drip else len(answer)):
+                    self.wfile.write(answer[start : start + 1] if drip else answer)
+                    self.wfile.flush()
+                    time.sleep(drip or 0.0)
             except (BrokenPipeError, ConnectionResetError):
                 pass  # the caller gave up (a timeout): what a slow receiver sees
 
         do_POST = do_PUT = _answer
 
-        def log_message(self, *args: object) -> None:
-            pass
-
-    server = ThreadingHTTPServer(("127.0.0.1", 0), Handler)
-    server.daemon_threads = True
-    receiver.url = f"http://127.0.0.1:{server.server_address[1]}"
-    thread = threading.Thread(target=server.serve_forever, daemon=True)
-    thread.start()
-    try:
+    with serving(Handler) as url:
+        receiver.url = url
         yield receiver
-    finally:
-        server.shutdown()
-        server.server_close()
 
 
 @dataclass
 class Mailbox:
     """``messages``: the mails the server took (answered 250); ``arrived``: every mail whose
-    content came in, taken or not. ``answers[command]`` ("RCPT" or "DATA"): replies given in
-    turn (then "250 OK"); ``delays[command]``: seconds to wait before replying (the mail is in
-    ``arrived`` already while a DATA reply waits)."""
+    content came in, taken or not. ``answers[command]`` ("RCPT", "DATA" or "QUIT"): replies
+    given in turn (then "250 OK", or QUIT's "221 Bye"); ``delays[command]``: seconds to wait
+    before replying (the mail is in ``arrived`` already while a DATA reply waits)."""
 
     host: str
     port: int
@@ -140,6 +156,10 @@ def smtp_server(folder: Path, user: str = "redline", password: str = "s3cret") -
                 box.recipients.append(list(envelope.rcpt_tos))
             return answer
 
+        async def handle_QUIT(self, server, session, envelope):  # noqa: N802
+            queue = box.answers.get("QUIT")
+            return queue.pop(0) if queue else "221 Bye"
+
     def authenticate(server, session, envelope, mechanism, auth_data):
         ok = isinstance(auth_data, LoginPassword) and (
             auth_data.login.decode(),
@@ -161,3 +181,45 @@ def smtp_server(folder: Path, user: str = "redline", password: str = "s3cret") -
         yield box
     finally:
         controller.stop()
+
+
+@dataclass
+class Proxy:
+    """``answers[suffix]``: statuses given in turn (then forwarded) to GETs whose path, without
+    its query, ends with ``suffix``; ``seen``: every path asked, with its query."""
+
+    url: str
+    answers: dict[str, list[int]] = field(default_factory=dict)
+    seen: list[str] = field(default_factory=list)
+
+
+@contextmanager
+def flaky_proxy(upstream: str) -> Iterator[Proxy]:
+    """A reverse proxy in front of ``upstream`` that answers as told before forwarding (a
+    proxy's 502 while its server restarts)."""
+    lock = threading.Lock()
+    proxy = Proxy(url="")
+
+    class Handler(Quiet):
+        def do_GET(self) -> None:  # noqa: N802 (http.server's name)
+            with lock:
+                proxy.seen.append(self.path)
+                path = self.path.split("?", 1)[0]
+                queue = next((q for s, q in proxy.answers.items() if path.endswith(s)), None)
+                status = queue.pop(0) if queue else None
+            if status is None:
+                headers = {"Authorization": self.headers.get("Authorization", "")}
+                answer = httpx.get(upstream + self.path, headers=headers, timeout=30)
+                status, body = answer.status_code, answer.content
+                kind = answer.headers.get("Content-Type", "text/plain")
+            else:
+                body, kind = b"<html>Bad Gateway</html>", "text/html"
+            self.send_response(status)
+            self.send_header("Content-Type", kind)
+            self.send_header("Content-Length", str(len(body)))
+            self.end_headers()
+            self.wfile.write(body)
+
+    with serving(Handler) as url:
+        proxy.url = url
+        yield proxy

@@ -59,3 +59,27 @@ def test_an_alerts_chart_link_opens_the_changed_series_parameter_set_and_all():
     same = SimpleNamespace(case="reads", phase="steady", process="kvstore", counter="pss_bytes")
     assert view.selects(SimpleNamespace(**vars(same), params=params))
     assert not view.selects(SimpleNamespace(**vars(same), params={**params, "rate": 50}))
+
+
+def test_min_effect_keeps_a_change_from_zero_and_a_counts_rate_and_names_it_largest():
+    """A review: a change from a zero baseline has no ratio (its effect null) and a count's
+    rate moves by points (timeouts 0 -> 0.6 % of queries: 0.006); `min_effect` 0.05 dropped
+    both, and the subject ranked the one from zero smallest."""
+    from types import SimpleNamespace
+
+    from redline.worker.alerts import wants
+    from redline.worker.messages import _summary
+
+    subscription = SimpleNamespace(direction="regression", counters=[], min_effect=0.05)
+
+    def change(effect: float | None, counter: str = "cpu_percent", method: str = "ks") -> dict:
+        return {"process": "svc", "counter": counter, "effect": effect, "method": method,
+                "parameters": {}, "revision": {"title": "r7"}}  # fmt: skip
+
+    assert wants(subscription, True, change(None))
+    assert wants(
+        subscription, True, change(0.006, "FixedRate/Query(svc/get):timeouts", "count_rate")
+    )
+    assert wants(subscription, True, change(0.05)) and not wants(subscription, True, change(0.049))
+    said = _summary("svc", "regression", [change(0.8), change(None, "cpu_system_percent")])
+    assert said == "svc: regression: cpu_system_percent from 0 at r7 and 1 more series"

@@ -9,7 +9,7 @@ import pytest
 from pydantic import ValidationError
 from redline.server.core.targets import refused_address, refused_host
 from redline.server.schemas.alerts import CommitStatusTarget, SubscriptionCreate
-from redline.worker import deliver
+from redline.worker import sending
 
 
 @pytest.mark.parametrize(
@@ -112,8 +112,8 @@ def test_an_address_check_of_a_name_holding_a_null_character_says_it_is_no_addre
 
 def test_a_stored_url_that_cannot_be_sent_to_fails_its_delivery_for_good_saying_why() -> None:
     # a subscription stored before such URLs were refused: retrying it for days mends nothing
-    with httpx.Client() as client, pytest.raises(deliver.SendError) as failed:
-        deliver._post(client, "http://hooks.example.com/a\tb", b"{}", {}, timeout=1.0)
+    with httpx.Client() as client, pytest.raises(sending.SendError) as failed:
+        sending._post(client, "http://hooks.example.com/a\tb", b"{}", {}, timeout=1.0)
     assert failed.value.permanent
     assert str(failed.value).startswith("invalid URL: Invalid non-printable ASCII character")
 

@@ -46,16 +46,27 @@ def _stop(code: int, message: str) -> NoReturn:
     raise typer.Exit(code)
 
 
+#: answers of a proxy whose server is down or restarting, or of the server while its database
+#: is out of reach (503): waited for, as a refused connection is
+UNAVAILABLE = (502, 503, 504)
+#: how long the JUnit file is waited for once the verdict came at the end of the --timeout
+JUNIT_GRACE_S = 30.0
+
+
 def _get(client: httpx.Client, path: str, **params: str) -> httpx.Response | None:
-    """The answer, or None when the server cannot be reached (tried again later)."""
+    """The answer, or None when the server cannot be reached or its proxy says it is down
+    (tried again later: behind nginx, a restarting server answers 502, not a refused
+    connection, and a hiccup fetching the JUnit file exited 1, "a change")."""
     try:
-        return client.get(path, params=params)
+        answer = client.get(path, params=params)
     except httpx.TransportError as error:
-        typer.echo(
-            f"server {client.base_url} not reachable ({type(error).__name__}); trying again",
-            err=True,
-        )
-        return None
+        why = type(error).__name__
+    else:
+        if answer.status_code not in UNAVAILABLE:
+            return answer
+        why = f"HTTP {answer.status_code}: {detail(answer)[:120]}"
+    typer.echo(f"server {client.base_url} not reachable ({why}); trying again", err=True)
+    return None
 
 
 def no_token(answer: httpx.Response, token: str, scope: str) -> str:
@@ -323,8 +334,14 @@ def wait(
                 fail(f"no verdict within {timeout:.0f} s: {why}")
             time.sleep(poll)
         if junit is not None:
-            xml = client.get(f"{base}/junit", params={"fail_on": fail_on.value})
-            xml.raise_for_status()
+            deadline = time.monotonic() + max(timeout - waited, JUNIT_GRACE_S)
+            while (xml := _get(client, f"{base}/junit", fail_on=fail_on.value)) is None:
+                if time.monotonic() + poll > deadline:
+                    fail(f"the verdict came, but not its JUnit file: {server} not reachable")
+                time.sleep(poll)
+            if xml.status_code != 200:
+                fail(f"the verdict came, but not its JUnit file: HTTP {xml.status_code}: "
+                     f"{detail(xml)}")  # fmt: skip
             try:
                 junit.write_text(xml.text)
             except OSError as error:

@@ -24,6 +24,7 @@ from datetime import datetime, timedelta
 from typing import Any
 
 from redline.detect.confirmation import DROPPED
+from redline.detect.count_rate import METHOD as COUNT_RATE
 from redline.detect.counters import worse
 from redline.server.models import (
     UNENDED,
@@ -160,7 +161,13 @@ def wants(subscription: Subscription, worse: bool, change: dict[str, Any]) -> bo
         return False
     if subscription.counters and not told_of(change["counter"], subscription.counters):
         return False
-    return abs(change.get("effect") or 0.0) >= subscription.min_effect
+    effect = change.get("effect")
+    if effect is None or change.get("method") == COUNT_RATE:
+        # not a relative change: one from a zero baseline (no ratio; an idle phase's CPU from 0
+        # to 8 %), or a count's rate moving by percentage points (timeouts from 0 to 0.6 % of
+        # queries is 0.006): `min_effect` dropped both (a review)
+        return True
+    return abs(effect) >= subscription.min_effect
 
 
 def told_of(counter: str, counters: list[str]) -> bool:
@@ -276,7 +283,12 @@ def scan_component(session: Session, component_id: int) -> list[int]:
     imported = _imported(session, {c.revision_id for c in changes})
     measuring = _measuring(session, {c.revision_id for c in changes})
     # a regression, or an improvement, is told once every execution of its revisions is in
-    waiting = {c.regression_id for c in changes if c.revision_id in measuring}
+    # (an improvement's revision alone: its None among these held back every improvement)
+    waiting = {
+        c.regression_id
+        for c in changes
+        if c.revision_id in measuring and c.regression_id is not None
+    }
     changes = [
         c for c in changes if c.revision_id not in measuring and c.regression_id not in waiting
     ]

@@ -10,58 +10,34 @@ URL whose host is a link-local or metadata address (`redline.server.core.targets
 asked. A success is stored as soon as its send returns, even one whose lease lapsed meanwhile, and
 is never sent again. Sends run on a few threads with a timeout each (``REDLINE_ALERT_TIMEOUT_S``),
 each outcome stored as it comes and free threads given more work meanwhile, so one slow receiver
-holds up neither the others nor ingestion and detection, which run in other workers' queues.
+holds up neither the others nor ingestion and detection, which run in other workers' queues;
+a send under way has its lease renewed, so no other run sends it meanwhile. How each kind is
+sent: `redline.worker.sending`.
 """
 
 from __future__ import annotations
 
-import hashlib
-import hmac
-import json
 import logging
 import random
-import smtplib
-import socket
-import ssl
+import time
 from concurrent.futures import FIRST_COMPLETED, Future, ThreadPoolExecutor, wait
 from dataclasses import dataclass
 from datetime import datetime, timedelta
-from email.message import EmailMessage
-from email.utils import formatdate
 from typing import Any
-from urllib.parse import quote, urlsplit
 
 import httpx
 from redline.server.core.config import Settings
-from redline.server.core.targets import refused_host
 from redline.server.db import session_scope
 from redline.server.models import Component, Delivery, Subscription, utcnow
-from redline.server.schemas.fields import COMMIT_HASH
-from redline.worker import messages
+from redline.worker.sending import SendError, http_client, send
 from redline.worker.statuses import in_flight_before, supersede
-from sqlalchemy import and_, or_, select, update
+from sqlalchemy import and_, or_, select, tuple_, update
 
 log = logging.getLogger(__name__)
 #: the longest wait between two tries of one delivery
 MAX_BACKOFF = timedelta(hours=6)
 #: how often a run with sends in flight looks for deliveries that fell due meanwhile (seconds)
 POLL_S = 1.0
-SIGNATURE_HEADER = "X-Redline-Signature-256"
-DELIVERY_HEADER = "X-Redline-Delivery"
-EVENT_HEADER = "X-Redline-Event"
-
-
-class SendError(Exception):
-    """A try that failed; the message says why (status and the start of the answer).
-    ``permanent``: trying again cannot help (a mail server refused the mail with a 5xx)."""
-
-    def __init__(self, message: str, permanent: bool = False) -> None:
-        super().__init__(message)
-        self.permanent = permanent
-
-
-def sign(secret: str, body: bytes) -> str:
-    return "sha256=" + hmac.new(secret.encode(), body, hashlib.sha256).hexdigest()
 
 
 def backoff(attempts: int, base: float) -> timedelta:
@@ -70,179 +46,6 @@ def backoff(attempts: int, base: float) -> timedelta:
     ceiling = MAX_BACKOFF.total_seconds() / 1.5
     seconds = min(base * 2.0 ** min(max(attempts - 1, 0), 64), ceiling)
     return timedelta(seconds=seconds * random.uniform(0.5, 1.5))
-
-
-def _post(
-    client: httpx.Client, url: str, body: bytes, headers: dict[str, str], timeout: float
-) -> None:
-    refused = refused_host(urlsplit(url).hostname or "")
-    if refused is not None:  # its answer would land in the delivery log: never asked
-        raise SendError(f"refused: {refused}", permanent=True)
-    try:
-        answer = client.post(url, content=body, headers=headers, timeout=timeout)
-    except httpx.InvalidURL as error:  # stored before such URLs were refused: no retry mends it
-        raise SendError(f"invalid URL: {error}", permanent=True) from None
-    except httpx.HTTPError as error:
-        raise SendError(f"{type(error).__name__}: {error}") from None
-    if not answer.is_success:
-        raise SendError(f"HTTP {answer.status_code}: {answer.text[:200]}")
-
-
-def _webhook(
-    client: httpx.Client, delivery: Delivery, subscription: Subscription, settings: Settings
-) -> None:
-    if subscription.format == "slack":
-        data = messages.slack_json(delivery.event, delivery.payload, settings.public_url)
-    else:
-        data = messages.webhook_json(
-            delivery.event, delivery.uid, delivery.payload, settings.public_url, delivery.created
-        )
-    body = json.dumps(data, separators=(",", ":")).encode()
-    headers = {
-        "Content-Type": "application/json",
-        "User-Agent": "Redline-Hookshot",
-        DELIVERY_HEADER: delivery.uid,
-        EVENT_HEADER: delivery.event,
-    }
-    if subscription.secret:
-        headers[SIGNATURE_HEADER] = sign(subscription.secret, body)
-    _post(client, subscription.url, body, headers, settings.alert_timeout_s)
-
-
-def _mail(delivery: Delivery, subscription: Subscription, settings: Settings) -> None:
-    if not settings.smtp_host:
-        raise SendError("no SMTP server: REDLINE_SMTP_HOST is not set")
-    subject, text, body = messages.email(delivery.event, delivery.payload, settings.public_url)
-    mail = EmailMessage()
-    mail["Subject"] = subject
-    mail["From"] = settings.smtp_from
-    mail["To"] = subscription.address
-    mail["Date"] = formatdate(localtime=False)
-    mail["Message-ID"] = f"<{delivery.uid}@redline>"
-    mail[DELIVERY_HEADER] = delivery.uid
-    mail.set_content(text)
-    mail.add_alternative(body, subtype="html")
-    context = ssl.create_default_context(
-        cafile=str(settings.smtp_ca_file) if settings.smtp_ca_file else None
-    )
-    timeout = settings.alert_timeout_s
-    try:
-        if settings.smtp_tls == "tls":
-            client: smtplib.SMTP = smtplib.SMTP_SSL(
-                settings.smtp_host, settings.smtp_port, timeout=timeout, context=context
-            )
-        else:
-            client = smtplib.SMTP(settings.smtp_host, settings.smtp_port, timeout=timeout)
-        with client:
-            if settings.smtp_tls == "starttls":
-                client.starttls(context=context)
-            if settings.smtp_user:
-                client.login(settings.smtp_user, settings.smtp_password.get_secret_value())
-            client.send_message(mail)
-    except (OSError, smtplib.SMTPException) as error:
-        raise smtp_failure(error) from None
-
-
-def _said(reply: bytes | str) -> str:
-    return (reply.decode(errors="replace") if isinstance(reply, bytes) else reply).strip()
-
-
-def smtp_failure(error: Exception) -> SendError:
-    """A failed SMTP conversation as a `SendError` quoting the server's reply. A 5xx reply to
-    the mail itself (its sender, recipient or content) is permanent: the server refuses this
-    mail, and would refuse it again. Any other failure (down, slow, a 4xx, the greeting, TLS or
-    the login refused) is retried: an outage passes, and an operator can fix a setting."""
-    if isinstance(error, smtplib.SMTPRecipientsRefused):
-        replies = error.recipients.values()
-        said = "; ".join(
-            f"{address}: {code} {_said(text)}" for address, (code, text) in error.recipients.items()
-        )
-        permanent = bool(replies) and all(code >= 500 for code, _ in replies)
-        return SendError(f"SMTP: recipient refused: {said}", permanent=permanent)
-    if isinstance(error, smtplib.SMTPSenderRefused | smtplib.SMTPDataError):
-        what = "sender refused" if isinstance(error, smtplib.SMTPSenderRefused) else "mail refused"
-        return SendError(
-            f"SMTP: {what}: {error.smtp_code} {_said(error.smtp_error)}",
-            permanent=error.smtp_code >= 500,
-        )
-    if isinstance(error, smtplib.SMTPResponseException):
-        said = f"{error.smtp_code} {_said(error.smtp_error)}"
-        return SendError(f"SMTP: {type(error).__name__}: {said}")
-    return SendError(f"SMTP: {type(error).__name__}: {error}")
-
-
-def _status(
-    client: httpx.Client, delivery: Delivery, component: Component, settings: Settings
-) -> None:
-    target = component.commit_status or {}
-    call = delivery.payload
-    sha = str(call["sha"])
-    if not COMMIT_HASH.fullmatch(sha):  # one queued before only hashes were: never a path
-        raise SendError(f"commit {sha[:80]!r} is not a commit hash: no status is sent", True)
-    token, api = target.get("token", ""), str(target.get("api_url", "")).rstrip("/")
-    link = settings.public_url.rstrip("/") + call["page"]
-    if target.get("provider") == "github":
-        url = f"{api}/repos/{target['repository']}/statuses/{sha}"
-        data = {
-            "state": call["state"],
-            "target_url": link,
-            "description": call["description"][:140],
-            "context": call["context"],
-        }
-        headers = {
-            "Authorization": f"Bearer {token}",
-            "Accept": "application/vnd.github+json",
-            "X-GitHub-Api-Version": "2022-11-28",
-        }
-    elif target.get("provider") == "gitlab":
-        project = quote(str(target["repository"]), safe="")  # a path: robots%2Fbuilder
-        url = f"{api}/projects/{project}/statuses/{sha}"
-        state = {"failure": "failed", "error": "failed"}.get(call["state"], call["state"])
-        data = {
-            "state": state,
-            "name": call["context"],
-            "target_url": link,
-            "description": call["description"][:255],
-        }
-        headers = {"PRIVATE-TOKEN": token}
-    else:
-        raise SendError(f"component {component.name}: no commit status target configured")
-    headers["Content-Type"] = "application/json"
-    _post(client, url, json.dumps(data).encode(), headers, settings.alert_timeout_s)
-
-
-def send(
-    client: httpx.Client,
-    delivery: Delivery,
-    settings: Settings,
-    subscription: Subscription | None,
-    component: Component | None,
-) -> None:
-    """One try; raises `SendError` saying why it failed. ``client`` is shared by a run's
-    threads (`http_client`)."""
-    if delivery.kind == "status":
-        if component is None:
-            raise SendError("the component is gone")
-        _status(client, delivery, component, settings)
-        return
-    if subscription is None:
-        raise SendError("the subscription is gone")
-    if delivery.kind == "email":
-        _mail(delivery, subscription, settings)
-    else:
-        _webhook(client, delivery, subscription, settings)
-
-
-def http_client(connections: int) -> httpx.Client:
-    """One client for a run's sends: one TLS context and a pool of kept-alive connections (a
-    client per call costs ~20 ms of CPU in loading the CA bundle), with TCP_NODELAY (httpx
-    writes headers and body apart; without it, Nagle and the receiver's delayed ACK add up to
-    40 ms to a small request)."""
-    transport = httpx.HTTPTransport(
-        limits=httpx.Limits(max_connections=connections * 2, max_keepalive_connections=connections),
-        socket_options=[(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)],
-    )
-    return httpx.Client(transport=transport, follow_redirects=False)
 
 
 @dataclass
@@ -254,12 +57,31 @@ class Leased:
     component: Component | None
 
 
-def claim(database_url: str, limit: int, lease: timedelta) -> list[Leased]:
+def claim(database_url: str, limit: int, lease: timedelta, max_attempts: int = 10) -> list[Leased]:
     """Lease up to ``limit`` due deliveries (pending and due, or sending with a lapsed lease),
-    each with its subscription and component, in one transaction."""
+    each with its subscription and component, in one transaction. One whose lease lapsed
+    after its last try (``max_attempts``) is failed, not tried again: its worker stopped
+    mid-send that often."""
     now = utcnow()
     with session_scope(database_url) as session:
         supersede(session, now)
+        lapsed = session.scalars(
+            update(Delivery)
+            .where(
+                Delivery.state == "sending",
+                Delivery.lease_until < now,
+                Delivery.attempts >= max_attempts,
+            )
+            .values(
+                state="failed",
+                lease_until=None,
+                last_error=f"its lease lapsed on its last try ({max_attempts}): the worker "
+                "stopped mid-send",
+            )
+            .returning(Delivery.uid)
+        ).all()
+        for uid in lapsed:
+            log.error("delivery %s failed for good: its lease lapsed on its last try", uid)
         ids = session.scalars(
             select(Delivery.id)
             .where(
@@ -360,23 +182,45 @@ def record(
                 )
 
 
-def deliver_due(database_url: str, settings: Settings, threads: int = 8) -> dict[str, Any]:
+def renew(database_url: str, leased: list[Leased], lease: timedelta) -> None:
+    """Extend the leases of tries still under way, so that no other run sends them too: a
+    receiver that answered slower than the lease had one delivery sent again on thread after
+    thread until all were held (a review)."""
+    ours = [(one.delivery.id, one.delivery.attempts) for one in leased]
+    with session_scope(database_url) as session:
+        session.execute(
+            update(Delivery)
+            .where(Delivery.state == "sending", tuple_(Delivery.id, Delivery.attempts).in_(ours))
+            .values(lease_until=utcnow() + lease)
+            .execution_options(synchronize_session=False)
+        )
+
+
+def deliver_due(
+    database_url: str, settings: Settings, threads: int = 8, lease: timedelta | None = None
+) -> dict[str, Any]:
     """Send what is due now until nothing is, on ``threads`` threads: leased a few at a time
     (at most one more than each thread sends), each outcome stored as soon as its send ends,
-    and what falls due meanwhile taken on while slow sends run. Returns counts and the next
-    due time."""
-    lease = timedelta(seconds=settings.alert_timeout_s * 3 + 30)
+    and what falls due meanwhile taken on while slow sends run; the leases of sends under way
+    renewed while they last. Returns counts and the next due time."""
+    lease = lease or timedelta(seconds=settings.alert_timeout_s * 3 + 30)
     room = threads * 2
     sent = failed = 0
     in_flight: dict[Future[SendError | None], Leased] = {}
+    renewed = time.monotonic()
     with http_client(threads) as client, ThreadPoolExecutor(threads) as pool:
         while True:
             if len(in_flight) <= threads:
-                for leased in claim(database_url, room - len(in_flight), lease):
+                most = room - len(in_flight)
+                for leased in claim(database_url, most, lease, settings.alert_max_attempts):
                     in_flight[pool.submit(attempt, client, settings, leased)] = leased
             if not in_flight:
                 break
-            done, _ = wait(in_flight, timeout=POLL_S, return_when=FIRST_COMPLETED)
+            if time.monotonic() - renewed > lease.total_seconds() / 3:
+                renew(database_url, list(in_flight.values()), lease)
+                renewed = time.monotonic()
+            look = min(POLL_S, lease.total_seconds() / 3)  # renewed well within the lease
+            done, _ = wait(in_flight, timeout=look, return_when=FIRST_COMPLETED)
             if not done:
                 continue  # slow sends: look for deliveries that fell due meanwhile
             outcomes = [(in_flight.pop(future), future.result()) for future in done]

@@ -21,7 +21,7 @@ from redline.worker import messages
 from redline.worker.alerts import PERIOD, TELLING, new_delivery
 from redline.worker.follow_ups import EVENTS
 from redline.worker.told import mark_said
-from sqlalchemy import and_, func, select
+from sqlalchemy import and_, exists, func, or_, select
 from sqlalchemy.orm import Session
 
 #: a regression triaged so, or withdrawn, before a digest is sent is left out of it (a trial's
@@ -62,14 +62,22 @@ def _told(session: Session, subscription_id: int, waiting: Sequence[Alert]) -> l
 def send_digests(session: Session, now: datetime | None = None) -> list[int]:
     """One message per digest subscription whose period has passed (since its last digest, or
     since it was made: a trial's first "daily" digest went out at the next 15-minute beat) and
-    that has alerts not sent yet; returns the new deliveries' ids."""
+    that has alerts not sent yet; and one per subscription switched from digest to immediate
+    with alerts still waiting (a review: they were never sent). Returns the new deliveries'
+    ids."""
     now = now or utcnow()
     made = []
+    waits = exists().where(Alert.subscription_id == Subscription.id, Alert.delivery_id.is_(None))
     due = session.scalars(
         select(Subscription)
         .where(
-            Subscription.delivery == "digest",
-            func.coalesce(Subscription.digest_sent, Subscription.created) <= now - PERIOD,
+            or_(
+                and_(
+                    Subscription.delivery == "digest",
+                    func.coalesce(Subscription.digest_sent, Subscription.created) <= now - PERIOD,
+                ),
+                and_(Subscription.delivery == "immediate", waits),
+            )
         )
         .with_for_update(skip_locked=True)
     ).all()

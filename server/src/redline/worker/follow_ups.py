@@ -23,6 +23,7 @@ from __future__ import annotations
 
 from typing import Any
 
+from redline.server.db import session_scope
 from redline.server.models import (
     WITHDRAWN,
     Alert,
@@ -41,9 +42,10 @@ from redline.worker.alerts import (
     scan_component,
     wants,
 )
+from redline.worker.history import reanalysing
 from redline.worker.regression_summary import CONFIRMED, NOT_CONFIRMED
 from redline.worker.told import identity, mark_said
-from sqlalchemy import select
+from sqlalchemy import func, select, true
 from sqlalchemy.orm import Session
 
 #: the event that tells each settled confirmation
@@ -144,3 +146,28 @@ def tell_component(session: Session, component_id: int) -> list[int]:
     """Everything the component's changes call for telling (`scan_component`'s alerts, then
     the follow-ups); returns the new deliveries' ids."""
     return scan_component(session, component_id) + tell_settled(session, component_id)
+
+
+def tell_listened(database_url: str) -> list[int]:
+    """`tell_component` for every component someone listens to, each in its own transaction:
+    what falls due with time alone, with no detection to scan after (a regression's growth
+    held back within its period waited for the component's next commit, days on a quiet one:
+    a review). Returns the new deliveries' ids."""
+    with session_scope(database_url) as session:
+        listening = select(Subscription.component_id).where(Subscription.component_id.is_not(None))
+        everyone = session.scalar(
+            select(func.count())
+            .select_from(Subscription)
+            .where(Subscription.component_id.is_(None))
+        )
+        ids = session.scalars(
+            select(Component.id)
+            .where(true() if everyone else Component.id.in_(listening))
+            .order_by(Component.id)
+        ).all()
+    made = []
+    for component_id in ids:
+        with session_scope(database_url) as session:
+            if not reanalysing(session, component_id):  # told once it ends, as its scan is
+                made += tell_component(session, component_id)
+    return made

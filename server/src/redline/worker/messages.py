@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import html
 import json
+import math
 from datetime import datetime
 from typing import Any
 from urllib.parse import quote, urlencode
@@ -58,15 +59,22 @@ def change_body(
 
 
 def _effect(change: dict[str, Any]) -> str:
+    """A flagged change's size; one without a ratio rose or fell from a zero baseline."""
     effect = change.get("effect")
-    return "n/a" if effect is None else f"{effect * 100:+.1f} %"
+    return "from 0" if effect is None else f"{effect * 100:+.1f} %"
+
+
+def _size(change: dict[str, Any]) -> float:
+    """How large a change is, to name the largest: one from zero is larger than any ratio."""
+    effect = change.get("effect")
+    return math.inf if effect is None else abs(effect)
 
 
 def _summary(component: str, kind: str, changes: list[dict[str, Any]]) -> str:
     """One line for a subject: the largest change, with its parameter set; the component's own
     process is not named twice. (A trial's read "objectbuilder: regression: objectbuilder
     cpu_percent +139.4 % at df29d8d18358 and 4 more series", the first series, not the +158 %.)"""
-    first = max(changes, key=lambda c: abs(c.get("effect") or 0.0))
+    first = max(changes, key=_size)
     more = f" and {len(changes) - 1} more series" if len(changes) > 1 else ""
     what = {
         "regression": "regression",

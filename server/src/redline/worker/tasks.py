@@ -32,7 +32,7 @@ from redline.worker.alerts import runtime_alerts
 from redline.worker.app import celery_app
 from redline.worker.deliver import deliver_due
 from redline.worker.digests import send_digests
-from redline.worker.follow_ups import tell_component
+from redline.worker.follow_ups import tell_component, tell_listened
 from redline.worker.ingest import ingest as run_ingest
 from redline.worker.ingest import stale_uploads
 from redline.worker.onward import judge_onward
@@ -211,9 +211,11 @@ def runtime_alert(alarm_id: int) -> int:
 
 @celery_app.task(name=DIGEST_TASK, acks_late=True, **RETRY)
 def digest_alerts() -> int:
-    """The digests whose day has passed (beat schedule), then send."""
+    """The digests whose day has passed (beat schedule), and what else falls due with time
+    alone (`tell_listened`: a regression's growth held back a period), then send."""
     with session_scope(_settings().database_url) as session:
         deliveries = send_digests(session)
+    deliveries += tell_listened(_settings().database_url)
     if deliveries:
         deliver_alerts.delay()
     return len(deliveries)

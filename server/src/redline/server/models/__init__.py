@@ -12,6 +12,7 @@ from redline.server.models.alerts import (
 from redline.server.models.base import Base, utcnow
 from redline.server.models.detection import (
     FALSE_POSITIVE_STATES,
+    OPEN_STATES,
     STANDING,
     TRUE_POSITIVE_STATES,
     WITHDRAWN,
@@ -47,6 +48,7 @@ __all__ = [
     "FINISHED",
     "HELD",
     "UNENDED",
+    "OPEN_STATES",
     "STANDING",
     "WITHDRAWN",
     "Alert",

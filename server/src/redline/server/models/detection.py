@@ -44,6 +44,8 @@ WITHDRAWN = "withdrawn"
 #: The regressions that stand: those the re-runs or the later revisions confirmed and those
 #: still suspected (the regressions page's default; a filter value of the list, "standing")
 STANDING = ("suspected", "confirmed")
+#: Triage states in which a regression is still open (not fixed, ignored or a false positive)
+OPEN_STATES = (RegressionState.new, RegressionState.acknowledged, RegressionState.confirmed)
 
 #: Triage labels as ground truth for a method's precision (ignored, new, acknowledged: no label).
 TRUE_POSITIVE_STATES = frozenset({RegressionState.confirmed, RegressionState.fixed})

@@ -37,7 +37,7 @@ PAGE = 100
 def _checked(state: str, confirmation: str, method: str) -> None:
     """A `BadRequest` naming a filter whose value is none of those it takes."""
     for name, value, allowed in (
-        ("state", state, list(RegressionState.__members__)),
+        ("state", state, [regressions.OPEN, *RegressionState.__members__]),
         ("confirmation", confirmation, (STANDING, ALL, *CONFIRMATIONS)),
         ("method", method, list(DETECTORS)),
     ):
@@ -67,7 +67,7 @@ def regressions_page(
             session,
             component or None,
             state or None,
-            None if confirmation in ("", ALL) else confirmation,
+            ALL if confirmation in ("", ALL) else confirmation,
             limit=PAGE,
             cursor=cursor or None,
             method=method or None,
@@ -82,7 +82,7 @@ def regressions_page(
             "regressions": found,
             "filters": filters,
             "components": [c.name for c in components.list_components(session)],
-            "states": list(RegressionState.__members__),
+            "states": [regressions.OPEN, *RegressionState.__members__],
             "confirmations": CONFIRMATIONS,
             "methods": list(DETECTORS),
             "titles": TITLES,

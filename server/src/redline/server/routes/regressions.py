@@ -36,7 +36,7 @@ def list_regressions(
     name: str,
     session: SessionDep,
     response: Response,
-    state: RegressionState | None = None,
+    state: RegressionState | Literal["open"] | None = None,
     confirmation: Literal["suspected", "confirmed", "not_confirmed", "withdrawn", "standing"]
     | None = None,
     method: str | None = None,
@@ -44,8 +44,9 @@ def list_regressions(
     cursor: Cursor = None,
 ) -> list[RegressionOut]:
     """Flagged changes for the worse grouped by overlapping revision ranges, newest first;
-    ``?state=`` (triage), ``?confirmation=`` (suspected until the later revisions confirm it
-    or not; ``standing``: suspected or confirmed) and ``?method=`` (a method that flagged a
+    ``?state=`` (triage; ``open``: new, acknowledged or confirmed, and standing), ``?confirmation=``
+    (suspected until the later revisions confirm it or not; ``standing``: suspected or
+    confirmed) and ``?method=`` (a method that flagged a
     change in it) filter. Paged with ``limit``: a full page carries ``X-Next-Cursor``, passed
     back as ``cursor`` for the next; without ``limit``, all."""
     found, following = regressions.list_regressions(

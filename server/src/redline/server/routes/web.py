@@ -37,6 +37,7 @@ from redline.server.services import (
     executions,
     home,
     learning,
+    open_regressions,
     regressions,
     revision_view,
     revisions,
@@ -106,6 +107,10 @@ def component_page(name: str, request: Request, session: SessionDep) -> HTMLResp
             "choices": dashboard.choices(session, component),
             "revisions": newest,
             "regressions": regressions.list_regressions(session, name, limit=LISTED)[0],
+            "open_in": open_regressions.open_in(
+                [r.title for r in newest],
+                regressions.list_regressions(session, name, regressions.OPEN, limit=LISTED)[0],
+            ),
             "models": learning.list_models(session, name)[:LISTED],
             "runtime_alerts": learning.list_alerts(session, name, LISTED),
             "executions": executions.newest_executions(session, component, LISTED),

@@ -10,20 +10,19 @@ from redline.recording import HOST_PROCESS, SeriesKey
 from redline.recording.driver import DRIVER_PROCESS, RECORDER_PROCESS
 from redline.recording.format import OWN_PROCESS
 from redline.server.models import (
-    WITHDRAWN,
     Component,
     Execution,
     Host,
     Job,
     JobState,
     Regression,
-    RegressionState,
     Revision,
     Series,
     Summary,
     utcnow,
 )
 from redline.server.services.components import list_components
+from redline.server.services.open_regressions import still_open
 from redline.server.services.revisions import newest_revisions
 from sqlalchemy import func, select
 from sqlalchemy.orm import Session
@@ -110,7 +109,6 @@ def queue(session: Session, limit: int = 20) -> tuple[dict[str, int], list[Queue
 #: the counter a component's sparkline follows (its first series of it, else its first series)
 HEADLINE_COUNTER = "cpu_percent"
 SPARKLINE_POINTS = 30
-OPEN_STATES = (RegressionState.new, RegressionState.acknowledged, RegressionState.confirmed)
 
 
 @dataclass(frozen=True)
@@ -156,7 +154,7 @@ def overview(session: Session) -> list[Overview]:
         component_id: number
         for component_id, number in session.execute(
             select(Regression.component_id, func.count())
-            .where(Regression.state.in_(OPEN_STATES), Regression.confirmation != WITHDRAWN)
+            .where(*still_open())
             .group_by(Regression.component_id)
         )
     }

@@ -14,22 +14,27 @@ from collections.abc import Iterable
 from redline.detect.comparison import params_name_of
 from redline.detect.confirmation import DROPPED
 from redline.server.models import (
+    OPEN_STATES,
     STANDING,
     Detection,
     Regression,
-    RegressionState,
     Revision,
     Series,
 )
 from redline.server.schemas.alerts import OpenRegression
-from sqlalchemy import func, literal, select, true, tuple_
+from redline.server.schemas.regressions import RegressionOut
+from sqlalchemy import ColumnElement, func, literal, select, true, tuple_
 from sqlalchemy.dialects.postgresql import distinct_on
 from sqlalchemy.orm import Session, selectinload
 
-#: triage states in which a regression is still open
-OPEN_STATES = (RegressionState.new, RegressionState.acknowledged, RegressionState.confirmed)
 #: open regressions a verdict names at most (it counts them all)
 NAMED = 3
+
+
+def still_open() -> tuple[ColumnElement[bool], ...]:
+    """The clauses of an open regression: standing and not triaged away. The home page counted
+    regressions its confirmation runs had dropped (not_confirmed) as open."""
+    return Regression.confirmation.in_(STANDING), Regression.state.in_(OPEN_STATES)
 
 
 def series_label(case: str, phase: str, process: str, counter: str, params: str) -> str:
@@ -74,8 +79,7 @@ def open_before(session: Session, revision: Revision) -> tuple[list[OpenRegressi
     at most `NAMED`; and how many there are in all."""
     where = (
         Regression.component_id == revision.component_id,
-        Regression.confirmation.in_(STANDING),
-        Regression.state.in_(OPEN_STATES),
+        *still_open(),
         tuple_(Regression.bad_key, Regression.bad_revision_id)
         < tuple_(literal(revision.order_key, Regression.bad_key.type), literal(revision.id)),
     )
@@ -104,3 +108,21 @@ def open_before(session: Session, revision: Revision) -> tuple[list[OpenRegressi
         )
         for regression in found
     ], total
+
+
+def open_in(titles: list[str], listed: Iterable[RegressionOut]) -> dict[str, list[RegressionOut]]:
+    """Per revision of ``titles`` (newest first, consecutive), the open regressions of
+    ``listed`` whose range holds it: after their good revision, up to their bad one (the
+    component page's revision rows named none of them)."""
+    place = {title: n for n, title in enumerate(titles)}
+    marked: dict[str, list[RegressionOut]] = {}
+    for regression in listed:
+        if regression.confirmation not in STANDING or regression.state not in OPEN_STATES:
+            continue
+        bad = place.get(regression.bad_revision)
+        if bad is None:  # older than the revisions listed
+            continue
+        good = place.get(regression.good_revision, len(titles))
+        for title in titles[bad:good]:
+            marked.setdefault(title, []).append(regression)
+    return marked

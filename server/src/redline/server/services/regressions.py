@@ -7,6 +7,7 @@ from collections import defaultdict
 
 from redline.server.models import (
     FALSE_POSITIVE_STATES,
+    OPEN_STATES,
     STANDING,
     TRUE_POSITIVE_STATES,
     WITHDRAWN,
@@ -35,6 +36,11 @@ from redline.server.services.regression_range import revisions_between
 from redline.server.services.results import series_ref
 from sqlalchemy import Select, exists, literal, select, tuple_
 from sqlalchemy.orm import Session, aliased, selectinload
+
+#: the ``state`` filter's value for the triage states still open (`OPEN_STATES`)
+OPEN = "open"
+#: the ``confirmation`` filter's value for every confirmation, the withdrawn too (the page's)
+ALL = "all"
 
 
 def _methods(session: Session, ids: list[int]) -> dict[int, tuple[list[str], int]]:
@@ -75,8 +81,9 @@ def list_regressions(
     method: str | None = None,
 ) -> tuple[list[RegressionOut], str | None]:
     """The component's regressions, newest range first (every component's when None, newest
-    first); ``state`` (triage), ``confirmation`` (suspected, confirmed, not_confirmed,
-    withdrawn, or standing: suspected or confirmed) and
+    first); ``state`` (triage; ``open``: new, acknowledged or confirmed, and standing unless
+    ``confirmation`` says otherwise), ``confirmation``
+    (suspected, confirmed, not_confirmed, withdrawn, standing: suspected or confirmed, or all) and
     ``method`` (one of the methods that flagged a change in it) filter; ``limit`` of them
     after ``cursor``, and the next page's cursor (None after the last)."""
     query = (
@@ -100,13 +107,18 @@ def list_regressions(
         if cursor:
             (last,) = decode_cursor(cursor, int)
             query = query.where(Regression.id < last)
-    if state is not None:
+    if state == OPEN:
+        query = query.where(Regression.state.in_(OPEN_STATES))
+    elif state is not None:
         query = query.where(Regression.state == RegressionState(state))
-        if confirmation is None:  # a triage queue holds what is still found, not the withdrawn
-            query = query.where(Regression.confirmation != WITHDRAWN)
+    if state == OPEN and confirmation is None:  # as the home page counts them
+        query = query.where(Regression.confirmation.in_(STANDING))
+    elif state is not None and confirmation is None:
+        # a triage queue holds what is still found, not the withdrawn
+        query = query.where(Regression.confirmation != WITHDRAWN)
     if confirmation == "standing":
         query = query.where(Regression.confirmation.in_(STANDING))
-    elif confirmation is not None:
+    elif confirmation not in (None, ALL):
         query = query.where(Regression.confirmation == confirmation)
     if method is not None:
         flagged_by = exists().where(
