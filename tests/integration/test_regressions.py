@@ -13,7 +13,7 @@ from fastapi.testclient import TestClient
 from redline.server.app import create_app
 from redline.server.core.config import Settings
 from redline.server.db import session_factory
-from redline.server.models import DetectionConfigRow
+from redline.server.models import DetectionConfigRow, Job, JobState, Revision
 from redline.server.schemas.components import ComponentCreate
 from redline.server.services.components import create_component
 from redline.worker.detection import detect_revision
@@ -214,6 +214,17 @@ def test_component_page_lists_regressions_with_their_state(api, database_url, tm
     rows = page.split('id="revisions"', 1)[1].split("</table>", 1)[0]
     assert "ks: not enough data yet: missing baseline" in rows
     assert "ks: 1 change(s), 0 series unchanged" in rows
+    # a revision with a run still to come says its verdict is so far (a trial read it as final)
+    with session_factory(database_url)() as session:
+        r2 = session.scalar(select(Revision.id).where(Revision.title == "r2"))
+        session.add(Job(revision_id=r2, execution_index=1, state=JobState.running))
+        session.commit()
+    said = "so far, 1 of its 2 runs in: ks: 1 change(s), 0 series unchanged"
+    assert api.get("/revisions/r2").json()["verdict"] == said
+    assert said in api.client.get("/components/builder").text
+    with session_factory(database_url)() as session:
+        session.execute(text("DELETE FROM job WHERE execution_index = 1"))
+        session.commit()
     # and the API says the same of one revision
     first = api.get("/revisions/r1").json()
     assert first["verdict"].startswith("ks: not enough data yet: missing baseline")

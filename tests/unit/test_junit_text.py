@@ -59,3 +59,17 @@ def test_the_ci_command_s_own_report_stays_xml(tmp_path) -> None:  # noqa: ANN00
     _junit_error(path, "builder", "r1\x01", "server said: \x1b[31mno\x1b[0m")
     error = _parsed(path.read_text()).find("testcase/error")
     assert error is not None and error.get("message") == "server said: \\x1b[31mno\\x1b[0m"
+
+
+def test_a_pending_verdict_read_without_waiting_says_so_and_is_no_green_report():
+    """A review: `curl .../junit` of a pending verdict gave an empty suite, green to a CI reader;
+    only the X-Redline-Verdict header said it was not final."""
+    verdict = CiVerdict(component="builder", revision="r7", state="pending",
+                        waiting_for="a performance host to take its jobs", regressions=0,
+                        improvements=0, skipped=0, cases=[], page="/")  # fmt: skip
+    suite = _parsed(junit_xml(verdict))
+    assert (suite.get("tests"), suite.get("skipped"), suite.get("failures")) == ("1", "1", "0")
+    skipped = suite.find("testcase/skipped")
+    assert skipped is not None and skipped.get("message") == (
+        "pending: not judged yet, waiting for a performance host to take its jobs"
+    )

@@ -17,6 +17,7 @@ from redline.agent.checkout import CheckoutError, CloneCache, refused_repo
 from redline.server.core.logs import URL_LOGGERS
 from redline.server.schemas.results import SeriesOut, SeriesRef
 from redline.server.services.repos import repo_key
+from typer.testing import CliRunner
 
 from tests.support.git import committed_repo
 
@@ -301,6 +302,40 @@ def test_the_agent_refuses_a_token_file_other_users_can_read(tmp_path: Path, mod
     assert done.exit_code == 2, done.output
     assert "readable by other users" in done.output and "chmod 600" in done.output
     assert "rl_secret" not in done.output
+
+
+@pytest.mark.parametrize(
+    ("where", "said"),
+    [
+        ("file", "holds 2 lines: a token is one line, with nothing else in the file"),
+        ("env", "holds 2 lines: a token is one line"),
+        ("space", "holds a space, a control or a non-ASCII character"),
+    ],
+)
+def test_a_token_of_two_lines_or_with_a_space_is_refused_at_once_and_never_echoed(
+    tmp_path: Path, where: str, said: str
+):
+    """A trial's token file held a comment line above the token: `ci report` printed "cannot
+    be reached (LocalProtocolError: Illegal header value b'Bearer # ci token\\n<the token>')",
+    and `ci wait` waited two minutes for a server it blamed."""
+    from redline.cli import ci_cmd
+
+    app = typer.Typer()
+    app.command()(ci_cmd.wait)
+    token_file = tmp_path / "token"
+    token_file.write_text("# redline ci token\nrl_secret_value\n")
+    token_file.chmod(0o600)
+    env = {"COLUMNS": "200", "REDLINE_TOKEN": ""}
+    arguments = ["--server", "http://127.0.0.1:9", "--component", "c", "--revision", "r1"]
+    if where == "file":
+        arguments += ["--token-file", str(token_file)]
+    else:
+        env["REDLINE_TOKEN"] = "rl_secret_value\nrl_other" if where == "env" else "rl_secret value"
+    done = CliRunner().invoke(app, arguments, env=env)
+    assert done.exit_code == 2, done.output
+    output = " ".join(done.output.split())
+    assert said in output, output
+    assert "secret" not in output and "cannot be reached" not in output
 
 
 @pytest.mark.parametrize("command", ["report", "wait"])

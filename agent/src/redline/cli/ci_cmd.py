@@ -277,7 +277,7 @@ def wait(
     try:
         token = read_token(token_file, required=False)
     except typer.BadParameter as exc:  # in the JUnit file too (a reviewer's find)
-        fail(f"--token-file: {exc.message}")
+        fail(f"{exc.param_hint or '--token-file'}: {exc.message}")
     headers = {"Authorization": f"Bearer {token}"} if token else {}
     base = f"/api/v1/components/{quote(component, safe='')}/revisions/{quote(revision, safe='')}"
     started = time.monotonic()

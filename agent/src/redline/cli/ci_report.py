@@ -95,7 +95,8 @@ def report(
             f"{server.rstrip('/')}/api/v1/revisions", json=body, headers=headers, timeout=60
         )
     except httpx.TransportError as error:
-        _stop(f"the server at {server} cannot be reached ({type(error).__name__}: {error})")
+        said = str(error).replace(token, "<token>") if token else str(error)  # never echoed
+        _stop(f"the server at {server} cannot be reached ({type(error).__name__}: {said})")
     if answer.status_code not in (200, 201):
         _stop(f"HTTP {answer.status_code}: {detail(answer)}" + no_token(answer, token, "ci"))
     said = answer.json()

@@ -38,6 +38,8 @@ def read_token(token_file: Path | None, *, required: bool = True) -> str:
             )
         if not token:
             raise typer.BadParameter(f"{token_file} is empty", param_hint="--token-file")
+        if (why := _malformed(token)) is not None:
+            raise typer.BadParameter(f"{token_file} {why}", param_hint="--token-file")
         return token
     token = os.environ.get("REDLINE_TOKEN", "").strip()
     if not token and required:
@@ -45,4 +47,18 @@ def read_token(token_file: Path | None, *, required: bool = True) -> str:
             "give the token in REDLINE_TOKEN or a file (--token-file FILE, mode 600)",
             param_hint="--token-file",
         )
+    if token and (why := _malformed(token)) is not None:
+        raise typer.BadParameter(why, param_hint="REDLINE_TOKEN")
     return token
+
+
+def _malformed(token: str) -> str | None:
+    """Why ``token`` cannot be a token, never quoting it; None when it can. A trial's token file
+    held a comment line above the token: the request's header refused the line break, and the
+    error printed both lines, the token with them, blaming the server."""
+    if "\n" in token or "\r" in token:
+        lines = len(token.splitlines())
+        return f"holds {lines} lines: a token is one line, with nothing else in the file"
+    if any(not 0x21 <= ord(char) <= 0x7E for char in token):
+        return "holds a space, a control or a non-ASCII character: a token is one word"
+    return None

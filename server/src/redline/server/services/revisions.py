@@ -212,8 +212,19 @@ def verdicts_of(session: Session, component_name: str, revisions: list[Revision]
     method said (`revision_verdicts`), or why none will come, its jobs failed or cancelled (a
     trial's failed first commit had an empty cell on the component page)."""
     said = revision_verdicts(session, component_name, [r.title for r in revisions])
-    found = {r.title: said.get(r.title) or _unmeasured(own_jobs(r)) for r in revisions}
+    found = {r.title: _so_far(r, said.get(r.title)) or _unmeasured(own_jobs(r)) for r in revisions}
     return {title: words for title, words in found.items() if words}
+
+
+def _so_far(revision: Revision, said: str | None) -> str:
+    """``said`` of a revision whose runs are not all in yet, saying so: a trial's row read
+    "running | no change in the 25 series judged" with one of its three runs still to come,
+    as final as any."""
+    jobs = own_jobs(revision)
+    coming = sum(job.state in UNENDED for job in jobs)
+    if not said or not coming:
+        return said or ""
+    return f"so far, {len(jobs) - coming} of its {len(jobs)} runs in: {said}"
 
 
 def revision_out(revision: Revision) -> RevisionOut:
