@@ -100,9 +100,7 @@ def test_a_revision_that_holds_a_suspected_change_is_not_flagged_again(
     assert verdicts["r9"].flagged and verdicts["r9"].direction == "increase"
     r10 = verdicts["r10"]
     assert r10.verdict == "not enough data", r10.reason
-    assert "against the level before the change suspected at r9 it shows that change" in (
-        r10.reason
-    )
+    assert "against the level before the change flagged at r9 it shows that change" in (r10.reason)
     assert not any(d.flagged for t, d in verdicts.items() if t != "r9")
 
 

@@ -33,7 +33,9 @@ from redline.detect.result import Detection, direction_of, waits_for_history
 from redline.detect.verdict import floored, judge_series
 
 #: how the reason of a verdict judged against the level before an undecided flag begins
-BEFORE_SUSPECTED = "judged against the level before the change suspected at"
+#: ("flagged", not "suspected": the flag's own pairs may have confirmed it meanwhile, and a
+#: trial read "the change suspected at X" beside "#1 confirmed")
+BEFORE_SUSPECTED = "judged against the level before the change flagged at"
 #: how the reason of a verdict judged against a short new level (`at_new_level`) begins
 AT_NEW_LEVEL = "judged against the new level since the change at"
 
@@ -85,7 +87,7 @@ def past_suspected(
     if old.flagged and old.direction == suspected:
         return replace(
             found,
-            reason=f"{found.reason}; against the level before the change suspected at {at} it "
+            reason=f"{found.reason}; against the level before the change flagged at {at} it "
             f"shows that change ({old.effect:+.1%}): the new level is too short to judge by "
             "until the revisions after it decide",
         ), False
