@@ -593,6 +593,70 @@ def test_verdicts_judged_before_an_execution_was_ingested_are_judged_again_when_
     assert session.get(Reanalysis, component_id).from_database
 
 
+def test_a_run_ingested_while_its_revision_is_judged_leaves_the_verdict_pending(
+    session, database_url, tmp_path, monkeypatch
+):
+    """A review of the CI gate: ingestion clears `analyzed_at` without the revision's detection
+    lock, and a detection that had read r7's samples before then wrote its start time over the
+    cleared mark: the verdict read "done" without r7's second run. It stays pending now, and
+    the detection queued after the ingestion judges both runs and marks it."""
+    from redline.worker import detection
+
+    revision_id, ingest_second_run = _second_run_later(session, tmp_path, database_url)
+    for number in range(1, 7):
+        detect_revision(database_url, session.scalar(select(Revision.id).where(
+            Revision.title == f"r{number}")))  # fmt: skip
+    judge = detection.judge_revision
+
+    def judge_then_ingest(*args, **kwargs):
+        judged = judge(*args, **kwargs)  # r7 from its first run (20 %)
+        ingest_second_run()  # committed while this detection still holds its transaction
+        return judged
+
+    monkeypatch.setattr(detection, "judge_revision", judge_then_ingest)
+    detect_revision(database_url, revision_id)
+    session.expire_all()
+    assert not _verdicts(session)[("r7", "ks")].flagged  # judged without the 60 % run
+    assert session.get_one(Revision, revision_id).analyzed_at is None  # so: still pending
+    monkeypatch.setattr(detection, "judge_revision", judge)
+    detect_revision(database_url, revision_id)  # the one the ingestion queued
+    session.expire_all()
+    assert _verdicts(session)[("r7", "ks")].flagged
+    assert session.get_one(Revision, revision_id).analyzed_at is not None
+
+
+def test_a_run_ingested_while_a_reanalysis_stores_leaves_its_revision_pending(
+    session, database_url, tmp_path, monkeypatch
+):
+    """The finishing step's twin of the test above: r7's staged verdicts (its first run) are
+    stored as they are, but r7 is not marked analysed when its second run came in meanwhile.
+    (The step's catch-up, left out here, would judge r7 again at once; a run ingested while
+    the catch-up judges is the case this shows.)"""
+    from redline.worker import reanalysis_finish
+    from redline.worker.reanalysis import judge_part, plan
+
+    revision_id, ingest_second_run = _second_run_later(session, tmp_path, database_url)
+    component_id = session.scalar(select(Component.id))
+    run = plan(database_url, component_id, parts=1)
+    assert judge_part(database_url, component_id, run, 0)
+    store_staged = reanalysis_finish._store_staged
+
+    def store_then_ingest(session_, revision, *args):
+        store_staged(session_, revision, *args)
+        if revision.id == revision_id:
+            ingest_second_run()
+
+    monkeypatch.setattr(reanalysis_finish, "_store_staged", store_then_ingest)
+    monkeypatch.setattr(reanalysis_finish, "_catch_up", lambda *args: None)
+    assert reanalysis_finish.finish(database_url, component_id, run)
+    session.expire_all()
+    marks = dict(session.execute(select(Revision.title, Revision.analyzed_at)).all())
+    assert marks.pop("r7") is None
+    assert all(at is not None for at in marks.values())
+    detect_revision(database_url, revision_id)
+    assert _verdicts(session)[("r7", "ks")].flagged
+
+
 def test_a_reanalysis_judges_by_the_configuration_it_was_planned_with(
     session, database_url, tmp_path
 ):

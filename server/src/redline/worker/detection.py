@@ -22,7 +22,6 @@ import logging
 import math
 from collections.abc import Callable
 from dataclasses import replace
-from datetime import datetime
 from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
@@ -36,6 +35,7 @@ from redline.detect.result import Detection as Verdict
 from redline.detect.verdict import judge_series
 from redline.server.db import bulk_insert, lock_component, lock_revision, session_scope
 from redline.server.models import Detection, Revision, utcnow
+from redline.server.services.analysed import inputs_seen, mark_analysed
 from redline.server.services.detection_config import component_config, judging_config_id
 from redline.worker.baselines import Baseline, Baselines
 from redline.worker.confirm_runs import queue_confirmations, settle_pending_pairs
@@ -242,12 +242,12 @@ def store(
     rows: list[dict[str, Any]],
     rerun: bool = False,
     config: DetectionConfig | None = None,
-    judged_at: datetime | None = None,
 ) -> None:
     """Replace the revision's detections, regroup its regressions, queue or judge its
     confirmation runs (`redline.worker.confirm_runs`), queue a fresh run of a baseline the host
     was busy in (`redline.worker.remeasure`), and settle what the later revisions can confirm
-    (`redline.worker.confirmation`).
+    (`redline.worker.confirmation`). The caller marks the revision analysed
+    (`redline.server.services.analysed.mark_analysed`), with the inputs it read before judging.
 
     One statement (`bulk_insert`): 500 series x 2 methods would otherwise spend more time in
     the ORM and in round trips than in the detectors.
@@ -283,8 +283,6 @@ def store(
         confirm_by_history(
             session, revision.component_id, config.confirm_revisions, config.alarming
         )
-    # when the judging began: a result ingested after it is in no verdict stored here
-    revision.analyzed_at = judged_at or utcnow()
 
 
 def _store_steps(session: Session, rows: list[dict[str, Any]], config: DetectionConfig) -> None:
@@ -367,14 +365,14 @@ def detect_and_store(database_url: str, revision_id: int) -> Judged | None:
     with session_scope(database_url) as session:
         lock_revision(session, revision_id)
         began = utcnow()
+        seen = inputs_seen(session, [revision_id])  # before the samples: see `analysed`
         judged = judge_revision(session, revision_id)
-        if judged is None:  # its samples are gone: its stored results stand, as analysed
-            revision = session.get(Revision, revision_id)
-            if revision is not None:
-                revision.analyzed_at = began
+        if judged is not None:
+            store(session, session.get_one(Revision, revision_id), judged.rows, rerun=True)
+        # its samples gone (None): its stored results stand, as analysed
+        mark_analysed(session, seen, began)
+        if judged is None:
             return None
-        revision = session.get_one(Revision, revision_id)
-        store(session, revision, judged.rows, rerun=True, judged_at=began)
     log.info(
         "revision %s: %d series compared, %d flagged",
         revision_id,

@@ -16,10 +16,11 @@ from redline.recording.disturbance import recording_disturbances, threshold
 from redline.recording.format import no_traffic_reason
 from redline.server.db import session_scope
 from redline.server.models import Execution, Job, JobState, Revision, utcnow
+from redline.server.services.analysed import unanalysed
 from redline.server.services.fresh_runs import mark_waiting, waiting_on
 from redline.server.services.ingestion import store_samples
 from redline.worker.onward import in_reach
-from sqlalchemy import select, update
+from sqlalchemy import select
 from sqlalchemy.exc import DataError
 from sqlalchemy.orm import Session
 
@@ -114,9 +115,7 @@ def ingest(database_url: str, execution_id: int) -> Ingested:
                     revisions += waiting_on(session, execution.revision_id)
                 found = Ingested(list(dict.fromkeys(revisions)))
                 pending = [*found.revisions, *in_reach(session, execution.revision_id)]
-            session.execute(
-                update(Revision).where(Revision.id.in_(pending)).values(analyzed_at=None)
-            )
+            unanalysed(session, pending)
             return found
     except ValueError as exc:  # RecordingError is one
         _fail(database_url, execution_id, f"ingest failed: {exc}")

@@ -29,6 +29,7 @@ from redline.server.models import (
     StagedRevision,
     utcnow,
 )
+from redline.server.services.analysed import inputs_seen, mark_analysed
 from redline.server.services.detection_config import component_config, judging_config_id
 from redline.worker.confirm_runs import settle_pending_pairs
 from redline.worker.confirmation import confirm_by_history
@@ -196,10 +197,12 @@ def _catch_up(session: Session, component_id: int, run: int, planned: list[int])
         lock_revision(session, revision_id)
     session.execute(select(Component.id).where(Component.id == component_id).with_for_update())
     config = run_config(session, row)
+    began, seen = utcnow(), inputs_seen(session, now[first:])  # before the samples
     for revision_id in now[first:]:
         fresh = judge_revision(session, revision_id, config=config)
         if fresh is not None:
             store(session, session.get_one(Revision, revision_id), fresh.rows, config=config)
+    mark_analysed(session, seen, began)
 
 
 def _store_batch(session: Session, component_id: int, run: int, planned: list[int]) -> bool:
@@ -227,6 +230,7 @@ def _store_batch(session: Session, component_id: int, run: int, planned: list[in
     ):
         judged_from.setdefault(revision_id, set()).add(executions)
         staged[revision_id] += 1
+    began, seen = utcnow(), inputs_seen(session, batch)  # before what was ingested is read
     ingested: dict[int, list[int]] = defaultdict(list)
     for execution_id, revision_id in session.execute(
         select(Execution.id, Execution.revision_id)
@@ -249,7 +253,7 @@ def _store_batch(session: Session, component_id: int, run: int, planned: list[in
     revisions = {r.id: r for r in session.scalars(select(Revision).where(Revision.id.in_(batch)))}
     config = run_config(session, row)
     config_id = judging_config_id(session, component_id, config)
-    fresh, stored = row.from_database, []
+    fresh, stored = row.from_database, set()
     for revision_id in batch:
         revision = revisions.get(revision_id)
         if revision is None:
@@ -271,13 +275,11 @@ def _store_batch(session: Session, component_id: int, run: int, planned: list[in
             judged = judge_revision(session, revision_id, config=config)
             if judged is not None:
                 store(session, revision, judged.rows, config=config)
+                stored.add(revision_id)
             continue
         _store_staged(session, revision, run, config.alarming, revision_id in flagged, config_id)
-        stored.append(revision_id)
-    if stored:
-        session.execute(
-            update(Revision).where(Revision.id.in_(stored)).values(analyzed_at=utcnow())
-        )
+        stored.add(revision_id)
+    mark_analysed(session, {r: seen[r] for r in stored if r in seen}, began)
     row.stored, row.done, row.from_database = start + len(batch), row.done + len(batch), fresh
     return True
 

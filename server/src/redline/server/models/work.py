@@ -83,6 +83,9 @@ class Revision(Base):
     created: Mapped[datetime] = mapped_column(default=utcnow)
     # set by detection, cleared by ingestion: the changes shown are those of all ingested data
     analyzed_at: Mapped[datetime | None] = mapped_column(default=None)
+    #: counted up whenever analyzed_at is cleared: detection marks the revision analysed only if
+    #: it is what it read before judging (`redline.server.services.analysed`)
+    inputs: Mapped[int] = mapped_column(Integer, default=0, server_default="0")
     component: Mapped[Component] = relationship()
     jobs: Mapped[list[Job]] = relationship(
         back_populates="revision", order_by="Job.execution_index", foreign_keys="Job.revision_id"

@@ -27,7 +27,8 @@ from redline.server.models import (
     Revision,
     revision_place,
 )
-from sqlalchemy import ColumnElement, and_, select, tuple_, update
+from redline.server.services.analysed import unanalysed
+from sqlalchemy import ColumnElement, and_, select, tuple_
 from sqlalchemy.orm import Session, aliased
 
 
@@ -117,5 +118,5 @@ def mark_waiting(session: Session, revision_id: int) -> list[int]:
     waiting = waiting_on(session, revision_id)
     if not waiting:
         return []
-    session.execute(update(Revision).where(Revision.id.in_(waiting)).values(analyzed_at=None))
+    unanalysed(session, waiting)
     return [revision_id, *waiting]
