@@ -96,7 +96,9 @@ def server(services, tmp_path_factory):
         )  # fmt: skip
         (wheel,) = wheels.glob("redline_agent-*.whl")
         with live_server(api.settings) as url:
-            yield url, api, tmp, wheel
+            # each install step's command run so far, and the environment it made
+            installed: dict[str, Path] = {}
+            yield url, api, tmp, wheel, installed
 
 
 def play_host(api, tmp: Path, title: str, cpu: float) -> None:
@@ -129,7 +131,7 @@ def play_host(api, tmp: Path, title: str, cpu: float) -> None:
 def run_example(server, name: str, number: int, cpu: float, webhook: str = "") -> int:
     """Every step of the example in order, as its CI system would; returns the wait step's exit
     code (the JUnit file is checked by the caller)."""
-    url, api, tmp, wheel = server
+    url, api, tmp, wheel, installed = server
     steps, (sha_var, number_var, branch_var) = EXAMPLES[name]
     workspace = tmp / f"{name}-{number}"
     workspace.mkdir()
@@ -166,14 +168,15 @@ def run_example(server, name: str, number: int, cpu: float, webhook: str = "") -
         answer = send_push(url, webhook, sha)
         assert answer.status_code == 200 and answer.json()["created"], answer.text
         play_host(api, tmp, sha[:12], cpu)
-    # with the webhook, the install step is the run's before it of this example (a runner's
-    # cached virtual environment): the same step once more took 20 s of the suite's CPU
-    installed = next(tmp.glob(f"{name}-*/.redline"), None) if webhook else None
-    if installed is not None:
-        (workspace / ".redline").symlink_to(installed)
     waited = None
     for script in steps():
-        if webhook and REPORT in script or installed is not None and INSTALL in script:
+        if webhook and REPORT in script:
+            continue
+        if INSTALL in script and script in installed:
+            # the very command an example before this one ran, in a workspace of its own: its
+            # environment is reused, as a runner's cache would (each install took 20 s of the
+            # suite's CPU; the three examples' install steps are one command)
+            (workspace / ".redline").symlink_to(installed[script])
             continue
         done = subprocess.run(
             ["bash", "-e", "-c", script],
@@ -188,6 +191,8 @@ def run_example(server, name: str, number: int, cpu: float, webhook: str = "") -
             assert done.returncode in (0, 1), done.stderr + done.stdout
             continue
         assert done.returncode == 0, f"{name}: {script}\n{done.stderr}"
+        if INSTALL in script:
+            installed[script] = workspace / ".redline"
         if REPORT in script:
             play_host(api, tmp, sha[:12], cpu)
     assert waited is not None, f"{name}: no wait step"

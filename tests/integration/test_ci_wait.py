@@ -101,22 +101,62 @@ def test_a_proxys_502_while_the_server_restarts_is_waited_for_not_read_as_a_chan
     server, tmp_path
 ):
     """A review: a 502 from the proxy fetching the JUnit file raised, and Python's exit 1 said
-    "a change" of an unchanged commit; a 502 while polling was exit 2 at once."""
+    "a change" of an unchanged commit; a 502 while polling was exit 2 at once. The JUnit file
+    is fetched on its own only from a server that does not send it with the verdict (the proxy
+    drops the verdict's `junit` parameter: a server from before it)."""
     out = tmp_path / "junit.xml"
     with flaky_proxy(server[0]) as proxy:
-        proxy.answers = {"/verdict": [502, 503], "/junit": [502, 504]}
+        proxy.answers = {"/verdict": [502, 503]}
         done = wait(server, "--revision", "r3", "--junit", str(out), via=proxy.url)
         assert done.returncode == 0, done.stderr
-        assert done.stderr.count("not reachable (HTTP 50") == 4, done.stderr
-        assert [p.split("?")[0].rsplit("/", 1)[1] for p in proxy.seen].count("junit") == 3
+        assert done.stderr.count("not reachable (HTTP 50") == 2, done.stderr
+        assert not [p for p in proxy.seen if "/junit" in p]  # it came with the verdict
         suite = ElementTree.parse(out).getroot()
         assert (suite.get("tests"), suite.get("failures"), suite.get("errors")) == ("1", "0", "0")
+        proxy.seen.clear()
+        proxy.dropped, proxy.answers = {"junit"}, {"/junit": [502, 504]}
+        out.unlink()
+        older = wait(server, "--revision", "r3", "--junit", str(out), via=proxy.url)
+        assert older.returncode == 0, older.stderr
+        assert older.stderr.count("not reachable (HTTP 50") == 2, older.stderr
+        assert [p.split("?")[0].rsplit("/", 1)[1] for p in proxy.seen].count("junit") == 3
+        assert ElementTree.parse(out).getroot().get("failures") == "0"
         # a JUnit file the server refuses is no pass and no change: exit 2, said in the file
         proxy.answers = {"/junit": [500]}
         refused = wait(server, "--revision", "r6", "--junit", str(out), via=proxy.url)
     assert refused.returncode == 2, refused.stderr
     said = "the verdict came, but not its JUnit file: HTTP 500"
     assert said in refused.stderr and said in out.read_text()
+
+
+def test_the_junit_file_and_the_exit_code_are_of_one_reading_of_the_verdict(server, tmp_path):
+    """A review: the verdict and its JUnit file were read in two requests, and a result judged
+    between them made the file say one thing and the exit code another. Here r6 is made pending
+    again (a result ingested for it) as soon as the file is asked for on its own: its file must
+    still be the done verdict's, failed as the exit code says."""
+    out = tmp_path / "junit.xml"
+    _, _, api = server
+
+    def pending_again() -> None:
+        with session_factory(api.settings.database_url)() as session:
+            r6 = session.scalars(select(Revision).where(Revision.title == "r6")).one()
+            saved, r6.analyzed_at = r6.analyzed_at, None
+            session.commit()
+            restore.append((r6.id, saved))
+
+    restore: list[tuple[int, object]] = []
+    try:
+        with flaky_proxy(server[0]) as proxy:
+            proxy.before = {"/junit": pending_again}
+            done = wait(server, "--revision", "r6", "--junit", str(out), via=proxy.url)
+    finally:
+        with session_factory(api.settings.database_url)() as session:
+            for revision_id, saved in restore:
+                session.get_one(Revision, revision_id).analyzed_at = saved
+            session.commit()
+    assert done.returncode == 1, done.stderr
+    suite = ElementTree.parse(out).getroot()
+    assert suite.get("failures") == "1" and suite.find("testcase/skipped") is None
 
 
 def test_no_change_passes_and_no_baseline_is_skipped_with_its_reason(server, tmp_path):

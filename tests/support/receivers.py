@@ -9,13 +9,14 @@ import asyncio
 import ssl
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from email import message_from_bytes, policy
 from email.message import EmailMessage
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
+from urllib.parse import parse_qsl, urlsplit
 
 import httpx
 from redline.agent.network import free_port
@@ -186,11 +187,15 @@ def smtp_server(folder: Path, user: str = "redline", password: str = "s3cret") -
 @dataclass
 class Proxy:
     """``answers[suffix]``: statuses given in turn (then forwarded) to GETs whose path, without
-    its query, ends with ``suffix``; ``seen``: every path asked, with its query."""
+    its query, ends with ``suffix``; ``seen``: every path asked, with its query; ``dropped``:
+    query parameters left out when forwarding (a server from before them); ``before[suffix]``:
+    called before such a GET is forwarded (the server's state changing between requests)."""
 
     url: str
     answers: dict[str, list[int]] = field(default_factory=dict)
     seen: list[str] = field(default_factory=list)
+    dropped: set[str] = field(default_factory=set)
+    before: dict[str, Callable[[], None]] = field(default_factory=dict)
 
 
 @contextmanager
@@ -208,8 +213,13 @@ def flaky_proxy(upstream: str) -> Iterator[Proxy]:
                 queue = next((q for s, q in proxy.answers.items() if path.endswith(s)), None)
                 status = queue.pop(0) if queue else None
             if status is None:
+                for suffix, call in proxy.before.items():
+                    if path.endswith(suffix):
+                        call()
+                query = [(k, v) for k, v in parse_qsl(urlsplit(self.path).query)
+                         if k not in proxy.dropped]  # fmt: skip
                 headers = {"Authorization": self.headers.get("Authorization", "")}
-                answer = httpx.get(upstream + self.path, headers=headers, timeout=30)
+                answer = httpx.get(upstream + path, params=query, headers=headers, timeout=30)
                 status, body = answer.status_code, answer.content
                 kind = answer.headers.get("Content-Type", "text/plain")
             else:

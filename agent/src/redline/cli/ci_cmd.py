@@ -229,6 +229,13 @@ def _writable(path: Path) -> None:
         _stop(BAD_INPUT, f"--junit {path}: cannot be written")
 
 
+def _write(path: Path, xml: str) -> None:
+    try:
+        path.write_text(xml)
+    except OSError as error:
+        _stop(BAD_INPUT, f"--junit {path}: {error}")
+
+
 def wait(
     server: Annotated[str, typer.Option(help="URL of the Redline server", envvar="REDLINE_SERVER")],
     component: Annotated[str, typer.Option(help="the component's name")],
@@ -282,10 +289,12 @@ def wait(
     base = f"/api/v1/components/{quote(component, safe='')}/revisions/{quote(revision, safe='')}"
     started = time.monotonic()
     said, reached = "", False
+    wanted = {} if junit is None else {"junit": fail_on.value}
     with httpx.Client(base_url=server.rstrip("/"), headers=headers, timeout=30) as client:
         while True:
             waited = time.monotonic() - started
-            answer = _get(client, f"{base}/verdict")
+            # with the JUnit XML when it is wanted: both of one reading, one request
+            answer = _get(client, f"{base}/verdict", **wanted)
             reached = reached or answer is not None
             if answer is not None:
                 if answer.status_code in (401, 403):
@@ -333,7 +342,9 @@ def wait(
                     why = f"the server at {server} was never reached"
                 fail(f"no verdict within {timeout:.0f} s: {why}")
             time.sleep(poll)
-        if junit is not None:
+        if junit is not None and verdict.get("junit") is not None:
+            _write(junit, verdict["junit"])
+        elif junit is not None:  # a server from before the XML came with the verdict
             deadline = time.monotonic() + max(timeout - waited, JUNIT_GRACE_S)
             while (xml := _get(client, f"{base}/junit", fail_on=fail_on.value)) is None:
                 if time.monotonic() + poll > deadline:
@@ -342,10 +353,7 @@ def wait(
             if xml.status_code != 200:
                 fail(f"the verdict came, but not its JUnit file: HTTP {xml.status_code}: "
                      f"{detail(xml)}")  # fmt: skip
-            try:
-                junit.write_text(xml.text)
-            except OSError as error:
-                _stop(BAD_INPUT, f"--junit {junit}: {error}")
+            _write(junit, xml.text)
     if verdict["state"] == "failed":  # no verdict: no table of counts that would read as one
         typer.echo(f"page: {server.rstrip('/')}{verdict['page']}")
         _stop(JOBS_FAILED, f"the revision's performance jobs failed: {verdict['reason']}")

@@ -26,8 +26,10 @@ router = APIRouter(prefix="/api/v1", tags=["alerts"], route_class=JsonRoute)
 ADMIN = [Depends(require("admin"))]
 NOT_FOUND = problems(404, description="unknown component, subscription or revision")
 Limit = Annotated[int, Query(ge=1, le=1000)]
+#: what a failure is in a verdict's JUnit XML
+Failures = Literal["regression", "any", "none"]
 FailOn = Annotated[
-    Literal["regression", "any", "none"],
+    Failures,
     Query(description="what a failure is: a change for the worse, any change, or nothing"),
 ]
 
@@ -177,9 +179,22 @@ def delete_commit_status(name: str, session: SessionDep) -> None:
 @router.get(
     "/components/{name}/revisions/{title}/verdict", responses=NOT_FOUND, dependencies=VERDICT_READ
 )
-def revision_verdict(name: str, title: str, session: SessionDep) -> CiVerdict:
-    """Whether the revision's verdict is settled, and per test case what was found."""
-    return ci_verdict.ci_verdict(session, name, title)
+def revision_verdict(
+    name: str,
+    title: str,
+    session: SessionDep,
+    junit: Annotated[
+        Failures | None,
+        Query(description="also the verdict as JUnit XML (`junit`), failing on this"),
+    ] = None,
+) -> CiVerdict:
+    """Whether the revision's verdict is settled, and per test case what was found; with
+    ``junit``, its JUnit XML too, from the same reading (`redline ci wait --junit`: read in two
+    requests, a result judged between them could make the file and the exit code disagree)."""
+    verdict = ci_verdict.ci_verdict(session, name, title)
+    if junit is not None:
+        verdict.junit = ci_junit.junit_xml(verdict, junit)
+    return verdict
 
 
 @router.get(

@@ -236,3 +236,8 @@ class CiVerdict(BaseModel):
         "count in its own verdict",
     )
     open_before_total: int = Field(default=0, description="how many there are in all")
+    junit: str | None = Field(
+        default=None,
+        description="the verdict as JUnit XML, as `.../junit` gives it, when asked for with "
+        "`junit` (what a failure is): one answer, so the XML and this verdict are of one state",
+    )
