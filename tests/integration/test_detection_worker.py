@@ -657,6 +657,51 @@ def test_a_run_ingested_while_a_reanalysis_stores_leaves_its_revision_pending(
     assert _verdicts(session)[("r7", "ks")].flagged
 
 
+def test_a_run_ingested_into_a_baseline_between_batches_has_the_later_ones_judged_again(
+    session, database_url, tmp_path, monkeypatch
+):
+    """A review: r6 was stored in the finishing step's first batch; a run ingested into r6
+    then moved r7's baseline, but r7's own runs were unchanged, so its staged verdicts, judged
+    without that run, were stored and r7 marked analysed. Its inputs moved since its part
+    began: it is judged again from the database."""
+    from redline.worker import reanalysis_finish
+    from redline.worker.reanalysis import judge_part, plan
+
+    from tests.support.recordings import run_metadata, write_recording
+
+    r7, _ = _second_run_later(session, tmp_path, database_url)
+    r6 = session.get_one(Revision, r7 - 1)
+    assert r6.title == "r6"
+    component_id = session.scalar(select(Component.id))
+    run = plan(database_url, component_id, parts=1)
+    assert judge_part(database_url, component_id, run, 0)
+    monkeypatch.setattr(reanalysis_finish, "FINISH_BATCH", 6)  # r1..r6, then r7
+    monkeypatch.setattr(reanalysis_finish, "_catch_up", lambda *args: None)
+    store_batch, batches = reanalysis_finish._store_batch, []
+
+    def then_ingest_into_r6(*args):
+        if len(batches) == 1:  # r6 stored and committed: its second run comes in
+            job = r6.jobs[1]
+            path = write_recording(
+                tmp_path / "r6-late.mcap",
+                run_metadata(job, NAME, "r6", r6.sort_key),
+                {"cpu": np.random.default_rng(9).normal(60.0, 1, 60)},
+            )
+            execution = uploaded(session, job, path, "r6-late")
+            session.commit()
+            ingest_execution(database_url, execution.id)
+        batches.append(store_batch(*args))
+        return batches[-1]
+
+    monkeypatch.setattr(reanalysis_finish, "_store_batch", then_ingest_into_r6)
+    assert reanalysis_finish.finish(database_url, component_id, run)
+    assert batches[:2] == [True, True]
+    stored = _verdicts_of(session, r7)
+    detect_revision(database_url, r7)  # from what is stored now
+    session.expire_all()
+    assert _verdicts_of(session, r7) == stored
+
+
 def test_a_reanalysis_judges_by_the_configuration_it_was_planned_with(
     session, database_url, tmp_path
 ):

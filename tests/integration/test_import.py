@@ -342,6 +342,28 @@ def test_an_import_queues_detection_of_its_revision_once(api: Api):
     assert sorted(api.queued_tasks()) == sorted(queued)
 
 
+def test_a_second_import_into_a_judged_revision_leaves_its_verdict_pending(api: Api):
+    """A review: a run imported into a revision already judged left it marked analysed, so its
+    verdict read "done" without that run until the queued detection came; and a detection
+    under way as the import committed kept the mark for good. It is pending now, and its
+    inputs counted up (`redline.server.services.analysed`)."""
+    first = send_lnt(api, lnt_report())
+    revision_id = first.json()["revision_id"]
+    with session_factory(api.settings.database_url)() as session:
+        session.execute(
+            update(Revision).where(Revision.id == revision_id).values(analyzed_at=utcnow())
+        )
+        session.commit()
+        before = session.get_one(Revision, revision_id).inputs
+    report = lnt_report()
+    report["machine"]["name"] = "bench-box-2"  # another run of the same revision
+    second = send_lnt(api, report)
+    assert second.status_code == 201 and second.json()["revision_id"] == revision_id
+    with session_factory(api.settings.database_url)() as session:
+        revision = session.get_one(Revision, revision_id)
+        assert revision.analyzed_at is None and revision.inputs == before + 1
+
+
 def test_an_import_never_joins_a_measured_revision_nor_another_commits(api: Api):
     """A ci token's import into a revision the agents measured made its confirmed regression's
     verdict pass (a trial's 16 imports of baseline-like values); one naming another commit

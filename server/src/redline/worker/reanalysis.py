@@ -34,6 +34,7 @@ from redline.detect.result import NOT_ENOUGH_DATA
 from redline.recording import SeriesKey
 from redline.server.db import bulk_insert, session_scope
 from redline.server.models import Reanalysis, StagedDetection, StagedRevision, utcnow
+from redline.server.services.analysed import inputs_seen
 from redline.server.services.detection_config import component_config
 from redline.worker.detection import judge_revision
 from redline.worker.history import flagged_verdicts, summarized_series
@@ -169,7 +170,9 @@ class _Stager(threading.Thread):
     """Stages a part's judged revisions, several in a transaction, while the part judges the
     next ones: Postgres's share of the work then runs beside the detectors, not between them."""
 
-    def __init__(self, database_url: str, component_id: int, run: int, part: int) -> None:
+    def __init__(
+        self, database_url: str, component_id: int, run: int, part: int, seen: dict[int, int]
+    ) -> None:
         super().__init__(name=f"reanalysis-part-{part}", daemon=True)
         self.database_url, self.component_id, self.run_id, self.part = (
             database_url,
@@ -177,6 +180,7 @@ class _Stager(threading.Thread):
             run,
             part,
         )
+        self.seen = seen  # the revisions' inputs when the part began (`analysed.inputs_seen`)
         # (revision id, its verdicts or None: samples pruned, results kept); None: the end
         self.queue: queue.Queue[tuple[int, Judged | None] | None] = queue.Queue(WRITE_AHEAD)
         self.error: BaseException | None = None
@@ -213,6 +217,7 @@ class _Stager(threading.Thread):
                         **owner,
                         "revision_id": revision_id,
                         "executions": KEPT if judged is None else joined(judged.executions),
+                        "inputs": self.seen.get(revision_id),
                     }
                     for revision_id, judged in batch
                 ],
@@ -282,6 +287,9 @@ def judge_part(database_url: str, component_id: int, run: int, index: int) -> bo
                 # but the finishing step is due again if queueing it failed (a broker outage)
                 return len(row.parts_done) == row.parts and row.state == "running"
             revisions, part = list(row.revisions), Part(index, row.parts)
+            # before any sample is read: the finishing step judges again from the database
+            # every revision whose inputs changed since (its own runs, or a baseline's)
+            seen = inputs_seen(session, revisions)
             config = run_config(session, row)
             # a redelivered part starts again: what it staged, and counted, is taken back
             staged = session.scalars(
@@ -302,7 +310,7 @@ def judge_part(database_url: str, component_id: int, run: int, index: int) -> bo
             )
             row.done -= len(staged)
         walk = Walk.over(config)
-        stager = _Stager(database_url, component_id, run, index)
+        stager = _Stager(database_url, component_id, run, index, seen)
         stager.start()
         try:
             for revision_id in revisions:

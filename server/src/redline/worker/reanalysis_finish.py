@@ -221,8 +221,9 @@ def _store_batch(session: Session, component_id: int, run: int, planned: list[in
         return True  # another finishing step stored these meanwhile
     judged_from: dict[int, set[str]] = {}
     staged: dict[int, int] = defaultdict(int)  # how many parts staged each revision
-    for revision_id, executions in session.execute(
-        select(StagedRevision.revision_id, StagedRevision.executions).where(
+    began_with: dict[int, set[int | None]] = defaultdict(set)  # its inputs as the parts began
+    for revision_id, executions, inputs in session.execute(
+        select(StagedRevision.revision_id, StagedRevision.executions, StagedRevision.inputs).where(
             StagedRevision.component_id == component_id,
             StagedRevision.run == run,
             StagedRevision.revision_id.in_(batch),
@@ -230,6 +231,7 @@ def _store_batch(session: Session, component_id: int, run: int, planned: list[in
     ):
         judged_from.setdefault(revision_id, set()).add(executions)
         staged[revision_id] += 1
+        began_with[revision_id].add(inputs)
     began, seen = utcnow(), inputs_seen(session, batch)  # before what was ingested is read
     ingested: dict[int, list[int]] = defaultdict(list)
     for execution_id, revision_id in session.execute(
@@ -268,9 +270,11 @@ def _store_batch(session: Session, component_id: int, run: int, planned: list[in
             )
         if said == {KEPT}:
             continue
-        if fresh or said != {joined(tuple(ingested[revision_id]))}:
-            # an execution was ingested (or one went) since the parts judged it: judged again
-            # from what is stored now, as detection does, and so is every revision after it
+        moved = began_with[revision_id] - {None, seen.get(revision_id)}  # None: staged before
+        if fresh or moved or said != {joined(tuple(ingested[revision_id]))}:
+            # an execution was ingested (or one went) since the parts judged it, or into an
+            # earlier revision in its reach (its inputs moved): judged again from what is stored
+            # now, as detection does, and so is every revision after it
             fresh = True
             judged = judge_revision(session, revision_id, config=config)
             if judged is not None:

@@ -241,3 +241,5 @@ class StagedRevision(Base):
     revision_id: Mapped[int] = mapped_column(Integer, primary_key=True)
     part: Mapped[int] = mapped_column(Integer, primary_key=True)
     executions: Mapped[str] = mapped_column(Text)
+    #: the revision's `Revision.inputs` when the part began (null: staged before it was kept)
+    inputs: Mapped[int | None] = mapped_column(Integer, default=None)

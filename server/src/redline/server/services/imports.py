@@ -19,6 +19,7 @@ from redline.recording import SeriesKey, canonical_params
 from redline.server.db import share_component
 from redline.server.models import Component, Execution, Host, Job, JobState, Revision, Summary
 from redline.server.schemas.imports import ImportResult, ResultsImport
+from redline.server.services.analysed import unanalysed
 from redline.server.services.components import get_component, revision_of_commit, same_commit
 from redline.server.services.errors import Conflict, Forbidden
 from redline.server.services.home import IMPORTED
@@ -236,6 +237,7 @@ def store_import(
     session.add(execution)
     session.flush()
     series = store_samples(session, execution, revision.component_id, run.samples)
+    unanalysed(session, [revision.id])  # judged again: the detection the route queues marks it
     session.commit()
     return ImportResult(
         component=run.component,
