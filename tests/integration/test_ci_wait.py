@@ -389,6 +389,7 @@ def test_ci_report_reports_head_and_ci_wait_waits_for_it_by_default(server, tmp_
     done = redline("report")
     assert done.returncode == 0, done.stderr
     assert done.stdout == f"{full[:12]}\n" and "reported: 1 job(s) queued" in done.stderr
+    assert "warning" not in done.stderr  # no remote: nothing to compare
     with session_factory(api.settings.database_url)() as session:
         revision = session.scalar(select(Revision).where(Revision.title == full[:12]))
         assert revision is not None
@@ -397,6 +398,20 @@ def test_ci_report_reports_head_and_ci_wait_waits_for_it_by_default(server, tmp_
     again = redline("report")  # a re-run pipeline
     assert again.returncode == 0 and "reported before with this commit" in again.stderr
     assert "not applied" not in again.stderr
+    # a trial reported from another checkout, and its jobs failed minutes later: the work
+    # tree's remotes are compared with the component's repository, credentials left out
+    _git(tree, "remote", "add", "origin", "https://ci-token:s3cret@git.example/other.git")
+    wrong = redline("report")
+    assert wrong.returncode == 0, wrong.stderr
+    assert (
+        "warning: this work tree's remotes (git.example/other) are not the component's "
+        "repository (git.example/hashed)"
+    ) in wrong.stderr, wrong.stderr
+    _git(tree, "remote", "add", "mirror", "git@git.example:Hashed.git")  # the same, spelt so
+    assert "warning" not in redline("report").stderr
+    _git(tree, "remote", "remove", "mirror")
+    _git(tree, "remote", "set-url", "origin", "https://ci-token:s3cret@git.example/hashed.git")
+    assert "warning" not in redline("report").stderr
     # a title or sort key given again is not applied, and it says so (a trial got the old
     # title back and no word)
     retitled = redline("report", "--title", "mytitle", "--sort-key", "99999999999")

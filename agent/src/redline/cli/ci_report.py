@@ -56,6 +56,31 @@ def git_head(what: str, commit: str = "HEAD") -> str:
     return done.stdout.rstrip("\n")
 
 
+def git_remotes() -> list[str]:
+    """The work tree's remote URLs, user names and passwords left out (a CI runner's origin
+    holds its job token: ``https://gitlab-ci-token:<token>@host/...``); none outside one."""
+    try:
+        done = subprocess.run(
+            ["git", "config", "--get-regexp", r"^remote\..*\.url$"],
+            capture_output=True,
+            text=True,
+            timeout=30,
+        )
+    except (FileNotFoundError, subprocess.TimeoutExpired):
+        return []
+    remotes = []
+    for line in done.stdout.splitlines()[:20]:
+        url = line.partition(" ")[2].strip()
+        if "://" in url:
+            try:
+                parts = urlsplit(url)
+                url = parts._replace(netloc=parts.netloc.rpartition("@")[2]).geturl()
+            except ValueError:
+                continue
+        remotes.append(url[:2000])
+    return remotes
+
+
 def report(
     component: Annotated[str, typer.Option(help="the component's name")],
     server: Annotated[str, typer.Option(help="URL of the Redline server", envvar="REDLINE_SERVER")],
@@ -88,12 +113,16 @@ def report(
         # the full id git resolved (HEAD~1 or main was refused, or taken for another commit)
         commit, title, sort_key = full, title or full[:TITLE_DIGITS], sort_key or when
     body |= {"commit": commit, "title": title, "sort_key": sort_key}
+    if remotes := git_remotes():  # for the server to say when they are not the component's
+        body["remotes"] = remotes
     token = read_token(token_file, required=False)
     headers = {"Authorization": f"Bearer {token}"} if token else {}
+    url = f"{server.rstrip('/')}/api/v1/revisions"
     try:
-        answer = httpx.post(
-            f"{server.rstrip('/')}/api/v1/revisions", json=body, headers=headers, timeout=60
-        )
+        answer = httpx.post(url, json=body, headers=headers, timeout=60)
+        if answer.status_code == 422 and "remotes" in body and "remotes" in answer.text:
+            body.pop("remotes")  # a server from before `remotes`: reported again without them
+            answer = httpx.post(url, json=body, headers=headers, timeout=60)
     except httpx.TransportError as error:
         said = str(error).replace(token, "<token>") if token else str(error)  # never echoed
         _stop(f"the server at {server} cannot be reached ({type(error).__name__}: {said})")
@@ -110,6 +139,8 @@ def report(
         if answer.status_code == 200 and given
         else ""
     )
+    if said.get("warning"):
+        typer.echo(f"redline ci report: warning: {said['warning']}", err=True)
     typer.echo(
         f"{component} {title}: reported before with this commit ({jobs} job(s)){kept}"
         if answer.status_code == 200

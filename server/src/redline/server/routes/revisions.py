@@ -7,7 +7,7 @@ from redline.server.api.deps import CiToken, SessionDep, ensure_component, requi
 from redline.server.core.bodies import JsonRoute
 from redline.server.schemas.common import Problem
 from redline.server.schemas.revisions import RevisionCreate, RevisionCreated
-from redline.server.services.revision_reports import report_revision
+from redline.server.services.revision_reports import remotes_warning, report_revision
 
 router = APIRouter(prefix="/api/v1/revisions", tags=["revisions"], route_class=JsonRoute)
 
@@ -35,5 +35,8 @@ def report(
     if not created:
         response.status_code = status.HTTP_200_OK
     return RevisionCreated(
-        revision_id=revision.id, title=revision.title, job_ids=[job.id for job in revision.jobs]
+        revision_id=revision.id,
+        title=revision.title,
+        job_ids=[job.id for job in revision.jobs],
+        warning=remotes_warning(revision.component, data.remotes),
     )

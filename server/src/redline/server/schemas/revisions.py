@@ -3,8 +3,9 @@
 from __future__ import annotations
 
 from datetime import datetime
+from typing import Annotated
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, StringConstraints
 from redline.server.schemas.common import RequestBody
 from redline.server.schemas.fields import Branch, CommitTime, RunCommit, SortKey, Title
 
@@ -22,6 +23,13 @@ class RevisionCreate(RequestBody):
     branch: Branch = Field(default="", description="defaults to the component's branch")
     message: str = Field(default="", max_length=10_000, description="the commit message")
     committed_at: CommitTime | None = None
+    remotes: list[Annotated[str, StringConstraints(max_length=2000)]] = Field(
+        default_factory=list,
+        max_length=20,
+        description="the reporting work tree's remote URLs, without credentials (`redline ci "
+        "report` sends them): when none is the component's repository, the answer's "
+        "`warning` says so (a mirror may be meant, so it is not refused)",
+    )
 
 
 class RevisionPatch(RequestBody):
@@ -34,6 +42,11 @@ class RevisionCreated(BaseModel):
     revision_id: int
     title: str = Field(description="the revision's title: the first report's, when reported before")
     job_ids: list[int]
+    warning: str = Field(
+        default="",
+        description="what may be wrong with the report: the work tree's `remotes` are not the "
+        "component's repository, so the hosts may not find the commit",
+    )
 
 
 class ExecutionOut(BaseModel):

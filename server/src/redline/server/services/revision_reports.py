@@ -7,6 +7,7 @@ from redline.server.models import Component, Job, JobState, Revision
 from redline.server.schemas.revisions import RevisionCreate
 from redline.server.services.components import get_component, revision_of_commit, same_commit
 from redline.server.services.errors import Conflict
+from redline.server.services.repos import repo_key
 from redline.server.services.revisions import (
     CANCELLED,
     create_revision,
@@ -104,3 +105,18 @@ def _queue_cancelled_again(session: Session, revision: Revision) -> None:
     if cancelled:
         session.commit()
         session.refresh(revision)
+
+
+def remotes_warning(component: Component, remotes: list[str]) -> str:
+    """What to tell a report whose work tree's remotes (`RevisionCreate.remotes`) are none of
+    them the component's repository: the hosts check the commit out of that one, and a trial
+    that reported from the wrong work tree saw its jobs fail minutes later ("CheckoutError").
+    Empty when they match, when none were sent, or when the component names no repository."""
+    keys = {repo_key(remote) for remote in remotes} - {""}
+    if not keys or not component.repo_key or component.repo_key in keys:
+        return ""
+    return (
+        f"this work tree's remotes ({', '.join(sorted(keys))}) are not the component's "
+        f"repository ({component.repo_key}): the hosts check the commit out of that one, and "
+        "fail if it is not there (run in the component's work tree; a mirror of it is fine)"
+    )

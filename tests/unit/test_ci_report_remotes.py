@@ -1,0 +1,38 @@
+"""`redline ci report`'s remotes: what it sends the server of the work tree's remote URLs."""
+
+from __future__ import annotations
+
+import subprocess
+from pathlib import Path
+
+import pytest
+from redline.cli.ci_report import git_remotes
+
+
+def test_remotes_are_sent_without_user_names_or_passwords(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A CI runner's origin holds its job token (GitLab: https://gitlab-ci-token:<token>@...):
+    it must never leave the runner in a report."""
+    env = {"PATH": "/usr/bin:/bin", "HOME": str(tmp_path)}
+    subprocess.run(["git", "init", "-q"], cwd=tmp_path, check=True, env=env)
+    for name, url in (
+        ("origin", "https://gitlab-ci-token:glcbt-s3cret@gitlab.example/group/app.git"),
+        ("mirror", "git@github.com:group/app.git"),
+        ("plain", "https://user@github.com/group/app"),
+    ):
+        subprocess.run(["git", "remote", "add", name, url], cwd=tmp_path, check=True, env=env)
+    monkeypatch.chdir(tmp_path)
+    assert sorted(git_remotes()) == [
+        "git@github.com:group/app.git",
+        "https://github.com/group/app",
+        "https://gitlab.example/group/app.git",
+    ]
+
+
+def test_outside_a_work_tree_there_are_no_remotes(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("HOME", str(tmp_path))
+    assert git_remotes() == []
