@@ -1086,6 +1086,20 @@ def _titles(session, ids: list[int]) -> list[str]:
     return [session.get_one(Revision, i).title for i in ids]
 
 
+def test_the_revision_page_names_a_confirmation_run_by_its_pair(
+    services, session, database_url, tmp_path
+):
+    """A trial read a confirmation run's execution number (they count from 1000, apart from
+    the revision's own) as a bug: the jobs table names it by its pair."""
+    with api_with(services, tmp_path) as api:
+        _flagged_history(session, database_url, tmp_path)
+        page = api.client.get(f"/components/{NAME}/revisions/r4")
+    assert page.status_code == 200, page.text
+    table = page.text.split('<table id="jobs">')[1].split("</table>")[0]
+    executions = re.findall(r"<tr><td>\d+</td><td>(?:<a [^>]*>)?([^<]+)", table)
+    assert executions == [*(str(index) for index in range(RUNS)), "pair 1", "pair 2"], table
+
+
 def test_a_fresh_run_that_fails_leaves_the_change_after_it_to_its_own_pairs(
     services, session, database_url, tmp_path
 ):
