@@ -775,6 +775,37 @@ def test_a_regression_judged_again_without_its_change_is_withdrawn_with_its_figu
     assert list(found.values()) == ["suspected"]
 
 
+def test_a_run_ingested_as_its_detection_began_and_judged_by_it_is_told(
+    api, tmp_path, receiver, monkeypatch
+):
+    """A review: the alerts took a revision for unjudged while a run of it was updated after
+    its `analyzed_at`, which is when its detection began: a run ingested just after that, but
+    read by that detection, held the change's alert back until the revision was judged again.
+    Whether a revision is judged is its mark alone now (`redline.server.services.analysed`)."""
+    from redline.worker import detection
+
+    subscribe(api, eager(receiver, "/hook"))
+    revisions(api, tmp_path, [10.0] * 5)
+    database_url = api.settings.database_url
+    with session_factory(database_url)() as session:
+        runs = [{"cpu": np.random.default_rng(2).normal(15.0, 0.3, 60)}]
+        (late,) = add_executions(session, tmp_path, "builder", "r6", "6", runs)
+    seen = detection.inputs_seen
+
+    def ingest_first(session, revision_ids):  # after the detection's start time was taken
+        ingest_execution(database_url, late.id)
+        return seen(session, revision_ids)
+
+    monkeypatch.setattr(detection, "inputs_seen", ingest_first)
+    detect_revision(database_url, late.revision_id)
+    with session_factory(database_url)() as session:
+        judged = session.get_one(Revision, late.revision_id).analyzed_at
+        updated = session.scalar(select(Job.updated).where(Job.id == late.job_id))
+    assert judged is not None and updated > judged  # judged with it, marked as it began
+    alert(api)
+    assert receiver.to("/hook"), "the change judged from every run was not told"
+
+
 def test_a_change_is_told_once_every_ingested_execution_is_judged(api, tmp_path, receiver):
     """A third trial's alert said +85.6 %, the median of two of r6's three executions, where the
     verdict of all three said +80.4 %: the scan ran after the third's ingestion, before its

@@ -66,15 +66,15 @@ def _imported(session: Session, revision_ids: set[int]) -> set[int]:
 
 def _measuring(session: Session, revision_ids: set[int]) -> set[int]:
     """The revisions with own jobs still to run or to ingest, or ingested since the revision
-    was last judged: their changes are told once every execution is in and judged (a trial's
-    regression was told with 6 series, and grew to 7 when the revision's third execution came
-    12 s later, the 7th left to a daily update; a third trial's alert said +85.6 %, the median
-    of two of three executions, where the verdict of all three said +80.4 %: the scan ran
-    between the third's ingestion and its judging)."""
-    unjudged = and_(
-        Job.state == JobState.done,
-        or_(Revision.analyzed_at.is_(None), Job.updated > Revision.analyzed_at),
-    )
+    was last judged (ingestion clears `Revision.analyzed_at`, and a detection sets it only
+    where it judged every run: `redline.server.services.analysed`): their changes are told
+    once every execution is in and judged (a trial's regression was told with 6 series, and
+    grew to 7 when the revision's third execution came 12 s later, the 7th left to a daily
+    update; a third trial's alert said +85.6 %, the median of two of three executions, where
+    the verdict of all three said +80.4 %: the scan ran between the third's ingestion and its
+    judging). No clock is compared: a run ingested just after a detection began, which it
+    read, was "updated after analyzed_at", and held its alerts back until the next judging."""
+    unjudged = and_(Job.state == JobState.done, Revision.analyzed_at.is_(None))
     return set(
         session.scalars(
             select(Job.revision_id)
