@@ -145,3 +145,44 @@ def test_revision_whose_samples_are_pruned_keeps_its_results(session, database_u
         samples_path(execution.recording_path).unlink()  # retention
     detect_revision(database_url, executions[1].revision_id)
     assert _detections(session) == before and _counts(session) == counts
+
+
+def test_a_revision_whose_detection_was_lost_is_judged_by_the_sweep_once_nothing_waits(
+    services, session, database_url, tmp_path, monkeypatch
+):
+    """A review: ingestion clears a revision's analysed mark and queues its detection; a
+    detection message lost on its way (the broker away as it was queued) left the revision
+    pending for ever, and `ci wait` timed out. The periodic sweep queues it again once its
+    component's jobs stood still for `LOST_GRACE`, while no detection or ingestion waits in the
+    broker (one waiting may be its own)."""
+    import uuid
+
+    from redline.server.core.config import Settings
+    from redline.server.core.tasks import queue_depths, queue_of, redis_client
+    from redline.server.models import Revision
+    from redline.worker import tasks
+    from redline.worker.sweeps import LOST_GRACE, unjudged_revisions
+
+    judged, lost = cpu_history(session, tmp_path, [20.0, 20.0])
+    ingest_and_detect(database_url, [judged])
+    ingest_execution(database_url, lost.id)  # its detection message lost
+    assert unjudged_revisions(session) == []  # its job moved just now: its message may come
+    later = utcnow() + LOST_GRACE + timedelta(minutes=1)
+    assert unjudged_revisions(session, now=later) == [[lost.revision_id]]
+    settings = Settings(database_url=database_url, redis_url=services.redis_url,
+                        queue=f"lost-{uuid.uuid4().hex[:8]}")  # fmt: skip
+    monkeypatch.setattr(tasks, "_settings", lambda: settings)  # the worker's, as it starts
+    old = utcnow() - LOST_GRACE - timedelta(minutes=1)
+    session.execute(update(Job).values(updated=old))
+    session.commit()
+    with redis_client(settings) as client:
+        client.rpush(queue_of(settings, "detect"), b"a detection on its way")
+        assert queue_depths(settings) == {"ingest": 0, "detect": 1, "render": 0, "alerts": 0}
+        assert tasks._lost_detections(session, []) == []  # it may be this revision's
+        client.delete(queue_of(settings, "detect"))
+    assert tasks._lost_detections(session, [[lost.revision_id]]) == []  # queued already
+    assert tasks._lost_detections(session, []) == [[lost.revision_id]]
+    detect_revision(database_url, lost.revision_id)  # what the task queued does
+    session.expire_all()
+    assert session.get_one(Revision, lost.revision_id).analyzed_at is not None
+    assert unjudged_revisions(session, now=later) == []

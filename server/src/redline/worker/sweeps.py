@@ -1,7 +1,8 @@
 """What a lost message would leave undone, found again by the periodic re-queue task
 (`redline.worker.tasks.requeue_stale_uploads`): the commit status of revisions whose jobs ended
 failed (no ingest follows them), the revisions that waited for a fresh run that ended without a
-recording, and the alerts of run-time alarms whose task never ran.
+recording, the revisions whose detection was lost, and the alerts of run-time alarms whose task
+never ran.
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ from redline.server.models import (
     Revision,
     RuntimeAlarm,
     Subscription,
+    revision_place,
     utcnow,
 )
 from redline.server.schemas.fields import COMMIT_HASH
@@ -33,6 +35,9 @@ from sqlalchemy.orm import Session, aliased
 SWEEP_WITHIN = timedelta(days=2)
 #: and how old what they pick up must be: younger, the message queued for it may be on its way
 SWEEP_GRACE = timedelta(minutes=2)
+#: how long a component's jobs stand still before its revisions still marked not yet analysed
+#: are taken for lost detections (`unjudged_revisions`): longer than any detection takes
+LOST_GRACE = timedelta(minutes=30)
 
 
 def failed_without_status(session: Session, now: datetime | None = None) -> list[int]:
@@ -93,6 +98,35 @@ def unjudged_after_fresh_runs(session: Session, now: datetime | None = None) -> 
         if unjudged:
             found.append([revision_id, *unjudged])
     return found
+
+
+def unjudged_revisions(
+    session: Session, now: datetime | None = None, limit: int = 200
+) -> list[list[int]]:
+    """Per component, in history order, its revisions marked not yet analysed
+    (`redline.server.services.analysed`) that have a run ingested, when none of the
+    component's jobs moved in the last `LOST_GRACE`: the detection queued after their
+    ingestion or import was lost (the broker away as it was queued, say), and their CI
+    verdicts would wait for ever. The caller queues them only while no detection or ingestion
+    waits in the broker (`redline.worker.tasks.requeue_stale_uploads`): one waiting may be
+    theirs. At most ``limit`` revisions."""
+    now = now or utcnow()
+    other = aliased(Revision)
+    moving = (
+        select(Job.id)
+        .join(other, other.id == Job.revision_id)
+        .where(other.component_id == Revision.component_id, Job.updated > now - LOST_GRACE)
+    )
+    ingested = select(Job.id).where(Job.revision_id == Revision.id, Job.state == JobState.done)
+    found: dict[int, list[int]] = {}
+    for component_id, revision_id in session.execute(
+        select(Revision.component_id, Revision.id)
+        .where(Revision.analyzed_at.is_(None), ingested.exists(), ~moving.exists())
+        .order_by(Revision.component_id, *revision_place())
+        .limit(limit)
+    ):
+        found.setdefault(component_id, []).append(revision_id)
+    return list(found.values())
 
 
 def untold_runtime_alarms(session: Session, now: datetime | None = None) -> list[int]:

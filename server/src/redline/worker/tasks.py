@@ -24,6 +24,7 @@ from redline.server.core.tasks import (
     RUNTIME_ALERT_TASK,
     SCAN_ALERTS_TASK,
     TRAIN_TASK,
+    queue_depths,
 )
 from redline.server.db import session_scope
 from redline.server.models import Revision
@@ -40,11 +41,13 @@ from redline.worker.statuses import commit_status
 from redline.worker.sweeps import (
     failed_without_status,
     unjudged_after_fresh_runs,
+    unjudged_revisions,
     untold_runtime_alarms,
 )
 from redline.worker.trends import render_component_trends, render_revision_trends
 from sqlalchemy import select
 from sqlalchemy.exc import InterfaceError, OperationalError
+from sqlalchemy.orm import Session
 
 log = logging.getLogger(__name__)
 #: a passing database outage is retried (with backoff), never a failed job or a lost revision
@@ -123,18 +126,22 @@ def requeue_stale_uploads() -> int:
     """Queue again the ingestion of executions left `uploaded` (beat schedule: every 5 min);
     and what a message lost on its way would have left undone: the commit status of revisions
     whose jobs ended failed (which no ingest follows), the judging of revisions that waited
-    for a fresh run that ended so, the alerts of run-time alarms."""
+    for a fresh run that ended so or whose detection was lost (`unjudged_revisions`, only
+    while no detection or ingestion waits in the broker), the alerts of run-time alarms."""
     with session_scope(_settings().database_url) as session:
         executions = stale_uploads(session)
         revisions = failed_without_status(session)
         unjudged = unjudged_after_fresh_runs(session)
+        lost = [] if executions else _lost_detections(session, unjudged)
         alarms = untold_runtime_alarms(session)
     for execution_id in executions:
         ingest_execution.delay(execution_id)
     for revision_id in revisions:
         scan_alerts.delay(None, revision_id)
-    for again in unjudged:
+    for again in unjudged + lost:
         detect_revision.apply_async(args=again)
+    if lost:
+        log.warning("detection queued again for revisions whose detection was lost: %s", lost)
     for alarm_id in alarms:
         runtime_alert.delay(alarm_id)
     if executions:
@@ -144,6 +151,17 @@ def requeue_stale_uploads() -> int:
             executions,
         )
     return len(executions)
+
+
+def _lost_detections(session: Session, queued: list[list[int]]) -> list[list[int]]:
+    """`unjudged_revisions` without those ``queued`` already, while no detection or ingestion
+    waits in the broker (one waiting may be theirs; nothing when it cannot be asked)."""
+    depths = queue_depths(_settings())
+    if not depths or depths["detect"] or depths["ingest"]:
+        return []
+    taken = {revision_id for again in queued for revision_id in again}
+    found = ([r for r in ids if r not in taken] for ids in unjudged_revisions(session))
+    return [ids for ids in found if ids]
 
 
 @celery_app.task(name=REANALYZE_TASK, acks_late=True, **RETRY_REANALYSIS)

@@ -52,14 +52,9 @@ class JobCollector:
             yield family
 
     def _queue_depths(self) -> dict[str, int]:
-        """Best effort: the Redis list of each kind's queue; nothing when Redis is away."""
-        try:
-            from redline.server.core.tasks import QUEUE_KINDS, queue_of, redis_client
+        from redline.server.core.tasks import queue_depths
 
-            with redis_client(self.settings) as client:
-                return {k: int(client.llen(queue_of(self.settings, k))) for k in QUEUE_KINDS}
-        except Exception:
-            return {}
+        return queue_depths(self.settings)
 
 
 #: the request methods counted by name; any other is counted as "other": the HTTP server takes

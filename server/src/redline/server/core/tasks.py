@@ -65,6 +65,16 @@ def redis_client(settings: Settings) -> redis.Redis:
     return redis.Redis.from_url(url, socket_timeout=2, socket_connect_timeout=2)
 
 
+def queue_depths(settings: Settings) -> dict[str, int]:
+    """Best effort: how many tasks wait in each kind's queue (its Redis list); nothing when
+    Redis is away."""
+    try:
+        with redis_client(settings) as client:
+            return {kind: int(client.llen(queue_of(settings, kind))) for kind in QUEUE_KINDS}
+    except Exception:
+        return {}
+
+
 def celery_client(settings: Settings, **options: object) -> Celery:
     """A Celery application on the settings' broker and queue (the worker's adds its tasks)."""
     from celery import Celery
