@@ -375,11 +375,21 @@ def test_revision_and_regression_pages_link_each_other(client, database_url, tmp
 
 
 def test_home_page_lists_components_hosts_and_the_queue(client, database_url, tmp_path):
+    from redline.server.schemas.jobs import RegisterRequest
+    from redline.server.services.jobs import register_host
+
     history(database_url, tmp_path, [20.0, 20.0])
+    with session_factory(database_url)() as session:
+        machine = {"cpu_model": "Xeon E5", "load_1m": "3.75", "load_5m": "2.10"}
+        register_host(session, RegisterRequest(name="perf-home", fingerprint=machine))
+        session.commit()
     page = client.get("/")
     assert page.status_code == 200
     assert 'href="/components/builder"' in page.text and "Job queue" in page.text
     assert '<svg class="spark"' in page.text  # the headline series' sparkline
+    # the machine as it registered, but not its load then, which read as its load now (a trial)
+    row = next(r for r in page.text.split("<tr>") if "<td>perf-home</td>" in r)
+    assert "cpu_model=Xeon E5" in row and "load_" not in row and "3.75" not in row
 
 
 @pytest.mark.parametrize(
