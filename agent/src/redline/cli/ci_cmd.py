@@ -290,11 +290,13 @@ def wait(
     started = time.monotonic()
     said, reached = "", False
     wanted = {} if junit is None else {"junit": fail_on.value}
+    settled = False  # a verdict came: read again with its JUnit XML, of one reading
     with httpx.Client(base_url=server.rstrip("/"), headers=headers, timeout=30) as client:
         while True:
             waited = time.monotonic() - started
-            # with the JUnit XML when it is wanted: both of one reading, one request
-            answer = _get(client, f"{base}/verdict", **wanted)
+            # with the JUnit XML once settled, when it is wanted: both of one reading, one
+            # request (not at every poll: the server would build the XML each time)
+            answer = _get(client, f"{base}/verdict", **(wanted if settled else {}))
             reached = reached or answer is not None
             if answer is not None:
                 if answer.status_code in (401, 403):
@@ -322,6 +324,9 @@ def wait(
                     fail(f"HTTP {answer.status_code}: {detail(answer)}")
                 else:
                     verdict = answer.json()
+                    if verdict["state"] != "pending" and wanted and not settled:
+                        settled = True
+                        continue  # at once, with its JUnit XML
                     if verdict["state"] != "pending":
                         # the waits said on stderr, before the table on stdout: how long it took
                         typer.echo(f"verdict after {waited:.0f} s of waiting", err=True)
