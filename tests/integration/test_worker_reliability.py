@@ -161,7 +161,8 @@ def test_a_revision_whose_detection_was_lost_is_judged_by_the_sweep_once_nothing
     from redline.server.core.tasks import queue_depths, queue_of, redis_client
     from redline.server.models import Revision
     from redline.worker import tasks
-    from redline.worker.sweeps import LOST_GRACE, unjudged_revisions
+    from redline.worker.onward import taking_turns
+    from redline.worker.sweeps import LOST_GRACE, SWEEP_WITHIN, unjudged_revisions
 
     judged, lost = cpu_history(session, tmp_path, [20.0, 20.0])
     ingest_and_detect(database_url, [judged])
@@ -169,6 +170,10 @@ def test_a_revision_whose_detection_was_lost_is_judged_by_the_sweep_once_nothing
     assert unjudged_revisions(session) == []  # its job moved just now: its message may come
     later = utcnow() + LOST_GRACE + timedelta(minutes=1)
     assert unjudged_revisions(session, now=later) == [[lost.revision_id]]
+    with taking_turns(database_url, session.get_one(Revision, lost.revision_id).component_id):
+        assert unjudged_revisions(session, now=later) == []  # a walk of it under way
+    # nor for ever: a component whose jobs stood still longer than the other sweeps look back
+    assert unjudged_revisions(session, now=later + SWEEP_WITHIN) == []
     settings = Settings(database_url=database_url, redis_url=services.redis_url,
                         queue=f"lost-{uuid.uuid4().hex[:8]}")  # fmt: skip
     monkeypatch.setattr(tasks, "_settings", lambda: settings)  # the worker's, as it starts
@@ -181,6 +186,7 @@ def test_a_revision_whose_detection_was_lost_is_judged_by_the_sweep_once_nothing
         assert tasks._lost_detections(session, []) == []  # it may be this revision's
         client.delete(queue_of(settings, "detect"))
     assert tasks._lost_detections(session, [[lost.revision_id]]) == []  # queued already
+    assert tasks._lost_detections(session, [], [lost.id]) == []  # its run ingested again
     assert tasks._lost_detections(session, []) == [[lost.revision_id]]
     detect_revision(database_url, lost.revision_id)  # what the task queued does
     session.expire_all()

@@ -26,7 +26,8 @@ from redline.server.models import (
 from redline.server.schemas.fields import COMMIT_HASH
 from redline.server.services.fresh_runs import waiting_on
 from redline.worker.alerts import runtime_listeners
-from sqlalchemy import cast, func, select
+from redline.worker.onward import WALK_LOCK
+from sqlalchemy import cast, func, select, text
 from sqlalchemy.dialects.postgresql import JSONB
 from sqlalchemy.orm import Session, aliased
 
@@ -104,28 +105,37 @@ def unjudged_revisions(
     session: Session, now: datetime | None = None, limit: int = 200
 ) -> list[list[int]]:
     """Per component, in history order, its revisions marked not yet analysed
-    (`redline.server.services.analysed`) that have a run ingested, when none of the
-    component's jobs moved in the last `LOST_GRACE`: the detection queued after their
-    ingestion or import was lost (the broker away as it was queued, say), and their CI
-    verdicts would wait for ever. The caller queues them only while no detection or ingestion
-    waits in the broker (`redline.worker.tasks.requeue_stale_uploads`): one waiting may be
-    theirs. At most ``limit`` revisions."""
+    (`redline.server.services.analysed`) that have a run ingested, when the component's jobs
+    last moved within `SWEEP_WITHIN` but not in the last `LOST_GRACE`, and no walk of it is
+    under way (`redline.worker.onward.taking_turns`): the detection queued after their
+    ingestion or import was lost (the broker away as it was queued, say), and their CI verdicts
+    would wait for ever. The caller queues them only while no detection or ingestion waits in
+    the broker (`redline.worker.tasks.requeue_stale_uploads`): one waiting may be theirs. At
+    most ``limit`` revisions."""
     now = now or utcnow()
     other = aliased(Revision)
-    moving = (
-        select(Job.id)
-        .join(other, other.id == Job.revision_id)
-        .where(other.component_id == Revision.component_id, Job.updated > now - LOST_GRACE)
-    )
+    jobs = select(func.max(Job.updated)).join(other, other.id == Job.revision_id)
+    last_moved = jobs.where(other.component_id == Revision.component_id).scalar_subquery()
     ingested = select(Job.id).where(Job.revision_id == Revision.id, Job.state == JobState.done)
+    walking = set(
+        session.scalars(
+            text(
+                "SELECT objid FROM pg_locks WHERE locktype = 'advisory' AND granted "
+                "AND classid = :key AND objsubid = 2"
+            ),
+            {"key": WALK_LOCK},
+        )
+    )
     found: dict[int, list[int]] = {}
     for component_id, revision_id in session.execute(
         select(Revision.component_id, Revision.id)
-        .where(Revision.analyzed_at.is_(None), ingested.exists(), ~moving.exists())
+        .where(Revision.analyzed_at.is_(None), ingested.exists())
+        .where(last_moved.between(now - SWEEP_WITHIN, now - LOST_GRACE))
         .order_by(Revision.component_id, *revision_place())
         .limit(limit)
     ):
-        found.setdefault(component_id, []).append(revision_id)
+        if component_id not in walking:
+            found.setdefault(component_id, []).append(revision_id)
     return list(found.values())
 
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import importlib
 import logging
+from collections.abc import Sequence
 from typing import Any
 
 from celery import Task
@@ -27,7 +28,7 @@ from redline.server.core.tasks import (
     queue_depths,
 )
 from redline.server.db import session_scope
-from redline.server.models import Revision
+from redline.server.models import Execution, Revision
 from redline.worker import reanalysis, reanalysis_finish
 from redline.worker.alerts import runtime_alerts
 from redline.worker.app import celery_app
@@ -132,7 +133,7 @@ def requeue_stale_uploads() -> int:
         executions = stale_uploads(session)
         revisions = failed_without_status(session)
         unjudged = unjudged_after_fresh_runs(session)
-        lost = [] if executions else _lost_detections(session, unjudged)
+        lost = _lost_detections(session, unjudged, executions)
         alarms = untold_runtime_alarms(session)
     for execution_id in executions:
         ingest_execution.delay(execution_id)
@@ -153,13 +154,22 @@ def requeue_stale_uploads() -> int:
     return len(executions)
 
 
-def _lost_detections(session: Session, queued: list[list[int]]) -> list[list[int]]:
-    """`unjudged_revisions` without those ``queued`` already, while no detection or ingestion
-    waits in the broker (one waiting may be theirs; nothing when it cannot be asked)."""
+def _lost_detections(
+    session: Session,
+    queued: list[list[int]],
+    ingesting: Sequence[int] = (),
+) -> list[list[int]]:
+    """`unjudged_revisions` without those ``queued`` already and those of the executions
+    being ``ingesting`` again, while no detection or ingestion waits in the broker (one
+    waiting may be theirs; nothing when it cannot be asked)."""
     depths = queue_depths(_settings())
     if not depths or depths["detect"] or depths["ingest"]:
         return []
     taken = {revision_id for again in queued for revision_id in again}
+    if ingesting:
+        taken |= set(
+            session.scalars(select(Execution.revision_id).where(Execution.id.in_(ingesting)))
+        )
     found = ([r for r in ids if r not in taken] for ids in unjudged_revisions(session))
     return [ids for ids in found if ids]
 
