@@ -20,14 +20,25 @@ def test_remotes_are_sent_without_user_names_or_passwords(
         ("origin", "https://gitlab-ci-token:glcbt-s3cret@gitlab.example/group/app.git"),
         ("mirror", "git@github.com:group/app.git"),
         ("plain", "https://user@github.com/group/app"),
+        ("slash", "https://u:ab/cd@git.example/x.git"),  # a password with a slash in it
+        ("query", "https://git.example/y.git?access_token=tok#frag"),
+        ("ssh", "ssh://user:pw@git.example:2222/z.git"),
+        ("scp", "user:tok@git.example:w.git"),
     ):
         subprocess.run(["git", "remote", "add", name, url], cwd=tmp_path, check=True, env=env)
     monkeypatch.chdir(tmp_path)
-    assert sorted(git_remotes()) == [
-        "git@github.com:group/app.git",
+    remotes = git_remotes()
+    assert sorted(remotes) == [
+        "git.example:w.git",
+        "github.com:group/app.git",
+        "https://git.example/x.git",
+        "https://git.example/y.git",
         "https://github.com/group/app",
         "https://gitlab.example/group/app.git",
+        "ssh://git.example:2222/z.git",
     ]
+    sent = " ".join(remotes)
+    assert not any(secret in sent for secret in ("s3cret", "ab/cd", "tok", "pw", "user", "u:"))
 
 
 def test_outside_a_work_tree_there_are_no_remotes(

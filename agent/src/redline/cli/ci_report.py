@@ -68,17 +68,16 @@ def git_remotes() -> list[str]:
         )
     except (FileNotFoundError, subprocess.TimeoutExpired):
         return []
-    remotes = []
-    for line in done.stdout.splitlines()[:20]:
-        url = line.partition(" ")[2].strip()
-        if "://" in url:
-            try:
-                parts = urlsplit(url)
-                url = parts._replace(netloc=parts.netloc.rpartition("@")[2]).geturl()
-            except ValueError:
-                continue
-        remotes.append(url[:2000])
-    return remotes
+    return [_without_credentials(line.partition(" ")[2].strip())[:2000]
+            for line in done.stdout.splitlines()[:20]]  # fmt: skip
+
+
+def _without_credentials(url: str) -> str:
+    """``url`` without what could hold a secret: whatever precedes its last ``@`` (a user and
+    a password, which may hold a ``/``), its query and its fragment (``?access_token=``)."""
+    scheme, sep, rest = url.partition("://")
+    rest = (rest if sep else url).rpartition("@")[2].split("?")[0].split("#")[0]
+    return f"{scheme}://{rest}" if sep else rest
 
 
 def report(
