@@ -17,13 +17,14 @@ from redline.detect.methods import Detector, Levelled
 from redline.detect.result import Detection
 from redline.detect.suspected import after_flag
 from redline.server.models import Execution, Revision
+from redline.server.services.reach import ingested_executions
 from redline.worker.history import (
     earlier_than,
     flagged_verdicts,
     previous_revisions,
     undecided_verdicts,
 )
-from redline.worker.samples import SampleCache, ingested_executions, read_samples
+from redline.worker.samples import SampleCache, read_samples
 from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 

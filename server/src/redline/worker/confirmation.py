@@ -41,8 +41,8 @@ from redline.server.models import (
     revision_place,
 )
 from redline.server.services.fresh_runs import fresh_run_between, fresh_runs_under_way
+from redline.server.services.reach import ingested_executions
 from redline.worker.regression_summary import summarize_regressions
-from redline.worker.samples import ingested_executions
 from sqlalchemy import exists, func, select
 from sqlalchemy.orm import Session
 

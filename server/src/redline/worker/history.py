@@ -25,7 +25,7 @@ from redline.server.models import (
     Summary,
     revision_place,
 )
-from redline.worker.samples import ingested_executions
+from redline.server.services.reach import ingested_executions
 from sqlalchemy import ColumnElement, func, select
 from sqlalchemy.orm import Session
 

@@ -19,7 +19,7 @@ from redline.server.models import Execution, Job, JobState, Revision, utcnow
 from redline.server.services.analysed import unanalysed
 from redline.server.services.fresh_runs import mark_waiting, waiting_on
 from redline.server.services.ingestion import store_samples
-from redline.worker.onward import in_reach
+from redline.server.services.reach import in_reach
 from sqlalchemy import select
 from sqlalchemy.exc import DataError
 from sqlalchemy.orm import Session

@@ -43,14 +43,12 @@ import time
 from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
 
-from redline.detect.baseline import lookback
-from redline.detect.config import DetectionConfig
 from redline.detect.result import NOT_ENOUGH_DATA
 from redline.server.db import get_engine, session_scope
-from redline.server.models import Detection, Execution, Revision, revision_place
+from redline.server.models import Detection, Revision
 from redline.server.services.detection_config import component_config
+from redline.server.services.reach import later_with_results, reach
 from redline.worker.detection import detect_and_store
-from redline.worker.samples import ingested_executions
 from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
@@ -61,45 +59,6 @@ WALK_LOCK = 0x524F  # "RO"
 TURN_POLL_S = 0.2
 
 Fingerprint = frozenset[tuple[int, str, bool, bool]]
-
-
-def reach(config: DetectionConfig, revision: Revision) -> int | None:
-    """How many later revisions with results read ``revision`` (None: all of them): those whose
-    baselines may hold it, reaching past revisions the host was busy in
-    (`redline.detect.baseline.lookback`); at least the next, which says what it no longer
-    measures."""
-    if config.baseline == "pinned":
-        return None if revision.title == config.pinned else 1
-    return 1 if config.baseline == "previous" else lookback(config.window)
-
-
-def later_with_results(session: Session, revision: Revision, limit: int | None) -> list[int]:
-    """The ids of the later revisions of the component with ingested results whose samples are
-    kept (a pruned revision keeps its verdicts), oldest first."""
-    query = (
-        select(Revision.id)
-        .where(
-            Revision.component_id == revision.component_id,
-            revision_place() > revision.place,
-            select(Execution.id)
-            .where(
-                Execution.revision_id == Revision.id,
-                Execution.id.in_(ingested_executions()),
-                Execution.pruned_at.is_(None),
-            )
-            .exists(),
-        )
-        .order_by(Revision.order_key, Revision.id)
-    )
-    return list(session.scalars(query if limit is None else query.limit(limit)))
-
-
-def in_reach(session: Session, revision_id: int) -> list[int]:
-    """The later revisions a walk from ``revision_id`` judges again at least (`reach`)."""
-    revision = session.get_one(Revision, revision_id)
-    return later_with_results(
-        session, revision, reach(component_config(session, revision.component_id), revision)
-    )
 
 
 def fingerprint(session: Session, revision_id: int) -> Fingerprint:

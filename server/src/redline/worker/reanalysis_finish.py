@@ -31,12 +31,12 @@ from redline.server.models import (
 )
 from redline.server.services.analysed import inputs_seen, mark_analysed
 from redline.server.services.detection_config import component_config, judging_config_id
+from redline.server.services.reach import ingested_executions
 from redline.worker.confirm_runs import settle_pending_pairs
 from redline.worker.confirmation import confirm_by_history
 from redline.worker.detection import judge_revision, store
 from redline.worker.found_late import still_moved
 from redline.worker.grouping import group_revision
-from redline.worker.samples import ingested_executions
 from sqlalchemy import delete, select, text, update
 from sqlalchemy.exc import InterfaceError, OperationalError
 from sqlalchemy.orm import Session

@@ -13,25 +13,13 @@ from redline.detect.execution_shift import values_for
 from redline.detect.methods import Levelled
 from redline.server.models import (
     Execution,
-    Job,
-    JobState,
 )
+from redline.server.services.reach import ingested_executions
 from redline.server.storage import disturbed_series, not_judged, samples_path
-from sqlalchemy import Select, select
+from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 log = logging.getLogger(__name__)
-
-
-def ingested_executions() -> Select[int]:
-    """A revision's own executions whose ingestion finished (their job is done), whatever
-    series they hold: a recording whose every sample was NaN has no summary rows but must still
-    be judged. Confirmation runs (`redline.worker.confirm_runs`) are judged apart, in pairs."""
-    return (
-        select(Execution.id)
-        .join(Job, Job.id == Execution.job_id)
-        .where(Job.state == JobState.done, Job.pair == 0)
-    )
 
 
 #: Per series id, one array of samples per execution (in execution order).

@@ -121,7 +121,8 @@ def unjudged_revisions(
         session.scalars(
             text(
                 "SELECT objid FROM pg_locks WHERE locktype = 'advisory' AND granted "
-                "AND classid = :key AND objsubid = 2"
+                "AND classid = :key AND objsubid = 2 AND database = "
+                "(SELECT oid FROM pg_database WHERE datname = current_database())"
             ),
             {"key": WALK_LOCK},
         )

@@ -24,6 +24,7 @@ from redline.server.services.components import get_component, revision_of_commit
 from redline.server.services.errors import Conflict, Forbidden
 from redline.server.services.home import IMPORTED
 from redline.server.services.ingestion import store_samples
+from redline.server.services.reach import in_reach
 from redline.server.services.revision_reports import cannot_run, reports_take_turns
 from redline.server.services.revisions import order_key
 from sqlalchemy import func, select
@@ -237,7 +238,9 @@ def store_import(
     session.add(execution)
     session.flush()
     series = store_samples(session, execution, revision.component_id, run.samples)
-    unanalysed(session, [revision.id])  # judged again: the detection the route queues marks it
+    # judged again, with the later revisions that read it, as after an ingestion: the walk the
+    # route queues marks them
+    unanalysed(session, [revision.id, *in_reach(session, revision.id)])
     session.commit()
     return ImportResult(
         component=run.component,
