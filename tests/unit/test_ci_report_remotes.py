@@ -41,6 +41,19 @@ def test_remotes_are_sent_without_user_names_or_passwords(
     assert not any(secret in sent for secret in ("s3cret", "ab/cd", "tok", "pw", "user", "u:"))
 
 
+def test_a_relative_local_remote_is_sent_as_an_absolute_path(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A trial's clone of ../comp was reported as '/../comp', which names nothing."""
+    env = {"PATH": "/usr/bin:/bin", "HOME": str(tmp_path)}
+    tree = tmp_path / "tree"
+    tree.mkdir()
+    subprocess.run(["git", "init", "-q"], cwd=tree, check=True, env=env)
+    subprocess.run(["git", "remote", "add", "origin", "../comp"], cwd=tree, check=True, env=env)
+    monkeypatch.chdir(tree)
+    assert git_remotes() == [str(tmp_path / "comp")]
+
+
 def test_outside_a_work_tree_there_are_no_remotes(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:

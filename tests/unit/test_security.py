@@ -282,6 +282,8 @@ def test_repository_urls_normalize_across_https_ssh_and_dot_git():
     assert repo_key("https://github.com/org/other") != "github.com/org/repo"
     assert repo_key("") == ""
     assert repo_key("https://[forged") == ""  # matches nothing, raises nothing
+    # a local repository named by its work tree's own .git folder (a trial's false warning)
+    assert repo_key("/tmp/trial/comp/.git") == repo_key("/tmp/trial/comp") == "/tmp/trial/comp"
 
 
 @pytest.mark.parametrize("mode", [0o644, 0o640, 0o604])

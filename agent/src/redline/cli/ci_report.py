@@ -11,6 +11,7 @@ command, CI reported with curl and a here-document (docs/ci.md).
 
 from __future__ import annotations
 
+import os
 import subprocess
 from typing import Annotated, Any, NoReturn
 from urllib.parse import urlsplit
@@ -68,8 +69,16 @@ def git_remotes() -> list[str]:
         )
     except (FileNotFoundError, subprocess.TimeoutExpired):
         return []
-    return [_without_credentials(line.partition(" ")[2].strip())[:2000]
+    return [_local_made_absolute(_without_credentials(line.partition(" ")[2].strip()))[:2000]
             for line in done.stdout.splitlines()[:20]]  # fmt: skip
+
+
+def _local_made_absolute(url: str) -> str:
+    """A local path (no scheme, no ``host:`` before its first ``/``) as an absolute one: git
+    reads ``../comp`` from the work tree, the server cannot."""
+    if "://" in url or ":" in url.split("/")[0] or not url:
+        return url
+    return os.path.abspath(url)
 
 
 def _without_credentials(url: str) -> str:

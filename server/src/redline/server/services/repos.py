@@ -33,5 +33,5 @@ def repo_key(url: str) -> str:
         host, path = "", text
     path = path.strip("/")
     if path.endswith(".git"):
-        path = path[: -len(".git")]
+        path = path[: -len(".git")].rstrip("/")  # a work tree's own .git folder too
     return f"{host}/{path}".strip("/").lower() if host else "/" + path.lower()

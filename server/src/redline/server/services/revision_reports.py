@@ -113,10 +113,12 @@ def remotes_warning(component: Component, remotes: list[str]) -> str:
     that reported from the wrong work tree saw its jobs fail minutes later ("CheckoutError").
     Empty when they match, when none were sent, or when the component names no repository."""
     keys = {repo_key(remote) for remote in remotes} - {""}
-    if not keys or not component.repo_key or component.repo_key in keys:
+    # a key stored before `repo_key` dropped the slash a work tree's `.git` folder left
+    own = component.repo_key.rstrip("/")
+    if not keys or not own or own in keys:
         return ""
     return (
         f"this work tree's remotes ({', '.join(sorted(keys))}) are not the component's "
-        f"repository ({component.repo_key}): the hosts check the commit out of that one, and "
+        f"repository ({own}): the hosts check the commit out of that one, and "
         "fail if it is not there (run in the component's work tree; a mirror of it is fine)"
     )
