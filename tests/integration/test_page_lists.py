@@ -214,6 +214,36 @@ def _row(page: str, label: str, method: str) -> list[str]:
     raise AssertionError(f"no row of {label} by {method}")
 
 
+def test_a_ks_rows_values_are_the_means_its_change_is_of(client, database_url, tmp_path):
+    """A trial read a KS row of 9.919e+06 against 9.945e+06 beside a change of -0.6 %: the
+    values were medians of the runs' medians, KS's change that of the pooled samples' mean.
+    Here the median rises (10 to 11) while the mean falls (about 15 to 11)."""
+    import numpy as np
+    from redline.server.models import DetectionConfigRow
+    from redline.server.schemas.components import ComponentCreate
+    from redline.server.services.components import create_component
+
+    from tests.support.history import add_executions, ingest_and_detect
+
+    skewed = np.concatenate([np.full(50, 10.0), np.full(10, 40.0)])  # median 10, mean 15
+    level = np.random.default_rng(3).normal(11.0, 0.05, 60)  # median and mean 11
+    with session_factory(database_url)() as session:
+        component = create_component(session, ComponentCreate(name="builder"))
+        session.add(DetectionConfigRow(component_id=component.id, config={"methods": ["ks"]}))
+        session.commit()
+        executions = [
+            *add_executions(session, tmp_path, "builder", "r1", "1", [{"cpu": skewed}]),
+            *add_executions(session, tmp_path, "builder", "r2", "2", [{"cpu": level}]),
+        ]
+    ingest_and_detect(database_url, executions)
+    page = client.get("/components/builder/revisions/r2").text
+    cells = _row(page, "throughput/publish[rate=10] component.cpu", "ks")
+    baseline, candidate = (float(cells[i]) for i in (2, 3))
+    change = float(cells[cells.index("ks") + 2].removesuffix(" %")) / 100
+    assert baseline == pytest.approx(15.0, rel=0.01) and candidate == pytest.approx(11, rel=0.01)
+    assert change == pytest.approx((candidate - baseline) / baseline, abs=0.002), cells
+
+
 def test_the_revision_page_shows_both_values_and_each_runs_duration_and_disturbance(
     client, database_url, tmp_path
 ):

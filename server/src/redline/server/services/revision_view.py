@@ -1,12 +1,15 @@
 """What the revision page shows beside the revision's own record: each verdict's baseline and
 candidate values, and each execution's duration and disturbed phases.
 
-A verdict's two values are the levels its method compared: the median of the executions'
-medians (what `execution_shift` judges, and what its change is the relative difference of) of
-the candidate revision's own executions, and of its baseline's, pooled as the detection pooled
-it: the newest ``baseline_revisions`` revisions up to its newest baseline revision that measured
-the series (`redline.server.services.why`). They are read for every verdict of the revision at
-once, from the revisions just before it, so the page costs the same however long the history.
+A verdict's two values are the levels its method compared, of the candidate revision's own
+executions and of its baseline's, pooled as the detection pooled them (the newest
+``baseline_revisions`` revisions up to its newest baseline revision that measured the series,
+`redline.server.services.why`): for KS, whose change is that of the mean, the mean of their
+samples pooled; for the other methods, the median of their medians (what `execution_shift`
+judges, and what its change is the relative difference of). A trial read a KS row of 9.919e+06
+against 9.945e+06 beside a change of -0.6 %: the medians rose where the means fell. They are
+read for every verdict of the revision at once, from the revisions just before it, so the page
+costs the same however long the history.
 """
 
 from __future__ import annotations
@@ -83,16 +86,20 @@ def _disturbed_ids(recording_path: str, kept: bool) -> dict[int, str] | None:
     return {int(sid): why for sid, why in json.loads(raw).items()} if raw else {}
 
 
+#: an execution's summary of a series: its median, its number of samples and their mean
+Run = tuple[float, int, float]
+
+
 def _medians(
     session: Session, series_ids: set[int], revision_ids: list[int]
-) -> dict[tuple[int, int], list[float]]:
-    """(series, revision) -> the medians of the revision's own executions of the series, those
-    measured while the host was busy left out, as the verdicts leave them out."""
-    found: dict[tuple[int, int], list[float]] = defaultdict(list)
+) -> dict[tuple[int, int], list[Run]]:
+    """(series, revision) -> the summaries (`Run`) of the revision's own executions of the
+    series, those measured while the host was busy left out, as the verdicts leave them out."""
+    found: dict[tuple[int, int], list[Run]] = defaultdict(list)
     if not series_ids or not revision_ids:
         return found
     rows = session.execute(
-        select(Summary.series_id, Execution.revision_id, Summary.p50)
+        select(Summary.series_id, Execution.revision_id, Summary.p50, Summary.n, Summary.mean)
         .join(Execution, Execution.id == Summary.execution_id)
         .join(Job, Job.id == Execution.job_id)
         .where(
@@ -102,13 +109,20 @@ def _medians(
             Summary.disturbed.is_(False),
         )
     )
-    for series_id, revision_id, p50 in rows:
-        found[(series_id, revision_id)].append(p50)
+    for series_id, revision_id, p50, n, mean in rows:
+        found[(series_id, revision_id)].append((p50, n, mean))
     return found
 
 
-def _level(values: list[float]) -> float | None:
-    return statistics.median(values) if values else None
+def _level(runs: list[Run], method: str) -> float | None:
+    """What ``method`` compared of these runs: KS the mean of their samples pooled, the others
+    the median of their medians."""
+    if not runs:
+        return None
+    if method == "ks":
+        counted = sum(n for _, n, _ in runs)
+        return sum(n * mean for _, n, mean in runs) / counted if counted else None
+    return statistics.median(p50 for p50, _, _ in runs)
 
 
 def _revisions_up_to(session: Session, newest_id: int, count: int) -> list[int]:
@@ -129,11 +143,13 @@ def _revisions_up_to(session: Session, newest_id: int, count: int) -> list[int]:
     )
 
 
-def _one_baseline(session: Session, series_id: int, newest_id: int, count: int) -> float | None:
+def _one_baseline(
+    session: Session, series_id: int, newest_id: int, count: int, method: str
+) -> float | None:
     """A baseline whose series was missing from many revisions: looked up alone (exact)."""
     ids = [r.id for r in baseline_revisions(session, series_id, newest_id, count)]
     medians = _medians(session, {series_id}, ids)
-    return _level([v for rid in ids for v in medians.get((series_id, rid), [])])
+    return _level([v for rid in ids for v in medians.get((series_id, rid), [])], method)
 
 
 def verdict_values(
@@ -148,26 +164,28 @@ def verdict_values(
                 Detection.series_id,
                 Detection.baseline_revision_id,
                 Detection.baseline_revisions,
+                Detection.method,
             ).where(Detection.revision_id == revision_id)
         )
     )
-    series_ids = {series_id for _, series_id, _, _ in detections}
+    series_ids = {series_id for _, series_id, _, _, _ in detections}
     own = _medians(session, series_ids, [revision_id])
-    groups: dict[tuple[int, int], list[tuple[int, int]]] = defaultdict(list)
-    for ident, series_id, newest, count in detections:
+    groups: dict[tuple[int, int], list[tuple[int, int, str]]] = defaultdict(list)
+    for ident, series_id, newest, count, method in detections:
         if newest is not None and count > 0:
-            groups[(newest, count)].append((ident, series_id))
+            groups[(newest, count)].append((ident, series_id, method))
     baseline: dict[int, float | None] = {}
     for (newest, count), members in groups.items():
         window = _revisions_up_to(session, newest, SLACK * count)
-        medians = _medians(session, {sid for _, sid in members}, window)
-        for ident, series_id in members:
+        medians = _medians(session, {sid for _, sid, _ in members}, window)
+        for ident, series_id, method in members:
             measured = [rid for rid in window if (series_id, rid) in medians][:count]
             if len(measured) < count and len(window) == SLACK * count:
-                baseline[ident] = _one_baseline(session, series_id, newest, count)
+                baseline[ident] = _one_baseline(session, series_id, newest, count, method)
             else:
-                baseline[ident] = _level([v for rid in measured for v in medians[(series_id, rid)]])
+                runs = [run for rid in measured for run in medians[(series_id, rid)]]
+                baseline[ident] = _level(runs, method)
     return {
-        ident: (baseline.get(ident), _level(own.get((series_id, revision_id), [])))
-        for ident, series_id, _, _ in detections
+        ident: (baseline.get(ident), _level(own.get((series_id, revision_id), []), method))
+        for ident, series_id, _, _, method in detections
     }
