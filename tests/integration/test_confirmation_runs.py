@@ -1094,6 +1094,9 @@ def test_the_revision_page_names_a_confirmation_run_by_its_pair(
     with api_with(services, tmp_path) as api:
         _flagged_history(session, database_url, tmp_path)
         page = api.client.get(f"/components/{NAME}/revisions/r4")
+        flagged = api.client.get(f"/components/{NAME}/revisions/r5").text
+    # its own runs judged, its pairs still to run: not "done" beside a pending gate (a trial)
+    assert "its runs judged, the CI gate still pending" in flagged
     assert page.status_code == 200, page.text
     table = page.text.split('<table id="jobs">')[1].split("</table>")[0]
     executions = re.findall(r"<tr><td>\d+</td><td>(?:<a [^>]*>)?([^<]+)", table)
