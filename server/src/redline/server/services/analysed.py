@@ -19,9 +19,23 @@ from sqlalchemy import select, tuple_, update
 from sqlalchemy.orm import Session
 
 
+def _lock_in_order(session: Session, revision_ids: Collection[int]) -> None:
+    """The revisions' rows locked in the order of their ids, as every caller here locks them: an
+    UPDATE of several rows locks them in the order it finds them on disk, which an update moves,
+    so two transactions marking overlapping revisions (two ingestions, an ingestion and a
+    re-analysis's batch) could each hold a row the other waits for."""
+    session.execute(
+        select(Revision.id)
+        .where(Revision.id.in_(revision_ids))
+        .order_by(Revision.id)
+        .with_for_update(key_share=True)  # FOR NO KEY UPDATE: what the UPDATE takes
+    )
+
+
 def unanalysed(session: Session, revision_ids: Collection[int]) -> None:
     """The revisions' verdicts no longer those of all their results: to be judged again."""
     if revision_ids:
+        _lock_in_order(session, revision_ids)
         session.execute(
             update(Revision)
             .where(Revision.id.in_(revision_ids))
@@ -44,6 +58,7 @@ def mark_analysed(session: Session, seen: Mapping[int, int], at: datetime) -> No
     """The revisions of ``seen`` analysed at ``at``, but those whose inputs changed since
     `inputs_seen` read them: a detection queued after that change judges them again."""
     if seen:
+        _lock_in_order(session, list(seen))
         session.execute(
             update(Revision)
             .where(tuple_(Revision.id, Revision.inputs).in_(list(seen.items())))

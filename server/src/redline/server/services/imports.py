@@ -238,9 +238,14 @@ def store_import(
     session.add(execution)
     session.flush()
     series = store_samples(session, execution, revision.component_id, run.samples)
-    # judged again, with the later revisions that read it, as after an ingestion: the walk the
-    # route queues marks them
-    unanalysed(session, [revision.id, *in_reach(session, revision.id)])
+    unanalysed(session, [revision.id])  # judged again: the walk the route queues marks it
+    session.commit()
+    # and the later revisions that read it, as after an ingestion, in a transaction of their
+    # own: this one holds the revision's row from its start, and waiting here for a later
+    # revision an import into it held, while that import waited for a series this one made,
+    # deadlocked (a CI run's concurrent imports, 503). A detection that judged them without
+    # this run meanwhile is undone here, or finds their inputs moved and leaves them pending.
+    unanalysed(session, in_reach(session, revision.id))
     session.commit()
     return ImportResult(
         component=run.component,
