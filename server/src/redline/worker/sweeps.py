@@ -132,11 +132,11 @@ def unjudged_revisions(
         select(Revision.component_id, Revision.id)
         .where(Revision.analyzed_at.is_(None), ingested.exists())
         .where(last_moved.between(now - SWEEP_WITHIN, now - LOST_GRACE))
+        .where(Revision.component_id.not_in(walking))  # before the limit, not after it
         .order_by(Revision.component_id, *revision_place())
         .limit(limit)
     ):
-        if component_id not in walking:
-            found.setdefault(component_id, []).append(revision_id)
+        found.setdefault(component_id, []).append(revision_id)
     return list(found.values())
 
 
