@@ -22,6 +22,7 @@ from redline.predict.watch import (
     calibrate,
     other_cpu,
     smooth,
+    trackers,
 )
 
 from tests.support.predict import SMALL, record
@@ -226,6 +227,27 @@ def test_a_gross_fault_from_before_watching_began_alarms_however_the_process_sta
     stalled = Residuals("cpu_percent", threshold=6.8)  # not gross: its offset is only reported
     assert not any(stalled.update(1.0, 10.0) for _ in range(30))
     assert stalled.offset == pytest.approx(-9.0)
+
+
+def test_a_cpu_fall_is_no_fault_where_the_models_responses_judge_a_stall():
+    """A clean objectbuilder's CPU fell to about half its prediction for 30 s in a live watch,
+    its answers unchanged (2026-12-07): where the model knows the component's responses, a stall
+    is judged by their silence, and a CPU fall is none; a rise alarms as ever, and where no
+    response is known a fall is still the only sign of a stall."""
+    metrics = {"cpu_percent": {"threshold": 9.0}, "rss_bytes": {"threshold": 1.6e6}}
+    answered, mute = trackers(metrics, ["objectbuilder/persons"]), trackers(metrics, [])
+    assert not answered["cpu_percent"].falls and answered["rss_bytes"].falls
+    assert mute["cpu_percent"].falls and mute["rss_bytes"].threshold == 1.6e6
+
+    def fall_then_rise(tracker: Residuals) -> list:
+        said = [tracker.update(22.0, 22.0) for _ in range(ANCHOR_STEPS + 5)]
+        said += [tracker.update(0.5 * 22.0, 22.0) for _ in range(30)]  # -11 for 30 s
+        return said + [tracker.update(22.0 + 11.0, 22.0) for _ in range(10)]  # +11: a fault
+
+    said = [a for a in fall_then_rise(answered["cpu_percent"]) if a is not None]
+    assert [(a.started, a.residual > 0) for a in said] == [(True, True)], said
+    said = [a for a in fall_then_rise(mute["cpu_percent"]) if a is not None]
+    assert said[0].started and said[0].residual < -9.0, said  # the fall alarms there
 
 
 def test_a_neighbours_burst_leaves_the_cpu_unjudged_while_the_components_own_fault_alarms():

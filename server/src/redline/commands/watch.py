@@ -210,7 +210,7 @@ def watch_cmd(
     from redline.predict.dataset import RESPONSE_WINDOW_S, TARGETS, DataError
     from redline.predict.features import OUT, FeatureSpec
     from redline.predict.model import ModelFile
-    from redline.predict.watch import EventWindow, Residuals, Silence, Step, judge_step
+    from redline.predict.watch import EventWindow, Silence, Step, judge_step, trackers
 
     try:
         loaded = ModelFile.load(model)
@@ -227,7 +227,7 @@ def watch_cmd(
         FeatureSpec(tuple((key, OUT) for key in loaded.responses), (RESPONSE_WINDOW_S,))
     )
     silences = [Silence(key) for key in loaded.responses]
-    residuals = {t: Residuals(t, loaded.metrics[t]["threshold"]) for t in TARGETS}
+    residuals = trackers(loaded.metrics, loaded.responses)
     stop = threading.Event()
     set_on_signals(stop, signal.SIGTERM, signal.SIGINT)
     session = _session(zenoh_config)

@@ -30,11 +30,11 @@ from redline.predict.model import ModelFile
 from redline.predict.watch import (
     Alarm,
     Contention,
-    Residuals,
     Silence,
     Step,
     judge_step,
     other_cpu,
+    trackers,
 )
 from redline.recording.disturbance import threshold
 from redline.recording.format import HOST_PROCESS, OWN_PROCESS
@@ -65,7 +65,7 @@ def replay(model: ModelFile, run: Run) -> list[Step | Alarm]:
     }
     received = in_window(heard, times, 1.0)
     answered = {key: in_window(stamps, times, RESPONSE_WINDOW_S) for key, stamps in answers.items()}
-    residuals = {t: Residuals(t, model.metrics[t]["threshold"]) for t in TARGETS}
+    residuals = trackers(model.metrics, model.responses)
     silences = [Silence(key) for key in model.responses]
     contention = Contention(threshold())
     warm_until = begin + int(max(model.spec.windows) * NS)

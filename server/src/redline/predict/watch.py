@@ -31,11 +31,12 @@ from __future__ import annotations
 import math
 import threading
 from collections import deque
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from statistics import median
 
 import numpy as np
+from redline.predict.dataset import TARGETS
 from redline.predict.features import NS, Event, FeatureSpec, extract
 from redline.recording.disturbance import other_load
 from redline.recording.format import HOST_PROCESS, OWN_PROCESS
@@ -73,6 +74,14 @@ OFFSET_FLOOR = 0.5
 #: targets another process's load moves: their residual is left out of a step the host was
 #: busy in (memory is the component's own, whatever else runs)
 CONTENDED = frozenset({"cpu_percent"})
+#: targets whose fall below the prediction is no fault where the model knows the component's
+#: responses: `Silence` judges a stall, the fault a fall stood for, within 5 s (CPU took 13-16).
+#: A clean objectbuilder's CPU fell to 0.38-0.57 of the prediction for 30 s in a live watch, what
+#: it heard and answered unchanged, other load up by 12 % of a core (a move of -9.9 against a
+#: threshold of 9.1, 2026-12-07); a CI run's clean minute alarmed so (-9.3 against 7.7); every
+#: false CPU alarm on clean traffic before the host's contention was told was a fall
+#: (docs/prediction.md). Memory's falls are judged, and CPU's where no response is known
+RISING = frozenset({"cpu_percent"})
 #: steps whose other load is the host's usual: a step beyond their median by the disturbance
 #: threshold is busy (a robot's other components may use cores throughout; a burst is judged)
 USUAL_STEPS = 30
@@ -212,10 +221,11 @@ class Contention:
 class Residuals:
     """Smoothed residuals of one target against its threshold, judged by their move from the
     process's offset (once `ANCHOR_STEPS` clean steps in a row, neither gross nor in an alarm,
-    have measured it) and by their level against `GROSS` times the threshold."""
+    have measured it) and by their level against `GROSS` times the threshold. ``falls``: whether
+    a residual below the prediction can be a fault (else only a rise is judged)."""
 
-    def __init__(self, target: str, threshold: float) -> None:
-        self.target, self.threshold = target, threshold
+    def __init__(self, target: str, threshold: float, falls: bool = True) -> None:
+        self.target, self.threshold, self.falls = target, threshold, falls
         self.level: float | None = None  # the smoothed residual
         self.moved: float | None = None  # the smoothed residual less the offset
         self.offset: float | None = None
@@ -232,6 +242,9 @@ class Residuals:
             return 0.0
         return self.offset
 
+    def _beyond(self, value: float, limit: float) -> bool:
+        return value > limit or (self.falls and value < -limit)
+
     @staticmethod
     def _smooth(level: float | None, value: float) -> float:
         return value if level is None else SMOOTHING * value + (1 - SMOOTHING) * level
@@ -245,7 +258,7 @@ class Residuals:
             return None
         residual = measured - predicted
         self.level = self._smooth(self.level, residual)
-        gross = abs(self.level) > GROSS * self.threshold
+        gross = self._beyond(self.level, GROSS * self.threshold)
         if self.offset is None:
             # measured over clean steps in a row: a fault there would become the process's
             # level, and its end a move that never ends
@@ -261,7 +274,7 @@ class Residuals:
             # step counted unsmoothed: a clean objectbuilder in a CI run alarmed on CPU at step 13,
             # three steps after its offset was measured (23.6 against a threshold of 22.6)
             self.moved = self.level - self.taken_off
-        moved = self.moved is not None and abs(self.moved) > self.threshold
+        moved = self.moved is not None and self._beyond(self.moved, self.threshold)
         # until the offset is known, only a gross level alarms
         judged = self.level if gross or self.moved is None else self.moved
         beyond = gross or moved
@@ -286,6 +299,17 @@ class Residuals:
             # each, delaying the alarm they start (+50 % of a core: 1.7 a step, unclipped)
             reach = OFFSET_FLOOR * self.threshold
             self.offset += float(np.clip(residual - self.offset, -reach, reach)) / DRIFT_STEPS
+
+
+def trackers(metrics: Mapping[str, Mapping], responses: Sequence[str]) -> dict[str, Residuals]:
+    """Each target's `Residuals` at its model's threshold; a `RISING` target's falls judged only
+    where the model knows no response (then a fall is the only sign of a stall)."""
+    return {
+        target: Residuals(
+            target, metrics[target]["threshold"], not (responses and target in RISING)
+        )
+        for target in TARGETS
+    }
 
 
 class Silence:
