@@ -14,6 +14,8 @@ from redline.detect.suspected import AT_NEW_LEVEL, BEFORE_SUSPECTED
 from redline.server.models import Detection, Revision
 from redline.server.schemas.components import ComponentCreate
 from redline.server.services.components import create_component
+from redline.worker.ingest import ingest_execution
+from redline.worker.onward import judge_onward
 from redline.worker.reanalysis import reanalyze_component
 from sqlalchemy import select
 
@@ -22,17 +24,27 @@ from tests.support.history import add_executions, ingest_and_detect
 NAME = "builder"
 
 
-def _history(session, database_url: str, tmp_path: Path, levels: list[float]) -> None:
-    """Revisions r1.. of one execution each around ``levels`` (2 % noise in the samples, a
-    fixed 1 % between runs), judged one by one as the service judges them."""
-    create_component(session, ComponentCreate(name=NAME, executions=1))
+def _history(
+    session, database_url: str, tmp_path: Path, levels: list[float], executions: int = 1
+) -> None:
+    """Revisions r1.. of ``executions`` each around ``levels`` (2 % noise in the samples, a
+    fixed 1 % between runs), judged one by one as the service judges them (with more than one
+    execution, by the worker's walk: `judge_onward`)."""
+    create_component(session, ComponentCreate(name=NAME, executions=executions))
     rng = np.random.default_rng(11)
     wobble = [0.0, 0.01, -0.01, 0.005, -0.005]
     for number, level in enumerate(levels, start=1):
-        centre = level * (1 + wobble[number % len(wobble)])
-        runs = [{"cpu": rng.normal(centre, level * 0.02, 60)}]
-        executions = add_executions(session, tmp_path, NAME, f"r{number}", str(number), runs)
-        ingest_and_detect(database_url, executions)
+        runs = [
+            {"cpu": rng.normal(level * (1 + wobble[(number + i) % 5]), level * 0.02, 60)}
+            for i in range(executions)
+        ]
+        made = add_executions(session, tmp_path, NAME, f"r{number}", str(number), runs)
+        if executions == 1:
+            ingest_and_detect(database_url, made)
+            continue
+        for execution in made:
+            ingest_execution(database_url, execution.id)
+        judge_onward(database_url, made[0].revision_id)
     session.expire_all()
 
 
@@ -131,3 +143,34 @@ def test_a_revision_at_a_held_change_s_level_is_no_change_not_undecided(
         assert f"{AT_NEW_LEVEL} r9" in verdicts[title].reason
     assert verdicts["r15"].verdict == "no change"  # r9-r14, six values: judged by them alone
     assert AT_NEW_LEVEL not in verdicts["r15"].reason
+
+
+def test_a_step_back_right_after_an_improvement_is_flagged_at_its_own_revision(
+    session, database_url, tmp_path
+):
+    """A trial's commit raised the CPU by 19 % right after an improvement was flagged (three
+    executions a revision): judged while that improvement was undecided, it showed it against
+    the level before it ("not enough data"), passed CI, and was pooled into the new level,
+    never flagged. r9 falls 40 %, r10 rises 25 % from there (still 25 % under the level before
+    r9): flagged at r10, against r9's level. A spike's return to the old level is no change."""
+    _history(session, database_url, tmp_path, [20.0] * 8 + [12.0] + [15.0] * 3, executions=3)
+    verdicts = _verdicts(session)
+    assert verdicts["r9"].flagged and verdicts["r9"].direction == "decrease"
+    r10 = verdicts["r10"]
+    assert r10.flagged and r10.direction == "increase", (r10.verdict, r10.reason)
+    assert 0.15 < (r10.effect or 0) < 0.35
+    assert f"{BEFORE_SUSPECTED} r9 it still shows that change" in r10.reason, r10.reason
+    base = session.get(Revision, r10.baseline_revision_id)
+    assert base is not None and base.title == "r9"
+    assert not any(d.flagged for t, d in verdicts.items() if t not in ("r9", "r10"))
+    _reanalysed_alike(session, database_url, verdicts)
+
+
+def test_a_spike_that_returns_is_no_change_with_three_executions_a_revision(
+    session, database_url, tmp_path
+):
+    _history(session, database_url, tmp_path, [20.0] * 8 + [12.0] + [20.0] * 3, executions=3)
+    verdicts = _verdicts(session)
+    assert verdicts["r9"].flagged
+    for title in ("r10", "r11", "r12"):
+        assert not verdicts[title].flagged, (title, verdicts[title].reason)

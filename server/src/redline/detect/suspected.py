@@ -14,9 +14,10 @@ most ``confirm_revisions`` before it; the flagged values left out, which would p
 towards the suspected one). A change for the worse (or better) against it stands, and so does
 "no change"; only a change in the direction of the one suspected, which is that change holding
 (or a further step the short new level cannot tell from it), stays "not enough data", its
-reason saying so. Whether the flag was a change is still settled by its pairs or by the later
-revisions (`redline.detect.confirmation`). Once they held it, the new level is judged with the
-noise of the level before it (`at_new_level`) until it holds enough values alone.
+reason saying so, unless it moved back from the flag's own level (`after_flag`). Whether the
+flag was a change is still settled by its pairs or by the later revisions
+(`redline.detect.confirmation`). Once they held it, the new level is judged with the noise of
+the level before it (`at_new_level`) until it holds enough values alone.
 """
 
 from __future__ import annotations
@@ -36,6 +37,8 @@ from redline.detect.verdict import floored, judge_series
 #: ("flagged", not "suspected": the flag's own pairs may have confirmed it meanwhile, and a
 #: trial read "the change suspected at X" beside "#1 confirmed")
 BEFORE_SUSPECTED = "judged against the level before the change flagged at"
+#: what the reason of a revision that shows an undecided flag's change says (`past_suspected`)
+SHOWS_THAT_CHANGE = "shows that change"
 #: how the reason of a verdict judged against a short new level (`at_new_level`) begins
 AT_NEW_LEVEL = "judged against the new level since the change at"
 
@@ -58,7 +61,25 @@ def after_flag(
     if held:
         return at_new_level(found, detector, counter, restarted, earlier, candidate, at), False
     judge = partial(judge_series, detector, counter, candidate=candidate)
-    return past_suspected(found, judge, restarted, earlier, at)
+    verdict, judged_before = past_suspected(found, judge, restarted, earlier, at)
+    if SHOWS_THAT_CHANGE not in verdict.reason:
+        return verdict, judged_before
+    # It shows the flag's change against the level before it: judged against the flag's own
+    # level too, as once a change held, a change the other way from the flag's stands (a part
+    # of it undone, or a further step), against the flag's revision, whose pairs settle which
+    # level it left. A trial's commit that raised the CPU by 19 % right after an improvement was
+    # flagged (three executions a revision; still 28.8 % under the level before it) was "not
+    # enough data", passed CI and was pooled into the new level: never flagged. A spike's
+    # return to the level before it shows no change there, and is not judged here.
+    undone = at_new_level(verdict, detector, counter, restarted, earlier, candidate, at)
+    flagged = direction_of(median(restarted[np.isfinite(restarted)]) - median(earlier))
+    if not undone.flagged or undone.direction == flagged:
+        return verdict, judged_before
+    note = (
+        f"{BEFORE_SUSPECTED} {at} it still shows that change: "
+        "a part of it undone, or a further step; the revisions after it have not yet decided it"
+    )
+    return replace(undone, reason=f"{undone.reason}; {note}"), False
 
 
 def past_suspected(
@@ -88,7 +109,7 @@ def past_suspected(
         return replace(
             found,
             reason=f"{found.reason}; against the level before the change flagged at {at} it "
-            f"shows that change ({old.effect:+.1%}): the new level is too short to judge by "
+            f"{SHOWS_THAT_CHANGE} ({old.effect:+.1%}): the new level is too short to judge by "
             "until the revisions after it decide",
         ), False
     note = (
