@@ -7,6 +7,8 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+from redline.server.db import session_factory
+from redline.server.models import Job, JobState
 
 from tests.support.api import Api, api_with, expire_lease, recording_for
 from tests.support.servers import Services
@@ -168,3 +170,38 @@ def test_a_fault_of_the_commit_itself_runs_none_of_its_other_executions(api: Api
     ).raise_for_status()
     jobs = api.client.get("/api/v1/components/broken/revisions/b2").json()["jobs"]
     assert sorted(j["state"] for j in jobs) == ["failed", "queued", "queued"]
+
+
+def test_a_components_new_host_labels_apply_to_the_jobs_it_has_waiting(
+    services: Services, tmp_path: Path
+) -> None:
+    """A trial set a component's host_labels to a label no host had, reported a commit, then
+    set them back to []: its job kept the label it was queued with, no host took it, and
+    `ci wait` waited until its timeout. The labels a component asks for now apply to every job
+    of it not yet run; a host that holds one keeps it until its lease ends, and should the
+    lease lapse, a host with the new labels takes it."""
+    with api_with(services, tmp_path) as api:
+        api.component("relabelled", host_labels=["mine"])
+        created = api.revision("r1", "1", component="relabelled")
+        api.post("/api/v1/agent/register", "agent", {"name": "perf1", "labels": []})
+        assert api.lease("perf1") is None
+
+        def labels(host_labels: list[str]) -> None:
+            answer = api.client.patch(
+                "/api/v1/components/relabelled",
+                json={"host_labels": host_labels},
+                headers=api.headers("admin"),
+            )
+            assert answer.status_code == 200, answer.text
+
+        labels([])
+        leased = api.lease("perf1")
+        assert leased is not None and leased["id"] in created["job_ids"]
+        labels(["elsewhere"])
+        with session_factory(api.settings.database_url)() as session:
+            job = session.get_one(Job, leased["id"])
+            assert (job.state, job.host.name, job.labels) == (
+                JobState.leased,
+                "perf1",
+                ["elsewhere"],
+            )

@@ -6,12 +6,12 @@ import difflib
 from pathlib import Path
 
 from redline.agent.checkout import refused_repo, without_credentials
-from redline.server.models import Component, Revision
+from redline.server.models import HELD, Component, Job, JobState, Revision
 from redline.server.schemas.components import ComponentCreate, ComponentOut, ComponentSettings
 from redline.server.schemas.fields import COMMIT_HASH
 from redline.server.services.errors import BadRequest, Conflict, NotFound, Unprocessable
 from redline.server.services.repos import repo_key
-from sqlalchemy import Select, and_, func, literal, or_, select
+from sqlalchemy import Select, and_, func, literal, or_, select, update
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
@@ -81,6 +81,19 @@ def update_component(
         setattr(component, field, value)
     component.webhook_secret = component.webhook_secret or None
     component.repo_key = repo_key(component.repo)
+    if data.host_labels is not None:
+        # its jobs not yet run ask for the hosts it asks for now (a trial's job kept a label no
+        # host had, and waited for ever); a host holding one keeps it until its lease ends
+        session.execute(
+            update(Job)
+            .where(
+                Job.revision_id.in_(
+                    select(Revision.id).where(Revision.component_id == component.id)
+                ),
+                Job.state.in_((JobState.queued, *HELD)),
+            )
+            .values(labels=list(data.host_labels))
+        )
     session.commit()
     return component
 
