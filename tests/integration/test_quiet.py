@@ -73,3 +73,28 @@ def test_analyses_share_the_lock_and_without_it_nothing_waits(
     monkeypatch.delenv(quiet.LOCK_VARIABLE)
     with quiet.measuring(), quiet.measuring():  # no lock configured: a no-op, even nested
         pass
+
+
+def test_a_run_again_after_a_busy_host_waits_until_the_host_is_quiet():
+    """A trial's first demo ran its first two jobs three times each, one straight after the
+    other, while something used 94-96 % of a core for about 45 s: none could be judged. A run
+    again waits, up to a bound, until the host's load stays under the disturbance threshold; here
+    a process spinning a core for 4 s is waited out, and one spinning throughout is not."""
+    spin = "import time\nend = time.monotonic() + {s}\nwhile time.monotonic() < end: pass"
+    spinner = subprocess.Popen([sys.executable, "-c", spin.format(s=4)])
+    try:
+        time.sleep(0.5)  # spinning
+        began = time.monotonic()
+        waited = quiet.wait_for_quiet(30.0, most_s=60)
+        took = time.monotonic() - began
+    finally:
+        spinner.wait(timeout=30)
+    # the spin's last 3.5 s or so were busy, then 3 quiet seconds in a row
+    assert waited is not None and waited >= quiet.QUIET_SAMPLES + 2, (waited, took)
+    spinner = subprocess.Popen([sys.executable, "-c", spin.format(s=8)])
+    try:
+        time.sleep(0.5)
+        assert quiet.wait_for_quiet(30.0, most_s=4) is None  # busy throughout: given up
+    finally:
+        spinner.kill()
+        spinner.wait(timeout=30)

@@ -23,7 +23,7 @@ from redline.agent.client import LeaseLost, ServerClient, ServerUnavailable, Upl
 from redline.agent.governor import governor_files
 from redline.agent.host import host_fingerprint
 from redline.agent.isolated import ChildFailed, adopt_orphans, run_isolated
-from redline.agent.quiet import measuring
+from redline.agent.quiet import QUIET_WAIT_S, measuring, wait_for_quiet
 from redline.agent.spool import Spool, SpoolSender
 from redline.agent.suite import SuiteError, load_suite
 from redline.recording import read_recording
@@ -225,13 +225,21 @@ class AgentDaemon:
                 break
             reason = next(iter(busy.values()))
             log.warning(
-                "job %s: %s in %d phase(s); running the execution again (%d of %d)",
+                "job %s: %s in %d phase(s); running the execution again (%d of %d) once the "
+                "host is quiet",
                 job["id"],
                 reason,
                 len(busy),
                 attempt + 1,
                 retries,
             )
+            waited = wait_for_quiet(threshold())
+            if waited is None:
+                log.warning(
+                    "job %s: the host stayed busy for %.0f s; running it now",
+                    job["id"],
+                    QUIET_WAIT_S,
+                )
             # the retry is visible: the recording uploaded says how many runs were disturbed
             retried = {"disturbed_runs": str(attempt + 1), "disturbed_reason": reason}
         if result.run_metadata.get("status") == NO_TRAFFIC:  # uploaded: the server says why
