@@ -10,6 +10,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import pytest
 from redline.detect.suspected import AT_NEW_LEVEL, BEFORE_SUSPECTED
 from redline.server.models import Detection, Revision
 from redline.server.schemas.components import ComponentCreate
@@ -145,15 +146,19 @@ def test_a_revision_at_a_held_change_s_level_is_no_change_not_undecided(
     assert AT_NEW_LEVEL not in verdicts["r15"].reason
 
 
+@pytest.mark.parametrize("executions", [3, 1])
 def test_a_step_back_right_after_an_improvement_is_flagged_at_its_own_revision(
-    session, database_url, tmp_path
+    session, database_url, tmp_path, executions
 ):
     """A trial's commit raised the CPU by 19 % right after an improvement was flagged (three
     executions a revision): judged while that improvement was undecided, it showed it against
     the level before it ("not enough data"), passed CI, and was pooled into the new level,
     never flagged. r9 falls 40 %, r10 rises 25 % from there (still 25 % under the level before
-    r9): flagged at r10, against r9's level. A spike's return to the old level is no change."""
-    _history(session, database_url, tmp_path, [20.0] * 8 + [12.0] + [15.0] * 3, executions=3)
+    r9): flagged at r10, against r9's level, with the noise of the level before r9 (r9's level
+    is one value with one execution a revision). A spike's return to the old level is no
+    change."""
+    levels = [20.0] * 8 + [12.0] + [15.0] * 3
+    _history(session, database_url, tmp_path, levels, executions=executions)
     verdicts = _verdicts(session)
     assert verdicts["r9"].flagged and verdicts["r9"].direction == "decrease"
     r10 = verdicts["r10"]

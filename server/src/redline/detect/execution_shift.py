@@ -196,7 +196,9 @@ class ExecutionShift(Detector):
         confirm what it flags (`redline.worker.held_level`)."""
         return self._between(before, after, self.threshold)
 
-    def at_new_level(self, level: np.ndarray, earlier: np.ndarray, cand: np.ndarray) -> Detection:
+    def at_new_level(
+        self, level: np.ndarray, earlier: np.ndarray, cand: np.ndarray, least: int = STEP_SIDE
+    ) -> Detection:
         """A revision judged against a new level too short to judge by alone (``level``: the
         values since a change that held, at least `STEP_SIDE`), its noise read from the level
         before the change as well (``earlier``, at least ``min_baseline`` values). The spread
@@ -207,13 +209,14 @@ class ExecutionShift(Detector):
         unchanged revisions); those residuals' standard deviation, as `step` takes it; and
         `spread_floor`. ``z`` counts the new level's median as known from its own values only
         (``sqrt(1/len(cand) + 1/len(level))``). At ``threshold``, as `_detect`.
-        `redline.detect.suspected.at_new_level`."""
+        `redline.detect.suspected.at_new_level`. ``least``: the values the new level needs
+        (one, for a revision that moved back from a flag: `redline.detect.suspected.after_flag`)."""
         level, earlier = level[np.isfinite(level)], earlier[np.isfinite(earlier)]
         cand = cand[np.isfinite(cand)]
-        if not len(cand) or len(level) < STEP_SIDE or len(earlier) < self.min_baseline:
+        if not len(cand) or len(level) < least or len(earlier) < self.min_baseline:
             return not_enough(
                 self.name,
-                f"too few values for the new level: {len(level)} at it (needs {STEP_SIDE}), "
+                f"too few values for the new level: {len(level)} at it (needs {least}), "
                 f"{len(earlier)} before it (needs {self.min_baseline})",
             )
         new, old = median(level), median(earlier)

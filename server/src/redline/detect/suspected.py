@@ -27,7 +27,7 @@ from dataclasses import replace
 from functools import partial
 
 import numpy as np
-from redline.detect.execution_shift import ExecutionShift
+from redline.detect.execution_shift import STEP_SIDE, ExecutionShift
 from redline.detect.median_shift import median
 from redline.detect.methods import Detector
 from redline.detect.result import Detection, direction_of, waits_for_history
@@ -69,9 +69,11 @@ def after_flag(
     # of it undone, or a further step), against the flag's revision, whose pairs settle which
     # level it left. A trial's commit that raised the CPU by 19 % right after an improvement was
     # flagged (three executions a revision; still 28.8 % under the level before it) was "not
-    # enough data", passed CI and was pooled into the new level: never flagged. A spike's
-    # return to the level before it shows no change there, and is not judged here.
-    undone = at_new_level(verdict, detector, counter, restarted, earlier, candidate, at)
+    # enough data", passed CI and was pooled into the new level: never flagged. The flag's own
+    # values may be one (one execution a revision): its noise is the level before it's, and z
+    # counts the one value as such. A spike's return to the level before it shows no change
+    # there, and is not judged here.
+    undone = at_new_level(verdict, detector, counter, restarted, earlier, candidate, at, 1)
     flagged = direction_of(median(restarted[np.isfinite(restarted)]) - median(earlier))
     if not undone.flagged or undone.direction == flagged:
         return verdict, judged_before
@@ -127,10 +129,12 @@ def at_new_level(
     earlier: np.ndarray,
     candidate: np.ndarray,
     at: str,
+    least: int = STEP_SIDE,
 ) -> Detection:
     """The verdict of a revision whose baseline restarted at a change that held (at revision
-    ``at``): ``found``, or, where that new level (``level``, its values) was too short to judge
-    by, `ExecutionShift.at_new_level` against it with the noise of the level before it
+    ``at``): ``found``, or, where that new level (``level``, its values, at least ``least``) was
+    too short to judge by, `ExecutionShift.at_new_level` against it with the noise of the level
+    before it
     (``earlier``: the values the flagged revision's own baseline holds), and the counter's
     absolute floor. Without it, the revisions after a real change were "not enough data"
     until six values at the new level existed: with one execution a revision, a second change
@@ -142,7 +146,7 @@ def at_new_level(
         or not isinstance(detector, ExecutionShift)
     ):
         return found
-    judged = detector.at_new_level(level, earlier, candidate)
+    judged = detector.at_new_level(level, earlier, candidate, least)
     if not judged.decided:
         return found
     judged = floored(judged, counter, level, candidate)
