@@ -103,15 +103,18 @@ def test_an_execution_the_host_was_busy_in_is_run_again_boundedly_and_says_so(
         return RunResult(out, None, 1, run_metadata, {})
 
     monkeypatch.setattr(daemon_module, "run_isolated", run_isolated)
-    waits: list[tuple[float, int]] = []  # each retry first waits for a quiet host, its limit
+    waits: list[tuple[float, float, int]] = []  # each retry first waits for a quiet host
     monkeypatch.setattr(
-        daemon_module, "wait_for_quiet", lambda limit: waits.append((limit, len(given))) or 3.0
+        daemon_module,
+        "wait_for_quiet",
+        lambda limit, most: waits.append((limit, most, len(given))) or 3.0,
     )
     daemon = AgentDaemon(
         client=_LostLeaseClient(),  # type: ignore[arg-type]
         workdir=tmp_path / "work",
         allow_file_repos=True,
         disturbed_retries=retries,
+        quiet_wait=45.0,
     )
     # a confirmation run's job: its cases and parameter sets reach the run, each time
     sets = {"steady": ['{"rate":10}']}
@@ -119,7 +122,7 @@ def test_an_execution_the_host_was_busy_in_is_run_again_boundedly_and_says_so(
     job.update(cases=["steady"], parameter_sets=sets, sets_alone=True, busy_matters=matters)
     out = daemon._run(job, "job-7")
     assert len(given) == runs
-    assert waits == [(30.0, run) for run in range(1, runs)]  # after each busy run but the last
+    assert waits == [(30.0, 45.0, run) for run in range(1, runs)]  # each busy run's but the last
     assert chosen == [(["steady"], sets, True)] * runs
     assert "disturbed_runs" not in given[0]
     for attempt, metadata in enumerate(given[1:], start=1):  # each retry says it is one

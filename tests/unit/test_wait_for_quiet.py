@@ -22,3 +22,4 @@ def test_it_waits_for_quiet_seconds_in_a_row_and_gives_up_at_its_bound():
     assert _waits([None, None, 5.0, 5.0, 5.0])[0] == 4.0  # no rate counts as not quiet
     waited, slept = _waits([None] + [100.0] * 10, most_s=5)
     assert waited is None and len(slept) == 5
+    assert _waits([], most_s=0) == (0.0, [])  # `--quiet-wait 0`: at once, as before

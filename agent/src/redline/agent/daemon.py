@@ -67,6 +67,8 @@ class AgentDaemon:
     allow_file_repos: bool = False
     #: how many times an execution is run again when the host was busy during a phase
     disturbed_retries: int = 2
+    #: ... each once the host is quiet, waited for at most this long (`wait_for_quiet`)
+    quiet_wait: float = QUIET_WAIT_S
     stop: threading.Event = field(default_factory=threading.Event)
     #: the job being checked out, built or run: what a second signal releases
     current_job: int | None = None
@@ -233,12 +235,11 @@ class AgentDaemon:
                 attempt + 1,
                 retries,
             )
-            waited = wait_for_quiet(threshold())
-            if waited is None:
+            if wait_for_quiet(threshold(), self.quiet_wait) is None:
                 log.warning(
                     "job %s: the host stayed busy for %.0f s; running it now",
                     job["id"],
-                    QUIET_WAIT_S,
+                    self.quiet_wait,
                 )
             # the retry is visible: the recording uploaded says how many runs were disturbed
             retried = {"disturbed_runs": str(attempt + 1), "disturbed_reason": reason}

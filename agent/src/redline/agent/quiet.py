@@ -27,8 +27,9 @@ LOCK_VARIABLE = "REDLINE_MEASUREMENT_LOCK"
 #: a run again after a busy host waits until the host's load stays under the disturbance
 #: threshold for this many one-second samples in a row ...
 QUIET_SAMPLES = 3
-#: ... for at most this long; then it runs anyway (its recording says whether it was busy)
-QUIET_WAIT_S = 90.0
+#: ... for at most this long by default (`redline agent --quiet-wait`); then it runs anyway
+#: (its recording says whether it was busy)
+QUIET_WAIT_S = 60.0
 
 
 @contextmanager
@@ -73,7 +74,9 @@ def wait_for_quiet(
 ) -> float | None:
     """Wait until the host's load (an agent between runs uses next to none of it) stays under
     ``limit`` (% of one core) for `QUIET_SAMPLES` seconds in a row: the seconds waited, or None
-    when it did not within ``most_s``."""
+    when it did not within ``most_s`` (none at all for 0: at once)."""
+    if most_s <= 0:
+        return 0.0
     sampler = HostSampler()
     try:
         load(sampler)  # the first sample has no rate yet

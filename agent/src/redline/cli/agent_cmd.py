@@ -12,6 +12,7 @@ from types import FrameType
 from typing import TYPE_CHECKING, Annotated
 
 import typer
+from redline.agent.quiet import QUIET_WAIT_S
 from redline.cli.tokens import read_token
 
 if TYPE_CHECKING:
@@ -66,6 +67,15 @@ def agent(
             "(other load over REDLINE_DISTURBED_CPU_PERCENT)",
         ),
     ] = 2,
+    quiet_wait: Annotated[
+        float,
+        typer.Option(
+            min=0,
+            envvar="REDLINE_AGENT_QUIET_WAIT_S",
+            help="before such a run again, seconds to wait at most for the host to be quiet "
+            "(0: at once)",
+        ),
+    ] = QUIET_WAIT_S,
     allow_file_repos: Annotated[
         bool,
         typer.Option(
@@ -96,6 +106,7 @@ def agent(
         long_poll=wait,
         allow_file_repos=allow_file_repos,
         disturbed_retries=disturbed_retries,
+        quiet_wait=quiet_wait,
     )
     _Signals(daemon, grace, AgentStopping).install()
     try:
