@@ -161,6 +161,43 @@ def test_the_junit_file_and_the_exit_code_are_of_one_reading_of_the_verdict(serv
     assert suite.get("failures") == "1" and suite.find("testcase/skipped") is None
 
 
+def test_a_verdict_pending_again_once_settled_is_polled_without_its_junit_xml(server, tmp_path):
+    """r6's verdict settles, then reads pending again when asked for with its JUnit XML (a
+    result came in meanwhile) for two polls: `ci wait` polls without the XML again (the server
+    would build it at every poll), and reads it once more when the verdict settles again."""
+    out = tmp_path / "junit.xml"
+    _, _, api = server
+    saved: list[object] = []
+    polls_pending = [0]
+
+    def pending_for_two_polls() -> None:
+        with session_factory(api.settings.database_url)() as session:
+            r6 = session.scalars(select(Revision).where(Revision.title == "r6")).one()
+            if not saved and "junit=" in proxy.seen[-1]:
+                saved.append(r6.analyzed_at)
+                r6.analyzed_at = None
+            elif saved and r6.analyzed_at is None:
+                polls_pending[0] += 1
+                if polls_pending[0] > 2:
+                    r6.analyzed_at = saved[0]
+            session.commit()
+
+    try:
+        with flaky_proxy(server[0]) as proxy:
+            proxy.before = {"/verdict": pending_for_two_polls}
+            done = wait(server, "--revision", "r6", "--junit", str(out), via=proxy.url)
+    finally:
+        with session_factory(api.settings.database_url)() as session:
+            r6 = session.scalars(select(Revision).where(Revision.title == "r6")).one()
+            r6.analyzed_at = r6.analyzed_at or (saved[0] if saved else None)
+            session.commit()
+    assert done.returncode == 1, done.stderr
+    asked = [p for p in proxy.seen if p.split("?")[0].endswith("/verdict")]
+    with_xml = [i for i, p in enumerate(asked) if "junit=" in p]
+    assert len(with_xml) == 2 and with_xml[1] - with_xml[0] >= 3, asked
+    assert ElementTree.parse(out).getroot().get("failures") == "1"
+
+
 def test_no_change_passes_and_no_baseline_is_skipped_with_its_reason(server, tmp_path):
     out = tmp_path / "junit.xml"
     assert wait(server, "--revision", "r3", "--junit", str(out)).returncode == 0

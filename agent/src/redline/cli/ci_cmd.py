@@ -324,6 +324,8 @@ def wait(
                     fail(f"HTTP {answer.status_code}: {detail(answer)}")
                 else:
                     verdict = answer.json()
+                    # pending again (results came in meanwhile): polled without the XML again
+                    settled = settled and verdict["state"] != "pending"
                     if verdict["state"] != "pending" and wanted and not settled:
                         settled = True
                         continue  # at once, with its JUnit XML
