@@ -9,6 +9,8 @@ import socket
 import subprocess
 import sys
 import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from xml.etree import ElementTree
 
@@ -131,31 +133,38 @@ def test_a_proxys_502_while_the_server_restarts_is_waited_for_not_read_as_a_chan
     assert said in refused.stderr and said in out.read_text()
 
 
+@contextmanager
+def _r6_made_pending(api) -> Iterator[Callable[[bool], None]]:
+    """A switch that makes r6's verdict pending (as a result ingested for it would) or settled
+    again as it was; settled again at the end."""
+    factory = session_factory(api.settings.database_url)
+
+    def r6(session) -> Revision:
+        return session.scalars(select(Revision).where(Revision.title == "r6")).one()
+
+    with factory() as session:
+        saved = r6(session).analyzed_at
+
+    def pending(yes: bool) -> None:
+        with factory() as session:
+            r6(session).analyzed_at = None if yes else saved
+            session.commit()
+
+    try:
+        yield pending
+    finally:
+        pending(False)
+
+
 def test_the_junit_file_and_the_exit_code_are_of_one_reading_of_the_verdict(server, tmp_path):
     """A review: the verdict and its JUnit file were read in two requests, and a result judged
     between them made the file say one thing and the exit code another. Here r6 is made pending
     again (a result ingested for it) as soon as the file is asked for on its own: its file must
     still be the done verdict's, failed as the exit code says."""
     out = tmp_path / "junit.xml"
-    _, _, api = server
-
-    def pending_again() -> None:
-        with session_factory(api.settings.database_url)() as session:
-            r6 = session.scalars(select(Revision).where(Revision.title == "r6")).one()
-            saved, r6.analyzed_at = r6.analyzed_at, None
-            session.commit()
-            restore.append((r6.id, saved))
-
-    restore: list[tuple[int, object]] = []
-    try:
-        with flaky_proxy(server[0]) as proxy:
-            proxy.before = {"/junit": pending_again}
-            done = wait(server, "--revision", "r6", "--junit", str(out), via=proxy.url)
-    finally:
-        with session_factory(api.settings.database_url)() as session:
-            for revision_id, saved in restore:
-                session.get_one(Revision, revision_id).analyzed_at = saved
-            session.commit()
+    with _r6_made_pending(server[2]) as pending, flaky_proxy(server[0]) as proxy:
+        proxy.before = {"/junit": lambda: pending(True)}
+        done = wait(server, "--revision", "r6", "--junit", str(out), via=proxy.url)
     assert done.returncode == 1, done.stderr
     suite = ElementTree.parse(out).getroot()
     assert suite.get("failures") == "1" and suite.find("testcase/skipped") is None
@@ -166,31 +175,17 @@ def test_a_verdict_pending_again_once_settled_is_polled_without_its_junit_xml(se
     result came in meanwhile) for two polls: `ci wait` polls without the XML again (the server
     would build it at every poll), and reads it once more when the verdict settles again."""
     out = tmp_path / "junit.xml"
-    _, _, api = server
-    saved: list[object] = []
-    polls_pending = [0]
+    polls: list[str] = []  # the polls since the verdict first read pending again
 
-    def pending_for_two_polls() -> None:
-        with session_factory(api.settings.database_url)() as session:
-            r6 = session.scalars(select(Revision).where(Revision.title == "r6")).one()
-            if not saved and "junit=" in proxy.seen[-1]:
-                saved.append(r6.analyzed_at)
-                r6.analyzed_at = None
-            elif saved and r6.analyzed_at is None:
-                polls_pending[0] += 1
-                if polls_pending[0] > 2:
-                    r6.analyzed_at = saved[0]
-            session.commit()
+    with _r6_made_pending(server[2]) as pending, flaky_proxy(server[0]) as proxy:
 
-    try:
-        with flaky_proxy(server[0]) as proxy:
-            proxy.before = {"/verdict": pending_for_two_polls}
-            done = wait(server, "--revision", "r6", "--junit", str(out), via=proxy.url)
-    finally:
-        with session_factory(api.settings.database_url)() as session:
-            r6 = session.scalars(select(Revision).where(Revision.title == "r6")).one()
-            r6.analyzed_at = r6.analyzed_at or (saved[0] if saved else None)
-            session.commit()
+        def pending_for_two_polls() -> None:
+            if polls or "junit=" in proxy.seen[-1]:
+                polls.append(proxy.seen[-1])
+                pending(len(polls) <= 3)
+
+        proxy.before = {"/verdict": pending_for_two_polls}
+        done = wait(server, "--revision", "r6", "--junit", str(out), via=proxy.url)
     assert done.returncode == 1, done.stderr
     asked = [p for p in proxy.seen if p.split("?")[0].endswith("/verdict")]
     with_xml = [i for i, p in enumerate(asked) if "junit=" in p]
