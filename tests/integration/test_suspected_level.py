@@ -7,10 +7,12 @@ a change held, the three after them against its few values, short of the six nee
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 import pytest
+from redline.detect.confirmation import BY_PAIRS
 from redline.detect.suspected import AT_NEW_LEVEL, BEFORE_SUSPECTED
 from redline.server.models import Detection, Revision
 from redline.server.schemas.components import ComponentCreate
@@ -26,11 +28,17 @@ NAME = "builder"
 
 
 def _history(
-    session, database_url: str, tmp_path: Path, levels: list[float], executions: int = 1
+    session,
+    database_url: str,
+    tmp_path: Path,
+    levels: list[float],
+    executions: int = 1,
+    judged: Callable[[str], None] = lambda _title: None,
 ) -> None:
     """Revisions r1.. of ``executions`` each around ``levels`` (2 % noise in the samples, a
     fixed 1 % between runs), judged one by one as the service judges them (with more than one
-    execution, by the worker's walk: `judge_onward`)."""
+    execution, by the worker's walk: `judge_onward`); ``judged`` is told each revision's title
+    once it is judged."""
     create_component(session, ComponentCreate(name=NAME, executions=executions))
     rng = np.random.default_rng(11)
     wobble = [0.0, 0.01, -0.01, 0.005, -0.005]
@@ -42,10 +50,11 @@ def _history(
         made = add_executions(session, tmp_path, NAME, f"r{number}", str(number), runs)
         if executions == 1:
             ingest_and_detect(database_url, made)
-            continue
-        for execution in made:
-            ingest_execution(database_url, execution.id)
-        judge_onward(database_url, made[0].revision_id)
+        else:
+            for execution in made:
+                ingest_execution(database_url, execution.id)
+            judge_onward(database_url, made[0].revision_id)
+        judged(f"r{number}")
     session.expire_all()
 
 
@@ -179,3 +188,35 @@ def test_a_spike_that_returns_is_no_change_with_three_executions_a_revision(
     assert verdicts["r9"].flagged
     for title in ("r10", "r11", "r12"):
         assert not verdicts[title].flagged, (title, verdicts[title].reason)
+
+
+def test_a_revert_right_after_a_confirmed_regression_restarts_the_baseline_there(
+    session, database_url, tmp_path
+):
+    """A trial's regression, confirmed by 2 of 2 pairs, was reverted by the next commit: judged
+    against the level before the regression ("no change"), the revert was pooled with the
+    regression's level into the next commit's baseline, and a +30 % commit after it passed CI
+    (exit 0, "no change -10.8 %"). Once its pairs confirmed a flag, the revisions after it are
+    judged against its level: the revert is a change for the better, and the +30 % a change for
+    the worse. r9 +50 % (confirmed as its pairs would), r10 back to the old level, r11 +30 %."""
+
+    def confirmed_as_pairs_would(title: str) -> None:
+        if title == "r9":
+            session.expire_all()
+            r9 = _verdicts(session)["r9"]
+            assert r9.flagged and r9.confirmation == "suspected", (r9.verdict, r9.reason)
+            r9.confirmation, r9.confirmation_reason = "held", f"{BY_PAIRS} 2 of 2 pairs"
+            session.commit()
+
+    levels = [20.0] * 8 + [30.0, 20.0] + [26.0] * 2
+    _history(session, database_url, tmp_path, levels, 3, confirmed_as_pairs_would)
+    verdicts = _verdicts(session)
+    r10, r11 = verdicts["r10"], verdicts["r11"]
+    assert r10.flagged and r10.direction == "decrease", (r10.verdict, r10.reason)
+    assert f"{AT_NEW_LEVEL} r9" in r10.reason, r10.reason
+    assert r11.flagged and r11.direction == "increase", (r11.verdict, r11.reason)
+    assert 0.2 < (r11.effect or 0) < 0.4, r11.effect
+    # against a level of 20: the revert's own flag undecided yet, the one before r9, to which
+    # the revert returned (its pairs run r11 against r8)
+    base = session.get(Revision, r11.baseline_revision_id)
+    assert base is not None and base.title == "r8", base.title if base else None

@@ -50,6 +50,8 @@ SEEN_STRETCHES = 3
 NOISE_SDS = 3.0
 
 SUSPECTED, HELD, DROPPED = "suspected", "held", "dropped"
+#: how the reason of a change its pairs confirmed begins (the history's says "held: ...")
+BY_PAIRS = "confirmed by"
 
 
 @dataclass(frozen=True)
@@ -353,7 +355,7 @@ def pairs_hold(
     wanted = max(wanted, len(complete))
     outcome = _outcome(shown, wanted - len(complete), wanted)
     if outcome == HELD:
-        return Hold(HELD, f"confirmed by {figures}", shown / len(complete))
+        return Hold(HELD, f"{BY_PAIRS} {figures}", shown / len(complete))
     if outcome == SUSPECTED:  # two that agree decide: one alone does not (a trial's did)
         return Hold(
             SUSPECTED,

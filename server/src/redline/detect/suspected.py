@@ -52,14 +52,17 @@ def after_flag(
     candidate: np.ndarray,
     at: str,
     held: bool,
+    least: int = STEP_SIDE,
 ) -> tuple[Detection, bool]:
     """The verdict of a revision whose baseline restarted at the flag at revision ``at``
     (``restarted``: the values from it on; ``earlier``: those of the flagged revision's own
     baseline), as the worker and the offline evaluation both judge it: `at_new_level` once
-    the revisions after the flag ``held`` it, else `past_suspected`. Returns the verdict and
-    whether it was judged against ``earlier``."""
+    the revisions after the flag ``held`` it (or its pairs confirmed it: then however few its
+    values, ``least``), else `past_suspected`. Returns the verdict and whether it was judged
+    against ``earlier``."""
     if held:
-        return at_new_level(found, detector, counter, restarted, earlier, candidate, at), False
+        level = at_new_level(found, detector, counter, restarted, earlier, candidate, at, least)
+        return level, False
     judge = partial(judge_series, detector, counter, candidate=candidate)
     verdict, judged_before = past_suspected(found, judge, restarted, earlier, at)
     if SHOWS_THAT_CHANGE not in verdict.reason:

@@ -12,13 +12,14 @@ import numpy as np
 from redline.detect.baseline import lookback, take_recent
 from redline.detect.config import DetectionConfig
 from redline.detect.count_rate import CountRate
-from redline.detect.execution_shift import HELD_AFTER, ExecutionShift, strongest_step
+from redline.detect.execution_shift import HELD_AFTER, STEP_SIDE, ExecutionShift, strongest_step
 from redline.detect.methods import Detector, Levelled
 from redline.detect.result import Detection
 from redline.detect.suspected import after_flag
 from redline.server.models import Execution, Revision
 from redline.server.services.reach import ingested_executions
 from redline.worker.history import (
+    confirmed_verdicts,
     earlier_than,
     flagged_verdicts,
     previous_revisions,
@@ -81,6 +82,10 @@ class Baselines:
         self.flagged: set[tuple[int, str, int]] = walk.flagged if walk else set()
         #: the earlier (series, method, revision) judged "not enough data": a step may be there
         self.undecided: set[tuple[int, str, int]] = walk.undecided if walk else set()
+        #: the earlier flags their pairs confirmed as changes: a re-analysis settles
+        #: confirmations at its end, so its walk knows none, and judges by the revisions after
+        #: them alone (a known difference, where a flag's pairs confirmed it)
+        self.confirmed: set[tuple[int, str, int]] = set()
         if config.baseline == "pinned":
             self.pinned = session.scalar(
                 select(Revision.id).where(
@@ -99,6 +104,7 @@ class Baselines:
             earlier = {r for ids in self.previous.values() for r in ids}
             self.flagged = flagged_verdicts(session, earlier, series_ids)
             self.undecided = undecided_verdicts(session, earlier, series_ids)
+            self.confirmed = confirmed_verdicts(session, earlier, series_ids)
 
     def values(self, revision_id: int, series_id: int, detector: Levelled) -> np.ndarray | None:
         return self.cache.values(self.session, revision_id, series_id, detector)
@@ -168,6 +174,7 @@ class Baselines:
             or (series_id, detector.name, taken[-1][0]) not in self.flagged
         ):
             return base, verdict
+        confirmed = (series_id, detector.name, taken[-1][0]) in self.confirmed
         older = self._take(series_id, detector, past_undecided=True, before=taken[-1][0])
         if not older:
             return base, verdict
@@ -181,7 +188,12 @@ class Baselines:
             earlier,
             candidate,
             flag.title if flag is not None else str(taken[-1][0]),
-            held=len(taken) > self.config.confirm_revisions,
+            # held by the revisions after it, or confirmed by its pairs: a trial's regression,
+            # confirmed by 2 of 2 pairs and reverted by the next commit, was judged against the
+            # level before it ("no change"), pooled into the next one's baseline with the
+            # revert, and a +30 % commit after the revert passed CI (2026-12-07)
+            held=len(taken) > self.config.confirm_revisions or confirmed,
+            least=1 if confirmed else STEP_SIDE,
         )
         return (Baseline(earlier, older[0][0], len(older)) if judged_before else base), found
 

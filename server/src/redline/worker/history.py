@@ -7,6 +7,7 @@ from __future__ import annotations
 from collections import defaultdict
 from collections.abc import Collection, Sequence
 
+from redline.detect.confirmation import BY_PAIRS, HELD
 from redline.detect.counters import (
     CONTEXT_COUNTERS,
     LEVELS,
@@ -179,6 +180,20 @@ def flagged_verdicts(
     """(series, method, revision) of the stored flagged verdicts of those revisions (and of
     those series, when given)."""
     return _verdicts_where(session, Detection.flagged.is_(True), revision_ids, series_ids)
+
+
+def confirmed_verdicts(
+    session: Session, revision_ids: set[int], series_ids: list[int] | None = None
+) -> set[tuple[int, str, int]]:
+    """(series, method, revision) of the stored flagged verdicts of those revisions (and
+    series) that their pairs confirmed as changes (the history's confirmations the baseline
+    reads from the revisions after them, as a re-analysis does)."""
+    held = (
+        Detection.flagged.is_(True)
+        & (Detection.confirmation == HELD)
+        & Detection.confirmation_reason.startswith(BY_PAIRS)
+    )
+    return _verdicts_where(session, held, revision_ids, series_ids)
 
 
 def undecided_verdicts(
