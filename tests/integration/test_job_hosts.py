@@ -183,8 +183,13 @@ def test_a_components_new_host_labels_apply_to_the_jobs_it_has_waiting(
     with api_with(services, tmp_path) as api:
         api.component("relabelled", host_labels=["mine"])
         created = api.revision("r1", "1", component="relabelled")
+        assert created["warning"] == ""  # no host registered yet: one may be starting
         api.post("/api/v1/agent/register", "agent", {"name": "perf1", "labels": []})
         assert api.lease("perf1") is None
+        # the report says so at once (the trial's `ci report` said nothing; `ci wait` did)
+        second = api.revision("r0", "0", component="relabelled")
+        said = "no registered host has the label(s) 'mine' relabelled's jobs need"
+        assert said in second["warning"], second
 
         def labels(host_labels: list[str]) -> None:
             answer = api.client.patch(
@@ -196,7 +201,7 @@ def test_a_components_new_host_labels_apply_to_the_jobs_it_has_waiting(
 
         labels([])
         leased = api.lease("perf1")
-        assert leased is not None and leased["id"] in created["job_ids"]
+        assert leased is not None and leased["id"] in created["job_ids"] + second["job_ids"]
         labels(["elsewhere"])
         with session_factory(api.settings.database_url)() as session:
             job = session.get_one(Job, leased["id"])

@@ -7,7 +7,11 @@ from redline.server.api.deps import CiToken, SessionDep, ensure_component, requi
 from redline.server.core.bodies import JsonRoute
 from redline.server.schemas.common import Problem
 from redline.server.schemas.revisions import RevisionCreate, RevisionCreated
-from redline.server.services.revision_reports import remotes_warning, report_revision
+from redline.server.services.revision_reports import (
+    labels_warning,
+    remotes_warning,
+    report_revision,
+)
 
 router = APIRouter(prefix="/api/v1/revisions", tags=["revisions"], route_class=JsonRoute)
 
@@ -38,5 +42,12 @@ def report(
         revision_id=revision.id,
         title=revision.title,
         job_ids=[job.id for job in revision.jobs],
-        warning=remotes_warning(revision.component, data.remotes),
+        warning="; ".join(
+            said
+            for said in (
+                remotes_warning(revision.component, data.remotes),
+                labels_warning(session, revision.component),
+            )
+            if said
+        ),
     )

@@ -3,7 +3,7 @@
 
 from __future__ import annotations
 
-from redline.server.models import Component, Job, JobState, Revision
+from redline.server.models import Component, Host, Job, JobState, Revision
 from redline.server.schemas.revisions import RevisionCreate
 from redline.server.services.components import get_component, revision_of_commit, same_commit
 from redline.server.services.errors import Conflict
@@ -121,4 +121,20 @@ def remotes_warning(component: Component, remotes: list[str]) -> str:
         f"this work tree's remotes ({', '.join(sorted(keys))}) are not the component's "
         f"repository ({own}): the hosts check the commit out of that one, and "
         "fail if it is not there (run in the component's work tree; a mirror of it is fine)"
+    )
+
+
+def labels_warning(session: Session, component: Component) -> str:
+    """What to tell a report whose component's jobs need labels no registered host has (a
+    trial's `ci report` said nothing of it; only `ci wait`, minutes later, did). Empty when a
+    host has them, when they need none, or when no host has registered yet (one may be
+    starting)."""
+    needed = set(component.host_labels or [])
+    hosts = [set(labels or []) for labels in session.scalars(select(Host.labels))]
+    if not needed or not hosts or any(needed <= labels for labels in hosts):
+        return ""
+    return (
+        f"no registered host has the label(s) {', '.join(map(repr, sorted(needed)))} "
+        f"{component.name}'s jobs need: they wait until one does (give a host `redline agent "
+        "--label`, and its token `--labels`, or an admin changes the component's host_labels)"
     )
