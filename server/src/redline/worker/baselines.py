@@ -19,9 +19,8 @@ from redline.detect.suspected import after_flag
 from redline.server.models import Execution, Revision
 from redline.server.services.reach import ingested_executions
 from redline.worker.history import (
-    confirmed_verdicts,
     earlier_than,
-    flagged_verdicts,
+    flagged_and_confirmed,
     previous_revisions,
     undecided_verdicts,
 )
@@ -102,9 +101,8 @@ class Baselines:
         )
         if config.baseline == "recent" and walk is None:
             earlier = {r for ids in self.previous.values() for r in ids}
-            self.flagged = flagged_verdicts(session, earlier, series_ids)
+            self.flagged, self.confirmed = flagged_and_confirmed(session, earlier, series_ids)
             self.undecided = undecided_verdicts(session, earlier, series_ids)
-            self.confirmed = confirmed_verdicts(session, earlier, series_ids)
 
     def values(self, revision_id: int, series_id: int, detector: Levelled) -> np.ndarray | None:
         return self.cache.values(self.session, revision_id, series_id, detector)

@@ -182,18 +182,27 @@ def flagged_verdicts(
     return _verdicts_where(session, Detection.flagged.is_(True), revision_ids, series_ids)
 
 
-def confirmed_verdicts(
+def flagged_and_confirmed(
     session: Session, revision_ids: set[int], series_ids: list[int] | None = None
-) -> set[tuple[int, str, int]]:
-    """(series, method, revision) of the stored flagged verdicts of those revisions (and
-    series) that their pairs confirmed as changes (the history's confirmations the baseline
-    reads from the revisions after them, as a re-analysis does)."""
-    held = (
-        Detection.flagged.is_(True)
-        & (Detection.confirmation == HELD)
-        & Detection.confirmation_reason.startswith(BY_PAIRS)
+) -> tuple[set[tuple[int, str, int]], set[tuple[int, str, int]]]:
+    """`flagged_verdicts`, and those of them their pairs confirmed as changes (the history's
+    confirmations the baseline reads from the revisions after them, as a re-analysis does), in
+    one query."""
+    if not revision_ids:
+        return set(), set()
+    by_pairs = (Detection.confirmation == HELD) & Detection.confirmation_reason.startswith(BY_PAIRS)
+    query = select(Detection.series_id, Detection.method, Detection.revision_id, by_pairs).where(
+        Detection.flagged.is_(True), Detection.revision_id.in_(revision_ids)
     )
-    return _verdicts_where(session, held, revision_ids, series_ids)
+    if series_ids is not None:
+        query = query.where(Detection.series_id.in_(series_ids))
+    flagged: set[tuple[int, str, int]] = set()
+    confirmed: set[tuple[int, str, int]] = set()
+    for series_id, method, revision_id, paired in session.execute(query):
+        flagged.add((series_id, method, revision_id))
+        if paired:
+            confirmed.add((series_id, method, revision_id))
+    return flagged, confirmed
 
 
 def undecided_verdicts(

@@ -37,7 +37,6 @@ from redline.server.models import (
     FINISHED,
     Detection,
     Execution,
-    Host,
     Job,
     JobState,
     Revision,
@@ -51,6 +50,7 @@ from redline.server.services.fresh_runs import fresh_run_between, fresh_runs_und
 from redline.server.services.host_speed import at_host_speed
 from redline.server.services.open_regressions import open_before
 from redline.server.services.regression_range import unmeasured_before
+from redline.server.services.revision_reports import unserved_labels
 from redline.server.services.revisions import own_jobs, revision_state
 from sqlalchemy import func, or_, select
 from sqlalchemy.orm import Session
@@ -60,16 +60,15 @@ def _no_host_for(session: Session, queued: list[Job]) -> str:
     """Why no host may ever take the queued jobs, when none can: no host registered, or none
     with every label they need (a trial's jobs for label 'nowhere' said only "waiting for a
     performance host", and `ci wait` timed out saying the same)."""
-    hosts = [set(labels) for labels in session.scalars(select(Host.labels))]
-    if not hosts:
+    missing = unserved_labels(session, {tuple(sorted(job.labels)) for job in queued})
+    if missing is None:
         return " (no performance host has registered yet: start one, docs/running-agents.md)"
-    for needed in {tuple(sorted(job.labels)) for job in queued}:
-        if not any(set(needed) <= labels for labels in hosts):
-            return (
-                f" (no registered host has the label(s) {', '.join(map(repr, needed))} they "
-                "need: give one `redline agent --label` (and its token `--labels`), or change the "
-                "component's host_labels)"
-            )
+    if missing:
+        return (
+            f" (no registered host has the label(s) {', '.join(map(repr, missing))} they "
+            "need: give one `redline agent --label` (and its token `--labels`), or change the "
+            "component's host_labels)"
+        )
     return ""
 
 

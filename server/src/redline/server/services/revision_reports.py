@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Collection, Iterable
+
 from redline.server.models import Component, Host, Job, JobState, Revision
 from redline.server.schemas.revisions import RevisionCreate
 from redline.server.services.components import get_component, revision_of_commit, same_commit
@@ -124,17 +126,28 @@ def remotes_warning(component: Component, remotes: list[str]) -> str:
     )
 
 
+def unserved_labels(session: Session, needed: Iterable[Collection[str]]) -> tuple[str, ...] | None:
+    """The first of the ``needed`` label sets that no registered host has every label of,
+    sorted; () when each has such a host; None when no host has registered yet."""
+    hosts = [set(labels or []) for labels in session.scalars(select(Host.labels))]
+    if not hosts:
+        return None
+    for labels in needed:
+        if not any(set(labels) <= held for held in hosts):
+            return tuple(sorted(labels))
+    return ()
+
+
 def labels_warning(session: Session, component: Component) -> str:
     """What to tell a report whose component's jobs need labels no registered host has (a
     trial's `ci report` said nothing of it; only `ci wait`, minutes later, did). Empty when a
     host has them, when they need none, or when no host has registered yet (one may be
     starting)."""
-    needed = set(component.host_labels or [])
-    hosts = [set(labels or []) for labels in session.scalars(select(Host.labels))]
-    if not needed or not hosts or any(needed <= labels for labels in hosts):
+    missing = unserved_labels(session, [component.host_labels or []])
+    if not missing:
         return ""
     return (
-        f"no registered host has the label(s) {', '.join(map(repr, sorted(needed)))} "
+        f"no registered host has the label(s) {', '.join(map(repr, missing))} "
         f"{component.name}'s jobs need: they wait until one does (give a host `redline agent "
         "--label`, and its token `--labels`, or an admin changes the component's host_labels)"
     )
