@@ -190,6 +190,23 @@ def test_a_spike_that_returns_is_no_change_with_three_executions_a_revision(
         assert not verdicts[title].flagged, (title, verdicts[title].reason)
 
 
+def _confirmed_as_pairs_would(session, titles: set[str]) -> Callable[[str], None]:
+    """Told each revision as it is judged (`_history`'s ``judged``): marks the flags of
+    ``titles`` "confirmed by 2 of 2 pairs" as their pairs would (no agent runs here; the pairs'
+    own judging is tested in `tests/integration/test_confirmation_runs.py`)."""
+
+    def confirm(title: str) -> None:
+        if title not in titles:
+            return
+        session.expire_all()
+        found = _verdicts(session)[title]
+        assert found.flagged and found.confirmation == "suspected", (found.verdict, found.reason)
+        found.confirmation, found.confirmation_reason = "held", f"{BY_PAIRS} 2 of 2 pairs"
+        session.commit()
+
+    return confirm
+
+
 def test_a_revert_right_after_a_confirmed_regression_restarts_the_baseline_there(
     session, database_url, tmp_path
 ):
@@ -199,24 +216,46 @@ def test_a_revert_right_after_a_confirmed_regression_restarts_the_baseline_there
     (exit 0, "no change -10.8 %"). Once its pairs confirmed a flag, the revisions after it are
     judged against its level: the revert is a change for the better, and the +30 % a change for
     the worse. r9 +50 % (confirmed as its pairs would), r10 back to the old level, r11 +30 %."""
-
-    def confirmed_as_pairs_would(title: str) -> None:
-        if title == "r9":
-            session.expire_all()
-            r9 = _verdicts(session)["r9"]
-            assert r9.flagged and r9.confirmation == "suspected", (r9.verdict, r9.reason)
-            r9.confirmation, r9.confirmation_reason = "held", f"{BY_PAIRS} 2 of 2 pairs"
-            session.commit()
-
     levels = [20.0] * 8 + [30.0, 20.0] + [26.0] * 2
-    _history(session, database_url, tmp_path, levels, 3, confirmed_as_pairs_would)
+    confirm = _confirmed_as_pairs_would(session, {"r9"})
+    _history(session, database_url, tmp_path, levels, 3, confirm)
     verdicts = _verdicts(session)
     r10, r11 = verdicts["r10"], verdicts["r11"]
     assert r10.flagged and r10.direction == "decrease", (r10.verdict, r10.reason)
     assert f"{AT_NEW_LEVEL} r9" in r10.reason, r10.reason
     assert r11.flagged and r11.direction == "increase", (r11.verdict, r11.reason)
     assert 0.2 < (r11.effect or 0) < 0.4, r11.effect
-    # against a level of 20: the revert's own flag undecided yet, the one before r9, to which
-    # the revert returned (its pairs run r11 against r8)
+    # against the revert's level (its flag undecided yet): against r9's confirmed level r11
+    # shows the revert's change, and moved back from the revert's own (its pairs run r11
+    # against r10)
+    assert f"{BEFORE_SUSPECTED} r10 it still shows that change" in r11.reason, r11.reason
     base = session.get(Revision, r11.baseline_revision_id)
-    assert base is not None and base.title == "r8", base.title if base else None
+    assert base is not None and base.title == "r10", base.title if base else None
+
+
+def test_a_step_after_reverting_a_confirmed_regression_is_flagged_against_the_revert(
+    session, database_url, tmp_path
+):
+    """A trial's history: confirmed regressions at r9 (+67 %), r11 (+20 %) and r12 (x2.5), the
+    last reverted by r13 (flagged as an improvement), then a +28 % step at r14. The revert's
+    level before it was read past r12's and r11's confirmed flags as if undecided, back to
+    r10's: against it r14 "showed the change" (+49.6 %, the other way from the revert) and was
+    "not enough data"; pooled into r15's baseline, the step was never flagged. Now r12's level
+    (three values) is the one before the revert, with the noise of r11's as well."""
+    levels = [3.0] * 8 + [5.0, 3.0, 3.6, 9.0, 3.5, 4.5, 4.5, 4.5]
+    confirm = _confirmed_as_pairs_would(session, {"r9", "r11", "r12"})
+    _history(session, database_url, tmp_path, levels, 3, confirm)
+    verdicts = _verdicts(session)
+    r13, r14 = verdicts["r13"], verdicts["r14"]
+    assert r13.flagged and r13.direction == "decrease", (r13.verdict, r13.reason)
+    assert r14.flagged and r14.direction == "increase", (r14.verdict, r14.reason)
+    assert 0.2 < (r14.effect or 0) < 0.35, r14.effect
+    assert f"{BEFORE_SUSPECTED} r13 it still shows that change" in r14.reason, r14.reason
+    base = session.get(Revision, r14.baseline_revision_id)
+    assert base is not None and base.title == "r13", base.title if base else None
+    # r15, at r14's level, holds r14's change as the level before r14 reads it (past r13, which
+    # may yet be a spike): undecided, as any revision that holds a suspected change; r16 is
+    # judged by the six values from r14 on
+    r15, r16 = verdicts["r15"], verdicts["r16"]
+    assert r15.verdict == "not enough data" and "r14 it shows that change" in r15.reason, r15
+    assert r16.verdict == "no change", r16.reason

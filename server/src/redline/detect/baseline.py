@@ -25,6 +25,11 @@ from redline.detect.confirmation import DEFAULT_CONFIRM_REVISIONS, DROPPED, hold
 
 #: How many earlier revisions ``recent`` may pool at most, by default (configurable: ``window``).
 DEFAULT_WINDOW = 10
+#: An entry's flag (`take_recent`) where the flag's pairs confirmed it as a change: a level that
+#: is decided, never read past as a flag the revisions after it have not yet decided (a trial's
+#: regression confirmed by its pairs, right before a flag the other way, was read past: the
+#: next commit was judged against the level before it, and a +28 % step went unflagged)
+CONFIRMED = 2
 T = TypeVar("T")
 
 
@@ -42,11 +47,11 @@ def lookback(window: int) -> int:
 class _Lazy(Generic[T]):
     """The items of an iterable, read only as far as asked."""
 
-    def __init__(self, items: Iterable[tuple[T, np.ndarray, bool]]) -> None:
-        self._source: Iterator[tuple[T, np.ndarray, bool]] = iter(items)
-        self._read: list[tuple[T, np.ndarray, bool]] = []
+    def __init__(self, items: Iterable[tuple[T, np.ndarray, int]]) -> None:
+        self._source: Iterator[tuple[T, np.ndarray, int]] = iter(items)
+        self._read: list[tuple[T, np.ndarray, int]] = []
 
-    def get(self, k: int) -> tuple[T, np.ndarray, bool] | None:
+    def get(self, k: int) -> tuple[T, np.ndarray, int] | None:
         while len(self._read) <= k:
             item = next(self._source, None)
             if item is None:
@@ -74,7 +79,7 @@ def restarts(
 
 
 def take_recent(
-    newest_first: Iterable[tuple[T, np.ndarray, bool]],
+    newest_first: Iterable[tuple[T, np.ndarray, int]],
     need: int,
     window: int = DEFAULT_WINDOW,
     wait: int = DEFAULT_CONFIRM_REVISIONS,
@@ -82,19 +87,19 @@ def take_recent(
     past_undecided: bool = False,
 ) -> list[T]:
     """The earlier revisions that form the baseline, taken from ``(revision, its values,
-    flagged by the method)`` newest first, and read no further than needed (the iterable may
-    compute each revision's values lazily). ``wait``: the revisions after a flag that decide
-    whether it was a spike (`restarts`); ``count``: the values count rare events;
-    ``past_undecided``: leave out a flag fewer than ``wait`` revisions after it measured the
-    series, and read on past it, as if it had not restarted the baseline (the level before
-    it, `redline.detect.suspected`)."""
+    flagged by the method)`` newest first (flagged: 0, 1, or `CONFIRMED`), and read no further
+    than needed (the iterable may compute each revision's values lazily). ``wait``: the
+    revisions after a flag that decide whether it was a spike (`restarts`); ``count``: the
+    values count rare events; ``past_undecided``: leave out a flag fewer than ``wait`` revisions
+    after it measured the series, unless its pairs confirmed it, and read on past it, as if it
+    had not restarted the baseline (the level before it, `redline.detect.suspected`)."""
     items: _Lazy[T] = _Lazy(newest_first)
     taken: list[T] = []
     pooled = 0
     k = 0
     while len(taken) < window and pooled < need and (entry := items.get(k)) is not None:
         item, values, flagged = entry
-        if flagged and past_undecided and k < wait:  # the revisions since it: the k newer ones
+        if flagged and flagged != CONFIRMED and past_undecided and k < wait:  # k revisions since
             k += 1
             continue
         taken.append(item)
@@ -108,9 +113,10 @@ def take_recent(
 def _restarts_at(items: _Lazy[T], k: int, need: int, window: int, wait: int, count: bool) -> bool:
     """`restarts` at the ``k``-th newest revision, its own baseline read as `take_recent` reads
     one (up to the flag before it, that one included), but past a flag at most ``wait``
-    revisions before it, which it may have been judged past (`redline.detect.suspected`): a
-    spike and the flag the other way right after it (a change against the level before the
-    spike) were otherwise judged by the spike's one value, which "held" it."""
+    revisions before it and not `CONFIRMED`, which it may have been judged past
+    (`redline.detect.suspected`): a spike and the flag the other way right after it (a change
+    against the level before the spike) were otherwise judged by the spike's one value, which
+    "held" it."""
     since = [entry[1] for j in range(k - 1, -1, -1) if (entry := items.get(j)) is not None]
     if len(since) < wait:
         return True  # cheap, and the common case right after a flag
@@ -123,7 +129,7 @@ def _restarts_at(items: _Lazy[T], k: int, need: int, window: int, wait: int, cou
         if entry is None:
             break
         j += 1
-        if entry[2] and j - k - 1 <= wait:  # a flag this one came at most wait after
+        if entry[2] and entry[2] != CONFIRMED and j - k - 1 <= wait:  # an undecided one near
             continue
         before.append(entry[1])
         if entry[2]:

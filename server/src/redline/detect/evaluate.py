@@ -42,7 +42,7 @@ from redline.detect.methods import Detector
 from redline.detect.registry import CHANGE_POINT_METHOD, DEFAULT_METHOD, EVALUATED
 from redline.detect.result import Detection, direction_of, not_enough
 from redline.detect.scores import MethodScores, Outcome, summarize
-from redline.detect.suspected import after_flag
+from redline.detect.suspected import LevelBefore, after_flag
 from redline.detect.verdict import judge_series
 
 #: Called with (series done, series in all) as an evaluation walks a corpus.
@@ -186,7 +186,7 @@ def _walk_series(
                     detector,
                     kind.counter,
                     baseline,
-                    earlier,
+                    LevelBefore(earlier),
                     candidate,
                     str(builds[flag][0]),
                     held=depth > wait,

@@ -22,8 +22,8 @@ the level before it (`at_new_level`) until it holds enough values alone.
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from dataclasses import replace
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, replace
 from functools import partial
 
 import numpy as np
@@ -43,28 +43,58 @@ SHOWS_THAT_CHANGE = "shows that change"
 AT_NEW_LEVEL = "judged against the new level since the change at"
 
 
+@dataclass(frozen=True)
+class LevelBefore:
+    """The level before a flag: ``values``, the flagged revision's own baseline read past any
+    flag the revisions after it have not yet decided; where that is a short level its pairs
+    confirmed (since revision ``confirmed_at``), ``older`` holds the levels before it, newest
+    first, whose noise it is judged with (`redline.worker.baselines.Baselines.after_flag`)."""
+
+    values: np.ndarray
+    older: tuple[np.ndarray, ...] = ()
+    confirmed_at: str = ""
+
+    @property
+    def levels(self) -> tuple[np.ndarray, ...]:
+        return (self.values, *self.older)
+
+    def judge(self, detector: Detector, counter: str, candidate: np.ndarray) -> Detection:
+        """``candidate`` judged against this level: as the detector judges a baseline, or, where
+        it is a short confirmed level, as `at_new_level` with the noise of those before it (a
+        trial's regression, confirmed by its pairs and reverted by the next commit, left the
+        commit after the revert judged against nothing: "not enough data")."""
+        found = judge_series(detector, counter, self.values, candidate)
+        if not self.older:
+            return found
+        levels = self.levels
+        return at_new_level(
+            found, detector, counter, self.values, levels, candidate, self.confirmed_at, 1
+        )
+
+
 def after_flag(
     found: Detection,
     detector: Detector,
     counter: str,
     restarted: np.ndarray,
-    earlier: np.ndarray,
+    before: LevelBefore,
     candidate: np.ndarray,
     at: str,
     held: bool,
     least: int = STEP_SIDE,
 ) -> tuple[Detection, bool]:
     """The verdict of a revision whose baseline restarted at the flag at revision ``at``
-    (``restarted``: the values from it on; ``earlier``: those of the flagged revision's own
-    baseline), as the worker and the offline evaluation both judge it: `at_new_level` once
-    the revisions after the flag ``held`` it (or its pairs confirmed it: then however few its
-    values, ``least``), else `past_suspected`. Returns the verdict and whether it was judged
-    against ``earlier``."""
+    (``restarted``: the values from it on; ``before``: the level before it), as the worker and
+    the offline evaluation both judge it: `at_new_level` once the revisions after the flag
+    ``held`` it (or its pairs confirmed it: then however few its values, ``least``), else
+    `past_suspected`. Returns the verdict and whether it was judged against ``before``."""
     if held:
-        level = at_new_level(found, detector, counter, restarted, earlier, candidate, at, least)
+        level = at_new_level(
+            found, detector, counter, restarted, before.levels, candidate, at, least
+        )
         return level, False
-    judge = partial(judge_series, detector, counter, candidate=candidate)
-    verdict, judged_before = past_suspected(found, judge, restarted, earlier, at)
+    judge = partial(before.judge, detector, counter, candidate)
+    verdict, judged_before = past_suspected(found, judge, restarted, before.values, at)
     if SHOWS_THAT_CHANGE not in verdict.reason:
         return verdict, judged_before
     # It shows the flag's change against the level before it: judged against the flag's own
@@ -76,8 +106,8 @@ def after_flag(
     # values may be one (one execution a revision): its noise is the level before it's, and z
     # counts the one value as such. A spike's return to the level before it shows no change
     # there, and is not judged here.
-    undone = at_new_level(verdict, detector, counter, restarted, earlier, candidate, at, 1)
-    flagged = direction_of(median(restarted[np.isfinite(restarted)]) - median(earlier))
+    undone = at_new_level(verdict, detector, counter, restarted, before.levels, candidate, at, 1)
+    flagged = direction_of(median(restarted[np.isfinite(restarted)]) - median(before.values))
     if not undone.flagged or undone.direction == flagged:
         return verdict, judged_before
     note = (
@@ -89,16 +119,16 @@ def after_flag(
 
 def past_suspected(
     found: Detection,
-    judge: Callable[[np.ndarray], Detection],
+    judge: Callable[[], Detection],
     restarted: np.ndarray,
     earlier: np.ndarray,
     at: str,
 ) -> tuple[Detection, bool]:
     """The verdict of a revision whose baseline restarted at a flag still undecided (at
     revision ``at``): ``found``, judged against ``restarted`` (the values from that flag on),
-    or, where that baseline was too short, ``judge`` against ``earlier`` (the values of the
-    revisions before the flag that a baseline read past it holds). Returns the verdict and
-    whether it was judged against ``earlier``."""
+    or, where that baseline was too short, ``judge()``: the revision judged against ``earlier``
+    (the level before the flag). Returns the verdict and whether it was judged against
+    ``earlier``."""
     restarted, earlier = restarted[np.isfinite(restarted)], earlier[np.isfinite(earlier)]
     if (
         found.decided
@@ -106,7 +136,7 @@ def past_suspected(
         or not (len(restarted) and len(earlier))
     ):
         return found, False
-    old = judge(earlier)
+    old = judge()
     if not old.decided:
         return found, False
     suspected = direction_of(median(restarted) - median(earlier))
@@ -129,7 +159,7 @@ def at_new_level(
     detector: Detector,
     counter: str,
     level: np.ndarray,
-    earlier: np.ndarray,
+    earlier: np.ndarray | Sequence[np.ndarray],
     candidate: np.ndarray,
     at: str,
     least: int = STEP_SIDE,
@@ -137,8 +167,8 @@ def at_new_level(
     """The verdict of a revision whose baseline restarted at a change that held (at revision
     ``at``): ``found``, or, where that new level (``level``, its values, at least ``least``) was
     too short to judge by, `ExecutionShift.at_new_level` against it with the noise of the level
-    before it
-    (``earlier``: the values the flagged revision's own baseline holds), and the counter's
+    before it (``earlier``: the values the flagged revision's own baseline holds, or the levels
+    before it: `LevelBefore.levels`), and the counter's
     absolute floor. Without it, the revisions after a real change were "not enough data"
     until six values at the new level existed: with one execution a revision, a second change
     made in the five revisions after the first passed CI unjudged and was pooled into the new

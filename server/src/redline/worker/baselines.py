@@ -9,13 +9,13 @@ from itertools import islice
 from typing import TYPE_CHECKING
 
 import numpy as np
-from redline.detect.baseline import lookback, take_recent
+from redline.detect.baseline import CONFIRMED, lookback, take_recent
 from redline.detect.config import DetectionConfig
 from redline.detect.count_rate import CountRate
 from redline.detect.execution_shift import HELD_AFTER, STEP_SIDE, ExecutionShift, strongest_step
 from redline.detect.methods import Detector, Levelled
 from redline.detect.result import Detection
-from redline.detect.suspected import after_flag
+from redline.detect.suspected import LevelBefore, after_flag
 from redline.server.models import Execution, Revision
 from redline.server.services.reach import ingested_executions
 from redline.worker.history import (
@@ -139,7 +139,7 @@ class Baselines:
         if self.config.baseline != "recent":
             return list(present)
         return take_recent(
-            (((i, values), values, (series_id, detector.name, i) in self.flagged)
+            (((i, values), values, self._flag(series_id, detector.name, i))
              for i, values in present),
             detector.baseline_values,
             self.config.window,
@@ -147,6 +147,11 @@ class Baselines:
             count=isinstance(detector, CountRate),
             past_undecided=past_undecided,
         )  # fmt: skip
+
+    def _flag(self, series_id: int, method: str, revision_id: int) -> int:
+        """The revision's flag as `take_recent` reads it: 0, 1, or `CONFIRMED` by its pairs."""
+        key = (series_id, method, revision_id)
+        return CONFIRMED if key in self.confirmed else int(key in self.flagged)
 
     def after_flag(
         self,
@@ -177,13 +182,12 @@ class Baselines:
         if not older:
             return base, verdict
         flag = self.session.get(Revision, taken[-1][0])
-        earlier = np.concatenate([values for _, values in older])
         found, judged_before = after_flag(
             verdict,
             detector,
             counter,
             base.values,
-            earlier,
+            self._level_before(series_id, detector, older),
             candidate,
             flag.title if flag is not None else str(taken[-1][0]),
             # held by the revisions after it, or confirmed by its pairs: a trial's regression,
@@ -193,7 +197,35 @@ class Baselines:
             held=len(taken) > self.config.confirm_revisions or confirmed,
             least=1 if confirmed else STEP_SIDE,
         )
-        return (Baseline(earlier, older[0][0], len(older)) if judged_before else base), found
+        if not judged_before:
+            return base, found
+        return Baseline(np.concatenate([v for _, v in older]), older[0][0], len(older)), found
+
+    def _level_before(
+        self, series_id: int, detector: Detector, older: list[tuple[int, np.ndarray]]
+    ) -> LevelBefore:
+        """The level before a flag (``older``: its revisions, newest first), and where it is a
+        level its pairs confirmed too short to judge by, the levels before that one, until they
+        hold ``min_baseline`` values (its noise: `LevelBefore`). A trial reverted a confirmed
+        regression, then made a +28 % step: the revert's flag read past the regression's as one
+        not yet decided, and judged the step against the level before the regression ("not
+        enough data", it "showed the change": the revert's, as that level read it)."""
+        levels = [np.concatenate([v for _, v in older])]
+        need = getattr(detector, "min_baseline", 0)
+        start = older[-1][0]
+        while (
+            sum(map(len, levels)) < need
+            and (series_id, detector.name, start) in self.confirmed
+            and (more := self._take(series_id, detector, past_undecided=True, before=start))
+        ):
+            levels.append(np.concatenate([v for _, v in more]))
+            start = more[-1][0]
+        if len(levels) == 1:
+            return LevelBefore(levels[0])
+        since = self.session.get(Revision, older[-1][0])
+        return LevelBefore(
+            levels[0], tuple(levels[1:]), since.title if since is not None else str(older[-1][0])
+        )
 
     def step(self, series_id: int, detector: Levelled, candidate: np.ndarray | None) -> Step | None:
         """A step at one of the baseline's revisions that could not be judged when measured
