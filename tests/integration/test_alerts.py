@@ -137,6 +137,9 @@ def test_filters_decide_who_hears_and_unconfirmed_can_be_asked_for(api, tmp_path
     better = json.loads(receiver.to("/better")[0].body)
     jsonschema.validate(better, SCHEMA)
     assert better["event"] == "improvement" and better["alerts"][0]["regression"] is None
+    # no regression page: the revision's (a trial's improvement named its revision by title)
+    revision = better["alerts"][0]["changes"][0]["revision"]
+    assert revision["page_url"].endswith(f"/components/builder/revisions/{revision['title']}")
     assert deliveries(api, early["id"])[0]["state"] == "delivered"
 
 

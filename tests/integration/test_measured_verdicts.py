@@ -760,3 +760,19 @@ def test_the_newest_of_several_revisions_waits_for_the_earlier_ones_it_lacks(
     session.commit()
     done = ci_verdict(session, NAME, "r2")
     assert done.state == "done" and [c.state for c in done.cases] == ["skipped"]
+
+
+def test_a_failed_case_lists_its_largest_change_for_the_worse_first(
+    session, database_url, tmp_path
+):
+    """A trial's JUnit failure led with the driver's round trip where the alert for the same
+    revision led with the larger CPU change: both now name the largest first."""
+    _history(session, database_url, tmp_path, {"rtt_us": 620.0, "cpu": 40.0})
+    verdict = ci_verdict(session, NAME, "r4")
+    (case,) = [c for c in verdict.cases if c.state == "failed"]
+    worse = [c for c in case.changes if c["worse"]]
+    assert {c["process"] for c in worse} == {NAME, "driver"}, worse
+    sizes = [abs(c["effect"]) for c in worse]
+    assert sizes == sorted(sizes, reverse=True) and worse[0]["process"] == NAME, worse
+    first = f'message="regression: {NAME} {worse[0]["counter"]} {worse[0]["effect"] * 100:+.1f} %'
+    assert first in junit_xml(verdict)

@@ -52,7 +52,11 @@ def change_body(
         "p_value": detection.p_value,
         "direction": detection.direction,
         "confirmation": detection.confirmation or "none",
-        "revision": {"title": revision.title, "commit": revision.commit},
+        "revision": {
+            "title": revision.title,
+            "commit": revision.commit,
+            "page": f"/components/{quote(component)}/revisions/{quote(revision.title)}",
+        },
         "baseline": baseline,
         "chart": _chart_path(component, series),
     }
@@ -192,7 +196,7 @@ def slack_json(event: str, payload: dict[str, Any], public_url: str) -> dict[str
     for alert in _absolute(_alerts(payload), public_url):
         link = (alert.get("regression") or alert.get("runtime") or {}).get("page_url") or alert[
             "changes"
-        ][0]["chart_url"]
+        ][0]["revision"]["page_url"]  # an improvement: its revision's page
         lines.append(f"<{link}|{_slack_escape(alert['summary'])}>")
     title = "Redline digest" if event == "digest" else "Redline"
     return {"text": f"*{title}*\n" + "\n".join(lines)}
@@ -244,6 +248,10 @@ def email(event: str, payload: dict[str, Any], public_url: str) -> tuple[str, st
                 f"<p>{html.escape(said)}. "
                 f'<a href="{html.escape(regression["page_url"])}">Open the regression</a></p>'
             )
+        elif alert.get("changes"):  # an improvement: no regression, its revision's page
+            page = alert["changes"][0]["revision"]["page_url"]
+            text_parts.append(f"Revision: {page}")
+            html_parts.append(f'<p><a href="{html.escape(page)}">Open the revision</a></p>')
         runtime = alert.get("runtime")
         if runtime:
             text_parts.append(f"Component: {runtime['page_url']}")

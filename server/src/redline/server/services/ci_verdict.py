@@ -21,10 +21,9 @@ from typing import Any
 from urllib.parse import quote
 
 from redline.detect.config import CHARTED_METHOD
-from redline.detect.confirmation import DROPPED, SUSPECTED
+from redline.detect.confirmation import DROPPED
 from redline.detect.counters import figure, worse
 from redline.detect.result import (
-    HISTORY_REASONS,
     METHOD_FAILED,
     NOT_ENOUGH_DATA,
     NOT_MEASURED_MARK,
@@ -34,144 +33,21 @@ from redline.recording.disturbance import names_busy_host
 from redline.recording.driver import DRIVER_PROCESS as DRIVER
 from redline.recording.format import NO_TRAFFIC_MARK
 from redline.server.models import (
-    FINISHED,
     Detection,
     Execution,
-    Job,
-    JobState,
     Revision,
     Series,
     revision_place,
 )
 from redline.server.schemas.alerts import CaseVerdict, CiVerdict
+from redline.server.services.ci_pending import verdict_state
 from redline.server.services.components import get_component, get_revision
 from redline.server.services.detection_config import component_config
-from redline.server.services.fresh_runs import fresh_run_between, fresh_runs_under_way
 from redline.server.services.host_speed import at_host_speed
 from redline.server.services.open_regressions import open_before
 from redline.server.services.regression_range import unmeasured_before
-from redline.server.services.revision_reports import unserved_labels
-from redline.server.services.revisions import own_jobs, revision_state
-from sqlalchemy import func, or_, select
+from sqlalchemy import select
 from sqlalchemy.orm import Session
-
-
-def _no_host_for(session: Session, queued: list[Job]) -> str:
-    """Why no host may ever take the queued jobs, when none can: no host registered, or none
-    with every label they need (a trial's jobs for label 'nowhere' said only "waiting for a
-    performance host", and `ci wait` timed out saying the same)."""
-    missing = unserved_labels(session, {tuple(sorted(job.labels)) for job in queued})
-    if missing is None:
-        return " (no performance host has registered yet: start one, docs/running-agents.md)"
-    if missing:
-        return (
-            f" (no registered host has the label(s) {', '.join(map(repr, missing))} they "
-            "need: give one `redline agent --label` (and its token `--labels`), or change the "
-            "component's host_labels)"
-        )
-    return ""
-
-
-def _pending(session: Session, revision: Revision) -> tuple[str, str]:
-    """The verdict's state and, while pending, what it waits for (failed: why)."""
-    own = own_jobs(revision)
-    state = revision_state([job.state for job in own], analyzed=revision.analyzed_at is not None)
-    if state in ("failed", "cancelled"):
-        alike: dict[tuple[str, str], list[int]] = defaultdict(list)
-        for job in own:
-            if job.state in (JobState.failed, JobState.cancelled):
-                alike[(job.state.value, job.reason or "no reason given")].append(job.id)
-        # one line a reason: a broken suite file failed a trial's 3 executions with one error,
-        # said three times
-        why = [
-            f"{'job' if len(ids) == 1 else 'jobs'} {', '.join(map(str, ids))} {state}"
-            + ("" if reason == state else f": {reason}")  # "cancelled: cancelled", a trial read
-            for (state, reason), ids in alike.items()
-        ]
-        return "failed", "; ".join(why)
-    if state != "done":
-        waits = {
-            "empty": "jobs to be created",
-            "queued": "a performance host to take its jobs",
-            "running": "its jobs to finish",
-            "analyzing": "detection to judge its results",
-        }
-        said = waits.get(state, state)
-        earlier = _earlier_unmeasured(session, revision) if state == "analyzing" else None
-        if earlier is not None:  # what it waits for in the end: `ci wait` said each by turns
-            said = f"an earlier revision, {earlier}, to be measured: its baseline"
-        if state == "queued":
-            said += _no_host_for(session, [job for job in own if job.state == JobState.queued])
-        return "pending", said
-    reruns, later = session.execute(
-        select(func.count(), func.min(Job.not_before)).where(
-            Job.confirms_revision_id == revision.id, Job.state.not_in(FINISHED)
-        )
-    ).one()
-    if reruns:
-        again = (
-            ", queued again because the host was busy in the first ones (from "
-            f"{later:%Y-%m-%d %H:%M} UTC)"
-            if later is not None
-            else ""
-        )
-        return "pending", f"confirmation runs of it and its baseline{again}"
-    fresh = session.scalar(  # a baseline all of whose runs were disturbed, being run afresh
-        fresh_runs_under_way(revision.component_id)
-        .where(
-            Revision.id.in_(
-                select(Detection.baseline_revision_id).where(
-                    Detection.revision_id == revision.id, Detection.verdict == NOT_ENOUGH_DATA
-                )
-            )
-        )
-        .limit(1)
-    )
-    if fresh is not None:
-        return "pending", f"a fresh run of its baseline {fresh}, whose runs the host was busy in"
-    suspected = session.scalars(
-        select(Detection.baseline_revision_id).where(
-            Detection.revision_id == revision.id, Detection.confirmation == SUSPECTED
-        )
-    ).all()
-    between = fresh_run_between(session, revision, suspected)
-    if between is not None:
-        return "pending", (
-            f"a fresh run of {between}, whose runs the host was busy in: the change flagged "
-            "here may be its"
-        )
-    earlier = _earlier_unmeasured(session, revision)
-    if earlier is not None:
-        return "pending", f"an earlier revision, {earlier}, to be measured: its baseline"
-    return "done", ""
-
-
-def _earlier_unmeasured(session: Session, revision: Revision) -> str | None:
-    """An earlier revision still to run, while this one lacks a baseline: several commits
-    reported at once run newest first, and the newest is judged again once they are in."""
-    lacking = session.scalar(
-        select(Detection.id)
-        .where(
-            Detection.revision_id == revision.id,
-            Detection.verdict == NOT_ENOUGH_DATA,
-            or_(*(Detection.reason.startswith(start) for start in HISTORY_REASONS)),
-        )
-        .limit(1)
-    )
-    if lacking is None:
-        return None
-    return session.scalar(
-        select(Revision.title)
-        .join(Job, Job.revision_id == Revision.id)
-        .where(
-            Revision.component_id == revision.component_id,
-            revision_place() < revision.place,
-            Job.pair == 0,
-            Job.state.not_in(FINISHED),
-        )
-        .order_by(Revision.order_key.desc(), Revision.id.desc())
-        .limit(1)
-    )
 
 
 def _change(detection: Detection, series: Series) -> dict[str, Any]:
@@ -193,7 +69,7 @@ def _change(detection: Detection, series: Series) -> dict[str, Any]:
 def ci_verdict(session: Session, component_name: str, title: str) -> CiVerdict:
     component = get_component(session, component_name)
     revision = get_revision(session, component, title)
-    state, said = _pending(session, revision)
+    state, said = verdict_state(session, revision)
     groups, charted = _by_case(session, revision, component_config(session, component.id).alarming)
     opening = _first(session, revision)
 
@@ -252,6 +128,14 @@ def _name_unmeasured(session: Session, cases: list[CaseVerdict]) -> None:
 NAMED = 3
 
 
+def _worst_first(change: dict[str, Any]) -> tuple[bool, float]:
+    """Changes for the worse first, the largest first (one from zero the largest), as an alert
+    names the largest: a trial's JUnit failure led with the round trip where the alert, for the
+    same revision, led with the larger CPU change."""
+    effect = change["effect"]
+    return not change["worse"], -(math.inf if effect is None else abs(effect))
+
+
 Found = list[tuple[Detection, Series]]
 
 
@@ -290,7 +174,10 @@ def _case_verdict(
     judged has no verdict yet, skipped or undecided (``seen``: the charted method's flags;
     ``size``: a flag's size for the rule on large unjudged changes, by default its effect)."""
     case, phase, params = key
-    changes = [_change(d, s) for d, s in found if d.flagged and d.confirmation != DROPPED]
+    changes = sorted(
+        (_change(d, s) for d, s in found if d.flagged and d.confirmation != DROPPED),
+        key=_worst_first,
+    )
     worse_count = sum(c["worse"] for c in changes)
     lacking = [
         (d, s)
