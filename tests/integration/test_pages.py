@@ -356,6 +356,11 @@ def test_revision_and_regression_pages_link_each_other(client, database_url, tmp
     assert f'href="/regressions/{number}"' in component
     page = client.get(f"/regressions/{number}")
     assert page.status_code == 200 and f"Regression #{number}" in page.text
+    # what each triage state does, said to everyone (a trial asked how "acknowledged" and
+    # "confirmed" differ, and which of them stop the alerts)
+    states = re.search(r'<details id="triage-states">(.*?)</details>', page.text, re.S).group(1)
+    assert "<dt>confirm (confirmed)</dt><dd>a person checked that it is real" in states
+    assert states.count("Closed: no more alerts") == 3 and states.count("Still open") == 2
     bad = regressions[0]["bad_revision"]
     assert f'href="/components/builder/revisions/{bad}"' in page.text
     revision = client.get(f"/components/builder/revisions/{bad}")
