@@ -164,9 +164,10 @@ class Baselines:
     ) -> tuple[Baseline, Detection]:
         """The verdict and its baseline where the series' baseline restarted at a flag and was
         too short to judge by (`redline.detect.suspected`): while the revisions after the flag
-        have not yet decided it, judged against the level before it too (`past_suspected`);
-        once they held it, against the new level with the noise of the one before it
-        (`at_new_level`)."""
+        have not yet decided it, judged against the level before it too (`past_suspected`;
+        where that is a short level its pairs confirmed, with the noise of the levels before
+        it: `_level_before`); once they held it, against the new level with the noise of the
+        one before it (`at_new_level`)."""
         if verdict.decided or candidate is None or base.values is None:
             return base, verdict
         taken = self._revisions(series_id, detector)
