@@ -241,7 +241,8 @@ def test_a_step_after_reverting_a_confirmed_regression_is_flagged_against_the_re
     level before it was read past r12's and r11's confirmed flags as if undecided, back to
     r10's: against it r14 "showed the change" (+49.6 %, the other way from the revert) and was
     "not enough data"; pooled into r15's baseline, the step was never flagged. Now r12's level
-    (three values) is the one before the revert, with the noise of r11's as well."""
+    (three values) is the one before the revert, judged with the spread of the first long level
+    before it (r1-r8: read past the short confirmed levels of r11 and r9)."""
     levels = [3.0] * 8 + [5.0, 3.0, 3.6, 9.0, 3.5, 4.5, 4.5, 4.5]
     confirm = _confirmed_as_pairs_would(session, {"r9", "r11", "r12"})
     _history(session, database_url, tmp_path, levels, 3, confirm)

@@ -1,30 +1,34 @@
-"""A flag its pairs confirmed is a decided level (`redline.detect.baseline.CONFIRMED`), and a short
-one is judged with the noise of the levels before it (`ExecutionShift.at_new_level` on several
-levels). A trial's regression, confirmed by its pairs and reverted by the next commit, was read
-past as a flag not yet decided: the commit after the revert was judged against the level before
-the regression, and a +28 % step there was "not enough data" (`tests/integration/
-test_suspected_level.py` has the whole history through the worker)."""
+"""A flag its pairs confirmed is a decided level (`redline.detect.baseline.Flag.CONFIRMED`), and a
+short one before a later flag is judged with the spread of the nearest long level before it
+(`redline.detect.suspected.LevelBefore`); `tests/integration/test_suspected_level.py` has a
+trial's whole history through the worker."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
-from redline.detect.baseline import CONFIRMED, take_recent
+from redline.detect.baseline import Flag, take_recent
 from redline.detect.execution_shift import ExecutionShift
 from redline.detect.result import CHANGE, NO_CHANGE, NOT_ENOUGH_DATA
+from redline.detect.suspected import LevelBefore
 
 
-def _revisions(*flags: int) -> list[tuple[int, np.ndarray, int]]:
+def _revisions(*flags: Flag) -> list[tuple[int, np.ndarray, Flag]]:
     """Revisions 0.. newest first, three values each, flagged as given."""
     return [(k, np.full(3, 10.0 + k), flag) for k, flag in enumerate(flags)]
+
+
+NONE, UNDECIDED, CONFIRMED = Flag.NONE, Flag.UNDECIDED, Flag.CONFIRMED
 
 
 @pytest.mark.parametrize(
     ("flags", "taken", "why"),
     [
-        ((1, 0, 0, 0, 0, 0), [1, 2, 3, 4, 5], "a flag right before it, undecided: read past"),
-        ((CONFIRMED, 0, 0, 0, 0, 0), [0], "confirmed by its pairs: the level starts there"),
-        ((0, CONFIRMED, 0, 0, 0, 0), [0, 1], "the same one revision further back"),
+        ((UNDECIDED, NONE, NONE, NONE, NONE, NONE), [1, 2, 3, 4, 5], "undecided: read past"),
+        ((True, NONE, NONE, NONE, NONE, NONE), [1, 2, 3, 4, 5], "a bool reads as a Flag"),
+        ((CONFIRMED, NONE, NONE, NONE, NONE, NONE), [0], "confirmed: the level starts there"),
+        ((NONE, CONFIRMED, NONE, NONE, NONE, NONE), [0, 1], "one revision further back"),
+        ((NONE, NONE, UNDECIDED, NONE, NONE, NONE), [0, 1, 2], "wait revisions back: a level"),
     ],
 )
 def test_the_level_before_a_flag_is_not_read_past_a_flag_its_pairs_confirmed(
@@ -34,18 +38,37 @@ def test_the_level_before_a_flag_is_not_read_past_a_flag_its_pairs_confirmed(
     assert found == taken, why
 
 
-def test_a_short_level_is_judged_with_each_earlier_level_s_own_noise() -> None:
-    """Levels of 20 and 40 (1 % noise each, four values), then a new level of 30 (three
-    values): a candidate 10 % above it is a change with each level's residuals from its own
-    median; pooled as one level, the gap between 20 and 40 would read as noise."""
+def _revision(rng: np.random.Generator, level: float, between: float = 0.03) -> np.ndarray:
+    """One revision's three execution values: ``between`` of noise shared by the revision (the
+    host's state while it ran), 1 % apart within it."""
+    return level * (1 + rng.normal(0, between)) * (1 + rng.normal(0, 0.01, 3))
+
+
+def test_a_short_confirmed_level_is_judged_with_the_spread_of_a_long_one_before_it() -> None:
     rng = np.random.default_rng(4)
-    older, short = 40.0 * (1 + rng.normal(0, 0.01, 4)), 20.0 * (1 + rng.normal(0, 0.01, 4))
-    level = 30.0 * (1 + rng.normal(0, 0.01, 3))
+    noise = np.concatenate([_revision(rng, 40.0) for _ in range(5)])
+    short = _revision(rng, 20.0)
     judge = ExecutionShift().confirmed()
-    raised = np.array([33.0])
-    assert judge.at_new_level(level, [short, older], raised).verdict == CHANGE
-    assert judge.at_new_level(level, np.concatenate([short, older]), raised).verdict == NO_CHANGE
-    assert judge.at_new_level(level, [short, older], np.array([30.2])).verdict == NO_CHANGE
-    # a level of one value says nothing of the noise: not counted towards the six needed
-    few = judge.at_new_level(level, [short, older[:1]], raised)
-    assert few.verdict == NOT_ENOUGH_DATA and "4 before it (needs 6)" in few.reason
+    before = LevelBefore(short, noise, "r9")
+    raised = before.judge(judge, "cpu_percent", short * 1.3)
+    assert raised.verdict == CHANGE and "since the change at r9 (3 value(s))" in raised.reason
+    assert before.judge(judge, "cpu_percent", short * 1.01).verdict == NO_CHANGE
+    # alone, its three values are too few to judge by
+    alone = LevelBefore(short).judge(judge, "cpu_percent", short * 1.3)
+    assert alone.verdict == NOT_ENOUGH_DATA, alone
+    assert before.spread_from is noise and LevelBefore(short).spread_from is short
+
+
+def test_an_unchanged_revision_after_a_short_confirmed_level_raises_few_alarms() -> None:
+    """A review: judged against one revision's level, noise the revision's executions share
+    (3 % here, three times the spread within one) is read from the long level's values. Of
+    2,000 unchanged revisions judged so, the alarms (threshold 6, a pairs-confirmed
+    component's) stay rare."""
+    rng = np.random.default_rng(9)
+    judge = ExecutionShift().confirmed()
+    flagged = 0
+    for _ in range(2000):
+        noise = np.concatenate([_revision(rng, 40.0) for _ in range(5)])
+        before = LevelBefore(_revision(rng, 20.0), noise, "r9")
+        flagged += before.judge(judge, "cpu_percent", _revision(rng, 20.0)).flagged
+    assert flagged <= 4, flagged  # 0 here, at 1 %, 3 % and 6 % shared, thresholds 6 and 8

@@ -1,5 +1,7 @@
 """Which earlier revisions make a series' baseline: the ``recent`` policy, shared by the worker
-and the offline evaluation so that both judge exactly the same comparison.
+and the offline evaluation so that both judge exactly the same comparison (but for flags their
+pairs confirmed, `Flag.CONFIRMED`: the evaluation runs no pairs, and a re-analysis settles
+confirmations only at its end).
 
 ``recent``: the newest earlier revisions, newest first, pooled until they hold the method's
 ``baseline_values`` values (samples, or executions for an execution-level method), at most
@@ -18,6 +20,7 @@ pooled in unjudged (a trial's history lost a confirmed +40 % regression this way
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable, Iterator, Sequence
+from enum import IntEnum
 from typing import Generic, TypeVar
 
 import numpy as np
@@ -25,11 +28,18 @@ from redline.detect.confirmation import DEFAULT_CONFIRM_REVISIONS, DROPPED, hold
 
 #: How many earlier revisions ``recent`` may pool at most, by default (configurable: ``window``).
 DEFAULT_WINDOW = 10
-#: An entry's flag (`take_recent`) where the flag's pairs confirmed it as a change: a level that
-#: is decided, never read past as a flag the revisions after it have not yet decided (a trial's
-#: regression confirmed by its pairs, right before a flag the other way, was read past: the
-#: next commit was judged against the level before it, and a +28 % step went unflagged)
-CONFIRMED = 2
+
+
+class Flag(IntEnum):
+    """A revision's flag as `take_recent` reads it (a bool reads as NONE or UNDECIDED)."""
+
+    NONE = 0
+    #: flagged, not yet decided by its pairs: the revisions after it decide (`restarts`)
+    UNDECIDED = 1
+    #: flagged, and its pairs confirmed it: a level, never read past as an undecided one
+    CONFIRMED = 2
+
+
 T = TypeVar("T")
 
 
@@ -87,8 +97,8 @@ def take_recent(
     past_undecided: bool = False,
 ) -> list[T]:
     """The earlier revisions that form the baseline, taken from ``(revision, its values,
-    flagged by the method)`` newest first (flagged: 0, 1, or `CONFIRMED`), and read no further
-    than needed (the iterable may compute each revision's values lazily). ``wait``: the
+    flagged by the method: a `Flag`)`` newest first, and read no further than needed (the
+    iterable may compute each revision's values lazily). ``wait``: the
     revisions after a flag that decide whether it was a spike (`restarts`); ``count``: the
     values count rare events; ``past_undecided``: leave out a flag fewer than ``wait`` revisions
     after it measured the series, unless its pairs confirmed it, and read on past it, as if it
@@ -99,7 +109,7 @@ def take_recent(
     k = 0
     while len(taken) < window and pooled < need and (entry := items.get(k)) is not None:
         item, values, flagged = entry
-        if flagged and flagged != CONFIRMED and past_undecided and k < wait:  # k revisions since
+        if flagged == Flag.UNDECIDED and past_undecided and k < wait:  # k revisions since it
             k += 1
             continue
         taken.append(item)
@@ -113,7 +123,7 @@ def take_recent(
 def _restarts_at(items: _Lazy[T], k: int, need: int, window: int, wait: int, count: bool) -> bool:
     """`restarts` at the ``k``-th newest revision, its own baseline read as `take_recent` reads
     one (up to the flag before it, that one included), but past a flag at most ``wait``
-    revisions before it and not `CONFIRMED`, which it may have been judged past
+    revisions before it and `Flag.UNDECIDED`, which it may have been judged past
     (`redline.detect.suspected`): a spike and the flag the other way right after it (a change
     against the level before the spike) were otherwise judged by the spike's one value, which
     "held" it."""
@@ -129,7 +139,7 @@ def _restarts_at(items: _Lazy[T], k: int, need: int, window: int, wait: int, cou
         if entry is None:
             break
         j += 1
-        if entry[2] and entry[2] != CONFIRMED and j - k - 1 <= wait:  # an undecided one near
+        if entry[2] == Flag.UNDECIDED and j - k - 1 <= wait:  # at most wait before it
             continue
         before.append(entry[1])
         if entry[2]:

@@ -179,7 +179,8 @@ def _walk_series(
             # id ending in a known counter name, e.g. "leak/rss_bytes", gets that floor)
             found = judge_series(detector, kind.counter, baseline, candidate)
             if not found.decided and flag in flags and (older := level_before(flag)):
-                # restarted at a flag and too short: as `Baselines.after_flag`
+                # restarted at a flag and too short: as `Baselines.after_flag` (no pairs
+                # here, so no confirmed short level before it: `LevelBefore` of one level)
                 earlier = np.concatenate([values[p] for p in older])
                 found, judged_before = after_flag(
                     found,

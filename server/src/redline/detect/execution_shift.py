@@ -197,11 +197,7 @@ class ExecutionShift(Detector):
         return self._between(before, after, self.threshold)
 
     def at_new_level(
-        self,
-        level: np.ndarray,
-        earlier: np.ndarray | Sequence[np.ndarray],
-        cand: np.ndarray,
-        least: int = STEP_SIDE,
+        self, level: np.ndarray, earlier: np.ndarray, cand: np.ndarray, least: int = STEP_SIDE
     ) -> Detection:
         """A revision judged against a new level too short to judge by alone (``level``: the
         values since a change that held, at least `STEP_SIDE`), its noise read from the level
@@ -214,34 +210,24 @@ class ExecutionShift(Detector):
         `spread_floor`. ``z`` counts the new level's median as known from its own values only
         (``sqrt(1/len(cand) + 1/len(level))``). At ``threshold``, as `_detect`.
         `redline.detect.suspected.at_new_level`. ``least``: the values the new level needs
-        (one, for a revision that moved back from a flag: `redline.detect.suspected.after_flag`).
-        ``earlier`` may be several levels, newest first, each with its own median (where the
-        level before the change was a short one its pairs confirmed, and those before it make
-        up the noise: `redline.worker.baselines.Baselines.after_flag`); a level of one value
-        says nothing of the noise and is left out."""
-        level, cand = level[np.isfinite(level)], cand[np.isfinite(cand)]
-        levels = [
-            p[np.isfinite(p)] for p in ([earlier] if isinstance(earlier, np.ndarray) else earlier)
-        ]
-        levels = [p for p in levels if len(p) > 1]
-        before = sum(map(len, levels))
-        if not len(cand) or len(level) < least or before < self.min_baseline:
+        (one, for a revision that moved back from a flag: `redline.detect.suspected.after_flag`)."""
+        level, earlier = level[np.isfinite(level)], earlier[np.isfinite(earlier)]
+        cand = cand[np.isfinite(cand)]
+        if not len(cand) or len(level) < least or len(earlier) < self.min_baseline:
             return not_enough(
                 self.name,
                 f"too few values for the new level: {len(level)} at it (needs {least}), "
-                f"{before} before it (needs {self.min_baseline})",
+                f"{len(earlier)} before it (needs {self.min_baseline})",
             )
-        levels.append(level)
-        medians = [median(p) for p in levels]
-        new = medians[-1]
-        if 0.0 in medians:
+        new, old = median(level), median(earlier)
+        if 0.0 in (new, old):
             return not_enough(self.name, "a level of 0: its noise relative to it is unknown")
-        residuals = np.concatenate([p - m for p, m in zip(levels, medians, strict=True)])
-        relative = np.concatenate([(p - m) / abs(m) for p, m in zip(levels, medians, strict=True)])
+        residuals = np.concatenate([earlier - old, level - new])
+        relative = np.concatenate([(earlier - old) / abs(old), (level - new) / abs(new)])
         spread = max(
             MAD_TO_SD * median(np.abs(relative)) * abs(new),
             MAD_TO_SD * median(np.abs(residuals)),
-            float(np.std(residuals, ddof=len(levels))),  # each level's median estimated
+            float(np.std(residuals, ddof=2)),
             spread_floor(level, new, self.rel_scale),
             1e-12,
         )

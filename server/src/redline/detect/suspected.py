@@ -22,7 +22,7 @@ the level before it (`at_new_level`) until it holds enough values alone.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from functools import partial
 
@@ -46,29 +46,27 @@ AT_NEW_LEVEL = "judged against the new level since the change at"
 @dataclass(frozen=True)
 class LevelBefore:
     """The level before a flag: ``values``, the flagged revision's own baseline read past any
-    flag the revisions after it have not yet decided; where that is a short level its pairs
-    confirmed (since revision ``confirmed_at``), ``older`` holds the levels before it, newest
-    first, whose noise it is judged with (`redline.worker.baselines.Baselines.after_flag`)."""
+    flag the revisions after it have not yet decided. Where that is a short level its pairs
+    confirmed (at revision ``confirmed_at``), ``noise`` is the nearest level before it long
+    enough to judge by, whose spread it is judged with (`Baselines._level_before`)."""
 
     values: np.ndarray
-    older: tuple[np.ndarray, ...] = ()
+    noise: np.ndarray | None = None
     confirmed_at: str = ""
 
     @property
-    def levels(self) -> tuple[np.ndarray, ...]:
-        return (self.values, *self.older)
+    def spread_from(self) -> np.ndarray:
+        """The values whose spread a revision is judged with against this level or after it."""
+        return self.values if self.noise is None else self.noise
 
     def judge(self, detector: Detector, counter: str, candidate: np.ndarray) -> Detection:
         """``candidate`` judged against this level: as the detector judges a baseline, or, where
-        it is a short confirmed level, as `at_new_level` with the noise of those before it (a
-        trial's regression, confirmed by its pairs and reverted by the next commit, left the
-        commit after the revert judged against nothing: "not enough data")."""
+        it is a short confirmed level, as `at_new_level`, with ``noise``."""
         found = judge_series(detector, counter, self.values, candidate)
-        if not self.older:
+        if self.noise is None:
             return found
-        levels = self.levels
         return at_new_level(
-            found, detector, counter, self.values, levels, candidate, self.confirmed_at, 1
+            found, detector, counter, self.values, self.noise, candidate, self.confirmed_at, 1
         )
 
 
@@ -90,7 +88,7 @@ def after_flag(
     `past_suspected`. Returns the verdict and whether it was judged against ``before``."""
     if held:
         level = at_new_level(
-            found, detector, counter, restarted, before.levels, candidate, at, least
+            found, detector, counter, restarted, before.spread_from, candidate, at, least
         )
         return level, False
     judge = partial(before.judge, detector, counter, candidate)
@@ -106,7 +104,9 @@ def after_flag(
     # values may be one (one execution a revision): its noise is the level before it's, and z
     # counts the one value as such. A spike's return to the level before it shows no change
     # there, and is not judged here.
-    undone = at_new_level(verdict, detector, counter, restarted, before.levels, candidate, at, 1)
+    undone = at_new_level(
+        verdict, detector, counter, restarted, before.spread_from, candidate, at, 1
+    )
     flagged = direction_of(median(restarted[np.isfinite(restarted)]) - median(before.values))
     if not undone.flagged or undone.direction == flagged:
         return verdict, judged_before
@@ -126,8 +126,8 @@ def past_suspected(
 ) -> tuple[Detection, bool]:
     """The verdict of a revision whose baseline restarted at a flag still undecided (at
     revision ``at``): ``found``, judged against ``restarted`` (the values from that flag on),
-    or, where that baseline was too short, ``judge()``: the revision judged against ``earlier``
-    (the level before the flag). Returns the verdict and whether it was judged against
+    or, where that baseline was too short, ``judge()``: the revision judged against the level
+    before the flag (``earlier``, its values). Returns the verdict and whether it was judged against
     ``earlier``."""
     restarted, earlier = restarted[np.isfinite(restarted)], earlier[np.isfinite(earlier)]
     if (
@@ -159,7 +159,7 @@ def at_new_level(
     detector: Detector,
     counter: str,
     level: np.ndarray,
-    earlier: np.ndarray | Sequence[np.ndarray],
+    earlier: np.ndarray,
     candidate: np.ndarray,
     at: str,
     least: int = STEP_SIDE,
@@ -167,8 +167,8 @@ def at_new_level(
     """The verdict of a revision whose baseline restarted at a change that held (at revision
     ``at``): ``found``, or, where that new level (``level``, its values, at least ``least``) was
     too short to judge by, `ExecutionShift.at_new_level` against it with the noise of the level
-    before it (``earlier``: the values the flagged revision's own baseline holds, or the levels
-    before it: `LevelBefore.levels`), and the counter's
+    before it (``earlier``: the values the flagged revision's own baseline holds, or
+    `LevelBefore.spread_from`), and the counter's
     absolute floor. Without it, the revisions after a real change were "not enough data"
     until six values at the new level existed: with one execution a revision, a second change
     made in the five revisions after the first passed CI unjudged and was pooled into the new

@@ -9,7 +9,7 @@ from itertools import islice
 from typing import TYPE_CHECKING
 
 import numpy as np
-from redline.detect.baseline import CONFIRMED, lookback, take_recent
+from redline.detect.baseline import Flag, lookback, take_recent
 from redline.detect.config import DetectionConfig
 from redline.detect.count_rate import CountRate
 from redline.detect.execution_shift import HELD_AFTER, STEP_SIDE, ExecutionShift, strongest_step
@@ -148,10 +148,12 @@ class Baselines:
             past_undecided=past_undecided,
         )  # fmt: skip
 
-    def _flag(self, series_id: int, method: str, revision_id: int) -> int:
-        """The revision's flag as `take_recent` reads it: 0, 1, or `CONFIRMED` by its pairs."""
+    def _flag(self, series_id: int, method: str, revision_id: int) -> Flag:
+        """The revision's flag as `take_recent` reads it."""
         key = (series_id, method, revision_id)
-        return CONFIRMED if key in self.confirmed else int(key in self.flagged)
+        if key in self.confirmed:
+            return Flag.CONFIRMED
+        return Flag.UNDECIDED if key in self.flagged else Flag.NONE
 
     def after_flag(
         self,
@@ -206,27 +208,23 @@ class Baselines:
         self, series_id: int, detector: Detector, older: list[tuple[int, np.ndarray]]
     ) -> LevelBefore:
         """The level before a flag (``older``: its revisions, newest first), and where it is a
-        level its pairs confirmed too short to judge by, the levels before that one, until they
-        hold ``min_baseline`` values (its noise: `LevelBefore`). A trial reverted a confirmed
-        regression, then made a +28 % step: the revert's flag read past the regression's as one
-        not yet decided, and judged the step against the level before the regression ("not
-        enough data", it "showed the change": the revert's, as that level read it)."""
-        levels = [np.concatenate([v for _, v in older])]
-        need = getattr(detector, "min_baseline", 0)
+        level its pairs confirmed too short to judge by, the nearest level before it that is
+        long enough (read past other short confirmed ones), for its noise (`LevelBefore`)."""
+        values = np.concatenate([v for _, v in older])
+        need = detector.min_baseline
         start = older[-1][0]
-        while (
-            sum(map(len, levels)) < need
-            and (series_id, detector.name, start) in self.confirmed
-            and (more := self._take(series_id, detector, past_undecided=True, before=start))
-        ):
-            levels.append(np.concatenate([v for _, v in more]))
+        if len(values) >= need or (series_id, detector.name, start) not in self.confirmed:
+            return LevelBefore(values)
+        since = self.session.get(Revision, start)
+        at = since.title if since is not None else str(start)
+        while more := self._take(series_id, detector, past_undecided=True, before=start):
+            noise = np.concatenate([v for _, v in more])
+            if len(noise) >= need:
+                return LevelBefore(values, noise, at)
             start = more[-1][0]
-        if len(levels) == 1:
-            return LevelBefore(levels[0])
-        since = self.session.get(Revision, older[-1][0])
-        return LevelBefore(
-            levels[0], tuple(levels[1:]), since.title if since is not None else str(older[-1][0])
-        )
+            if (series_id, detector.name, start) not in self.confirmed:
+                break
+        return LevelBefore(values)
 
     def step(self, series_id: int, detector: Levelled, candidate: np.ndarray | None) -> Step | None:
         """A step at one of the baseline's revisions that could not be judged when measured
