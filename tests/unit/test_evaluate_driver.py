@@ -47,16 +47,16 @@ def _driver(field: str, label: str = "Stable", change: int | None = None) -> Ser
 
 
 def _corpus(process: str = "driver") -> Corpus:
-    """Round trips that rise 30 % (a regression) or fall 30 % (an improvement); lateness that
-    rises 15 µs (+50 %, under the 20 µs floor); timeouts from 0 to 2 per 2,000 queries (a
-    regression) and a few lone ones in an otherwise clean history (noise); the queries (the
-    totals, a load) and a p99 (an extreme): neither judged."""
+    """Round trips that rise 30 % (a regression) or fall 30 % (an improvement); timeouts from 0
+    to 2 per 2,000 queries (a regression) and a few lone ones in an otherwise clean history
+    (noise); the queries (the totals, a load), a p99 (an extreme) and a lateness that rises a
+    hundredfold (the driver's own timing): none of the three judged."""
     rng = np.random.default_rng(11)
     queries = [[float(QUERIES)] * EXECUTIONS for _ in range(BUILDS)]
     data = {
         f"slower/{QUERY}:rtt_p50_us": (_level(rng, 1000.0, 1300.0), "regression"),
         f"faster/{QUERY}:rtt_p50_us": (_level(rng, 1000.0, 700.0), "Stable"),
-        f"late/{QUERY}:lateness_p50_us": (_level(rng, 30.0, 45.0), "Stable"),
+        f"late/{QUERY}:lateness_p50_us": (_level(rng, 30.0, 3000.0), "Stable"),
         f"slower/{QUERY}:rtt_p99_us": (_level(rng, 2000.0, 9000.0), "Stable"),
         f"timeouts/{QUERY}:timeouts": (_counts(0, 2), "regression"),
         f"timeouts/{QUERY}:queries": (queries, "load"),
@@ -95,11 +95,12 @@ def test_a_series_that_names_no_process_counts_a_flag_either_way_as_before() -> 
     assert alarms[f"faster/{QUERY}:rtt_p50_us"] == [CHANGE]
 
 
-def test_lateness_rising_less_than_the_driver_floor_of_20_us_is_no_alarm() -> None:
-    corpus = _corpus()
-    verdicts = {(u.series, u.build): f for u, f in walk(ExecutionShift(), corpus)}
-    late = verdicts[(f"late/{QUERY}:lateness_p50_us", CHANGE)]
-    assert not late.flagged and "below the absolute floor 20" in late.reason
+def test_the_driver_s_lateness_is_charted_not_judged_however_far_it_moves() -> None:
+    """A bench run's unchanged revision became a regression by it (+14,526 %, confirmed by both
+    pairs: its round trip, judged itself, 15 % slower in every run; `LATENESS`)."""
+    judged = {u.series for u, _ in walk(ExecutionShift(), _corpus())}
+    assert f"late/{QUERY}:lateness_p50_us" not in judged
+    assert f"slower/{QUERY}:rtt_p50_us" in judged
 
 
 def test_timeouts_are_judged_as_a_rate_out_of_the_queries_whatever_the_method() -> None:
@@ -147,7 +148,7 @@ def test_the_total_is_found_as_the_worker_finds_it() -> None:
 def test_the_scores_count_the_driver_series_as_the_service_judges_them() -> None:
     scores = evaluate_corpus(_corpus(), ["execution_shift"])["execution_shift"]
     assert (scores.tp, scores.fp, scores.fn) == (2, 0, 0)
-    assert scores.units == 5 * (BUILDS - 1)  # two rtt, lateness, two timeouts series
+    assert scores.units == 4 * (BUILDS - 1)  # two rtt, two timeouts series
 
 
 def test_process_and_counter_survive_writing_and_reading_the_corpus(tmp_path: Path) -> None:

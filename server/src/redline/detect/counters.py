@@ -146,6 +146,12 @@ def is_load(process: str, counter: str) -> bool:
 #: A driver's extremes (the largest and the 99th percentile of a phase's few hundred round trips
 #: or lateness samples): one outlier decides them, so they are charted, not judged.
 EXTREMES = ("_max_us", "_p99_us")
+#: The driver's lateness (how late its fixed-rate loop fired): the harness's own timing, charted,
+#: not judged. It follows the host's load and the component's round trip, both judged, and near
+#: the rate at which the round trip saturates the loop it grows a thousandfold for a few per cent
+#: of round trip: `bench_verdicts` flagged unchanged revisions by it in most runs, and on
+#: 2026-12-07 both pairs confirmed one (+14,526 %, its round trip 15 % slower in every run).
+LATENESS = "lateness_"
 
 
 #: A component's CPU share: where the host's speed is recorded, methods judging executions judge
@@ -215,8 +221,14 @@ def judged_among(
 
 def judged(process: str, counter: str, context: Collection[str] = CONTEXT_COUNTERS) -> bool:
     """Whether a verdict is asked of this series: not the host's, not a context counter, not a
-    load the driver delivered, not a driver's extreme (`EXTREMES`)."""
+    load the driver delivered, not a driver's extreme (`EXTREMES`) nor its lateness
+    (`LATENESS`)."""
     series_kind = kind(process)
     if series_kind in ("driver", "recorder"):
-        return metric_of(counter) is not None and not counter.endswith(EXTREMES)
+        field = counter.rpartition(":")[2]
+        return (
+            metric_of(counter) is not None
+            and not counter.endswith(EXTREMES)
+            and not field.startswith(LATENESS)
+        )
     return series_kind == "counter" and counter not in context
