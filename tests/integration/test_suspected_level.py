@@ -34,14 +34,15 @@ def _history(
     levels: list[float],
     executions: int = 1,
     judged: Callable[[str], None] = lambda _title: None,
+    between: float = 0.01,
 ) -> None:
     """Revisions r1.. of ``executions`` each around ``levels`` (2 % noise in the samples, a
-    fixed 1 % between runs), judged one by one as the service judges them (with more than one
-    execution, by the worker's walk: `judge_onward`); ``judged`` is told each revision's title
-    once it is judged."""
+    fixed ``between`` between runs), judged one by one as the service judges them (with more
+    than one execution, by the worker's walk: `judge_onward`); ``judged`` is told each
+    revision's title once it is judged."""
     create_component(session, ComponentCreate(name=NAME, executions=executions))
     rng = np.random.default_rng(11)
-    wobble = [0.0, 0.01, -0.01, 0.005, -0.005]
+    wobble = [0.0, between, -between, between / 2, -between / 2]
     for number, level in enumerate(levels, start=1):
         runs = [
             {"cpu": rng.normal(level * (1 + wobble[(number + i) % 5]), level * 0.02, 60)}
@@ -260,3 +261,29 @@ def test_a_step_after_reverting_a_confirmed_regression_is_flagged_against_the_re
     r15, r16 = verdicts["r15"], verdicts["r16"]
     assert r15.verdict == "not enough data" and "r14 it shows that change" in r15.reason, r15
     assert r16.verdict == "no change", r16.reason
+
+
+@pytest.mark.parametrize(
+    ("after", "verdict"), [(23.0, "change"), (20.0, "no change")], ids=["reland", "unchanged"]
+)
+def test_after_a_confirmed_regression_s_revert_a_commit_is_judged_against_the_level_reverted_to(
+    session, database_url, tmp_path, after, verdict
+):
+    """A third trial (three executions a revision): a regression doubling the work, confirmed
+    by its pairs, its exact revert, then a reland at +30 % over the original: the reland was
+    judged against the revert's three values with the noise around them ("not enough data",
+    it "showed the change" against the confirmed level), the next commit pooled it unflagged.
+    The revert returned to the level before the regression: a commit after it is judged against
+    that level, which holds enough values to judge by, and an unchanged one is no change there
+    (it was "not enough data"). r9 x2, r10 its revert, r11 ``after`` (+15 %, which the revert's
+    three values alone do not show beyond 6 % between runs)."""
+    levels = [20.0] * 8 + [40.0, 20.0, after]
+    confirm = _confirmed_as_pairs_would(session, {"r9"})
+    _history(session, database_url, tmp_path, levels, 3, confirm, between=0.06)
+    r11 = _verdicts(session)["r11"]
+    assert r11.verdict == verdict, (r11.verdict, r11.reason)
+    assert "the change confirmed at r9, to which the change flagged at r10 returned" in r11.reason
+    base = session.get(Revision, r11.baseline_revision_id)
+    assert base is not None and base.title == "r8", base.title if base else None
+    if verdict == "change":
+        assert r11.direction == "increase" and 0.1 < (r11.effect or 0) < 0.3, r11.effect

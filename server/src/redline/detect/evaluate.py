@@ -42,7 +42,7 @@ from redline.detect.methods import Detector
 from redline.detect.registry import CHANGE_POINT_METHOD, DEFAULT_METHOD, EVALUATED
 from redline.detect.result import Detection, direction_of, not_enough
 from redline.detect.scores import MethodScores, Outcome, summarize
-from redline.detect.suspected import LevelBefore, after_flag
+from redline.detect.suspected import BEFORE, LevelBefore, after_flag
 from redline.detect.verdict import judge_series
 
 #: Called with (series done, series in all) as an evaluation walks a corpus.
@@ -182,7 +182,7 @@ def _walk_series(
                 # restarted at a flag and too short: as `Baselines.after_flag` (no pairs
                 # here, so no confirmed short level before it: `LevelBefore` of one level)
                 earlier = np.concatenate([values[p] for p in older])
-                found, judged_before = after_flag(
+                found, against = after_flag(
                     found,
                     detector,
                     kind.counter,
@@ -192,7 +192,7 @@ def _walk_series(
                     str(builds[flag][0]),
                     held=depth > wait,
                 )
-                baseline = earlier if judged_before else baseline
+                baseline = earlier if against == BEFORE else baseline
         unit = Unit(
             series, build, baseline, candidate, build in changes, kind.worse, kind.count, runs, k
         )

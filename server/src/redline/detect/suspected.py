@@ -41,6 +41,9 @@ BEFORE_SUSPECTED = "judged against the level before the change flagged at"
 SHOWS_THAT_CHANGE = "shows that change"
 #: how the reason of a verdict judged against a short new level (`at_new_level`) begins
 AT_NEW_LEVEL = "judged against the new level since the change at"
+#: what a verdict after a flag was judged against (`after_flag`): the values from the flag on,
+#: the level before the flag, or the level before a short confirmed one (`returned_to_older`)
+RESTARTED, BEFORE, OLDER = "restarted", "before", "older"
 
 
 @dataclass(frozen=True)
@@ -80,21 +83,22 @@ def after_flag(
     at: str,
     held: bool,
     least: int = STEP_SIDE,
-) -> tuple[Detection, bool]:
+) -> tuple[Detection, str]:
     """The verdict of a revision whose baseline restarted at the flag at revision ``at``
     (``restarted``: the values from it on; ``before``: the level before it), as the worker and
     the offline evaluation both judge it: `at_new_level` once the revisions after the flag
     ``held`` it (or its pairs confirmed it: then however few its values, ``least``), else
-    `past_suspected`. Returns the verdict and whether it was judged against ``before``."""
+    `past_suspected`. Returns the verdict and what it was judged against: `RESTARTED`,
+    `BEFORE` (``before.values``) or `OLDER` (``before.noise``: `returned_to_older`)."""
     if held:
         level = at_new_level(
             found, detector, counter, restarted, before.spread_from, candidate, at, least
         )
-        return level, False
+        return level, RESTARTED
     judge = partial(before.judge, detector, counter, candidate)
     verdict, judged_before = past_suspected(found, judge, restarted, before.values, at)
     if SHOWS_THAT_CHANGE not in verdict.reason:
-        return verdict, judged_before
+        return verdict, BEFORE if judged_before else RESTARTED
     # It shows the flag's change against the level before it: judged against the flag's own
     # level too, as once a change held, a change the other way from the flag's stands (a part
     # of it undone, or a further step), against the flag's revision, whose pairs settle which
@@ -108,13 +112,44 @@ def after_flag(
         verdict, detector, counter, restarted, before.spread_from, candidate, at, 1
     )
     flagged = direction_of(median(restarted[np.isfinite(restarted)]) - median(before.values))
-    if not undone.flagged or undone.direction == flagged:
-        return verdict, judged_before
+    if undone.flagged and undone.direction != flagged:
+        note = (
+            f"{BEFORE_SUSPECTED} {at} it still shows that change: a part of it undone, or a "
+            "further step; the revisions after it have not yet decided it"
+        )
+        return replace(undone, reason=f"{undone.reason}; {note}"), RESTARTED
+    older = returned_to_older(detector, counter, restarted, before, candidate, at)
+    return (verdict, RESTARTED) if older is None else (older, OLDER)
+
+
+def returned_to_older(
+    detector: Detector,
+    counter: str,
+    restarted: np.ndarray,
+    before: LevelBefore,
+    candidate: np.ndarray,
+    at: str,
+) -> Detection | None:
+    """Where the flag at ``at`` (its values ``restarted``) came right after a short level its
+    pairs confirmed and returned to the level before that one (``before.noise``: a regression
+    reverted), ``candidate`` judged against that older level, long enough to judge by; None
+    otherwise. A trial's commit after such a revert, +30 % over the level the revert returned
+    to, was judged against the revert's three values and the confirmed level's: "not enough
+    data" for lack of power, and then pooled unflagged; an unchanged one was "not enough data"
+    too."""
+    if before.noise is None:
+        return None
+    flag = judge_series(detector, counter, before.noise, restarted[np.isfinite(restarted)])
+    if not flag.decided or flag.flagged:
+        return None
+    found = judge_series(detector, counter, before.noise, candidate)
+    if not found.decided:
+        return None
     note = (
-        f"{BEFORE_SUSPECTED} {at} it still shows that change: "
-        "a part of it undone, or a further step; the revisions after it have not yet decided it"
+        f"judged against the level before the change confirmed at {before.confirmed_at}, to "
+        f"which the change flagged at {at} returned"
     )
-    return replace(undone, reason=f"{undone.reason}; {note}"), False
+    return replace(found, reason=f"{found.reason}; {note}" if found.reason else note)
 
 
 def past_suspected(

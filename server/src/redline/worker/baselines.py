@@ -15,7 +15,7 @@ from redline.detect.count_rate import CountRate
 from redline.detect.execution_shift import HELD_AFTER, STEP_SIDE, ExecutionShift, strongest_step
 from redline.detect.methods import Detector, Levelled
 from redline.detect.result import Detection
-from redline.detect.suspected import LevelBefore, after_flag
+from redline.detect.suspected import BEFORE, OLDER, LevelBefore, after_flag
 from redline.server.models import Execution, Revision
 from redline.server.services.reach import ingested_executions
 from redline.worker.history import (
@@ -185,12 +185,13 @@ class Baselines:
         if not older:
             return base, verdict
         flag = self.session.get(Revision, taken[-1][0])
-        found, judged_before = after_flag(
+        before, noise = self._level_before(series_id, detector, older)
+        found, against = after_flag(
             verdict,
             detector,
             counter,
             base.values,
-            self._level_before(series_id, detector, older),
+            before,
             candidate,
             flag.title if flag is not None else str(taken[-1][0]),
             # held by the revisions after it, or confirmed by its pairs: a trial's regression,
@@ -200,31 +201,34 @@ class Baselines:
             held=len(taken) > self.config.confirm_revisions or confirmed,
             least=1 if confirmed else STEP_SIDE,
         )
-        if not judged_before:
-            return base, found
-        return Baseline(np.concatenate([v for _, v in older]), older[0][0], len(older)), found
+        if against == BEFORE:
+            return Baseline(before.values, older[0][0], len(older)), found
+        if against == OLDER and before.noise is not None:
+            return Baseline(before.noise, noise[0][0], len(noise)), found
+        return base, found
 
     def _level_before(
         self, series_id: int, detector: Detector, older: list[tuple[int, np.ndarray]]
-    ) -> LevelBefore:
+    ) -> tuple[LevelBefore, list[tuple[int, np.ndarray]]]:
         """The level before a flag (``older``: its revisions, newest first), and where it is a
         level its pairs confirmed too short to judge by, the nearest level before it that is
-        long enough (read past other short confirmed ones), for its noise (`LevelBefore`)."""
+        long enough (read past other short confirmed ones; `LevelBefore.noise`), with its
+        revisions."""
         values = np.concatenate([v for _, v in older])
         need = detector.min_baseline
         start = older[-1][0]
         if len(values) >= need or (series_id, detector.name, start) not in self.confirmed:
-            return LevelBefore(values)
+            return LevelBefore(values), []
         since = self.session.get(Revision, start)
         at = since.title if since is not None else str(start)
         while more := self._take(series_id, detector, past_undecided=True, before=start):
             noise = np.concatenate([v for _, v in more])
             if len(noise) >= need:
-                return LevelBefore(values, noise, at)
+                return LevelBefore(values, noise, at), more
             start = more[-1][0]
             if (series_id, detector.name, start) not in self.confirmed:
                 break
-        return LevelBefore(values)
+        return LevelBefore(values), []
 
     def step(self, series_id: int, detector: Levelled, candidate: np.ndarray | None) -> Step | None:
         """A step at one of the baseline's revisions that could not be judged when measured
