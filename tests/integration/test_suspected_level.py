@@ -226,12 +226,11 @@ def test_a_revert_right_after_a_confirmed_regression_restarts_the_baseline_there
     assert f"{AT_NEW_LEVEL} r9" in r10.reason, r10.reason
     assert r11.flagged and r11.direction == "increase", (r11.verdict, r11.reason)
     assert 0.2 < (r11.effect or 0) < 0.4, r11.effect
-    # against the revert's level (its flag undecided yet): against r9's confirmed level r11
-    # shows the revert's change, and moved back from the revert's own (its pairs run r11
-    # against r10)
-    assert f"{BEFORE_SUSPECTED} r10 it still shows that change" in r11.reason, r11.reason
+    # the revert's flag undecided yet, and back at the level before r9: judged against that
+    # level (its pairs run r11 against r8)
+    assert "before the change confirmed at r9, to which the change flagged at r10" in r11.reason
     base = session.get(Revision, r11.baseline_revision_id)
-    assert base is not None and base.title == "r10", base.title if base else None
+    assert base is not None and base.title == "r8", base.title if base else None
 
 
 def test_a_step_after_reverting_a_confirmed_regression_is_flagged_against_the_revert(
