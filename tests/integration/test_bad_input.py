@@ -208,6 +208,17 @@ def test_nesting_python_can_parse_is_refused_too(api: Api):
     assert answer.status_code == 422 and "nested deeper than 32" in answer.text
 
 
+def test_a_number_too_long_for_python_is_422_in_words_a_client_can_act_on(api: Api):
+    """A trial's 5,000-digit sort key was answered with Python's "use
+    sys.set_int_max_str_digits() to increase the limit"."""
+    body = b'{"component": "builder", "title": "r1", "commit": "abc", "sort_key": ' + b"9" * 5000
+    answer = _post_raw(api, "/api/v1/revisions", body + b"}")
+    assert answer.status_code == 422, answer.text
+    assert "a number of 5000 digits, more than 4300: give it as text" in answer.text
+    assert "sys." not in answer.text
+    assert counts(api) == (0, 0)
+
+
 # --- 7: size -------------------------------------------------------------------------------------
 
 

@@ -4,6 +4,7 @@ returns leaves it not confirmed with its figures; a re-analysis settles it the s
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import numpy as np
@@ -211,6 +212,12 @@ def test_the_api_lists_regressions_by_confirmation(session, database_url, tmp_pa
         (dropped,) = api.client.get(url + "?confirmation=not_confirmed").json()
         detail = api.client.get(f"{url}/{dropped['id']}").json()
         assert {d["confirmation"] for d in detail["flagged"]} == {"dropped"}
+        # named by the change it dropped (a trial's not-confirmed regressions had no "largest")
+        largest = dropped["largest"]
+        assert re.fullmatch(r".* cpu \[rate=10\] \+\d+ % at r5", largest), largest
+        # "all", as the regressions page offers it (a trial's API call was 422)
+        every_one = api.client.get(url + "?confirmation=all").json()
+        assert sorted(r["id"] for r in every_one) == sorted(r["id"] for r in every)
 
 
 def _one_execution_each(session, database_url: str, tmp_path: Path, revisions: int) -> None:

@@ -37,7 +37,7 @@ def list_regressions(
     session: SessionDep,
     response: Response,
     state: RegressionState | Literal["open"] | None = None,
-    confirmation: Literal["suspected", "confirmed", "not_confirmed", "withdrawn", "standing"]
+    confirmation: Literal["suspected", "confirmed", "not_confirmed", "withdrawn", "standing", "all"]
     | None = None,
     method: str | None = None,
     limit: PageSize = None,
@@ -46,7 +46,8 @@ def list_regressions(
     """Flagged changes for the worse grouped by overlapping revision ranges, newest first;
     ``?state=`` (triage; ``open``: new, acknowledged or confirmed, and standing), ``?confirmation=``
     (suspected until the later revisions confirm it or not; ``standing``: suspected or
-    confirmed) and ``?method=`` (a method that flagged a
+    confirmed; ``all``, as the page offers it: every one, the withdrawn too) and ``?method=``
+    (a method that flagged a
     change in it) filter. Paged with ``limit``: a full page carries ``X-Next-Cursor``, passed
     back as ``cursor`` for the next; without ``limit``, all."""
     found, following = regressions.list_regressions(

@@ -49,7 +49,8 @@ def largest_changes(
 ) -> dict[int, str]:
     """Per regression of the component (of any component: None; of ``ids`` only, when given),
     its largest change in words ("builder cpu +208 % at r3"): the figures its summary keeps,
-    which stay when it is withdrawn."""
+    which stay when it is withdrawn. A change confirmation dropped (a spike) is named only where
+    the regression has no other: a trial's not-confirmed regressions were listed with none."""
     query = (
         select(Detection.regression_id, Detection.effect, Series.case, Series.phase)
         .add_columns(Series.process, Series.counter, Series.params, Revision.title)
@@ -59,10 +60,14 @@ def largest_changes(
         .where(
             Regression.component_id == component_id if component_id is not None else true(),
             Detection.effect.is_not(None),
-            Detection.confirmation != DROPPED,  # a spike it dropped is not its change
         )
         .ext(distinct_on(Detection.regression_id))
-        .order_by(Detection.regression_id, func.abs(Detection.effect).desc(), Detection.id)
+        .order_by(
+            Detection.regression_id,
+            Detection.confirmation == DROPPED,  # a spike it dropped is not its change
+            func.abs(Detection.effect).desc(),
+            Detection.id,
+        )
     )
     if ids is not None:
         query = query.where(Detection.regression_id.in_(list(ids)))
