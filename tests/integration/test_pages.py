@@ -104,8 +104,8 @@ def test_the_trends_say_why_revisions_without_a_verdict_have_no_marks(
     )
     assert (
         note
-        and "1 of the newest 1 revisions have no verdict yet. The commonest reason, ks: not "
-        "enough data yet: "
+        and "1 of the newest 1 revisions are not judged yet (not enough data: no change can be "
+        "marked). The commonest reason, ks: not enough data yet: "
         in note.group(1)
     )
     assert "baseline" in note.group(1)  # the reason, as the revision list says it

@@ -73,15 +73,16 @@ def index(request: Request, session: SessionDep) -> HTMLResponse:
 
 
 def _unjudged(verdicts: dict[str, str]) -> str:
-    """Why the trends may show no change marks: how many of the newest revisions are still
-    waiting for a verdict, and the commonest reason ("" when none is)."""
+    """Why the trends may show no change marks: how many of the newest revisions are "not
+    enough data" yet, and the commonest reason ("" when none is). ("have no verdict yet" read
+    as a contradiction to a trial, beside the revision's row saying "not enough data".)"""
     waiting = [said for said in verdicts.values() if WAITING in said]
     if not waiting:
         return ""
     reason = Counter(waiting).most_common(1)[0][0]
     return (
-        f"{len(waiting)} of the newest {len(verdicts)} revisions have no verdict yet. The "
-        f"commonest reason, {reason}"
+        f"{len(waiting)} of the newest {len(verdicts)} revisions are not judged yet (not enough "
+        f"data: no change can be marked). The commonest reason, {reason}"
     )
 
 
