@@ -227,10 +227,10 @@ def test_a_revert_right_after_a_confirmed_regression_restarts_the_baseline_there
     assert r11.flagged and r11.direction == "increase", (r11.verdict, r11.reason)
     assert 0.2 < (r11.effect or 0) < 0.4, r11.effect
     # the revert's flag undecided yet, and back at the level before r9: judged against that
-    # level (its pairs run r11 against r8)
+    # level, named by the revert (its pairs run r11 against r10)
     assert "before the change confirmed at r9, to which the change flagged at r10" in r11.reason
     base = session.get(Revision, r11.baseline_revision_id)
-    assert base is not None and base.title == "r8", base.title if base else None
+    assert base is not None and base.title == "r10", base.title if base else None
 
 
 def test_a_step_after_reverting_a_confirmed_regression_is_flagged_against_the_revert(
@@ -279,10 +279,14 @@ def test_after_a_confirmed_regression_s_revert_a_commit_is_judged_against_the_le
     levels = [20.0] * 8 + [40.0, 20.0, after]
     confirm = _confirmed_as_pairs_would(session, {"r9"})
     _history(session, database_url, tmp_path, levels, 3, confirm, between=0.06)
-    r11 = _verdicts(session)["r11"]
+    verdicts = _verdicts(session)
+    r11 = verdicts["r11"]
     assert r11.verdict == verdict, (r11.verdict, r11.reason)
     assert "the change confirmed at r9, to which the change flagged at r10 returned" in r11.reason
+    # named by the revert, at that level: a range from r8 would join r9's regression (a fourth
+    # trial's reland did, and moved its bad revision), silent once it is triaged fixed
     base = session.get(Revision, r11.baseline_revision_id)
-    assert base is not None and base.title == "r8", base.title if base else None
+    assert base is not None and base.title == "r10", base.title if base else None
     if verdict == "change":
         assert r11.direction == "increase" and 0.1 < (r11.effect or 0) < 0.3, r11.effect
+        assert r11.regression_id not in (None, verdicts["r9"].regression_id)

@@ -204,7 +204,11 @@ class Baselines:
         if against == BEFORE:
             return Baseline(before.values, older[0][0], len(older)), found
         if against == OLDER and before.noise is not None:
-            return Baseline(before.noise, noise[0][0], len(noise)), found
+            # named by the flag that returned to that level, not by the level's newest revision:
+            # a range from there would overlap the confirmed regression and join it (silent
+            # when it was triaged fixed, as a reverted one is), and its pairs run against the
+            # flag, at the same level
+            return Baseline(before.noise, taken[-1][0], len(noise)), found
         return base, found
 
     def _level_before(
