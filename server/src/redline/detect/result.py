@@ -73,6 +73,12 @@ def waits_for_history(reason: str) -> bool:
     return reason.startswith(HISTORY_REASONS)
 
 
+def effect_size(effect: float | None) -> float:
+    """How large a flagged change is, to name the largest first: one from zero (no ratio,
+    ``None``) is larger than any ratio."""
+    return math.inf if effect is None else abs(effect)
+
+
 def direction_of(effect: float) -> str:
     if effect > 0:
         return "increase"

@@ -165,8 +165,8 @@ def past_suspected(
     """The verdict of a revision whose baseline restarted at a flag still undecided (at
     revision ``at``): ``found``, judged against ``restarted`` (the values from that flag on),
     or, where that baseline was too short, ``judge()``: the revision judged against the level
-    before the flag (``earlier``, its values). Returns the verdict and whether it was judged against
-    ``earlier``."""
+    before the flag (``earlier``, its values). Returns the verdict and whether it was judged
+    against ``earlier``."""
     restarted, earlier = restarted[np.isfinite(restarted)], earlier[np.isfinite(earlier)]
     if (
         found.decided

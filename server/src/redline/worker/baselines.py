@@ -185,7 +185,7 @@ class Baselines:
         if not older:
             return base, verdict
         flag = self.session.get(Revision, taken[-1][0])
-        before, noise = self._level_before(series_id, detector, older)
+        before, noise_revisions = self._level_before(series_id, detector, older)
         found, against = after_flag(
             verdict,
             detector,
@@ -203,36 +203,36 @@ class Baselines:
         )
         if against == BEFORE:
             return Baseline(before.values, older[0][0], len(older)), found
-        if against == OLDER and before.noise is not None:
+        if against == OLDER:
             # named by the flag that returned to that level, not by the level's newest revision:
             # a range from there would overlap the confirmed regression and join it (silent
             # when it was triaged fixed, as a reverted one is), and its pairs run against the
             # flag, at the same level
-            return Baseline(before.noise, taken[-1][0], len(noise)), found
+            return Baseline(before.noise, taken[-1][0], noise_revisions), found
         return base, found
 
     def _level_before(
         self, series_id: int, detector: Detector, older: list[tuple[int, np.ndarray]]
-    ) -> tuple[LevelBefore, list[tuple[int, np.ndarray]]]:
+    ) -> tuple[LevelBefore, int]:
         """The level before a flag (``older``: its revisions, newest first), and where it is a
         level its pairs confirmed too short to judge by, the nearest level before it that is
-        long enough (read past other short confirmed ones; `LevelBefore.noise`), with its
-        revisions."""
+        long enough (read past other short confirmed ones; `LevelBefore.noise`), with how many
+        revisions that one holds."""
         values = np.concatenate([v for _, v in older])
         need = detector.min_baseline
         start = older[-1][0]
         if len(values) >= need or (series_id, detector.name, start) not in self.confirmed:
-            return LevelBefore(values), []
+            return LevelBefore(values), 0
         since = self.session.get(Revision, start)
         at = since.title if since is not None else str(start)
         while more := self._take(series_id, detector, past_undecided=True, before=start):
             noise = np.concatenate([v for _, v in more])
             if len(noise) >= need:
-                return LevelBefore(values, noise, at), more
+                return LevelBefore(values, noise, at), len(more)
             start = more[-1][0]
             if (series_id, detector.name, start) not in self.confirmed:
                 break
-        return LevelBefore(values), []
+        return LevelBefore(values), 0
 
     def step(self, series_id: int, detector: Levelled, candidate: np.ndarray | None) -> Step | None:
         """A step at one of the baseline's revisions that could not be judged when measured

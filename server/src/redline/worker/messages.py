@@ -11,14 +11,14 @@ from __future__ import annotations
 
 import html
 import json
-import math
 from datetime import datetime
 from typing import Any
 from urllib.parse import quote, urlencode
 
+from redline.detect.result import effect_size
 from redline.recording import params_name
 from redline.server.models import Detection, Regression, Revision, RuntimeAlarm, Series
-from redline.server.services.read import param_text
+from redline.server.services.read import param_text, revision_page
 
 #: the version of the webhook payload (docs/alerts.md); a breaking change raises it
 SCHEMA_VERSION = 1
@@ -55,7 +55,7 @@ def change_body(
         "revision": {
             "title": revision.title,
             "commit": revision.commit,
-            "page": f"/components/{quote(component)}/revisions/{quote(revision.title)}",
+            "page": revision_page(component, revision.title),
         },
         "baseline": baseline,
         "chart": _chart_path(component, series),
@@ -68,17 +68,11 @@ def _effect(change: dict[str, Any]) -> str:
     return "from 0" if effect is None else f"{effect * 100:+.1f} %"
 
 
-def _size(change: dict[str, Any]) -> float:
-    """How large a change is, to name the largest: one from zero is larger than any ratio."""
-    effect = change.get("effect")
-    return math.inf if effect is None else abs(effect)
-
-
 def _summary(component: str, kind: str, changes: list[dict[str, Any]]) -> str:
     """One line for a subject: the largest change, with its parameter set; the component's own
     process is not named twice. (A trial's read "objectbuilder: regression: objectbuilder
     cpu_percent +139.4 % at df29d8d18358 and 4 more series", the first series, not the +158 %.)"""
-    first = max(changes, key=_size)
+    first = max(changes, key=lambda change: effect_size(change.get("effect")))
     more = f" and {len(changes) - 1} more series" if len(changes) > 1 else ""
     what = {
         "regression": "regression",

@@ -18,7 +18,6 @@ import math
 from collections import defaultdict
 from collections.abc import Callable, Sequence
 from typing import Any
-from urllib.parse import quote
 
 from redline.detect.config import CHARTED_METHOD
 from redline.detect.confirmation import DROPPED
@@ -27,6 +26,7 @@ from redline.detect.result import (
     METHOD_FAILED,
     NOT_ENOUGH_DATA,
     NOT_MEASURED_MARK,
+    effect_size,
     waits_for_history,
 )
 from redline.recording.disturbance import names_busy_host
@@ -45,6 +45,7 @@ from redline.server.services.components import get_component, get_revision
 from redline.server.services.detection_config import component_config
 from redline.server.services.host_speed import at_host_speed
 from redline.server.services.open_regressions import open_before
+from redline.server.services.read import revision_page
 from redline.server.services.regression_range import unmeasured_before
 from sqlalchemy import select
 from sqlalchemy.orm import Session
@@ -99,7 +100,7 @@ def ci_verdict(session: Session, component_name: str, title: str) -> CiVerdict:
         skipped=skipped,
         undecided=undecided,
         cases=cases,
-        page=f"/components/{quote(component.name)}/revisions/{quote(revision.title)}",
+        page=revision_page(component.name, revision.title),
         open_before=before,
         open_before_total=before_total,
     )
@@ -132,8 +133,7 @@ def _worst_first(change: dict[str, Any]) -> tuple[bool, float]:
     """Changes for the worse first, the largest first (one from zero the largest), as an alert
     names the largest: a trial's JUnit failure led with the round trip where the alert, for the
     same revision, led with the larger CPU change."""
-    effect = change["effect"]
-    return not change["worse"], -(math.inf if effect is None else abs(effect))
+    return not change["worse"], -effect_size(change["effect"])
 
 
 Found = list[tuple[Detection, Series]]

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 from collections.abc import Mapping
 from typing import Any, Protocol
+from urllib.parse import quote
 
 from redline.server.models import Component, Execution, Job, Revision, Series, Summary
 from redline.server.schemas.results import (
@@ -44,6 +45,11 @@ def matches(series: Identified, fields: dict[str, str | None], params: dict[str,
         name in series.params and param_text(series.params[name]) == value
         for name, value in params.items()
     )
+
+
+def revision_page(component: str, title: str) -> str:
+    """The path of a revision's page."""
+    return f"/components/{quote(component)}/revisions/{quote(title)}"
 
 
 def param_text(value: object) -> str:
