@@ -290,3 +290,26 @@ def test_after_a_confirmed_regression_s_revert_a_commit_is_judged_against_the_le
     if verdict == "change":
         assert r11.direction == "increase" and 0.1 < (r11.effect or 0) < 0.3, r11.effect
         assert r11.regression_id not in (None, verdicts["r9"].regression_id)
+
+
+def test_a_revert_on_a_noisy_component_is_flagged_so_the_reland_after_it_is_judged_alone(
+    session, database_url, tmp_path
+):
+    """A fourth trial, on a noisy component (three executions a revision, 15 % between runs
+    here): a regression doubling the work, confirmed by its pairs, then its revert: "no change
+    -49.5 %" against the regression's three values (score 0.95), pooled with them into the next
+    commit's baseline, against which the reland (+30 %) read "no change -6.7 %". Back at the
+    level before the regression, the revert is flagged as a return (its pairs decide), and the
+    reland is judged against the level it returned to, named by the revert. r9 x2, r10 its
+    revert, r11 +30 %."""
+    levels = [20.0] * 8 + [40.0, 20.0, 26.0]
+    confirm = _confirmed_as_pairs_would(session, {"r9"})
+    _history(session, database_url, tmp_path, levels, 3, confirm, between=0.15)
+    verdicts = _verdicts(session)
+    r10, r11 = verdicts["r10"], verdicts["r11"]
+    assert r10.flagged and r10.direction == "decrease", (r10.verdict, r10.reason)
+    assert "back at the level before the change confirmed at r9" in r10.reason, r10.reason
+    assert "the change confirmed at r9, to which the change flagged at r10 returned" in r11.reason
+    assert 0.2 < (r11.effect or 0) < 0.5, (r11.effect, r11.reason)  # +30 % and its noise
+    base = session.get(Revision, r11.baseline_revision_id)
+    assert base is not None and base.title == "r10", base.title if base else None

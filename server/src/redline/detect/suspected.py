@@ -30,7 +30,7 @@ import numpy as np
 from redline.detect.execution_shift import STEP_SIDE, ExecutionShift
 from redline.detect.median_shift import median
 from redline.detect.methods import Detector
-from redline.detect.result import Detection, direction_of, waits_for_history
+from redline.detect.result import CHANGE, Detection, direction_of, waits_for_history
 from redline.detect.verdict import floored, judge_series
 
 #: how the reason of a verdict judged against the level before an undecided flag begins
@@ -44,6 +44,14 @@ AT_NEW_LEVEL = "judged against the new level since the change at"
 #: what a verdict after a flag was judged against (`after_flag`): the values from the flag on,
 #: the level before the flag, or the level before a short confirmed one (`returned_to_older`)
 RESTARTED, BEFORE, OLDER = "restarted", "before", "older"
+#: how much nearer the level before a confirmed change than its short new level a revision must
+#: be to be flagged as a return (`moved_back`), and how far towards a flag against the new level
+#: (a share of the threshold). Chosen on a simulation (three executions a revision, 3-15 % of
+#: noise between revisions, steps of 5-100 %, `tests/unit/test_confirmed_levels.py`): a revert
+#: of a +100 % step is flagged 89-100 % of the time (57-100 % before), of a +20 % one 24-98 %
+#: (8-80 %), and an unchanged revision after a step 0-8 points more often than before, each
+#: such flag costing its pairs
+MOVED_BACK_NEARER, MOVED_BACK_Z = 2.0, 0.5
 
 
 @dataclass(frozen=True)
@@ -73,6 +81,83 @@ class LevelBefore:
         )
 
 
+@dataclass(frozen=True)
+class Flagged:
+    """A revision judged after the flag at revision ``at`` (``restarted``: the values from it
+    on; ``before``: the level before it): what `moved_back` and `returned_to_older` ask."""
+
+    detector: Detector
+    counter: str
+    restarted: np.ndarray
+    before: LevelBefore
+    candidate: np.ndarray
+    at: str
+
+    def moved_back(self, level: Detection) -> Detection:
+        """``level``, the verdict against the short new level of a change its pairs confirmed
+        at ``at`` (its values ``restarted``), or, where that showed no change but the revision
+        is back at the level before the change, a flag of that return, for its pairs to decide.
+        Back: no change against ``before``; its median `MOVED_BACK_NEARER` times as near that
+        level as the new one, and at least `MOVED_BACK_Z` of the way to a flag against the new
+        level (``level.score``), by at least the detector's floor. A fourth trial's revert of a
+        confirmed regression (x2 on a noisy component) was "no change -49.5 %" against the
+        regression's three values (score 0.95), was pooled with them into the next commit's
+        baseline, and the reland after it, +29.6 %, passed as "no change". The score is the
+        smaller of the two margins, each over its bar, so at least 1 when flagged, as every
+        method's."""
+        if not level.decided or level.flagged or not isinstance(self.detector, ExecutionShift):
+            return level
+        new = median(self.restarted[np.isfinite(self.restarted)])
+        old = median(self.before.values[np.isfinite(self.before.values)])
+        now = median(self.candidate[np.isfinite(self.candidate)])
+        if (
+            direction_of(now - new) == direction_of(new - old)
+            or abs(level.effect) < self.detector.min_effect
+        ):
+            return level
+        nearer = abs(now - new) / max(abs(now - old), 1e-12)
+        score = min(nearer / MOVED_BACK_NEARER, level.score / MOVED_BACK_Z)
+        if score < 1:
+            return level
+        back = self.before.judge(self.detector, self.counter, self.candidate)
+        if not back.decided or back.flagged:
+            return level
+        note = (
+            f"back at the level before the change confirmed at {self.at} (no change against "
+            f"it, {back.effect:+.1%}; {nearer:.1f} times as near it as the new level): flagged "
+            "as a return, for its pairs to decide"
+        )
+        return replace(level, verdict=CHANGE, score=score, reason=f"{level.reason}; {note}")
+
+    def returned_to_older(self) -> Detection | None:
+        """Where the flag at ``at`` (its values ``restarted``) came right after a short level
+        its pairs confirmed and returned to the level before that one (``before.noise``: a
+        regression reverted), ``candidate`` judged against that older level, long enough to
+        judge by; None otherwise. A trial's commit after such a revert, +30 % over the level the
+        revert returned to, was judged against the confirmed level and the revert's three
+        values: "not enough data" in three parameter sets and "no change -34.2 %" (score 0.997)
+        in the fourth, for lack of power, and then pooled unflagged; an unchanged one was "not
+        enough data" too."""
+        if self.before.noise is None:
+            return None
+        flag = judge_series(
+            self.detector,
+            self.counter,
+            self.before.noise,
+            self.restarted[np.isfinite(self.restarted)],
+        )
+        if not flag.decided or flag.flagged:
+            return None
+        found = judge_series(self.detector, self.counter, self.before.noise, self.candidate)
+        if not found.decided:
+            return None
+        note = (
+            "judged against the level before the change confirmed at "
+            f"{self.before.confirmed_at}, to which the change flagged at {self.at} returned"
+        )
+        return replace(found, reason=f"{found.reason}; {note}" if found.reason else note)
+
+
 def after_flag(
     found: Detection,
     detector: Detector,
@@ -82,21 +167,26 @@ def after_flag(
     candidate: np.ndarray,
     at: str,
     held: bool,
-    least: int = STEP_SIDE,
+    confirmed: bool = False,
 ) -> tuple[Detection, str]:
     """The verdict of a revision whose baseline restarted at the flag at revision ``at``
     (``restarted``: the values from it on; ``before``: the level before it), as the worker and
     the offline evaluation both judge it: `at_new_level` once the revisions after the flag
-    ``held`` it (or its pairs confirmed it: then however few its values, ``least``), else
-    `past_suspected`. Returns the verdict and what it was judged against: `RESTARTED`,
-    `BEFORE` (``before.values``) or `OLDER` (``before.noise``: `returned_to_older`)."""
-    if held:
+    ``held`` it or its pairs ``confirmed`` it (then however few its values, and a return to
+    the level before it is told: `moved_back`), else `past_suspected`. Returns the verdict and
+    what it was judged against: `RESTARTED`, `BEFORE` (``before.values``) or `OLDER`
+    (``before.noise``: `returned_to_older`)."""
+    context = Flagged(detector, counter, restarted, before, candidate, at)
+    if held or confirmed:
+        least = 1 if confirmed else STEP_SIDE
         level = at_new_level(
             found, detector, counter, restarted, before.spread_from, candidate, at, least
         )
+        if confirmed and level is not found:
+            level = context.moved_back(level)
         return level, RESTARTED
     if not found.decided and waits_for_history(found.reason):
-        older = returned_to_older(detector, counter, restarted, before, candidate, at)
+        older = context.returned_to_older()
         if older is not None:  # judged against a long level, not the short confirmed one
             return older, OLDER
     judge = partial(before.judge, detector, counter, candidate)
@@ -123,36 +213,6 @@ def after_flag(
         )
         return replace(undone, reason=f"{undone.reason}; {note}"), RESTARTED
     return verdict, RESTARTED
-
-
-def returned_to_older(
-    detector: Detector,
-    counter: str,
-    restarted: np.ndarray,
-    before: LevelBefore,
-    candidate: np.ndarray,
-    at: str,
-) -> Detection | None:
-    """Where the flag at ``at`` (its values ``restarted``) came right after a short level its
-    pairs confirmed and returned to the level before that one (``before.noise``: a regression
-    reverted), ``candidate`` judged against that older level, long enough to judge by; None
-    otherwise. A trial's commit after such a revert, +30 % over the level the revert returned
-    to, was judged against the confirmed level and the revert's three values: "not enough data"
-    in three parameter sets and "no change -34.2 %" (score 0.997) in the fourth, for lack of
-    power, and then pooled unflagged; an unchanged one was "not enough data" too."""
-    if before.noise is None:
-        return None
-    flag = judge_series(detector, counter, before.noise, restarted[np.isfinite(restarted)])
-    if not flag.decided or flag.flagged:
-        return None
-    found = judge_series(detector, counter, before.noise, candidate)
-    if not found.decided:
-        return None
-    note = (
-        f"judged against the level before the change confirmed at {before.confirmed_at}, to "
-        f"which the change flagged at {at} returned"
-    )
-    return replace(found, reason=f"{found.reason}; {note}" if found.reason else note)
 
 
 def past_suspected(

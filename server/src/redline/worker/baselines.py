@@ -12,7 +12,7 @@ import numpy as np
 from redline.detect.baseline import Flag, lookback, take_recent
 from redline.detect.config import DetectionConfig
 from redline.detect.count_rate import CountRate
-from redline.detect.execution_shift import HELD_AFTER, STEP_SIDE, ExecutionShift, strongest_step
+from redline.detect.execution_shift import HELD_AFTER, ExecutionShift, strongest_step
 from redline.detect.methods import Detector, Levelled
 from redline.detect.result import Detection
 from redline.detect.suspected import BEFORE, OLDER, LevelBefore, after_flag
@@ -198,8 +198,8 @@ class Baselines:
             # confirmed by 2 of 2 pairs and reverted by the next commit, was judged against the
             # level before it ("no change"), pooled into the next one's baseline with the
             # revert, and a +30 % commit after the revert passed CI (2026-12-07)
-            held=len(taken) > self.config.confirm_revisions or confirmed,
-            least=1 if confirmed else STEP_SIDE,
+            held=len(taken) > self.config.confirm_revisions,
+            confirmed=confirmed,
         )
         if against == BEFORE:
             return Baseline(before.values, older[0][0], len(older)), found
