@@ -299,9 +299,9 @@ def test_a_revert_on_a_noisy_component_is_flagged_so_the_reland_after_it_is_judg
     here): a regression doubling the work, confirmed by its pairs, then its revert: "no change
     -49.5 %" against the regression's three values (score 0.95), pooled with them into the next
     commit's baseline, against which the reland (+30 %) read "no change -6.7 %". Back at the
-    level before the regression, the revert is flagged as a return (its pairs decide), and the
-    reland is judged against the level it returned to, named by the revert. r9 x2, r10 its
-    revert, r11 +30 %."""
+    level before the regression, the revert is flagged as a return (for the better: the
+    revisions after it decide), and the reland is judged against the level it returned to,
+    named by the revert. r9 x2, r10 its revert, r11 +30 %."""
     levels = [20.0] * 8 + [40.0, 20.0, 26.0]
     confirm = _confirmed_as_pairs_would(session, {"r9"})
     _history(session, database_url, tmp_path, levels, 3, confirm, between=0.15)

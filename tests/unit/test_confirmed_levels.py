@@ -98,8 +98,9 @@ def test_a_revert_of_a_confirmed_change_is_flagged_as_a_return_for_its_pairs() -
     """A fourth trial: a regression doubling the work on a noisy component, confirmed by its
     pairs, and its revert "no change -49.5 %" against the regression's three values: pooled
     with them, the reland after it passed. Back at the level before the change, a revision is
-    flagged as a return (its pairs decide); of 500 simulated reverts at 15 % of noise between
-    revisions, 60 % were flagged before, 87 % now; of 500 unchanged ones, 4 more than before."""
+    flagged as a return (the revisions after it decide); of 500 simulated reverts at 15 % of
+    noise between revisions, 60 % were flagged before, 87 % now; of 500 unchanged ones, 4 more
+    than before."""
     rng = np.random.default_rng(1)
     runs = [_after_confirmed(rng, 1.0, 0.15, back=True) for _ in range(500)]
     assert sum(level.flagged for level, _ in runs) < 0.65 * len(runs)  # against the new level
