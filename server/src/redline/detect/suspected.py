@@ -49,8 +49,10 @@ RESTARTED, BEFORE, OLDER = "restarted", "before", "older"
 #: (a share of the threshold). Chosen on a simulation (three executions a revision, 3-15 % of
 #: noise between revisions, steps of 5-100 %, `tests/unit/test_confirmed_levels.py`): a revert
 #: of a +100 % step is flagged 89-100 % of the time (57-100 % before), of a +20 % one 24-98 %
-#: (8-80 %), and an unchanged revision after a step 0-8 points more often than before (such a
-#: flag for the worse costs its pairs)
+#: (8-80 %), and an unchanged revision after a step 0-8 points more often than before. Only
+#: changes for the worse run pairs, so a return is always for the better: it alarms no one and
+#: runs no pairs, and a false one restarts the baseline at an unchanged revision, a flag the
+#: revisions after it decide
 MOVED_BACK_NEARER, MOVED_BACK_Z = 2.0, 0.5
 
 
@@ -96,9 +98,8 @@ class Flagged:
     def moved_back(self, level: Detection) -> Detection:
         """``level``, the verdict against the short new level of a change its pairs confirmed
         at ``at`` (its values ``restarted``), or, where that showed no change but the revision
-        is back at the level before the change, a flag of that return, decided as any flag is
-        (by its pairs where it is for the worse, a revert of an improvement; else by the
-        revisions after it).
+        is back at the level before the change, a flag of that return: for the better (only
+        changes for the worse are confirmed by pairs), so the revisions after it decide it.
         Back: no change against ``before``; its median `MOVED_BACK_NEARER` times as near that
         level as the new one, and at least `MOVED_BACK_Z` of the way to a flag against the new
         level (``level.score``), by at least the detector's floor. A fourth trial's revert of a
@@ -127,7 +128,7 @@ class Flagged:
         note = (
             f"back at the level before the change confirmed at {self.at} (no change against "
             f"it, {back.effect:+.1%}; {nearer:.1f} times as near it as the new level): flagged "
-            "as a return, decided as any flag (for the worse, by its pairs)"
+            "as a return, which the revisions after it decide"
         )
         return replace(level, verdict=CHANGE, score=score, reason=f"{level.reason}; {note}")
 
