@@ -480,7 +480,7 @@ def test_an_address_or_an_empty_field_is_refused_in_words(api):
         said_back = " ".join(error["msg"] for error in answer.json()["detail"])
         assert answer.status_code == 422 and said in said_back, (address, answer.text)
         assert "pattern" not in answer.text
-    empty = {"component": "builder", "title": "r1", "sort_key": "", "commit": "abc123"}
+    empty = {"component": "builder", "title": "r1", "sort_key": "", "commit": "abc1234"}
     answer = api.post("/api/v1/revisions", "ci", empty)
     assert answer.status_code == 422 and answer.json()["detail"][0]["msg"] == "must not be empty"
 

@@ -25,7 +25,14 @@ from redline.worker.detection import detect_revision
 from redline.worker.ingest import ingest_execution
 from sqlalchemy import func, select, update
 
-from tests.support.api import Api, api_with, emptied_with_tokens, expire_lease, recording_for
+from tests.support.api import (
+    Api,
+    api_with,
+    commit_of,
+    emptied_with_tokens,
+    expire_lease,
+    recording_for,
+)
 from tests.support.pages import trend_data
 from tests.support.servers import Services, live_server
 
@@ -83,7 +90,7 @@ def test_wrong_scope_is_403_and_admin_implies_every_scope(api: Api):
     answer = api.post("/api/v1/components", "ci", {"name": "builder"})
     assert answer.status_code == 403 and "'admin'" in answer.json()["detail"]
     api.component()
-    revision = {"component": "builder", "title": "r1", "sort_key": "1", "commit": "abc123"}
+    revision = {"component": "builder", "title": "r1", "sort_key": "1", "commit": "abc1234"}
     assert api.post("/api/v1/revisions", "agent", revision).status_code == 403
     assert api.post("/api/v1/agent/lease", "ci", {"host": "perf1"}).status_code == 403
     assert api.post("/api/v1/agent/lease", "read", {"host": "perf1"}).status_code == 403
@@ -94,7 +101,7 @@ def test_unknown_component_is_404_naming_it(api: Api):
     answer = api.post(
         "/api/v1/revisions",
         "ci",
-        {"component": "ghost", "title": "r1", "sort_key": "1", "commit": "abc123"},
+        {"component": "ghost", "title": "r1", "sort_key": "1", "commit": "abc1234"},
     )
     assert answer.status_code == 404 and "'ghost'" in answer.json()["detail"]
     for tail in ("revisions", "series", "changes", "revisions/r1"):
@@ -132,10 +139,10 @@ def test_duplicate_component_or_revision_title_is_409(api: Api):
     answer = api.post(
         "/api/v1/revisions",
         "ci",
-        {"component": "builder", "title": "r1", "sort_key": "5", "commit": "def456"},
+        {"component": "builder", "title": "r1", "sort_key": "5", "commit": "def4567"},
     )
     assert answer.status_code == 409 and "'r1'" in answer.json()["detail"]
-    assert "'abc123'" in answer.json()["detail"]  # both commits named
+    assert repr(commit_of("r1")) in answer.json()["detail"]  # both commits named
 
 
 def test_a_component_named_as_another_but_for_case_is_refused_and_a_lookup_suggests_it(
@@ -149,7 +156,7 @@ def test_a_component_named_as_another_but_for_case_is_refused_and_a_lookup_sugge
     answer = api.post(
         "/api/v1/revisions",
         "ci",
-        {"component": "BUILDER", "title": "r1", "sort_key": "1", "commit": "abc123"},
+        {"component": "BUILDER", "title": "r1", "sort_key": "1", "commit": "abc1234"},
     )
     assert answer.status_code == 404
     assert answer.json()["detail"] == (
@@ -157,7 +164,7 @@ def test_a_component_named_as_another_but_for_case_is_refused_and_a_lookup_sugge
     )
     assert "did you mean 'builder'" in html.unescape(api.client.get("/components/Builder").text)
     # a letter missing: a trial's 'planer' for 'planner' got no hint
-    body = {"component": "bulder", "title": "r1", "sort_key": "1", "commit": "abc123"}
+    body = {"component": "bulder", "title": "r1", "sort_key": "1", "commit": "abc1234"}
     answer = api.post("/api/v1/revisions", "ci", body)
     assert answer.json()["detail"] == "unknown component 'bulder' (did you mean 'builder'?)"
     answer = api.post("/api/v1/revisions", "ci", {**body, "component": "hasher"})
@@ -193,9 +200,10 @@ def test_a_commit_reported_under_its_full_and_its_short_sha_is_one_revision(api:
     for title, commit in ((full[:12], full), (full[:12], full[:12]), ("r7", full[:7].upper())):
         again = api.post("/api/v1/revisions", "ci", {**body, "title": title, "commit": commit})
         assert again.status_code == 200 and again.json() == first.json(), (title, again.text)
-    # a six-digit prefix, or a branch name, is no commit's identity: a revision of its own
+    # a six-digit prefix, or a branch name, is no commit's identity: a revision of its own (an
+    # admin's report: a ci token's is refused, `test_a_ci_token_names_the_commit_it_reports_...`)
     for title, commit in (("short", full[:6]), ("nightly-1", "main"), ("nightly-2", "main")):
-        made = api.post("/api/v1/revisions", "ci", {**body, "title": title, "commit": commit})
+        made = api.post("/api/v1/revisions", "admin", {**body, "title": title, "commit": commit})
         assert made.status_code == 201, made.text
     listed = api.client.get("/api/v1/components/builder/revisions").json()
     assert sorted(r["title"] for r in listed) == sorted([full, "short", "nightly-1", "nightly-2"])
@@ -298,7 +306,7 @@ def test_lease_hands_out_newest_revision_first_then_204(api: Api):
     assert job["revision"] == {"title": "r10", "sort_key": "10"}
     assert (job["component"], job["commit"], job["suite"]) == (
         "builder",
-        "abc123",
+        commit_of("r10"),
         "perf/redline.toml",
     )
     assert api.lease()["id"] == first["job_ids"][0]

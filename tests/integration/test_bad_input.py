@@ -23,7 +23,7 @@ from redline.server.services.imports import from_results, store_import
 from sqlalchemy import select, text
 from sqlalchemy.orm import Session
 
-from tests.support.api import Api, api_with
+from tests.support.api import Api, api_with, commit_of
 from tests.support.concurrency import interleave
 from tests.support.history import regression_between
 from tests.support.servers import Services
@@ -68,11 +68,11 @@ def _results(revision: str = "r1", host: str = "", value: float = 1.0) -> dict:
     }
 
 
-def _revision(api: Api, **fields: object) -> object:
+def _revision(api: Api, scope: str = "ci", **fields: object) -> object:
     return api.post(
         "/api/v1/revisions",
-        "ci",
-        {"component": "builder", "title": "r1", "sort_key": "1", "commit": "abc123", **fields},
+        scope,
+        {"component": "builder", "title": "r1", "sort_key": "1", "commit": "abc1234", **fields},
     )
 
 
@@ -105,7 +105,25 @@ def test_a_commit_git_would_misread_is_422_saying_what_a_commit_may_be(api: Api,
     (error,) = answer.json()["detail"]
     assert error["loc"][-1] == "commit"
     assert error["msg"].startswith("must be a commit hash, tag or branch: letters, digits"), error
-    assert _revision(api, commit="release/v1.2+build@3").status_code == 201
+    assert _revision(api, commit="release/v1.2+build@3", scope="admin").status_code == 201
+
+
+@pytest.mark.parametrize("commit", ["main", "v1.2", "HEAD", "abc123", "release/v1.2+build@3"])
+def test_a_ci_token_names_the_commit_it_reports_by_its_hash(api: Api, commit: str):
+    """A fifth trial's ci token reported its branch ("main", the commit of the revision that
+    had just failed CI on a confirmed regression) under a new title, its sort key just before
+    that revision: the hosts measured the same commit again, and the failed revision, judged
+    against it, passed (exit 0). A branch or tag moves: a report not an admin's names its
+    commit by its hash, and one commit under two titles is one revision."""
+    answer = _revision(api, commit=commit)
+    assert answer.status_code == 422, answer.text
+    said = answer.json()["detail"]
+    assert f"commit {commit!r} is not a commit hash" in said and "admin" in said, said
+    assert not api.client.get("/api/v1/components/builder/revisions").json()  # nothing made
+    guilty = "ab12" * 10
+    assert _revision(api, commit=guilty, title="r4").status_code == 201
+    again = _revision(api, commit=guilty[:12], title="sneaky", sort_key="0")
+    assert again.status_code == 200 and again.json()["title"] == "r4", again.text
 
 
 def test_a_plausible_commit_date_is_stored_and_read_back(api: Api):
@@ -211,7 +229,9 @@ def test_nesting_python_can_parse_is_refused_too(api: Api):
 def test_a_number_too_long_for_python_is_422_in_words_a_client_can_act_on(api: Api):
     """A trial's 5,000-digit sort key was answered with Python's "use
     sys.set_int_max_str_digits() to increase the limit"."""
-    body = b'{"component": "builder", "title": "r1", "commit": "abc", "sort_key": ' + b"9" * 5000
+    body = (
+        b'{"component": "builder", "title": "r1", "commit": "abc1234", "sort_key": ' + b"9" * 5000
+    )
     answer = _post_raw(api, "/api/v1/revisions", body + b"}")
     assert answer.status_code == 422, answer.text
     assert "a number of 5000 digits, more than 4300: give it as text" in answer.text
@@ -374,7 +394,8 @@ def test_a_surrogate_pair_is_text_like_any_other(api: Api):
     answer = _post_raw(
         api,
         "/api/v1/revisions",
-        b'{"component": "builder", "title": "r\\ud83d\\ude00", "sort_key": "1", "commit": "c1"}',
+        b'{"component": "builder", "title": "r\\ud83d\\ude00", "sort_key": "1", '
+        b'"commit": "c1c1c1c"}',
     )
     assert answer.status_code == 201, answer.text
     assert api.client.get(f"/api/v1/components/builder/revisions/{quote('r😀')}").status_code == 200
@@ -534,7 +555,7 @@ def test_a_component_no_host_could_run_takes_imports_but_no_ci_report(api: Api):
     made = api.post("/api/v1/components", "admin", {"name": "imported", "branch": ""})
     assert made.status_code == 422 and "branch" in made.text
     assert api.post("/api/v1/components", "admin", {"name": "imported"}).status_code == 201
-    body = {"component": "imported", "title": "r1", "sort_key": "1", "commit": "abc123"}
+    body = {"component": "imported", "title": "r1", "sort_key": "1", "commit": "abc1234"}
     refused = api.post("/api/v1/revisions", "ci", body)
     assert refused.status_code == 409, refused.text
     said = refused.json()["detail"]
@@ -567,7 +588,7 @@ def test_an_unknown_field_is_refused_naming_it_never_ignored(api: Api):
 def test_a_body_sent_as_a_form_is_415_asking_for_json(api: Api):
     """`curl -d '{...}'` without its header sends a form: "Input should be a valid dictionary"
     named nothing the caller could fix (a trial)."""
-    body = b'{"component": "builder", "title": "r1", "sort_key": "1", "commit": "c1"}'
+    body = b'{"component": "builder", "title": "r1", "sort_key": "1", "commit": "c1c1c1c"}'
     answer = _post_raw(
         api, "/api/v1/revisions", body, **{"Content-Type": "application/x-www-form-urlencoded"}
     )
@@ -598,7 +619,7 @@ def test_a_422_quotes_a_body_as_the_json_it_came_as_with_secrets_masked(api: Api
 def test_a_422_quotes_what_would_not_show_as_itself_as_escapes(api: Api):
     """The refusal of a branch holding U+202E quoted it raw in its ``input``: whatever read the
     answer saw the rest of the line reversed. Long inputs stay cut short after escaping."""
-    body = {"component": "builder", "title": "r1", "sort_key": "1", "commit": "abc"}
+    body = {"component": "builder", "title": "r1", "sort_key": "1", "commit": "abc1234"}
     for branch, quoted in (("a\u202eb", "a\\u202eb"), ("\x85" * 60, "\\x85" * 19 + "...")):
         answer = api.post("/api/v1/revisions", "ci", body | {"branch": branch})
         assert answer.status_code == 422, answer.text
@@ -626,6 +647,10 @@ def test_a_sort_key_given_as_a_whole_number_is_taken_as_its_text(api: Api):
     for bad in (True, 1.5, None):
         answer = _revision(api, title="rx", sort_key=bad)
         assert answer.status_code == 422 and "sort_key" in answer.text, (bad, answer.text)
+    # JSON's 1e400 reads as infinity: a fifth trial was told "not inf", a value it never sent
+    body = b'{"component": "builder", "title": "rx", "commit": "abc1234", "sort_key": 1e400}'
+    answer = _post_raw(api, "/api/v1/revisions", body, "ci")
+    assert answer.status_code == 422 and "beyond a float's range" in answer.text, answer.text
 
 
 def test_ci_and_a_webhook_reporting_one_commit_at_once_make_one_revision(api: Api):
@@ -695,7 +720,7 @@ def test_an_admin_corrects_a_revision_sort_key_a_ci_token_gave_far_in_the_future
     above every revision reported after it, and with results stored it could not be deleted
     (409) nor changed (405). An admin corrects the key; a ci token cannot."""
     for title, key in (("future", "4102444800"), ("later", "1764900000")):
-        body = {"component": "builder", "title": title, "sort_key": key, "commit": "abc123"}
+        body = {"component": "builder", "title": title, "sort_key": key, "commit": commit_of(title)}
         assert api.post("/api/v1/revisions", "ci", body).status_code == 201
 
     def in_order() -> list[str]:  # as the server orders them (by its order key)
@@ -746,7 +771,7 @@ def test_a_corrected_sort_key_whose_reanalysis_cannot_be_queued_is_503_saying_wh
     with api_with(services, tmp_path, redis_url="redis://127.0.0.1:9/0") as api:
         api.component()
         body = {"component": "builder", "title": "future", "sort_key": "4102444800"}
-        assert api.post("/api/v1/revisions", "ci", {**body, "commit": "abc123"}).status_code == 201
+        assert api.post("/api/v1/revisions", "ci", {**body, "commit": "abc1234"}).status_code == 201
         answer = api.client.patch(
             "/api/v1/components/builder/revisions/future",
             json={"sort_key": "1764800000"},

@@ -469,8 +469,14 @@ def test_ci_report_reports_head_and_ci_wait_waits_for_it_by_default(server, tmp_
         done = redline("report", *named)
         assert done.returncode == 0, (named, done.stderr)
         assert done.stdout == f"{full[:12]}\n", (named, done.stdout)
+    # a branch named with a title and sort key is sent as its hash too: the server takes no
+    # other name for a commit (a fifth trial's branch, reported under a new title, measured
+    # the commit of a revision that had failed CI again, and turned it green)
+    done = redline("report", "--commit", "release", "--title", "t2", "--sort-key", "5")
+    assert done.returncode == 0 and done.stdout == f"{full[:12]}\n", done.stderr
     refused = redline("report", "--commit", "a b", "--title", "t", "--sort-key", "1")
-    assert refused.returncode == 2 and "HTTP 422: commit: " in refused.stderr, refused.stderr
+    assert refused.returncode == 2 and "cannot read commit 'a b' here" in refused.stderr
+    assert "--commit as its hash" in refused.stderr, refused.stderr
 
     option = redline("report", "--commit", f"--output={tmp_path / 'written'}")
     assert option.returncode == 2 and "not a commit" in option.stderr, option.stderr

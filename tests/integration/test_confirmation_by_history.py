@@ -256,7 +256,7 @@ def test_the_defaults_make_no_regression_of_unchanged_code_run_once_per_revision
     ).one()
     assert (
         r3.verdict == "not enough data"
-        and "needs 6: 4 short; judged again as later revisions are measured" in r3.reason
+        and "needs 6: 4 short; a change here is looked for again as later revisions" in r3.reason
     )
 
 
@@ -519,3 +519,28 @@ def test_a_revision_partly_not_judged_for_a_busy_host_says_so_on_the_component_p
     assert said["r7"].endswith(
         "1 not judged (some because the host was busy; its CPU among them)"
     ), said
+
+
+def test_a_regression_quotes_the_reason_of_its_largest_change_not_its_newest(
+    session, database_url, tmp_path
+):
+    """A fifth trial's summary quoted the pairs of one parameter set, the newest change, beside
+    "the largest" of another: two changes confirmed, the quote is the largest's (+80 % here,
+    the +30 % stored after it)."""
+    _component(session)
+    rng = np.random.default_rng(5)
+    for number, (cpu, wall) in enumerate([(20.0, 20.0)] * 4 + [(36.0, 26.0)] * 3, start=1):
+        runs = [
+            {
+                "cpu": rng.normal(cpu * (1 + rng.normal(0, 0.01)), cpu * 0.02, 40),
+                "wall": rng.normal(wall * (1 + rng.normal(0, 0.01)), wall * 0.02, 40),
+            }
+            for _ in range(RUNS)
+        ]
+        made = add_executions(session, tmp_path, NAME, f"r{number}", str(number), runs)
+        ingest_and_detect(database_url, made)
+    session.expire_all()
+    regression = session.scalars(select(Regression)).one()
+    said = regression.confirmation_reason
+    assert said.startswith("2 of 2 flagged change(s) confirmed (throughput/publish: component cpu")
+    assert "; the largest: throughput/publish: component cpu [rate=10] +8" in said, said

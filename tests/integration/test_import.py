@@ -20,7 +20,7 @@ from redline.worker.statuses import commit_status
 from sqlalchemy import event, select, update
 from sqlalchemy.orm import Session
 
-from tests.support.api import Api, api_with
+from tests.support.api import Api, api_with, commit_of
 from tests.support.concurrency import waiting_on_a_lock
 from tests.support.servers import Services
 
@@ -377,7 +377,7 @@ def test_an_import_never_joins_a_measured_revision_nor_another_commits(api: Api)
         return {**body, "commit": commit}
 
     # an admin's imports (a ci token's are refused: `test_a_ci_token_cannot_import_...`)
-    joined = api.post("/api/v1/import/results", "admin", results("r1", "abc123"))
+    joined = api.post("/api/v1/import/results", "admin", results("r1", commit_of("r1")))
     assert joined.status_code == 409, joined.text
     assert f"measured by performance hosts (job {measured['job_ids'][0]})" in joined.text
     made = api.post("/api/v1/import/results", "admin", results("i1", "abc123"))

@@ -10,7 +10,7 @@ import pytest
 from redline.server.db import session_factory
 from redline.server.models import Job, JobState
 
-from tests.support.api import Api, api_with, expire_lease, recording_for
+from tests.support.api import Api, api_with, commit_of, expire_lease, recording_for
 from tests.support.servers import Services
 
 
@@ -103,7 +103,7 @@ def test_cancelling_a_revision_stops_its_jobs_and_its_agent_learns_at_the_next_h
     assert missing.status_code == 404 and "nope" in missing.json()["detail"]
 
     # reported again (the pipeline re-run): measured again, not left cancelled (a trial)
-    body = {"component": "cancellable", "title": "c1", "sort_key": "1", "commit": "abc123"}
+    body = {"component": "cancellable", "title": "c1", "sort_key": "1", "commit": commit_of("c1")}
     again = api.post("/api/v1/revisions", "ci", body)
     assert again.status_code == 200, again.text  # reported before
     assert sorted(again.json()["job_ids"]) == sorted(created["job_ids"])

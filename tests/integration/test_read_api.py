@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.support.api import Api, api_with
+from tests.support.api import Api, api_with, commit_of
 from tests.support.servers import Services
 
 
@@ -49,7 +49,7 @@ def test_revisions_page_in_sort_key_order_with_a_cursor(api: Api):
         api.post(
             "/api/v1/revisions",
             "ci",
-            {"component": "builder", "title": title, "sort_key": key, "commit": "abc123"},
+            {"component": "builder", "title": title, "sort_key": key, "commit": commit_of(title)},
         ).raise_for_status()
     seen, cursor, pages = [], None, 0
     while True:
@@ -189,7 +189,7 @@ def test_metrics_count_requests_and_jobs_by_state(api: Api):
     api.post(
         "/api/v1/revisions",
         "ci",
-        {"component": "builder", "title": "r1", "sort_key": "1", "commit": "abc123"},
+        {"component": "builder", "title": "r1", "sort_key": "1", "commit": "abc1234"},
     ).raise_for_status()
     api.client.get("/api/v1/components")
     text = api.client.get("/metrics").text

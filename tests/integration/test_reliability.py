@@ -36,6 +36,7 @@ from redline.server.services.jobs import holder
 from redline.server.services.tokens import issue_token
 from sqlalchemy import func, select, update
 
+from tests.support.api import commit_of
 from tests.support.servers import Services, fresh_database
 from tests.support.tiny import agent_args, tiny_repo
 
@@ -356,7 +357,12 @@ def _two_hundred_jobs(service: Service) -> list[int]:
         answer = httpx.post(
             f"{service.stack.url}/api/v1/revisions",
             headers=service.headers("ci"),
-            json={"component": "raced", "title": f"r{n}", "sort_key": str(n), "commit": "main"},
+            json={
+                "component": "raced",
+                "title": f"r{n}",
+                "sort_key": str(n),
+                "commit": commit_of(f"r{n}"),
+            },
         )
         assert answer.status_code == 201, answer.text
     with session_factory(service.database_url)() as session:

@@ -58,7 +58,7 @@ def test_a_bound_ci_token_reports_and_cancels_its_components_revisions_only(api:
     ci = _bound(api, "gitlab-b", "ci", "builder")
 
     def report(component: str) -> object:
-        body = {"component": component, "title": "r1", "sort_key": "1", "commit": "abc123"}
+        body = {"component": component, "title": "r1", "sort_key": "1", "commit": "abc1234"}
         return api.client.post("/api/v1/revisions", json=body, headers=ci)
 
     assert report("builder").status_code == 201
@@ -157,5 +157,5 @@ def test_deleting_a_component_unbinds_its_tokens_and_widens_none(api: Api):
     assert listed["team-b"]["revoked"] and listed["team-b"]["components"] == []
     assert not listed["team-bp"]["revoked"] and listed["team-bp"]["components"] == ["planner"]
     api.component("builder")  # made again under the name
-    body = {"component": "builder", "title": "r1", "sort_key": "1", "commit": "abc123"}
+    body = {"component": "builder", "title": "r1", "sort_key": "1", "commit": "abc1234"}
     assert api.client.post("/api/v1/revisions", json=body, headers=alone).status_code == 401

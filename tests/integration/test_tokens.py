@@ -62,7 +62,7 @@ def test_use_is_recorded_and_revocation_is_immediate(api: Api):
     ).json()
     assert created["last_used"] is None
     headers = {"Authorization": f"Bearer {created['token']}"}
-    body = {"component": "ghost", "title": "r1", "sort_key": "1", "commit": "abc123"}
+    body = {"component": "ghost", "title": "r1", "sort_key": "1", "commit": "abc1234"}
     assert api.client.post("/api/v1/revisions", json=body, headers=headers).status_code == 404
     listed = {
         t["name"]: t for t in api.client.get("/api/v1/tokens", headers=api.tokens["admin"]).json()
@@ -284,7 +284,7 @@ def test_cli_lists_and_revokes_tokens(api: Api):
         [*command, "revoke", "ci"], env=env, capture_output=True, text=True, cwd=ROOT
     )
     assert done.returncode == 0 and "revoked" in done.stdout
-    body = {"component": "ghost", "title": "r1", "sort_key": "1", "commit": "abc123"}
+    body = {"component": "ghost", "title": "r1", "sort_key": "1", "commit": "abc1234"}
     assert (
         api.client.post("/api/v1/revisions", json=body, headers=api.tokens["ci"]).status_code == 401
     )

@@ -28,6 +28,13 @@ from tests.support.history import TABLES
 from tests.support.recordings import write_recording
 from tests.support.servers import Services
 
+
+def commit_of(title: str) -> str:
+    """A made-up commit hash for the revision ``title``, one per title: a report names its
+    commit by its hash (`require_hash`), and one commit under two titles is one revision."""
+    return hashlib.sha1(title.encode()).hexdigest()
+
+
 SCOPES = ("admin", "ci", "triage", "agent", "read")
 HOST = "perf1"  # the host the tests' ``agent`` token is bound to
 LABELS = ("gpu", "quiet")  # the labels the tests' agent tokens may register their hosts with
@@ -77,7 +84,12 @@ class Api:
         answer = self.post(
             "/api/v1/revisions",
             "ci",
-            {"component": component, "title": title, "sort_key": sort_key, "commit": "abc123"},
+            {
+                "component": component,
+                "title": title,
+                "sort_key": sort_key,
+                "commit": commit_of(title),
+            },
         )
         assert answer.status_code == 201, answer.text
         return answer.json()

@@ -12,6 +12,7 @@ command, CI reported with curl and a here-document (docs/ci.md).
 from __future__ import annotations
 
 import os
+import re
 import subprocess
 from typing import Annotated, Any, NoReturn
 from urllib.parse import urlsplit
@@ -20,6 +21,9 @@ import httpx
 import typer
 from redline.cli.ci_cmd import BAD_INPUT, detail, no_token, unaddressable
 from redline.cli.tokens import TokenFile, read_token
+
+#: a commit's hash, full or abbreviated as git does: what the server takes a commit by
+COMMIT_HASH = re.compile(r"[0-9a-fA-F]{7,64}")
 
 #: a title of the first 12 hex digits, as `git rev-parse --short=12` and the push webhook give
 TITLE_DIGITS = 12
@@ -111,11 +115,13 @@ def report(
         _stop(why)
     given = [option for option, value in (("--title", title), ("--sort-key", sort_key)) if value]
     body: dict[str, Any] = {"component": component, "branch": branch}
-    if not (commit and title and sort_key):  # what is not given comes from git
+    # what is not given comes from git, and so does the hash of a commit named otherwise: the
+    # server takes a commit by its hash only (a branch or tag moves)
+    if not (commit and title and sort_key) or not COMMIT_HASH.fullmatch(commit):
         try:
             head = git_head("%H%n%ct%n%cI%n%B", commit or "HEAD")
         except NoCommit as exc:
-            _stop(f"{exc} (--commit, --title and --sort-key)")
+            _stop(f"{exc} (--commit as its hash, 7 to 64 hex digits, --title and --sort-key)")
         full, when, stamp, *message = head.split("\n", 3)  # a message may be empty
         body |= {"message": "".join(message)[:10_000], "committed_at": stamp}
         # the full id git resolved (HEAD~1 or main was refused, or taken for another commit)

@@ -148,7 +148,7 @@ def check_samples(
     if len(base) < min_baseline:
         return (
             f"{SHORT_BASELINE} {len(base)}, needs {min_baseline}: {min_baseline - len(base)} "
-            "short; judged again as later revisions are measured"
+            "short; a change here is looked for again as later revisions are measured"
         )
     if len(cand) < min_candidate:
         return f"too few samples: candidate has {len(cand)}, needs at least {min_candidate}"

@@ -1,6 +1,7 @@
 """A regression's confirmation in words: confirmed when one of its changes held, not confirmed
-when every one was dropped, suspected until then, quoting the newest of its changes' reasons and
-its largest change, each naming its series (`redline.worker.confirmation` settles the changes).
+when every one was dropped, suspected until then, quoting the reason of the largest of its
+changes in that state and its largest change, each naming its series
+(`redline.worker.confirmation` settles the changes).
 """
 
 from __future__ import annotations
@@ -17,11 +18,12 @@ from sqlalchemy.orm import Session
 CONFIRMED, NOT_CONFIRMED = "confirmed", "not_confirmed"
 
 
-def _newest_reasons(session: Session, component_id: int) -> dict[tuple[int, str], str]:
-    """Per (regression, state) of the component's detections, the newest one's reason, naming
-    its series: what a regression's summary quotes (one query for the component, not one per
-    regression on every revision stored). A trial's summary quoted one parameter set's pairs
-    beside another's largest change, neither named."""
+def _largest_reasons(session: Session, component_id: int) -> dict[tuple[int, str], str]:
+    """Per (regression, state) of the component's detections, the largest one's reason (one
+    from zero the largest), naming its series: what a regression's summary quotes (one query
+    for the component, not one per regression on every revision stored). A trial's summary
+    quoted one parameter set's pairs beside another's largest change, neither named; a fifth
+    trial's named both, the newest set's pairs beside the largest set's +79 %."""
     rows = session.execute(
         select(Detection.regression_id, Detection.confirmation, Detection.confirmation_reason)
         .add_columns(Series.case, Series.phase, Series.process, Series.counter, Series.params)
@@ -32,7 +34,12 @@ def _newest_reasons(session: Session, component_id: int) -> dict[tuple[int, str]
             Detection.confirmation.in_((HELD, SUSPECTED, DROPPED)),
         )
         .ext(distinct_on(Detection.regression_id, Detection.confirmation))
-        .order_by(Detection.regression_id, Detection.confirmation, Detection.id.desc())
+        .order_by(
+            Detection.regression_id,
+            Detection.confirmation,
+            func.abs(Detection.effect).desc().nulls_first(),
+            Detection.id.desc(),
+        )
     )
     return {
         (rid, state): f"{series_label(case, phase, process, counter, params)}: {reason}"
@@ -52,7 +59,7 @@ def summarize_regressions(session: Session, component_id: int) -> None:
     ):
         if regression_id is not None:  # joined to a regression: typed as nullable all the same
             states[regression_id][state] = number
-    reasons = _newest_reasons(session, component_id)
+    reasons = _largest_reasons(session, component_id)
     largest = largest_changes(session, component_id)
     for regression in session.scalars(
         select(Regression).where(Regression.component_id == component_id)

@@ -11,6 +11,7 @@ from redline.server.services.revision_reports import (
     labels_warning,
     remotes_warning,
     report_revision,
+    require_hash,
 )
 
 router = APIRouter(prefix="/api/v1/revisions", tags=["revisions"], route_class=JsonRoute)
@@ -33,8 +34,10 @@ def report(
     """Record the revision and queue one job per execution the component asks for; a report
     of a revision already known with the same commit and sort key answers 200 with it (a
     re-run CI pipeline must not fail), of another commit 409. A token bound to components
-    reports theirs only (403)."""
+    reports theirs only (403); one not an admin's names the commit by its hash (422: a branch
+    or tag moves)."""
     ensure_component(token, data.component)
+    require_hash(data.commit, token.scopes)
     revision, created = report_revision(session, data)
     if not created:
         response.status_code = status.HTTP_200_OK

@@ -187,6 +187,8 @@ def whole_number_as_text(value: object) -> object:
     number (``1.5``, NaN) is refused in words: "a valid string" did not say what would do."""
     if isinstance(value, int) and not isinstance(value, bool):
         return str(value)
+    if isinstance(value, float) and math.isinf(value):  # a trial's 1e400 was said to be "inf"
+        raise ValueError("must be text or a whole number, not a number beyond a float's range")
     if isinstance(value, float):
         raise ValueError(f"must be text or a whole number, not {value!r}")
     return value

@@ -6,9 +6,10 @@ from __future__ import annotations
 from collections.abc import Collection, Iterable
 
 from redline.server.models import Component, Host, Job, JobState, Revision
+from redline.server.schemas.fields import COMMIT_HASH
 from redline.server.schemas.revisions import RevisionCreate
 from redline.server.services.components import get_component, revision_of_commit, same_commit
-from redline.server.services.errors import Conflict
+from redline.server.services.errors import Conflict, Unprocessable
 from redline.server.services.repos import repo_key
 from redline.server.services.revisions import (
     CANCELLED,
@@ -47,6 +48,24 @@ def _reported_before(session: Session, data: RevisionCreate) -> Revision | None:
     raise Conflict(
         f"component {data.component!r} already has a revision {data.title!r}, of commit "
         f"{titled.commit!r}; this report says {data.commit!r}"
+    )
+
+
+def require_hash(commit: str, scopes: Collection[str]) -> None:
+    """Unprocessable unless ``commit`` is a commit's hash, where the report is not an admin's.
+    A branch or tag moves: the hosts measure whatever it names when they run it. A fifth
+    trial's ci token reported its branch under a new title, placed just before the revision
+    that had failed CI on a confirmed regression: the hosts measured that same commit again,
+    and the failed revision, judged against it, passed. Named by its hash, a commit reported
+    again is the revision reported before, whatever its title (`_reported_before`)."""
+    if "admin" in scopes or COMMIT_HASH.fullmatch(commit):
+        return
+    raise Unprocessable(
+        f"commit {commit[:200]!r} is not a commit hash: a report names the commit it measures "
+        "by its hash, 7 to 64 hex digits (`redline ci report` sends HEAD's), not a branch or "
+        "tag, which moves: the hosts would measure whatever it names when they run it, maybe "
+        "a commit reported before under another title. Only an admin token may name a branch "
+        "or tag"
     )
 
 
