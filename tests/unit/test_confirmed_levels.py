@@ -94,7 +94,7 @@ def _after_confirmed(
     return level, told
 
 
-def test_a_revert_of_a_confirmed_change_is_flagged_as_a_return_for_its_pairs() -> None:
+def test_a_revert_of_a_confirmed_change_is_flagged_as_a_return() -> None:
     """A fourth trial: a regression doubling the work on a noisy component, confirmed by its
     pairs, and its revert "no change -49.5 %" against the regression's three values: pooled
     with them, the reland after it passed. Back at the level before the change, a revision is
@@ -118,9 +118,10 @@ def test_an_unchanged_revision_after_a_small_confirmed_change_is_seldom_told_a_r
     step, between
 ) -> None:
     """The price: where the confirmed step is small beside the noise, an unchanged revision is
-    now and then nearer the level before it (each such flag runs its pairs). At most 8 points
-    more often flagged than against the new level alone (2.6-7.1 here)."""
+    now and then nearer the level before it: flagged as a return, it restarts the baseline at
+    an unchanged revision until the revisions after it drop it. At most 7.5 points more often
+    flagged than against the new level alone (2.6-7.1 here)."""
     rng = np.random.default_rng(1)
     runs = [_after_confirmed(rng, step, between, back=False) for _ in range(1000)]
     added = sum(told.flagged and not level.flagged for level, told in runs)
-    assert added <= 80, added
+    assert added <= 75, added

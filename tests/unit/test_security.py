@@ -87,6 +87,28 @@ def test_a_commit_only_a_pull_request_holds_is_never_checked_out(tmp_path: Path)
     assert (cache.checkout(str(repo), pull, "job-4") / "build.sh").exists()
 
 
+def test_a_name_like_a_hash_is_checked_out_only_as_that_commit_s_own_hash(tmp_path: Path):
+    """A review: the server takes a ci token's commit by its hash only (a fifth trial's branch,
+    reported under a new title, measured a failed revision's commit again and turned it
+    green), but git reads a tag named like a hash, or an annotated tag's own hash, as the
+    commit it names: the same commit again under another name. Refused; the hash itself, full
+    or abbreviated, any case, is checked out."""
+    git = ["git", "-c", "user.name=t", "-c", "user.email=t@t.invalid"]
+    repo, head = committed_repo(tmp_path / "src", {"file": "x"})
+    subprocess.run([*git, "tag", "deadbeef", head], cwd=repo, check=True)
+    subprocess.run([*git, "tag", "-a", "-m", "v1", "v1", head], cwd=repo, check=True)
+    tag = subprocess.run(
+        ["git", "rev-parse", "v1"], cwd=repo, check=True, capture_output=True, text=True
+    ).stdout.strip()
+    assert tag != head
+    cache = CloneCache(tmp_path / "cache", allow_file=True)
+    for name in ("deadbeef", tag, tag[:12]):
+        with pytest.raises(CheckoutError, match="names commit .*a commit by the commit's own hash"):
+            cache.checkout(str(repo), name, "job-1")
+    for name in (head, head[:7], head[:12].upper(), "v1"):
+        assert (cache.checkout(str(repo), name, "job-2") / "file").read_text() == "x"
+
+
 def test_checkout_refuses_local_repositories_unless_allowed(tmp_path: Path):
     repo, head = committed_repo(tmp_path / "src", {"file": "x"})
     with pytest.raises(CheckoutError, match="file"):

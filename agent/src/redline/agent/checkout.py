@@ -28,6 +28,8 @@ SCHEMES = ("https", "ssh", "git")
 REFSPECS = ("+refs/heads/*:refs/heads/*", "+refs/tags/*:refs/tags/*")
 #: the first ref (of those named after it) that holds a commit
 REACHED_FROM = ("for-each-ref", "--count=1", "--format=%(refname)", "--contains")
+#: a name that looks like a commit's hash, full or abbreviated: it must be that commit's own
+HEXADECIMAL = re.compile(r"[0-9a-fA-F]{7,64}")
 _TRANSPORT = re.compile(r"^([A-Za-z][A-Za-z0-9+.-]*)::")  # git's <transport>::<address>
 _URL = re.compile(r"^([A-Za-z][A-Za-z0-9+.-]*)://")
 #: user@host:path, ssh's short form; neither user nor host may start with '-' (an ssh option)
@@ -170,6 +172,13 @@ class CloneCache:
             ).strip()
         except CheckoutError:
             sha = ""
+        if sha and HEXADECIMAL.fullmatch(commit) and not sha.startswith(commit.lower()):
+            # a tag named like a hash, or an annotated tag's own hash: the server takes a ci
+            # token's commit by its hash only, and knows one commit under two names by it
+            raise CheckoutError(
+                f"commit {commit!r} names commit {sha[:12]} (a tag of that name, or a tag's "
+                "own hash): a revision names a commit by the commit's own hash"
+            )
         # objects can be there without a branch or tag holding them (a local clone copies
         # every object, a branch may have been rewritten): only what those refs reach is built
         if not sha or not _git(*REACHED_FROM, sha, "refs/remotes", "refs/tags", cwd=tree).strip():

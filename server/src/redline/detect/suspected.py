@@ -46,10 +46,11 @@ AT_NEW_LEVEL = "judged against the new level since the change at"
 RESTARTED, BEFORE, OLDER = "restarted", "before", "older"
 #: how much nearer the level before a confirmed change than its short new level a revision must
 #: be to be flagged as a return (`moved_back`), and how far towards a flag against the new level
-#: (a share of the threshold). Chosen on a simulation (three executions a revision, 3-15 % of
-#: noise between revisions, steps of 5-100 %, `tests/unit/test_confirmed_levels.py`): a revert
-#: of a +100 % step is flagged 89-100 % of the time (57-100 % before), of a +20 % one 24-98 %
-#: (8-80 %), and an unchanged revision after a step 0-8 points more often than before. Only
+#: (a share of the threshold). Chosen on a simulation of 1,000 revisions a case (three
+#: executions a revision, 3, 6 and 15 % of noise between revisions, steps of 5, 20 and 100 %,
+#: as `tests/unit/test_confirmed_levels.py`'s `_after_confirmed`): a revert of a +100 % step is
+#: flagged 89-100 % of the time (57-100 % before), of a +20 % one 24-98 % (8-80 %), and an
+#: unchanged revision after a step 0-8 points more often than before. Only
 #: changes for the worse run pairs, so a return is always for the better: it alarms no one and
 #: runs no pairs, and a false one restarts the baseline at an unchanged revision, a flag the
 #: revisions after it decide
@@ -102,7 +103,8 @@ class Flagged:
         changes for the worse are confirmed by pairs), so the revisions after it decide it.
         Back: no change against ``before``; its median `MOVED_BACK_NEARER` times as near that
         level as the new one, and at least `MOVED_BACK_Z` of the way to a flag against the new
-        level (``level.score``), by at least the detector's floor. A fourth trial's revert of a
+        level (``level.score``), by at least the detector's relative floor and the counter's
+        absolute one (`floored`, as every flag). A fourth trial's revert of a
         confirmed regression (x2 on a noisy component) was "no change -49.5 %" against the
         regression's three values (score 0.95), was pooled with them into the next commit's
         baseline, and the reland after it, +29.6 %, passed as "no change". The score is the
@@ -110,9 +112,10 @@ class Flagged:
         method's."""
         if not level.decided or level.flagged or not isinstance(self.detector, ExecutionShift):
             return level
-        new = median(self.restarted[np.isfinite(self.restarted)])
-        old = median(self.before.values[np.isfinite(self.before.values)])
-        now = median(self.candidate[np.isfinite(self.candidate)])
+        finite = [v[np.isfinite(v)] for v in (self.restarted, self.before.values, self.candidate)]
+        if not all(len(v) for v in finite):  # a level of no finite value: nothing to be near
+            return level
+        new, old, now = (median(v) for v in finite)
         if (
             direction_of(now - new) == direction_of(new - old)
             or abs(level.effect) < self.detector.min_effect
@@ -125,12 +128,14 @@ class Flagged:
         back = self.before.judge(self.detector, self.counter, self.candidate)
         if not back.decided or back.flagged:
             return level
+        times = f"{nearer:.1f} times" if nearer < 100 else "over 100 times"
         note = (
             f"back at the level before the change confirmed at {self.at} (no change against "
-            f"it, {back.effect:+.1%}; {nearer:.1f} times as near it as the new level): flagged "
-            "as a return, which the revisions after it decide"
+            f"it, {back.effect:+.1%}; {times} as near it as the new level): flagged as a "
+            "return, which the revisions after it decide"
         )
-        return replace(level, verdict=CHANGE, score=score, reason=f"{level.reason}; {note}")
+        flagged = replace(level, verdict=CHANGE, score=score, reason=f"{level.reason}; {note}")
+        return floored(flagged, self.counter, finite[0], finite[2])
 
     def returned_to_older(self) -> Detection | None:
         """Where the flag at ``at`` (its values ``restarted``) came right after a short level

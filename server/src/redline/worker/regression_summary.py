@@ -20,10 +20,11 @@ CONFIRMED, NOT_CONFIRMED = "confirmed", "not_confirmed"
 
 def _largest_reasons(session: Session, component_id: int) -> dict[tuple[int, str], str]:
     """Per (regression, state) of the component's detections, the largest one's reason (one
-    from zero the largest), naming its series: what a regression's summary quotes (one query
-    for the component, not one per regression on every revision stored). A trial's summary
-    quoted one parameter set's pairs beside another's largest change, neither named; a fifth
-    trial's named both, the newest set's pairs beside the largest set's +79 %."""
+    from zero, with no ratio, after the rest, as `largest_changes` leaves it out), naming its
+    series: what a regression's summary quotes (one query for the component, not one per
+    regression on every revision stored). A trial's summary quoted one parameter set's pairs
+    beside another's largest change, neither named; a fifth trial's named both, the newest
+    set's pairs beside the largest set's +79 %."""
     rows = session.execute(
         select(Detection.regression_id, Detection.confirmation, Detection.confirmation_reason)
         .add_columns(Series.case, Series.phase, Series.process, Series.counter, Series.params)
@@ -37,8 +38,8 @@ def _largest_reasons(session: Session, component_id: int) -> dict[tuple[int, str
         .order_by(
             Detection.regression_id,
             Detection.confirmation,
-            func.abs(Detection.effect).desc().nulls_first(),
-            Detection.id.desc(),
+            func.abs(Detection.effect).desc().nulls_last(),  # as `largest_changes` ranks them
+            Detection.id,
         )
     )
     return {

@@ -11,7 +11,6 @@ from redline.server.services.revision_reports import (
     labels_warning,
     remotes_warning,
     report_revision,
-    require_hash,
 )
 
 router = APIRouter(prefix="/api/v1/revisions", tags=["revisions"], route_class=JsonRoute)
@@ -37,8 +36,7 @@ def report(
     reports theirs only (403); one not an admin's names the commit by its hash (422: a branch
     or tag moves)."""
     ensure_component(token, data.component)
-    require_hash(data.commit, token.scopes)
-    revision, created = report_revision(session, data)
+    revision, created = report_revision(session, data, admin="admin" in token.scopes)
     if not created:
         response.status_code = status.HTTP_200_OK
     return RevisionCreated(

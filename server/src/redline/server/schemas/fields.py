@@ -188,7 +188,7 @@ def whole_number_as_text(value: object) -> object:
     if isinstance(value, int) and not isinstance(value, bool):
         return str(value)
     if isinstance(value, float) and math.isinf(value):  # a trial's 1e400 was said to be "inf"
-        raise ValueError("must be text or a whole number, not a number beyond a float's range")
+        raise ValueError("a number too large to read as a JSON number: give it as text")
     if isinstance(value, float):
         raise ValueError(f"must be text or a whole number, not {value!r}")
     return value

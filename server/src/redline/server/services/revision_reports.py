@@ -51,14 +51,14 @@ def _reported_before(session: Session, data: RevisionCreate) -> Revision | None:
     )
 
 
-def require_hash(commit: str, scopes: Collection[str]) -> None:
-    """Unprocessable unless ``commit`` is a commit's hash, where the report is not an admin's.
+def require_hash(commit: str) -> None:
+    """Unprocessable unless ``commit`` is a commit's hash (a report not an admin's).
     A branch or tag moves: the hosts measure whatever it names when they run it. A fifth
     trial's ci token reported its branch under a new title, placed just before the revision
     that had failed CI on a confirmed regression: the hosts measured that same commit again,
     and the failed revision, judged against it, passed. Named by its hash, a commit reported
     again is the revision reported before, whatever its title (`_reported_before`)."""
-    if "admin" in scopes or COMMIT_HASH.fullmatch(commit):
+    if COMMIT_HASH.fullmatch(commit):
         return
     raise Unprocessable(
         f"commit {commit[:200]!r} is not a commit hash: a report names the commit it measures "
@@ -83,12 +83,16 @@ def cannot_run(component: Component) -> str | None:
     )
 
 
-def report_revision(session: Session, data: RevisionCreate) -> tuple[Revision, bool]:
+def report_revision(
+    session: Session, data: RevisionCreate, admin: bool = False
+) -> tuple[Revision, bool]:
     """CI's report: the revision made (True), or the one reported before with the same commit
     (False: a re-run pipeline, or CI and a webhook both reporting it, whose sort keys and titles
     may differ in form: the first report's stand); a title taken by another commit is a
     Conflict naming both, and so is a component no host could run (`cannot_run`: a trial's
     revisions were taken, and each job failed on its host)."""
+    if not admin:  # only an admin names a commit by a branch or tag (`require_hash`)
+        require_hash(data.commit)
     if (reason := cannot_run(get_component(session, data.component))) is not None:
         raise Conflict(reason)
     reported = _reported_before(session, data)
