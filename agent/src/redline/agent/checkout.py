@@ -20,6 +20,8 @@ import subprocess
 from pathlib import Path
 from urllib.parse import urlsplit
 
+from redline.recording.format import COMMIT_HASH
+
 SCHEMES = ("https", "ssh", "git")
 #: What a mirror holds: branches and tags, which only those who may push to the repository
 #: write. Not every ref (``clone --mirror``): GitHub's ``refs/pull/*`` and GitLab's
@@ -28,8 +30,6 @@ SCHEMES = ("https", "ssh", "git")
 REFSPECS = ("+refs/heads/*:refs/heads/*", "+refs/tags/*:refs/tags/*")
 #: the first ref (of those named after it) that holds a commit
 REACHED_FROM = ("for-each-ref", "--count=1", "--format=%(refname)", "--contains")
-#: a name that looks like a commit's hash, full or abbreviated: it must be that commit's own
-HEXADECIMAL = re.compile(r"[0-9a-fA-F]{7,64}")
 _TRANSPORT = re.compile(r"^([A-Za-z][A-Za-z0-9+.-]*)::")  # git's <transport>::<address>
 _URL = re.compile(r"^([A-Za-z][A-Za-z0-9+.-]*)://")
 #: user@host:path, ssh's short form; neither user nor host may start with '-' (an ssh option)
@@ -172,7 +172,7 @@ class CloneCache:
             ).strip()
         except CheckoutError:
             sha = ""
-        if sha and HEXADECIMAL.fullmatch(commit) and not sha.startswith(commit.lower()):
+        if sha and COMMIT_HASH.fullmatch(commit) and not sha.startswith(commit.lower()):
             # a tag named like a hash, or an annotated tag's own hash: the server takes a ci
             # token's commit by its hash only, and knows one commit under two names by it
             raise CheckoutError(

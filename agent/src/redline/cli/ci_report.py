@@ -12,7 +12,6 @@ command, CI reported with curl and a here-document (docs/ci.md).
 from __future__ import annotations
 
 import os
-import re
 import subprocess
 from typing import Annotated, Any, NoReturn
 from urllib.parse import urlsplit
@@ -21,9 +20,7 @@ import httpx
 import typer
 from redline.cli.ci_cmd import BAD_INPUT, detail, no_token, unaddressable
 from redline.cli.tokens import TokenFile, read_token
-
-#: a commit's hash, full or abbreviated as git does: what the server takes a commit by
-COMMIT_HASH = re.compile(r"[0-9a-fA-F]{7,64}")
+from redline.recording.format import COMMIT_HASH
 
 #: a title of the first 12 hex digits, as `git rev-parse --short=12` and the push webhook give
 TITLE_DIGITS = 12

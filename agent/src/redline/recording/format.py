@@ -38,12 +38,18 @@ was cut).
 from __future__ import annotations
 
 import json
+import re
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
 PROFILE = "redline"
 FORMAT_VERSION = "1"
+#: a commit's hash, full or abbreviated as git does (7 hex digits at least), as a run's
+#: ``commit`` names it: what a forge addresses a commit status by, what one commit under two
+#: names is recognised by, what the server takes a report not an admin's by, and what a host
+#: checks out only as that commit's own hash (never a tag so named)
+COMMIT_HASH = re.compile(r"^[0-9a-fA-F]{7,64}$")
 
 REDLINE_PREFIX = "@redline/"
 COUNTERS_PREFIX = "@redline/counters/"

@@ -17,10 +17,10 @@ from email.utils import formatdate
 from urllib.parse import quote, urlsplit
 
 import httpx
+from redline.recording.format import COMMIT_HASH
 from redline.server.core.config import Settings
 from redline.server.core.targets import refused_host
 from redline.server.models import Component, Delivery, Subscription
-from redline.server.schemas.fields import COMMIT_HASH
 from redline.worker import messages
 
 #: a failed webhook try's answer: at most this many bytes read, for at most this many timeouts

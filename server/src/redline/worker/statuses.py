@@ -10,9 +10,9 @@ import uuid
 from datetime import datetime
 from typing import Any
 
+from redline.recording.format import COMMIT_HASH
 from redline.server.db import share_component
 from redline.server.models import Component, Delivery, Revision
-from redline.server.schemas.fields import COMMIT_HASH
 from redline.server.services.ci_verdict import ci_verdict
 from sqlalchemy import ColumnElement, and_, func, or_, select, update
 from sqlalchemy.orm import Session, aliased

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from datetime import datetime, timedelta
 
+from redline.recording.format import COMMIT_HASH
 from redline.server.models import (
     DID_NOT_RUN,
     UNENDED,
@@ -23,7 +24,6 @@ from redline.server.models import (
     revision_place,
     utcnow,
 )
-from redline.server.schemas.fields import COMMIT_HASH
 from redline.server.services.fresh_runs import waiting_on
 from redline.worker.alerts import runtime_listeners
 from redline.worker.onward import WALK_LOCK

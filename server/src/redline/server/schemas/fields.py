@@ -142,9 +142,6 @@ ComponentName = Annotated[str, Field(min_length=1, max_length=200), AfterValidat
 #: a revision's title: one path segment (a commit hash, a tag, "v1.2 rc1"...)
 Title = Annotated[str, Field(min_length=1, max_length=200), AfterValidator(path_segment)]
 _COMMIT = re.compile(r"[A-Za-z0-9_][\w./@+-]*")
-#: a commit's hash, full or abbreviated as git does (7 hex digits at least): what a forge
-#: addresses a commit status by, and what one commit under two names is recognised by
-COMMIT_HASH = re.compile(r"^[0-9a-fA-F]{7,64}$")
 
 
 def git_commit(value: str) -> str:

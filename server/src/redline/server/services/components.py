@@ -6,9 +6,9 @@ import difflib
 from pathlib import Path
 
 from redline.agent.checkout import refused_repo, without_credentials
+from redline.recording.format import COMMIT_HASH
 from redline.server.models import HELD, Component, Job, JobState, Revision
 from redline.server.schemas.components import ComponentCreate, ComponentOut, ComponentSettings
-from redline.server.schemas.fields import COMMIT_HASH
 from redline.server.services.errors import BadRequest, Conflict, NotFound, Unprocessable
 from redline.server.services.repos import repo_key
 from sqlalchemy import Select, and_, func, literal, or_, select, update

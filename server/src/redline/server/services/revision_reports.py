@@ -5,8 +5,8 @@ from __future__ import annotations
 
 from collections.abc import Collection, Iterable
 
+from redline.recording.format import COMMIT_HASH
 from redline.server.models import Component, Host, Job, JobState, Revision
-from redline.server.schemas.fields import COMMIT_HASH
 from redline.server.schemas.revisions import RevisionCreate
 from redline.server.services.components import get_component, revision_of_commit, same_commit
 from redline.server.services.errors import Conflict, Unprocessable

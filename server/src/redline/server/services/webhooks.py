@@ -14,9 +14,10 @@ from dataclasses import dataclass
 from datetime import UTC, datetime
 
 from pydantic import ValidationError
+from redline.recording.format import COMMIT_HASH
 from redline.server.core.bodies import BadJson, parse_json
 from redline.server.models import Component, Revision
-from redline.server.schemas.fields import COMMIT_HASH, parse_commit_time
+from redline.server.schemas.fields import parse_commit_time
 from redline.server.schemas.revisions import RevisionCreate
 from redline.server.schemas.webhooks import (
     PushCommit,
