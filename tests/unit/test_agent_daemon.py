@@ -221,3 +221,27 @@ def test_a_fault_of_the_commit_itself_is_told_as_such_and_a_failed_run_is_not(
     if files.get("perf/redline.toml", "").startswith('build = "false"'):
         said = "build command 'sh -c false' exited with 1, printing nothing"
         assert client.reasons == [said], client.reasons
+
+
+def test_a_run_records_the_hash_it_checked_out_whatever_name_it_was_given(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A job may name its commit by a branch (an admin's revision), which moves: the recording
+    says which commit was measured, by its hash, beside the name it was leased
+    (`redline.server.services.measured_commit` pins it)."""
+    repo, head = committed_repo(tmp_path / "repo", SUITE_FILES)
+
+    def run_isolated(suite_path: Path, out: Path, run_metadata: dict, *rest: object) -> RunResult:
+        write_recording(out, run_metadata, {"cpu_percent": np.full(50, 20.0)}, host_percent=20.0)
+        return RunResult(out, None, 1, run_metadata, {})
+
+    monkeypatch.setattr(daemon_module, "run_isolated", run_isolated)
+    daemon = AgentDaemon(
+        client=_LostLeaseClient(),  # type: ignore[arg-type]
+        workdir=tmp_path / "work",
+        allow_file_repos=True,
+    )
+    for name in ("main", head[:9]):
+        job = {**_LostLeaseClient().lease(), "repo": str(repo), "commit": name}
+        run = read_recording(daemon._run(job, f"job-{name}")).run
+        assert (run["commit"], run["commit_sha"]) == (name, head)

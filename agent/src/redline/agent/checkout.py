@@ -189,6 +189,12 @@ class CloneCache:
         _git("-c", "advice.detachedHead=false", "checkout", "--quiet", "--detach", sha, cwd=tree)
         return tree
 
+    @staticmethod
+    def head(tree: Path) -> str:
+        """The hash of the commit checked out in ``tree``: what a run of it measured, whatever
+        name (a branch, a tag) the revision gave."""
+        return _git("rev-parse", "--verify", "HEAD", cwd=tree).strip()
+
     def tree(self, name: str) -> Path:
         """Where the work tree ``name`` is checked out."""
         return self.root / "trees" / name

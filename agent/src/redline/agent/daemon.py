@@ -191,6 +191,7 @@ class AgentDaemon:
     def _run(self, job: dict[str, Any], name: str) -> Path:
         """Check out, build and run the job's suite; the finished recording."""
         tree = self.cache.checkout(job["repo"], job["commit"], name)
+        measured = {"commit_sha": self.cache.head(tree)}  # a branch's name moves; its hash not
         suite_path = (tree / job["suite"]).resolve()
         if not suite_path.is_relative_to(tree.resolve()):
             raise JobFailed(f"suite file {job['suite']} is outside the repository", True)
@@ -211,7 +212,7 @@ class AgentDaemon:
                     result = run_isolated(
                         suite_path,
                         out,
-                        {**_run_metadata(job), **retried},
+                        {**_run_metadata(job), **measured, **retried},
                         job.get("cases") or (),
                         job.get("parameter_sets") or {},  # a confirmation run: its flagged sets
                         bool(job.get("sets_alone")),  # ... run alone (older servers: as far as)

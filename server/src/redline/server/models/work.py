@@ -76,6 +76,10 @@ class Revision(Base):
     # sort_key with digit runs made comparable as text ("9" < "10"); "C" collation: bytewise order
     order_key: Mapped[str] = mapped_column(String(1000, collation="C"), index=True)
     commit: Mapped[str] = mapped_column(String(200), default="")
+    #: the hash of the commit the first run a host uploaded checked out: every later run of the
+    #: revision (its own, confirmation pairs) checks that hash out, not ``commit``'s name, which
+    #: may be a branch's that has moved since ("" until then; never set by an import)
+    measured_commit: Mapped[str] = mapped_column(String(64), default="", server_default="")
     repo: Mapped[str] = mapped_column(Text, default="")
     branch: Mapped[str] = mapped_column(String(200), default="")
     message: Mapped[str] = mapped_column(Text, default="")

@@ -86,6 +86,12 @@ class RevisionOut(BaseModel):
     title: str
     sort_key: str
     commit: str
+    measured_commit: str = Field(
+        default="",
+        description="the hash of the commit its runs checked out, pinned by the first a host "
+        "uploaded (every later run of it checks this hash out, not `commit`'s name, a branch's "
+        "perhaps); empty before a host ran it, or for imported results",
+    )
     repo: str
     branch: str = ""
     committed_at: datetime | None = None

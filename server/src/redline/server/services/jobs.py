@@ -19,6 +19,7 @@ from redline.server.models import (
 from redline.server.schemas.jobs import LeasedJob, LeasedRevision, RegisterRequest
 from redline.server.services.errors import Conflict, NotFound
 from redline.server.services.fresh_runs import mark_waiting
+from redline.server.services.measured_commit import commit_to_run
 from sqlalchemy import ColumnElement, and_, case, cast, or_, select, true, update
 from sqlalchemy.dialects.postgresql import JSONB, insert
 from sqlalchemy.orm import Session, aliased
@@ -207,7 +208,7 @@ def leased_job(job: Job) -> LeasedJob:
         id=job.id,
         component=revision.component.name,
         repo=revision.component.repo,
-        commit=revision.commit,
+        commit=commit_to_run(revision),  # the hash its first run measured: a branch moves
         suite=revision.component.suite,
         revision=LeasedRevision(title=revision.title, sort_key=revision.sort_key),
         execution_index=job.execution_index,

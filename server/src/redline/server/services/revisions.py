@@ -147,6 +147,7 @@ def _revision_out(revision: Revision) -> dict:
         title=revision.title,
         sort_key=revision.sort_key,
         commit=revision.commit,
+        measured_commit=revision.measured_commit,
         repo=revision.repo,
         branch=revision.branch,
         committed_at=revision.committed_at,

@@ -27,6 +27,7 @@ from redline.server.services.errors import (
 )
 from redline.server.services.fresh_runs import mark_waiting
 from redline.server.services.jobs import ensure_held, holder
+from redline.server.services.measured_commit import commit_mismatch, pin_measured
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
@@ -85,15 +86,9 @@ def _mismatch(recording: Recording, job: Job) -> str:
                 f"{recording.path.name}: redline.run {key} is {run[key]!r} "
                 f"but job {job.id} expects {value!r}"
             )
-    commit = run.get("commit", "")
-    # a revision may be reported by a short hash; the agent records what it checked out
-    if revision.commit and not (
-        commit.startswith(revision.commit) or revision.commit.startswith(commit or "\0")
-    ):
-        return (
-            f"{recording.path.name}: redline.run commit is {commit!r} "
-            f"but job {job.id} expects {revision.commit!r}"
-        )
+    problem = commit_mismatch(run, revision, job.id)
+    if problem:
+        return f"{recording.path.name}: {problem}"
     return ""
 
 
@@ -182,6 +177,8 @@ def accept_recording(
     if repeated is not None:
         return repeated
     recording, problem = _check(staged, job, max_unpacked)
+    if recording is not None and not problem:  # its revision's commit, pinned by the first
+        problem = pin_measured(session, job.revision, recording.run)
     if problem or recording is None:
         job.state, job.reason, job.lease_expires_at = JobState.failed, problem, None
         if job.remeasures_job_id is not None:  # the sweep has those that waited judged
