@@ -91,6 +91,16 @@ def _measured(
     session.expire_all()
 
 
+def _stored(session, database_url: str, tmp_path: Path, host: Host, number: int, runs) -> None:
+    """Revision r<number>'s ``runs`` (counters' samples, one per execution) measured on
+    ``host``, ingested and judged."""
+    executions = add_executions(session, tmp_path, NAME, f"r{number}", str(number), runs)
+    for execution in executions:
+        session.get_one(Job, execution.job_id).host_id = host.id
+    session.commit()
+    ingest_and_detect(database_url, executions)
+
+
 def _flagged_history(session, database_url, tmp_path, pairs: int = PAIRS):
     """r1-r4 at 20 % CPU, r5 at 30 %: r5 flagged against r4, its pairs queued."""
     component = create_component(session, ComponentCreate(name=NAME, executions=RUNS))
@@ -314,11 +324,7 @@ def test_a_cpu_change_shown_only_in_units_of_the_host_reference_is_not_confirmed
             )
             for i in range(RUNS)
         ]
-        executions = add_executions(session, tmp_path, NAME, f"r{number}", str(number), runs)
-        for execution in executions:
-            session.get_one(Job, execution.job_id).host_id = host.id
-        session.commit()
-        ingest_and_detect(database_url, executions)
+        _stored(session, database_url, tmp_path, host, number, runs)
     session.expire_all()
     assert _r5_detection(session).confirmation == "suspected"
     while (job := lease_job(session, "perf-1", 60, 3)) is not None:
@@ -420,6 +426,51 @@ def test_pairs_queued_again_that_do_not_show_the_change_drop_it(session, databas
     assert detection.confirmation == "dropped", detection.confirmation_reason
     assert detection.confirmation_reason.startswith("not confirmed: the change showed in 0 of 1")
     assert session.scalars(select(Job).where(Job.pair > 4)).all() == []  # once only
+
+
+def test_pairs_that_confirm_a_change_are_not_run_again_for_another_the_host_was_busy_in(
+    session, database_url, tmp_path
+):
+    """A leak in bench_verdicts (2026-12-07): its memory confirmed by both pairs, one rate of
+    context switches beside it left undecided by a busy spell, and the suite ran twice more for
+    it, 299 of the history's 861 s of confirmation runs. The revision is a regression already:
+    the series the busy host left undecided are the later revisions' to decide."""
+    component = create_component(session, ComponentCreate(name=NAME, executions=RUNS))
+    session.add(DetectionConfigRow(component_id=component.id, config={"confirm_pairs": PAIRS}))
+    session.commit()
+    host = register_host(session, RegisterRequest(name="perf-1"))
+    mib = 1024.0 * 1024.0
+
+    def counters(cpu: float, seed: int) -> dict[str, np.ndarray]:
+        rss = 130 * mib if cpu > 25 else 100 * mib
+        return _cpu(cpu, seed) | _cpu(rss, seed + 1, "rss_bytes")
+
+    for number, cpu in enumerate([20.0] * 4 + [30.0], start=1):
+        runs = [counters(cpu, number * 10 + i) for i in range(RUNS)]
+        _stored(session, database_url, tmp_path, host, number, runs)
+    session.expire_all()
+    while (job := lease_job(session, "perf-1", 60, 3)) is not None:
+        cpu = 30.0 if job.revision.title == "r5" else 20.0
+        extra = counters(cpu, 2000 + job.id)
+        busy = 90.0 if job.pair == 2 else None  # the CPU of pair 2 left out: memory judged
+        _run(session, database_url, tmp_path, job, cpu, host_percent=busy, also=extra)
+    flagged = {
+        d.series.counter: d
+        for d in session.scalars(
+            select(Detection)
+            .join(Revision, Revision.id == Detection.revision_id)
+            .where(Revision.title == "r5", Detection.method == "execution_shift")
+        )
+    }
+    assert flagged["rss_bytes"].confirmation == "held", flagged["rss_bytes"].confirmation_reason
+    cpu = flagged["cpu"]
+    assert cpu.confirmation == "suspected", cpu.confirmation_reason
+    assert cpu.confirmation_reason.endswith(
+        "the host was busy in a pair's run of this series, and its pairs are not run again: "
+        "they confirmed 1 other change(s) of this revision"
+    ), cpu.confirmation_reason
+    assert _queued_again(session) == []  # no machine time for what the verdict does not need
+    assert session.scalars(select(Regression)).one().confirmation == "confirmed"
 
 
 def _settle(session) -> None:

@@ -32,7 +32,7 @@ from tests.support.history import add_execution, ingest_and_detect
 pytestmark = pytest.mark.slow
 
 REDLINE = str(Path(sys.executable).parent / "redline")
-REVISIONS, SERIES = 120, 24
+REVISIONS, SERIES = 80, 16
 
 
 def _env(settings) -> dict[str, str]:

@@ -29,7 +29,9 @@ from datetime import timedelta
 
 from redline.detect.config import DetectionConfig
 from redline.detect.confirmation import (
+    BY_PAIRS,
     DROPPED,
+    HELD,
     LATER_DECIDE,
     SUSPECTED,
     UNDECIDED,
@@ -220,6 +222,7 @@ def settle_pairs(session: Session, revision: Revision) -> bool:
     busy = busy_in(session, jobs)
     moved: list[Revision] = []
     left: list[tuple[Detection, Hold]] = []  # undecided because the host was busy: run again
+    held = 0  # changes the pairs confirmed
     # a change found a revision late is looked for only where the pairs ran the suite as far as
     # the flagged sets, as the revisions' own runs did: alone, a set runs first after the
     # component starts, and its level is not the one its revision's own runs measured (in
@@ -244,6 +247,7 @@ def settle_pairs(session: Session, revision: Revision) -> bool:
         if judged and found.state == SUSPECTED and detection.series_id in busy and not again:
             left.append((detection, found))
             continue
+        held += found.state == HELD and found.reason.startswith(BY_PAIRS)
         reason = found.reason
         if spared:
             reason += f"; {len(spared)} more pair(s) not needed: these decided it"
@@ -259,7 +263,7 @@ def settle_pairs(session: Session, revision: Revision) -> bool:
             ) or (move_back_unjudged(session, detection, revision) if may_judge else None)
             if earlier is not None:
                 moved.append(earlier)
-    run_again(session, revision, baseline, jobs, left)
+    run_again(session, revision, baseline, jobs, left, held)
     for earlier in moved:
         confirm_found_late(session, earlier)
     return True
