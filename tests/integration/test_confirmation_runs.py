@@ -744,6 +744,37 @@ def _detection(session, title: str) -> Detection:
     ).one()
 
 
+def test_a_flag_its_pairs_dropped_does_not_restart_the_baseline(session, database_url, tmp_path):
+    """A sixth trial: a README-only commit's round trip flagged on a busy host (+42 %), its pair
+    showing nothing (+7 %): dropped. The baseline restarted there all the same, so the slow
+    commit after it was judged against that one revision's values, "not enough data", and the
+    README-only commit after the slow one was flagged against both (+17 %), its pairs (the slow
+    commit against it: the same code) confirmed the noise of a busy host, and it failed CI. A
+    flag its pairs dropped is no level: the baseline reads on past it, the slow commit is
+    flagged and confirmed itself, and the commit after it is judged against its level."""
+    host = _flagged_history(session, database_url, tmp_path)  # r5 flagged at 30 against 20
+    level = {"r4": 20.0, "r5": 20.0, "r6": 30.0}  # the pairs: r5 was a spike, r6 the change
+
+    def run_pairs() -> None:
+        while (job := lease_job(session, "perf-1", 60, 3)) is not None:
+            _run(session, database_url, tmp_path, job, level[job.revision.title])
+
+    run_pairs()
+    assert _detection(session, "r5").confirmation == "dropped"
+    _measured(session, database_url, tmp_path, [30.0], host, start=6)
+    slow = _detection(session, "r6")
+    assert slow.verdict == "change" and slow.baseline_revision.title == "r5", slow.reason
+    run_pairs()
+    assert _detection(session, "r6").confirmation == "held"
+    _measured(session, database_url, tmp_path, [30.0], host, start=7)
+    same = _detection(session, "r7")
+    assert same.verdict == "no change" and same.baseline_revision.title == "r6", same.reason
+    ranges = [(r.good_revision.title, r.bad_revision.title) for r in session.scalars(
+        select(Regression).where(Regression.confirmation == "confirmed")
+    )]  # fmt: skip
+    assert ranges == [("r5", "r6")], ranges
+
+
 #: A change found a revision late is looked for only where the pairs ran the suite as far as
 #: the flagged set, as the revisions' own runs did (a change in what the component holds): run
 #: alone, a set's level differs from its level in the suite (`settle_pairs`)

@@ -7,7 +7,7 @@ from __future__ import annotations
 from collections import defaultdict
 from collections.abc import Collection, Sequence
 
-from redline.detect.confirmation import BY_PAIRS, HELD
+from redline.detect.confirmation import BY_PAIRS, DROPPED, HELD
 from redline.detect.counters import (
     CONTEXT_COUNTERS,
     LEVELS,
@@ -185,14 +185,21 @@ def flagged_verdicts(
 def flagged_and_confirmed(
     session: Session, revision_ids: set[int], series_ids: list[int] | None = None
 ) -> tuple[set[tuple[int, str, int]], set[tuple[int, str, int]]]:
-    """`flagged_verdicts`, and those of them their pairs confirmed as changes (the history's
-    confirmations the baseline reads from the revisions after them, as a re-analysis does), in
-    one query."""
+    """`flagged_verdicts` but those dropped, and those of them their pairs confirmed as changes
+    (the history's confirmations the baseline reads from the revisions after them, as a
+    re-analysis does), in one query. A dropped flag is no level, and a baseline reads on past
+    it as past any revision: in a sixth trial a README-only commit's round trip, flagged on a
+    busy host and dropped by its pair, restarted the baseline, the slow commit after it was
+    "not enough data" against that one revision, and the unchanged commit after the slow one
+    was flagged and failed CI (a re-analysis, which settles confirmations at its end, reads
+    such a flag as undecided: the revisions after it decide it, a known difference)."""
     if not revision_ids:
         return set(), set()
     by_pairs = (Detection.confirmation == HELD) & Detection.confirmation_reason.startswith(BY_PAIRS)
     query = select(Detection.series_id, Detection.method, Detection.revision_id, by_pairs).where(
-        Detection.flagged.is_(True), Detection.revision_id.in_(revision_ids)
+        Detection.flagged.is_(True),
+        Detection.confirmation.is_distinct_from(DROPPED),
+        Detection.revision_id.in_(revision_ids),
     )
     if series_ids is not None:
         query = query.where(Detection.series_id.in_(series_ids))
