@@ -60,6 +60,7 @@ from tests.support.history import add_executions
 
 SCHEMA = json.loads((Path(__file__).parents[2] / "docs" / "alerts.schema.json").read_text())
 SECRET = "hook-secret"
+SUBJECT = "builder: finer leg association"
 api, mailbox, receiver = alerting.api, alerting.mailbox, alerting.receiver  # the fixtures
 
 
@@ -70,6 +71,11 @@ def test_a_confirmed_regression_is_told_once_by_mail_and_by_signed_webhook(
     subscribe(api, {"kind": "email", "address": "dev@robots.example"})
     assert hook["has_secret"] and "secret" not in hook  # never shown again
     revisions(api, tmp_path, [10.0] * 5 + [14.0])
+    with session_factory(api.settings.database_url)() as session:  # as CI reports it
+        session.execute(
+            update(Revision).where(Revision.title == "r6").values(message=f"\n{SUBJECT}\n\nWhy.")
+        )
+        session.commit()
     alert(api)
     assert not receiver.requests and not mailbox.messages  # suspected: not told yet
     revisions(api, tmp_path, [14.0, 14.0], first=7)  # two later revisions hold it
@@ -87,6 +93,7 @@ def test_a_confirmed_regression_is_told_once_by_mail_and_by_signed_webhook(
     (told,) = body["alerts"]
     assert told["regression"]["confirmation"] == "confirmed"
     assert told["regression"]["page_url"].startswith("https://redline.example/regressions/")
+    assert told["regression"]["bad"] == {"title": "r6", "subject": SUBJECT}  # what the commit is
     (change,) = told["changes"]
     assert (change["counter"], change["method"], change["revision"]["title"]) == ("cpu", "ks", "r6")
     assert change["effect"] > 0.3
@@ -97,7 +104,17 @@ def test_a_confirmed_regression_is_told_once_by_mail_and_by_signed_webhook(
     assert mail["Message-ID"].startswith("<") and mail["Message-ID"].endswith("@redline>")
     text = mail.get_body(("plain",)).get_content()
     page = mail.get_body(("html",)).get_content()
-    assert "r5 and r6: confirmed" in text and told["regression"]["page_url"] in text
+    assert f"r5 and r6 ('{SUBJECT}'): confirmed" in text, text
+    assert told["regression"]["page_url"] in text
+    # and where a reader meets the regression (a sixth trial found its commit named nowhere)
+    regression = api.client.get(
+        f"/api/v1/components/builder/regressions/{told['regression']['id']}"
+    ).json()
+    assert regression["bad_subject"] == SUBJECT
+    assert f"({SUBJECT})" in api.client.get(told["regression"]["page"]).text
+    assert f">{SUBJECT}</p>" in api.client.get("/components/builder/revisions/r6").text
+    answer = api.client.get("/api/v1/components/builder/revisions/r6").json()
+    assert answer["message"] == f"\n{SUBJECT}\n\nWhy."
     assert "https://redline.example/components/builder?" in page
 
     # a re-analysis, more revisions and a triage never tell it again

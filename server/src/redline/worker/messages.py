@@ -114,7 +114,7 @@ def regression_body(regression: Regression) -> dict[str, Any]:
         "confirmation": regression.confirmation,
         "confirmation_reason": regression.confirmation_reason,
         "good": {"title": regression.good_revision.title},
-        "bad": {"title": regression.bad_revision.title},
+        "bad": {"title": regression.bad_revision.title, "subject": regression.bad_revision.subject},
     }
 
 
@@ -226,9 +226,12 @@ def email(event: str, payload: dict[str, Any], public_url: str) -> tuple[str, st
         text_parts.append(head)
         html_parts.append(f"<h2>{html.escape(head)}</h2>")
         if regression:
+            commit = regression["bad"].get("subject")  # its commit message's first line
             said = (
                 f"Regression #{regression['id']} between {regression['good']['title']} and "
-                f"{regression['bad']['title']}: {regression['confirmation']}"
+                f"{regression['bad']['title']}"
+                + (f" ({commit!r})" if commit else "")
+                + f": {regression['confirmation']}"
                 + (
                     f" ({regression['confirmation_reason']})"
                     if regression["confirmation_reason"]

@@ -96,6 +96,13 @@ class Revision(Base):
     )
 
     @property
+    def subject(self) -> str:
+        """The first line of its commit message, as CI reported it ("" without one): what a
+        reader of a page or an alert knows a commit by (a trial looked its slow commit up in
+        git: no page, alert or answer said what it was)."""
+        return next((line.strip() for line in self.message.splitlines() if line.strip()), "")[:200]
+
+    @property
     def place(self) -> tuple[str, int]:
         """Where the revision stands in its component's history (`revision_place`)."""
         return (self.order_key, self.id)

@@ -51,6 +51,9 @@ class RegressionOut(BaseModel):
     component: str
     good_revision: str = Field(description="the newest revision before the change")
     bad_revision: str = Field(description="the last revision in the range showing it")
+    bad_subject: str = Field(
+        default="", description="the first line of bad_revision's commit message, if reported"
+    )
     state: RegressionState
     confirmation: Literal["suspected", "confirmed", "not_confirmed", "withdrawn"] = Field(
         description="confirmed when one of its changes held in its confirmation runs or over "

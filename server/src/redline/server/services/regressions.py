@@ -61,6 +61,7 @@ def _out(regression: Regression, component: str, methods: list[str], count: int)
         component=component,
         good_revision=regression.good_revision.title,
         bad_revision=regression.bad_revision.title,
+        bad_subject=regression.bad_revision.subject,
         state=regression.state.value,
         confirmation=regression.confirmation,
         confirmation_reason=regression.confirmation_reason,

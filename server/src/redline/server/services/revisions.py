@@ -150,6 +150,7 @@ def _revision_out(revision: Revision) -> dict:
         measured_commit=revision.measured_commit,
         repo=revision.repo,
         branch=revision.branch,
+        message=revision.message,
         committed_at=revision.committed_at,
         created=revision.created,
         analyzed_at=revision.analyzed_at,
