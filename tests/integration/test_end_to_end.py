@@ -138,6 +138,9 @@ def test_confirmation_runs_stay_out_of_the_revisions_own_executions(history: His
     detail = httpx.get(
         f"{history.stack.url}/api/v1/components/objectbuilder/revisions/{history.regressed.title}"
     ).json()
+    # reported as `redline ci report` would: its message, and the hash its runs measured
+    assert detail["message"] == history.regressed.subject
+    assert detail["measured_commit"] == history.regressed.commit
     own = [job for job in detail["jobs"] if job["pair"] == 0]
     pairs = [job for job in detail["jobs"] if job["pair"] > 0]
     assert len(own) == 1 and own[0]["state"] == "done", detail["jobs"]

@@ -154,6 +154,7 @@ def submit(
                 "title": revision.title,
                 "sort_key": revision.sort_key,
                 "commit": revision.commit,
+                "message": revision.subject,  # as `redline ci report` sends it
                 "repo": str(repo),
             },
         )
