@@ -759,7 +759,7 @@ def test_a_regression_judged_again_without_its_change_is_withdrawn_with_its_figu
     assert before["confirmation"] == "suspected"
     said = before["confirmation_reason"]
     assert re.search(
-        r"; the largest: throughput/publish: component cpu \[rate=10\] \+\d+ % at r6$", said
+        r"; the largest: throughput/publish: component cpu \[rate=10\] \+\d+\.\d % at r6$", said
     ), said
     counted = '<a href="/regressions?component=builder&amp;state=open">1</a>'
     assert counted in api.client.get("/").text  # the home page's open regressions

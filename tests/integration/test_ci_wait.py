@@ -216,7 +216,7 @@ def test_a_later_revision_is_told_of_the_regression_still_open_before_it(server,
     assert later.returncode == 0, later.stdout + later.stderr
     said = re.search(
         r"1 regression\(s\) still open before this revision.*\n  #(\d+) suspected, triage new: "
-        r"after r5, shows at r6: .*cpu .*\+\d+ % at r6  http://\S+/regressions/(\d+)",
+        r"after r5, shows at r6: .*cpu .*\+\d+\.\d % at r6  http://\S+/regressions/(\d+)",
         later.stdout,
     )
     assert said is not None and said[1] == said[2], later.stdout

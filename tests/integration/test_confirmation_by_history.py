@@ -214,7 +214,7 @@ def test_the_api_lists_regressions_by_confirmation(session, database_url, tmp_pa
         assert {d["confirmation"] for d in detail["flagged"]} == {"dropped"}
         # named by the change it dropped (a trial's not-confirmed regressions had no "largest")
         largest = dropped["largest"]
-        assert re.fullmatch(r".* cpu \[rate=10\] \+\d+ % at r5", largest), largest
+        assert re.fullmatch(r".* cpu \[rate=10\] \+\d+\.\d % at r5", largest), largest
         # "all", as the regressions page offers it (a trial's API call was 422)
         every_one = api.client.get(url + "?confirmation=all").json()
         assert sorted(r["id"] for r in every_one) == sorted(r["id"] for r in every)

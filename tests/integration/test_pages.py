@@ -373,7 +373,7 @@ def test_revision_and_regression_pages_link_each_other(client, database_url, tmp
     assert listed.status_code == 200
     # each with its largest change (a trial found the size only on the regression's own page)
     largest = regressions[0]["largest"]
-    assert re.fullmatch(r".*builder cpu.* \+\d+ % at r3", largest), largest
+    assert re.fullmatch(r".*builder cpu.* \+\d+\.\d % at r3", largest), largest
     assert f"<td>{html.escape(largest)}</td>" in listed.text
     detail = client.get(f"/api/v1/components/builder/regressions/{number}").json()
     assert detail["largest"] == largest

@@ -29,8 +29,8 @@ WHY_PROCESS = "the process, test case, phase or parameter set changed, or it was
 #: recording said so): a change there fails; without one it is undecided, its CPU and rates
 #: unjudged
 BUSY_PART = (
-    "judged in part: the host was busy ({why}); what the component holds (memory, threads, "
-    "files) was judged, its CPU and rates were not"
+    "judged in part: the host was busy ({why}); what the component holds and other load does "
+    "not move (memory, processes, files) was judged, its CPU, rates and threads were not"
 )
 #: A segment the host was busy in where the two sides hold nothing in common to judge
 NOT_JUDGED_BUSY = "not judged: the host was busy ({why})"

@@ -72,7 +72,7 @@ def largest_changes(
     if ids is not None:
         query = query.where(Detection.regression_id.in_(list(ids)))
     return {
-        rid: f"{series_label(case, phase, process, counter, params)} {effect * 100:+.0f} % "
+        rid: f"{series_label(case, phase, process, counter, params)} {effect * 100:+.1f} % "
         f"at {title}"
         for rid, effect, case, phase, process, counter, params, title in session.execute(query)
         if rid is not None
