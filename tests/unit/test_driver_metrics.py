@@ -163,8 +163,7 @@ def test_a_report_is_named_by_its_actions_path() -> None:
         "timeouts": 0.0,
         "errors": 0.0,
         "unanswered": 0.0,
-        **{f"rtt_{q}_us": 0.0 for q in ("p50", "p90", "p99", "max")},
-    }
+    }  # no round trip measured: none reported (a "p50 0 µs" was charted as one)
 
 
 def test_series_names_show_a_wildcards_concrete_key() -> None:
@@ -479,7 +478,7 @@ def test_compare_judges_what_the_component_holds_in_a_phase_the_host_was_busy_in
     assert code == 4 and "1 segment(s) judged in part (the host was busy)" in output, output
     (case,) = [c for c in suite.iter("testcase") if c.get("name") == "c/steady[rate=10]"]
     error = case.find("error")
-    assert error is not None and "its CPU and rates were not" in error.get("message", "")
+    assert error is not None and "its CPU, rates and threads were not" in error.get("message", "")
 
 
 def test_compare_does_not_pass_a_renamed_action_path(tmp_path: Path) -> None:
@@ -652,3 +651,23 @@ def test_threads_and_address_space_are_left_out_in_a_busy_phase_as_the_cpu_is():
     }
     assert set(out.values()) == {why}
     assert left_out(keys, {}) == {}  # a quiet run: everything judged
+
+
+def test_a_tally_of_checked_replies_counts_each_and_its_wrong_ones_from_zero() -> None:
+    """A sixth trial's custom action counted its wrong replies only (`count("errors")`): 120 of
+    120 wrong went unjudged (nothing to rate them out of, and no 0 where none were wrong), its
+    table row said nothing of them, and the tally's empty round trips read "p50 0 µs"."""
+    from redline.cli.run_summary import measured
+    from redline.testing.metrics import Tally
+
+    clean, wrong = Tally("Check", "planner/plan", "rtt"), Tally("Check", "planner/plan", "rtt")
+    for reply in range(120):
+        clean.checked(True)
+        wrong.checked(reply % 4 == 0)
+    assert (clean.summary()["queries"], clean.summary()["errors"]) == (120, 0)
+    assert (wrong.summary()["queries"], wrong.summary()["errors"]) == (120, 90)
+    assert not any(name.startswith("rtt_") for name in clean.summary())  # none measured
+    fields = report_values({"action": "Check", **clean.summary()})
+    assert fields["errors"] == 0 and fields["queries"] == 120  # a rate, from 0
+    assert measured({"errors": 120.0}) == "120 errors (out of no queries counted: not judged)"
+    assert measured({"errors": 3.0, "queries": 120.0}) == "3 of 120 errors"

@@ -74,6 +74,9 @@ def measured(fields: Mapping[str, float]) -> str:
         total = next((fields[t] for t in totals if t in fields), None)
         if name in fields and total is not None:
             parts.append(f"{fields[name]:.0f} of {total:.0f} {name}")
+        elif fields.get(name):  # out of nothing counted: said, and why it is not judged
+            parts.append(f"{fields[name]:.0f} {name} (out of no {' or '.join(totals)} counted: "
+                         "not judged)")  # fmt: skip
     if not parts:
         parts = [form.format(fields[name]) for name, form in _DONE if name in fields]
     return ", ".join(parts) or "-"

@@ -44,9 +44,20 @@ class Tally:
             self._values.append(duration_ns)
 
     def count(self, name: str, n: int = 1) -> None:
-        """Add ``n`` to the named count (e.g. ``timeouts``)."""
+        """Add ``n`` to the named count (e.g. ``timeouts``; 0 records it as counted)."""
         with self._lock:
             self._counts[name] += n
+
+    def checked(self, ok: bool, name: str = "errors", of: str = "queries") -> None:
+        """One reply checked: counted (``of``), and counted as ``name`` when it is not ``ok``.
+        A run whose every reply was right records 0 of them, so a revision that starts getting
+        them wrong is judged as a rate out of ``of`` (`redline.recording.driver`): a count only
+        ever added to when it happens is missing where it did not, and one with nothing to be
+        out of cannot be rated, so neither was judged (a sixth trial's 120 wrong replies of
+        120 went unmentioned)."""
+        with self._lock:
+            self._counts[of] += 1
+            self._counts[name] += not ok
 
     def summary(self) -> dict[str, Any]:
         """The message published for this tally."""
@@ -58,5 +69,6 @@ class Tally:
             "key": self.key,
             "count": len(values),
             **counts,
-            **latency_summary(values, self.measure),
+            # none measured (a tally of counts only): no "p50 0 µs", charted as a measurement
+            **(latency_summary(values, self.measure) if values else {}),
         }
