@@ -3,6 +3,7 @@ precision per method from triage labels, detections, configuration and re-analys
 
 from __future__ import annotations
 
+import re
 import uuid
 from collections.abc import Iterator
 from pathlib import Path
@@ -208,8 +209,20 @@ def test_component_page_lists_regressions_with_their_state(api, database_url, tm
     page = api.client.get("/components/builder").text
     table = page.split('id="regressions"', 1)[1].split("</table>", 1)[0]
     assert "<td>r1</td><td>r2</td>" in table and "state-new" in table
+    assert re.search(r"<td>[^<]*cpu[^<]* \+\d+\.\d % at r2</td>", table), table  # its largest
     # r2 is the newest revision: its change waits for two later ones to confirm it
     assert "confirmation-suspected" in table and "waiting for 2 more revision(s) after it" in table
+    # one its pairs did not confirm is left to the list of all (a sixth trial's page listed three
+    # of unchanged commits beside its real one)
+    with session_factory(database_url)() as session:
+        session.execute(text("UPDATE regression SET confirmation = 'not_confirmed'"))
+        session.commit()
+    shown = api.client.get("/components/builder").text
+    assert 'id="regressions"' not in shown and "None suspected or confirmed" in shown
+    assert "/regressions?component=builder&amp;confirmation=all" in shown
+    with session_factory(database_url)() as session:
+        session.execute(text("UPDATE regression SET confirmation = 'suspected'"))
+        session.commit()
     # each revision says what its alarm method found, or why it has no verdict yet
     rows = page.split('id="revisions"', 1)[1].split("</table>", 1)[0]
     assert "ks: not enough data yet: missing baseline" in rows
@@ -404,3 +417,28 @@ def test_an_open_regression_is_counted_and_marked_and_one_dropped_or_fixed_is_no
     assert api.get("/regressions?state=open").json() == []
     page = api.client.get("/regressions?component=builder&state=open")
     assert page.status_code == 200 and f"/regressions/{ident}" not in page.text
+
+
+def test_a_regression_changed_back_since_says_so_where_it_is_still_open(
+    api, database_url, tmp_path
+):
+    """A sixth trial's revert passed as an improvement while its regression stayed open: every
+    later commit's CI job was told of it, and its page said nothing of the revert. Where a
+    revision since flagged one of its series changing the other way, each says where."""
+    history(database_url, tmp_path, [20.0, 60.0, 60.0, 60.0, 20.0, 20.0])
+    (regression,) = api.get("/regressions").json()
+    assert (regression["good_revision"], regression["bad_revision"]) == ("r1", "r2")
+    assert regression["confirmation"] == "confirmed", regression
+    said = api.get(f"/regressions/{regression['id']}").json()["changed_back"]
+    assert re.fullmatch(r"changed back at r5: .* cpu \[rate=10\] -\d+\.\d %", said), said
+    assert (
+        f"Since its change: <strong>{said}</strong>"
+        in api.client.get(f"/regressions/{regression['id']}").text
+    )
+    # a CI job of a commit after it is told so beside the regression still open before it
+    (before,) = api.get("/revisions/r6/verdict").json()["open_before"]
+    assert before["changed_back"] == said
+    assert said in api.client.get("/components/builder/revisions/r6").text
+    # and of one before the change back, nothing yet
+    (before,) = api.get("/revisions/r4/verdict").json()["open_before"]
+    assert before["changed_back"] == ""

@@ -159,7 +159,9 @@ def _open_before(verdict: dict[str, Any], server: str) -> str:
     ]
     lines += [
         f"  #{r['id']} {r['confirmation']}, triage {r['state']}: after {r['good_revision']}, "
-        f"shows at {r['bad_revision']}: {r['largest']}  {server}{r['page']}"
+        f"shows at {r['bad_revision']}: {r['largest']}"
+        + (f"; {r['changed_back']}" if r.get("changed_back") else "")
+        + f"  {server}{r['page']}"
         for r in found
     ]
     if total > len(found):

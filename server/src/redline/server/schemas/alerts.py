@@ -207,6 +207,12 @@ class OpenRegression(BaseModel):
     confirmation: Literal["suspected", "confirmed"]
     state: str = Field(description="its triage state: new, acknowledged or confirmed")
     largest: str = Field(description="its largest change, in words")
+    changed_back: str = Field(
+        default="",
+        description="where a revision since, up to this one, was flagged changing one of its "
+        "series the other way (a revert, a fix), in words; empty otherwise: triage it fixed "
+        "once the change back holds",
+    )
     page: str
 
 

@@ -91,6 +91,11 @@ class RegressionDetail(RegressionOut):
         "change may be theirs",
     )
     between_count: int = Field(default=0, description="how many such revisions there are in all")
+    changed_back: str = Field(
+        default="",
+        description="where a revision since its change was flagged changing one of its series "
+        "the other way (a revert, a fix), the newest, in words; empty otherwise",
+    )
 
 
 class TriageRequest(RequestBody):

@@ -34,6 +34,7 @@ def open_before_text(verdict: CiVerdict) -> str:
     lines = [
         f"regression #{r.id} still open before this revision ({r.confirmation}, triage: "
         f"{r.state}; after {r.good_revision}, shows at {r.bad_revision}): {r.largest}"
+        + (f"; {r.changed_back}" if r.changed_back else "")
         for r in verdict.open_before
     ]
     more = verdict.open_before_total - len(verdict.open_before)

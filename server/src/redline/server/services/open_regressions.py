@@ -25,7 +25,7 @@ from redline.server.schemas.alerts import OpenRegression
 from redline.server.schemas.regressions import RegressionOut
 from sqlalchemy import ColumnElement, func, literal, select, true, tuple_
 from sqlalchemy.dialects.postgresql import distinct_on
-from sqlalchemy.orm import Session, selectinload
+from sqlalchemy.orm import Session, aliased, selectinload
 
 #: open regressions a verdict names at most (it counts them all)
 NAMED = 3
@@ -101,6 +101,7 @@ def open_before(session: Session, revision: Revision) -> tuple[list[OpenRegressi
         .limit(NAMED)
     ).all()
     largest = largest_changes(session, revision.component_id, [r.id for r in found])
+    back = changed_back(session, revision, [r.id for r in found])
     return [
         OpenRegression(
             id=regression.id,
@@ -109,10 +110,49 @@ def open_before(session: Session, revision: Revision) -> tuple[list[OpenRegressi
             confirmation=regression.confirmation,
             state=regression.state.value,
             largest=largest.get(regression.id, ""),
+            changed_back=back.get(regression.id, ""),
             page=f"/regressions/{regression.id}",
         )
         for regression in found
     ], total
+
+
+def changed_back(session: Session, revision: Revision, ids: Iterable[int]) -> dict[int, str]:
+    """Per regression of ``ids``, the newest revision after its change, up to ``revision``, at
+    which a series it holds was flagged changing the other way (a revert, a fix), in words
+    ("changed back at c12: plan/steady: planner cpu_refs_per_op [size=60] -28.5 %"). A sixth
+    trial's revert passed as an improvement while its regression stayed open, and every later
+    commit's CI job was told of it with no word that one since had undone it."""
+    ours, back = aliased(Detection), aliased(Detection)
+    bad, at = aliased(Revision), aliased(Revision)
+    rows = session.execute(
+        select(ours.regression_id, back.effect, Series.case, Series.phase)
+        .add_columns(Series.process, Series.counter, Series.params, at.title)
+        .join(Regression, Regression.id == ours.regression_id)
+        .join(bad, bad.id == Regression.bad_revision_id)
+        .join(back, (back.series_id == ours.series_id) & (back.method == ours.method))
+        .join(at, at.id == back.revision_id)
+        .join(Series, Series.id == back.series_id)
+        .where(
+            ours.regression_id.in_(list(ids)),
+            ours.flagged.is_(True),
+            ours.confirmation.is_distinct_from(DROPPED),
+            back.flagged.is_(True),
+            back.direction.in_(("increase", "decrease")),
+            back.direction != ours.direction,
+            tuple_(at.order_key, at.id) > tuple_(bad.order_key, bad.id),
+            tuple_(at.order_key, at.id)
+            <= tuple_(literal(revision.order_key, at.order_key.type), literal(revision.id)),
+        )
+        .order_by(ours.regression_id, at.order_key.desc(), at.id.desc())
+    )
+    said: dict[int, str] = {}
+    for rid, effect, case, phase, process, counter, params, title in rows:
+        if rid is not None and rid not in said:
+            change = "" if effect is None else f" {effect * 100:+.1f} %"
+            label = series_label(case, phase, process, counter, params)
+            said[rid] = f"changed back at {title}: {label}{change}"
+    return said
 
 
 def open_in(titles: list[str], listed: Iterable[RegressionOut]) -> dict[str, list[RegressionOut]]:

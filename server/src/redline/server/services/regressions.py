@@ -30,7 +30,7 @@ from redline.server.schemas.regressions import (
 )
 from redline.server.services.components import get_component, get_revision
 from redline.server.services.errors import BadRequest, NotFound
-from redline.server.services.open_regressions import largest_changes
+from redline.server.services.open_regressions import changed_back, largest_changes
 from redline.server.services.paging import after_newest_first, decode_cursor, encode_cursor
 from redline.server.services.regression_range import revisions_between
 from redline.server.services.results import series_ref
@@ -224,6 +224,13 @@ def regression_detail(
     ]
     methods = sorted({d.method for d in flagged})
     between, count = revisions_between(session, regression)
+    newest = session.scalars(
+        select(Revision)
+        .where(Revision.component_id == regression.component_id)
+        .order_by(Revision.order_key.desc(), Revision.id.desc())
+        .limit(1)
+    ).first()
+    back = {} if newest is None else changed_back(session, newest, [regression.id])
     return RegressionDetail(
         **_out(regression, component_name, methods, len(flagged)),
         largest=largest_changes(session, regression.component_id, [regression.id]).get(
@@ -233,6 +240,7 @@ def regression_detail(
         history=history,
         between=between,
         between_count=count,
+        changed_back=back.get(regression.id, ""),
     )
 
 
