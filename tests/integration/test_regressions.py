@@ -442,3 +442,24 @@ def test_a_regression_changed_back_since_says_so_where_it_is_still_open(
     # and of one before the change back, nothing yet
     (before,) = api.get("/revisions/r4/verdict").json()["open_before"]
     assert before["changed_back"] == ""
+
+
+def test_a_change_back_that_was_relanded_or_dropped_is_not_said(api, database_url, tmp_path):
+    """A review: the newest flag of the series decides (a reland after the revert undoes the
+    change back), and a flag its confirmation dropped is noise, not a change back."""
+    history(database_url, tmp_path, [20.0, 60.0, 60.0, 60.0, 20.0, 20.0, 60.0, 60.0])
+    first = min(api.get("/regressions").json(), key=lambda r: r["id"])
+    assert (first["good_revision"], first["bad_revision"]) == ("r1", "r2")
+    assert api.get(f"/regressions/{first['id']}").json()["changed_back"] == ""  # relanded at r7
+    before = api.get("/revisions/r6/verdict").json()["open_before"]
+    assert [r["changed_back"][:20] for r in before] == ["changed back at r5: "]
+    with session_factory(database_url)() as session:  # had r5's flag been noise, dropped
+        session.execute(
+            text(
+                "UPDATE detection SET confirmation = 'dropped' FROM revision "
+                "WHERE revision.id = detection.revision_id AND revision.title = 'r5'"
+            )
+        )
+        session.commit()
+    before = api.get("/revisions/r6/verdict").json()["open_before"]
+    assert [r["changed_back"] for r in before] == [""]

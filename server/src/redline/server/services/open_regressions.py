@@ -119,7 +119,8 @@ def open_before(session: Session, revision: Revision) -> tuple[list[OpenRegressi
 
 def changed_back(session: Session, revision: Revision, ids: Iterable[int]) -> dict[int, str]:
     """Per regression of ``ids``, the newest revision after its change, up to ``revision``, at
-    which a series it holds was flagged changing the other way (a revert, a fix), in words
+    which a series it holds was flagged changing the other way (a revert, a fix; not a flag its
+    confirmation dropped, nor one followed by a flag the same way again, a reland), in words
     ("changed back at c12: plan/steady: planner cpu_refs_per_op [size=60] -28.5 %"). A sixth
     trial's revert passed as an improvement while its regression stayed open, and every later
     commit's CI job was told of it with no word that one since had undone it."""
@@ -128,6 +129,7 @@ def changed_back(session: Session, revision: Revision, ids: Iterable[int]) -> di
     rows = session.execute(
         select(ours.regression_id, back.effect, Series.case, Series.phase)
         .add_columns(Series.process, Series.counter, Series.params, at.title)
+        .add_columns(back.direction != ours.direction)
         .join(Regression, Regression.id == ours.regression_id)
         .join(bad, bad.id == Regression.bad_revision_id)
         .join(back, (back.series_id == ours.series_id) & (back.method == ours.method))
@@ -138,8 +140,9 @@ def changed_back(session: Session, revision: Revision, ids: Iterable[int]) -> di
             ours.flagged.is_(True),
             ours.confirmation.is_distinct_from(DROPPED),
             back.flagged.is_(True),
+            back.confirmation.is_distinct_from(DROPPED),  # noise, not a change back
             back.direction.in_(("increase", "decrease")),
-            back.direction != ours.direction,
+            back.regression_id.is_distinct_from(ours.regression_id),
             tuple_(at.order_key, at.id) > tuple_(bad.order_key, bad.id),
             tuple_(at.order_key, at.id)
             <= tuple_(literal(revision.order_key, at.order_key.type), literal(revision.id)),
@@ -147,8 +150,12 @@ def changed_back(session: Session, revision: Revision, ids: Iterable[int]) -> di
         .order_by(ours.regression_id, at.order_key.desc(), at.id.desc())
     )
     said: dict[int, str] = {}
-    for rid, effect, case, phase, process, counter, params, title in rows:
-        if rid is not None and rid not in said:
+    seen: set[int] = set()
+    for rid, effect, case, phase, process, counter, params, title, other_way in rows:
+        if rid is None or rid in seen:
+            continue
+        seen.add(rid)  # the newest flag decides: one the same way since (a reland) undoes it
+        if other_way:
             change = "" if effect is None else f" {effect * 100:+.1f} %"
             label = series_label(case, phase, process, counter, params)
             said[rid] = f"changed back at {title}: {label}{change}"
