@@ -185,7 +185,6 @@ def run_again(
     as they do for any series the pairs leave undecided), what the pairs said stands."""
     if not left:
         return
-    count = len({job.pair for job in jobs})  # as many as were first queued
     if held:
         # a bench_verdicts leak: its memory confirmed by both pairs, one rate of context
         # switches left undecided by a busy spell ran the suite twice more, for nothing the
@@ -197,6 +196,7 @@ def run_again(
                 f"are not run again: they confirmed {held} other change(s) of this revision"
             )
         return
+    count = len({job.pair for job in jobs})  # as many as were first queued
     start = _queue_again(session, revision, baseline, jobs, [d for d, _ in left], count)
     queued = (
         ""

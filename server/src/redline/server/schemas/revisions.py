@@ -95,6 +95,7 @@ class RevisionOut(BaseModel):
     repo: str
     branch: str = ""
     message: str = Field(default="", description="its commit message, as CI reported it")
+    subject: str = Field(default="", description="the message's first line")
     committed_at: datetime | None = None
     state: str = Field(description="derived from the revision's jobs and its analysis")
     created: datetime

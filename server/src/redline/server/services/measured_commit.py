@@ -52,8 +52,8 @@ def pin_measured(session: Session, revision: Revision, run: Mapping[str, str]) -
     measured the revision's pinned commit (or recorded none), else why it is refused (a run
     uploaded at the same time pinned another: the branch moved between the two)."""
     measured = run.get("commit_sha", "").lower()
-    if not measured:
-        return ""
+    if not measured or revision.measured_commit:
+        return ""  # none recorded, or pinned already (`commit_mismatch` compared it)
     session.execute(
         update(Revision)
         .where(Revision.id == revision.id, Revision.measured_commit == "")

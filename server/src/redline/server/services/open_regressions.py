@@ -117,8 +117,9 @@ def open_before(session: Session, revision: Revision) -> tuple[list[OpenRegressi
     ], total
 
 
-def changed_back(session: Session, revision: Revision, ids: Iterable[int]) -> dict[int, str]:
-    """Per regression of ``ids``, the newest revision after its change, up to ``revision``, at
+def changed_back(session: Session, revision: Revision | None, ids: Iterable[int]) -> dict[int, str]:
+    """Per regression of ``ids``, the newest revision after its change, up to ``revision`` (the
+    newest revision: None), at
     which a series it holds was flagged changing the other way (a revert, a fix; not a flag its
     confirmation dropped, nor one followed by a flag the same way again, a reland), in words
     ("changed back at c12: plan/steady: planner cpu_refs_per_op [size=60] -28.5 %"). A sixth
@@ -126,6 +127,12 @@ def changed_back(session: Session, revision: Revision, ids: Iterable[int]) -> di
     commit's CI job was told of it with no word that one since had undone it."""
     ours, back = aliased(Detection), aliased(Detection)
     bad, at = aliased(Revision), aliased(Revision)
+    up_to = (
+        true()
+        if revision is None
+        else tuple_(at.order_key, at.id)
+        <= tuple_(literal(revision.order_key, at.order_key.type), literal(revision.id))
+    )
     rows = session.execute(
         select(ours.regression_id, back.effect, Series.case, Series.phase)
         .add_columns(Series.process, Series.counter, Series.params, at.title)
@@ -144,8 +151,7 @@ def changed_back(session: Session, revision: Revision, ids: Iterable[int]) -> di
             back.direction.in_(("increase", "decrease")),
             back.regression_id.is_distinct_from(ours.regression_id),
             tuple_(at.order_key, at.id) > tuple_(bad.order_key, bad.id),
-            tuple_(at.order_key, at.id)
-            <= tuple_(literal(revision.order_key, at.order_key.type), literal(revision.id)),
+            up_to,
         )
         .order_by(ours.regression_id, at.order_key.desc(), at.id.desc())
     )

@@ -224,13 +224,7 @@ def regression_detail(
     ]
     methods = sorted({d.method for d in flagged})
     between, count = revisions_between(session, regression)
-    newest = session.scalars(
-        select(Revision)
-        .where(Revision.component_id == regression.component_id)
-        .order_by(Revision.order_key.desc(), Revision.id.desc())
-        .limit(1)
-    ).first()
-    back = {} if newest is None else changed_back(session, newest, [regression.id])
+    back = changed_back(session, None, [regression.id])  # up to the newest revision
     return RegressionDetail(
         **_out(regression, component_name, methods, len(flagged)),
         largest=largest_changes(session, regression.component_id, [regression.id]).get(

@@ -151,6 +151,7 @@ def _revision_out(revision: Revision) -> dict:
         repo=revision.repo,
         branch=revision.branch,
         message=revision.message,
+        subject=revision.subject,
         committed_at=revision.committed_at,
         created=revision.created,
         analyzed_at=revision.analyzed_at,
