@@ -19,6 +19,9 @@ for the same traffic by 12 % of a core, beyond its threshold of 10 (a fresh-clon
 (+17.4 against 10.66, 2026-12-06). The watcher now leaves out the CPU of a step the host was busy
 in with other work, and the clean minute has a neighbour spin a core for `NEIGHBOUR_S`: those
 steps must be told busy, and raise nothing.
+
+The watcher reports its alarms to a live server, as a robot's does, with an agent token it takes
+from its environment (never from its command line, which any user of the robot can read).
 """
 
 from __future__ import annotations
@@ -31,6 +34,8 @@ import time
 
 import pytest
 
+from tests.support.api import api_with
+from tests.support.servers import live_server
 from tests.support.watching import live_objectbuilder, train, watch
 
 pytestmark = [pytest.mark.serial, pytest.mark.slow]
@@ -59,13 +64,21 @@ def _lines(watcher: subprocess.Popen[str], into: list[dict]) -> None:
 
 
 @pytest.fixture(scope="module")
-def watched(tmp_path_factory: pytest.TempPathFactory) -> dict:
-    """The run the tests judge: an objectbuilder watched for a clean minute, then faulted."""
+def watched(services, tmp_path_factory: pytest.TempPathFactory) -> dict:
+    """The run the tests judge: an objectbuilder watched for a clean minute, then faulted, its
+    alarms reported to a live server; and what the server then lists."""
     tmp_path = tmp_path_factory.mktemp("watch")
     model = train(tmp_path)
-    with live_objectbuilder(tmp_path, seed=1) as builder:
+    with (
+        api_with(services, tmp_path) as api,
+        live_server(api.settings) as url,
+        live_objectbuilder(tmp_path, seed=1) as builder,
+    ):
+        api.component("objectbuilder")
+        token = api.tokens["agent"]["Authorization"].removeprefix("Bearer ")
         lines: list[dict] = []
-        watcher = watch(model, builder, CLEAN_S + FAULTS_S)
+        server = ("--server", url, "--component", "objectbuilder")
+        watcher = watch(model, builder, CLEAN_S + FAULTS_S, server, {"REDLINE_TOKEN": token})
         reader = threading.Thread(target=_lines, args=(watcher, lines), daemon=True)
         reader.start()
         try:
@@ -79,7 +92,15 @@ def watched(tmp_path_factory: pytest.TempPathFactory) -> dict:
             watcher.wait(timeout=20)
             reader.join(timeout=5)
         errors = watcher.stderr.read() if watcher.stderr else ""
-    return {"quiet": quiet, "detected": detected, "errors": errors, "neighbour": spinning}
+        reported = api.client.get("/api/v1/components/objectbuilder/runtime-alerts").json()
+    return {
+        "quiet": quiet,
+        "detected": detected,
+        "errors": errors,
+        "neighbour": spinning,
+        "reported": reported,
+        "token": token,
+    }
 
 
 @pytest.mark.timeout(CLEAN_S + FAULTS_S + 180)
@@ -119,6 +140,16 @@ def test_a_neighbour_spinning_a_core_is_told_and_leaves_the_cpu_unjudged(watched
         (line["host"], line["other_cpu_percent"]) for line in watched["quiet"] if "host" in line
     ]
     assert "busy" in [said for said, _ in told], told
+
+
+def test_the_server_lists_each_alarm_reported_with_the_token_from_the_environment(watched):
+    began = {alert["target"] for alert in watched["reported"] if alert["started"]}
+    for fault, (_, alarm, _) in watched["detected"].items():
+        assert alarm["target"] in began, f"{fault}: {alarm} not in {watched['reported']}"
+    # the busy thread's CPU alarm ended before the leak: its end is reported too
+    assert any(not a["started"] and a["target"] == "cpu_percent" for a in watched["reported"])
+    assert "could not report" not in watched["errors"], watched["errors"]
+    assert watched["token"] not in watched["errors"]
 
 
 def _inject_each(lines: list[dict], builder) -> dict[str, tuple[float | None, dict | None, list]]:
