@@ -8,6 +8,7 @@ import logging
 import re
 import socket
 import threading
+import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from urllib.parse import quote
@@ -718,11 +719,35 @@ def test_a_body_without_a_good_token_is_refused_before_it_is_read(
     assert _post_raw(api, path, b'{"x": 1}').status_code == 422
 
 
-def test_an_admin_corrects_a_revision_sort_key_a_ci_token_gave_far_in_the_future(api: Api):
+def test_a_sort_key_read_as_a_time_more_than_a_year_ahead_is_refused_naming_it(api: Api):
     """A trial's ci token gave a revision the time 4102444800 (2100) as its sort key: it sorted
-    above every revision reported after it, and with results stored it could not be deleted
-    (409) nor changed (405). An admin corrects the key; a ci token cannot."""
-    for title, key in (("future", "4102444800"), ("later", "1764900000")):
+    above every revision reported after it, and the overview showed it, failed (its commit
+    could not be checked out), as the newest for good. Refused now, by report, by import and by
+    an admin's correction; a build number, a key within the year and a date-like key are not."""
+    far = "4102444800"
+    body = {"component": "builder", "title": "future", "sort_key": far, "commit": "abc1234"}
+    refused = api.post("/api/v1/revisions", "ci", body)
+    assert refused.status_code == 422, refused.text
+    assert "2100-01-01" in refused.text and "sort_key" in refused.text, refused.text
+    assert api.client.get("/api/v1/components/builder/revisions").json() == []
+    soon = str(int(time.time()) + 200 * 24 * 3600)  # a skewed clock: within the year
+    for title, key in (("build", "12345"), ("soon", soon), ("dated", "20261207120000")):
+        fields = {"title": title, "sort_key": key, "commit": commit_of(title)}
+        made = api.post("/api/v1/revisions", "ci", {**body, **fields})
+        assert made.status_code == 201, made.text
+    imported = api.post("/api/v1/import/results", "ci", {**_results("r9"), "sort_key": far})
+    assert imported.status_code == 422 and "2100-01-01" in imported.text, imported.text
+    path = "/api/v1/components/builder/revisions/soon"
+    patched = api.client.patch(path, json={"sort_key": far}, headers=api.tokens["admin"])
+    assert patched.status_code == 422 and "2100-01-01" in patched.text, patched.text
+
+
+def test_an_admin_corrects_a_revision_sort_key_a_ci_token_gave_ahead_of_time(api: Api):
+    """A ci token gave a revision a time months ahead (a skewed clock) as its sort key: it
+    sorted above every revision reported after it, and with results stored it could not be
+    deleted (409) nor changed (405). An admin corrects the key; a ci token cannot."""
+    ahead = str(int(time.time()) + 300 * 24 * 3600)
+    for title, key in (("future", ahead), ("later", "1764900000")):
         body = {"component": "builder", "title": title, "sort_key": key, "commit": commit_of(title)}
         assert api.post("/api/v1/revisions", "ci", body).status_code == 201
 
@@ -773,7 +798,7 @@ def test_a_corrected_sort_key_whose_reanalysis_cannot_be_queued_is_503_saying_wh
     listens on) cannot take the task: the answer says so, and how to send it again."""
     with api_with(services, tmp_path, redis_url="redis://127.0.0.1:9/0") as api:
         api.component()
-        body = {"component": "builder", "title": "future", "sort_key": "4102444800"}
+        body = {"component": "builder", "title": "future", "sort_key": "1790000000"}
         assert api.post("/api/v1/revisions", "ci", {**body, "commit": "abc1234"}).status_code == 201
         answer = api.client.patch(
             "/api/v1/components/builder/revisions/future",

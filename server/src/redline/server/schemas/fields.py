@@ -191,12 +191,33 @@ def whole_number_as_text(value: object) -> object:
     return value
 
 
+#: a sort key of 10 or 11 digits reads as a Unix time in seconds (2001 to 5138): what `redline
+#: ci report` sends by default; no build number comes near a billion
+_UNIX_TIME = re.compile(r"[1-9][0-9]{9,10}")
+
+
+def not_far_ahead(value: str) -> str:
+    """``value`` unless it reads as a Unix time (`_UNIX_TIME`) more than a year from now: a
+    trial's ci token reported a commit at 4102444800 (2100), which sorted above every revision
+    reported after it, so the overview showed it, failed, as the newest for good."""
+    if _UNIX_TIME.fullmatch(value):
+        latest = datetime.now(UTC) + FUTURE_SLACK
+        if int(value) > latest.timestamp():
+            when = datetime.fromtimestamp(int(value), UTC)
+            raise ValueError(
+                f"{value} reads as a Unix time, {when:%Y-%m-%d}, more than a year from now: it "
+                "would sort above every revision reported after it (give the commit's time)"
+            )
+    return value
+
+
 #: what orders a component's revisions: text, or a whole number taken as its text
 SortKey = Annotated[
     str,
     Field(min_length=1, max_length=200),  # before the validator: "200 characters", not "items"
     BeforeValidator(whole_number_as_text),
     AfterValidator(one_line),
+    AfterValidator(not_far_ahead),
 ]
 
 
