@@ -731,7 +731,10 @@ def test_a_sort_key_read_as_a_time_more_than_a_year_ahead_is_refused_naming_it(a
     assert "2100-01-01" in refused.text and "sort_key" in refused.text, refused.text
     assert api.client.get("/api/v1/components/builder/revisions").json() == []
     soon = str(int(time.time()) + 200 * 24 * 3600)  # a skewed clock: within the year
-    for title, key in (("build", "12345"), ("soon", soon), ("dated", "20261207120000")):
+    taken = [("build", "12345"), ("soon", soon), ("dated", "20261207120000")]
+    # dates and hours of ten digits, which read as Unix times years ahead too
+    taken += [("hourly", "2026120712"), ("minutely", "2612071230")]
+    for title, key in taken:
         fields = {"title": title, "sort_key": key, "commit": commit_of(title)}
         made = api.post("/api/v1/revisions", "ci", {**body, **fields})
         assert made.status_code == 201, made.text

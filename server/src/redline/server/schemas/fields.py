@@ -194,13 +194,27 @@ def whole_number_as_text(value: object) -> object:
 #: a sort key of 10 or 11 digits reads as a Unix time in seconds (2001 to 5138): what `redline
 #: ci report` sends by default; no build number comes near a billion
 _UNIX_TIME = re.compile(r"[1-9][0-9]{9,10}")
+#: a key of 10 digits that is a date and hour, or a date, hour and minute of a two-digit year,
+#: as some CI systems stamp builds: a key in the order of time, not a Unix time
+_DATED = ("%Y%m%d%H", "%y%m%d%H%M")
+
+
+def _dated(value: str) -> bool:
+    for layout in _DATED:
+        try:
+            datetime.strptime(value, layout)
+        except ValueError:
+            continue
+        return True
+    return False
 
 
 def not_far_ahead(value: str) -> str:
-    """``value`` unless it reads as a Unix time (`_UNIX_TIME`) more than a year from now: a
-    trial's ci token reported a commit at 4102444800 (2100), which sorted above every revision
-    reported after it, so the overview showed it, failed, as the newest for good."""
-    if _UNIX_TIME.fullmatch(value):
+    """``value`` unless it reads as a Unix time (`_UNIX_TIME`), not as a date (`_DATED`), more
+    than a year from now: a trial's ci token reported a commit at 4102444800 (2100), which
+    sorted above every revision reported after it, so the overview showed it, failed, as the
+    newest for good."""
+    if _UNIX_TIME.fullmatch(value) and not _dated(value):
         latest = datetime.now(UTC) + FUTURE_SLACK
         if int(value) > latest.timestamp():
             when = datetime.fromtimestamp(int(value), UTC)
