@@ -123,6 +123,8 @@ LNT = {"format_version": "2", "machine": {"name": "m1"}, "run": {"llvm_project_r
         ("machine.name", {"machine": {"name": float("nan")}}),
         ("run field 'llvm_project_revision'", {"run": {"llvm_project_revision": float("nan")}}),
         ("run field 'llvm_project_revision'", {"run": {"llvm_project_revision": [1]}}),
+        # an order read as a Unix time in 2100: it would sort above every later run
+        ("run field 'llvm_project_revision'", {"run": {"llvm_project_revision": 4102444800}}),
     ],
 )
 def test_an_lnt_report_with_unseen_characters_is_refused_naming_where(where, report):

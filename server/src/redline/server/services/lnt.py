@@ -23,6 +23,7 @@ from redline.server.schemas.fields import (
     git_commit,
     host_name,
     measurable,
+    not_far_ahead,
     one_line,
     path_segment,
 )
@@ -169,7 +170,8 @@ def parse_lnt(body: bytes, component: str, order_field: str = ORDER_FIELD) -> Im
         # a NaN read as "no order field" sent its author looking for a missing one
         said = f"must be text or a whole number, not {order!r}"[:120]
         raise BadRequest(f"LNT report: run field {order_field!r} {said}")
-    title = _checked(f"run field {order_field!r}", str(order), lambda text: text)
+    # an order that reads as a Unix time years ahead sorts above every later run (`SortKey`)
+    title = _checked(f"run field {order_field!r}", str(order), not_far_ahead)
     try:
         path_segment(title)
     except ValueError as exc:  # the revision's title must be addressable in the API's URLs
