@@ -48,21 +48,18 @@ def _history(
 ) -> Host:
     """r1-r15 measured on perf-1 with pairs on, one execution each (an import's when not
     ``leased``), the levels above in ``unit`` of ``counter``; r12 made the change."""
+    host = _component_on_a_host(session)
+    levels = [x * unit for x in BEFORE + AFTER]
+    _measure(session, database_url, tmp_path, host, levels, 1, leased=leased, counter=counter)
+    return host
+
+
+def _component_on_a_host(session) -> Host:
+    """The component, one execution a revision with pairs on, and its host perf-1."""
     component = create_component(session, ComponentCreate(name=NAME, executions=1))
     session.add(DetectionConfigRow(component_id=component.id, config={"confirm_pairs": 2}))
     session.commit()
-    host = register_host(session, RegisterRequest(name="perf-1"))
-    _measure(
-        session,
-        database_url,
-        tmp_path,
-        host,
-        [x * unit for x in BEFORE + AFTER],
-        1,
-        leased,
-        counter,
-    )
-    return host
+    return register_host(session, RegisterRequest(name="perf-1"))
 
 
 def _measure(
@@ -173,10 +170,7 @@ def test_imported_results_keep_their_verdicts_no_pair_could_confirm_a_held_level
 def _spike_dropped(session, database_url, tmp_path) -> Host:
     """r1-r11 around 20 % CPU, r12's one run at 30 % (a busy host's): flagged, and its pairs,
     r11 and r12 alike at 20, drop it."""
-    component = create_component(session, ComponentCreate(name=NAME, executions=1))
-    session.add(DetectionConfigRow(component_id=component.id, config={"confirm_pairs": 2}))
-    session.commit()
-    host = register_host(session, RegisterRequest(name="perf-1"))
+    host = _component_on_a_host(session)
     _measure(session, database_url, tmp_path, host, [*BEFORE, 30.0], 1)
     assert _detection(session, "r12").flagged
     while (job := lease_job(session, "perf-1", 60, 3)) is not None:

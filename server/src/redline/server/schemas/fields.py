@@ -215,13 +215,14 @@ def not_far_ahead(value: str) -> str:
     sorted above every revision reported after it, so the overview showed it, failed, as the
     newest for good."""
     if _UNIX_TIME.fullmatch(value) and not _dated(value):
-        latest = datetime.now(UTC) + FUTURE_SLACK
-        if int(value) > latest.timestamp():
-            when = datetime.fromtimestamp(int(value), UTC)
+        when = datetime.fromtimestamp(int(value), UTC)
+        try:
+            commit_time(when)  # the bounds of a commit's time
+        except ValueError:
             raise ValueError(
                 f"{value} reads as a Unix time, {when:%Y-%m-%d}, more than a year from now: it "
                 "would sort above every revision reported after it (give the commit's time)"
-            )
+            ) from None
     return value
 
 
